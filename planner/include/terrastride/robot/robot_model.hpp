@@ -1,0 +1,80 @@
+// Robot description shared by the planner, the force-polytope fit and the post-hoc checks.
+// Robots are data (data/robots/*.yaml): nothing here is specific to HyQ.
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace terrastride::robot {
+
+// Thrown for unreadable or invalid robot files; the message names the file and the field.
+class RobotFileError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// A rigid link of a leg: mass, centre of mass and inertia about that centre, both expressed in the
+// frame of the joint that moves the link (at the joint, before the next joint's offset).
+struct LinkInertia {
+  double mass = 0.0;
+  Eigen::Vector3d com = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d inertia = Eigen::Matrix3d::Zero();
+};
+
+enum class Joint { HAA = 0, HFE = 1, KFE = 2 };
+
+// One 3-DoF HAA-HFE-KFE leg.  Geometry follows DESIGN.md:
+//   v0 = (-L1 sin qH - L2 sin(qH+qK), 0, -L0 - L1 cos qH - L2 cos(qH+qK)),
+//   foot = p_HAA + Rx(-side * qA) v0,
+// side = +1 for a left leg, -1 for a right leg; knee_sign = -1 for a knee bending backward
+// (HyQ front legs, qK < 0), +1 for a knee bending forward (HyQ hind legs, qK > 0).
+struct LegModel {
+  std::string name;
+  Eigen::Vector3d haa_origin = Eigen::Vector3d::Zero();  // base frame
+  double l0 = 0.0, l1 = 0.0, l2 = 0.0;
+  int side = +1;
+  int knee_sign = -1;
+  Eigen::Vector3d q_min = Eigen::Vector3d::Zero();  // rad, HAA HFE KFE
+  Eigen::Vector3d q_max = Eigen::Vector3d::Zero();
+  Eigen::Vector3d torque_limit = Eigen::Vector3d::Zero();  // N m
+  std::array<LinkInertia, 3> links;                       // hip, upper leg, lower leg
+  Eigen::Vector3d nominal_foot = Eigen::Vector3d::Zero();  // base frame
+  Eigen::Vector3d range_of_motion = Eigen::Vector3d::Zero();  // half-size of the box b
+  double shin_length = 0.0;  // s: distance foot contact point -> knee used by the shin model
+  double shin_angle = 0.0;   // beta (rad), angle of the shin to the ground in the planner's model
+  double shin_radius = 0.0;  // capsule radius of the lower leg for the post-hoc check
+  double thigh_radius = 0.0; // capsule radius of the upper leg for the post-hoc check
+  bool is_front = true;      // front legs have knee_sign -1 on HyQ; kept for reporting only
+};
+
+// A robot: the single rigid body of the SRBD model and its legs.
+struct RobotModel {
+  std::string name;
+  std::string source_file;
+  double mass = 0.0;                                  // total mass used by the SRBD model
+  Eigen::Matrix3d inertia = Eigen::Matrix3d::Zero();  // base frame, about the CoM
+  double foot_radius = 0.0;
+  double nominal_base_height = 0.0;  // height of the base above flat ground in the nominal stance
+  // Degrees of freedom of the base that the planner may move: all six for a free-floating robot,
+  // only z for the monoped on its vertical slider.
+  std::array<bool, 6> base_dof_free{{true, true, true, true, true, true}};  // x y z yaw pitch roll
+  std::vector<LegModel> legs;
+
+  const LegModel& leg(const std::string& leg_name) const;
+  int leg_index(const std::string& leg_name) const;  // -1 when absent
+};
+
+// Loads and validates a robot file. Every field is checked; errors name the file and the field.
+RobotModel load_robot(const std::string& path);
+
+// Finds data/robots/<name>.yaml: TERRASTRIDE_DATA_DIR if set, otherwise the data folder of the
+// source tree the binary was built from. `name_or_path` may also be a path to a .yaml file.
+std::string resolve_robot_path(const std::string& name_or_path);
+
+// The shipped data folder (see resolve_robot_path).
+std::string data_dir();
+
+}  // namespace terrastride::robot

@@ -1,0 +1,239 @@
+#include "terrastride/robot/robot_model.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <Eigen/Eigenvalues>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <sstream>
+
+#ifndef TERRASTRIDE_SOURCE_DATA_DIR
+#define TERRASTRIDE_SOURCE_DATA_DIR "data"
+#endif
+
+namespace terrastride::robot {
+namespace {
+
+constexpr double kDegToRad = M_PI / 180.0;
+
+// Reads fields of one YAML mapping and reports errors as "<file>: <field.path>: problem".
+class FieldReader {
+ public:
+  FieldReader(const std::string& file, const YAML::Node& node, std::string path)
+      : file_(file), node_(node), path_(std::move(path)) {}
+
+  [[noreturn]] void fail(const std::string& field, const std::string& problem) const {
+    throw RobotFileError(file_ + ": field '" + join(field) + "': " + problem);
+  }
+
+  YAML::Node child(const std::string& field) const {
+    if (!node_.IsMap()) throw RobotFileError(file_ + ": '" + path_ + "' must be a mapping");
+    YAML::Node c = node_[field];
+    if (!c) fail(field, "missing");
+    return c;
+  }
+  FieldReader sub(const std::string& field) const {
+    YAML::Node c = child(field);
+    if (!c.IsMap()) fail(field, "must be a mapping");
+    return FieldReader(file_, c, join(field));
+  }
+  bool has(const std::string& field) const { return node_.IsMap() && node_[field]; }
+
+  double number(const std::string& field) const { return as_number(child(field), field); }
+  double positive(const std::string& field) const {
+    const double v = number(field);
+    if (!(v > 0)) fail(field, "must be > 0 (got " + std::to_string(v) + ")");
+    return v;
+  }
+  double non_negative(const std::string& field) const {
+    const double v = number(field);
+    if (!(v >= 0)) fail(field, "must be >= 0 (got " + std::to_string(v) + ")");
+    return v;
+  }
+  std::string text(const std::string& field) const {
+    YAML::Node c = child(field);
+    if (!c.IsScalar()) fail(field, "must be a string");
+    return c.as<std::string>();
+  }
+  Eigen::Vector3d vec3(const std::string& field) const {
+    YAML::Node c = child(field);
+    if (!c.IsSequence() || c.size() != 3) fail(field, "must be a list of 3 numbers");
+    Eigen::Vector3d v;
+    for (int i = 0; i < 3; ++i) v[i] = as_number(c[i], field + "[" + std::to_string(i) + "]");
+    return v;
+  }
+  // [min, max] in degrees, returned in radians.
+  std::pair<double, double> range_deg(const std::string& field) const {
+    YAML::Node c = child(field);
+    if (!c.IsSequence() || c.size() != 2) fail(field, "must be [min, max] in degrees");
+    const double lo = as_number(c[0], field + "[0]"), hi = as_number(c[1], field + "[1]");
+    if (!(lo < hi)) fail(field, "min must be below max");
+    return {lo * kDegToRad, hi * kDegToRad};
+  }
+  const std::string& path() const { return path_; }
+  const YAML::Node& node() const { return node_; }
+
+ private:
+  std::string join(const std::string& field) const {
+    return path_.empty() ? field : path_ + "." + field;
+  }
+  double as_number(const YAML::Node& n, const std::string& field) const {
+    if (!n.IsScalar()) fail(field, "must be a number");
+    double v = 0;
+    try {
+      v = n.as<double>();
+    } catch (const YAML::Exception&) {
+      fail(field, "must be a number (got '" + n.Scalar() + "')");
+    }
+    if (!std::isfinite(v)) fail(field, "must be finite");
+    return v;
+  }
+
+  std::string file_;
+  YAML::Node node_;
+  std::string path_;
+};
+
+Eigen::Matrix3d read_inertia(const FieldReader& r) {
+  Eigen::Matrix3d inertia;
+  const double ixx = r.positive("xx"), iyy = r.positive("yy"), izz = r.positive("zz");
+  const double ixy = r.number("xy"), ixz = r.number("xz"), iyz = r.number("yz");
+  inertia << ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz;
+  // A physical inertia is positive definite and satisfies the triangle inequalities.
+  if (Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(inertia).eigenvalues().minCoeff() <= 0)
+    r.fail("", "inertia matrix is not positive definite");
+  return inertia;
+}
+
+LinkInertia read_link(const FieldReader& r) {
+  LinkInertia link;
+  link.mass = r.positive("mass");
+  link.com = r.vec3("com");
+  link.inertia = read_inertia(r.sub("inertia"));
+  return link;
+}
+
+}  // namespace
+
+const LegModel& RobotModel::leg(const std::string& leg_name) const {
+  const int i = leg_index(leg_name);
+  if (i < 0) throw std::out_of_range("robot " + name + " has no leg '" + leg_name + "'");
+  return legs[i];
+}
+
+int RobotModel::leg_index(const std::string& leg_name) const {
+  for (size_t i = 0; i < legs.size(); ++i)
+    if (legs[i].name == leg_name) return static_cast<int>(i);
+  return -1;
+}
+
+RobotModel load_robot(const std::string& path) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw RobotFileError(path + ": cannot open robot file");
+  } catch (const YAML::Exception& e) {
+    throw RobotFileError(path + ": not valid YAML: " + e.what());
+  }
+  if (!root.IsMap()) throw RobotFileError(path + ": robot file must be a YAML mapping");
+  const FieldReader top(path, root, "");
+
+  RobotModel robot;
+  robot.source_file = path;
+  robot.name = top.text("name");
+  const FieldReader body = top.sub("body");
+  robot.mass = body.positive("mass");
+  robot.inertia = read_inertia(body.sub("inertia"));
+  robot.nominal_base_height = top.positive("nominal_base_height");
+  robot.foot_radius = top.non_negative("foot_radius");
+  if (top.has("base_dof_free")) {
+    YAML::Node dofs = top.child("base_dof_free");
+    static const char* kNames[6] = {"x", "y", "z", "yaw", "pitch", "roll"};
+    if (!dofs.IsMap()) top.fail("base_dof_free", "must map x/y/z/yaw/pitch/roll to true/false");
+    const FieldReader dr(path, dofs, "base_dof_free");
+    for (int i = 0; i < 6; ++i) {
+      YAML::Node d = dr.child(kNames[i]);
+      try {
+        robot.base_dof_free[i] = d.as<bool>();
+      } catch (const YAML::Exception&) {
+        dr.fail(kNames[i], "must be true or false");
+      }
+    }
+  }
+
+  // Shared leg description; each leg may override any of these keys.
+  const FieldReader legs_node = top.sub("leg_model");
+  YAML::Node list = top.child("legs");
+  if (!list.IsSequence() || list.size() == 0) top.fail("legs", "must be a non-empty list");
+  for (size_t k = 0; k < list.size(); ++k) {
+    // Merge: leg-specific keys on top of leg_model.
+    YAML::Node merged = YAML::Clone(legs_node.node());
+    if (!list[k].IsMap()) top.fail("legs[" + std::to_string(k) + "]", "must be a mapping");
+    for (const auto& kv : list[k]) merged[kv.first.as<std::string>()] = kv.second;
+    const FieldReader r(path, merged, "legs[" + std::to_string(k) + "]");
+
+    LegModel leg;
+    leg.name = r.text("name");
+    if (robot.leg_index(leg.name) >= 0) r.fail("name", "duplicate leg name '" + leg.name + "'");
+    leg.haa_origin = r.vec3("haa_origin");
+    leg.l0 = r.non_negative("l0");
+    leg.l1 = r.positive("l1");
+    leg.l2 = r.positive("l2");
+    const std::string side = r.text("side");
+    if (side == "left") leg.side = +1;
+    else if (side == "right") leg.side = -1;
+    else r.fail("side", "must be 'left' or 'right' (got '" + side + "')");
+    const std::string knee = r.text("knee");
+    if (knee == "backward") leg.knee_sign = -1;
+    else if (knee == "forward") leg.knee_sign = +1;
+    else r.fail("knee", "must be 'backward' or 'forward' (got '" + knee + "')");
+    leg.is_front = leg.haa_origin.x() >= 0;
+    const FieldReader limits = r.sub("joint_range_deg");
+    static const char* kJoints[3] = {"haa", "hfe", "kfe"};
+    for (int j = 0; j < 3; ++j) {
+      const auto [lo, hi] = limits.range_deg(kJoints[j]);
+      leg.q_min[j] = lo;
+      leg.q_max[j] = hi;
+    }
+    // The knee branch must agree with the KFE range, or IK would always fail.
+    if ((leg.knee_sign < 0 && leg.q_max[2] > 0) || (leg.knee_sign > 0 && leg.q_min[2] < 0))
+      r.fail("joint_range_deg.kfe", "range does not match knee: " + knee);
+    const FieldReader torque = r.sub("torque_limit");
+    for (int j = 0; j < 3; ++j) leg.torque_limit[j] = torque.positive(kJoints[j]);
+    const FieldReader links = r.sub("links");
+    leg.links[0] = read_link(links.sub("hip"));
+    leg.links[1] = read_link(links.sub("upper"));
+    leg.links[2] = read_link(links.sub("lower"));
+    leg.nominal_foot = r.vec3("nominal_foot");
+    leg.range_of_motion = r.vec3("range_of_motion");
+    for (int j = 0; j < 3; ++j)
+      if (!(leg.range_of_motion[j] > 0)) r.fail("range_of_motion", "half-sizes must be > 0");
+    const FieldReader shin = r.sub("shin");
+    leg.shin_length = shin.positive("length");
+    leg.shin_angle = shin.number("angle_deg") * kDegToRad;
+    leg.shin_radius = shin.positive("radius");
+    leg.thigh_radius = r.sub("thigh").positive("radius");
+    robot.legs.push_back(leg);
+  }
+  return robot;
+}
+
+std::string data_dir() {
+  if (const char* env = std::getenv("TERRASTRIDE_DATA_DIR"); env && *env) return env;
+  return TERRASTRIDE_SOURCE_DATA_DIR;
+}
+
+std::string resolve_robot_path(const std::string& name_or_path) {
+  namespace fs = std::filesystem;
+  if (name_or_path.find('/') != std::string::npos || fs::path(name_or_path).extension() == ".yaml")
+    return name_or_path;
+  const fs::path p = fs::path(data_dir()) / "robots" / (name_or_path + ".yaml");
+  if (!fs::exists(p))
+    throw RobotFileError("unknown robot '" + name_or_path + "': no file " + p.string());
+  return p.string();
+}
+
+}  // namespace terrastride::robot

@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# One idempotent set-up for a fresh Debian machine (run as root, or with sudo available):
+# installs the Debian packages terrastride needs, then configures and builds it.
+#   scripts/setup.sh              Release build in build/
+#   scripts/setup.sh --sanitize   ASan+UBSan build of the fast tests in build-asan/
+#   scripts/setup.sh --deps-only  packages only
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+mode=release
+case "${1:-}" in
+  "") ;;
+  --sanitize) mode=sanitize ;;
+  --deps-only) mode=deps ;;
+  *) echo "setup.sh: unknown option '$1' (use --sanitize or --deps-only)" >&2; exit 2 ;;
+esac
+
+packages=(
+  build-essential cmake ninja-build pkg-config ccache git
+  libeigen3-dev libpcl-dev liboctomap-dev libfcl-dev libceres-dev coinor-libipopt-dev
+  nlohmann-json3-dev libcli11-dev libasio-dev libyaml-cpp-dev
+  libgtest-dev libgmock-dev libbenchmark-dev
+  python3
+)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ "${#missing[@]}" -gt 0 ]; then
+  echo "setup.sh: installing ${#missing[@]} Debian packages: ${missing[*]}"
+  sudo_cmd=()
+  [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
+  "${sudo_cmd[@]}" apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends \
+    "${missing[@]}" >/dev/null
+fi
+[ "$mode" = deps ] && exit 0
+
+jobs=$(nproc 2>/dev/null || echo 2)
+if [ "$mode" = sanitize ]; then
+  cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRASTRIDE_SANITIZE=ON \
+    -DTERRASTRIDE_BUILD_BENCHMARKS=OFF >/dev/null
+  cmake --build build-asan -j "$jobs" --target fast_tests
+else
+  cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
+  cmake --build build -j "$jobs"
+fi

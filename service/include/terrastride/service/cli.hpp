@@ -1,0 +1,33 @@
+// The `terrastride` command line: each subcommand registers itself on a CLI11 app.
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <Eigen/Core>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace terrastride::service {
+
+// A failure the user can act on (bad input, unreachable goal, solver failure): printed as
+// "terrastride <command>: error: <message>" with exit code `exit_code`.
+class CommandError : public std::runtime_error {
+ public:
+  explicit CommandError(const std::string& message, int exit_code = 1)
+      : std::runtime_error(message), exit_code_(exit_code) {}
+  int exit_code() const { return exit_code_; }
+
+ private:
+  int exit_code_;
+};
+
+// Parses "x,y" or "x,y,z" (exactly `n` finite numbers); `what` names the option in errors.
+Eigen::VectorXd parse_numbers(const std::string& text, int n, const std::string& what);
+
+// Runs the command line; returns the process exit code. Never throws.
+int run_cli(int argc, char** argv);
+
+// Subcommand registration (one per source file in service/src/).
+void add_robot_command(CLI::App& app);
+
+}  // namespace terrastride::service
