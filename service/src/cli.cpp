@@ -6,6 +6,11 @@
 
 namespace terrastride::service {
 
+// One declaration per service/src/cmd_NAME.cpp (see service/CMakeLists.txt).
+#define TERRASTRIDE_COMMAND(name) void add_##name##_command(CLI::App& app);
+#include "terrastride_commands.inc"
+#undef TERRASTRIDE_COMMAND
+
 Eigen::VectorXd parse_numbers(const std::string& text, int n, const std::string& what) {
   std::vector<double> values;
   std::stringstream ss(text);
@@ -37,7 +42,9 @@ int run_cli(int argc, char** argv) {
   app.name("terrastride");
   app.require_subcommand(1, 1);
   app.set_version_flag("--version", "terrastride 0.1.0");
-  add_robot_command(app);
+#define TERRASTRIDE_COMMAND(name) add_##name##_command(app);
+#include "terrastride_commands.inc"
+#undef TERRASTRIDE_COMMAND
 
   // "terrastride robot fk": the chain of subcommands that ran, for error messages.
   auto command_name = [&app] {

@@ -27,7 +27,7 @@ Eigen::VectorXd parse_numbers(const std::string& text, int n, const std::string&
 // Runs the command line; returns the process exit code. Never throws.
 int run_cli(int argc, char** argv);
 
-// Subcommand registration (one per source file in service/src/).
-void add_robot_command(CLI::App& app);
+// Subcommands: each service/src/cmd_NAME.cpp defines `void add_NAME_command(CLI::App& app)`,
+// registered automatically from the file name (see service/CMakeLists.txt).
 
 }  // namespace terrastride::service

@@ -1,0 +1,54 @@
+// A planned motion sampled in time: the content of plan.json (see DESIGN.md, command line).
+// Everything in the world frame; forces are those the ground exerts on the foot.
+#pragma once
+
+#include <Eigen/Core>
+#include <map>
+#include <string>
+#include <vector>
+
+namespace terrastride::planner {
+
+struct BaseState {
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();
+  Eigen::Vector3d euler_zyx = Eigen::Vector3d::Zero();  // yaw, pitch, roll
+  Eigen::Vector3d linear_velocity = Eigen::Vector3d::Zero();
+  Eigen::Vector3d angular_velocity = Eigen::Vector3d::Zero();  // world frame
+  Eigen::Vector3d linear_acceleration = Eigen::Vector3d::Zero();
+  Eigen::Vector3d angular_acceleration = Eigen::Vector3d::Zero();
+};
+
+struct FootState {
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();
+  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();
+  Eigen::Vector3d force = Eigen::Vector3d::Zero();
+  bool contact = false;
+};
+
+struct TrajectorySample {
+  double t = 0.0;
+  BaseState base;
+  std::vector<FootState> feet;  // in the order of Trajectory::feet
+};
+
+struct SolverStats {
+  std::string status;  // optimal, infeasible, time_limit, ...
+  int iterations = 0;
+  double wall_s = 0.0;
+  int n_variables = 0;
+  int n_constraints = 0;
+};
+
+struct Trajectory {
+  std::string robot;
+  std::string gait;
+  double duration = 0.0;
+  double sample_dt = 0.01;
+  std::vector<std::string> feet;  // LF, RF, LH, RH
+  std::vector<TrajectorySample> samples;
+  SolverStats solver;
+  // Post-hoc and dense checks by name (plan.json "checks"); a check that does not apply is absent.
+  std::map<std::string, double> checks;
+};
+
+}  // namespace terrastride::planner

@@ -1,0 +1,38 @@
+// The only view of terrain the planner has: a height field z = h(x, y) with analytic derivatives
+// and a foothold-safety margin. Analytic test terrains and scanned terrains both implement it.
+#pragma once
+
+#include <Eigen/Core>
+#include <string>
+
+namespace terrastride::terrain {
+
+struct HeightSample {
+  double height = 0.0;
+  Eigen::Vector2d gradient = Eigen::Vector2d::Zero();  // (dh/dx, dh/dy)
+  Eigen::Matrix2d hessian = Eigen::Matrix2d::Zero();
+};
+
+struct MarginSample {
+  double margin = 0.0;  // metres to the nearest unsafe cell; negative inside unsafe area
+  Eigen::Vector2d gradient = Eigen::Vector2d::Zero();
+};
+
+class HeightField {
+ public:
+  virtual ~HeightField() = default;
+  // Height and its first and second derivatives at (x, y). Must be C2 for smooth fields; exact
+  // analytic scenes (sharp edges) report one-sided derivatives at discontinuities.
+  virtual HeightSample sample(double x, double y) const = 0;
+  double height(double x, double y) const { return sample(x, y).height; }
+  // Signed foothold-safety margin for a foot of radius `foot_radius` (see DESIGN.md, Terrain).
+  virtual MarginSample safety_margin(double x, double y, double foot_radius) const = 0;
+  // Whether (x, y) was observed (always true for analytic terrains).
+  virtual bool observed(double x, double y) const { return true; }
+  // Axis-aligned extent where the field is defined: min and max corners.
+  virtual Eigen::Vector2d min_corner() const = 0;
+  virtual Eigen::Vector2d max_corner() const = 0;
+  virtual std::string describe() const = 0;
+};
+
+}  // namespace terrastride::terrain
