@@ -1,0 +1,31 @@
+// Cloud cleaning with PCL filters (crop box, voxel grid, statistical outlier removal).
+#pragma once
+
+#include <Eigen/Core>
+#include <cstddef>
+#include <optional>
+
+#include "terrastride/perception/point_cloud.hpp"
+
+namespace terrastride::perception {
+
+struct CloudFilterOptions {
+  std::optional<Eigen::Vector3f> crop_min, crop_max;  // crop box (pcl::CropBox); either bound optional
+  float voxel_size = 0.0f;                             // 0 = off (pcl::VoxelGrid), else leaf size, m
+  int outlier_neighbours = 0;  // 0 = off (pcl::StatisticalOutlierRemoval meanK)
+  double outlier_stddev = 2.0;  // StatisticalOutlierRemoval stddev multiplier
+};
+
+struct FilterStats {
+  size_t points_in = 0, non_finite = 0, after_crop = 0, after_voxel = 0, after_outliers = 0;
+  double seconds = 0;
+};
+
+// Applies, in order: drop non-finite points, crop, voxel grid, statistical outlier removal. Steps
+// that are off pass the cloud through (their "after_" count equals the previous one). The sensor
+// origin and source are kept. Throws InputError on invalid options (negative voxel size, crop_min >
+// crop_max, a voxel size so small that the grid index would overflow, stddev <= 0).
+PointCloud filter_cloud(const PointCloud& cloud, const CloudFilterOptions& options,
+                        FilterStats* stats = nullptr);
+
+}  // namespace terrastride::perception
