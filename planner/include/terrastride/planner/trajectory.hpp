@@ -4,6 +4,7 @@
 
 #include <Eigen/Core>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -49,6 +50,9 @@ struct Trajectory {
   SolverStats solver;
   // Post-hoc and dense checks by name (plan.json "checks"); a check that does not apply is absent.
   std::map<std::string, double> checks;
+  // Further top-level plan.json keys (phases, terrain, constraints, detailed check series...):
+  // written and read back as they are, so tools can add keys without this struct knowing them.
+  nlohmann::json extra = nlohmann::json::object();
 };
 
 }  // namespace terrastride::planner
