@@ -1,0 +1,89 @@
+// The DESIGN.md scenarios as exact analytic terrains: axis-aligned boxes on a ground plane, placed
+// along +x ahead of a robot standing at x = 0 with its goal 1 m ahead.
+//
+// A Scene is a HeightField with sharp edges: the height is exact, its gradient and Hessian are zero
+// on every flat part (one-sided at the discontinuities), and the safety margin is exact: the set of
+// points whose foot disk of radius r touches a height discontinuity is {p : d(p, E) < r}, with E
+// the union of the edge segments, so the signed margin is d(p, E) - r. Scenes also ray-cast for the
+// scan simulator.
+#pragma once
+
+#include <Eigen/Core>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "terrastride/terrain/height_field.hpp"
+
+namespace terrastride::terrain {
+
+// A solid axis-aligned box; `lo` and `hi` are opposite corners (lo < hi componentwise).
+struct Box {
+  Eigen::Vector3d lo;
+  Eigen::Vector3d hi;
+};
+
+// A horizontal segment where the terrain height jumps (from `a` to `b` in the xy plane).
+struct EdgeSegment {
+  Eigen::Vector2d a;
+  Eigen::Vector2d b;
+  double step = 0.0;  // height difference across the edge (m), > 0
+};
+
+struct RayHit {
+  double range = 0.0;      // distance along the unit direction
+  Eigen::Vector3d point;   // where the ray hit
+  Eigen::Vector3d normal;  // outward unit normal of the surface hit
+};
+
+class Scene : public HeightField {
+ public:
+  // `ground_z`: the infinite ground plane; boxes stand on it or float above it (deck boards).
+  // `lo`/`hi`: the xy extent reported by min_corner()/max_corner() (the region of interest).
+  Scene(std::string name, std::string description, double ground_z, std::vector<Box> boxes,
+        Eigen::Vector2d lo, Eigen::Vector2d hi);
+
+  const std::string& name() const { return name_; }
+  double ground_z() const { return ground_z_; }
+  const std::vector<Box>& boxes() const { return boxes_; }
+  const std::vector<EdgeSegment>& edges() const { return edges_; }
+  // Robot start (x, y of the base) and goal, as in DESIGN.md: start at the origin, goal 1 m ahead.
+  Eigen::Vector2d start() const { return {0.0, 0.0}; }
+  Eigen::Vector2d goal() const { return {1.0, 0.0}; }
+
+  HeightSample sample(double x, double y) const override;
+  // Exact: distance to the nearest edge minus r; gradient the unit vector away from that edge.
+  // With no edges at all (flat), the margin is +infinity-like (1e9) with zero gradient.
+  MarginSample safety_margin(double x, double y, double foot_radius) const override;
+  Eigen::Vector2d min_corner() const override { return lo_; }
+  Eigen::Vector2d max_corner() const override { return hi_; }
+  std::string describe() const override;
+
+  // Distance in the xy plane from (x, y) to the nearest edge, and the unit vector pointing away
+  // from it (zero when there are no edges). Large (1e9) when there are no edges.
+  double edge_distance(double x, double y, Eigen::Vector2d* away = nullptr) const;
+
+  // First intersection of the ray origin + t dir (dir need not be unit) with the ground or a
+  // box, for 0 < t*|dir| <= max_range; nullopt when nothing is hit within range.
+  std::optional<RayHit> ray_cast(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir,
+                                 double max_range) const;
+
+ private:
+  void compute_edges();
+
+  std::string name_;
+  std::string description_;
+  double ground_z_;
+  std::vector<Box> boxes_;
+  Eigen::Vector2d lo_;
+  Eigen::Vector2d hi_;
+  std::vector<EdgeSegment> edges_;
+};
+
+// Valid names: flat, pallet_10, pallet_15, eur_pallet, stairs, gap.
+std::vector<std::string> scene_names();
+// Throws perception::InputError (message lists the valid names) for an unknown name.
+std::unique_ptr<Scene> make_scene(const std::string& name);
+
+}  // namespace terrastride::terrain

@@ -1,0 +1,249 @@
+#include "terrastride/terrain/scenes.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+#include "terrastride/perception/point_cloud.hpp"
+
+namespace terrastride::terrain {
+namespace {
+
+constexpr double kNoEdge = 1e9;
+
+Box box(double x0, double x1, double y0, double y1, double z0, double z1) {
+  return Box{Eigen::Vector3d(x0, y0, z0), Eigen::Vector3d(x1, y1, z1)};
+}
+
+// Distance from p to segment ab and the closest point on it.
+double segment_distance(const Eigen::Vector2d& p, const Eigen::Vector2d& a,
+                        const Eigen::Vector2d& b, Eigen::Vector2d* closest) {
+  const Eigen::Vector2d ab = b - a;
+  const double len2 = ab.squaredNorm();
+  double t = len2 > 0 ? (p - a).dot(ab) / len2 : 0.0;
+  t = std::clamp(t, 0.0, 1.0);
+  *closest = a + t * ab;
+  return (p - *closest).norm();
+}
+
+}  // namespace
+
+Scene::Scene(std::string name, std::string description, double ground_z, std::vector<Box> boxes,
+             Eigen::Vector2d lo, Eigen::Vector2d hi)
+    : name_(std::move(name)),
+      description_(std::move(description)),
+      ground_z_(ground_z),
+      boxes_(std::move(boxes)),
+      lo_(lo),
+      hi_(hi) {
+  compute_edges();
+}
+
+HeightSample Scene::sample(double x, double y) const {
+  HeightSample s;
+  double h = ground_z_;
+  // Closed footprints: on an edge the higher side wins (the foot would rest on the corner).
+  for (const Box& b : boxes_) {
+    if (x >= b.lo.x() && x <= b.hi.x() && y >= b.lo.y() && y <= b.hi.y()) h = std::max(h, b.hi.z());
+  }
+  s.height = h;
+  return s;
+}
+
+void Scene::compute_edges() {
+  // Candidate lines are the box footprint borders. Each is split at every other box border that
+  // crosses it; a piece is an edge when the height differs on its two sides. Pieces hidden under
+  // a taller box or shared by boxes of equal height drop out this way.
+  std::vector<double> xs, ys;
+  for (const Box& b : boxes_) {
+    xs.push_back(b.lo.x());
+    xs.push_back(b.hi.x());
+    ys.push_back(b.lo.y());
+    ys.push_back(b.hi.y());
+  }
+  std::sort(xs.begin(), xs.end());
+  xs.erase(std::unique(xs.begin(), xs.end()), xs.end());
+  std::sort(ys.begin(), ys.end());
+  ys.erase(std::unique(ys.begin(), ys.end()), ys.end());
+  constexpr double eps = 1e-7;
+  auto try_piece = [&](const Eigen::Vector2d& a, const Eigen::Vector2d& b,
+                       const Eigen::Vector2d& normal) {
+    const Eigen::Vector2d m = 0.5 * (a + b);
+    const double h1 = height(m.x() + eps * normal.x(), m.y() + eps * normal.y());
+    const double h2 = height(m.x() - eps * normal.x(), m.y() - eps * normal.y());
+    if (std::abs(h1 - h2) < 1e-9) return;
+    // Lines shared by several boxes produce the same piece more than once; keep one.
+    for (const EdgeSegment& e : edges_) {
+      if ((e.a - a).norm() < 1e-12 && (e.b - b).norm() < 1e-12) return;
+    }
+    edges_.push_back(EdgeSegment{a, b, std::abs(h1 - h2)});
+  };
+  for (const Box& b : boxes_) {
+    for (double y : {b.lo.y(), b.hi.y()}) {  // lines along x
+      std::vector<double> cuts{b.lo.x()};
+      for (double x : xs)
+        if (x > b.lo.x() && x < b.hi.x()) cuts.push_back(x);
+      cuts.push_back(b.hi.x());
+      for (size_t i = 0; i + 1 < cuts.size(); ++i)
+        try_piece({cuts[i], y}, {cuts[i + 1], y}, {0.0, 1.0});
+    }
+    for (double x : {b.lo.x(), b.hi.x()}) {  // lines along y
+      std::vector<double> cuts{b.lo.y()};
+      for (double y : ys)
+        if (y > b.lo.y() && y < b.hi.y()) cuts.push_back(y);
+      cuts.push_back(b.hi.y());
+      for (size_t i = 0; i + 1 < cuts.size(); ++i)
+        try_piece({x, cuts[i]}, {x, cuts[i + 1]}, {1.0, 0.0});
+    }
+  }
+}
+
+double Scene::edge_distance(double x, double y, Eigen::Vector2d* away) const {
+  const Eigen::Vector2d p(x, y);
+  double best = kNoEdge;
+  Eigen::Vector2d best_closest = p;
+  for (const EdgeSegment& e : edges_) {
+    Eigen::Vector2d c;
+    const double d = segment_distance(p, e.a, e.b, &c);
+    if (d < best) {
+      best = d;
+      best_closest = c;
+    }
+  }
+  if (away) {
+    const Eigen::Vector2d v = p - best_closest;
+    *away = v.norm() > 0 ? Eigen::Vector2d(v / v.norm()) : Eigen::Vector2d::Zero();
+  }
+  return best;
+}
+
+MarginSample Scene::safety_margin(double x, double y, double foot_radius) const {
+  MarginSample m;
+  Eigen::Vector2d away;
+  const double d = edge_distance(x, y, &away);
+  if (d >= kNoEdge) {
+    m.margin = kNoEdge;
+    return m;
+  }
+  m.margin = d - foot_radius;
+  m.gradient = away;
+  return m;
+}
+
+std::optional<RayHit> Scene::ray_cast(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir,
+                                      double max_range) const {
+  const double len = dir.norm();
+  if (!(len > 0) || !std::isfinite(len)) return std::nullopt;
+  const Eigen::Vector3d d = dir / len;
+  double best_t = max_range;
+  std::optional<RayHit> hit;
+  if (d.z() < 0) {
+    const double t = (ground_z_ - origin.z()) / d.z();
+    if (t > 0 && t <= best_t) {
+      best_t = t;
+      hit = RayHit{t, origin + t * d, Eigen::Vector3d::UnitZ()};
+    }
+  }
+  for (const Box& b : boxes_) {
+    // Slab test; remember which slab the ray entered last: that face is the one hit.
+    double t_enter = -std::numeric_limits<double>::infinity();
+    double t_exit = std::numeric_limits<double>::infinity();
+    int axis = -1;
+    double sign = 0;
+    bool miss = false;
+    for (int k = 0; k < 3 && !miss; ++k) {
+      if (std::abs(d[k]) < 1e-15) {
+        if (origin[k] < b.lo[k] || origin[k] > b.hi[k]) miss = true;
+        continue;
+      }
+      double t0 = (b.lo[k] - origin[k]) / d[k];
+      double t1 = (b.hi[k] - origin[k]) / d[k];
+      double s = -1.0;  // entering through the low face: outward normal -e_k
+      if (t0 > t1) {
+        std::swap(t0, t1);
+        s = 1.0;
+      }
+      if (t0 > t_enter) {
+        t_enter = t0;
+        axis = k;
+        sign = s;
+      }
+      t_exit = std::min(t_exit, t1);
+      if (t_enter > t_exit) miss = true;
+    }
+    if (miss || axis < 0 || t_enter <= 0 || t_enter > best_t) continue;
+    best_t = t_enter;
+    Eigen::Vector3d n = Eigen::Vector3d::Zero();
+    n[axis] = sign;
+    hit = RayHit{t_enter, origin + t_enter * d, n};
+  }
+  return hit;
+}
+
+std::string Scene::describe() const {
+  std::ostringstream os;
+  os << "scene " << name_ << ": " << description_ << " (" << boxes_.size() << " boxes, "
+     << edges_.size() << " edge segments)";
+  return os.str();
+}
+
+std::vector<std::string> scene_names() {
+  return {"flat", "pallet_10", "pallet_15", "eur_pallet", "stairs", "gap"};
+}
+
+std::unique_ptr<Scene> make_scene(const std::string& name) {
+  // The region of interest: the robot (hind feet near x = -0.31) to beyond its goal (front feet
+  // near x = 1.31), wide enough for the sensor footprint.
+  const Eigen::Vector2d lo(-1.0, -1.0), hi(2.5, 1.0);
+  if (name == "flat")
+    return std::make_unique<Scene>(name, "flat ground", 0.0, std::vector<Box>{}, lo, hi);
+  if (name == "pallet_10" || name == "pallet_15") {
+    const double h = name == "pallet_10" ? 0.10 : 0.15;
+    return std::make_unique<Scene>(
+        name,
+        "solid box " + std::string(name == "pallet_10" ? "0.10" : "0.15") +
+            " m high, x in [0.55, 1.75], y in [-0.6, 0.6]",
+        0.0, std::vector<Box>{box(0.55, 1.75, -0.6, 0.6, 0.0, h)}, lo, hi);
+  }
+  if (name == "eur_pallet") {
+    // EUR pallet (EN 13698-1), 1.2 m along x, 0.8 m across: three bottom boards, nine blocks,
+    // three stringer boards across and five top deck boards along x with 41 mm gaps between them.
+    const double x0 = 0.55, x1 = 1.75;
+    const double board = 0.022;
+    std::vector<Box> b;
+    const double bottom_y[3][2] = {{-0.4, -0.3}, {-0.0725, 0.0725}, {0.3, 0.4}};
+    const double block_x[3][2] = {{x0, x0 + 0.145}, {1.075, 1.225}, {x1 - 0.145, x1}};
+    for (const auto& y : bottom_y) b.push_back(box(x0, x1, y[0], y[1], 0.0, board));
+    for (const auto& x : block_x)
+      for (const auto& y : bottom_y) b.push_back(box(x[0], x[1], y[0], y[1], board, 0.100));
+    for (const auto& x : block_x) b.push_back(box(x[0], x[1], -0.4, 0.4, 0.100, 0.122));
+    const double top_y[5][2] = {
+        {-0.4, -0.255}, {-0.21375, -0.11375}, {-0.0725, 0.0725}, {0.11375, 0.21375}, {0.255, 0.4}};
+    for (const auto& y : top_y) b.push_back(box(x0, x1, y[0], y[1], 0.122, 0.144));
+    return std::make_unique<Scene>(
+        name, "EUR pallet 1.2 x 0.8 x 0.144 m, x in [0.55, 1.75], y in [-0.4, 0.4]", 0.0,
+        std::move(b), lo, hi);
+  }
+  if (name == "stairs") {
+    std::vector<Box> b;
+    for (int k = 0; k < 3; ++k)
+      b.push_back(box(0.55 + 0.30 * k, 1.75, -0.6, 0.6, 0.0, 0.12 * (k + 1)));
+    return std::make_unique<Scene>(
+        name, "three 0.12 m risers at x = 0.55, 0.85, 1.15 (0.30 m treads), y in [-0.6, 0.6]", 0.0,
+        std::move(b), lo, hi);
+  }
+  if (name == "gap") {
+    // Ground at z = 0 is two large slabs; the trench floor is the plane 0.30 m below.
+    const double depth = 0.30;
+    std::vector<Box> b{box(-10.0, 0.50, -10.0, 10.0, -depth, 0.0),
+                       box(0.70, 10.0, -10.0, 10.0, -depth, 0.0)};
+    return std::make_unique<Scene>(name, "0.20 m wide, 0.30 m deep trench at x in [0.50, 0.70]",
+                                   -depth, std::move(b), lo, hi);
+  }
+  std::string valid;
+  for (const auto& n : scene_names()) valid += (valid.empty() ? "" : ", ") + n;
+  throw perception::InputError("unknown scene '" + name + "' (valid scenes: " + valid + ")");
+}
+
+}  // namespace terrastride::terrain

@@ -1,0 +1,99 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/terrain/scenes.hpp"
+
+using namespace terrastride::terrain;
+
+TEST(Scenes, AllNamesBuildAndUnknownNameListsValidOnes) {
+  for (const auto& n : scene_names()) {
+    auto s = make_scene(n);
+    ASSERT_TRUE(s);
+    EXPECT_EQ(s->name(), n);
+    EXPECT_NEAR(s->height(0.0, 0.0), 0.0, 1e-12) << n;  // the robot starts on the ground
+  }
+  try {
+    make_scene("palet");
+    FAIL() << "no error";
+  } catch (const terrastride::perception::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("palet"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("pallet_15"), std::string::npos);
+  }
+}
+
+TEST(Scenes, PalletHeightsAndEdges) {
+  auto s = make_scene("pallet_15");
+  EXPECT_DOUBLE_EQ(s->height(1.0, 0.0), 0.15);
+  EXPECT_DOUBLE_EQ(s->height(0.5, 0.0), 0.0);
+  EXPECT_DOUBLE_EQ(s->height(1.0, 0.7), 0.0);
+  const auto hs = s->sample(1.0, 0.1);
+  EXPECT_EQ(hs.gradient.norm(), 0.0);
+  EXPECT_EQ(hs.hessian.norm(), 0.0);
+  EXPECT_EQ(s->edges().size(), 4u);
+  // Margin: distance to the nearest edge minus r, gradient pointing away from the edge.
+  const auto m = s->safety_margin(0.60, 0.0, 0.02);
+  EXPECT_NEAR(m.margin, 0.05 - 0.02, 1e-12);
+  EXPECT_NEAR(m.gradient.x(), 1.0, 1e-12);
+  const auto inside = s->safety_margin(0.56, 0.0, 0.02);
+  EXPECT_LT(inside.margin, 0.0);
+  // Finite-difference check of the margin gradient away from the medial axis.
+  for (double x : {0.3, 0.6, 0.9, 1.6, 2.0}) {
+    for (double y : {-0.8, -0.3, 0.1, 0.5}) {
+      const double e = 1e-6;
+      const auto c = s->safety_margin(x, y, 0.03);
+      const double gx =
+          (s->safety_margin(x + e, y, 0.03).margin - s->safety_margin(x - e, y, 0.03).margin) /
+          (2 * e);
+      const double gy =
+          (s->safety_margin(x, y + e, 0.03).margin - s->safety_margin(x, y - e, 0.03).margin) /
+          (2 * e);
+      EXPECT_NEAR(c.gradient.x(), gx, 1e-6) << x << "," << y;
+      EXPECT_NEAR(c.gradient.y(), gy, 1e-6) << x << "," << y;
+    }
+  }
+}
+
+TEST(Scenes, StairsGapAndEurPallet) {
+  auto st = make_scene("stairs");
+  EXPECT_DOUBLE_EQ(st->height(0.7, 0.0), 0.12);
+  EXPECT_DOUBLE_EQ(st->height(1.0, 0.0), 0.24);
+  EXPECT_DOUBLE_EQ(st->height(1.3, 0.0), 0.36);
+  // The shared far end of the three stacked boxes is a single 0.36 m edge, not three.
+  EXPECT_NEAR(st->edge_distance(1.70, 0.0), 0.05, 1e-12);
+  auto gap = make_scene("gap");
+  EXPECT_DOUBLE_EQ(gap->height(0.6, 0.0), -0.30);
+  EXPECT_DOUBLE_EQ(gap->height(0.4, 0.0), 0.0);
+  EXPECT_NEAR(gap->safety_margin(0.3, 0.0, 0.02).margin, 0.18, 1e-12);
+  auto eur = make_scene("eur_pallet");
+  EXPECT_DOUBLE_EQ(eur->height(1.0, 0.3), 0.144);     // outer deck board
+  EXPECT_DOUBLE_EQ(eur->height(1.15, 0.235), 0.122);  // gap over the middle stringer board
+  EXPECT_DOUBLE_EQ(eur->height(0.9, 0.235), 0.0);     // gap over nothing: the ground
+  EXPECT_DOUBLE_EQ(eur->height(0.6, 0.235), 0.122);   // gap over the first stringer
+}
+
+TEST(Scenes, RayCast) {
+  auto s = make_scene("pallet_10");
+  // Straight down onto the pallet top.
+  auto hit = s->ray_cast({1.0, 0.0, 0.8}, {0, 0, -1}, 5.0);
+  ASSERT_TRUE(hit);
+  EXPECT_NEAR(hit->range, 0.7, 1e-12);
+  EXPECT_NEAR(hit->normal.z(), 1.0, 1e-12);
+  // Horizontal ray at 5 cm hits the front face.
+  hit = s->ray_cast({0.0, 0.0, 0.05}, {1, 0, 0}, 5.0);
+  ASSERT_TRUE(hit);
+  EXPECT_NEAR(hit->range, 0.55, 1e-12);
+  EXPECT_NEAR(hit->normal.x(), -1.0, 1e-12);
+  // Looking up: nothing. Out of range: nothing.
+  EXPECT_FALSE(s->ray_cast({0, 0, 0.5}, {0, 0, 1}, 5.0));
+  EXPECT_FALSE(s->ray_cast({0, 0, 0.8}, {0, 0, -1}, 0.5));
+  // Under the EUR pallet deck (side view at 11 cm) the ray passes between blocks until a block.
+  auto eur = make_scene("eur_pallet");
+  hit = eur->ray_cast({0.0, 0.2, 0.06}, {1, 0, -0.02}, 5.0);
+  ASSERT_TRUE(hit);
+  EXPECT_NEAR(hit->point.x(), 3.0, 1e-9);  // y = 0.2 is between block rows: reaches the ground
+  hit = eur->ray_cast({0.0, 0.0, 0.06}, {1, 0, -0.02}, 5.0);
+  ASSERT_TRUE(hit);
+  EXPECT_NEAR(hit->point.x(), 0.55, 1e-9);  // the middle block row
+}
