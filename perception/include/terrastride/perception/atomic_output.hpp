@@ -5,8 +5,8 @@
 
 namespace terrastride::perception {
 
-// Writes `bytes` to `path` via a temp file in the same directory, fsync and rename. Throws InputError
-// naming the path on failure (the temp file is removed).
+// Writes `bytes` to `path` via a temp file in the same directory, fsync and rename. Throws
+// InputError naming the path on failure (the temp file is removed).
 void write_file_atomically(const std::string& path, const std::string& bytes);
 
 // A temp directory next to `final_dir` (same filesystem, so the rename is atomic); write files into
@@ -19,7 +19,7 @@ class AtomicOutputDir {
   AtomicOutputDir(const AtomicOutputDir&) = delete;
   AtomicOutputDir& operator=(const AtomicOutputDir&) = delete;
 
-  const std::string& path() const { return temp_dir_; }   // where to write now
+  const std::string& path() const { return temp_dir_; }  // where to write now
   const std::string& final_path() const { return final_dir_; }
   void commit();
   bool committed() const { return committed_; }

@@ -14,12 +14,14 @@ namespace terrastride::perception {
 //   .pcd        PCL's PCD reader (ascii/binary/binary_compressed); a VIEWPOINT that is not the
 //               identity-zero default becomes sensor_origin.
 //   .ply        PCL's PLY reader (extra properties such as normals or intensity are ignored).
-//   .xyz, .txt  text, "x y z" per line; extra columns ignored; '#' starts a comment; blank lines ok.
-//   .npy        float32/float64 array of shape (N, >=3), C order, little endian; columns 0..2 = x y z.
+//   .xyz, .txt  text, "x y z" per line; extra columns ignored; '#' starts a comment; blank lines
+//   ok. .npy        float32/float64 array of shape (N, >=3), C order, little endian; columns 0..2 =
+//   x y z.
 // Non-finite points are dropped (count them with read_cloud_stats). `origin`, when given, overrides
 // the file's sensor origin. Throws InputError naming the file and the problem: missing/unreadable,
 // unknown extension, mislabeled content (e.g. a .pcd that is text garbage), empty, all non-finite.
-PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> origin = std::nullopt);
+PointCloud read_cloud(const std::string& path,
+                      std::optional<Eigen::Vector3d> origin = std::nullopt);
 
 struct ReadStats {
   size_t points_in_file = 0;  // rows/points present in the file, finite or not

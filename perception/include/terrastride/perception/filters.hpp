@@ -10,9 +10,10 @@
 namespace terrastride::perception {
 
 struct CloudFilterOptions {
-  std::optional<Eigen::Vector3f> crop_min, crop_max;  // crop box (pcl::CropBox); either bound optional
-  float voxel_size = 0.0f;                             // 0 = off (pcl::VoxelGrid), else leaf size, m
-  int outlier_neighbours = 0;  // 0 = off (pcl::StatisticalOutlierRemoval meanK)
+  std::optional<Eigen::Vector3f> crop_min,
+      crop_max;                 // crop box (pcl::CropBox); either bound optional
+  float voxel_size = 0.0f;      // 0 = off (pcl::VoxelGrid), else leaf size, m
+  int outlier_neighbours = 0;   // 0 = off (pcl::StatisticalOutlierRemoval meanK)
   double outlier_stddev = 2.0;  // StatisticalOutlierRemoval stddev multiplier
 };
 

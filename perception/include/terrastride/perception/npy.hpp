@@ -9,7 +9,8 @@
 
 namespace terrastride::perception {
 
-// Writes a 2-D array (rows x cols, row-major) atomically. Throws InputError naming the path on failure.
+// Writes a 2-D array (rows x cols, row-major) atomically. Throws InputError naming the path on
+// failure.
 void write_npy(const std::string& path, const float* data, size_t rows, size_t cols);
 void write_npy(const std::string& path, const double* data, size_t rows, size_t cols);
 void write_npy(const std::string& path, const uint8_t* data, size_t rows, size_t cols);

@@ -1,0 +1,205 @@
+// Cloud readers for XYZ text and NPY (hand-parsed: both are tiny, well-specified formats), the
+// dispatch by extension, and the binary PCD writer. PCD/PLY reading is in pcl_io.cpp.
+#include "terrastride/perception/cloud_io.hpp"
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <charconv>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "cloud_io_internal.hpp"
+#include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/npy.hpp"
+
+namespace fs = std::filesystem;
+
+namespace terrastride::perception {
+namespace {
+
+std::string lower_extension(const std::string& path) {
+  std::string ext = fs::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return ext;
+}
+
+void check_readable_file(const std::string& path) {
+  std::error_code ec;
+  const auto status = fs::status(path, ec);
+  if (ec || !fs::exists(status)) throw InputError(path + ": file not found");
+  if (fs::is_directory(status)) throw InputError(path + ": is a directory, not a point cloud file");
+  std::ifstream probe(path, std::ios::binary);
+  if (!probe) throw InputError(path + ": cannot open file: " + std::strerror(errno));
+  if (probe.peek() == std::char_traits<char>::eof()) throw InputError(path + ": file is empty");
+}
+
+std::string read_whole_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path + ": cannot open file: " + std::strerror(errno));
+  std::string data;
+  in.seekg(0, std::ios::end);
+  data.resize(static_cast<size_t>(in.tellg()));
+  in.seekg(0);
+  in.read(data.data(), static_cast<std::streamsize>(data.size()));
+  if (!in) throw InputError(path + ": read error");
+  return data;
+}
+
+bool is_separator(char c) {
+  return c == ' ' || c == '\t' || c == ',' || c == '\r';
+}
+
+// "x y z [more columns]" per line; '#' starts a comment. A line that has content but not three
+// numbers is an error (with its line number): it usually means the file is not an XYZ cloud.
+detail::RawCloud read_xyz_text(const std::string& path) {
+  const std::string text = read_whole_file(path);
+  if (text.find('\0') != std::string::npos) {
+    throw InputError(path + ": contains binary data, not an 'x y z' text cloud");
+  }
+  detail::RawCloud raw;
+  raw.points.reserve(text.size() / 24);
+  const char* p = text.data();
+  const char* const end = p + text.size();
+  size_t line_no = 0;
+  while (p < end) {
+    ++line_no;
+    const char* line_end = static_cast<const char*>(std::memchr(p, '\n', end - p));
+    if (line_end == nullptr) line_end = end;
+    const char* content_end = static_cast<const char*>(std::memchr(p, '#', line_end - p));
+    if (content_end == nullptr) content_end = line_end;
+    float v[3];
+    int n = 0;
+    const char* q = p;
+    while (n < 3) {
+      while (q < content_end && is_separator(*q)) ++q;
+      if (q >= content_end) break;
+      if (*q == '+') ++q;  // from_chars does not take a leading '+'
+      const auto [next, err] = std::from_chars(q, content_end, v[n]);
+      if (err == std::errc::result_out_of_range) {
+        v[n] = std::numeric_limits<float>::infinity();  // dropped later as non-finite
+      } else if (err != std::errc() || (next < content_end && !is_separator(*next))) {
+        throw InputError(path + ": line " + std::to_string(line_no) +
+                         ": expected numbers 'x y z', found '" +
+                         std::string(p, std::min<size_t>(40, line_end - p)) + "'");
+      }
+      q = next;
+      // from_chars leaves `next` at the token start on out_of_range; skip the token.
+      while (q < content_end && !is_separator(*q)) ++q;
+      ++n;
+    }
+    if (n == 3) {
+      raw.points.emplace_back(v[0], v[1], v[2]);
+    } else if (n > 0) {
+      throw InputError(path + ": line " + std::to_string(line_no) +
+                       ": expected 3 columns 'x y z', found " + std::to_string(n));
+    }
+    p = line_end + 1;
+  }
+  return raw;
+}
+
+detail::RawCloud read_npy_cloud(const std::string& path) {
+  const NpyArray a = read_npy(path);
+  if (a.dtype != "<f4" && a.dtype != "<f8") {
+    throw InputError(path + ": NPY dtype '" + a.dtype +
+                     "' is not a point cloud; expected float32 (<f4) or float64 (<f8)");
+  }
+  if (a.shape.size() != 2 || a.shape[1] < 3) {
+    std::ostringstream s;
+    s << "(";
+    for (size_t i = 0; i < a.shape.size(); ++i) s << (i ? ", " : "") << a.shape[i];
+    s << (a.shape.size() == 1 ? ",)" : ")");
+    throw InputError(path + ": NPY shape " + s.str() + " is not a point cloud; expected (N, 3)");
+  }
+  detail::RawCloud raw;
+  const size_t rows = a.shape[0], cols = a.shape[1];
+  raw.points.resize(rows);
+  if (a.dtype == "<f4") {
+    const char* base = a.bytes.data();
+    for (size_t r = 0; r < rows; ++r) {
+      std::memcpy(raw.points[r].data(), base + r * cols * 4, 12);
+    }
+  } else {
+    const char* base = a.bytes.data();
+    for (size_t r = 0; r < rows; ++r) {
+      double d[3];
+      std::memcpy(d, base + r * cols * 8, 24);
+      raw.points[r] = Eigen::Vector3d(d[0], d[1], d[2]).cast<float>();
+    }
+  }
+  return raw;
+}
+
+}  // namespace
+
+PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> origin,
+                      ReadStats* stats) {
+  if (origin && !origin->allFinite()) throw InputError(path + ": sensor origin is not finite");
+  const std::string ext = lower_extension(path);
+  const bool known =
+      ext == ".pcd" || ext == ".ply" || ext == ".xyz" || ext == ".txt" || ext == ".npy";
+  if (!known) {
+    throw InputError(path + ": unknown point cloud extension '" + ext +
+                     "' (expected .pcd, .ply, .xyz, .txt or .npy)");
+  }
+  check_readable_file(path);
+  detail::RawCloud raw;
+  if (ext == ".pcd") {
+    raw = detail::read_pcd_with_pcl(path);
+  } else if (ext == ".ply") {
+    raw = detail::read_ply_with_pcl(path);
+  } else if (ext == ".npy") {
+    raw = read_npy_cloud(path);
+  } else {
+    raw = read_xyz_text(path);
+  }
+  PointCloud cloud;
+  cloud.source = path;
+  cloud.sensor_origin = origin ? origin : raw.origin;
+  const size_t in_file = raw.points.size();
+  if (in_file == 0) throw InputError(path + ": contains no points");
+  // Compact in place: NaN/inf points carry no geometry (sensors use them for "no return").
+  auto kept = std::remove_if(raw.points.begin(), raw.points.end(),
+                             [](const Eigen::Vector3f& p) { return !p.allFinite(); });
+  raw.points.erase(kept, raw.points.end());
+  if (raw.points.empty()) {
+    throw InputError(path + ": all " + std::to_string(in_file) +
+                     " points are non-finite (NaN or infinite)");
+  }
+  if (stats) {
+    stats->points_in_file = in_file;
+    stats->non_finite = in_file - raw.points.size();
+  }
+  cloud.points = std::move(raw.points);
+  return cloud;
+}
+
+PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> origin) {
+  return read_cloud(path, origin, nullptr);
+}
+
+void write_pcd(const PointCloud& cloud, const std::string& path) {
+  // Written by hand (the binary PCD v0.7 layout is a text header plus packed float32 x y z) so the
+  // bytes can go through write_file_atomically; PCL reads it back in tests.
+  const Eigen::Vector3d o = cloud.sensor_origin.value_or(Eigen::Vector3d::Zero());
+  if (!o.allFinite()) throw InputError(path + ": sensor origin is not finite");
+  std::ostringstream h;
+  h.precision(9);
+  const size_t n = cloud.points.size();
+  h << "# .PCD v0.7 - Point Cloud Data file format\n"
+    << "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+    << "WIDTH " << n << "\nHEIGHT 1\n"
+    << "VIEWPOINT " << o.x() << " " << o.y() << " " << o.z() << " 1 0 0 0\n"
+    << "POINTS " << n << "\nDATA binary\n";
+  std::string bytes = h.str();
+  const size_t header = bytes.size();
+  bytes.resize(header + n * 12);
+  for (size_t i = 0; i < n; ++i) std::memcpy(&bytes[header + i * 12], cloud.points[i].data(), 12);
+  write_file_atomically(path, bytes);
+}
+
+}  // namespace terrastride::perception

@@ -1,0 +1,133 @@
+// Cloud cleaning with PCL's filters (the only translation unit with PCL filter headers).
+#include "terrastride/perception/filters.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#ifdef TERRASTRIDE_HAVE_PCL
+#include <pcl/filters/crop_box.h>
+#include <pcl/filters/statistical_outlier_removal.h>
+#include <pcl/filters/voxel_grid.h>
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+#endif
+
+namespace terrastride::perception {
+namespace {
+
+void validate(const CloudFilterOptions& o, const std::string& name) {
+  const auto bad = [&](const std::string& what) {
+    throw InputError(name + ": invalid filter options: " + what);
+  };
+  if (o.crop_min && !o.crop_min->allFinite()) bad("crop minimum is not finite");
+  if (o.crop_max && !o.crop_max->allFinite()) bad("crop maximum is not finite");
+  if (o.crop_min && o.crop_max && (o.crop_min->array() > o.crop_max->array()).any()) {
+    bad("crop minimum exceeds crop maximum");
+  }
+  if (!std::isfinite(o.voxel_size) || o.voxel_size < 0.0f) {
+    bad("voxel size must be a finite number >= 0 (0 = off)");
+  }
+  if (o.outlier_neighbours < 0) bad("outlier neighbour count must be >= 0 (0 = off)");
+  if (o.outlier_neighbours > 0 && !(std::isfinite(o.outlier_stddev) && o.outlier_stddev > 0.0)) {
+    bad("outlier stddev multiplier must be a finite number > 0");
+  }
+}
+
+}  // namespace
+
+PointCloud filter_cloud(const PointCloud& cloud, const CloudFilterOptions& options,
+                        FilterStats* stats) {
+  const auto start = std::chrono::steady_clock::now();
+  const std::string& name = cloud.source.empty() ? std::string("point cloud") : cloud.source;
+  validate(options, name);
+  FilterStats s;
+  s.points_in = cloud.points.size();
+
+  PointCloud out;
+  out.source = cloud.source;
+  out.sensor_origin = cloud.sensor_origin;
+
+#ifdef TERRASTRIDE_HAVE_PCL
+  using Cloud = pcl::PointCloud<pcl::PointXYZ>;
+  Cloud::Ptr current(new Cloud);
+  current->reserve(cloud.points.size());
+  for (const auto& p : cloud.points) {
+    if (p.allFinite()) current->push_back(pcl::PointXYZ(p.x(), p.y(), p.z()));
+  }
+  current->is_dense = true;  // every NaN was dropped just above
+  s.non_finite = s.points_in - current->size();
+
+  if (options.crop_min || options.crop_max) {
+    constexpr float kBig = std::numeric_limits<float>::max();
+    const Eigen::Vector3f lo = options.crop_min.value_or(Eigen::Vector3f::Constant(-kBig));
+    const Eigen::Vector3f hi = options.crop_max.value_or(Eigen::Vector3f::Constant(kBig));
+    pcl::CropBox<pcl::PointXYZ> crop;
+    crop.setMin(Eigen::Vector4f(lo.x(), lo.y(), lo.z(), 1.0f));
+    crop.setMax(Eigen::Vector4f(hi.x(), hi.y(), hi.z(), 1.0f));
+    crop.setInputCloud(current);
+    Cloud::Ptr next(new Cloud);
+    crop.filter(*next);
+    current = next;
+  }
+  s.after_crop = current->size();
+
+  if (options.voxel_size > 0.0f && !current->empty()) {
+    // VoxelGrid indexes voxels with 32-bit integers and, when they would overflow, only prints a
+    // warning and returns the cloud unfiltered; refuse instead so the caller learns about it.
+    Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
+    Eigen::Vector3f hi = -lo;
+    for (const auto& p : current->points) {
+      lo = lo.cwiseMin(p.getVector3fMap());
+      hi = hi.cwiseMax(p.getVector3fMap());
+    }
+    const Eigen::Array3d cells =
+        ((hi - lo).cast<double>().array() / options.voxel_size).floor() + 1.0;
+    if (cells.prod() > static_cast<double>(std::numeric_limits<int32_t>::max())) {
+      throw InputError(name + ": voxel size " + std::to_string(options.voxel_size) +
+                       " m is too small for a cloud spanning " + std::to_string(hi.x() - lo.x()) +
+                       " x " + std::to_string(hi.y() - lo.y()) + " x " +
+                       std::to_string(hi.z() - lo.z()) +
+                       " m (too many voxels); use a larger voxel or crop first");
+    }
+    pcl::VoxelGrid<pcl::PointXYZ> grid;
+    grid.setLeafSize(options.voxel_size, options.voxel_size, options.voxel_size);
+    grid.setInputCloud(current);
+    Cloud::Ptr next(new Cloud);
+    grid.filter(*next);
+    current = next;
+  }
+  s.after_voxel = current->size();
+
+  if (options.outlier_neighbours > 0 && current->size() > 1) {
+    pcl::StatisticalOutlierRemoval<pcl::PointXYZ> sor;
+    sor.setMeanK(options.outlier_neighbours);
+    sor.setStddevMulThresh(options.outlier_stddev);
+    sor.setInputCloud(current);
+    Cloud::Ptr next(new Cloud);
+    sor.filter(*next);
+    current = next;
+  }
+  s.after_outliers = current->size();
+
+  out.points.reserve(current->size());
+  for (const auto& p : current->points) out.points.emplace_back(p.x, p.y, p.z);
+#else
+  if (options.crop_min || options.crop_max || options.voxel_size > 0.0f ||
+      options.outlier_neighbours > 0) {
+    throw InputError(name + ": cloud filters need PCL (built with TERRASTRIDE_WITH_PCL=OFF)");
+  }
+  for (const auto& p : cloud.points) {
+    if (p.allFinite()) out.points.push_back(p);
+  }
+  s.non_finite = s.points_in - out.points.size();
+  s.after_crop = s.after_voxel = s.after_outliers = out.points.size();
+#endif
+
+  s.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (stats) *stats = s;
+  return out;
+}
+
+}  // namespace terrastride::perception

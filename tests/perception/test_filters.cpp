@@ -1,0 +1,159 @@
+// The PCL filters do what they claim on real and synthetic clouds.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <set>
+#include <tuple>
+
+#include "terrastride/perception/cloud_io.hpp"
+#include "terrastride/perception/filters.hpp"
+#include "test_util.hpp"
+
+namespace terrastride::perception {
+namespace {
+
+using test::expect_input_error;
+using test::scan;
+
+size_t count_if_z(const PointCloud& c, float lo, float hi) {
+  size_t n = 0;
+  for (const auto& p : c.points) n += (p.z() >= lo && p.z() <= hi);
+  return n;
+}
+
+TEST(FilterCloud, OffPassesThroughAndDropsNaN) {
+  PointCloud c;
+  c.source = "mem";
+  c.sensor_origin = Eigen::Vector3d(1, 2, 3);
+  c.points = {{0, 0, 0}, {std::numeric_limits<float>::quiet_NaN(), 0, 0}, {1, 1, 1}};
+  FilterStats s;
+  const PointCloud out = filter_cloud(c, {}, &s);
+  EXPECT_EQ(out.points.size(), 2u);
+  EXPECT_EQ(s.points_in, 3u);
+  EXPECT_EQ(s.non_finite, 1u);
+  EXPECT_EQ(s.after_crop, 2u);
+  EXPECT_EQ(s.after_voxel, 2u);
+  EXPECT_EQ(s.after_outliers, 2u);
+  EXPECT_GE(s.seconds, 0.0);
+  EXPECT_EQ(out.sensor_origin, c.sensor_origin);
+  EXPECT_EQ(out.source, "mem");
+}
+
+TEST(FilterCloud, CropBoundsHold) {
+  const PointCloud c = read_cloud(scan("octomap/scan.xyz"));
+  CloudFilterOptions o;
+  o.crop_min = Eigen::Vector3f(0, -5, -1);
+  o.crop_max = Eigen::Vector3f(10, 5, 2);
+  FilterStats s;
+  const PointCloud out = filter_cloud(c, o, &s);
+  size_t expected = 0;
+  for (const auto& p : c.points) {
+    expected +=
+        (p.array() >= o.crop_min->array()).all() && (p.array() <= o.crop_max->array()).all();
+  }
+  EXPECT_EQ(out.points.size(), expected);
+  EXPECT_GT(expected, 1000u);
+  EXPECT_LT(expected, c.points.size());
+  for (const auto& p : out.points) {
+    ASSERT_TRUE((p.array() >= o.crop_min->array()).all() &&
+                (p.array() <= o.crop_max->array()).all())
+        << p.transpose();
+  }
+  EXPECT_EQ(s.after_crop, expected);
+}
+
+TEST(FilterCloud, OneSidedCrop) {
+  const PointCloud c = read_cloud(scan("terrain_understanding_mit/grid_water.npy"));
+  CloudFilterOptions o;
+  o.crop_min = Eigen::Vector3f(-1e3f, -1e3f, -1.0f);  // drop see-through returns below z = -1
+  const PointCloud out = filter_cloud(c, o);
+  EXPECT_EQ(out.points.size(), c.points.size() - count_if_z(c, -1e9f, -1.0f - 1e-6f));
+  EXPECT_EQ(count_if_z(out, -1e9f, -1.0001f), 0u);
+}
+
+TEST(FilterCloud, VoxelGridLeavesAtMostOnePointPerVoxel) {
+  const PointCloud c = read_cloud(scan("anybotics_samples/grid_map_pcl_input_cloud.pcd"));
+  CloudFilterOptions o;
+  o.voxel_size = 0.05f;
+  FilterStats s;
+  const PointCloud out = filter_cloud(c, o, &s);
+  EXPECT_LT(out.points.size(), c.points.size() / 4);
+  EXPECT_GT(out.points.size(), 100u);
+  EXPECT_EQ(s.after_voxel, out.points.size());
+  // Centroids of distinct voxels: no two fall into the same voxel of the same grid.
+  std::set<std::tuple<int, int, int>> cells;
+  for (const auto& p : c.points) {
+    cells.emplace(static_cast<int>(std::floor(p.x() / 0.05f)),
+                  static_cast<int>(std::floor(p.y() / 0.05f)),
+                  static_cast<int>(std::floor(p.z() / 0.05f)));
+  }
+  EXPECT_EQ(out.points.size(), cells.size());
+  // A coarser grid keeps fewer points.
+  o.voxel_size = 0.2f;
+  EXPECT_LT(filter_cloud(c, o).points.size(), out.points.size());
+}
+
+TEST(FilterCloud, OutlierRemovalDropsFarOutliersKeepsTreads) {
+  const PointCloud c = read_cloud(scan("terrain_understanding_mit/grid_stairs.npy"));
+  // README: 11 far outliers near z = -2.4; treads at -0.75, -0.56, -0.39, -0.19, -0.02.
+  ASSERT_EQ(count_if_z(c, -3.0f, -2.0f), 11u);
+  CloudFilterOptions o;
+  o.outlier_neighbours = 20;
+  o.outlier_stddev = 2.0;
+  FilterStats s;
+  const PointCloud out = filter_cloud(c, o, &s);
+  EXPECT_EQ(count_if_z(out, -3.0f, -2.0f), 0u);
+  for (float tread : {-0.75f, -0.56f, -0.39f, -0.19f, -0.02f}) {
+    SCOPED_TRACE(tread);
+    const size_t before = count_if_z(c, tread - 0.03f, tread + 0.03f);
+    const size_t after = count_if_z(out, tread - 0.03f, tread + 0.03f);
+    EXPECT_GT(before, 100u);
+    EXPECT_GE(after, before * 95 / 100);
+  }
+  EXPECT_EQ(s.after_outliers, out.points.size());
+  EXPECT_LT(out.points.size(), c.points.size());
+  EXPECT_GT(out.points.size(), c.points.size() * 9 / 10);
+}
+
+TEST(FilterCloud, StagesChainInOrder) {
+  const PointCloud c = read_cloud(scan("terrain_understanding_mit/curb_w_grass.npy"));
+  CloudFilterOptions o;
+  o.crop_max = Eigen::Vector3f(0.0f, 1.0f, 1.0f);
+  o.voxel_size = 0.01f;
+  o.outlier_neighbours = 10;
+  FilterStats s;
+  const PointCloud out = filter_cloud(c, o, &s);
+  EXPECT_EQ(s.points_in, c.points.size());
+  EXPECT_LT(s.after_crop, s.points_in);
+  EXPECT_LT(s.after_voxel, s.after_crop);
+  EXPECT_LE(s.after_outliers, s.after_voxel);
+  EXPECT_EQ(out.points.size(), s.after_outliers);
+}
+
+TEST(FilterCloud, InvalidOptionsNameTheCloud) {
+  PointCloud c;
+  c.source = "scan42.pcd";
+  c.points = {{0, 0, 0}, {1000, 1000, 1000}};
+  CloudFilterOptions o;
+  o.voxel_size = -0.1f;
+  expect_input_error([&] { filter_cloud(c, o); }, {"scan42.pcd", "voxel size"});
+  o.voxel_size = std::numeric_limits<float>::quiet_NaN();
+  expect_input_error([&] { filter_cloud(c, o); }, {"scan42.pcd", "voxel size"});
+  o = {};
+  o.voxel_size = 1e-5f;  // 1e8 voxels per axis: PCL's int indices would overflow
+  expect_input_error([&] { filter_cloud(c, o); }, {"scan42.pcd", "too small"});
+  o = {};
+  o.crop_min = Eigen::Vector3f(1, 0, 0);
+  o.crop_max = Eigen::Vector3f(0, 1, 1);
+  expect_input_error([&] { filter_cloud(c, o); }, {"scan42.pcd", "crop minimum exceeds"});
+  o = {};
+  o.outlier_neighbours = -3;
+  expect_input_error([&] { filter_cloud(c, o); }, {"neighbour"});
+  o.outlier_neighbours = 5;
+  o.outlier_stddev = 0.0;
+  expect_input_error([&] { filter_cloud(c, o); }, {"stddev"});
+}
+
+}  // namespace
+}  // namespace terrastride::perception
