@@ -34,7 +34,9 @@ PointCloud floor_patch(bool with_origin) {
 }
 
 TEST(OctoMap, RaysCarveFreeSpaceAndHitsAreOccupied) {
-  const auto tree = build_octomap({floor_patch(true)}, {});
+  OctoMapOptions o;
+  o.discretize = false;  // one ray per point, OctoMap's exact semantics
+  const auto tree = build_octomap({floor_patch(true)}, o);
   EXPECT_DOUBLE_EQ(tree->getResolution(), 0.02);
   const Eigen::Vector3d origin(0, 0, 1.5);
   const Eigen::Vector3d hit(0.31, -0.19, 0.001);
@@ -49,12 +51,21 @@ TEST(OctoMap, RaysCarveFreeSpaceAndHitsAreOccupied) {
   EXPECT_EQ(state(*tree, Eigen::Vector3d(3, 3, 1)), -1);
 }
 
-TEST(OctoMap, DiscretizedInsertionAgreesOnOccupancy) {
-  OctoMapOptions o;
-  o.discretize = true;
-  const auto tree = build_octomap({floor_patch(true)}, o);
-  EXPECT_EQ(state(*tree, Eigen::Vector3d(0.31, -0.19, 0.001)), 1);
-  EXPECT_EQ(state(*tree, Eigen::Vector3d(0.15, -0.1, 0.75)), 0);
+TEST(OctoMap, DiscretizedInsertionAgreesOnOccupiedVoxels) {
+  OctoMapOptions exact;
+  exact.discretize = false;
+  const auto a = build_octomap({floor_patch(true)}, exact);
+  const auto b = build_octomap({floor_patch(true)}, {});  // discretized by default
+  EXPECT_EQ(state(*b, Eigen::Vector3d(0.15, -0.1, 0.75)), 0);
+  size_t occupied = 0;
+  for (auto it = a->begin_leafs(); it != a->end_leafs(); ++it) {
+    if (!a->isNodeOccupied(*it)) continue;
+    ++occupied;
+    const octomap::OcTreeNode* n = b->search(it.getKey());
+    ASSERT_NE(n, nullptr);
+    EXPECT_TRUE(b->isNodeOccupied(n));
+  }
+  EXPECT_GE(occupied, 2500u);  // every one of the 50 x 50 floor points has its own voxel
 }
 
 TEST(OctoMap, WithoutOriginOnlyEndpointsAreMarked) {

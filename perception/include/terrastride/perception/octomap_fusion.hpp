@@ -11,11 +11,13 @@
 namespace terrastride::perception {
 
 struct OctoMapOptions {
-  double resolution = 0.02;  // voxel edge, m; must be in (0, 10]
+  double resolution = 0.02;  // voxel edge, m; must be in [0.001, 10]
   double max_range = -1;     // rays longer than this are truncated (OctoMap semantics); < 0 = off
-  // Cast one ray per distinct endpoint voxel instead of one per point (OctoMap's "discretize"):
-  // much faster for dense clouds, at the cost of rays ending at voxel centres.
-  bool discretize = false;
+  // Cast one ray per distinct endpoint voxel instead of one per point (OctoMap's "discretize").
+  // On by default: robot scans put many points in each 2 cm voxel, and this is ~5x faster on a
+  // dense 1 M-point scan (bench_perception). The occupied voxels are identical; free-space rays end
+  // at voxel centres instead of the exact points.
+  bool discretize = true;
 };
 
 // Builds a tree from all clouds. Clouds with a sensor origin are inserted with ray casting
@@ -30,7 +32,7 @@ std::unique_ptr<octomap::OcTree> build_octomap(const std::vector<PointCloud>& cl
 // Non-finite points are skipped; a point or origin outside the tree's addressable cube
 // (resolution * 2^15 around 0) is an InputError naming the cloud.
 void insert_into_octomap(octomap::OcTree& tree, const PointCloud& cloud, double max_range = -1,
-                         bool discretize = false);
+                         bool discretize = true);
 
 // Writes the tree as a binary .bt atomically (temp + rename). Throws InputError on failure.
 void write_octomap(const octomap::OcTree& tree, const std::string& path);
