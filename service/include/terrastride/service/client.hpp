@@ -1,0 +1,67 @@
+// A small blocking client for the terrastride socket service (docs/protocol.md), used by the tests
+// and `terrastride bench-service`. One Client per thread; requests may be pipelined.
+#pragma once
+
+#include <chrono>
+#include <deque>
+#include <nlohmann/json.hpp>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <unordered_map>
+#include <vector>
+
+#include "terrastride/service/protocol.hpp"
+
+namespace terrastride::service {
+
+// Connection failures, timeouts, a closed connection or an unparsable reply.
+class ClientError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+class Client {
+ public:
+  // `address`: tcp://HOST:PORT or unix:PATH. Throws ClientError naming the address.
+  static Client connect(const std::string& address, double timeout_s = 10.0);
+  Client(Client&& other) noexcept;
+  Client& operator=(Client&& other) noexcept;
+  Client(const Client&) = delete;
+  Client& operator=(const Client&) = delete;
+  ~Client();
+
+  // Sends one request. Fills "v" and, when absent, a fresh integer "id"; returns the id.
+  nlohmann::json send(nlohmann::json header, std::vector<protocol::Attachment> attachments = {});
+  // The next reply in arrival order (or one buffered by wait_for).
+  protocol::Message receive();
+  // The reply carrying `id`; replies to other ids that arrive first are kept for later.
+  protocol::Message wait_for(const nlohmann::json& id);
+  // send + wait_for.
+  protocol::Message call(nlohmann::json header, std::vector<protocol::Attachment> attachments = {});
+  // `call`, then the "result" object; throws ClientError("code: message") on an error reply.
+  nlohmann::json call_ok(nlohmann::json header, std::vector<protocol::Attachment> attachments = {});
+
+  // Raw bytes, for hostile-input tests.
+  void send_raw(std::string_view bytes);
+  // Half-closes or closes the socket.
+  void close();
+  bool is_open() const { return fd_ >= 0; }
+  void set_timeout(double seconds) { timeout_s_ = seconds; }
+  std::uint32_t max_frame_bytes = 0xffffffffu;
+
+ private:
+  explicit Client(int fd) : fd_(fd) {}
+  std::string read_body();
+  int fd_ = -1;
+  double timeout_s_ = 30.0;
+  long long next_id_ = 1;
+  std::string in_;
+  std::size_t in_pos_ = 0;
+  std::deque<protocol::Message> pending_;  // received but not yet asked for
+};
+
+// "code: message" of an error reply, or "" for a success reply.
+std::string error_text(const protocol::Message& reply);
+
+}  // namespace terrastride::service

@@ -1,0 +1,126 @@
+// The terrastride socket service (docs/protocol.md): Asio, one I/O thread, a bounded worker pool for
+// long operations. Operations are handlers behind a small interface (OperationRegistry), so the
+// transport is independent of the terrain and planner modules behind them.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "terrastride/service/cancellation.hpp"
+#include "terrastride/service/protocol.hpp"
+
+namespace terrastride::service {
+
+// What a handler sees: the decoded request and its cancellation token (cancel, deadline, shutdown).
+struct OpContext {
+  const protocol::Message& request;
+  std::shared_ptr<CancellationToken> token;
+  // Throws ProtocolError(cancelled / deadline_exceeded / shutting_down) once a stop was requested.
+  void check_stop() const;
+};
+
+struct OpResult {
+  nlohmann::json result = nlohmann::json::object();
+  std::vector<protocol::Attachment> attachments;
+};
+
+// Handlers report failures by throwing protocol::ProtocolError(code, message); any other exception
+// becomes code "failed" with its message.
+using OpHandler = std::function<OpResult(OpContext&)>;
+
+enum class OpKind {
+  kInline,  // cheap (microseconds): runs on the I/O thread, in order with the connection's frames
+  kWorker,  // long: runs on the bounded worker pool; `busy` when the queue is full
+};
+
+struct Operation {
+  std::string name;
+  OpKind kind = OpKind::kInline;
+  std::string summary;
+  OpHandler handler;
+};
+
+class OperationRegistry {
+ public:
+  void add(Operation op) { ops_[op.name] = std::move(op); }
+  const Operation* find(const std::string& name) const {
+    const auto it = ops_.find(name);
+    return it == ops_.end() ? nullptr : &it->second;
+  }
+  std::vector<std::string> names() const {
+    std::vector<std::string> n;
+    for (const auto& [k, v] : ops_) n.push_back(k);
+    return n;
+  }
+
+ private:
+  std::map<std::string, Operation> ops_;
+};
+
+struct ServerOptions {
+  std::vector<std::string> listen{"tcp://127.0.0.1:0"};  // tcp://HOST:PORT or unix:PATH
+  std::optional<std::string> token;  // shared secret; required for non-loopback TCP addresses
+  std::uint32_t max_frame_bytes = protocol::kDefaultMaxFrameBytes;
+  int workers = 2;
+  int queue = 8;                    // jobs waiting for a worker before `busy`
+  int max_connections = 512;
+  int max_inflight_per_connection = 64;           // queued + running worker jobs
+  std::size_t max_write_queue_bytes = 256u << 20;  // unsent replies before a client is dropped
+  double drain_seconds = 5.0;  // on SIGINT/SIGTERM: time running jobs get before cancellation
+  bool handle_signals = true;
+};
+
+// Parsed listen address.
+struct ListenAddress {
+  enum class Kind { kTcp, kUnix } kind = Kind::kTcp;
+  std::string host;  // tcp
+  std::uint16_t port = 0;
+  std::string path;  // unix
+};
+// Throws std::invalid_argument naming the address when it is malformed.
+ListenAddress parse_listen_address(const std::string& text);
+
+class Server {
+ public:
+  Server(ServerOptions options, OperationRegistry operations,
+         std::function<nlohmann::json()> status_extra = {},
+         std::function<nlohmann::json()> hello_extra = {});
+  ~Server();
+  Server(const Server&) = delete;
+  Server& operator=(const Server&) = delete;
+
+  // Binds every listen address; returns the bound addresses ("tcp://127.0.0.1:40123",
+  // "unix:/run/ts.sock"). Throws std::runtime_error naming the address on failure, and refuses a
+  // non-loopback TCP address without a token.
+  std::vector<std::string> bind();
+  // Serves until shutdown() or SIGINT/SIGTERM (when handle_signals); returns after draining.
+  void run();
+  // Graceful shutdown, callable from any thread.
+  void shutdown();
+  // The counters reported by `status` (thread-safe snapshot).
+  nlohmann::json status() const;
+
+  struct Impl;  // defined in server.cpp
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+// The terrain/planner operations (map.update, map.clear, map.query, plan, check, and with
+// `debug_ops` the test operation debug.sleep), registered on `registry`.
+struct BackendOptions {
+  std::string robot = "hyq";
+  bool debug_ops = false;
+};
+class Backend;
+std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRegistry& registry);
+nlohmann::json backend_status(const Backend& backend);
+nlohmann::json backend_hello(const Backend& backend);
+
+}  // namespace terrastride::service

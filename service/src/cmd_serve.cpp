@@ -1,0 +1,103 @@
+// `terrastride serve`: the socket service (docs/protocol.md).
+#include <fstream>
+#include <iostream>
+#include <memory>
+#include <sstream>
+
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/service/cli.hpp"
+#include "terrastride/service/server.hpp"
+
+namespace terrastride::service {
+namespace {
+
+struct ServeOptions {
+  std::vector<std::string> listen;
+  std::string token_file;
+  std::uint32_t max_frame_bytes = protocol::kDefaultMaxFrameBytes;
+  int workers = 2;
+  int queue = 8;
+  int max_connections = 512;
+  double drain_seconds = 5.0;
+  std::string robot = "hyq";
+  bool debug_ops = false;
+};
+
+std::string read_token(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw CommandError("--token-file: cannot read '" + path + "'");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string token = ss.str();
+  while (!token.empty() && std::isspace(static_cast<unsigned char>(token.back()))) token.pop_back();
+  if (token.empty()) throw CommandError("--token-file: '" + path + "' is empty");
+  if (token.size() < 16)
+    throw CommandError("--token-file: the token in '" + path +
+                       "' is shorter than 16 characters; use a long random secret");
+  return token;
+}
+
+}  // namespace
+
+void add_serve_command(CLI::App& app) {
+  auto o = std::make_shared<ServeOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "serve", "Run the socket service: terrain map updates and queries, plans and checks "
+               "(protocol: docs/protocol.md)");
+  cmd->add_option("--listen", o->listen,
+                  "tcp://HOST:PORT or unix:PATH, repeatable; port 0 picks a free port. Default "
+                  "tcp://127.0.0.1:7700");
+  cmd->add_option("--token-file", o->token_file,
+                  "File holding a shared secret every client must present in hello; required for "
+                  "non-loopback addresses");
+  cmd->add_option("--max-frame-bytes", o->max_frame_bytes, "Largest accepted frame")
+      ->capture_default_str()
+      ->check(CLI::Range(64u, 0xffffffffu));
+  cmd->add_option("--workers", o->workers, "Threads for plans, checks and map updates")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 64));
+  cmd->add_option("--queue", o->queue, "Jobs that may wait for a worker before replies are busy")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 100000));
+  cmd->add_option("--max-connections", o->max_connections, "Concurrent connections")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  cmd->add_option("--drain-seconds", o->drain_seconds,
+                  "On SIGINT/SIGTERM: time running jobs get to finish before they are cancelled")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 3600.0));
+  cmd->add_option("--robot", o->robot, "Robot name or file")->capture_default_str();
+  cmd->add_flag("--debug-ops", o->debug_ops, "Enable test operations (debug.sleep)");
+  cmd->callback([o] {
+    ServerOptions so;
+    so.listen = o->listen.empty() ? std::vector<std::string>{"tcp://127.0.0.1:7700"} : o->listen;
+    if (!o->token_file.empty()) so.token = read_token(o->token_file);
+    so.max_frame_bytes = o->max_frame_bytes;
+    so.workers = o->workers;
+    so.queue = o->queue;
+    so.max_connections = o->max_connections;
+    so.drain_seconds = o->drain_seconds;
+    OperationRegistry registry;
+    std::shared_ptr<Backend> backend;
+    try {
+      backend = make_backend({o->robot, o->debug_ops}, registry);
+    } catch (const robot::RobotFileError& e) {
+      throw CommandError(std::string("--robot: ") + e.what());
+    }
+    Server server(
+        so, std::move(registry), [backend] { return backend_status(*backend); },
+        [backend] { return backend_hello(*backend); });
+    std::vector<std::string> bound;
+    try {
+      bound = server.bind();
+    } catch (const std::runtime_error& e) {
+      throw CommandError(e.what());
+    }
+    for (const auto& b : bound) std::cout << "listening " << b << "\n";
+    std::cout.flush();
+    server.run();
+    std::cerr << "terrastride serve: stopped\n";
+  });
+}
+
+}  // namespace terrastride::service

@@ -1,0 +1,867 @@
+// The socket server: Asio acceptors and connections on one I/O thread, long operations on a
+// bounded worker pool. All connection state is touched only on the I/O thread; workers hand their
+// encoded replies back through asio::post.
+#include "terrastride/service/server.hpp"
+
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <sys/un.h>
+#include <unistd.h>
+
+#include <asio.hpp>
+#include <atomic>
+#include <cerrno>
+#include <chrono>
+#include <condition_variable>
+#include <cstring>
+#include <deque>
+#include <mutex>
+#include <set>
+#include <thread>
+#include <unordered_map>
+
+namespace terrastride::service {
+
+namespace pc = protocol::code;
+using nlohmann::json;
+using protocol::Message;
+using protocol::ProtocolError;
+using Clock = std::chrono::steady_clock;
+
+void OpContext::check_stop() const {
+  if (!token->stop_requested()) return;
+  switch (token->reason()) {
+    case CancellationToken::Reason::kDeadline:
+      throw ProtocolError(pc::kDeadlineExceeded, "deadline exceeded while running");
+    case CancellationToken::Reason::kShutdown:
+      throw ProtocolError(pc::kShuttingDown, "server shutting down; operation cancelled");
+    default:
+      throw ProtocolError(pc::kCancelled, "cancelled by request");
+  }
+}
+
+ListenAddress parse_listen_address(const std::string& text) {
+  ListenAddress a;
+  if (text.rfind("unix:", 0) == 0) {
+    a.kind = ListenAddress::Kind::kUnix;
+    a.path = text.substr(5);
+    if (a.path.rfind("//", 0) == 0) a.path = a.path.substr(2);  // unix://PATH
+    if (a.path.empty())
+      throw std::invalid_argument("listen address '" + text + "': empty socket path");
+    if (a.path.size() >= sizeof(sockaddr_un::sun_path))
+      throw std::invalid_argument("listen address '" + text + "': socket path longer than " +
+                                  std::to_string(sizeof(sockaddr_un::sun_path) - 1) + " bytes");
+    return a;
+  }
+  std::string rest = text;
+  if (rest.rfind("tcp://", 0) == 0) rest = rest.substr(6);
+  else if (rest.find("://") != std::string::npos)
+    throw std::invalid_argument("listen address '" + text +
+                                "': scheme must be tcp:// or unix: (e.g. tcp://127.0.0.1:7700)");
+  std::string port;
+  if (!rest.empty() && rest[0] == '[') {  // [::1]:PORT
+    const auto close = rest.find(']');
+    if (close == std::string::npos || close + 1 >= rest.size() || rest[close + 1] != ':')
+      throw std::invalid_argument("listen address '" + text + "': expected [IPv6]:PORT");
+    a.host = rest.substr(1, close - 1);
+    port = rest.substr(close + 2);
+  } else {
+    const auto colon = rest.rfind(':');
+    if (colon == std::string::npos)
+      throw std::invalid_argument("listen address '" + text + "': missing :PORT");
+    a.host = rest.substr(0, colon);
+    port = rest.substr(colon + 1);
+  }
+  if (a.host == "localhost") a.host = "127.0.0.1";
+  if (a.host.empty() || port.empty() || port.size() > 5 ||
+      port.find_first_not_of("0123456789") != std::string::npos || std::stoul(port) > 65535)
+    throw std::invalid_argument("listen address '" + text + "': expected HOST:PORT with port 0-65535");
+  a.port = static_cast<std::uint16_t>(std::stoul(port));
+  asio::error_code ec;
+  asio::ip::make_address(a.host, ec);
+  if (ec)
+    throw std::invalid_argument("listen address '" + text + "': '" + a.host +
+                                "' is not an IP address");
+  return a;
+}
+
+namespace {
+
+struct Connection;
+
+// A long operation travelling through the worker pool. `replied` and `conn` are I/O-thread state.
+struct Job {
+  std::uint64_t seq = 0;
+  json id;
+  std::string key;  // id.dump(): the connection's in-flight map key
+  const Operation* op = nullptr;
+  Message request;
+  std::shared_ptr<CancellationToken> token = std::make_shared<CancellationToken>();
+  std::weak_ptr<Connection> conn;
+  bool replied = false;
+  bool running = false;
+  std::unique_ptr<asio::steady_timer> deadline_timer;
+};
+
+// Bounded FIFO of jobs served by a fixed set of threads.
+class WorkerPool {
+ public:
+  WorkerPool(int workers, int capacity, std::function<void(std::shared_ptr<Job>)> run)
+      : capacity_(static_cast<std::size_t>(std::max(0, capacity))), run_(std::move(run)) {
+    for (int i = 0; i < std::max(1, workers); ++i) threads_.emplace_back([this] { loop(); });
+  }
+  ~WorkerPool() { stop(); }
+
+  // False when the queue is full (the caller replies `busy`). A job goes straight to an idle
+  // worker even when capacity is 0.
+  bool try_submit(std::shared_ptr<Job> job) {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (stopping_) return false;
+    const std::size_t idle = threads_.size() - running_;
+    if (queue_.size() >= capacity_ + (idle > queue_.size() ? idle - queue_.size() : 0)) return false;
+    queue_.push_back(std::move(job));
+    cv_.notify_one();
+    return true;
+  }
+  // Removes a job that has not started; false when it is running or done.
+  bool try_remove(const std::shared_ptr<Job>& job) {
+    std::lock_guard<std::mutex> lock(mu_);
+    for (auto it = queue_.begin(); it != queue_.end(); ++it)
+      if (*it == job) {
+        queue_.erase(it);
+        return true;
+      }
+    return false;
+  }
+  std::vector<std::shared_ptr<Job>> take_all_queued() {
+    std::lock_guard<std::mutex> lock(mu_);
+    std::vector<std::shared_ptr<Job>> out(queue_.begin(), queue_.end());
+    queue_.clear();
+    return out;
+  }
+  std::size_t queued() const {
+    std::lock_guard<std::mutex> lock(mu_);
+    return queue_.size();
+  }
+  std::size_t running() const {
+    std::lock_guard<std::mutex> lock(mu_);
+    return running_;
+  }
+  std::size_t workers() const { return threads_.size(); }
+  std::size_t capacity() const { return capacity_; }
+  void stop() {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (stopping_ && threads_.empty()) return;
+      stopping_ = true;
+      queue_.clear();
+    }
+    cv_.notify_all();
+    for (auto& t : threads_)
+      if (t.joinable()) t.join();
+    threads_.clear();
+  }
+
+ private:
+  void loop() {
+    for (;;) {
+      std::shared_ptr<Job> job;
+      {
+        std::unique_lock<std::mutex> lock(mu_);
+        cv_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
+        if (stopping_) return;
+        job = std::move(queue_.front());
+        queue_.pop_front();
+        ++running_;
+      }
+      run_(job);
+      std::lock_guard<std::mutex> lock(mu_);
+      --running_;
+    }
+  }
+
+  std::size_t capacity_;
+  std::function<void(std::shared_ptr<Job>)> run_;
+  mutable std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<std::shared_ptr<Job>> queue_;
+  std::size_t running_ = 0;
+  bool stopping_ = false;
+  std::vector<std::thread> threads_;
+};
+
+struct Counters {
+  std::atomic<std::uint64_t> connections_total{0}, connections_open{0}, connections_rejected{0},
+      requests{0}, replies_ok{0}, replies_error{0}, malformed_frames{0}, busy{0}, bytes_in{0},
+      bytes_out{0}, slow_client_drops{0}, disconnects_mid_request{0}, cancelled{0},
+      deadline_exceeded{0}, auth_failures{0};
+  std::mutex mu;
+  std::map<std::string, std::uint64_t> errors_by_code;
+  std::map<std::string, std::uint64_t> ops;
+};
+
+}  // namespace
+
+struct Server::Impl {
+  ServerOptions options;
+  OperationRegistry registry;
+  std::function<json()> status_extra, hello_extra;
+  asio::io_context io;
+  std::vector<asio::ip::tcp::acceptor> tcp_acceptors;
+  std::vector<asio::local::stream_protocol::acceptor> unix_acceptors;
+  std::vector<std::string> unix_paths;
+  std::vector<std::string> bound;
+  std::unique_ptr<WorkerPool> pool;
+  std::set<std::shared_ptr<Connection>> connections;
+  Counters counters;
+  Clock::time_point started = Clock::now();
+  std::uint64_t next_conn_id = 1;
+  std::uint64_t next_job_seq = 1;
+  std::atomic<bool> draining{false};
+  Clock::time_point drain_started;
+  bool drain_cancelled = false;
+  std::unique_ptr<asio::signal_set> signals;
+  std::unique_ptr<asio::steady_timer> drain_timer;
+  std::atomic<bool> stopped{false};
+
+  void accept_tcp(asio::ip::tcp::acceptor& acc);
+  void accept_unix(asio::local::stream_protocol::acceptor& acc);
+  void adopt(asio::generic::stream_protocol::socket sock, bool tcp);
+  void run_job(std::shared_ptr<Job> job);  // worker thread
+  void begin_shutdown();
+  void drain_tick();
+  json status_json();
+  void count_error(const std::string& code) {
+    counters.replies_error++;
+    std::lock_guard<std::mutex> lock(counters.mu);
+    counters.errors_by_code[code]++;
+  }
+};
+
+namespace {
+
+struct Connection : std::enable_shared_from_this<Connection> {
+  Connection(Server::Impl& s, asio::generic::stream_protocol::socket sock, std::uint64_t id)
+      : server(s), socket(std::move(sock)), cid(id) {
+    authenticated = !server.options.token.has_value();
+  }
+
+  Server::Impl& server;
+  asio::generic::stream_protocol::socket socket;
+  std::uint64_t cid;
+  bool authenticated;
+  bool closed = false;
+  bool close_after_flush = false;
+  bool reading_body = false;
+  unsigned char prefix[4] = {0, 0, 0, 0};
+  std::string body;
+  std::size_t body_length = 0;
+  std::deque<std::string> out;
+  std::vector<std::string> writing;  // buffers of the write in progress
+  std::size_t out_bytes = 0;
+  std::unordered_map<std::string, std::shared_ptr<Job>> inflight;
+
+  void start() { read_prefix(); }
+
+  void read_prefix() {
+    if (closed || close_after_flush) return;
+    reading_body = false;
+    auto self = shared_from_this();
+    asio::async_read(socket, asio::buffer(prefix, 4),
+                     [self](const asio::error_code& ec, std::size_t n) {
+                       self->server.counters.bytes_in += n;
+                       if (ec) return self->close();
+                       self->on_prefix();
+                     });
+  }
+
+  void on_prefix() {
+    const std::uint32_t len = protocol::read_u32be(prefix);
+    try {
+      protocol::check_body_length(len, server.options.max_frame_bytes);
+    } catch (const ProtocolError& e) {
+      // The stream cannot be resynchronised: reply, then close once the reply is out.
+      server.counters.malformed_frames++;
+      send_error(nullptr, e.code(), e.what());
+      close_after_flush = true;
+      if (out.empty() && writing.empty()) close();
+      return;
+    }
+    body.clear();
+    body_length = len;
+    reading_body = true;
+    read_body_chunk();
+  }
+
+  // The body arrives in chunks of at most 1 MiB, so memory follows the bytes actually received,
+  // not the length a client announces.
+  void read_body_chunk() {
+    const std::size_t chunk = std::min<std::size_t>(body_length - body.size(), 1u << 20);
+    const std::size_t old = body.size();
+    body.resize(old + chunk);
+    auto self = shared_from_this();
+    asio::async_read(socket, asio::buffer(&body[old], chunk),
+                     [self](const asio::error_code& ec, std::size_t n) {
+                       self->server.counters.bytes_in += n;
+                       if (ec) {
+                         self->server.counters.disconnects_mid_request++;
+                         return self->close();
+                       }
+                       if (self->body.size() < self->body_length) return self->read_body_chunk();
+                       self->reading_body = false;
+                       self->dispatch();
+                       self->read_prefix();
+                     });
+  }
+
+  void send(std::string frame) {
+    if (closed) return;
+    server.counters.bytes_out += frame.size();
+    out_bytes += frame.size();
+    if (out_bytes > server.options.max_write_queue_bytes) {
+      // A client that does not read its replies: drop it rather than grow without bound.
+      server.counters.slow_client_drops++;
+      close();
+      return;
+    }
+    out.push_back(std::move(frame));
+    if (writing.empty()) do_write();
+  }
+
+  void send_message(const Message& m) {
+    try {
+      send(protocol::encode_frame(m));
+    } catch (const ProtocolError& e) {
+      send(protocol::encode_frame(
+          protocol::make_error(m.header.value("id", json()), pc::kInternal, e.what())));
+    }
+  }
+
+  void send_error(const json& id, const std::string& code, const std::string& message) {
+    server.count_error(code);
+    send(protocol::encode_frame(protocol::make_error(id, code, message)));
+  }
+
+  void do_write() {
+    if (closed) return;
+    if (out.empty()) {
+      if (close_after_flush) close();
+      return;
+    }
+    std::vector<asio::const_buffer> bufs;
+    while (!out.empty() && writing.size() < 64) {
+      writing.push_back(std::move(out.front()));
+      out.pop_front();
+    }
+    for (const auto& w : writing) bufs.emplace_back(asio::buffer(w));
+    auto self = shared_from_this();
+    asio::async_write(socket, bufs, [self](const asio::error_code& ec, std::size_t) {
+      for (const auto& w : self->writing) self->out_bytes -= w.size();
+      self->writing.clear();
+      if (ec) return self->close();
+      self->do_write();
+    });
+  }
+
+  void close() {
+    if (closed) return;
+    closed = true;
+    asio::error_code ignored;
+    socket.shutdown(asio::socket_base::shutdown_both, ignored);
+    socket.close(ignored);
+    // Nobody is left to read these replies: stop the work.
+    for (auto& [key, job] : inflight) {
+      job->replied = true;
+      job->token->cancel(CancellationToken::Reason::kCancelled);
+      if (job->deadline_timer) job->deadline_timer->cancel();
+      server.pool->try_remove(job);
+    }
+    inflight.clear();
+    server.counters.connections_open--;
+    server.connections.erase(shared_from_this());
+  }
+
+  void finish_job(const std::shared_ptr<Job>& job, std::string frame, bool ok,
+                  const std::string& code) {
+    if (job->deadline_timer) job->deadline_timer->cancel();
+    const auto it = inflight.find(job->key);
+    if (it != inflight.end() && it->second == job) inflight.erase(it);
+    if (job->replied) return;  // already answered (cancel, deadline, shutdown) or gone
+    job->replied = true;
+    if (ok)
+      server.counters.replies_ok++;
+    else
+      server.count_error(code);
+    send(std::move(frame));
+  }
+
+  // Answers a job now with an error and forgets it; the worker's later result is dropped.
+  void abort_job(const std::shared_ptr<Job>& job, const char* code, const std::string& message) {
+    if (job->replied) return;
+    if (job->deadline_timer) job->deadline_timer->cancel();
+    inflight.erase(job->key);
+    job->replied = true;
+    send_error(job->id, code, message);
+  }
+
+  void dispatch();
+  OpResult builtin_cancel(const Message& m);
+};
+
+void Connection::dispatch() {
+  server.counters.requests++;
+  const auto arrival = Clock::now();
+  Message m;
+  json id = nullptr;
+  protocol::Request req;
+  try {
+    m = protocol::decode_body(body);
+    id = protocol::salvage_id(m.header);
+    req = protocol::parse_envelope(m.header, &id);
+  } catch (const ProtocolError& e) {
+    server.counters.malformed_frames++;
+    send_error(id, e.code(), e.what());
+    return;
+  }
+  body.clear();
+  body.shrink_to_fit();
+  {
+    // Per-op counters for known ops only, so hostile op names cannot grow the map.
+    const bool known = req.op == "hello" || req.op == "status" || req.op == "cancel" ||
+                       server.registry.find(req.op) != nullptr;
+    std::lock_guard<std::mutex> lock(server.counters.mu);
+    server.counters.ops[known ? req.op : "(unknown)"]++;
+  }
+
+  if (!authenticated) {
+    // The first request must be a hello carrying the shared token.
+    const auto tok = m.header.find("token");
+    const bool ok = req.op == "hello" && tok != m.header.end() && tok->is_string() &&
+                    protocol::constant_time_equal(tok->get_ref<const std::string&>(),
+                                                  *server.options.token);
+    if (!ok) {
+      server.counters.auth_failures++;
+      send_error(id, pc::kUnauthorized,
+                 req.op == "hello" ? "wrong or missing token"
+                                   : "authenticate first: send hello with \"token\"");
+      close_after_flush = true;
+      return;
+    }
+    authenticated = true;
+  }
+  if (server.draining) {
+    send_error(id, pc::kShuttingDown, "server is shutting down; request '" + req.op + "' refused");
+    return;
+  }
+  if (req.deadline_ms && *req.deadline_ms <= 0) {
+    server.counters.deadline_exceeded++;
+    send_error(id, pc::kDeadlineExceeded, "deadline of 0 ms expired before '" + req.op + "' ran");
+    return;
+  }
+
+  auto run_inline = [&](const std::function<OpResult()>& fn) {
+    try {
+      OpResult r = fn();
+      server.counters.replies_ok++;
+      send_message(protocol::make_reply(id, std::move(r.result), std::move(r.attachments)));
+    } catch (const ProtocolError& e) {
+      send_error(id, e.code(), e.what());
+    } catch (const std::exception& e) {
+      send_error(id, pc::kFailed, req.op + ": " + e.what());
+    }
+  };
+
+  if (req.op == "hello") {
+    return run_inline([&] {
+      OpResult r;
+      r.result = {{"server", "terrastride"},
+                  {"version", "0.1.0"},
+                  {"protocol", protocol::kVersion},
+                  {"connection", cid},
+                  {"ops", json::array()},
+                  {"capabilities",
+                   {{"max_frame_bytes", server.options.max_frame_bytes},
+                    {"attachment_dtypes", {"float32"}},
+                    {"pipelining", true},
+                    {"deadlines", true},
+                    {"cancel", true},
+                    {"workers", server.pool->workers()},
+                    {"queue", server.pool->capacity()},
+                    {"token_required", server.options.token.has_value()}}}};
+      r.result["ops"] = {"hello", "status", "cancel"};
+      for (const auto& n : server.registry.names()) r.result["ops"].push_back(n);
+      if (server.hello_extra) r.result.update(server.hello_extra());
+      return r;
+    });
+  }
+  if (req.op == "status") return run_inline([&] { return OpResult{server.status_json(), {}}; });
+  if (req.op == "cancel") return run_inline([&] { return builtin_cancel(m); });
+
+  const Operation* op = server.registry.find(req.op);
+  if (!op) {
+    std::string known = "hello, status, cancel";
+    for (const auto& n : server.registry.names()) known += ", " + n;
+    const std::string shown = req.op.size() > 64 ? req.op.substr(0, 64) + "..." : req.op;
+    send_error(id, pc::kUnknownOp, "unknown op '" + shown + "' (known: " + known + ")");
+    return;
+  }
+  if (op->kind == OpKind::kInline) {
+    auto token = std::make_shared<CancellationToken>();
+    if (req.deadline_ms)
+      token->set_deadline(arrival + std::chrono::microseconds(
+                                        static_cast<long long>(*req.deadline_ms * 1000)));
+    return run_inline([&] {
+      OpContext ctx{m, token};
+      return op->handler(ctx);
+    });
+  }
+
+  // A worker job.
+  auto job = std::make_shared<Job>();
+  job->seq = server.next_job_seq++;
+  job->id = id;
+  job->key = id.dump();
+  if (inflight.count(job->key)) {
+    send_error(id, pc::kBadRequest,
+               "id " + job->key + " is already in flight on this connection; ids must be unique");
+    return;
+  }
+  if (static_cast<int>(inflight.size()) >= server.options.max_inflight_per_connection) {
+    server.counters.busy++;
+    send_error(id, pc::kBusy,
+               "too many requests in flight on this connection (limit " +
+                   std::to_string(server.options.max_inflight_per_connection) + ")");
+    return;
+  }
+  job->op = op;
+  job->request = std::move(m);
+  job->conn = weak_from_this();
+  if (req.deadline_ms) {
+    const auto deadline =
+        arrival + std::chrono::microseconds(static_cast<long long>(*req.deadline_ms * 1000));
+    job->token->set_deadline(deadline);
+    job->deadline_timer = std::make_unique<asio::steady_timer>(server.io, deadline);
+  }
+  if (!server.pool->try_submit(job)) {
+    server.counters.busy++;
+    send_error(id, pc::kBusy,
+               "all " + std::to_string(server.pool->workers()) + " workers busy and the queue of " +
+                   std::to_string(server.pool->capacity()) + " is full; retry later");
+    return;
+  }
+  inflight[job->key] = job;
+  if (job->deadline_timer) {
+    std::weak_ptr<Connection> wc = weak_from_this();
+    job->deadline_timer->async_wait([wc, job](const asio::error_code& ec) {
+      auto c = wc.lock();
+      if (ec || !c || job->replied) return;
+      job->token->cancel(CancellationToken::Reason::kDeadline);
+      c->server.pool->try_remove(job);
+      c->server.counters.deadline_exceeded++;
+      c->abort_job(job, pc::kDeadlineExceeded,
+                   std::string("deadline exceeded ") + (job->running ? "while running" : "in queue") +
+                       " ('" + job->op->name + "')");
+    });
+  }
+}
+
+OpResult Connection::builtin_cancel(const Message& m) {
+  const auto t = m.header.find("target");
+  if (t == m.header.end() || !(t->is_number_integer() || t->is_string()))
+    throw ProtocolError(pc::kBadRequest, "cancel needs \"target\": the id of the request to cancel");
+  OpResult r;
+  const auto it = inflight.find(t->dump());
+  if (it == inflight.end()) {
+    r.result = {{"target", *t}, {"cancelled", false}, {"state", "unknown"}};
+    return r;
+  }
+  auto job = it->second;
+  const bool queued = server.pool->try_remove(job);
+  job->token->cancel(CancellationToken::Reason::kCancelled);
+  server.counters.cancelled++;
+  r.result = {{"target", *t}, {"cancelled", true}, {"state", queued ? "queued" : "running"}};
+  abort_job(job, pc::kCancelled, "request cancelled by cancel (id " + job->key + ")");
+  return r;
+}
+
+}  // namespace
+
+void Server::Impl::run_job(std::shared_ptr<Job> job) {
+  // Worker thread: run the handler, encode the reply here (off the I/O thread), post it back.
+  asio::post(io, [job] { job->running = true; });
+  bool ok = false;
+  std::string code;
+  std::string frame;
+  try {
+    OpContext ctx{job->request, job->token};
+    ctx.check_stop();
+    OpResult r = job->op->handler(ctx);
+    frame = protocol::encode_frame(
+        protocol::make_reply(job->id, std::move(r.result), std::move(r.attachments)));
+    ok = true;
+  } catch (const ProtocolError& e) {
+    code = e.code();
+    frame = protocol::encode_frame(protocol::make_error(job->id, code, e.what()));
+  } catch (const std::exception& e) {
+    code = pc::kFailed;
+    frame = protocol::encode_frame(
+        protocol::make_error(job->id, code, job->op->name + ": " + e.what()));
+  }
+  job->request = Message{};  // free the attachments now
+  asio::post(io, [job, frame = std::move(frame), ok, code]() mutable {
+    auto c = job->conn.lock();
+    if (job->deadline_timer) job->deadline_timer->cancel();
+    if (!c) return;
+    c->finish_job(job, std::move(frame), ok, code);
+  });
+}
+
+void Server::Impl::adopt(asio::generic::stream_protocol::socket sock, bool tcp) {
+  counters.connections_total++;
+  if (draining) return;
+  if (static_cast<int>(connections.size()) >= options.max_connections) {
+    counters.connections_rejected++;
+    // Best effort: tell the client why, then close.
+    const std::string frame = protocol::encode_frame(protocol::make_error(
+        nullptr, pc::kBusy,
+        "connection limit of " + std::to_string(options.max_connections) + " reached"));
+    asio::error_code ec;
+    sock.non_blocking(true, ec);
+    asio::write(sock, asio::buffer(frame), ec);
+    sock.close(ec);
+    return;
+  }
+  counters.connections_open++;
+  auto c = std::make_shared<Connection>(*this, std::move(sock), next_conn_id++);
+  connections.insert(c);
+  c->start();
+}
+
+void Server::Impl::accept_tcp(asio::ip::tcp::acceptor& acc) {
+  acc.async_accept([this, &acc](const asio::error_code& ec, asio::ip::tcp::socket s) {
+    if (!acc.is_open() || draining) return;
+    if (!ec) {
+      asio::error_code ignored;
+      s.set_option(asio::ip::tcp::no_delay(true), ignored);
+      adopt(asio::generic::stream_protocol::socket(std::move(s)), true);
+    } else if (ec == asio::error::no_descriptors || ec == asio::error::no_buffer_space) {
+      // Out of file descriptors: back off briefly rather than spin.
+      auto t = std::make_shared<asio::steady_timer>(io, std::chrono::milliseconds(50));
+      t->async_wait([this, &acc, t](const asio::error_code&) { accept_tcp(acc); });
+      return;
+    }
+    accept_tcp(acc);
+  });
+}
+
+void Server::Impl::accept_unix(asio::local::stream_protocol::acceptor& acc) {
+  acc.async_accept([this, &acc](const asio::error_code& ec, asio::local::stream_protocol::socket s) {
+    if (!acc.is_open() || draining) return;
+    if (!ec) adopt(asio::generic::stream_protocol::socket(std::move(s)), false);
+    else if (ec == asio::error::no_descriptors || ec == asio::error::no_buffer_space) {
+      auto t = std::make_shared<asio::steady_timer>(io, std::chrono::milliseconds(50));
+      t->async_wait([this, &acc, t](const asio::error_code&) { accept_unix(acc); });
+      return;
+    }
+    accept_unix(acc);
+  });
+}
+
+json Server::Impl::status_json() {
+  json errors = json::object();
+  json ops = json::object();
+  {
+    std::lock_guard<std::mutex> lock(counters.mu);
+    for (const auto& [k, v] : counters.errors_by_code) errors[k] = v;
+    for (const auto& [k, v] : counters.ops) ops[k] = v;
+  }
+  json s = {
+      {"uptime_s", std::chrono::duration<double>(Clock::now() - started).count()},
+      {"draining", draining.load()},
+      {"listen", bound},
+      {"connections",
+       {{"open", counters.connections_open.load()},
+        {"total", counters.connections_total.load()},
+        {"rejected", counters.connections_rejected.load()},
+        {"slow_client_drops", counters.slow_client_drops.load()},
+        {"disconnects_mid_request", counters.disconnects_mid_request.load()}}},
+      {"requests",
+       {{"total", counters.requests.load()},
+        {"ok", counters.replies_ok.load()},
+        {"errors", counters.replies_error.load()},
+        {"malformed_frames", counters.malformed_frames.load()},
+        {"busy", counters.busy.load()},
+        {"cancelled", counters.cancelled.load()},
+        {"deadline_exceeded", counters.deadline_exceeded.load()},
+        {"auth_failures", counters.auth_failures.load()},
+        {"errors_by_code", errors},
+        {"by_op", ops}}},
+      {"bytes", {{"in", counters.bytes_in.load()}, {"out", counters.bytes_out.load()}}},
+      {"queue",
+       {{"length", pool ? pool->queued() : std::size_t{0}},
+        {"capacity", pool ? pool->capacity() : std::size_t{0}},
+        {"running", pool ? pool->running() : std::size_t{0}},
+        {"workers", pool ? pool->workers() : std::size_t{0}}}}};
+  if (status_extra) s.update(status_extra());
+  return s;
+}
+
+void Server::Impl::begin_shutdown() {
+  if (draining) return;
+  draining = true;
+  drain_started = Clock::now();
+  asio::error_code ec;
+  for (auto& a : tcp_acceptors) a.close(ec);
+  for (auto& a : unix_acceptors) a.close(ec);
+  for (const auto& p : unix_paths) ::unlink(p.c_str());
+  if (signals) signals->cancel(ec);
+  // Jobs that have not started are answered now; running ones get drain_seconds to finish.
+  for (auto& job : pool->take_all_queued()) {
+    job->token->cancel(CancellationToken::Reason::kShutdown);
+    if (auto c = job->conn.lock())
+      c->abort_job(job, pc::kShuttingDown, "server shutting down; queued request not started");
+  }
+  drain_timer = std::make_unique<asio::steady_timer>(io);
+  drain_tick();
+}
+
+void Server::Impl::drain_tick() {
+  const double waited = std::chrono::duration<double>(Clock::now() - drain_started).count();
+  std::size_t pending_jobs = 0, pending_bytes = 0;
+  for (const auto& c : connections) {
+    pending_jobs += c->inflight.size();
+    pending_bytes += c->out.size() + c->writing.size();
+  }
+  if (pending_jobs > 0 && waited >= options.drain_seconds && !drain_cancelled) {
+    drain_cancelled = true;
+    auto conns = connections;  // abort_job may not erase connections, but copy to be safe
+    for (const auto& c : conns) {
+      auto jobs = c->inflight;
+      for (auto& [k, job] : jobs) {
+        job->token->cancel(CancellationToken::Reason::kShutdown);
+        c->abort_job(job, pc::kShuttingDown,
+                     "server shutting down; running request cancelled after the drain period");
+      }
+    }
+  }
+  // Done when every job is answered and every reply written (bounded by 2 s after the drain).
+  if ((pending_jobs == 0 && pending_bytes == 0) || waited > options.drain_seconds + 2.0) {
+    auto conns = connections;
+    for (const auto& c : conns) c->close();
+    io.stop();
+    return;
+  }
+  drain_timer->expires_after(std::chrono::milliseconds(10));
+  drain_timer->async_wait([this](const asio::error_code& ec) {
+    if (!ec) drain_tick();
+  });
+}
+
+Server::Server(ServerOptions options, OperationRegistry operations,
+               std::function<json()> status_extra, std::function<json()> hello_extra)
+    : impl_(std::make_unique<Impl>()) {
+  impl_->options = std::move(options);
+  impl_->registry = std::move(operations);
+  impl_->status_extra = std::move(status_extra);
+  impl_->hello_extra = std::move(hello_extra);
+  Impl* impl = impl_.get();
+  impl_->pool = std::make_unique<WorkerPool>(impl_->options.workers, impl_->options.queue,
+                                             [impl](std::shared_ptr<Job> j) { impl->run_job(j); });
+}
+
+Server::~Server() {
+  impl_->pool->stop();
+  for (const auto& p : impl_->unix_paths) ::unlink(p.c_str());
+}
+
+namespace {
+
+// A Unix socket path already in use by a live server is an error; a stale socket file is removed.
+void prepare_unix_path(const std::string& path) {
+  struct stat st;
+  if (::lstat(path.c_str(), &st) != 0) return;
+  if (!S_ISSOCK(st.st_mode))
+    throw std::runtime_error("unix:" + path + ": exists and is not a socket; refusing to replace it");
+  asio::io_context probe_io;
+  asio::local::stream_protocol::socket probe(probe_io);
+  asio::error_code ec;
+  probe.connect(asio::local::stream_protocol::endpoint(path), ec);
+  if (!ec) throw std::runtime_error("unix:" + path + ": another server is listening there");
+  ::unlink(path.c_str());
+}
+
+}  // namespace
+
+std::vector<std::string> Server::bind() {
+  auto& im = *impl_;
+  if (im.options.listen.empty()) throw std::runtime_error("no listen address given");
+  for (const auto& text : im.options.listen) {
+    ListenAddress a;
+    try {
+      a = parse_listen_address(text);
+    } catch (const std::invalid_argument& e) {
+      throw std::runtime_error(e.what());
+    }
+    if (a.kind == ListenAddress::Kind::kTcp) {
+      const auto addr = asio::ip::make_address(a.host);
+      if (!addr.is_loopback() && !im.options.token)
+        throw std::runtime_error("listen address '" + text +
+                                 "' is not loopback: --token-file is required to serve on it");
+      asio::ip::tcp::acceptor acc(im.io);
+      const asio::ip::tcp::endpoint ep(addr, a.port);
+      asio::error_code ec;
+      acc.open(ep.protocol(), ec);
+      if (!ec) acc.set_option(asio::socket_base::reuse_address(true), ec);
+      if (!ec) acc.bind(ep, ec);
+      if (!ec) acc.listen(asio::socket_base::max_listen_connections, ec);
+      if (ec) throw std::runtime_error("cannot listen on '" + text + "': " + ec.message());
+      const auto local = acc.local_endpoint();
+      const std::string host = local.address().is_v6() ? "[" + local.address().to_string() + "]"
+                                                       : local.address().to_string();
+      im.bound.push_back("tcp://" + host + ":" + std::to_string(local.port()));
+      im.tcp_acceptors.push_back(std::move(acc));
+    } else {
+      prepare_unix_path(a.path);
+      asio::local::stream_protocol::acceptor acc(im.io);
+      asio::error_code ec;
+      acc.open(asio::local::stream_protocol(), ec);
+      // Created 0600: the umask covers the window between bind and chmod.
+      const mode_t old = ::umask(0177);
+      if (!ec) acc.bind(asio::local::stream_protocol::endpoint(a.path), ec);
+      ::umask(old);
+      if (!ec && ::chmod(a.path.c_str(), 0600) != 0)
+        ec = asio::error_code(errno, asio::system_category());
+      if (!ec) acc.listen(asio::socket_base::max_listen_connections, ec);
+      if (ec) throw std::runtime_error("cannot listen on '" + text + "': " + ec.message());
+      im.unix_paths.push_back(a.path);
+      im.bound.push_back("unix:" + a.path);
+      im.unix_acceptors.push_back(std::move(acc));
+    }
+  }
+  return im.bound;
+}
+
+void Server::run() {
+  auto& im = *impl_;
+  for (auto& a : im.tcp_acceptors) im.accept_tcp(a);
+  for (auto& a : im.unix_acceptors) im.accept_unix(a);
+  if (im.options.handle_signals) {
+    im.signals = std::make_unique<asio::signal_set>(im.io, SIGINT, SIGTERM);
+    im.signals->async_wait([&im](const asio::error_code& ec, int) {
+      if (!ec) im.begin_shutdown();
+    });
+  }
+  if (im.stopped) im.begin_shutdown();
+  im.io.run();
+  im.pool->stop();
+}
+
+void Server::shutdown() {
+  impl_->stopped = true;
+  Impl* im = impl_.get();
+  asio::post(im->io, [im] { im->begin_shutdown(); });
+}
+
+json Server::status() const { return impl_->status_json(); }
+
+}  // namespace terrastride::service
