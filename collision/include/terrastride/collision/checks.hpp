@@ -1,0 +1,217 @@
+// Post-hoc checks of a planned motion against the real robot and the real terrain (DESIGN.md,
+// "Post-hoc checks"; paper sections III-B and IV): joint torques from the leg dynamics, leg
+// capsules against the scan's OctoMap with FCL, and stance footholds against the foothold-safety
+// margin.
+//
+// Conventions. A plan's foot position is the foot point of the robot model's kinematics (the point
+// that FK/IK place; on the terrain surface during stance, see nominal_base_height in the robot
+// file). The foot is a sphere of radius foot_radius resting on that point. Forces are those the
+// ground exerts on the foot, world frame, as in plan.json.
+#pragma once
+
+#include <octomap/OcTree.h>
+#include <Eigen/Core>
+#include <map>
+#include <memory>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "terrastride/planner/trajectory.hpp"
+#include "terrastride/robot/leg_kinematics.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/terrain/height_field.hpp"
+
+namespace terrastride::collision {
+
+// A trajectory the checks cannot interpret (feet that do not match the robot, non-finite numbers,
+// times that do not increase); the message names the field ("samples[12].feet[2].position: ...").
+class TrajectoryError : public std::invalid_argument {
+ public:
+  using std::invalid_argument::invalid_argument;
+};
+
+// ---- Leg kinematics along the trajectory (shared by the torque and the capsule checks) ----
+
+enum class LegSampleStatus { ok, outside_joint_limits, unreachable };
+
+struct LegSample {
+  LegSampleStatus status = LegSampleStatus::unreachable;
+  Eigen::Vector3d foot_base = Eigen::Vector3d::Zero();  // foot point in the base frame
+  Eigen::Vector3d q = Eigen::Vector3d::Zero();          // valid unless unreachable
+  Eigen::Vector3d qd = Eigen::Vector3d::Zero();
+  Eigen::Vector3d qdd = Eigen::Vector3d::Zero();
+  bool has_q() const { return status != LegSampleStatus::unreachable; }
+};
+
+struct LegIssue {
+  int sample = -1;
+  double t = 0.0;
+  int leg = -1;
+  std::string message;
+};
+
+struct TrajectoryKinematics {
+  std::vector<double> time;
+  // legs[leg][sample]
+  std::vector<std::vector<LegSample>> legs;
+  int unreachable_samples = 0;   // samples where some leg's foot is out of reach (IK failed)
+  int joint_limit_samples = 0;   // samples where some leg needs a joint outside its range
+  std::vector<LegIssue> issues;  // the first few IK failures / joint-limit excursions, with reasons
+};
+
+// Validates `trajectory` against `model` (throws TrajectoryError) and runs IK for every leg and
+// sample. Joint velocities come from the foot velocity relative to the base, expressed in the base
+// frame, through J^-1 (exact at each sample, no differencing error; plan.json carries velocities);
+// joint accelerations are central differences of those velocities in time (plan.json carries no
+// foot accelerations; the difference is second-order accurate, and at a 2-10 ms sample step its
+// error is far below the torque limits). Near a kinematic singularity (J not invertible) q̇ falls
+// back to a central difference of q.
+TrajectoryKinematics leg_kinematics(const robot::RobotModel& model,
+                                    const planner::Trajectory& trajectory);
+
+// ---- Joint torques (paper eq. 15) ----
+
+struct TorqueOptions {
+  Eigen::Vector3d gravity = Eigen::Vector3d(0, 0, -9.81);  // world frame, m/s²
+  // The legs ride on an accelerating base: the base's linear acceleration enters the leg dynamics
+  // as an extra apparent gravity, g_eff = R^T (g - r̈_base). The base's rotation rate terms are left
+  // out (small for the leg links at walking speeds; the fixed-base RNEA has no input for them).
+  bool include_base_acceleration = true;
+  double violation_tolerance = 1e-9;  // ratio > 1 + tolerance counts as a violation
+};
+
+struct LegTorqueSeries {
+  std::string leg;
+  std::vector<Eigen::Vector3d> tau;    // N m; NaN where IK failed
+  std::vector<Eigen::Vector3d> ratio;  // |tau_i| / tau_lim_i; NaN where IK failed
+  Eigen::Vector3d worst_ratio = Eigen::Vector3d::Zero();  // per joint HAA HFE KFE
+  Eigen::Vector3i worst_sample = Eigen::Vector3i::Constant(-1);
+  int violating_samples = 0;  // samples where a joint of this leg exceeds its limit
+};
+
+struct TorqueReport {
+  std::vector<double> time;
+  std::vector<LegTorqueSeries> legs;
+  double ratio_max = 0.0;  // worst |tau|/tau_lim over all legs, joints and samples
+  int worst_sample = -1, worst_leg = -1, worst_joint = -1;
+  int violating_samples = 0;  // samples where any joint of any leg exceeds its limit
+};
+
+TorqueReport check_joint_torques(const robot::RobotModel& model,
+                                 const planner::Trajectory& trajectory,
+                                 const TrajectoryKinematics& kinematics,
+                                 const TorqueOptions& options = {});
+
+// ---- Leg capsules against the terrain's OctoMap (FCL) ----
+
+struct ClearanceOptions {
+  // The foot touches the ground in stance by design, and the lower leg ends in the foot, so the
+  // shin capsule cannot run down to the foot point without "colliding" at every footstep. The
+  // capsule's axis stops `shin_exclusion` short of the foot point: the foot sphere (2 r from the
+  // contact point to its top), the shin's own radius (its end cap) and `exclusion_margin` for voxel
+  // quantisation of a scanned surface. What remains is the part of the leg the paper's shin
+  // constraint protects (knee and the points between knee and foot). Negative = use 2 foot_radius +
+  // shin_radius + exclusion_margin.
+  double shin_exclusion = -1.0;
+  double exclusion_margin = 0.01;
+  // Distances beyond this are not resolved (reported as the cutoff); it bounds FCL's search.
+  double distance_cutoff = 0.5;
+  bool check_thigh = true;  // thighs (HFE to knee, thigh_radius) as well as shins
+};
+
+struct LegClearanceSeries {
+  std::string leg;
+  std::vector<double> shin_distance;   // m; <= 0 in collision (-penetration depth); NaN: no IK
+  std::vector<double> thigh_distance;  // empty when the thigh is not checked
+  double shin_min = 0.0, thigh_min = 0.0;
+  int shin_min_sample = -1, thigh_min_sample = -1;
+  int shin_collision_samples = 0, thigh_collision_samples = 0;
+  double first_collision_t = -1.0;  // < 0: none
+};
+
+struct ClearanceReport {
+  std::vector<double> time;
+  std::vector<LegClearanceSeries> legs;
+  double shin_exclusion = 0.0;  // what was used (m)
+  double shin_min_distance = 0.0;
+  double thigh_min_distance = 0.0;
+  int shin_collisions = 0;   // samples where any shin capsule touches an occupied voxel
+  int thigh_collisions = 0;  // same for thighs
+  double first_collision_t = -1.0;
+  double octree_resolution = 0.0;
+};
+
+ClearanceReport check_leg_clearance(const robot::RobotModel& model,
+                                    const planner::Trajectory& trajectory,
+                                    const TrajectoryKinematics& kinematics,
+                                    const octomap::OcTree& octree,
+                                    const ClearanceOptions& options = {});
+
+// ---- Stance footholds against the foothold-safety margin ----
+
+struct Foothold {
+  int leg = -1;
+  int first_sample = -1, last_sample = -1;
+  double t_start = 0.0, t_end = 0.0;
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();  // at the sample of the worst margin
+  double margin = 0.0;  // worst signed margin over the stance (m); < 0 = unsafe
+  bool safe() const { return margin >= 0.0; }
+};
+
+struct FootholdReport {
+  double foot_radius = 0.0;
+  std::vector<Foothold> footholds;  // one per stance phase per leg, in time order
+  int unsafe = 0;
+  double worst_margin = 0.0;  // +inf-like (1e9) when nothing unsafe is anywhere near
+  int worst = -1;             // index into footholds
+};
+
+// A stance phase is a maximal run of samples with contact; its margin is the minimum of
+// HeightField::safety_margin(x, y, foot_radius) over the run, so a foot sliding onto an edge
+// counts.
+FootholdReport check_footholds(const planner::Trajectory& trajectory,
+                               const terrain::HeightField& field, double foot_radius);
+
+// ---- Everything at once ----
+
+struct CheckTerrain {
+  const terrain::HeightField* field = nullptr;    // for footholds; null = footholds not checked
+  std::shared_ptr<const octomap::OcTree> octree;  // for capsules; null = capsules not checked
+  std::string description;
+};
+
+struct CheckOptions {
+  TorqueOptions torque;
+  ClearanceOptions clearance;
+};
+
+struct CheckReport {
+  TrajectoryKinematics kinematics;
+  TorqueReport torque;
+  std::optional<ClearanceReport> clearance;
+  std::optional<FootholdReport> footholds;
+  double wall_s = 0.0;
+
+  // plan.json "checks" keys: torque_ratio_max, torque_violations, shin_min_distance_m,
+  // shin_collisions, unsafe_footholds, plus thigh_min_distance_m, thigh_collisions,
+  // foothold_margin_min_m, ik_failures, joint_limit_violations. Checks that did not run are absent.
+  std::map<std::string, double> keys() const;
+  // One line per failed check, empty when all pass.
+  std::vector<std::string> failures() const;
+  bool passed() const { return failures().empty(); }
+};
+
+CheckReport run_checks(const robot::RobotModel& model, const planner::Trajectory& trajectory,
+                       const CheckTerrain& terrain, const CheckOptions& options = {});
+
+// The xy rectangle a trajectory's legs sweep (hips, knees and feet of every sample), grown by
+// `margin`: the region an analytic scene must be voxelised over.
+void trajectory_extent(const robot::RobotModel& model, const planner::Trajectory& trajectory,
+                       double margin, Eigen::Vector2d* lo, Eigen::Vector2d* hi);
+
+// Base orientation from ZYX Euler angles (yaw, pitch, roll): R = Rz(yaw) Ry(pitch) Rx(roll).
+Eigen::Matrix3d rotation_zyx(const Eigen::Vector3d& euler_zyx);
+
+}  // namespace terrastride::collision

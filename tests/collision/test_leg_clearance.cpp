@@ -1,0 +1,237 @@
+// Leg capsules against OctoMaps with FCL: collisions through box edges, clearances, scan trees.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "terrastride/collision/checks.hpp"
+#include "terrastride/collision/octree_terrain.hpp"
+#include "terrastride/perception/octomap_fusion.hpp"
+#include "trajectories.hpp"
+
+using namespace terrastride;
+using namespace terrastride::collision;
+using terrastride::collision::test::hyq;
+using terrastride::collision::test::standing;
+
+namespace {
+
+// Exact distance from the segment a-b to an axis-aligned box (0 inside), by ternary search
+// along the segment: the distance from a point moving along a line to a convex set is convex.
+double segment_box_distance(const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                            const terrain::Box& box) {
+  auto dist = [&](double s) {
+    const Eigen::Vector3d p = a + s * (b - a);
+    const Eigen::Vector3d q = p.cwiseMax(box.lo).cwiseMin(box.hi);
+    return (p - q).norm();
+  };
+  double lo = 0, hi = 1;
+  for (int it = 0; it < 200; ++it) {
+    const double m1 = lo + (hi - lo) / 3, m2 = hi - (hi - lo) / 3;
+    if (dist(m1) < dist(m2))
+      hi = m2;
+    else
+      lo = m1;
+  }
+  return dist(0.5 * (lo + hi));
+}
+
+double snap(double v, double res) {
+  return std::round(v / res) * res;
+}
+
+struct ShinGeometry {
+  Eigen::Vector3d end, knee;  // the shin capsule's axis in the world frame
+};
+
+ShinGeometry shin_of(const robot::RobotModel& model, const planner::Trajectory& traj, int leg_index,
+                     double exclusion) {
+  const auto& leg = model.legs[leg_index];
+  const auto& s = traj.samples.front();
+  const Eigen::Matrix3d rot = rotation_zyx(s.base.euler_zyx);
+  const Eigen::Vector3d p_b = rot.transpose() * (s.feet[leg_index].position - s.base.position);
+  const Eigen::Vector3d q = robot::inverse_kinematics(leg, p_b).q;
+  const Eigen::Vector3d knee = s.base.position + rot * robot::knee_position(leg, q);
+  const Eigen::Vector3d foot = s.base.position + rot * robot::foot_position(leg, q);
+  return {foot + (knee - foot).normalized() * exclusion, knee};
+}
+
+ClearanceReport clearance(const robot::RobotModel& model, const planner::Trajectory& traj,
+                          const octomap::OcTree& tree, const ClearanceOptions& options = {}) {
+  return check_leg_clearance(model, traj, leg_kinematics(model, traj), tree, options);
+}
+
+constexpr double kRes = 0.01;
+
+}  // namespace
+
+TEST(LegClearance, StandingOnFlatGroundIsClearByTheExpectedAmount) {
+  const auto model = hyq();
+  const auto traj = standing(model, 0.01, 0.002);
+  Eigen::Vector2d lo, hi;
+  trajectory_extent(model, traj, 0.1, &lo, &hi);
+  VoxeliseOptions vo;
+  vo.resolution = kRes;
+  const auto tree = voxelise_boxes(0.0, {}, lo, hi, vo);
+  const ClearanceReport rep = clearance(model, traj, *tree);
+  EXPECT_EQ(rep.shin_collisions, 0);
+  EXPECT_EQ(rep.thigh_collisions, 0);
+  const double exclusion = 2 * model.foot_radius + model.legs[0].shin_radius + 0.01;
+  EXPECT_NEAR(rep.shin_exclusion, exclusion, 1e-12);
+  for (int i = 0; i < 4; ++i) {
+    // The ground's top face is z = 0 exactly (voxel-aligned): clearance = lowest axis point - r.
+    const ShinGeometry g = shin_of(model, traj, i, exclusion);
+    const double expected = std::min(g.end.z(), g.knee.z()) - model.legs[i].shin_radius;
+    EXPECT_GT(expected, 0.02) << model.legs[i].name;
+    EXPECT_NEAR(rep.legs[i].shin_min, expected, 1e-3) << model.legs[i].name;
+    EXPECT_NEAR(rep.legs[i].shin_distance[0], expected, 1e-3);
+    const auto& s = traj.samples.front();
+    const auto& leg = model.legs[i];
+    const Eigen::Vector3d q =
+        robot::inverse_kinematics(leg, s.feet[i].position - s.base.position).q;
+    const double thigh_expected =
+        std::min(robot::hfe_position(leg, q).z(), robot::knee_position(leg, q).z()) +
+        s.base.position.z() - leg.thigh_radius;
+    EXPECT_NEAR(rep.legs[i].thigh_min, thigh_expected, 1e-3) << model.legs[i].name;
+  }
+}
+
+TEST(LegClearance, ShinThroughABoxEdgeCollides) {
+  const auto model = hyq();
+  const auto traj = standing(model, 0.02, 0.002);
+  const double exclusion = 2 * model.foot_radius + model.legs[2].shin_radius + 0.01;
+  const ShinGeometry g = shin_of(model, traj, 2, exclusion);  // LH, knee pointing forward
+  const Eigen::Vector3d mid = 0.5 * (g.end + g.knee);
+  // A box whose top rear edge (x = mid.x, z = mid.z, along y) runs through the shin's axis.
+  const terrain::Box box{Eigen::Vector3d(mid.x(), mid.y() - 0.15, 0.0),
+                         Eigen::Vector3d(mid.x() + 0.3, mid.y() + 0.15, mid.z())};
+  Eigen::Vector2d lo, hi;
+  trajectory_extent(model, traj, 0.1, &lo, &hi);
+  VoxeliseOptions vo;
+  vo.resolution = kRes;
+  const auto tree = voxelise_boxes(0.0, {box}, lo, hi, vo);
+  const ClearanceReport rep = clearance(model, traj, *tree);
+  EXPECT_EQ(rep.legs[2].shin_collision_samples, static_cast<int>(traj.samples.size()));
+  EXPECT_EQ(rep.shin_collisions, static_cast<int>(traj.samples.size()));
+  EXPECT_LE(rep.legs[2].shin_min, 0.0);
+  EXPECT_LE(rep.shin_min_distance, 0.0);
+  EXPECT_DOUBLE_EQ(rep.first_collision_t, 0.0);
+  EXPECT_EQ(rep.legs[0].shin_collision_samples, 0);  // LF stands far from the box
+
+  // The whole check reports it as a failure with the leg's name.
+  CheckTerrain terrain;
+  terrain.octree = tree;
+  const CheckReport all = run_checks(model, traj, terrain);
+  EXPECT_FALSE(all.passed());
+  EXPECT_LE(all.keys().at("shin_min_distance_m"), 0.0);
+  EXPECT_EQ(all.keys().at("shin_collisions"), traj.samples.size());
+  bool named = false;
+  for (const auto& line : all.failures()) named |= line.find("LH") != std::string::npos;
+  EXPECT_TRUE(named);
+}
+
+TEST(LegClearance, ShinNearABoxReportsTheClearance) {
+  const auto model = hyq();
+  const auto traj = standing(model, 0.01, 0.002);
+  const double exclusion = 2 * model.foot_radius + model.legs[2].shin_radius + 0.01;
+  const ShinGeometry g = shin_of(model, traj, 2, exclusion);
+  const Eigen::Vector3d mid = 0.5 * (g.end + g.knee);
+  Eigen::Vector2d lo, hi;
+  trajectory_extent(model, traj, 0.1, &lo, &hi);
+  VoxeliseOptions vo;
+  vo.resolution = kRes;
+  // The shin's clearance to the ground alone (its top face is z = 0, voxel-aligned).
+  const double ground = std::min(g.end.z(), g.knee.z()) - model.legs[2].shin_radius;
+  // Boxes in front of the shin at several gaps, faces on the voxel grid so the voxels are exact;
+  // short in x so that they stay clear of the front legs.
+  for (double gap : {0.0, 0.02, 0.05, 0.11}) {
+    const terrain::Box box{
+        Eigen::Vector3d(snap(mid.x() + gap, kRes), snap(mid.y() - 0.1, kRes), 0.0),
+        Eigen::Vector3d(snap(mid.x() + gap + 0.08, kRes), snap(mid.y() + 0.1, kRes),
+                        snap(mid.z(), kRes))};
+    const double to_box = segment_box_distance(g.end, g.knee, box) - model.legs[2].shin_radius;
+    const double expected = std::min(to_box, ground);
+    const auto tree = voxelise_boxes(0.0, {box}, lo, hi, vo);
+    const ClearanceReport rep = clearance(model, traj, *tree);
+    if (to_box > kRes) {
+      EXPECT_NEAR(rep.legs[2].shin_min, expected, kRes) << "gap " << gap;
+      EXPECT_EQ(rep.legs[2].shin_collision_samples, 0) << "gap " << gap;
+    } else if (to_box < -kRes) {
+      EXPECT_LE(rep.legs[2].shin_min, 0.0) << "gap " << gap;
+      EXPECT_GT(rep.legs[2].shin_collision_samples, 0) << "gap " << gap;
+    }
+    EXPECT_EQ(rep.legs[0].shin_collision_samples, 0) << "gap " << gap;
+    EXPECT_EQ(rep.legs[1].shin_collision_samples, 0) << "gap " << gap;
+  }
+}
+
+TEST(LegClearance, ScanOctreeOfAGroundPlaneLeavesStanceLegsClear) {
+  // A scan-like tree from perception: hits on the ground seen from a sensor 0.8 m up, so voxels
+  // hold the surface only (with free space carved above it) and may stick up to one voxel above it.
+  const auto model = hyq();
+  const auto traj = standing(model, 0.01, 0.002);
+  perception::PointCloud cloud;
+  cloud.sensor_origin = Eigen::Vector3d(0, 0, 0.8);
+  for (double x = -1.2; x <= 1.2; x += 0.01)
+    for (double y = -0.8; y <= 0.8; y += 0.01) cloud.points.emplace_back(x, y, 0.003);
+  perception::OctoMapOptions oo;
+  oo.resolution = 0.02;
+  const auto tree = perception::build_octomap({cloud}, oo);
+  const ClearanceReport rep = clearance(model, traj, *tree);
+  EXPECT_EQ(rep.shin_collisions, 0);
+  EXPECT_EQ(rep.thigh_collisions, 0);
+  const double exclusion = 2 * model.foot_radius + model.legs[0].shin_radius + 0.01;
+  for (int i = 0; i < 4; ++i) {
+    const ShinGeometry g = shin_of(model, traj, i, exclusion);
+    const double exact = std::min(g.end.z(), g.knee.z()) - model.legs[i].shin_radius;
+    // Voxel tops are at 0.02 here (the hits at z = 0.003 fall in [0, 0.02)).
+    EXPECT_NEAR(rep.legs[i].shin_min, exact - 0.02, 2e-3) << model.legs[i].name;
+  }
+  // A scanned step whose top edge runs through LH's shin (hits on its top and front face only,
+  // as a sensor sees it): the shell of voxels is enough for FCL to find the collision.
+  const ShinGeometry g = shin_of(model, traj, 2, exclusion);
+  const Eigen::Vector3d mid = 0.5 * (g.end + g.knee);
+  perception::PointCloud step = cloud;
+  step.points.clear();
+  step.sensor_origin = Eigen::Vector3d(mid.x() - 0.6, mid.y(), 0.8);  // facing the step's face
+  for (double y = mid.y() - 0.1; y <= mid.y() + 0.1; y += 0.01) {
+    for (double x = mid.x(); x <= mid.x() + 0.1; x += 0.01) step.points.emplace_back(x, y, mid.z());
+    for (double z = 0.0; z <= mid.z(); z += 0.01) step.points.emplace_back(mid.x(), y, z);
+  }
+  const auto stepped = perception::build_octomap({cloud, step}, oo);
+  const ClearanceReport hit = clearance(model, traj, *stepped);
+  EXPECT_GT(hit.legs[2].shin_collision_samples, 0);
+  EXPECT_LE(hit.legs[2].shin_min, 0.0);
+  EXPECT_EQ(hit.legs[0].shin_collision_samples, 0);
+}
+
+TEST(LegClearance, VoxeliseRejectsBadInput) {
+  EXPECT_THROW(voxelise_boxes(0, {}, Eigen::Vector2d(0, 0), Eigen::Vector2d(1, 1),
+                              VoxeliseOptions{0.0, 0.1}),
+               std::invalid_argument);
+  EXPECT_THROW(voxelise_boxes(0, {}, Eigen::Vector2d(1, 0), Eigen::Vector2d(0, 1)),
+               std::invalid_argument);
+  const terrain::Box inverted{Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 1)};
+  EXPECT_THROW(voxelise_boxes(0, {inverted}, Eigen::Vector2d(0, 0), Eigen::Vector2d(1, 1)),
+               std::invalid_argument);
+  EXPECT_THROW(read_octomap("/nonexistent/octomap.bt"), std::runtime_error);
+}
+
+TEST(LegClearance, VoxelisedBoxHasExactFaces) {
+  VoxeliseOptions vo;
+  vo.resolution = 0.02;
+  const terrain::Box box{Eigen::Vector3d(0.2, -0.2, 0.0), Eigen::Vector3d(0.6, 0.2, 0.1)};
+  const auto tree =
+      voxelise_boxes(0.0, {box}, Eigen::Vector2d(-0.5, -0.5), Eigen::Vector2d(1.0, 0.5), vo);
+  auto occupied = [&](double x, double y, double z) {
+    const octomap::OcTreeNode* node = tree->search(x, y, z);
+    return node != nullptr && tree->isNodeOccupied(node);
+  };
+  EXPECT_TRUE(occupied(0.4, 0.0, 0.09));
+  EXPECT_TRUE(occupied(0.4, 0.0, 0.01));  // filled, not a skin
+  EXPECT_FALSE(occupied(0.4, 0.0, 0.11));
+  EXPECT_FALSE(occupied(0.19, 0.0, 0.05));
+  EXPECT_TRUE(occupied(0.0, 0.0, -0.01));  // the ground slab
+  EXPECT_TRUE(occupied(0.0, 0.0, -0.09));
+  EXPECT_FALSE(occupied(0.0, 0.0, 0.01));
+  EXPECT_FALSE(occupied(0.0, 0.0, -0.11));
+}
