@@ -1,6 +1,10 @@
 // PCD and PLY reading through PCL's io module. The only translation unit with PCL io headers.
+#include <algorithm>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
+#include <sstream>
+#include <vector>
 
 #include "cloud_io_internal.hpp"
 #include "terrastride/perception/point_cloud.hpp"
@@ -43,6 +47,121 @@ void check_pcd_signature(const std::string& path) {
     break;
   }
   throw InputError(path + ": not a PCD file (no PCD header: expected VERSION/FIELDS lines)");
+}
+
+// PCL allocates what the header promises (even in readHeader) before reading the body, so a
+// lying header in a corrupt or hostile file would make it allocate gigabytes. These checks parse
+// just the counts and compare the promise with the bytes present, before PCL sees the file.
+[[noreturn]] void too_short(const std::string& path, double points, uintmax_t file_size) {
+  throw InputError(path + ": header promises " + std::to_string(static_cast<uint64_t>(points)) +
+                   " points but the file has only " + std::to_string(file_size) +
+                   " bytes (truncated or corrupt)");
+}
+
+std::vector<std::string> split_words(const std::string& line) {
+  std::istringstream in(line);
+  std::vector<std::string> words;
+  for (std::string w; in >> w;) words.push_back(w);
+  return words;
+}
+
+double to_number(const std::string& path, const std::string& text) {
+  char* end = nullptr;
+  const double v = std::strtod(text.c_str(), &end);
+  if (end == text.c_str() || *end != '\0' || !(v >= 0)) {
+    throw InputError(path + ": bad number '" + text + "' in header");
+  }
+  return v;
+}
+
+void check_pcd_size(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::vector<double> sizes, counts;
+  double points = -1, width = -1, height = 1;
+  std::string data, line;
+  size_t lines = 0;
+  while (data.empty() && std::getline(in, line) && ++lines < 1000) {
+    const auto w = split_words(line);
+    if (w.empty() || w[0][0] == '#') continue;
+    if (w[0] == "SIZE" || w[0] == "COUNT") {
+      auto& v = w[0] == "SIZE" ? sizes : counts;
+      for (size_t i = 1; i < w.size(); ++i) v.push_back(to_number(path, w[i]));
+    } else if (w[0] == "POINTS" && w.size() > 1) {
+      points = to_number(path, w[1]);
+    } else if (w[0] == "WIDTH" && w.size() > 1) {
+      width = to_number(path, w[1]);
+    } else if (w[0] == "HEIGHT" && w.size() > 1) {
+      height = to_number(path, w[1]);
+    } else if (w[0] == "DATA" && w.size() > 1) {
+      data = w[1];
+    }
+  }
+  if (data.empty()) return;  // no complete header: PCL reports it
+  const std::streamoff header_end = in.tellg();
+  std::error_code ec;
+  const uintmax_t file_size = std::filesystem::file_size(path, ec);
+  if (ec || header_end < 0) return;
+  const double body = static_cast<double>(file_size) - static_cast<double>(header_end);
+  const double n = std::max(points, width * height);
+  double step = 0;
+  for (size_t i = 0; i < sizes.size(); ++i) step += sizes[i] * (i < counts.size() ? counts[i] : 1);
+  double need;
+  if (data == "ascii") {
+    need = n * 2.0 * std::max<double>(1, static_cast<double>(sizes.size()));  // >= "0 " a value
+  } else if (data == "binary_compressed") {
+    need = n * step / 100.0 - 1e6;  // LZF does not compress better than about 1:90
+  } else {
+    need = n * step;
+  }
+  if (need > body) too_short(path, n, file_size);
+}
+
+size_t ply_type_size(const std::string& t) {
+  if (t == "char" || t == "uchar" || t == "int8" || t == "uint8") return 1;
+  if (t == "short" || t == "ushort" || t == "int16" || t == "uint16") return 2;
+  if (t == "int" || t == "uint" || t == "float" || t == "int32" || t == "uint32" ||
+      t == "float32") {
+    return 4;
+  }
+  if (t == "double" || t == "float64") return 8;
+  return 1;
+}
+
+void check_ply_size(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string line, format;
+  double need = 0, count = 0, record = 0, points = 0;
+  bool ended = false;
+  size_t lines = 0;
+  const auto close_element = [&] { need += count * record; };
+  while (std::getline(in, line) && ++lines < 10000) {
+    const auto w = split_words(line);
+    if (w.empty()) continue;
+    if (w[0] == "format" && w.size() > 1) {
+      format = w[1];
+    } else if (w[0] == "element" && w.size() > 2) {
+      close_element();
+      count = to_number(path, w[2]);
+      record = 0;
+      if (w[1] == "vertex") points = count;
+    } else if (w[0] == "property" && w.size() > 2) {
+      // A list needs at least its count; an ascii value at least "0 ".
+      const size_t bytes = w[1] == "list" ? ply_type_size(w[2]) : ply_type_size(w[1]);
+      record += format == "ascii" ? 2.0 : static_cast<double>(bytes);
+    } else if (w[0] == "end_header") {
+      ended = true;
+      break;
+    }
+  }
+  if (!ended) return;  // PCL reports the broken header
+  close_element();
+  const std::streamoff header_end = in.tellg();
+  std::error_code ec;
+  const uintmax_t file_size = std::filesystem::file_size(path, ec);
+  if (ec || header_end < 0) return;
+  if (need > static_cast<double>(file_size) - static_cast<double>(header_end)) {
+    too_short(path, points, file_size);
+  }
 }
 
 void check_ply_signature(const std::string& path) {
@@ -129,6 +248,7 @@ std::optional<Eigen::Vector3d> origin_if_recorded(const Eigen::Vector4f& origin,
 
 RawCloud read_pcd_with_pcl(const std::string& path) {
   check_pcd_signature(path);
+  check_pcd_size(path);
 #ifdef TERRASTRIDE_HAVE_PCL
   QuietPcl quiet;
   pcl::PCLPointCloud2 blob;
@@ -153,6 +273,7 @@ RawCloud read_pcd_with_pcl(const std::string& path) {
 
 RawCloud read_ply_with_pcl(const std::string& path) {
   check_ply_signature(path);
+  check_ply_size(path);
 #ifdef TERRASTRIDE_HAVE_PCL
   QuietPcl quiet;
   pcl::PCLPointCloud2 blob;

@@ -268,7 +268,16 @@ TEST(ReadCloudErrors, CorruptPcdAndPly) {
       dir.file("t.pcd"),
       "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 100\n"
       "HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 100\nDATA binary\n012345678901234567890123");
-  expect_input_error([&] { read_cloud(dir.file("t.pcd")); }, {"t.pcd"});
+  expect_input_error([&] { read_cloud(dir.file("t.pcd")); }, {"t.pcd", "promises 100 points"});
+  // A lying header must not make the reader allocate what it promises (2e9 points = 24 GB).
+  write_text(dir.file("huge.pcd"),
+             "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2000000000\n"
+             "HEIGHT 1\nPOINTS 2000000000\nDATA binary\n0123");
+  expect_input_error([&] { read_cloud(dir.file("huge.pcd")); }, {"huge.pcd", "truncated"});
+  write_text(dir.file("huge.ply"),
+             "ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\nproperty float x\n"
+             "property float y\nproperty float z\nend_header\n0123456789");
+  expect_input_error([&] { read_cloud(dir.file("huge.ply")); }, {"huge.ply", "truncated"});
   // A PCD without x/y/z fields.
   write_text(dir.file("f.pcd"),
              "VERSION 0.7\nFIELDS a b c\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\n"
@@ -277,7 +286,12 @@ TEST(ReadCloudErrors, CorruptPcdAndPly) {
   write_text(dir.file("t.ply"),
              "ply\nformat binary_little_endian 1.0\nelement vertex 50\nproperty float x\n"
              "property float y\nproperty float z\nend_header\n0123456789");
-  expect_input_error([&] { read_cloud(dir.file("t.ply")); }, {"t.ply"});
+  expect_input_error([&] { read_cloud(dir.file("t.ply")); }, {"t.ply", "promises 50 points"});
+  // Ascii PLY with double coordinates reads fine.
+  write_text(dir.file("a.ply"),
+             "ply\nformat ascii 1.0\nelement vertex 2\nproperty double x\nproperty double y\n"
+             "property double z\nend_header\n1 2 3\n4 5 6\n");
+  EXPECT_EQ(read_cloud(dir.file("a.ply")).points.back(), Eigen::Vector3f(4, 5, 6));
 }
 
 TEST(ReadCloudErrors, BinaryOrMalformedText) {
