@@ -3,6 +3,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <sstream>
 #include <vector>
 
@@ -173,18 +174,13 @@ void check_ply_signature(const std::string& path) {
 
 #ifdef TERRASTRIDE_HAVE_PCL
 
-// PCL reports parse problems on its console; we turn them into one InputError instead, so the
-// console stays quiet while our readers run.
-class QuietPcl {
- public:
-  QuietPcl() : saved_(pcl::console::getVerbosityLevel()) {
-    pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
-  }
-  ~QuietPcl() { pcl::console::setVerbosityLevel(saved_); }
-
- private:
-  pcl::console::VERBOSITY_LEVEL saved_;
-};
+// PCL reports parse problems on its console; we turn them into one InputError instead. The
+// level is set once per process and never restored: toggling a global around each read would race
+// when several threads (the socket service) read clouds at once, and PCL is used only here.
+void silence_pcl() {
+  static std::once_flag once;
+  std::call_once(once, [] { pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS); });
+}
 
 // Pulls x, y, z (float32 or float64 fields) out of a PCLPointCloud2 blob, whatever other fields
 // (normals, intensity, padding) it carries.
@@ -250,7 +246,7 @@ RawCloud read_pcd_with_pcl(const std::string& path) {
   check_pcd_signature(path);
   check_pcd_size(path);
 #ifdef TERRASTRIDE_HAVE_PCL
-  QuietPcl quiet;
+  silence_pcl();
   pcl::PCLPointCloud2 blob;
   Eigen::Vector4f origin = Eigen::Vector4f::Zero();
   Eigen::Quaternionf orientation = Eigen::Quaternionf::Identity();
@@ -275,7 +271,7 @@ RawCloud read_ply_with_pcl(const std::string& path) {
   check_ply_signature(path);
   check_ply_size(path);
 #ifdef TERRASTRIDE_HAVE_PCL
-  QuietPcl quiet;
+  silence_pcl();
   pcl::PCLPointCloud2 blob;
   Eigen::Vector4f origin = Eigen::Vector4f::Zero();
   Eigen::Quaternionf orientation = Eigen::Quaternionf::Identity();
