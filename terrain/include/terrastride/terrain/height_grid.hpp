@@ -1,0 +1,117 @@
+// The raw height grid: points binned into square cells with a robust per-cell support elevation.
+//
+// Cell (i, j) covers [x0 + i res, x0 + (i+1) res) x [y0 + j res, y0 + (j+1) res); arrays are stored
+// with index k = i * ny + j (x index major), which is also the layout of the NPY layers (shape
+// nx x ny).
+//
+// Support surface per cell: the cell's heights are sorted and split into clusters wherever two
+// consecutive heights are more than `cluster_gap` apart. The support is the highest cluster that
+// holds a substantial share of the cell's points (see-through returns under a grating are then
+// ignored: the grating is the support; a sparser cluster above the support is promoted when a
+// neighbouring cell's support lies at its height; narrow pits are bridged), unless the sensor saw
+// beneath it: when most rays that reached a lower cluster entered the cell's column below that
+// cluster (they came from the side, under a table top) it is an overhang and the next lower
+// substantial cluster is the support. That second test needs the sensor origin; clouds without one
+// get the see-through interpretation only.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "terrastride/perception/point_cloud.hpp"
+
+namespace terrastride::terrain {
+
+struct GridGeometry {
+  Eigen::Vector2d origin = Eigen::Vector2d::Zero();  // min corner of cell (0, 0)
+  double resolution = 0.02;
+  int nx = 0;
+  int ny = 0;
+
+  size_t size() const { return static_cast<size_t>(nx) * static_cast<size_t>(ny); }
+  size_t index(int i, int j) const { return static_cast<size_t>(i) * ny + j; }
+  Eigen::Vector2d center(int i, int j) const {
+    return origin + resolution * Eigen::Vector2d(i + 0.5, j + 0.5);
+  }
+  Eigen::Vector2d max_corner() const { return origin + resolution * Eigen::Vector2d(nx, ny); }
+  bool contains(double x, double y) const {
+    const Eigen::Vector2d hi = max_corner();
+    return x >= origin.x() && x <= hi.x() && y >= origin.y() && y <= hi.y();
+  }
+};
+
+struct HeightGridOptions {
+  double resolution = 0.02;   // cell size, m; accepted range [0.002, 1]
+  double cluster_gap = 0.05;  // vertical gap that separates two surfaces in a cell, m (at least
+                              // 4 times the estimated sensor noise is used)
+  double min_support_fraction = 0.2;  // a cluster must hold this share of the cell's points...
+  int min_support_points = 2;         // ...and at least this many to count as a surface
+  double overhang_vote = 0.5;         // share of "seen from beneath" rays that marks an overhang
+  // Pits up to 2 * bridge_cells wide and deeper than cluster_gap are bridged as see-through
+  // openings of the surface around them (and flagged unobserved); 0 = off.
+  int bridge_cells = 2;
+  // Grid extent; default: the xy bounding box of the points (snapped to whole cells).
+  std::optional<Eigen::Vector2d> lo, hi;
+  size_t max_cells =
+      25'000'000;  // refuse grids larger than this (absurd resolution for the extent)
+};
+
+struct HeightGrid {
+  GridGeometry geometry;
+  // Per cell, from the support cluster (filled cells: see fill_holes).
+  std::vector<float> elevation;  // median height of the support cluster
+  std::vector<float> variance;   // variance of the support cluster's heights
+  std::vector<float> min;        // lowest / highest point of the support cluster
+  std::vector<float> max;
+  std::vector<uint32_t> count;    // all points that fell in the cell
+  std::vector<uint32_t> support;  // points in the support cluster
+  std::vector<uint8_t> observed;  // 1 = measured, 2 = sampling gap interpolated, 0 = unobserved
+  // Sensor noise (standard deviation of a single surface's heights, m), estimated from the median
+  // within-cell spread; the safety criteria allow for it. 0 for rasterised scenes.
+  double noise_sigma = 0.0;
+  double cluster_gap = 0.0;  // the gap actually used: max(option, 4 noise_sigma)
+  // Statistics.
+  size_t points_in = 0;
+  size_t points_in_grid = 0;
+  size_t observed_cells = 0;
+  size_t see_through_cells = 0;   // cells where lower returns were ignored as see-through
+  size_t overhang_cells = 0;      // cells where an upper surface was ignored as overhang
+  size_t bridged_cells = 0;       // narrow see-through pits bridged (then filled, unobserved)
+  size_t interpolated_cells = 0;  // single-cell sampling gaps (observed = 2)
+  size_t filled_cells = 0;
+};
+
+// One batch of points with its sensor origin (when known).
+struct PointBatch {
+  const Eigen::Vector3f* points = nullptr;
+  size_t size = 0;
+  std::optional<Eigen::Vector3d> origin;
+};
+
+// Builds the grid from several batches (all in the world frame). Throws perception::InputError when
+// there are no finite points, or when the resolution is outside [0.002, 1] m or gives more than
+// max_cells cells (the message names the resolution). Non-finite points are skipped. Unobserved
+// cells are filled by fill_holes.
+HeightGrid build_height_grid(const std::vector<PointBatch>& batches,
+                             const HeightGridOptions& options = {});
+HeightGrid build_height_grid(const std::vector<perception::PointCloud>& clouds,
+                             const HeightGridOptions& options = {});
+
+// Conservative hole filling. A cell without points whose eight neighbours measured one surface is a
+// sampling gap: it is interpolated (mean of the neighbours) and flagged observed = 2. Every other
+// unobserved cell takes the highest elevation among its already
+// known 8-neighbours, growing inwards ring by ring (a higher filled surface errs towards more
+// clearance for swing feet and shins; the cell stays flagged unobserved, hence unsafe).
+void fill_holes(HeightGrid& grid);
+
+class Scene;
+// Rasterises an analytic scene into the same grid: elevation = exact height at the cell centre,
+// min / max = the lowest / highest exact height over the cell's footprint (so sharp edges show as
+// raw steps), variance 0, every cell observed.
+HeightGrid rasterize_scene(const Scene& scene, double resolution,
+                           std::optional<Eigen::Vector2d> lo = std::nullopt,
+                           std::optional<Eigen::Vector2d> hi = std::nullopt);
+
+}  // namespace terrastride::terrain

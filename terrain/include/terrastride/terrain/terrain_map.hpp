@@ -1,0 +1,130 @@
+// The terrain the planner uses: a C2 smoothed height field over a HeightGrid, foothold-safety masks
+// and signed safety margins for several foot radii, clearance queries, and the on-disk format
+// written by `terrastride map` (DIR/terrain.json + DIR/layers/*.npy).
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "terrastride/terrain/height_field.hpp"
+#include "terrastride/terrain/height_grid.hpp"
+
+namespace terrastride::terrain {
+
+class Scene;
+
+// A uniform bicubic B-spline over the cell centres, C2 everywhere (also across cell borders).
+// interpolate = false: the control points are the cell values (the B-spline approximant: it
+// reproduces planes exactly and never overshoots a step; used for heights). interpolate = true:
+// control points solved so the spline passes through every cell value (used for the safety
+// margin, whose sign at a cell centre must match the mask). Beyond the grid the border control
+// points are continued, so the field stays C2 and becomes constant a cell outside.
+class BSplineField {
+ public:
+  BSplineField() = default;
+  BSplineField(const GridGeometry& geometry, const std::vector<float>& values,
+               bool interpolate = false);
+  double value(double x, double y) const;
+  // Value and gradient only (the planner's hot path).
+  double value_gradient(double x, double y, Eigen::Vector2d* gradient) const;
+  HeightSample sample(double x, double y) const;  // value, gradient, Hessian
+
+ private:
+  // Padded control points: 2 extra on the low side, 3 on the high side of each axis.
+  const double* locate(double x, double y, double* tx, double* ty) const;
+  GridGeometry geometry_;
+  int stride_ = 0;
+  std::vector<double> coeffs_;
+};
+
+// Foothold-safety criteria (DESIGN.md, Terrain). A cell is safe for radius r when every cell whose
+// centre lies within r + res/2 of its centre is observed, the raw step (highest cell max minus
+// lowest cell min) in that disk is at most max_step, a plane fitted to the disk's elevations has an
+// RMS residual of at most max_rms, and that plane's slope is at most max_slope (tan of the angle;
+// the friction coefficient is the limit for a foot that must not slip without tangential help).
+// Step and RMS limits grow with the grid's estimated sensor noise sigma: max_step +
+// step_noise_factor sigma and max_rms + rms_noise_factor sigma (a disk's extreme raw points lie
+// about 3 sigma either side of the surface), so a noisy plane is not called rough; the slope limit
+// grows by slope_noise_factor standard errors of the fitted slope (small disks of noisy cells).
+struct SafetyOptions {
+  double max_step = 0.05;
+  double max_rms = 0.01;
+  double max_slope = 0.6;
+  double step_noise_factor = 6.0;
+  double rms_noise_factor = 1.0;
+  double slope_noise_factor = 4.0;
+};
+
+struct SafetyLayer {
+  double radius = 0.0;
+  std::vector<uint8_t> safe;  // per cell, 1 = safe
+  std::vector<float> margin;  // signed distance (m) to the nearest unsafe cell, negative inside
+  size_t safe_cells = 0;
+  BSplineField margin_field;  // C2 interpolation of `margin`
+};
+
+// Computes the mask and the margin: Euclidean distance transform (Felzenszwalb-Huttenlocher) from
+// the unsafe cells for safe cells and from the safe cells for unsafe ones, each minus half a cell
+// so the zero level lies on the border between a safe and an unsafe cell.
+SafetyLayer compute_safety(const HeightGrid& grid, double radius,
+                           const SafetyOptions& options = {});
+
+struct Clearance {
+  double min = 0.0;    // min over the segment of p_z - h(p_x, p_y)
+  Eigen::Vector3d at;  // where it is attained
+};
+
+class TerrainMap : public HeightField {
+ public:
+  // Computes the safety layers for `radii` up front; other radii are computed on first use.
+  TerrainMap(HeightGrid grid, const std::vector<double>& radii, SafetyOptions options = {});
+  // The planner's C2 version of a sharp scene, on the same kind of grid as a scanned terrain.
+  static std::unique_ptr<TerrainMap> from_scene(const Scene& scene, double resolution,
+                                                const std::vector<double>& radii,
+                                                SafetyOptions options = {});
+
+  HeightSample sample(double x, double y) const override { return height_.sample(x, y); }
+  double height_gradient(double x, double y, Eigen::Vector2d* gradient) const {
+    return height_.value_gradient(x, y, gradient);
+  }
+  MarginSample safety_margin(double x, double y, double foot_radius) const override;
+  bool observed(double x, double y) const override;
+  bool safe(double x, double y, double foot_radius) const;
+  Eigen::Vector2d min_corner() const override { return grid_.geometry.origin; }
+  Eigen::Vector2d max_corner() const override { return grid_.geometry.max_corner(); }
+  std::string describe() const override;
+
+  // Clearance of the segment a-b above the smoothed surface, sampled every quarter cell.
+  Clearance clearance(const Eigen::Vector3d& a, const Eigen::Vector3d& b) const;
+
+  const HeightGrid& grid() const { return grid_; }
+  const SafetyOptions& safety_options() const { return options_; }
+  // The layer for a radius (computed and cached on first use; thread safe).
+  const SafetyLayer& layer(double foot_radius) const;
+  std::vector<double> radii() const;
+  int cell_index(double x, double y) const;  // -1 outside the grid
+
+ private:
+  HeightGrid grid_;
+  SafetyOptions options_;
+  BSplineField height_;
+  mutable std::mutex mutex_;
+  mutable std::deque<SafetyLayer> layers_;  // deque: references stay valid as layers are added
+};
+
+// Writes DIR/layers/*.npy (elevation, variance, min, max, count, support, observed, and per radius
+// safe_rXXX and margin_rXXX, XXX the radius in mm) into `dir` (which must exist) and returns the
+// metadata block for terrain.json ("format", "grid", "layers", "safety", "statistics").
+nlohmann::json write_terrain_layers(const TerrainMap& map, const std::string& dir);
+
+// Loads a directory written by `terrastride map`. Throws perception::InputError naming the file
+// and the problem (missing, not a terrastride terrain, wrong layer shape or type).
+std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir);
+
+}  // namespace terrastride::terrain

@@ -1,0 +1,252 @@
+// Smoothed field derivatives, safety masks and margins, rasterised scenes, clearance, save/load.
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
+
+using namespace terrastride::terrain;
+
+namespace {
+
+GridGeometry geometry(int nx, int ny, double res = 0.02) {
+  GridGeometry g;
+  g.origin = Eigen::Vector2d(-0.3, 0.1);
+  g.resolution = res;
+  g.nx = nx;
+  g.ny = ny;
+  return g;
+}
+
+std::vector<float> random_values(const GridGeometry& g, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-0.1f, 0.1f);
+  std::vector<float> v(g.size());
+  for (auto& x : v) x = u(rng);
+  return v;
+}
+
+// Central differences of value -> gradient and gradient -> Hessian at (x, y).
+void check_derivatives(const BSplineField& f, double x, double y) {
+  const double e = 1e-6;
+  const HeightSample s = f.sample(x, y);
+  const double gx = (f.value(x + e, y) - f.value(x - e, y)) / (2 * e);
+  const double gy = (f.value(x, y + e) - f.value(x, y - e)) / (2 * e);
+  // Tolerances relative to the field's scale: values ~0.1 m over 0.02 m cells give gradients ~10
+  // and Hessians ~1e3, so FD errors are ~1e-6 relative.
+  EXPECT_NEAR(s.gradient.x(), gx, 1e-5 * (1 + std::abs(gx))) << x << "," << y;
+  EXPECT_NEAR(s.gradient.y(), gy, 1e-5 * (1 + std::abs(gy))) << x << "," << y;
+  Eigen::Vector2d g;
+  EXPECT_NEAR(f.value_gradient(x, y, &g), s.height, 1e-12);
+  EXPECT_NEAR((g - s.gradient).norm(), 0.0, 1e-9);
+  const HeightSample px = f.sample(x + e, y), mx = f.sample(x - e, y);
+  const HeightSample py = f.sample(x, y + e), my = f.sample(x, y - e);
+  const Eigen::Vector2d hx = (px.gradient - mx.gradient) / (2 * e);
+  const Eigen::Vector2d hy = (py.gradient - my.gradient) / (2 * e);
+  const double tol = 1e-4 * (1 + s.hessian.norm());
+  EXPECT_NEAR(s.hessian(0, 0), hx.x(), tol) << x << "," << y;
+  EXPECT_NEAR(s.hessian(1, 0), hx.y(), tol) << x << "," << y;
+  EXPECT_NEAR(s.hessian(0, 1), hy.x(), tol) << x << "," << y;
+  EXPECT_NEAR(s.hessian(1, 1), hy.y(), tol) << x << "," << y;
+}
+
+}  // namespace
+
+TEST(BSplineField, DerivativesMatchFiniteDifferencesEverywhere) {
+  const GridGeometry g = geometry(13, 9);
+  for (bool interp : {false, true}) {
+    const BSplineField f(g, random_values(g, 7), interp);
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<double> ux(g.origin.x() - 0.05, g.max_corner().x() + 0.05);
+    std::uniform_real_distribution<double> uy(g.origin.y() - 0.05, g.max_corner().y() + 0.05);
+    for (int n = 0; n < 400; ++n) check_derivatives(f, ux(rng), uy(rng));
+    // Right at and around knot lines (cell centres) and cell borders.
+    for (int i = 0; i < g.nx; ++i)
+      for (double off : {0.0, 1e-9, -1e-9, 0.5, 0.25}) {
+        const double x = g.origin.x() + (i + 0.5 + off) * g.resolution;
+        check_derivatives(f, x, g.origin.y() + 0.037);
+        check_derivatives(f, g.origin.x() + 0.051,
+                          g.origin.y() + (i % g.ny + 0.5 + off) * g.resolution);
+      }
+  }
+}
+
+TEST(BSplineField, IsC2AcrossKnotLines) {
+  const GridGeometry g = geometry(10, 10);
+  const BSplineField f(g, random_values(g, 11));
+  for (int i = 0; i <= g.nx; ++i) {
+    // Knots sit at cell centres (u integer); also the clamp at u = -1 and u = n outside the grid.
+    for (double u : {i + 0.5, -0.5, g.nx + 0.5}) {
+      const double x = g.origin.x() + u * g.resolution, y = g.origin.y() + 0.083;
+      const double d = 1e-9;
+      const HeightSample a = f.sample(x - d, y), b = f.sample(x + d, y);
+      EXPECT_NEAR(a.height, b.height, 1e-8);
+      EXPECT_NEAR((a.gradient - b.gradient).norm(), 0.0, 1e-5);  // ~2 d |H|
+      EXPECT_NEAR((a.hessian - b.hessian).norm(), 0.0, 1e-3 * (1 + a.hessian.norm()));
+    }
+  }
+}
+
+TEST(BSplineField, ReproducesPlanesAndInterpolatesWhenAsked) {
+  const GridGeometry g = geometry(12, 8);
+  std::vector<float> plane(g.size());
+  for (int i = 0; i < g.nx; ++i)
+    for (int j = 0; j < g.ny; ++j) {
+      const Eigen::Vector2d c = g.center(i, j);
+      plane[g.index(i, j)] = static_cast<float>(0.3 * c.x() - 0.2 * c.y() + 0.05);
+    }
+  const BSplineField f(g, plane);
+  // Away from the border (where padding replicates the edge values) a plane is reproduced exactly.
+  const HeightSample s = f.sample(-0.17, 0.19);
+  EXPECT_NEAR(s.height, 0.3 * -0.17 - 0.2 * 0.19 + 0.05, 1e-6);
+  EXPECT_NEAR(s.gradient.x(), 0.3, 1e-5);
+  EXPECT_NEAR(s.gradient.y(), -0.2, 1e-5);
+  const auto values = random_values(g, 5);
+  const BSplineField fi(g, values, true);
+  for (int i = 0; i < g.nx; ++i)
+    for (int j = 0; j < g.ny; ++j) {
+      const Eigen::Vector2d c = g.center(i, j);
+      EXPECT_NEAR(fi.value(c.x(), c.y()), values[g.index(i, j)], 1e-6);
+    }
+}
+
+TEST(Safety, PalletSceneMaskMarginAndGradient) {
+  auto scene = make_scene("pallet_10");
+  const double r = 0.02;
+  auto map = TerrainMap::from_scene(*scene, 0.02, {r, 0.05, 0.10});
+  const auto& g = map->grid().geometry;
+  const auto& layer = map->layer(r);
+  for (int i = 0; i < g.nx; ++i)
+    for (int j = 0; j < g.ny; ++j) {
+      const Eigen::Vector2d c = g.center(i, j);
+      const double d = scene->edge_distance(c.x(), c.y());
+      const bool border = i < 2 || j < 2 || i >= g.nx - 2 || j >= g.ny - 2;
+      const bool safe = layer.safe[g.index(i, j)];
+      if (d <= r) {
+        EXPECT_FALSE(safe) << c.transpose();
+      }
+      if (d >= r + 2 * g.resolution && !border) {
+        EXPECT_TRUE(safe) << c.transpose();
+      }
+      // The margin agrees in sign with the mask at every cell centre.
+      EXPECT_EQ(map->safety_margin(c.x(), c.y(), r).margin > 0, safe) << c.transpose();
+    }
+  // Larger feet: more unsafe cells.
+  EXPECT_GT(layer.safe_cells, map->layer(0.05).safe_cells);
+  EXPECT_GT(map->layer(0.05).safe_cells, map->layer(0.10).safe_cells);
+  // On the pallet top, 10 cm from the front edge, the margin is about 10 cm - r.
+  EXPECT_NEAR(map->safety_margin(0.65, 0.0, r).margin, 0.10 - r, 0.025);
+  // The gradient is usable (points away from the edge) and matches finite differences.
+  const double e = 1e-6;
+  for (double x : {0.35, 0.47, 0.6, 0.71, 1.0}) {
+    for (double y : {-0.3, 0.0, 0.21}) {
+      const auto m = map->safety_margin(x, y, r);
+      const double gx =
+          (map->safety_margin(x + e, y, r).margin - map->safety_margin(x - e, y, r).margin) /
+          (2 * e);
+      const double gy =
+          (map->safety_margin(x, y + e, r).margin - map->safety_margin(x, y - e, r).margin) /
+          (2 * e);
+      EXPECT_NEAR(m.gradient.x(), gx, 1e-5) << x << "," << y;
+      EXPECT_NEAR(m.gradient.y(), gy, 1e-5) << x << "," << y;
+    }
+  }
+  EXPECT_LT(map->safety_margin(0.47, 0.0, r).gradient.x(), 0.0);  // before the edge: back off
+  EXPECT_GT(map->safety_margin(0.65, 0.0, r).gradient.x(), 0.0);  // on top: move inwards
+}
+
+TEST(Safety, RasterisedScenesKeepHeights) {
+  for (const auto& name : scene_names()) {
+    auto scene = make_scene(name);
+    auto map = TerrainMap::from_scene(*scene, 0.02, {0.02});
+    const auto& g = map->grid().geometry;
+    for (int i = 0; i < g.nx; i += 3)
+      for (int j = 0; j < g.ny; j += 3) {
+        const Eigen::Vector2d c = g.center(i, j);
+        if (scene->edge_distance(c.x(), c.y()) < 0.05) continue;
+        EXPECT_NEAR(map->height(c.x(), c.y()), scene->height(c.x(), c.y()), 1e-6) << name;
+      }
+  }
+}
+
+TEST(Safety, SlopeAndRoughnessLimits) {
+  const GridGeometry g = geometry(40, 40);
+  HeightGrid grid;
+  grid.geometry = g;
+  const size_t n = g.size();
+  grid.variance.assign(n, 0);
+  grid.count.assign(n, 5);
+  grid.support.assign(n, 5);
+  grid.observed.assign(n, 1);
+  auto ramp = [&](double slope) {
+    grid.elevation.resize(n);
+    for (int i = 0; i < g.nx; ++i)
+      for (int j = 0; j < g.ny; ++j)
+        grid.elevation[g.index(i, j)] = float(slope * g.center(i, j).x());
+    grid.min = grid.max = grid.elevation;
+  };
+  SafetyOptions o;
+  o.max_step = 1.0;  // only the slope matters here
+  ramp(0.5);
+  EXPECT_GT(compute_safety(grid, 0.05, o).safe_cells, 0u);
+  ramp(0.7);
+  EXPECT_EQ(compute_safety(grid, 0.05, o).safe_cells, 0u);
+  // Rough: alternating +-2 cm checkerboard fails the plane-fit RMS.
+  for (int i = 0; i < g.nx; ++i)
+    for (int j = 0; j < g.ny; ++j) grid.elevation[g.index(i, j)] = (i + j) % 2 ? 0.02f : -0.02f;
+  grid.min = grid.max = grid.elevation;
+  EXPECT_EQ(compute_safety(grid, 0.05, o).safe_cells, 0u);
+  // A hole: cells whose disk reaches an unobserved cell are unsafe.
+  for (auto& z : grid.elevation) z = 0;
+  grid.min = grid.max = grid.elevation;
+  grid.observed[g.index(20, 20)] = 0;
+  const auto l = compute_safety(grid, 0.02, o);
+  EXPECT_FALSE(l.safe[g.index(21, 21)]);
+  EXPECT_FALSE(l.safe[g.index(20, 20)]);
+  EXPECT_TRUE(l.safe[g.index(23, 20)]);
+  EXPECT_THROW(compute_safety(grid, -0.1, o), terrastride::perception::InputError);
+}
+
+TEST(Clearance, SegmentAboveStep) {
+  auto scene = make_scene("pallet_15");
+  auto map = TerrainMap::from_scene(*scene, 0.02, {0.02});
+  // A shin segment passing 5 cm over the pallet top: min clearance ~5 cm, found on top.
+  const auto c = map->clearance({1.0, 0.0, 0.20}, {1.3, 0.0, 0.20});
+  EXPECT_NEAR(c.min, 0.05, 1e-3);
+  // A segment dipping through the pallet front edge: negative clearance.
+  const auto d = map->clearance({0.40, 0.0, 0.05}, {0.70, 0.0, 0.10});
+  EXPECT_LT(d.min, 0.0);
+  EXPECT_GT(d.at.x(), 0.55);
+}
+
+TEST(TerrainDir, WriteThenLoadRoundTrip) {
+  namespace fs = std::filesystem;
+  auto scene = make_scene("stairs");
+  auto map = TerrainMap::from_scene(*scene, 0.02, {0.02, 0.05});
+  const fs::path dir =
+      fs::temp_directory_path() / ("terrastride_terrain_dir_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  nlohmann::json meta = write_terrain_layers(*map, dir.string());
+  { std::ofstream(dir / "terrain.json") << meta.dump(2); }
+  auto loaded = load_terrain_dir(dir.string());
+  EXPECT_EQ(loaded->radii().size(), 2u);
+  for (double x : {0.1, 0.6, 0.93, 1.4})
+    for (double y : {-0.2, 0.3}) {
+      EXPECT_NEAR(loaded->height(x, y), map->height(x, y), 1e-6);
+      EXPECT_NEAR(loaded->safety_margin(x, y, 0.02).margin, map->safety_margin(x, y, 0.02).margin,
+                  1e-5);
+      EXPECT_EQ(loaded->safe(x, y, 0.05), map->safe(x, y, 0.05));
+    }
+  // Mislabeled: a layer of the wrong shape, and a terrain.json that is not one.
+  std::ofstream(dir / "terrain.json") << "{\"format\": \"something-else\"}";
+  EXPECT_THROW(load_terrain_dir(dir.string()), terrastride::perception::InputError);
+  EXPECT_THROW(load_terrain_dir((dir / "missing").string()), terrastride::perception::InputError);
+  fs::remove_all(dir);
+}
