@@ -152,6 +152,12 @@ bool process_cell(const Entry* e, size_t n, const HeightGridOptions& o, HeightGr
     overhang = true;
   }
   write_stats(e, clusters[s], grid, k);
+  // A lone return (a flying pixel in a shadow, a stray reflection) is not evidence of a surface:
+  // keep its height but leave the cell unobserved.
+  if (clusters[s].size() < static_cast<size_t>(std::max(o.min_cell_points, 1))) {
+    grid.observed[k] = 0;
+    return false;
+  }
   if (overhang) {
     ++grid.overhang_cells;
   } else if (clusters[s].b > 0) {
@@ -379,11 +385,11 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
     const size_t n = start[k + 1] - start[k];
     if (n == 0) continue;
     candidate[k] = process_cell(entries.data() + start[k], n, eff, grid, k) ? 1 : 0;
-    ++grid.observed_cells;
+    grid.observed_cells += grid.observed[k];
   }
   promote_sparse_surfaces(entries, start, candidate, eff, grid);
   close_narrow_pits(grid, o.bridge_cells, eff.cluster_gap);
-  fill_holes(grid);
+  fill_holes(grid, o.min_cell_points);
   return grid;
 }
 
@@ -395,7 +401,7 @@ HeightGrid build_height_grid(const std::vector<perception::PointCloud>& clouds,
   return build_height_grid(batches, options);
 }
 
-void fill_holes(HeightGrid& grid) {
+void fill_holes(HeightGrid& grid, int min_points) {
   const GridGeometry& g = grid.geometry;
   // Sampling gaps: a cell without any point whose eight neighbours all measured one surface
   // (spread within the cluster gap) lies on that surface; interpolate it and count it observed
@@ -405,7 +411,7 @@ void fill_holes(HeightGrid& grid) {
   for (int i = 1; i + 1 < g.nx; ++i)
     for (int j = 1; j + 1 < g.ny; ++j) {
       const size_t k = g.index(i, j);
-      if (grid.observed[k] || grid.count[k] != 0) continue;
+      if (grid.observed[k] || grid.count[k] >= static_cast<uint32_t>(min_points)) continue;
       float lo = std::numeric_limits<float>::infinity(), hi = -lo;
       bool all = true;
       for (int di = -1; di <= 1 && all; ++di)

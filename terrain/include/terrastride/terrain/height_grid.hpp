@@ -48,6 +48,7 @@ struct HeightGridOptions {
                               // 4 times the estimated sensor noise is used)
   double min_support_fraction = 0.2;  // a cluster must hold this share of the cell's points...
   int min_support_points = 2;         // ...and at least this many to count as a surface
+  int min_cell_points = 2;            // fewer points in the support: the cell stays unobserved
   double overhang_vote = 0.5;         // share of "seen from beneath" rays that marks an overhang
   // Pits up to 2 * bridge_cells wide and deeper than cluster_gap are bridged as see-through
   // openings of the surface around them (and flagged unobserved); 0 = off.
@@ -99,12 +100,13 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches,
 HeightGrid build_height_grid(const std::vector<perception::PointCloud>& clouds,
                              const HeightGridOptions& options = {});
 
-// Conservative hole filling. A cell without points whose eight neighbours measured one surface is a
-// sampling gap: it is interpolated (mean of the neighbours) and flagged observed = 2. Every other
-// unobserved cell takes the highest elevation among its already
-// known 8-neighbours, growing inwards ring by ring (a higher filled surface errs towards more
-// clearance for swing feet and shins; the cell stays flagged unobserved, hence unsafe).
-void fill_holes(HeightGrid& grid);
+// Conservative hole filling. A cell without (enough) points whose eight neighbours measured one
+// surface is a sampling gap: it is interpolated (mean of the neighbours) and flagged observed = 2.
+// Every other unobserved cell takes the highest elevation among its already known 8-neighbours,
+// growing inwards ring by ring (a higher filled surface errs towards more clearance for swing feet
+// and shins; the cell stays flagged unobserved, hence unsafe). Cells with fewer than `min_points`
+// points count as holes for the sampling-gap rule.
+void fill_holes(HeightGrid& grid, int min_points = 2);
 
 class Scene;
 // Rasterises an analytic scene into the same grid: elevation = exact height at the cell centre,
