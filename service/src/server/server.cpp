@@ -112,13 +112,12 @@ class WorkerPool {
   }
   ~WorkerPool() { stop(); }
 
-  // False when the queue is full (the caller replies `busy`). A job goes straight to an idle
-  // worker even when capacity is 0.
+  // False when every worker is taken and `capacity` jobs already wait (the caller replies
+  // `busy`).
   bool try_submit(std::shared_ptr<Job> job) {
     std::lock_guard<std::mutex> lock(mu_);
     if (stopping_) return false;
-    const std::size_t idle = threads_.size() - running_;
-    if (queue_.size() >= capacity_ + (idle > queue_.size() ? idle - queue_.size() : 0)) return false;
+    if (queue_.size() + running_ >= threads_.size() + capacity_) return false;
     queue_.push_back(std::move(job));
     cv_.notify_one();
     return true;
@@ -310,8 +309,20 @@ struct Connection : std::enable_shared_from_this<Connection> {
                        if (self->body.size() < self->body_length) return self->read_body_chunk();
                        self->reading_body = false;
                        self->dispatch();
-                       self->read_prefix();
+                       self->maybe_read();
                      });
+  }
+
+  // Backpressure: a client whose replies pile up unsent is not read from until they drain, so it
+  // slows only itself (its own sends block in TCP).
+  static constexpr std::size_t kPauseReadBytes = 4u << 20;
+  bool read_paused = false;
+  void maybe_read() {
+    if (out_bytes > kPauseReadBytes) {
+      read_paused = true;
+      return;
+    }
+    read_prefix();
   }
 
   void send(std::string frame) {
@@ -359,6 +370,10 @@ struct Connection : std::enable_shared_from_this<Connection> {
       for (const auto& w : self->writing) self->out_bytes -= w.size();
       self->writing.clear();
       if (ec) return self->close();
+      if (self->read_paused && self->out_bytes <= kPauseReadBytes / 2) {
+        self->read_paused = false;
+        self->read_prefix();
+      }
       self->do_write();
     });
   }

@@ -55,7 +55,7 @@ class Client {
   std::string read_body();
   int fd_ = -1;
   double timeout_s_ = 30.0;
-  long long next_id_ = 1;
+  long long next_id_ = 1ll << 32;  // automatic ids stay clear of small ids chosen by callers
   std::string in_;
   std::size_t in_pos_ = 0;
   std::deque<protocol::Message> pending_;  // received but not yet asked for

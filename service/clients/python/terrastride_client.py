@@ -1,0 +1,198 @@
+"""Client for the terrastride socket service (docs/protocol.md). Python standard library only.
+
+    from terrastride_client import Client
+    with Client.connect("tcp://127.0.0.1:7700") as c:
+        c.call("hello")
+        c.call("map.update", scene="pallet_10")
+        print(c.call("map.query", points=[[1.0, 0.0]])["results"])
+
+Frames: u32 big-endian body length | u32 big-endian header length | JSON header | attachments.
+Attachments are float32 little-endian arrays described in header["attachments"].
+"""
+
+import array
+import itertools
+import json
+import socket
+import struct
+import sys
+
+PROTOCOL_VERSION = 1
+
+
+class ServiceError(Exception):
+    """An error reply: .code (e.g. "busy", "bad_request") and .message."""
+
+    def __init__(self, code, message, reply=None):
+        super().__init__(f"{code}: {message}")
+        self.code = code
+        self.message = message
+        self.reply = reply
+
+
+class Attachment:
+    """A float32 array: `values` is a flat sequence, `shape` e.g. (N, 3)."""
+
+    def __init__(self, name, shape, values):
+        self.name = name
+        self.shape = tuple(int(s) for s in shape)
+        self.values = array.array("f", values)
+        n = 1
+        for s in self.shape:
+            n *= s
+        if len(self.values) != n:
+            raise ValueError(f"attachment {name}: shape {self.shape} needs {n} values, "
+                             f"got {len(self.values)}")
+
+    @classmethod
+    def points(cls, name, xyz):
+        """From an iterable of (x, y, z) or (x, y) rows."""
+        rows = [tuple(p) for p in xyz]
+        cols = len(rows[0]) if rows else 3
+        return cls(name, (len(rows), cols), itertools.chain.from_iterable(rows))
+
+    def to_bytes(self):
+        a = array.array("f", self.values)
+        if sys.byteorder != "little":
+            a.byteswap()
+        return a.tobytes()
+
+    def rows(self):
+        cols = self.shape[-1] if len(self.shape) > 1 else 1
+        return [tuple(self.values[i:i + cols]) for i in range(0, len(self.values), cols)]
+
+
+def encode_frame(header, attachments=()):
+    header = dict(header)
+    if attachments:
+        header["attachments"] = [{"name": a.name, "dtype": "float32", "shape": list(a.shape)}
+                                 for a in attachments]
+    text = json.dumps(header, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    blobs = b"".join(a.to_bytes() for a in attachments)
+    body = struct.pack(">I", len(text)) + text + blobs
+    return struct.pack(">I", len(body)) + body
+
+
+def decode_body(body):
+    if len(body) < 4:
+        raise ValueError("frame body shorter than 4 bytes")
+    (hlen,) = struct.unpack(">I", body[:4])
+    if hlen > len(body) - 4:
+        raise ValueError("header length exceeds the frame")
+    header = json.loads(body[4:4 + hlen].decode("utf-8"))
+    rest = memoryview(body)[4 + hlen:]
+    atts = []
+    for d in header.get("attachments", []):
+        n = 4
+        for s in d["shape"]:
+            n *= s
+        a = array.array("f")
+        a.frombytes(bytes(rest[:n]))
+        if sys.byteorder != "little":
+            a.byteswap()
+        rest = rest[n:]
+        att = Attachment.__new__(Attachment)
+        att.name, att.shape, att.values = d["name"], tuple(d["shape"]), a
+        atts.append(att)
+    return header, atts
+
+
+class Client:
+    """Blocking client; requests may be pipelined with send()/receive()/wait_for()."""
+
+    def __init__(self, sock, timeout=30.0):
+        self._sock = sock
+        self._sock.settimeout(timeout)
+        self._ids = itertools.count(1)
+        self._pending = {}  # replies received while waiting for another id
+        self._order = []
+
+    @classmethod
+    def connect(cls, address, timeout=30.0, token=None):
+        """address: tcp://HOST:PORT or unix:PATH. With `token`, sends hello with it."""
+        if address.startswith("unix:"):
+            path = address[5:]
+            if path.startswith("//"):
+                path = path[2:]
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            sock.settimeout(timeout)
+            sock.connect(path)
+        else:
+            rest = address[6:] if address.startswith("tcp://") else address
+            host, _, port = rest.rpartition(":")
+            host = host.strip("[]")
+            sock = socket.create_connection((host, int(port)), timeout=timeout)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        client = cls(sock, timeout)
+        if token is not None:
+            client.call("hello", token=token)
+        return client
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def send(self, op, attachments=(), id=None, **fields):
+        """Sends a request without waiting; returns its id."""
+        if id is None:
+            id = next(self._ids)
+        header = {"v": PROTOCOL_VERSION, "id": id, "op": op}
+        header.update(fields)
+        self._sock.sendall(encode_frame(header, attachments))
+        return id
+
+    def send_raw(self, data):
+        self._sock.sendall(data)
+
+    def _read_exact(self, n):
+        chunks = []
+        while n:
+            chunk = self._sock.recv(min(n, 1 << 20))
+            if not chunk:
+                raise ConnectionError("connection closed by the server")
+            chunks.append(chunk)
+            n -= len(chunk)
+        return b"".join(chunks)
+
+    def _read_reply(self):
+        (length,) = struct.unpack(">I", self._read_exact(4))
+        return decode_body(self._read_exact(length))
+
+    def receive(self):
+        """Next reply (header, attachments) in arrival order."""
+        if self._order:
+            key = self._order.pop(0)
+            return self._pending.pop(key)
+        return self._read_reply()
+
+    def wait_for(self, id):
+        key = json.dumps(id)
+        if key in self._pending:
+            self._order.remove(key)
+            return self._pending.pop(key)
+        while True:
+            header, atts = self._read_reply()
+            if header.get("id") == id:
+                return header, atts
+            k = json.dumps(header.get("id"))
+            self._pending[k] = (header, atts)
+            self._order.append(k)
+
+    def request(self, op, attachments=(), **fields):
+        """Sends and waits; returns (header, attachments) whether ok or not."""
+        return self.wait_for(self.send(op, attachments, **fields))
+
+    def call(self, op, attachments=(), **fields):
+        """Sends and waits; returns the result object or raises ServiceError."""
+        header, _ = self.request(op, attachments, **fields)
+        if not header.get("ok"):
+            err = header.get("error", {})
+            raise ServiceError(err.get("code", "?"), err.get("message", "?"), header)
+        return header.get("result", {})

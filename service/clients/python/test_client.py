@@ -1,0 +1,103 @@
+#!/usr/bin/env python3
+"""Drives a running `terrastride serve --debug-ops --workers 1 --queue 1` through the Python client:
+every operation, pipelining, cancel, deadline, busy, hostile input. Prints OK on success.
+
+    python3 test_client.py tcp://127.0.0.1:PORT
+"""
+import math
+import time
+import struct
+import sys
+
+from terrastride_client import Attachment, Client, ServiceError
+
+
+def expect_error(code, fn):
+    try:
+        fn()
+    except ServiceError as e:
+        assert e.code == code, f"expected {code}, got {e.code}: {e.message}"
+        return e
+    raise AssertionError(f"expected error {code}, got success")
+
+
+def wait_idle(c):
+    """Cancelled jobs hold their worker until they notice; wait until none runs."""
+    for _ in range(2000):
+        q = c.call("status")["queue"]
+        if q["running"] == 0 and q["length"] == 0:
+            return
+        time.sleep(0.005)
+    raise AssertionError("workers never became idle")
+
+
+def main(address):
+    with Client.connect(address) as c:
+        hello = c.call("hello")
+        assert hello["protocol"] == 1 and hello["robot"]["name"] == "hyq", hello
+        for op in ("map.update", "map.query", "map.clear", "plan", "check", "cancel", "status"):
+            assert op in hello["ops"], op
+
+        up = c.call("map.update", scene="pallet_10")
+        res = c.call("map.query", points=[[1.0, 0.0], [0.56, 0.0]])
+        assert res["generation"] == up["generation"]
+        top, edge = res["results"]
+        assert abs(top["height"] - 0.10) < 1e-12 and top["safe"] is True, top
+        assert edge["safe"] is False and edge["margin"] < 0, edge
+        res = c.call("map.query", [Attachment("points", (1, 2), [1.0, 0.0])])
+        assert abs(res["results"][0]["height"] - 0.10) < 1e-6
+
+        # Pipelining: 100 requests out, 100 replies back, matched by id.
+        ids = [c.send("map.query", points=[[0.01 * i, 0.0]]) for i in range(100)]
+        seen = {}
+        for _ in ids:
+            header, _ = c.receive()
+            seen[header["id"]] = header["result"]["results"][0]["x"]
+        assert sorted(seen) == sorted(ids)
+        assert all(abs(seen[i] - 0.01 * (i - ids[0])) < 1e-12 for i in ids)
+
+        # Cancel a running job, then a deadline, then busy (1 worker, queue 1).
+        long_id = c.send("debug.sleep", ms=20000)
+        c.call("status")
+        r = c.call("cancel", target=long_id)
+        assert r["cancelled"] is True, r
+        header, _ = c.wait_for(long_id)
+        assert header["error"]["code"] == "cancelled", header
+        expect_error("deadline_exceeded", lambda: c.call("debug.sleep", ms=20000, deadline_ms=50))
+        wait_idle(c)
+        a = c.send("debug.sleep", ms=20000)
+        b = c.send("debug.sleep", ms=20000)
+        c.call("status")
+        expect_error("busy", lambda: c.call("debug.sleep", ms=1))
+        for t in (a, b):
+            c.call("cancel", target=t)
+            assert c.wait_for(t)[0]["error"]["code"] == "cancelled"
+
+        # Hostile input: errors name the problem; the connection stays usable.
+        expect_error("unknown_op", lambda: c.call("self.destruct"))
+        e = expect_error("bad_request", lambda: c.call(
+            "map.update", [Attachment("points", (1, 3), [0.0, math.nan, 0.0])], origin=[0, 0, 1]))
+        assert "non-finite" in e.message, e.message
+        e = expect_error("bad_request", lambda: c.call("map.query", points="all"))
+        assert "points" in e.message
+        body = struct.pack(">I", 5) + b"{oops"
+        c.send_raw(struct.pack(">I", len(body)) + body)
+        header, _ = c.receive()
+        assert header["error"]["code"] == "bad_json" and header["id"] is None, header
+
+        # Plan and check: a real result or an honest "unavailable".
+        for op, fields in (("plan", {"terrain": "flat", "goal": [0.3, 0.0, 0.0]}),
+                           ("check", {"plan": {}})):
+            header, _ = c.request(op, **fields)
+            if not header["ok"]:
+                assert header["error"]["code"] in ("unavailable", "bad_request"), header
+
+        c.call("map.clear")
+        expect_error("no_map", lambda: c.call("map.query", points=[[0, 0]]))
+        st = c.call("status")
+        assert st["requests"]["cancelled"] >= 3 and st["requests"]["busy"] >= 1, st
+    print("OK")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1] if len(sys.argv) > 1 else "tcp://127.0.0.1:7700")

@@ -1,0 +1,526 @@
+// Integration tests: the real `terrastride serve` process on an ephemeral loopback port, driven
+// through the C++ client (and, in PythonClient, the Python client): every operation, pipelining,
+// cancel, deadlines, busy, the token check, map updates while queries run, hostile input,
+// signals.
+#include <gtest/gtest.h>
+#include <sys/stat.h>
+
+#include <atomic>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <thread>
+
+#include "terrastride/service/client.hpp"
+#include "terrastride/service/protocol.hpp"
+#include "test_server_process.hpp"
+
+namespace {
+
+using nlohmann::json;
+using terrastride::service::Client;
+using terrastride::service::ClientError;
+using terrastride::test::ServerProcess;
+namespace p = terrastride::service::protocol;
+
+std::string error_code(const p::Message& m) {
+  if (m.header.value("ok", true)) return "";
+  return m.header["error"].value("code", "");
+}
+std::string error_message(const p::Message& m) {
+  if (m.header.value("ok", true)) return "";
+  return m.header["error"].value("message", "");
+}
+
+std::string temp_path(const std::string& name) {
+  return (std::filesystem::temp_directory_path() /
+          ("ts-" + std::to_string(::getpid()) + "-" + name))
+      .string();
+}
+
+std::string raw_frame(const std::string& header_text, const std::string& tail = "") {
+  std::string b(8, '\0');
+  p::write_u32be(static_cast<std::uint32_t>(4 + header_text.size() + tail.size()),
+                 reinterpret_cast<unsigned char*>(&b[0]));
+  p::write_u32be(static_cast<std::uint32_t>(header_text.size()),
+                 reinterpret_cast<unsigned char*>(&b[4]));
+  return b + header_text + tail;
+}
+
+// The server is still healthy: a fresh client gets exact answers.
+void expect_healthy(const std::string& address) {
+  Client c = Client::connect(address);
+  const json r = c.call_ok({{"op", "map.query"}, {"points", {{1.0, 0.0}, {0.0, 0.0}}}});
+  ASSERT_EQ(r["results"].size(), 2u);
+  EXPECT_NEAR(r["results"][0]["height"].get<double>(), 0.10, 1e-12);
+  EXPECT_NEAR(r["results"][1]["height"].get<double>(), 0.0, 1e-12);
+}
+
+class ServerTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    server_ = std::make_unique<ServerProcess>(std::vector<std::string>{
+        "--listen", "tcp://127.0.0.1:0", "--debug-ops", "--workers", "2", "--queue", "2"});
+    ASSERT_FALSE(server_->tcp().empty()) << server_->output;
+    address_ = server_->tcp();
+    Client c = Client::connect(address_);
+    c.call_ok({{"op", "map.update"}, {"scene", "pallet_10"}});
+  }
+  void TearDown() override {
+    if (server_) {
+      EXPECT_EQ(server_->stop(SIGTERM), 0) << server_->output;
+    }
+  }
+  std::unique_ptr<ServerProcess> server_;
+  std::string address_;
+};
+
+TEST_F(ServerTest, HelloAndStatus) {
+  Client c = Client::connect(address_);
+  const json hello = c.call_ok({{"op", "hello"}});
+  EXPECT_EQ(hello["protocol"], 1);
+  EXPECT_EQ(hello["robot"]["name"], "hyq");
+  EXPECT_EQ(hello["robot"]["legs"].size(), 4u);
+  for (const char* op : {"map.update", "map.query", "map.clear", "plan", "check", "cancel",
+                         "status"}) {
+    EXPECT_NE(std::find(hello["ops"].begin(), hello["ops"].end(), op), hello["ops"].end()) << op;
+  }
+  const json st = c.call_ok({{"op", "status"}});
+  EXPECT_GE(st["uptime_s"].get<double>(), 0.0);
+  EXPECT_EQ(st["map"]["present"], true);
+  EXPECT_EQ(st["map"]["source"], "scene:pallet_10");
+  EXPECT_GE(st["requests"]["total"].get<int>(), 2);
+  EXPECT_EQ(st["queue"]["workers"], 2);
+}
+
+TEST_F(ServerTest, MapQueryUpdateClear) {
+  Client c = Client::connect(address_);
+  // Scene pallet_10: a 0.10 m box over x in [0.55, 1.75], |y| <= 0.6; foot radius 0.02.
+  json r = c.call_ok(
+      {{"op", "map.query"}, {"points", {{0.0, 0.0}, {1.0, 0.0}, {0.56, 0.0}, {1.15, 0.3}}}});
+  const json& res = r["results"];
+  ASSERT_EQ(res.size(), 4u);
+  EXPECT_DOUBLE_EQ(res[0]["height"].get<double>(), 0.0);
+  EXPECT_DOUBLE_EQ(res[1]["height"].get<double>(), 0.10);
+  EXPECT_TRUE(res[1]["safe"].get<bool>());
+  EXPECT_NEAR(res[1]["margin"].get<double>(), 0.45 - 0.02, 1e-9);  // nearest edge x = 0.55
+  EXPECT_FALSE(res[2]["safe"].get<bool>());                          // 1 cm from the edge
+  EXPECT_LT(res[2]["margin"].get<double>(), 0.0);
+  EXPECT_EQ(res[3]["gradient"].size(), 2u);
+  EXPECT_TRUE(res[3]["observed"].get<bool>());
+  // The same query as a float32 attachment [N, 2].
+  r = c.call_ok({{"op", "map.query"}, {"foot_radius", 0.0}},
+                {p::make_float_attachment("points", {2, 2}, {1.0f, 0.0f, 0.56f, 0.0f})});
+  EXPECT_DOUBLE_EQ(r["results"][0]["height"].get<double>(), 0.10);
+  EXPECT_TRUE(r["results"][1]["safe"].get<bool>());  // with r = 0, 1 cm from the edge is safe
+  // Replace with another scene, then clear.
+  const json up = c.call_ok({{"op", "map.update"}, {"scene", "pallet_15"}, {"mode", "replace"}});
+  r = c.call_ok({{"op", "map.query"}, {"points", {{1.0, 0.0}}}});
+  EXPECT_DOUBLE_EQ(r["results"][0]["height"].get<double>(), 0.15);
+  EXPECT_EQ(r["generation"], up["generation"]);
+  c.call_ok({{"op", "map.clear"}});
+  p::Message m = c.call({{"op", "map.query"}, {"points", {{1.0, 0.0}}}});
+  EXPECT_EQ(error_code(m), "no_map");
+  // Bad inputs name the problem.
+  m = c.call({{"op", "map.update"}, {"scene", "moon"}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("moon"), std::string::npos) << error_message(m);
+  m = c.call({{"op", "map.update"}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  m = c.call({{"op", "map.query"}, {"points", {{1.0, "a"}}}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("points[0]"), std::string::npos);
+  m = c.call({{"op", "map.query"}, {"points", 5}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  m = c.call({{"op", "map.update"}, {"scene", "flat"}, {"mode", "merge"}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("mode"), std::string::npos);
+}
+
+TEST_F(ServerTest, CloudUpdatesAreValidated) {
+  Client c = Client::connect(address_);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  p::Message m = c.call({{"op", "map.update"}, {"origin", {0, 0, 0.8}}},
+                        {p::make_float_attachment("points", {2, 3}, {0, 0, 0, 1, nan, 0})});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("non-finite"), std::string::npos) << error_message(m);
+  m = c.call({{"op", "map.update"}, {"origin", {0, 0, 0.8}}},
+             {p::make_float_attachment("points", {2, 2}, {0, 0, 1, 1})});
+  EXPECT_EQ(error_code(m), "bad_request");
+  m = c.call({{"op", "map.update"}, {"origin", {0, "x", 0.8}}},
+             {p::make_float_attachment("points", {1, 3}, {0, 0, 0})});
+  EXPECT_EQ(error_code(m), "bad_request");
+  // A valid cloud is either fused (terrain builder built in) or refused as unavailable; never
+  // faked.
+  std::vector<float> grid;
+  for (int i = 0; i < 50; ++i)
+    for (int j = 0; j < 50; ++j) grid.insert(grid.end(), {0.02f * i, 0.02f * j - 0.5f, 0.0f});
+  m = c.call({{"op", "map.update"}, {"origin", {0, 0, 0.8}}, {"mode", "replace"}},
+             {p::make_float_attachment("points", {2500, 3}, grid)});
+  if (!m.header["ok"].get<bool>()) {
+    EXPECT_EQ(error_code(m), "unavailable") << error_message(m);
+  }
+}
+
+TEST_F(ServerTest, PlanAndCheckAnswerHonestly) {
+  Client c = Client::connect(address_);
+  p::Message m = c.call({{"op", "plan"}, {"terrain", "flat"}, {"gait", "crawl"}, {"duration", 2.4},
+                         {"goal", {0.3, 0.0, 0.0}}});
+  if (m.header["ok"].get<bool>()) {
+    const json& r = m.header["result"];
+    EXPECT_TRUE(r.contains("samples"));
+    EXPECT_TRUE(r.contains("solver"));
+  } else {
+    EXPECT_EQ(error_code(m), "unavailable") << error_message(m);
+  }
+  m = c.call({{"op", "check"}, {"plan", json::object()}});
+  EXPECT_FALSE(m.header["ok"].get<bool>());
+  EXPECT_TRUE(error_code(m) == "unavailable" || error_code(m) == "bad_request") << error_code(m);
+}
+
+TEST_F(ServerTest, PipelinedRepliesCarryTheirIds) {
+  Client c = Client::connect(address_);
+  constexpr int kN = 300;
+  for (int i = 0; i < kN; ++i)
+    c.send({{"op", "map.query"}, {"id", "q" + std::to_string(i)}, {"points", {{0.01 * i, 0.0}}}});
+  // A slow job in the middle does not hold back the fast replies behind it.
+  c.send({{"op", "debug.sleep"}, {"id", "slow"}, {"ms", 300}});
+  c.send({{"op", "status"}, {"id", "after"}});
+  std::set<std::string> seen;
+  bool after_before_slow = false;
+  for (int i = 0; i < kN + 2; ++i) {
+    const p::Message m = c.receive();
+    ASSERT_TRUE(m.header["ok"].get<bool>()) << m.header.dump();
+    const std::string id = m.header["id"].get<std::string>();
+    EXPECT_TRUE(seen.insert(id).second) << "duplicate reply " << id;
+    if (id[0] == 'q') {
+      const int k = std::stoi(id.substr(1));
+      EXPECT_DOUBLE_EQ(m.header["result"]["results"][0]["x"].get<double>(), 0.01 * k);
+    }
+    if (id == "after") after_before_slow = !seen.count("slow");
+  }
+  EXPECT_EQ(seen.size(), static_cast<std::size_t>(kN + 2));
+  EXPECT_TRUE(after_before_slow);
+}
+
+TEST_F(ServerTest, CancelRunningAndQueuedJobs) {
+  Client c = Client::connect(address_);
+  const auto t0 = std::chrono::steady_clock::now();
+  c.send({{"op", "debug.sleep"}, {"id", 1}, {"ms", 20000}});
+  c.send({{"op", "debug.sleep"}, {"id", 2}, {"ms", 20000}});
+  c.send({{"op", "debug.sleep"}, {"id", 3}, {"ms", 20000}});  // queued: 2 workers
+  json r = c.call_ok({{"op", "cancel"}, {"target", 3}});
+  EXPECT_EQ(r["cancelled"], true);
+  EXPECT_EQ(r["state"], "queued");
+  p::Message m = c.wait_for(3);
+  EXPECT_EQ(error_code(m), "cancelled");
+  for (int id : {1, 2}) {
+    // Wait until the job runs, then cancel it.
+    for (int tries = 0; tries < 200; ++tries) {
+      if (Client::connect(address_).call_ok({{"op", "status"}})["queue"]["running"] == 2) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    r = c.call_ok({{"op", "cancel"}, {"target", id}});
+    EXPECT_EQ(r["cancelled"], true);
+    m = c.wait_for(id);
+    EXPECT_EQ(error_code(m), "cancelled");
+  }
+  r = c.call_ok({{"op", "cancel"}, {"target", 99}});
+  EXPECT_EQ(r["cancelled"], false);
+  EXPECT_EQ(r["state"], "unknown");
+  // The workers are free again (the cancelled sleeps stopped).
+  for (int tries = 0; tries < 400; ++tries) {
+    if (c.call_ok({{"op", "status"}})["queue"]["running"] == 0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  r = c.call_ok({{"op", "debug.sleep"}, {"ms", 1}});
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(15));
+}
+
+TEST_F(ServerTest, Deadlines) {
+  Client c = Client::connect(address_);
+  p::Message m = c.call({{"op", "debug.sleep"}, {"ms", 20000}, {"deadline_ms", 100}});
+  EXPECT_EQ(error_code(m), "deadline_exceeded");
+  m = c.call({{"op", "map.query"}, {"points", {{0, 0}}}, {"deadline_ms", 0}});
+  EXPECT_EQ(error_code(m), "deadline_exceeded");
+  m = c.call({{"op", "debug.sleep"}, {"ms", 1}, {"deadline_ms", 10000}});
+  EXPECT_TRUE(m.header["ok"].get<bool>()) << m.header.dump();
+  m = c.call({{"op", "map.query"}, {"points", {{0, 0}}}, {"deadline_ms", 1000}});
+  EXPECT_TRUE(m.header["ok"].get<bool>());
+  m = c.call({{"op", "status"}, {"deadline_ms", "soon"}});
+  EXPECT_EQ(error_code(m), "bad_request");
+}
+
+TEST_F(ServerTest, BusyWhenPoolAndQueueAreFull) {
+  Client c = Client::connect(address_);
+  // 2 workers + queue of 2: the fifth concurrent job is refused.
+  for (int i = 1; i <= 4; ++i) c.send({{"op", "debug.sleep"}, {"id", i}, {"ms", 20000}});
+  p::Message m = c.call({{"op", "debug.sleep"}, {"id", 5}, {"ms", 1}});
+  EXPECT_EQ(error_code(m), "busy");
+  EXPECT_NE(error_message(m).find("queue"), std::string::npos);
+  // Inline operations are never busy.
+  expect_healthy(address_);
+  Client other = Client::connect(address_);
+  EXPECT_EQ(error_code(other.call({{"op", "debug.sleep"}, {"ms", 1}})), "busy");
+  for (int i = 1; i <= 4; ++i) c.call_ok({{"op", "cancel"}, {"target", i}});
+  for (int i = 1; i <= 4; ++i) EXPECT_EQ(error_code(c.wait_for(i)), "cancelled");
+  const json st = c.call_ok({{"op", "status"}});
+  EXPECT_GE(st["requests"]["busy"].get<int>(), 2);
+}
+
+TEST_F(ServerTest, DuplicateInFlightIdIsRefused) {
+  Client c = Client::connect(address_);
+  c.send({{"op", "debug.sleep"}, {"id", 7}, {"ms", 20000}});
+  p::Message m = c.call({{"op", "debug.sleep"}, {"id", 7}, {"ms", 1}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  c.call_ok({{"op", "cancel"}, {"target", 7}});
+}
+
+TEST_F(ServerTest, MapUpdatesAreAtomicForConcurrentQueries) {
+  std::atomic<bool> stop{false};
+  std::atomic<int> bad{0}, queries{0};
+  std::vector<std::thread> readers;
+  for (int t = 0; t < 4; ++t) {
+    readers.emplace_back([&] {
+      Client c = Client::connect(address_);
+      std::uint64_t last_gen = 0;
+      while (!stop) {
+        // Heights on the box top are 0.10 (pallet_10) or 0.15 (pallet_15): one batch must see
+        // one map, and generations never go back.
+        const json r = c.call_ok(
+            {{"op", "map.query"}, {"points", {{0.8, 0.0}, {1.0, 0.2}, {1.5, -0.3}, {0.0, 0.0}}}});
+        const double h = r["results"][0]["height"].get<double>();
+        for (int i = 1; i < 3; ++i)
+          if (r["results"][i]["height"].get<double>() != h) bad++;
+        if (h != 0.10 && h != 0.15) bad++;
+        const auto gen = r["generation"].get<std::uint64_t>();
+        if (gen < last_gen) bad++;
+        last_gen = gen;
+        queries++;
+      }
+    });
+  }
+  Client w = Client::connect(address_);
+  for (int i = 0; i < 60; ++i)
+    w.call_ok({{"op", "map.update"}, {"scene", i % 2 ? "pallet_10" : "pallet_15"}});
+  stop = true;
+  for (auto& t : readers) t.join();
+  EXPECT_EQ(bad.load(), 0);
+  EXPECT_GT(queries.load(), 0);
+}
+
+TEST_F(ServerTest, HostileInputLeavesOthersServed) {
+  const long rss0 = server_->rss_kb();
+  Client good = Client::connect(address_);
+  good.call_ok({{"op", "hello"}});
+  // On one connection, malformed frames whose framing is intact: each gets an error reply and the
+  // connection stays usable.
+  Client bad = Client::connect(address_);
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {raw_frame("{not json"), "bad_json"},
+      {raw_frame("[1,2,3]"), "bad_json"},
+      {raw_frame(R"({"v":1,"id":1})"), "bad_request"},
+      {raw_frame(R"({"v":1,"id":[1],"op":"hello"})"), "bad_request"},
+      {raw_frame(R"({"v":"one","id":1,"op":"hello"})"), "bad_request"},
+      {raw_frame(R"({"v":9,"id":1,"op":"hello"})"), "unsupported_version"},
+      {raw_frame(R"({"v":1,"id":2,"op":"launch.missiles"})"), "unknown_op"},
+      {raw_frame(R"({"v":1,"id":3,"op":"map.query","points":[[1,null]]})"), "bad_request"},
+      {raw_frame(R"({"v":1,"id":4,"op":"map.query","points":{"x":1}})"), "bad_request"},
+      {raw_frame(R"({"v":1,"id":5,"op":"map.query","foot_radius":"big","points":[]})"),
+       "bad_request"},
+      {raw_frame(R"({"v":1,"id":6,"op":"status"})", "trailing"), "bad_frame"},
+      {raw_frame(R"({"v":1,"id":7,"op":"map.update","attachments":[{"name":"points","shape":[9,3]}]})",
+                 std::string(12, '\0')),
+       "bad_frame"},
+      {raw_frame(R"({"v":1,"id":8,"op":"cancel","target":{"a":1}})"), "bad_request"},
+  };
+  for (const auto& [frame, code] : cases) {
+    bad.send_raw(frame);
+    const p::Message m = bad.receive();
+    EXPECT_EQ(error_code(m), code) << frame.substr(8);
+    EXPECT_FALSE(error_message(m).empty());
+  }
+  EXPECT_TRUE(bad.call_ok({{"op", "status"}}).is_object());
+  // 10,000 malformed frames on one connection, pipelined; then a valid request still works.
+  std::string burst;
+  for (int i = 0; i < 10000; ++i)
+    burst += raw_frame(i % 2 ? "{\"v\":1,\"id\":" + std::to_string(i) + ",\"op\":1}" : "garbage");
+  std::thread writer([&] { bad.send_raw(burst); });
+  int errors = 0;
+  for (int i = 0; i < 10000; ++i) errors += !bad.receive().header["ok"].get<bool>();
+  writer.join();
+  EXPECT_EQ(errors, 10000);
+  EXPECT_TRUE(bad.call_ok({{"op", "status"}}).is_object());
+  expect_healthy(address_);
+
+  // Oversized length prefix: error reply, then the server closes that connection.
+  {
+    Client c = Client::connect(address_);
+    c.send_raw(std::string("\xff\xff\xff\xf0", 4));
+    const p::Message m = c.receive();
+    EXPECT_EQ(error_code(m), "frame_too_large");
+    EXPECT_THROW(c.receive(), ClientError);
+  }
+  // Truncated frames and disconnects mid-request, 1,000 times.
+  for (int i = 0; i < 1000; ++i) {
+    Client c = Client::connect(address_);
+    const std::string f = raw_frame(R"({"v":1,"id":1,"op":"map.query","points":[[0,0]]})");
+    switch (i % 4) {
+      case 0: c.send_raw(f.substr(0, 2)); break;                 // inside the prefix
+      case 1: c.send_raw(f.substr(0, f.size() / 2)); break;      // inside the body
+      case 2: c.send_raw(std::string("\x00\x10\x00\x00", 4)); break;  // announces 1 MiB
+      case 3: c.send({{"op", "debug.sleep"}, {"ms", 50}}); break;  // a job, then vanish
+    }
+    c.close();
+  }
+  expect_healthy(address_);
+  EXPECT_TRUE(good.call_ok({{"op", "hello"}}).is_object());  // the first client is still served
+  const json st = good.call_ok({{"op", "status"}});
+  EXPECT_GE(st["requests"]["malformed_frames"].get<int>(), 10000);
+  EXPECT_GE(st["connections"]["total"].get<int>(), 1000);
+  EXPECT_LE(st["connections"]["open"].get<int>(), 3);
+  const long rss1 = server_->rss_kb();
+  EXPECT_LT(rss1 - rss0, 64 * 1024) << "RSS grew from " << rss0 << " kB to " << rss1 << " kB";
+  EXPECT_TRUE(server_->running());
+}
+
+TEST_F(ServerTest, SlowReaderDoesNotBlockOthers) {
+  // A client that pipelines many queries and never reads its replies.
+  Client slow = Client::connect(address_);
+  slow.set_timeout(2.0);  // the server stops reading from it once its replies pile up
+  std::string burst;
+  for (int i = 0; i < 2000; ++i) {
+    p::Message m;
+    m.header = {{"v", 1}, {"id", i}, {"op", "map.query"}};
+    std::vector<float> pts(2 * 500, 0.5f);
+    m.attachments.push_back(p::make_float_attachment("points", {500, 2}, pts));
+    burst += p::encode_frame(m);
+  }
+  std::thread writer([&] {
+    try {
+      slow.send_raw(burst);
+    } catch (const ClientError&) {
+      // The server may drop it once its unsent replies pass the cap.
+    }
+  });
+  for (int i = 0; i < 20; ++i) expect_healthy(address_);
+  writer.join();
+  expect_healthy(address_);
+}
+
+TEST(ServerAuth, TokenIsRequiredAndChecked) {
+  const std::string token_file = temp_path("token");
+  {
+    std::ofstream(token_file) << "correct-horse-battery-staple-0123456789\n";
+  }
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--token-file", token_file});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  {
+    Client c = Client::connect(server.tcp());
+    const p::Message m = c.call({{"op", "status"}});
+    EXPECT_EQ(error_code(m), "unauthorized");
+    EXPECT_THROW(c.receive(), ClientError);  // closed after the reply
+  }
+  {
+    Client c = Client::connect(server.tcp());
+    EXPECT_EQ(error_code(c.call({{"op", "hello"}, {"token", "correct-horse-battery-staple-01"}})),
+              "unauthorized");
+    EXPECT_THROW(c.receive(), ClientError);
+  }
+  {
+    Client c = Client::connect(server.tcp());
+    EXPECT_EQ(error_code(c.call({{"op", "hello"}, {"token", 42}})), "unauthorized");
+  }
+  {
+    Client c = Client::connect(server.tcp());
+    const json hello =
+        c.call_ok({{"op", "hello"}, {"token", "correct-horse-battery-staple-0123456789"}});
+    EXPECT_EQ(hello["capabilities"]["token_required"], true);
+    EXPECT_TRUE(c.call_ok({{"op", "status"}})["requests"]["auth_failures"].get<int>() >= 3);
+  }
+  EXPECT_EQ(server.stop(SIGINT), 0);
+  std::filesystem::remove(token_file);
+}
+
+TEST(ServerAuth, NonLoopbackNeedsAToken) {
+  ServerProcess server({"--listen", "tcp://0.0.0.0:0"}, 0);
+  EXPECT_NE(server.wait_exit(), 0);
+  EXPECT_NE(server.output.find("--token-file"), std::string::npos) << server.output;
+  ServerProcess bad({"--listen", "tcp://127.0.0.1:99999"}, 0);
+  EXPECT_NE(bad.wait_exit(), 0);
+  EXPECT_NE(bad.output.find("99999"), std::string::npos) << bad.output;
+}
+
+TEST(ServerUnix, SocketIsPrivateAndRemovedOnExit) {
+  const std::string path = temp_path("sock");
+  ServerProcess server({"--listen", "unix:" + path, "--listen", "tcp://127.0.0.1:0"}, 2);
+  ASSERT_EQ(server.addresses.size(), 2u) << server.output;
+  struct stat st;
+  ASSERT_EQ(::stat(path.c_str(), &st), 0);
+  EXPECT_TRUE(S_ISSOCK(st.st_mode));
+  EXPECT_EQ(st.st_mode & 0777, 0600u);
+  Client c = Client::connect("unix:" + path);
+  c.call_ok({{"op", "map.update"}, {"scene", "stairs"}});
+  const json r = c.call_ok({{"op", "map.query"}, {"points", {{0.0, 0.0}}}});
+  EXPECT_EQ(r["results"].size(), 1u);
+  // A second server on the same path is refused while the first runs.
+  ServerProcess second({"--listen", "unix:" + path}, 0);
+  EXPECT_NE(second.wait_exit(), 0);
+  EXPECT_NE(second.output.find("another server"), std::string::npos) << second.output;
+  EXPECT_EQ(server.stop(SIGTERM), 0);
+  EXPECT_FALSE(std::filesystem::exists(path));
+}
+
+TEST(ServerSignals, TermDrainsRunningWorkThenExits) {
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--debug-ops", "--drain-seconds", "10"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  Client c = Client::connect(server.tcp());
+  c.send({{"op", "debug.sleep"}, {"id", 1}, {"ms", 400}});
+  c.call_ok({{"op", "status"}});  // the job was accepted
+  ::kill(server.pid(), SIGTERM);
+  const p::Message m = c.wait_for(1);
+  EXPECT_TRUE(m.header["ok"].get<bool>()) << m.header.dump();  // drained, not dropped
+  EXPECT_EQ(server.wait_exit(), 0) << server.output;
+}
+
+TEST(ServerSignals, DrainPeriodCancelsLongWork) {
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--debug-ops", "--drain-seconds", "0.2",
+                        "--workers", "1", "--queue", "4"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  Client c = Client::connect(server.tcp());
+  c.send({{"op", "debug.sleep"}, {"id", 1}, {"ms", 30000}});
+  c.send({{"op", "debug.sleep"}, {"id", 2}, {"ms", 30000}});  // queued
+  c.call_ok({{"op", "status"}});
+  const auto t0 = std::chrono::steady_clock::now();
+  ::kill(server.pid(), SIGINT);
+  std::set<std::string> codes;
+  for (int i = 0; i < 2; ++i) codes.insert(error_code(c.receive()));
+  EXPECT_EQ(codes, (std::set<std::string>{"shutting_down"}));
+  EXPECT_EQ(server.wait_exit(), 0) << server.output;
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(10));
+}
+
+TEST(PythonClient, DrivesEveryOperation) {
+  if (std::system("python3 --version > /dev/null 2>&1") != 0) GTEST_SKIP() << "no python3";
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--debug-ops", "--workers", "1",
+                        "--queue", "1"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  const std::filesystem::path script = std::filesystem::path(__FILE__).parent_path().parent_path()
+                                           .parent_path() /
+                                       "service" / "clients" / "python" / "test_client.py";
+  const std::string cmd = "python3 " + script.string() + " " + server.tcp() + " 2>&1";
+  FILE* pipe = ::popen(cmd.c_str(), "r");
+  ASSERT_NE(pipe, nullptr);
+  std::string out;
+  char buf[4096];
+  std::size_t n;
+  while ((n = fread(buf, 1, sizeof(buf), pipe)) > 0) out.append(buf, n);
+  const int status = ::pclose(pipe);
+  EXPECT_EQ(WEXITSTATUS(status), 0) << out;
+  EXPECT_NE(out.find("OK"), std::string::npos) << out;
+  EXPECT_EQ(server.stop(SIGTERM), 0);
+}
+
+}  // namespace
