@@ -1,0 +1,56 @@
+// Gaits as data (data/gaits/*.yaml) and the phase timeline they produce for a plan.
+#pragma once
+
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace terrastride::planner {
+
+// Unreadable or invalid gait file, or a gait that does not fit the robot; names file and field.
+class GaitError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct Gait {
+  std::string name;
+  std::string source_file;
+  double cycle_duration = 1.0;  // s, default length of one cycle
+  double lead_in = 0.0;         // all-stance time before the first cycle, fraction of a cycle
+  double lead_out = 0.0;        // all-stance time after the last cycle, fraction of a cycle
+  // Swing windows [start, end] per leg name, fractions of a cycle.
+  std::map<std::string, std::vector<std::pair<double, double>>> swing;
+};
+
+Gait load_gait(const std::string& path);
+// data/gaits/<name>.yaml (TERRASTRIDE_DATA_DIR honoured), or a path to a .yaml file.
+std::string resolve_gait_path(const std::string& name_or_path);
+
+// The contact schedule of a whole plan: the merged switch times of all feet (events) and, per
+// interval between consecutive events, which feet are in stance. Every plan piece (base, feet,
+// forces) has knots on these events, so contact never changes inside a polynomial piece.
+struct PhaseTimeline {
+  std::vector<std::string> feet;
+  std::vector<double> events;              // 0 = e_0 < e_1 < ... < e_N = duration
+  std::vector<std::vector<bool>> contact;  // [foot][interval]
+  double duration() const { return events.empty() ? 0.0 : events.back(); }
+  int num_intervals() const { return static_cast<int>(events.size()) - 1; }
+  // Per foot, the phases as [start, end, contact] triples (consecutive intervals merged).
+  struct Phase {
+    double start, end;
+    bool contact;
+  };
+  std::vector<Phase> phases(int foot) const;
+  // The part of the timeline from t0 on, shifted so that it starts at 0.
+  PhaseTimeline cropped(double t0) const;
+};
+
+// Builds the timeline of `cycles` cycles lasting `duration` seconds in total (duration <= 0: the
+// gait's default cycle_duration times cycles, plus lead-in/out). `feet` are the robot's legs;
+// every leg needs an entry in the gait and every gait entry a leg.
+PhaseTimeline make_timeline(const Gait& gait, const std::vector<std::string>& feet, int cycles,
+                            double duration);
+
+}  // namespace terrastride::planner

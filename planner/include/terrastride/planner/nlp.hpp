@@ -1,0 +1,180 @@
+// The SRBD trajectory optimisation problem as a set of variables and small constraint pieces.
+//
+// Parameterisation (see DESIGN.md, Planner). The contact schedule's switch times split the plan
+// into intervals; each interval is cut into equal segments of at most `segment_dt` (default
+// 0.1 s). EVERY polynomial piece has its knots on these segment boundaries:
+//  - base position and ZYX Euler angles: cubic Hermite splines (value and derivative per knot);
+//  - each foot: cubic Hermite spline whose knots in a stance phase all share one position variable
+//    with zero velocity (so the foot cannot slip), and have their own position/velocity in swing;
+//  - contact forces: continuous piecewise LINEAR in time within a stance, zero in swing.
+// Because base acceleration is linear inside a segment and so is the sum of forces, imposing
+// m r'' = sum f - m g at both ends of each segment makes it hold at every instant; the friction
+// pyramid is linear in f for the (constant) stance foothold, so imposing it at the force knots
+// makes it hold along the whole stance. The remaining nonlinear constraints (angular dynamics,
+// range of motion, swing clearance) are imposed at several points per segment, and swing
+// clearance conservatively (terrain probed around the foot, see SwingClearance in nlp.cpp).
+// With optimised timing the interval durations become variables, every segment scaling with its
+// interval, so the alignment above is kept.
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "terrastride/planner/gait.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/terrain/height_field.hpp"
+
+namespace terrastride::planner {
+
+// Largest number of variables one piece may depend on (fixed-size forward-mode AD).
+constexpr int kMaxPieceVars = 72;
+
+// One block of constraint rows depending on a few variables. Derivatives are exact: each piece is
+// written once as a function template and differentiated by forward-mode automatic
+// differentiation (Eigen AutoDiffScalar) over its local variables only.
+class Piece {
+ public:
+  virtual ~Piece() = default;
+  std::string kind;         // e.g. "dynamics_linear"; used in tests and reports
+  std::vector<int> vars;    // global indices of the local variables (distinct)
+  std::vector<double> lb, ub;  // per row
+  int rows() const { return static_cast<int>(lb.size()); }
+  // g: rows values; J: rows x vars.size(), row-major.
+  virtual void eval(const double* x_local, double* g) const = 0;
+  virtual void eval_jacobian(const double* x_local, double* g, double* jac) const = 0;
+};
+
+struct PlannerOptions {
+  std::string gait = "crawl";
+  int cycles = 3;
+  double duration = 0.0;  // <= 0: gait default
+  bool has_goal = false;
+  Eigen::Vector3d goal = Eigen::Vector3d::Zero();   // x, y, yaw
+  Eigen::Vector3d start = Eigen::Vector3d::Zero();  // x, y, yaw
+  bool optimize_timing = false;
+  double interval_min_scale = 0.5, interval_max_scale = 2.0;  // bounds on interval durations
+  double min_interval = 0.04;                                 // s
+  double segment_dt = 0.1;
+  double friction = 0.5;
+  double max_normal_force_factor = 2.0;  // f_max = factor * m * g
+  double swing_clearance = 0.05;         // h_min (m)
+  double clearance_probe = 0.05;         // terrain probed this far around a swing foot (m)
+  int angular_points = 3;                // angular dynamics points per segment
+  int rom_points = 2;                    // range-of-motion points per segment
+  int clearance_points = 4;              // swing-clearance points per segment
+  std::vector<std::string> constraints{"baseline"};
+  double max_time = 0.0;  // s per solve, 0 = none
+  int max_iterations = 3000;
+  bool verbose = false;
+  double tolerance = 1e-4;
+};
+
+class SrbdProblem;
+
+// Constraint sets by name (`--constraints`). "baseline" is this formulation; other sets (foot
+// radius, shin, force polytopes) register themselves and append pieces to the problem.
+using ConstraintSetBuilder = std::function<void(SrbdProblem&)>;
+void register_constraint_set(const std::string& name, ConstraintSetBuilder builder);
+std::vector<std::string> constraint_set_names();
+
+// Where each quantity lives in the variable vector (indices; -1 = identically zero).
+struct Layout {
+  int num_segments = 0;
+  std::vector<int> seg_interval;         // interval of each segment
+  std::vector<double> seg_fraction;      // 1 / (segments in its interval)
+  std::vector<int> interval_var;         // duration variable of each interval
+  std::vector<double> interval_nominal;  // s
+  std::vector<int> base;  // per knot: first of 12 = position(3) velocity(3) euler(3) euler rate(3)
+  std::vector<std::vector<int>> foot_pos, foot_vel;    // [foot][knot]; foot_vel -1 = zero
+  std::vector<std::vector<std::array<int, 2>>> force;  // [foot][segment][start/end]; -1 = zero
+  std::vector<std::vector<bool>> contact;              // [foot][segment]
+  struct Stance {
+    int foot, first_seg, last_seg;  // segments [first_seg, last_seg]
+    int pos_var;
+    bool fixed;  // initial stance: position given
+  };
+  std::vector<Stance> stances;
+  struct Swing {
+    int foot, first_seg, last_seg;
+  };
+  std::vector<Swing> swings;
+  std::vector<double> nominal_knot_time;
+};
+
+class SrbdProblem {
+ public:
+  // Builds variables, bounds, initial guess and pieces. `timeline` is the contact schedule;
+  // start state: base pose/velocity and feet from `start_state` when given, else nominal stance
+  // at options.start on `terrain`.
+  struct StartState {
+    Eigen::Vector3d position, euler_zyx, linear_velocity, euler_rates;
+    std::vector<Eigen::Vector3d> foot_position, foot_velocity;
+  };
+  SrbdProblem(const robot::RobotModel& robot, const terrain::HeightField& terrain,
+              const PhaseTimeline& timeline, const PlannerOptions& options,
+              const StartState* start_state = nullptr);
+  ~SrbdProblem();
+
+  int num_variables() const { return static_cast<int>(lb_.size()); }
+  int num_free_variables() const;
+  int num_constraints() const { return num_rows_; }
+  const std::vector<std::unique_ptr<Piece>>& pieces() const { return pieces_; }
+  const std::vector<double>& lower() const { return lb_; }
+  const std::vector<double>& upper() const { return ub_; }
+  std::vector<double>& initial_guess() { return x0_; }
+  const robot::RobotModel& robot() const { return robot_; }
+  const terrain::HeightField& terrain() const { return terrain_; }
+  const PhaseTimeline& timeline() const { return timeline_; }
+  const PlannerOptions& options() const { return options_; }
+  const Layout& layout() const { return *layout_; }
+
+  void add_piece(std::unique_ptr<Piece> piece);
+
+  // Full constraint vector and the Jacobian as triplets (row, col, value) in piece order.
+  void eval_constraints(const double* x, double* g) const;
+  void jacobian_structure(int* rows, int* cols) const;
+  void eval_jacobian(const double* x, double* values) const;
+  int jacobian_nonzeros() const { return nnz_; }
+  std::vector<double> row_lower() const;
+  std::vector<double> row_upper() const;
+  // Largest bound violation of x (rows and variable bounds), in the constraint's own units.
+  double max_violation(const std::vector<double>& x) const;
+
+  // Continuous-time evaluation of a solution x (world frame), t in [0, duration(x)].
+  struct State {
+    Eigen::Vector3d pos, vel, acc, euler, euler_rate, euler_acc;
+    std::vector<Eigen::Vector3d> foot_pos, foot_vel, force;
+    std::vector<bool> contact;
+  };
+  State evaluate(const std::vector<double>& x, double t) const;
+  double duration(const std::vector<double>& x) const;
+  // Event times of the solution (optimised timing moves them).
+  std::vector<double> event_times(const std::vector<double>& x) const;
+
+  // Initial guess from a previous plan (time `shift` of that plan becomes t = 0 here).
+  void warm_start_from(const struct Trajectory& previous, double shift);
+
+ private:
+  void build_layout(const StartState* start);
+  void build_initial_guess(const StartState* start);
+  void build_baseline();
+
+  const robot::RobotModel& robot_;
+  const terrain::HeightField& terrain_;
+  PhaseTimeline timeline_;
+  PlannerOptions options_;
+  std::unique_ptr<Layout> layout_;
+  std::vector<double> lb_, ub_, x0_;
+  std::vector<std::unique_ptr<Piece>> pieces_;
+  std::vector<int> row_offset_, nz_offset_;
+  int num_rows_ = 0, nnz_ = 0;
+
+  friend void build_baseline_set(SrbdProblem&);
+};
+
+}  // namespace terrastride::planner

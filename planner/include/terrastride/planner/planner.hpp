@@ -1,0 +1,46 @@
+// Top level of the planner: build the SRBD problem for a robot, gait and terrain, solve it with
+// Ipopt, sample the solution and check it densely against the exact terrain.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "terrastride/planner/dense_checks.hpp"
+#include "terrastride/planner/gait.hpp"
+#include "terrastride/planner/nlp.hpp"
+#include "terrastride/planner/solver.hpp"
+#include "terrastride/planner/trajectory.hpp"
+
+namespace terrastride::planner {
+
+struct PlanOutcome {
+  Trajectory trajectory;  // samples every sample_dt, solver stats and dense checks
+  SolveResult solve;
+  bool success = false;   // solver optimal/acceptable
+  std::string message;    // why not, when !success
+};
+
+// Warm start: a previous plan whose state at `shift` seconds becomes the new start; its contact
+// schedule (plan.json "timeline") is reused from that instant on.
+struct WarmStart {
+  const Trajectory* previous = nullptr;
+  double shift = 0.0;
+};
+
+// `plan_terrain` is what the optimiser sees (smooth, C2); `check_terrain` the exact one the
+// dense checks use (may be the same object).
+PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightField& plan_terrain,
+                        const terrain::HeightField& check_terrain, const PlannerOptions& options,
+                        double sample_dt, const WarmStart& warm = {});
+
+// The timeline of a plan: its stored "timeline" key, or rebuilt from gait/cycles/duration.
+PhaseTimeline timeline_of(const Trajectory& plan);
+
+// State of a plan at time t (linear interpolation between samples; contact from the sample at or
+// before t).
+TrajectorySample interpolate_plan(const Trajectory& plan, double t);
+
+// Samples the solution x every dt (and at its end) into a Trajectory (without solver/checks).
+Trajectory sample_solution(const SrbdProblem& problem, const std::vector<double>& x, double dt);
+
+}  // namespace terrastride::planner

@@ -1,0 +1,28 @@
+// Solving an SrbdProblem with Ipopt (C++ TNLP interface, MUMPS, limited-memory Hessian).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "terrastride/planner/nlp.hpp"
+
+namespace terrastride::planner {
+
+struct SolveResult {
+  // optimal, acceptable, infeasible, time_limit, max_iterations, diverging, error, ...
+  std::string status;
+  bool success = false;  // optimal or acceptable
+  int ipopt_status = 0;
+  int iterations = 0;
+  double wall_s = 0.0;
+  std::vector<double> x;
+  double max_violation = 0.0;  // largest bound/constraint violation of x
+};
+
+// Honours options.max_time on this call (Ipopt's max_cpu_time plus a wall-clock check in the
+// intermediate callback, so also repeated solves in one process each get the full budget).
+// `extra_options` are Ipopt name=value strings (tests use them, e.g. for the derivative checker).
+SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
+                  const std::vector<std::pair<std::string, std::string>>& extra_options = {});
+
+}  // namespace terrastride::planner

@@ -1,0 +1,169 @@
+#include "terrastride/planner/gait.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+
+#include "terrastride/robot/robot_model.hpp"
+
+namespace terrastride::planner {
+
+namespace {
+
+double read_number(const YAML::Node& node, const std::string& file, const std::string& field) {
+  try {
+    const double v = node.as<double>();
+    if (!std::isfinite(v)) throw GaitError(file + ": " + field + ": not a finite number");
+    return v;
+  } catch (const YAML::Exception&) {
+    throw GaitError(file + ": " + field + ": expected a number");
+  }
+}
+
+}  // namespace
+
+Gait load_gait(const std::string& path) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw GaitError(path + ": cannot read gait file");
+  } catch (const YAML::Exception& e) {
+    throw GaitError(path + ": not valid YAML: " + e.what());
+  }
+  if (!root.IsMap()) throw GaitError(path + ": expected a mapping at the top level");
+  Gait g;
+  g.source_file = path;
+  g.name = root["name"] ? root["name"].as<std::string>()
+                        : std::filesystem::path(path).stem().string();
+  if (root["cycle_duration"]) {
+    g.cycle_duration = read_number(root["cycle_duration"], path, "cycle_duration");
+    if (g.cycle_duration <= 0.0) throw GaitError(path + ": cycle_duration: must be > 0");
+  }
+  if (root["lead_in"]) g.lead_in = read_number(root["lead_in"], path, "lead_in");
+  if (root["lead_out"]) g.lead_out = read_number(root["lead_out"], path, "lead_out");
+  if (g.lead_in < 0.0 || g.lead_out < 0.0) throw GaitError(path + ": lead_in/lead_out: must be >= 0");
+  const YAML::Node swing = root["swing"];
+  if (!swing || !swing.IsMap() || swing.size() == 0)
+    throw GaitError(path + ": swing: expected a mapping from leg name to swing windows");
+  for (const auto& kv : swing) {
+    const std::string leg = kv.first.as<std::string>();
+    const std::string field = "swing." + leg;
+    if (!kv.second.IsSequence()) throw GaitError(path + ": " + field + ": expected a list");
+    std::vector<std::pair<double, double>> windows;
+    for (std::size_t i = 0; i < kv.second.size(); ++i) {
+      const YAML::Node w = kv.second[i];
+      const std::string wf = field + "[" + std::to_string(i) + "]";
+      if (!w.IsSequence() || w.size() != 2) throw GaitError(path + ": " + wf + ": expected [start, end]");
+      const double a = read_number(w[0], path, wf), b = read_number(w[1], path, wf);
+      if (!(a >= 0.0 && a < b && b <= 1.0))
+        throw GaitError(path + ": " + wf + ": need 0 <= start < end <= 1");
+      windows.emplace_back(a, b);
+    }
+    std::sort(windows.begin(), windows.end());
+    for (std::size_t i = 1; i < windows.size(); ++i)
+      if (windows[i].first < windows[i - 1].second)
+        throw GaitError(path + ": " + field + ": swing windows overlap");
+    g.swing[leg] = windows;
+  }
+  return g;
+}
+
+std::string resolve_gait_path(const std::string& name_or_path) {
+  namespace fs = std::filesystem;
+  if (name_or_path.find('/') != std::string::npos ||
+      (name_or_path.size() > 5 && name_or_path.substr(name_or_path.size() - 5) == ".yaml")) {
+    if (!fs::exists(name_or_path)) throw GaitError(name_or_path + ": no such gait file");
+    return name_or_path;
+  }
+  const fs::path dir = fs::path(robot::data_dir()) / "gaits";
+  const fs::path p = dir / (name_or_path + ".yaml");
+  if (fs::exists(p)) return p.string();
+  std::string names;
+  if (fs::is_directory(dir))
+    for (const auto& e : fs::directory_iterator(dir))
+      if (e.path().extension() == ".yaml") names += (names.empty() ? "" : ", ") + e.path().stem().string();
+  throw GaitError("gait '" + name_or_path + "': unknown (gaits in " + dir.string() + ": " + names +
+                  ")");
+}
+
+PhaseTimeline make_timeline(const Gait& gait, const std::vector<std::string>& feet, int cycles,
+                            double duration) {
+  if (cycles < 1) throw GaitError("cycles: must be >= 1 (got " + std::to_string(cycles) + ")");
+  for (const auto& [leg, w] : gait.swing)
+    if (std::find(feet.begin(), feet.end(), leg) == feet.end())
+      throw GaitError(gait.source_file + ": swing." + leg + ": the robot has no such leg");
+  for (const auto& f : feet)
+    if (!gait.swing.count(f))
+      throw GaitError(gait.source_file + ": swing: no entry for the robot's leg " + f);
+  const double units = gait.lead_in + cycles + gait.lead_out;  // in cycles
+  const double cycle = duration > 0.0 ? duration / units : gait.cycle_duration;
+  const double total = cycle * units;
+  // Swing intervals in absolute time, per foot.
+  std::vector<std::vector<std::pair<double, double>>> sw(feet.size());
+  std::vector<double> ev{0.0, total};
+  for (std::size_t f = 0; f < feet.size(); ++f) {
+    for (int c = 0; c < cycles; ++c)
+      for (const auto& [a, b] : gait.swing.at(feet[f])) {
+        double ta = (gait.lead_in + c + a) * cycle, tb = (gait.lead_in + c + b) * cycle;
+        // A swing ending exactly where the next cycle's swing starts is one longer swing.
+        if (!sw[f].empty() && std::abs(sw[f].back().second - ta) < 1e-9 * total)
+          sw[f].back().second = tb;
+        else
+          sw[f].emplace_back(ta, tb);
+      }
+    for (const auto& [a, b] : sw[f]) {
+      ev.push_back(a);
+      ev.push_back(b);
+    }
+  }
+  std::sort(ev.begin(), ev.end());
+  PhaseTimeline tl;
+  tl.feet = feet;
+  const double tol = 1e-9 * std::max(1.0, total);
+  for (double e : ev)
+    if (tl.events.empty() || e - tl.events.back() > tol) tl.events.push_back(e);
+  tl.events.back() = total;
+  const int n = tl.num_intervals();
+  tl.contact.assign(feet.size(), std::vector<bool>(n, true));
+  for (std::size_t f = 0; f < feet.size(); ++f)
+    for (int j = 0; j < n; ++j) {
+      const double mid = 0.5 * (tl.events[j] + tl.events[j + 1]);
+      for (const auto& [a, b] : sw[f])
+        if (mid > a && mid < b) tl.contact[f][j] = false;
+    }
+  return tl;
+}
+
+std::vector<PhaseTimeline::Phase> PhaseTimeline::phases(int foot) const {
+  std::vector<Phase> out;
+  for (int j = 0; j < num_intervals(); ++j) {
+    const bool c = contact[foot][j];
+    if (!out.empty() && out.back().contact == c)
+      out.back().end = events[j + 1];
+    else
+      out.push_back({events[j], events[j + 1], c});
+  }
+  return out;
+}
+
+PhaseTimeline PhaseTimeline::cropped(double t0) const {
+  if (!(t0 >= 0.0 && t0 < duration()))
+    throw GaitError("start time " + std::to_string(t0) + " s is outside the plan [0, " +
+                    std::to_string(duration()) + ")");
+  PhaseTimeline out;
+  out.feet = feet;
+  out.contact.assign(feet.size(), {});
+  out.events.push_back(0.0);
+  const double tol = 1e-6;
+  for (int j = 0; j < num_intervals(); ++j) {
+    if (events[j + 1] <= t0 + tol) continue;
+    out.events.push_back(events[j + 1] - t0);
+    for (std::size_t f = 0; f < feet.size(); ++f) out.contact[f].push_back(contact[f][j]);
+  }
+  return out;
+}
+
+}  // namespace terrastride::planner

@@ -1,0 +1,715 @@
+#include "terrastride/planner/nlp.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <mutex>
+#include <stdexcept>
+
+#include "terrastride/planner/piece_math.hpp"
+#include "terrastride/planner/trajectory.hpp"
+
+namespace terrastride::planner {
+
+namespace {
+
+constexpr double kGravity = 9.81;
+constexpr double kInf = 2e19;  // Ipopt's default nlp_upper_bound_inf is 1e19
+
+std::map<std::string, ConstraintSetBuilder>& registry() {
+  static std::map<std::string, ConstraintSetBuilder> r;
+  return r;
+}
+std::mutex& registry_mutex() {
+  static std::mutex m;
+  return m;
+}
+
+template <class F>
+std::unique_ptr<Piece> make_piece(std::string kind, const LocalVars& lv, std::vector<double> lb,
+                                  std::vector<double> ub, F f) {
+  if (static_cast<int>(lv.vars.size()) > kMaxPieceVars || lb.size() > 64)
+    throw std::logic_error("piece " + kind + " too large");
+  auto p = std::make_unique<FunctionPiece<F>>(std::move(f));
+  p->kind = std::move(kind);
+  p->vars = lv.vars;
+  p->lb = std::move(lb);
+  p->ub = std::move(ub);
+  return p;
+}
+
+// Swing-clearance profile over the swing's progress u in [0, 1]: 0 at lift-off and touch-down,
+// 1 in the middle part, so the foot may leave and reach the ground while being held clear of the
+// terrain elsewhere.
+double clearance_profile(double u) { return std::clamp(std::min(u, 1.0 - u) / 0.2, 0.0, 1.0); }
+
+}  // namespace
+
+void register_constraint_set(const std::string& name, ConstraintSetBuilder builder) {
+  std::lock_guard<std::mutex> lock(registry_mutex());
+  registry()[name] = std::move(builder);
+}
+
+std::vector<std::string> constraint_set_names() {
+  std::lock_guard<std::mutex> lock(registry_mutex());
+  std::vector<std::string> names{"baseline"};
+  for (const auto& [k, v] : registry())
+    if (k != "baseline") names.push_back(k);
+  return names;
+}
+
+SrbdProblem::~SrbdProblem() = default;
+
+SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightField& terrain,
+                         const PhaseTimeline& timeline, const PlannerOptions& options,
+                         const StartState* start_state)
+    : robot_(robot), terrain_(terrain), timeline_(timeline), options_(options) {
+  if (timeline_.feet.size() != robot_.legs.size())
+    throw std::invalid_argument("timeline has " + std::to_string(timeline_.feet.size()) +
+                                " feet, robot " + robot_.name + " has " +
+                                std::to_string(robot_.legs.size()) + " legs");
+  if (timeline_.num_intervals() < 1) throw std::invalid_argument("empty phase timeline");
+  if (!(options_.segment_dt > 0.0)) throw std::invalid_argument("segment_dt must be > 0");
+  build_layout(start_state);
+  build_initial_guess(start_state);
+  build_baseline();
+  for (const auto& name : options_.constraints) {
+    if (name == "baseline") continue;
+    ConstraintSetBuilder b;
+    {
+      std::lock_guard<std::mutex> lock(registry_mutex());
+      auto it = registry().find(name);
+      if (it != registry().end()) b = it->second;
+    }
+    if (!b) {
+      std::string names;
+      for (const auto& n : constraint_set_names()) names += (names.empty() ? "" : ", ") + n;
+      throw std::invalid_argument("constraint set '" + name + "' is not available (available: " +
+                                  names + ")");
+    }
+    b(*this);
+  }
+}
+
+int SrbdProblem::num_free_variables() const {
+  int n = 0;
+  for (std::size_t i = 0; i < lb_.size(); ++i) n += lb_[i] < ub_[i];
+  return n;
+}
+
+void SrbdProblem::add_piece(std::unique_ptr<Piece> piece) {
+  row_offset_.push_back(num_rows_);
+  nz_offset_.push_back(nnz_);
+  num_rows_ += piece->rows();
+  nnz_ += piece->rows() * static_cast<int>(piece->vars.size());
+  pieces_.push_back(std::move(piece));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Variables
+
+void SrbdProblem::build_layout(const StartState* start) {
+  layout_ = std::make_unique<Layout>();
+  Layout& L = *layout_;
+  const int nf = static_cast<int>(robot_.legs.size());
+  auto add = [&](int n, double lo, double hi) {
+    const int first = static_cast<int>(lb_.size());
+    for (int i = 0; i < n; ++i) {
+      lb_.push_back(lo);
+      ub_.push_back(hi);
+    }
+    return first;
+  };
+  // Intervals and their segments.
+  const int ni = timeline_.num_intervals();
+  for (int j = 0; j < ni; ++j) {
+    const double d = timeline_.events[j + 1] - timeline_.events[j];
+    const int n = std::max(1, static_cast<int>(std::ceil(d / options_.segment_dt - 1e-6)));
+    L.interval_nominal.push_back(d);
+    double lo = d, hi = d;
+    if (options_.optimize_timing) {
+      lo = std::min(d, std::max(options_.min_interval, options_.interval_min_scale * d));
+      hi = options_.interval_max_scale * d;
+    }
+    L.interval_var.push_back(add(1, lo, hi));
+    for (int k = 0; k < n; ++k) {
+      L.seg_interval.push_back(j);
+      L.seg_fraction.push_back(1.0 / n);
+    }
+  }
+  const int S = L.num_segments = static_cast<int>(L.seg_interval.size());
+  L.nominal_knot_time.assign(S + 1, 0.0);
+  for (int s = 0; s < S; ++s)
+    L.nominal_knot_time[s + 1] =
+        L.nominal_knot_time[s] + L.interval_nominal[L.seg_interval[s]] * L.seg_fraction[s];
+  // Base knots.
+  for (int k = 0; k <= S; ++k) L.base.push_back(add(12, -kInf, kInf));
+  // Contact per segment.
+  L.contact.assign(nf, std::vector<bool>(S));
+  for (int f = 0; f < nf; ++f)
+    for (int s = 0; s < S; ++s) L.contact[f][s] = timeline_.contact[f][L.seg_interval[s]];
+  // Feet.
+  L.foot_pos.assign(nf, std::vector<int>(S + 1, -1));
+  L.foot_vel.assign(nf, std::vector<int>(S + 1, -1));
+  L.force.assign(nf, std::vector<std::array<int, 2>>(S, {-1, -1}));
+  for (int f = 0; f < nf; ++f) {
+    for (int k = 0; k <= S; ++k) {
+      const int left = k > 0 ? L.contact[f][k - 1] : -1;   // -1 none, 0 swing, 1 stance
+      const int right = k < S ? L.contact[f][k] : -1;
+      if (right == 1) {
+        if (left == 1) {
+          L.foot_pos[f][k] = L.foot_pos[f][k - 1];
+        } else {
+          L.foot_pos[f][k] = add(3, -kInf, kInf);
+          L.stances.push_back({f, k, k, L.foot_pos[f][k], k == 0});
+        }
+      } else if (left == 1) {
+        L.foot_pos[f][k] = L.foot_pos[f][k - 1];
+      } else {
+        L.foot_pos[f][k] = add(3, -kInf, kInf);
+        L.foot_vel[f][k] = add(3, -kInf, kInf);
+      }
+      // Forces: one value per knot, shared by the stance segments on both sides of it.
+      if (left == 1 || right == 1) {
+        const int fv = add(3, -kInf, kInf);
+        if (left == 1) L.force[f][k - 1][1] = fv;
+        if (right == 1) L.force[f][k][0] = fv;
+      }
+      if (right == 1 && left == 1)
+        for (auto& st : L.stances)
+          if (st.foot == f && st.pos_var == L.foot_pos[f][k]) st.last_seg = k;
+    }
+    // Swings.
+    for (int s = 0; s < S; ++s)
+      if (!L.contact[f][s]) {
+        if (s > 0 && !L.contact[f][s - 1])
+          L.swings.back().last_seg = s;
+        else
+          L.swings.push_back({f, s, s});
+      }
+  }
+  (void)start;
+}
+
+namespace {
+
+Eigen::Vector3d nominal_foot_world(const robot::LegModel& leg, const Eigen::Vector3d& base,
+                                   double yaw) {
+  const Eigen::Vector3d n = leg.nominal_foot;
+  return base + Eigen::Vector3d(std::cos(yaw) * n.x() - std::sin(yaw) * n.y(),
+                                std::sin(yaw) * n.x() + std::cos(yaw) * n.y(), n.z());
+}
+
+}  // namespace
+
+void SrbdProblem::build_initial_guess(const StartState* start) {
+  Layout& L = *layout_;
+  const int S = L.num_segments;
+  const int nf = static_cast<int>(robot_.legs.size());
+  const double T = timeline_.duration();
+  x0_.assign(lb_.size(), 0.0);
+  for (std::size_t j = 0; j < L.interval_var.size(); ++j) x0_[L.interval_var[j]] = L.interval_nominal[j];
+
+  // Start and goal poses. The base height follows the terrain under the nominal feet.
+  auto base_height = [&](double x, double y, double yaw) {
+    double h = 0.0;
+    for (const auto& leg : robot_.legs) {
+      const Eigen::Vector3d p = nominal_foot_world(leg, Eigen::Vector3d(x, y, 0.0), yaw);
+      h += terrain_.height(p.x(), p.y());
+    }
+    return h / nf + robot_.nominal_base_height;
+  };
+  Eigen::Vector3d p_start, e_start(options_.start.z(), 0.0, 0.0), v_start = Eigen::Vector3d::Zero(),
+      r_start = Eigen::Vector3d::Zero();
+  if (start) {
+    p_start = start->position;
+    e_start = start->euler_zyx;
+    v_start = start->linear_velocity;
+    r_start = start->euler_rates;
+  } else {
+    p_start = Eigen::Vector3d(options_.start.x(), options_.start.y(),
+                              base_height(options_.start.x(), options_.start.y(), e_start[0]));
+  }
+  Eigen::Vector3d goal_xyyaw = options_.has_goal ? options_.goal
+                                                 : Eigen::Vector3d(p_start.x(), p_start.y(), e_start[0]);
+  // Degrees of freedom the robot cannot move stay at their start value.
+  if (!robot_.base_dof_free[0]) goal_xyyaw.x() = p_start.x();
+  if (!robot_.base_dof_free[1]) goal_xyyaw.y() = p_start.y();
+  if (!robot_.base_dof_free[3]) goal_xyyaw.z() = e_start[0];
+  const Eigen::Vector3d p_goal(goal_xyyaw.x(), goal_xyyaw.y(),
+                               base_height(goal_xyyaw.x(), goal_xyyaw.y(), goal_xyyaw.z()));
+  const Eigen::Vector3d e_goal(goal_xyyaw.z(), 0.0, 0.0);
+
+  for (int k = 0; k <= S; ++k) {
+    const double u = L.nominal_knot_time[k] / T;
+    const int b = L.base[k];
+    const Eigen::Vector3d p = (1 - u) * p_start + u * p_goal;
+    const Eigen::Vector3d e = (1 - u) * e_start + u * e_goal;
+    const double zb = k == 0 ? p_start.z() : base_height(p.x(), p.y(), e[0]);
+    const bool inner = k > 0 && k < S;
+    for (int d = 0; d < 3; ++d) {
+      x0_[b + d] = d == 2 ? zb : p[d];
+      x0_[b + 3 + d] = inner ? (p_goal[d] - p_start[d]) / T : 0.0;
+      x0_[b + 6 + d] = e[d];
+      x0_[b + 9 + d] = inner ? (e_goal[d] - e_start[d]) / T : 0.0;
+    }
+    if (inner) x0_[b + 5] = 0.0;
+  }
+  // Start state and goal as bounds; fixed degrees of freedom held at their start value.
+  auto fix = [&](int i, double v) {
+    lb_[i] = ub_[i] = x0_[i] = v;
+  };
+  {
+    const int b = L.base[0];
+    for (int d = 0; d < 3; ++d) {
+      fix(b + d, p_start[d]);
+      fix(b + 3 + d, v_start[d]);
+      fix(b + 6 + d, e_start[d]);
+      fix(b + 9 + d, r_start[d]);
+    }
+    const int g = L.base[S];
+    if (options_.has_goal) {
+      fix(g + 0, p_goal.x());
+      fix(g + 1, p_goal.y());
+      fix(g + 6, e_goal[0]);
+    }
+    fix(g + 7, 0.0);
+    fix(g + 8, 0.0);
+    for (int d = 0; d < 3; ++d) {
+      fix(g + 3 + d, 0.0);
+      fix(g + 9 + d, 0.0);
+    }
+  }
+  for (int k = 0; k <= S; ++k) {
+    const int b = L.base[k];
+    for (int d = 0; d < 3; ++d) {
+      if (!robot_.base_dof_free[d]) {
+        fix(b + d, p_start[d]);
+        fix(b + 3 + d, 0.0);
+      }
+      // euler order yaw, pitch, roll = dof 3, 4, 5
+      if (!robot_.base_dof_free[3 + d]) {
+        fix(b + 6 + d, e_start[d]);
+        fix(b + 9 + d, 0.0);
+      }
+    }
+  }
+
+  // Footholds: nominal positions under the base at the middle of each stance, on the terrain.
+  auto base_at = [&](double t, Eigen::Vector3d* pos, double* yaw) {
+    int k = 0;
+    while (k < S && L.nominal_knot_time[k + 1] < t) ++k;
+    const int k1 = std::min(k + 1, S);
+    const double t0 = L.nominal_knot_time[k], t1 = L.nominal_knot_time[k1];
+    const double u = t1 > t0 ? std::clamp((t - t0) / (t1 - t0), 0.0, 1.0) : 0.0;
+    *pos = (1 - u) * Eigen::Vector3d(x0_[L.base[k]], x0_[L.base[k] + 1], x0_[L.base[k] + 2]) +
+           u * Eigen::Vector3d(x0_[L.base[k1]], x0_[L.base[k1] + 1], x0_[L.base[k1] + 2]);
+    *yaw = (1 - u) * x0_[L.base[k] + 6] + u * x0_[L.base[k1] + 6];
+  };
+  for (const auto& st : L.stances) {
+    Eigen::Vector3d p;
+    if (st.fixed) {
+      if (start) {
+        p = start->foot_position[st.foot];
+      } else {
+        p = nominal_foot_world(robot_.legs[st.foot], p_start, e_start[0]);
+        p.z() = terrain_.height(p.x(), p.y());
+      }
+      for (int d = 0; d < 3; ++d) fix(st.pos_var + d, p[d]);
+    } else {
+      const double tm = 0.5 * (L.nominal_knot_time[st.first_seg] + L.nominal_knot_time[st.last_seg + 1]);
+      Eigen::Vector3d b;
+      double yaw;
+      base_at(tm, &b, &yaw);
+      p = nominal_foot_world(robot_.legs[st.foot], b, yaw);
+      p.z() = terrain_.height(p.x(), p.y());
+      for (int d = 0; d < 3; ++d) x0_[st.pos_var + d] = p[d];
+    }
+  }
+  // Swing knots: straight line between the footholds, lifted by the clearance.
+  for (const auto& sw : L.swings) {
+    const int f = sw.foot;
+    const int k0 = sw.first_seg, k1 = sw.last_seg + 1;
+    Eigen::Vector3d pa, pb;
+    const bool start_in_swing = L.foot_vel[f][k0] >= 0;  // knot 0 in swing
+    if (start_in_swing) {
+      pa = start ? start->foot_position[f]
+                 : nominal_foot_world(robot_.legs[f], p_start, e_start[0]);
+      if (!start) pa.z() = terrain_.height(pa.x(), pa.y());
+    } else {
+      pa = Eigen::Vector3d(x0_[L.foot_pos[f][k0]], x0_[L.foot_pos[f][k0] + 1],
+                           x0_[L.foot_pos[f][k0] + 2]);
+    }
+    if (L.foot_vel[f][k1] < 0) {
+      pb = Eigen::Vector3d(x0_[L.foot_pos[f][k1]], x0_[L.foot_pos[f][k1] + 1],
+                           x0_[L.foot_pos[f][k1] + 2]);
+    } else {
+      Eigen::Vector3d b;
+      double yaw;
+      base_at(L.nominal_knot_time[k1], &b, &yaw);
+      pb = nominal_foot_world(robot_.legs[f], b, yaw);
+      pb.z() = terrain_.height(pb.x(), pb.y());
+    }
+    const double ta = L.nominal_knot_time[k0], tb = L.nominal_knot_time[k1];
+    for (int k = k0; k <= k1; ++k) {
+      if (L.foot_vel[f][k] < 0) continue;
+      const double u = (L.nominal_knot_time[k] - ta) / (tb - ta);
+      Eigen::Vector3d p = (1 - u) * pa + u * pb;
+      const double ground = std::max(terrain_.height(p.x(), p.y()), std::max(pa.z(), pb.z()));
+      p.z() = std::max(p.z(), ground) + options_.swing_clearance * 1.5 * clearance_profile(u);
+      Eigen::Vector3d v = (pb - pa) / (tb - ta);
+      if (k == 0) {
+        p = pa;
+        v = start ? start->foot_velocity[f] : Eigen::Vector3d::Zero();
+        for (int d = 0; d < 3; ++d) {
+          fix(L.foot_pos[f][k] + d, p[d]);
+          fix(L.foot_vel[f][k] + d, v[d]);
+        }
+        continue;
+      }
+      if (k == S) v.setZero();
+      for (int d = 0; d < 3; ++d) {
+        x0_[L.foot_pos[f][k] + d] = p[d];
+        x0_[L.foot_vel[f][k] + d] = v[d];
+      }
+    }
+  }
+  // Forces: the weight shared by the feet in stance.
+  for (int s = 0; s < S; ++s) {
+    int n = 0;
+    for (int f = 0; f < nf; ++f) n += L.contact[f][s];
+    if (n == 0) continue;
+    for (int f = 0; f < nf; ++f)
+      for (int side = 0; side < 2; ++side)
+        if (L.force[f][s][side] >= 0) {
+          const int i = L.force[f][s][side];
+          x0_[i] = x0_[i + 1] = 0.0;
+          x0_[i + 2] = robot_.mass * kGravity / n;
+        }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Baseline constraints
+
+void SrbdProblem::build_baseline() {
+  const Layout& L = *layout_;
+  const int S = L.num_segments;
+  const int nf = static_cast<int>(robot_.legs.size());
+  const double m = robot_.mass, mg = m * kGravity;
+  const Eigen::Matrix3d inertia = robot_.inertia;
+  const bool rot_free =
+      robot_.base_dof_free[3] || robot_.base_dof_free[4] || robot_.base_dof_free[5];
+  std::vector<int> lin_rows;
+  for (int d = 0; d < 3; ++d)
+    if (robot_.base_dof_free[d]) lin_rows.push_back(d);
+
+  // Duration variable of segment s as a local index; the segment length is x[dur] * fraction.
+  auto seg_duration = [&](LocalVars& lv, int s) { return lv.add(L.interval_var[L.seg_interval[s]]); };
+  auto base_pos = [&](LocalVars& lv, int s, double sigma, bool value_only) {
+    return add_hermite(lv, L.base[s], L.base[s] + 3, L.base[s + 1], L.base[s + 1] + 3, sigma,
+                       value_only);
+  };
+  auto base_euler = [&](LocalVars& lv, int s, double sigma, bool value_only) {
+    return add_hermite(lv, L.base[s] + 6, L.base[s] + 9, L.base[s + 1] + 6, L.base[s + 1] + 9,
+                       sigma, value_only);
+  };
+  auto foot_spline = [&](LocalVars& lv, int f, int s, double sigma) {
+    return add_hermite(lv, L.foot_pos[f][s], L.foot_vel[f][s], L.foot_pos[f][s + 1],
+                       L.foot_vel[f][s + 1], sigma, true);
+  };
+
+  for (int s = 0; s < S; ++s) {
+    const double frac = L.seg_fraction[s];
+    // Linear dynamics at both ends of the segment: exact everywhere in it (see nlp.hpp).
+    if (!lin_rows.empty())
+      for (int side = 0; side < 2; ++side) {
+        LocalVars lv;
+        const double sigma = side;
+        const HermiteLocal rp = base_pos(lv, s, sigma, false);
+        const int dur = seg_duration(lv, s);
+        std::vector<std::array<int, 3>> fl;
+        for (int f = 0; f < nf; ++f)
+          if (L.force[f][s][side] >= 0) fl.push_back(lv.add3(L.force[f][s][side]));
+        std::vector<double> z(lin_rows.size(), 0.0);
+        add_piece(make_piece("dynamics_linear", lv, z, z, [=](const auto* x, auto* g) {
+          using T = std::decay_t<decltype(*g)>;
+          const T h = x[dur] * frac;
+          Vec3<T> a;
+          hermite<T>(sigma, h, x, rp, nullptr, nullptr, &a);
+          Vec3<T> r = m * a;
+          r[2] += mg;
+          for (const auto& fi : fl) r -= gather3(x, fi);
+          for (std::size_t i = 0; i < lin_rows.size(); ++i) g[i] = r[lin_rows[i]] / mg;
+        }));
+      }
+    // Angular dynamics at `angular_points` points (ends included).
+    if (rot_free) {
+      const int np = std::max(2, options_.angular_points);
+      for (int q = 0; q < np; ++q) {
+        const double sigma = static_cast<double>(q) / (np - 1);
+        LocalVars lv;
+        const HermiteLocal rp = base_pos(lv, s, sigma, true);
+        const HermiteLocal ep = base_euler(lv, s, sigma, false);
+        const int dur = seg_duration(lv, s);
+        std::vector<std::array<int, 3>> fp, f0, f1;
+        for (int f = 0; f < nf; ++f)
+          if (L.contact[f][s]) {
+            fp.push_back(lv.add3(L.foot_pos[f][s]));
+            f0.push_back(sigma < 1.0 ? lv.add3(L.force[f][s][0]) : std::array<int, 3>{-1, -1, -1});
+            f1.push_back(sigma > 0.0 ? lv.add3(L.force[f][s][1]) : std::array<int, 3>{-1, -1, -1});
+          }
+        const double scale = 1.0 / (0.1 * mg);
+        std::vector<double> z(3, 0.0);
+        add_piece(make_piece(
+            "dynamics_angular", lv, z, z, [=](const auto* x, auto* g) {
+              using T = std::decay_t<decltype(*g)>;
+              const T h = x[dur] * frac;
+              Vec3<T> r, e, ed, edd, w, wd;
+              hermite<T>(sigma, h, x, rp, &r, nullptr, nullptr);
+              hermite<T>(sigma, h, x, ep, &e, &ed, &edd);
+              euler_to_angular<T>(e, ed, edd, &w, &wd);
+              const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(e);
+              const Eigen::Matrix<T, 3, 3> Iw = R * inertia.cast<T>() * R.transpose();
+              const Vec3<T> Iww = Iw * w;
+              Vec3<T> res = Iw * wd + w.cross(Iww);
+              for (std::size_t i = 0; i < fp.size(); ++i) {
+                const Vec3<T> f = (1.0 - sigma) * gather3(x, f0[i]) + sigma * gather3(x, f1[i]);
+                res -= (gather3(x, fp[i]) - r).cross(f);
+              }
+              for (int i = 0; i < 3; ++i) g[i] = res[i] * scale;
+            }));
+      }
+    }
+    // Range of motion: foot in the box around its nominal position, in the base frame. Swing
+    // feet move fast, so they get twice the points.
+    for (int f = 0; f < nf; ++f) {
+      const int nr = std::max(1, options_.rom_points) * (L.contact[f][s] ? 1 : 2);
+      for (int q = 0; q <= nr; ++q) {
+        if (q == nr && s != S - 1) continue;  // the next segment's start covers this end
+        const double sigma = static_cast<double>(q) / nr;
+        LocalVars lv;
+        const HermiteLocal rp = base_pos(lv, s, sigma, true);
+        const HermiteLocal ep = base_euler(lv, s, sigma, true);
+        const HermiteLocal fpl = foot_spline(lv, f, s, sigma);
+        const int dur = rp.needs_duration || ep.needs_duration || fpl.needs_duration
+                            ? seg_duration(lv, s)
+                            : -1;
+        const Eigen::Vector3d nom = robot_.legs[f].nominal_foot, box = robot_.legs[f].range_of_motion;
+        std::vector<double> lo{-box.x(), -box.y(), -box.z()}, hi{box.x(), box.y(), box.z()};
+        add_piece(make_piece("range_of_motion", lv, lo, hi, [=](const auto* x, auto* g) {
+          using T = std::decay_t<decltype(*g)>;
+          const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);
+          Vec3<T> r, e, p;
+          hermite<T>(sigma, h, x, rp, &r, nullptr, nullptr);
+          hermite<T>(sigma, h, x, ep, &e, nullptr, nullptr);
+          hermite<T>(sigma, h, x, fpl, &p, nullptr, nullptr);
+          const Vec3<T> pb_ = rotation_zyx<T>(e).transpose() * (p - r);
+          for (int i = 0; i < 3; ++i) g[i] = pb_[i] - nom[i];
+        }));
+      }
+    }
+  }
+
+  // Stance feet on the terrain.
+  const terrain::HeightField* field = &terrain_;
+  for (const auto& st : L.stances) {
+    if (st.fixed) continue;
+    LocalVars lv;
+    const auto p = lv.add3(st.pos_var);
+    add_piece(make_piece("stance_height", lv, {0.0}, {0.0}, [=](const auto* x, auto* g) {
+      g[0] = x[p[2]] - terrain_height(*field, x[p[0]], x[p[1]]);
+    }));
+  }
+
+  // Friction pyramid and normal-force bounds at every force knot (linear in f for the fixed
+  // foothold, so they hold along the whole linear force segment).
+  const double mu = options_.friction;
+  const double fmax = options_.max_normal_force_factor * mg;
+  for (int f = 0; f < nf; ++f) {
+    int last = -1;
+    for (int s = 0; s < S; ++s)
+      for (int side = 0; side < 2; ++side) {
+        const int fv = L.force[f][s][side];
+        if (fv < 0 || fv == last) continue;
+        last = fv;
+        LocalVars lv;
+        const auto p = lv.add3(L.foot_pos[f][s]);
+        const auto fi = lv.add3(fv);
+        add_piece(make_piece(
+            "friction", lv, {0.0, -kInf, -kInf, -kInf, -kInf}, {fmax / mg, 0.0, 0.0, 0.0, 0.0},
+            [=](const auto* x, auto* g) {
+              using T = std::decay_t<decltype(*g)>;
+              Vec3<T> n, t1, t2;
+              terrain_frame(*field, x[p[0]], x[p[1]], &n, &t1, &t2);
+              const Vec3<T> force = gather3(x, fi) / mg;
+              const T fn = n.dot(force), a = t1.dot(force), c = t2.dot(force);
+              g[0] = fn;
+              g[1] = a - mu * fn;
+              g[2] = -a - mu * fn;
+              g[3] = c - mu * fn;
+              g[4] = -c - mu * fn;
+            }));
+      }
+  }
+
+  // Swing clearance: at `clearance_points` per segment, the foot must be h_min * profile above
+  // the terrain under it AND above the terrain probed at +-probe in x and y around it. Probing
+  // makes the bound conservative: between the points the foot moves less than the probe radius,
+  // and a smoothed planning terrain underestimates a sharp step only near its edge.
+  const double hmin = options_.swing_clearance, probe = options_.clearance_probe;
+  for (const auto& sw : L.swings) {
+    const int f = sw.foot;
+    const int nseg = sw.last_seg - sw.first_seg + 1;
+    const int np = std::max(1, options_.clearance_points);
+    for (int s = sw.first_seg; s <= sw.last_seg; ++s)
+      for (int q = 0; q < np; ++q) {
+        if (s == sw.first_seg && q == 0) continue;  // lift-off knot
+        const double sigma = static_cast<double>(q) / np;
+        const double u = (s - sw.first_seg + sigma) / nseg;
+        const double w = clearance_profile(u);
+        LocalVars lv;
+        const HermiteLocal fpl = foot_spline(lv, f, s, sigma);
+        const int dur = fpl.needs_duration ? seg_duration(lv, s) : -1;
+        const double frac = L.seg_fraction[s];
+        const int nrow = probe > 0.0 && w > 0.0 ? 5 : 1;
+        const double d = probe * w;
+        std::vector<double> lo(nrow, hmin * w), hi(nrow, kInf);
+        add_piece(make_piece("swing_clearance", lv, lo, hi, [=](const auto* x, auto* g) {
+          using T = std::decay_t<decltype(*g)>;
+          const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);
+          Vec3<T> p;
+          hermite<T>(sigma, h, x, fpl, &p, nullptr, nullptr);
+          static const double ox[5] = {0, 1, -1, 0, 0}, oy[5] = {0, 0, 0, 1, -1};
+          for (int i = 0; i < nrow; ++i)
+            g[i] = p[2] - terrain_height(*field, p[0] + d * ox[i], p[1] + d * oy[i]);
+        }));
+      }
+  }
+
+  // Total duration fixed when the timing is optimised.
+  if (options_.optimize_timing) {
+    LocalVars lv;
+    for (int v : L.interval_var) lv.add(v);
+    const int n = static_cast<int>(L.interval_var.size());
+    const double T = timeline_.duration();
+    if (n <= kMaxPieceVars) {
+      add_piece(make_piece("total_duration", lv, {T}, {T}, [=](const auto* x, auto* g) {
+        using T_ = std::decay_t<decltype(*g)>;
+        T_ sum = x[0];
+        for (int i = 1; i < n; ++i) sum += x[i];
+        g[0] = sum;
+      }));
+    } else {
+      throw std::invalid_argument("too many gait intervals (" + std::to_string(n) +
+                                  ") for timing optimisation; use fewer cycles");
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Evaluation
+
+void SrbdProblem::eval_constraints(const double* x, double* g) const {
+  double xl[kMaxPieceVars];
+  for (std::size_t i = 0; i < pieces_.size(); ++i) {
+    const Piece& p = *pieces_[i];
+    for (std::size_t k = 0; k < p.vars.size(); ++k) xl[k] = x[p.vars[k]];
+    p.eval(xl, g + row_offset_[i]);
+  }
+}
+
+void SrbdProblem::jacobian_structure(int* rows, int* cols) const {
+  for (std::size_t i = 0; i < pieces_.size(); ++i) {
+    const Piece& p = *pieces_[i];
+    const int n = static_cast<int>(p.vars.size());
+    int z = nz_offset_[i];
+    for (int r = 0; r < p.rows(); ++r)
+      for (int c = 0; c < n; ++c) {
+        rows[z] = row_offset_[i] + r;
+        cols[z] = p.vars[c];
+        ++z;
+      }
+  }
+}
+
+void SrbdProblem::eval_jacobian(const double* x, double* values) const {
+  double xl[kMaxPieceVars];
+  double g[64];
+  for (std::size_t i = 0; i < pieces_.size(); ++i) {
+    const Piece& p = *pieces_[i];
+    for (std::size_t k = 0; k < p.vars.size(); ++k) xl[k] = x[p.vars[k]];
+    p.eval_jacobian(xl, g, values + nz_offset_[i]);
+  }
+}
+
+std::vector<double> SrbdProblem::row_lower() const {
+  std::vector<double> v;
+  for (const auto& p : pieces_) v.insert(v.end(), p->lb.begin(), p->lb.end());
+  return v;
+}
+std::vector<double> SrbdProblem::row_upper() const {
+  std::vector<double> v;
+  for (const auto& p : pieces_) v.insert(v.end(), p->ub.begin(), p->ub.end());
+  return v;
+}
+
+double SrbdProblem::max_violation(const std::vector<double>& x) const {
+  std::vector<double> g(num_rows_);
+  eval_constraints(x.data(), g.data());
+  const auto lo = row_lower(), hi = row_upper();
+  double v = 0.0;
+  for (int i = 0; i < num_rows_; ++i) v = std::max({v, lo[i] - g[i], g[i] - hi[i]});
+  for (std::size_t i = 0; i < x.size(); ++i) v = std::max({v, lb_[i] - x[i], x[i] - ub_[i]});
+  return v;
+}
+
+double SrbdProblem::duration(const std::vector<double>& x) const {
+  double T = 0.0;
+  for (int v : layout_->interval_var) T += x[v];
+  return T;
+}
+
+std::vector<double> SrbdProblem::event_times(const std::vector<double>& x) const {
+  std::vector<double> ev{0.0};
+  for (int v : layout_->interval_var) ev.push_back(ev.back() + x[v]);
+  return ev;
+}
+
+SrbdProblem::State SrbdProblem::evaluate(const std::vector<double>& x, double t) const {
+  const Layout& L = *layout_;
+  const int S = L.num_segments;
+  // Locate the segment (right-continuous: a knot belongs to the segment it starts).
+  double t0 = 0.0;
+  int s = 0;
+  double h = x[L.interval_var[L.seg_interval[0]]] * L.seg_fraction[0];
+  while (s < S - 1 && t >= t0 + h) {
+    t0 += h;
+    ++s;
+    h = x[L.interval_var[L.seg_interval[s]]] * L.seg_fraction[s];
+  }
+  const double sigma = std::clamp((t - t0) / h, 0.0, 1.0);
+  auto v3 = [&](int i) {
+    return i < 0 ? Eigen::Vector3d::Zero().eval() : Eigen::Vector3d(x[i], x[i + 1], x[i + 2]);
+  };
+  State st;
+  const int b0 = L.base[s], b1 = L.base[s + 1];
+  hermite<double>(sigma, h, v3(b0), v3(b0 + 3), v3(b1), v3(b1 + 3), &st.pos, &st.vel, &st.acc);
+  hermite<double>(sigma, h, v3(b0 + 6), v3(b0 + 9), v3(b1 + 6), v3(b1 + 9), &st.euler,
+                  &st.euler_rate, &st.euler_acc);
+  const int nf = static_cast<int>(robot_.legs.size());
+  for (int f = 0; f < nf; ++f) {
+    Eigen::Vector3d p, v;
+    hermite<double>(sigma, h, v3(L.foot_pos[f][s]), v3(L.foot_vel[f][s]), v3(L.foot_pos[f][s + 1]),
+                    v3(L.foot_vel[f][s + 1]), &p, &v, nullptr);
+    st.foot_pos.push_back(p);
+    st.foot_vel.push_back(v);
+    st.contact.push_back(L.contact[f][s]);
+    st.force.push_back(L.contact[f][s] ? ((1 - sigma) * v3(L.force[f][s][0]) +
+                                          sigma * v3(L.force[f][s][1]))
+                                             .eval()
+                                       : Eigen::Vector3d::Zero().eval());
+  }
+  return st;
+}
+
+}  // namespace terrastride::planner

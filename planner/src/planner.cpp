@@ -1,0 +1,238 @@
+#include "terrastride/planner/planner.hpp"
+
+#include <Eigen/LU>
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "terrastride/planner/piece_math.hpp"
+
+namespace terrastride::planner {
+
+namespace {
+
+constexpr double kDenseDt = 0.002;  // DESIGN.md: dense checks every 2 ms
+
+Eigen::Matrix3d euler_rate_matrix(const Eigen::Vector3d& e) {
+  const double cy = std::cos(e[0]), sy = std::sin(e[0]), cp = std::cos(e[1]), sp = std::sin(e[1]);
+  Eigen::Matrix3d E;
+  E << 0, -sy, cy * cp, 0, cy, sy * cp, 1, 0, -sp;
+  return E;
+}
+
+nlohmann::json timeline_json(const PhaseTimeline& tl, const std::vector<double>& events) {
+  nlohmann::json c = nlohmann::json::array();
+  for (const auto& foot : tl.contact) c.push_back(foot);
+  return {{"events", events}, {"contact", c}};
+}
+
+}  // namespace
+
+Trajectory sample_solution(const SrbdProblem& problem, const std::vector<double>& x, double dt) {
+  Trajectory tr;
+  const auto& robot = problem.robot();
+  tr.robot = robot.name;
+  tr.gait = problem.options().gait;
+  tr.duration = problem.duration(x);
+  tr.sample_dt = dt;
+  for (const auto& leg : robot.legs) tr.feet.push_back(leg.name);
+  const int n = static_cast<int>(std::floor(tr.duration / dt + 1e-9));
+  for (int i = 0; i <= n + 1; ++i) {
+    double t = std::min(i * dt, tr.duration);
+    if (i == n + 1 && tr.duration - n * dt < 1e-9) break;
+    const auto st = problem.evaluate(x, t);
+    TrajectorySample s;
+    s.t = t;
+    s.base.position = st.pos;
+    s.base.euler_zyx = st.euler;
+    s.base.linear_velocity = st.vel;
+    s.base.linear_acceleration = st.acc;
+    euler_to_angular<double>(st.euler, st.euler_rate, st.euler_acc, &s.base.angular_velocity,
+                             &s.base.angular_acceleration);
+    for (std::size_t f = 0; f < st.foot_pos.size(); ++f) {
+      FootState fs;
+      fs.position = st.foot_pos[f];
+      fs.velocity = st.foot_vel[f];
+      fs.force = st.force[f];
+      fs.contact = st.contact[f];
+      s.feet.push_back(fs);
+    }
+    tr.samples.push_back(std::move(s));
+  }
+  // Phases per foot, at the solution's (possibly optimised) event times.
+  const auto ev = problem.event_times(x);
+  const auto& tl = problem.timeline();
+  nlohmann::json phases = nlohmann::json::object();
+  for (std::size_t f = 0; f < tl.feet.size(); ++f) {
+    nlohmann::json list = nlohmann::json::array();
+    for (int j = 0; j < tl.num_intervals(); ++j) {
+      const bool c = tl.contact[f][j];
+      if (!list.empty() && list.back()["contact"].get<bool>() == c)
+        list.back()["end"] = ev[j + 1];
+      else
+        list.push_back({{"start", ev[j]}, {"end", ev[j + 1]}, {"contact", c}});
+    }
+    phases[tl.feet[f]] = list;
+  }
+  tr.extra["phases"] = phases;
+  tr.extra["timeline"] = timeline_json(tl, ev);
+  return tr;
+}
+
+TrajectorySample interpolate_plan(const Trajectory& plan, double t) {
+  const auto& S = plan.samples;
+  if (S.empty()) throw std::invalid_argument("plan has no samples");
+  if (t <= S.front().t) return S.front();
+  if (t >= S.back().t) return S.back();
+  const auto it = std::upper_bound(S.begin(), S.end(), t,
+                                   [](double v, const TrajectorySample& s) { return v < s.t; });
+  const TrajectorySample& b = *it;
+  const TrajectorySample& a = *(it - 1);
+  const double u = (t - a.t) / std::max(1e-12, b.t - a.t);
+  TrajectorySample s = a;
+  s.t = t;
+  auto mix = [u](const Eigen::Vector3d& p, const Eigen::Vector3d& q) { return (1 - u) * p + u * q; };
+  s.base.position = mix(a.base.position, b.base.position);
+  s.base.euler_zyx = mix(a.base.euler_zyx, b.base.euler_zyx);
+  s.base.linear_velocity = mix(a.base.linear_velocity, b.base.linear_velocity);
+  s.base.angular_velocity = mix(a.base.angular_velocity, b.base.angular_velocity);
+  s.base.linear_acceleration = mix(a.base.linear_acceleration, b.base.linear_acceleration);
+  s.base.angular_acceleration = mix(a.base.angular_acceleration, b.base.angular_acceleration);
+  for (std::size_t f = 0; f < s.feet.size() && f < b.feet.size(); ++f) {
+    s.feet[f].position = mix(a.feet[f].position, b.feet[f].position);
+    s.feet[f].velocity = mix(a.feet[f].velocity, b.feet[f].velocity);
+    // Forces jump at contact switches: blend only inside one contact state.
+    if (a.feet[f].contact == b.feet[f].contact) s.feet[f].force = mix(a.feet[f].force, b.feet[f].force);
+  }
+  return s;
+}
+
+PhaseTimeline timeline_of(const Trajectory& plan) {
+  const auto& ex = plan.extra;
+  if (!ex.contains("timeline"))
+    throw std::invalid_argument("plan has no \"timeline\" (not written by terrastride plan)");
+  PhaseTimeline tl;
+  tl.feet = plan.feet;
+  try {
+    tl.events = ex["timeline"]["events"].get<std::vector<double>>();
+    for (const auto& c : ex["timeline"]["contact"]) tl.contact.push_back(c.get<std::vector<bool>>());
+  } catch (const nlohmann::json::exception& e) {
+    throw std::invalid_argument(std::string("plan \"timeline\": ") + e.what());
+  }
+  if (tl.events.size() < 2 || tl.contact.size() != tl.feet.size())
+    throw std::invalid_argument("plan \"timeline\": inconsistent sizes");
+  for (const auto& c : tl.contact)
+    if (static_cast<int>(c.size()) != tl.num_intervals())
+      throw std::invalid_argument("plan \"timeline\": contact lists must have one entry per interval");
+  return tl;
+}
+
+void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
+  const Layout& L = *layout_;
+  const int S = L.num_segments;
+  auto at = [&](double t) { return interpolate_plan(prev, t + shift); };
+  for (int k = 0; k <= S; ++k) {
+    const auto s = at(L.nominal_knot_time[k]);
+    const int b = L.base[k];
+    const Eigen::Vector3d rates =
+        euler_rate_matrix(s.base.euler_zyx).fullPivLu().solve(s.base.angular_velocity);
+    for (int d = 0; d < 3; ++d) {
+      auto set = [&](int i, double v) {
+        if (lb_[i] < ub_[i]) x0_[i] = std::clamp(v, lb_[i], ub_[i]);
+      };
+      set(b + d, s.base.position[d]);
+      set(b + 3 + d, s.base.linear_velocity[d]);
+      set(b + 6 + d, s.base.euler_zyx[d]);
+      set(b + 9 + d, rates[d]);
+    }
+  }
+  const int nf = static_cast<int>(robot_.legs.size());
+  for (int f = 0; f < nf; ++f)
+    for (int k = 0; k <= S; ++k) {
+      const double t = L.nominal_knot_time[k];
+      const int pv = L.foot_pos[f][k], vv = L.foot_vel[f][k];
+      if (pv >= 0 && lb_[pv] < ub_[pv]) {
+        const auto s = at(t);
+        for (int d = 0; d < 3; ++d) x0_[pv + d] = s.feet[f].position[d];
+      }
+      if (vv >= 0 && lb_[vv] < ub_[vv]) {
+        const auto s = at(t);
+        for (int d = 0; d < 3; ++d) x0_[vv + d] = s.feet[f].velocity[d];
+      }
+    }
+  for (int f = 0; f < nf; ++f)
+    for (int s = 0; s < S; ++s)
+      for (int side = 0; side < 2; ++side) {
+        const int fv = L.force[f][s][side];
+        if (fv < 0) continue;
+        const double eps = 1e-6;
+        const double t = side == 0 ? L.nominal_knot_time[s] + eps : L.nominal_knot_time[s + 1] - eps;
+        const auto smp = at(t);
+        if (!smp.feet[f].contact) continue;
+        for (int d = 0; d < 3; ++d) x0_[fv + d] = smp.feet[f].force[d];
+      }
+}
+
+PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightField& plan_terrain,
+                        const terrain::HeightField& check_terrain, const PlannerOptions& options,
+                        double sample_dt, const WarmStart& warm) {
+  if (!(sample_dt > 0.0)) throw std::invalid_argument("sample_dt must be > 0");
+  std::vector<std::string> feet;
+  for (const auto& leg : robot.legs) feet.push_back(leg.name);
+  PhaseTimeline timeline;
+  SrbdProblem::StartState start;
+  const SrbdProblem::StartState* start_ptr = nullptr;
+  if (warm.previous) {
+    const Trajectory& prev = *warm.previous;
+    if (prev.feet != feet)
+      throw std::invalid_argument("--init plan is for feet that differ from robot " + robot.name);
+    timeline = timeline_of(prev);
+    if (warm.shift > 0.0) timeline = timeline.cropped(warm.shift);
+    const auto s = interpolate_plan(prev, warm.shift);
+    start.position = s.base.position;
+    start.euler_zyx = s.base.euler_zyx;
+    start.linear_velocity = s.base.linear_velocity;
+    start.euler_rates =
+        euler_rate_matrix(s.base.euler_zyx).fullPivLu().solve(s.base.angular_velocity);
+    for (const auto& f : s.feet) {
+      start.foot_position.push_back(f.position);
+      start.foot_velocity.push_back(f.velocity);
+    }
+    start_ptr = &start;
+  } else {
+    const Gait gait = load_gait(resolve_gait_path(options.gait));
+    timeline = make_timeline(gait, feet, options.cycles, options.duration);
+  }
+  SrbdProblem problem(robot, plan_terrain, timeline, options, start_ptr);
+  if (warm.previous) problem.warm_start_from(*warm.previous, warm.shift);
+  PlanOutcome out;
+  out.solve = solve(problem, options);
+  out.success = out.solve.success;
+  out.trajectory = sample_solution(problem, out.solve.x, sample_dt);
+  auto& st = out.trajectory.solver;
+  st.status = out.solve.status;
+  st.iterations = out.solve.iterations;
+  st.wall_s = out.solve.wall_s;
+  st.n_variables = problem.num_free_variables();
+  st.n_constraints = problem.num_constraints();
+  out.trajectory.extra["solver_max_violation"] = out.solve.max_violation;
+  out.trajectory.extra["cycles"] = options.cycles;
+  out.trajectory.extra["optimize_timing"] = options.optimize_timing;
+  out.trajectory.extra["constraints"] = options.constraints;
+  DenseCheckLimits lim;
+  lim.friction = options.friction;
+  lim.max_normal_force = options.max_normal_force_factor * robot.mass * 9.81;
+  const Trajectory dense = sample_solution(problem, out.solve.x, kDenseDt);
+  out.trajectory.checks = dense_checks(robot, check_terrain, dense, lim);
+  out.trajectory.extra["checks_dt"] = kDenseDt;
+  if (!out.success) {
+    std::ostringstream m;
+    m << "the optimiser ended with status '" << out.solve.status << "' after "
+      << out.solve.iterations << " iterations (" << out.solve.wall_s
+      << " s); largest constraint violation " << out.solve.max_violation;
+    out.message = m.str();
+  }
+  return out;
+}
+
+}  // namespace terrastride::planner

@@ -1,0 +1,174 @@
+#include "terrastride/planner/solver.hpp"
+
+#include <IpIpoptApplication.hpp>
+#include <IpTNLP.hpp>
+#include <chrono>
+#include <cstdlib>
+#include <cstring>
+#include <sstream>
+
+namespace terrastride::planner {
+
+namespace {
+
+using Ipopt::Index;
+using Ipopt::Number;
+
+class SrbdTnlp : public Ipopt::TNLP {
+ public:
+  SrbdTnlp(const SrbdProblem& p, double max_wall) : p_(p), max_wall_(max_wall) {
+    start_ = std::chrono::steady_clock::now();
+  }
+  bool get_nlp_info(Index& n, Index& m, Index& nnz_jac, Index& nnz_h,
+                    IndexStyleEnum& style) override {
+    n = p_.num_variables();
+    m = p_.num_constraints();
+    nnz_jac = p_.jacobian_nonzeros();
+    nnz_h = 0;
+    style = C_STYLE;
+    return true;
+  }
+  bool get_bounds_info(Index n, Number* xl, Number* xu, Index m, Number* gl, Number* gu) override {
+    std::copy(p_.lower().begin(), p_.lower().end(), xl);
+    std::copy(p_.upper().begin(), p_.upper().end(), xu);
+    const auto lo = p_.row_lower(), hi = p_.row_upper();
+    std::copy(lo.begin(), lo.end(), gl);
+    std::copy(hi.begin(), hi.end(), gu);
+    return true;
+  }
+  bool get_starting_point(Index n, bool init_x, Number* x, bool init_z, Number*, Number*, Index,
+                          bool init_lambda, Number*) override {
+    if (init_z || init_lambda) return false;
+    auto& x0 = const_cast<SrbdProblem&>(p_).initial_guess();
+    std::copy(x0.begin(), x0.end(), x);
+    return true;
+  }
+  // Feasibility problem with a tiny regulariser: the squared distance of the variables to the
+  // initial guess would fight warm starts, so the objective is zero as in TOWR.
+  bool eval_f(Index, const Number*, bool, Number& f) override {
+    f = 0.0;
+    return true;
+  }
+  bool eval_grad_f(Index n, const Number*, bool, Number* g) override {
+    std::fill(g, g + n, 0.0);
+    return true;
+  }
+  bool eval_g(Index, const Number* x, bool, Index, Number* g) override {
+    p_.eval_constraints(x, g);
+    return true;
+  }
+  bool eval_jac_g(Index, const Number* x, bool, Index, Index nele, Index* irow, Index* jcol,
+                  Number* values) override {
+    if (values == nullptr)
+      p_.jacobian_structure(irow, jcol);
+    else
+      p_.eval_jacobian(x, values);
+    return true;
+  }
+  bool intermediate_callback(Ipopt::AlgorithmMode, Index iter, Number, Number, Number, Number,
+                             Number, Number, Number, Number, Index, const Ipopt::IpoptData*,
+                             Ipopt::IpoptCalculatedQuantities*) override {
+    iterations_ = iter;
+    if (max_wall_ > 0.0 && elapsed() > max_wall_) {
+      timed_out_ = true;
+      return false;
+    }
+    return true;
+  }
+  void finalize_solution(Ipopt::SolverReturn status, Index n, const Number* x, const Number*,
+                         const Number*, Index, const Number*, const Number*, Number,
+                         const Ipopt::IpoptData*, Ipopt::IpoptCalculatedQuantities*) override {
+    x_.assign(x, x + n);
+    status_ = status;
+  }
+  double elapsed() const {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  }
+
+  std::vector<double> x_;
+  Ipopt::SolverReturn status_ = Ipopt::INTERNAL_ERROR;
+  int iterations_ = 0;
+  bool timed_out_ = false;
+
+ private:
+  const SrbdProblem& p_;
+  double max_wall_;
+  std::chrono::steady_clock::time_point start_;
+};
+
+}  // namespace
+
+SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
+                  const std::vector<std::pair<std::string, std::string>>& extra_options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  Ipopt::SmartPtr<SrbdTnlp> nlp = new SrbdTnlp(problem, options.max_time);
+  Ipopt::SmartPtr<Ipopt::IpoptApplication> app = IpoptApplicationFactory();
+  auto opts = app->Options();
+  opts->SetIntegerValue("print_level", options.verbose ? 5 : 0);
+  opts->SetStringValue("sb", "yes");  // no banner
+  opts->SetStringValue("hessian_approximation", "limited-memory");
+  opts->SetStringValue("linear_solver", "mumps");
+  opts->SetStringValue("fixed_variable_treatment", "make_parameter");
+  opts->SetNumericValue("tol", options.tolerance);
+  opts->SetNumericValue("constr_viol_tol", options.tolerance);
+  opts->SetNumericValue("acceptable_tol", 10 * options.tolerance);
+  opts->SetIntegerValue("max_iter", options.max_iterations);
+  if (options.max_time > 0.0) opts->SetNumericValue("max_cpu_time", options.max_time);
+  // TERRASTRIDE_IPOPT_OPTIONS="name=value name=value" adds Ipopt options (for tuning runs).
+  auto all_options = extra_options;
+  if (const char* env = std::getenv("TERRASTRIDE_IPOPT_OPTIONS")) {
+    std::istringstream in(env);
+    std::string item;
+    while (in >> item) {
+      const auto eq = item.find('=');
+      if (eq != std::string::npos) all_options.emplace_back(item.substr(0, eq), item.substr(eq + 1));
+    }
+  }
+  for (const auto& [k, v] : all_options) {
+    // Numbers and integers are passed as such; anything else as a string option.
+    char* end = nullptr;
+    const long iv = std::strtol(v.c_str(), &end, 10);
+    if (end && *end == '\0' && !v.empty()) {
+      if (!opts->SetIntegerValue(k, static_cast<Ipopt::Index>(iv))) opts->SetNumericValue(k, iv);
+      continue;
+    }
+    const double dv = std::strtod(v.c_str(), &end);
+    if (end && *end == '\0' && !v.empty())
+      opts->SetNumericValue(k, dv);
+    else
+      opts->SetStringValue(k, v);
+  }
+  SolveResult r;
+  Ipopt::ApplicationReturnStatus st = app->Initialize();
+  if (st != Ipopt::Solve_Succeeded) {
+    r.status = "error";
+    r.ipopt_status = st;
+    return r;
+  }
+  st = app->OptimizeTNLP(nlp);
+  r.ipopt_status = st;
+  r.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  r.iterations = nlp->iterations_;
+  r.x = nlp->x_.empty() ? problem.lower() : nlp->x_;
+  if (nlp->x_.empty()) r.x = const_cast<SrbdProblem&>(problem).initial_guess();
+  switch (st) {
+    case Ipopt::Solve_Succeeded: r.status = "optimal"; break;
+    case Ipopt::Solved_To_Acceptable_Level: r.status = "acceptable"; break;
+    case Ipopt::Infeasible_Problem_Detected: r.status = "infeasible"; break;
+    case Ipopt::Maximum_Iterations_Exceeded: r.status = "max_iterations"; break;
+    case Ipopt::Maximum_CpuTime_Exceeded: r.status = "time_limit"; break;
+    case Ipopt::User_Requested_Stop: r.status = nlp->timed_out_ ? "time_limit" : "stopped"; break;
+    case Ipopt::Diverging_Iterates: r.status = "diverging"; break;
+    case Ipopt::Restoration_Failed: r.status = "restoration_failed"; break;
+    case Ipopt::Search_Direction_Becomes_Too_Small: r.status = "step_too_small"; break;
+    case Ipopt::Error_In_Step_Computation: r.status = "step_failed"; break;
+    case Ipopt::Not_Enough_Degrees_Of_Freedom: r.status = "too_few_degrees_of_freedom"; break;
+    case Ipopt::Invalid_Number_Detected: r.status = "invalid_number"; break;
+    default: r.status = "error"; break;
+  }
+  r.success = st == Ipopt::Solve_Succeeded || st == Ipopt::Solved_To_Acceptable_Level;
+  r.max_violation = problem.max_violation(r.x);
+  return r;
+}
+
+}  // namespace terrastride::planner

@@ -1,0 +1,234 @@
+// `terrastride plan`: SRBD trajectory optimisation from a start to a goal over a terrain.
+#include <filesystem>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/planner/gait.hpp"
+#include "terrastride/planner/plan_io.hpp"
+#include "terrastride/planner/planner.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/service/cli.hpp"
+#include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
+
+namespace terrastride::service {
+namespace {
+
+struct PlanCliOptions {
+  std::string terrain;
+  std::string robot = "hyq";
+  std::string gait = "crawl";
+  int cycles = 3;
+  double duration = 0.0;
+  std::string goal;
+  std::string constraints = "baseline";
+  double sample_dt = 0.01;
+  double max_time = 0.0;
+  std::string init;
+  double start_time = 0.0;
+  bool optimize_timing = false;
+  bool verbose = false;
+  bool json = false;
+  std::string out;
+};
+
+// The optimiser's terrain (smooth) and the one the dense checks use (exact for scenes).
+struct Terrains {
+  std::unique_ptr<terrain::Scene> scene;
+  std::unique_ptr<terrain::TerrainMap> map;
+  const terrain::HeightField* plan = nullptr;
+  const terrain::HeightField* check = nullptr;
+  std::string kind;
+};
+
+Terrains load_terrains(const std::string& spec) {
+  Terrains t;
+  namespace fs = std::filesystem;
+  try {
+    if (fs::is_directory(spec)) {
+      t.map = terrain::load_terrain_dir(spec);
+      t.plan = t.check = t.map.get();
+      t.kind = "map";
+      return t;
+    }
+    if (fs::exists(spec))
+      throw CommandError("--terrain " + spec +
+                         ": point clouds are not planned on directly; run 'terrastride map " +
+                         spec + " --out DIR' and pass --terrain DIR");
+    const auto names = terrain::scene_names();
+    if (std::find(names.begin(), names.end(), spec) == names.end()) {
+      std::string list;
+      for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
+      throw CommandError("--terrain " + spec +
+                         ": neither a terrain directory nor a scene name (scenes: " + list + ")");
+    }
+    t.scene = terrain::make_scene(spec);
+    // A 2 cm C2 B-spline of the rasterised scene for the optimiser; checks on the exact scene.
+    t.map = terrain::TerrainMap::from_scene(*t.scene, 0.02, {});
+    t.plan = t.map.get();
+    t.check = t.scene.get();
+    t.kind = "scene";
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--terrain ") + spec + ": " + e.what());
+  }
+  return t;
+}
+
+std::vector<std::string> split_list(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ','))
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+void run_plan(const PlanCliOptions& o) {
+  robot::RobotModel model;
+  try {
+    model = robot::load_robot(robot::resolve_robot_path(o.robot));
+  } catch (const robot::RobotFileError& e) {
+    throw CommandError(std::string("--robot: ") + e.what());
+  }
+  if (!(o.sample_dt > 0.0) || o.sample_dt > 1.0)
+    throw CommandError("--sample-dt: must be in (0, 1] s");
+  if (o.max_time < 0.0) throw CommandError("--max-time: must be >= 0");
+  if (o.duration < 0.0) throw CommandError("--duration: must be > 0");
+  if (o.cycles < 1 || o.cycles > 50) throw CommandError("--cycles: must be in [1, 50]");
+  Terrains terrains = load_terrains(o.terrain);
+
+  planner::PlannerOptions po;
+  po.gait = o.gait;
+  po.cycles = o.cycles;
+  po.duration = o.duration;
+  po.optimize_timing = o.optimize_timing;
+  po.max_time = o.max_time;
+  po.verbose = o.verbose;
+  po.constraints = split_list(o.constraints);
+  if (po.constraints.empty()) throw CommandError("--constraints: empty list");
+  const auto available = planner::constraint_set_names();
+  for (const auto& c : po.constraints)
+    if (std::find(available.begin(), available.end(), c) == available.end()) {
+      std::string list;
+      for (const auto& n : available) list += (list.empty() ? "" : ", ") + n;
+      throw CommandError("--constraints: '" + c + "' is not available in this build (available: " +
+                         list + ")");
+    }
+
+  planner::Trajectory previous;
+  planner::WarmStart warm;
+  if (!o.init.empty()) {
+    try {
+      previous = planner::read_plan_file(o.init);
+    } catch (const std::exception& e) {
+      throw CommandError(std::string("--init: ") + e.what());
+    }
+    if (previous.robot != model.name)
+      throw CommandError("--init " + o.init + ": plan is for robot '" + previous.robot +
+                         "', not '" + model.name + "'");
+    if (!(o.start_time >= 0.0 && o.start_time < previous.duration))
+      throw CommandError("--start-time: must be in [0, " + std::to_string(previous.duration) +
+                         ") for " + o.init);
+    warm.previous = &previous;
+    warm.shift = o.start_time;
+    po.gait = previous.gait;
+    po.has_goal = true;
+    const auto& last = previous.samples.back().base;
+    po.goal = Eigen::Vector3d(last.position.x(), last.position.y(), last.euler_zyx[0]);
+  } else if (o.start_time != 0.0) {
+    throw CommandError("--start-time: needs --init");
+  }
+  if (!o.goal.empty()) {
+    const Eigen::VectorXd g = parse_numbers(o.goal, 3, "--goal");
+    po.goal = g;
+    po.has_goal = true;
+  } else if (!warm.previous) {
+    po.goal = Eigen::Vector3d(1.0, 0.0, 0.0);  // DESIGN.md scenarios: 1 m ahead
+    po.has_goal = true;
+  }
+
+  planner::PlanOutcome out;
+  try {
+    out = planner::plan_motion(model, *terrains.plan, *terrains.check, po, o.sample_dt, warm);
+  } catch (const planner::GaitError& e) {
+    throw CommandError(std::string("--gait: ") + e.what());
+  } catch (const std::invalid_argument& e) {
+    throw CommandError(e.what());
+  }
+  out.trajectory.extra["terrain"] = o.terrain;
+  if (warm.previous) {
+    out.trajectory.extra["init"] = o.init;
+    out.trajectory.extra["start_time"] = o.start_time;
+  }
+  const double violation = out.solve.max_violation;
+  // A non-optimal plan is still written when it nearly satisfies every constraint (useful as a
+  // warm start or for inspection); the exit code says it is not optimal either way.
+  const bool useful = out.success || violation <= 1e-3;
+  if (useful) {
+    try {
+      planner::write_plan_file(o.out, out.trajectory);
+    } catch (const std::exception& e) {
+      throw CommandError(std::string("--out: ") + e.what());
+    }
+  }
+  nlohmann::json summary = {{"status", out.trajectory.solver.status},
+                            {"iterations", out.trajectory.solver.iterations},
+                            {"wall_s", out.trajectory.solver.wall_s},
+                            {"n_variables", out.trajectory.solver.n_variables},
+                            {"n_constraints", out.trajectory.solver.n_constraints},
+                            {"max_violation", violation},
+                            {"checks", out.trajectory.checks},
+                            {"written", useful ? o.out : ""}};
+  if (o.json) {
+    std::cout << summary.dump() << "\n";
+  } else {
+    std::cout << "plan: " << out.trajectory.solver.status << " after "
+              << out.trajectory.solver.iterations << " iterations in "
+              << out.trajectory.solver.wall_s << " s (" << out.trajectory.solver.n_variables
+              << " variables, " << out.trajectory.solver.n_constraints << " constraints)\n";
+    for (const auto& [k, v] : out.trajectory.checks) std::cout << "  " << k << " = " << v << "\n";
+    if (useful) std::cout << "wrote " << o.out << "\n";
+  }
+  if (out.trajectory.solver.status != "optimal") {
+    std::string msg = out.message.empty() ? "status " + out.trajectory.solver.status : out.message;
+    msg += useful ? "; the plan was written to " + o.out + " for inspection"
+                  : "; no plan written (the goal may be unreachable with this gait and duration)";
+    throw CommandError(msg, 3);
+  }
+}
+
+}  // namespace
+
+void add_plan_command(CLI::App& app) {
+  auto o = std::make_shared<PlanCliOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "plan", "Plan base motion, footholds, contact forces and timing (SRBD optimisation, Ipopt)");
+  cmd->add_option("--terrain", o->terrain,
+                  "terrain directory (from 'terrastride map') or scene name (flat, pallet_10, "
+                  "pallet_15, eur_pallet, stairs, gap)")
+      ->required();
+  cmd->add_option("--robot", o->robot, "robot name or robot file")->capture_default_str();
+  cmd->add_option("--gait", o->gait, "gait name (data/gaits) or gait file")->capture_default_str();
+  cmd->add_option("--cycles", o->cycles, "number of gait cycles")->capture_default_str();
+  cmd->add_option("--duration", o->duration, "total duration in s (default: the gait's)");
+  cmd->add_option("--goal", o->goal, "goal X,Y,YAW of the base (default 1,0,0)");
+  cmd->add_option("--constraints", o->constraints,
+                  "constraint sets, comma separated (baseline; foot, shin, polytope when built)")
+      ->capture_default_str();
+  cmd->add_option("--sample-dt", o->sample_dt, "sampling period of plan.json in s")
+      ->capture_default_str();
+  cmd->add_option("--max-time", o->max_time, "time limit of the solve in s (0 = none)");
+  cmd->add_option("--init", o->init, "previous plan.json to warm start from");
+  cmd->add_option("--start-time", o->start_time,
+                  "with --init: start the new plan from the previous plan's state at this time");
+  cmd->add_flag("--optimize-timing", o->optimize_timing, "optimise the phase durations too");
+  cmd->add_flag("--verbose", o->verbose, "show Ipopt's output");
+  cmd->add_flag("--json", o->json, "print the summary as one JSON object");
+  cmd->add_option("--out", o->out, "plan.json to write")->required();
+  cmd->callback([o]() { run_plan(*o); });
+}
+
+}  // namespace terrastride::service

@@ -1,0 +1,187 @@
+// The NLP's pieces: gaits and timelines, every constraint's Jacobian against finite differences,
+// and Ipopt's own derivative checker on a small problem.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <set>
+#include <sstream>
+
+#include "terrastride/planner/gait.hpp"
+#include "terrastride/planner/nlp.hpp"
+#include "terrastride/planner/solver.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "test_terrains.hpp"
+
+namespace terrastride::planner {
+namespace {
+
+robot::RobotModel hyq() { return robot::load_robot(robot::resolve_robot_path("hyq")); }
+
+std::vector<std::string> feet_of(const robot::RobotModel& r) {
+  std::vector<std::string> f;
+  for (const auto& l : r.legs) f.push_back(l.name);
+  return f;
+}
+
+TEST(Gait, AllShippedGaitsBuildTimelines) {
+  const auto r = hyq();
+  for (const std::string name : {"crawl", "walk", "trot", "pace", "bound"}) {
+    const Gait g = load_gait(resolve_gait_path(name));
+    const PhaseTimeline tl = make_timeline(g, feet_of(r), 2, 0.0);
+    ASSERT_GE(tl.num_intervals(), 2) << name;
+    for (int j = 0; j < tl.num_intervals(); ++j) EXPECT_LT(tl.events[j], tl.events[j + 1]) << name;
+    for (std::size_t f = 0; f < 4; ++f) {
+      // Every leg swings at least twice and starts and ends... (crawl, walk) in stance.
+      int swings = 0;
+      for (const auto& p : tl.phases(f)) swings += !p.contact;
+      EXPECT_GE(swings, 1) << name;
+    }
+  }
+  const auto mono = robot::load_robot(robot::resolve_robot_path("monoped"));
+  const PhaseTimeline hop = make_timeline(load_gait(resolve_gait_path("hop")), feet_of(mono), 3, 0.0);
+  EXPECT_EQ(hop.phases(0).size(), 7u);  // stance, (flight, stance) x 3
+}
+
+TEST(Gait, CrawlMatchesThePaperSchedule) {
+  const Gait g = load_gait(resolve_gait_path("crawl"));
+  const PhaseTimeline tl = make_timeline(g, feet_of(hyq()), 3, 11.0);
+  EXPECT_NEAR(tl.duration(), 11.0, 1e-12);
+  for (int f = 0; f < 4; ++f) {
+    int swings = 0;
+    for (const auto& p : tl.phases(f)) swings += !p.contact;
+    EXPECT_EQ(swings, 3);
+  }
+  // Never more than one foot in the air (statically stable crawl).
+  for (int j = 0; j < tl.num_intervals(); ++j) {
+    int air = 0;
+    for (int f = 0; f < 4; ++f) air += !tl.contact[f][j];
+    EXPECT_LE(air, 1);
+  }
+  const PhaseTimeline c = tl.cropped(0.5);
+  EXPECT_NEAR(c.duration(), 10.5, 1e-9);
+}
+
+TEST(Gait, BadInputIsNamed) {
+  EXPECT_THROW(resolve_gait_path("no_such_gait"), GaitError);
+  const std::string path = ::testing::TempDir() + "/bad_gait.yaml";
+  std::ofstream(path) << "name: bad\nswing:\n  LF: [[0.5, 0.2]]\n";
+  try {
+    load_gait(path);
+    FAIL();
+  } catch (const GaitError& e) {
+    EXPECT_NE(std::string(e.what()).find("swing.LF[0]"), std::string::npos) << e.what();
+  }
+  std::ofstream(path) << "name: bad\nswing:\n  XX: [[0.1, 0.2]]\n";
+  const Gait g = load_gait(path);
+  EXPECT_THROW(make_timeline(g, feet_of(hyq()), 1, 1.0), GaitError);
+}
+
+// Every piece's Jacobian against central differences of its own values, at a perturbed point.
+void check_all_pieces(const SrbdProblem& p, std::set<std::string>* kinds) {
+  std::mt19937 rng(7);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  std::vector<double> x = const_cast<SrbdProblem&>(p).initial_guess();
+  for (std::size_t i = 0; i < x.size(); ++i) x[i] += 0.01 * noise(rng);
+  for (const auto& piece : p.pieces()) {
+    kinds->insert(piece->kind);
+    const int n = static_cast<int>(piece->vars.size()), m = piece->rows();
+    std::vector<double> xl(n), g(m), J(m * n), gp(m), gm(m);
+    for (int i = 0; i < n; ++i) xl[i] = x[piece->vars[i]];
+    piece->eval_jacobian(xl.data(), g.data(), J.data());
+    std::vector<double> g2(m);
+    piece->eval(xl.data(), g2.data());
+    for (int r = 0; r < m; ++r) ASSERT_NEAR(g[r], g2[r], 1e-12) << piece->kind;
+    for (int i = 0; i < n; ++i) {
+      const double h = 1e-6 * std::max(1.0, std::abs(xl[i]));
+      auto xp = xl, xm = xl;
+      xp[i] += h;
+      xm[i] -= h;
+      piece->eval(xp.data(), gp.data());
+      piece->eval(xm.data(), gm.data());
+      for (int r = 0; r < m; ++r) {
+        const double fd = (gp[r] - gm[r]) / (2 * h);
+        ASSERT_NEAR(J[r * n + i], fd, 1e-5 * std::max(1.0, std::abs(fd)))
+            << piece->kind << " row " << r << " var " << i;
+      }
+    }
+  }
+}
+
+TEST(NlpDerivatives, EveryPieceMatchesFiniteDifferences) {
+  const auto r = hyq();
+  testing::TanhStep terrain(0.1, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.05, 0.1);
+  o.optimize_timing = true;
+  o.cycles = 1;
+  const PhaseTimeline tl =
+      make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem p(r, terrain, tl, o);
+  std::set<std::string> kinds;
+  check_all_pieces(p, &kinds);
+  for (const std::string k : {"dynamics_linear", "dynamics_angular", "range_of_motion",
+                              "stance_height", "friction", "swing_clearance", "total_duration"})
+    EXPECT_TRUE(kinds.count(k)) << "no piece of kind " << k;
+}
+
+TEST(NlpDerivatives, MonopedPiecesMatchFiniteDifferences) {
+  const auto r = robot::load_robot(robot::resolve_robot_path("monoped"));
+  testing::TanhStep terrain(0.0, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  o.gait = "hop";
+  o.optimize_timing = true;
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("hop")), feet_of(r), 1, 0.0);
+  SrbdProblem p(r, terrain, tl, o);
+  std::set<std::string> kinds;
+  check_all_pieces(p, &kinds);
+  EXPECT_FALSE(kinds.count("dynamics_angular"));  // rotations held by the slider
+  EXPECT_TRUE(kinds.count("dynamics_linear"));
+}
+
+TEST(NlpDerivatives, IpoptDerivativeCheckerFindsNoErrors) {
+  const auto r = hyq();
+  testing::TanhStep terrain(0.05, 0.3, 0.08, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.2, 0.0, 0.0);
+  o.optimize_timing = true;
+  o.max_iterations = 0;
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("trot")), feet_of(r), 1, 0.8);
+  SrbdProblem p(r, terrain, tl, o);
+  const std::string log = ::testing::TempDir() + "/ipopt_derivative_test.txt";
+  std::filesystem::remove(log);
+  solve(p, o,
+        {{"derivative_test", "first-order"},
+         {"derivative_test_perturbation", "1e-7"},
+         {"derivative_test_tol", "1e-4"},
+         {"output_file", log},
+         {"file_print_level", "4"}});
+  std::ifstream in(log);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const std::string text = ss.str();
+  ASSERT_NE(text.find("derivative checker"), std::string::npos) << "no checker output in " << log;
+  EXPECT_NE(text.find("No errors detected by derivative checker"), std::string::npos)
+      << text.substr(0, 4000);
+}
+
+TEST(Nlp, UnknownConstraintSetIsNamed) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o;
+  o.constraints = {"baseline", "warp_drive"};
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("trot")), feet_of(r), 1, 0.8);
+  try {
+    SrbdProblem p(r, flat, tl, o);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("warp_drive"), std::string::npos);
+  }
+}
+
+}  // namespace
+}  // namespace terrastride::planner
