@@ -1,0 +1,286 @@
+// `terrastride report`: the offline foothold-safety report (one self-contained HTML page and a JSON
+// file with every number it shows), for one terrain and its plans, or for a folder of scans (batch
+// mode: one report per scan and an index page ranking them by safe fraction).
+#include <algorithm>
+#include <filesystem>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+
+#include "report/report.hpp"
+#include "report/terrain_input.hpp"
+#include "terrastride/collision/checks.hpp"
+#include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/planner/plan_io.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/service/cli.hpp"
+
+namespace terrastride::service {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+struct ReportCommandOptions {
+  std::vector<std::string> terrain;
+  std::vector<std::string> plans;
+  std::string batch;
+  std::string out;
+  std::string radii;
+  double resolution = 0.02;
+  std::string origin;
+  std::string robot = "hyq";
+  std::string title;
+  bool json_output = false;
+};
+
+std::vector<double> parse_radii(const std::string& text) {
+  std::vector<double> radii;
+  if (text.empty()) return radii;
+  const int n = static_cast<int>(std::count(text.begin(), text.end(), ',')) + 1;
+  const Eigen::VectorXd v = parse_numbers(text, n, "--foot-radius");
+  for (int i = 0; i < n; ++i) radii.push_back(v[i]);
+  return radii;
+}
+
+double robot_foot_radius(const std::string& name) {
+  try {
+    return robot::load_robot(robot::resolve_robot_path(name)).foot_radius;
+  } catch (const std::exception& e) {
+    throw CommandError("--robot " + name + ": " + e.what());
+  }
+}
+
+bool is_scan_file(const fs::path& p) {
+  std::string ext = p.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  return ext == ".pcd" || ext == ".ply" || ext == ".xyz" || ext == ".npy";
+}
+
+void check_out_html(const std::string& out) {
+  if (fs::path(out).extension() != ".html")
+    throw CommandError("--out " + out + ": the report is an .html file (report.json is written beside it)");
+  const fs::path parent = fs::absolute(out).parent_path();
+  if (!fs::is_directory(parent))
+    throw CommandError("--out " + out + ": folder " + parent.string() + " does not exist");
+}
+
+json summary_json(const json& report, const std::string& html, const std::string& json_path) {
+  json plans = json::array();
+  for (const json& p : report["plans"]) {
+    json s{{"name", p["name"]}, {"solver_status", p["solver"]["status"]},
+           {"footholds", p["footholds"].size()}};
+    for (const auto& [k, v] : p["checks"].items()) s[k] = v;
+    plans.push_back(s);
+  }
+  return {{"html", html},
+          {"json", json_path},
+          {"ok", report["ok"]},
+          {"problems", report["problems"]},
+          {"safe_fraction", report["terrain"]["safe_fraction"]},
+          {"observed_fraction", report["terrain"]["observed_fraction"]},
+          {"cells", report["terrain"]["cells"]},
+          {"plans", plans}};
+}
+
+void print_summary(const json& s, bool as_json) {
+  if (as_json) {
+    std::cout << s.dump() << "\n";
+    return;
+  }
+  std::cout << "safe fraction " << s["safe_fraction"] << " of observed cells ("
+            << s["cells"] << " cells)\n";
+  for (const json& p : s["problems"])
+    std::cout << "PROBLEM " << p["plan"].get<std::string>() << ": " << p["text"].get<std::string>()
+              << "\n";
+  std::cout << (s["ok"].get<bool>() ? "no problems found" : std::to_string(s["problems"].size()) +
+                                                               " problems found")
+            << "\nreport: " << s["html"].get<std::string>() << "\ndata:   " << s["json"].get<std::string>()
+            << "\n";
+}
+
+}  // namespace
+
+namespace report {
+
+// Shared by `report` and `demo`: reads the plans, builds the terrain view (scenes are voxelised over
+// the plans' extent for the leg-capsule check), writes OUT.html and OUT.json; returns the report.
+json make_report_file(const std::vector<std::string>& terrain_inputs,
+                      const std::vector<std::string>& plan_paths, TerrainInputOptions terrain_options,
+                      ReportOptions options, const std::string& out_html) {
+  std::vector<PlanInput> plans;
+  for (const std::string& path : plan_paths) {
+    PlanInput p;
+    p.path = path;
+    p.name = fs::path(path).filename().string();
+    try {
+      p.trajectory = planner::read_plan_file(path);
+    } catch (const std::exception& e) {
+      throw CommandError(std::string("--plan ") + e.what());
+    }
+    plans.push_back(std::move(p));
+  }
+  if (!plans.empty() && !plans.front().trajectory.robot.empty()) {
+    options.robot = plans.front().trajectory.robot;
+    terrain_options.foot_radius = robot_foot_radius(options.robot);
+  }
+  // Region the leg-capsule check needs for an analytic scene: where the plans' legs go.
+  bool first = true;
+  for (const PlanInput& p : plans) {
+    robot::RobotModel model;
+    try {
+      model = robot::load_robot(robot::resolve_robot_path(p.trajectory.robot.empty() ? options.robot
+                                                                                     : p.trajectory.robot));
+    } catch (const std::exception& e) {
+      throw CommandError(p.path + ": " + e.what());
+    }
+    Eigen::Vector2d lo, hi;
+    try {
+      collision::trajectory_extent(model, p.trajectory, 0.3, &lo, &hi);
+    } catch (const std::exception& e) {
+      throw CommandError(p.path + ": " + e.what());
+    }
+    terrain_options.voxel_lo = first ? lo : terrain_options.voxel_lo.cwiseMin(lo);
+    terrain_options.voxel_hi = first ? hi : terrain_options.voxel_hi.cwiseMax(hi);
+    first = false;
+  }
+  terrain_options.voxelise_scene = !plans.empty();
+  const TerrainView view = load_terrain_view(terrain_inputs, terrain_options);
+  json rep = build_report(view, plans, options);
+  write_report(rep, out_html);
+  return rep;
+}
+
+}  // namespace report
+
+void add_report_command(CLI::App& app) {
+  auto o = std::make_shared<ReportCommandOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "report",
+      "Offline foothold-safety report: one self-contained HTML page (no network needed) and a JSON "
+      "file with every number it shows");
+  cmd->add_option("--terrain", o->terrain,
+                  "A folder written by `terrastride map`, point-cloud files (PCD, PLY, XYZ, NPY), "
+                  "or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap)");
+  cmd->add_option("--plan", o->plans, "plan.json files to show on the terrain (repeatable)");
+  cmd->add_option("--batch", o->batch,
+                  "A folder of scans (and/or map folders): one report each plus index.html ranking "
+                  "them by safe fraction; --out is then the output folder");
+  cmd->add_option("--out", o->out, "report.html (report.json beside it), or the batch output folder")
+      ->required();
+  cmd->add_option("--foot-radius", o->radii,
+                  "Foot radii for the safety masks, e.g. 0.02,0.05 (default: the map's, or "
+                  "0.02,0.04,0.06; the robot's is always added)");
+  cmd->add_option("--resolution", o->resolution, "Grid cell for scenes and clouds (m)")
+      ->capture_default_str();
+  cmd->add_option("--origin", o->origin, "Sensor origin X,Y,Z of the clouds (passed to map)");
+  cmd->add_option("--robot", o->robot, "Robot for terrain-only reports (foot radius)")
+      ->capture_default_str();
+  cmd->add_option("--title", o->title, "Title of the page");
+  cmd->add_flag("--json", o->json_output, "Print the summary as one JSON object");
+  cmd->callback([o] {
+    if (o->terrain.empty() == o->batch.empty())
+      throw CommandError("give either --terrain (one report) or --batch DIR (a folder of scans)");
+    if (!(o->resolution >= 0.002 && o->resolution <= 1.0))
+      throw CommandError("--resolution " + std::to_string(o->resolution) + ": outside [0.002, 1] m");
+    report::TerrainInputOptions topts;
+    topts.radii = parse_radii(o->radii);
+    topts.resolution = o->resolution;
+    topts.foot_radius = robot_foot_radius(o->robot);
+    if (!o->origin.empty()) {
+      parse_numbers(o->origin, 3, "--origin");
+      topts.map_args = {"--origin", o->origin};
+    }
+    report::ReportOptions ropts;
+    ropts.robot = o->robot;
+    if (!o->title.empty()) ropts.title = o->title;
+    // Fail early (before any mapping) when the page's assets are missing.
+    (void)report::render_index_html(json{{"reports", json::array()}});
+
+    if (o->batch.empty()) {
+      check_out_html(o->out);
+      const json rep = report::make_report_file(o->terrain, o->plans, topts, ropts, o->out);
+      const std::string json_path = fs::path(o->out).replace_extension(".json").string();
+      print_summary(summary_json(rep, o->out, json_path), o->json_output);
+      return;
+    }
+
+    // Batch mode.
+    if (!o->plans.empty()) throw CommandError("--plan cannot be combined with --batch");
+    if (!fs::is_directory(o->batch)) throw CommandError("--batch " + o->batch + ": not a folder");
+    std::vector<fs::path> scans;
+    for (const auto& entry : fs::directory_iterator(o->batch)) {
+      const fs::path p = entry.path();
+      if ((entry.is_regular_file() && is_scan_file(p)) ||
+          (entry.is_directory() && report::is_terrain_dir(p.string())))
+        scans.push_back(p);
+    }
+    std::sort(scans.begin(), scans.end());
+    if (scans.empty())
+      throw CommandError("--batch " + o->batch +
+                         ": no scans (.pcd, .ply, .xyz, .npy) or terrain folders in it");
+    perception::AtomicOutputDir out_dir(o->out);
+    json rows = json::array();
+    std::vector<std::string> failed;
+    for (size_t i = 0; i < scans.size(); ++i) {
+      const std::string stem = scans[i].filename().string();
+      std::cerr << "[" << i + 1 << "/" << scans.size() << "] " << stem << "\n";
+      const std::string html_name = stem + ".html";
+      json row_json{{"scan", stem}, {"path", scans[i].string()}, {"html", html_name}};
+      try {
+        ropts.title = "terrastride foothold-safety report: " + stem;
+        const json rep = report::make_report_file({scans[i].string()}, {}, topts, ropts,
+                                                  (fs::path(out_dir.path()) / html_name).string());
+        const json& t = rep["terrain"];
+        row_json["safe_fraction"] = t["safe_fraction"];
+        row_json["observed_fraction"] = t["observed_fraction"];
+        row_json["cells"] = t["cells"];
+        row_json["height_min_m"] = t["height_min_m"];
+        row_json["height_max_m"] = t["height_max_m"];
+        row_json["problems"] = rep["problems"].size();
+      } catch (const std::exception& e) {
+        row_json["error"] = e.what();
+        failed.push_back(stem + ": " + e.what());
+      }
+      rows.push_back(row_json);
+    }
+    // Rank: best safe fraction first; failed scans last.
+    std::stable_sort(rows.begin(), rows.end(), [](const json& a, const json& b) {
+      const double fa = a.contains("error") ? -1.0 : a["safe_fraction"].get<double>();
+      const double fb = b.contains("error") ? -1.0 : b["safe_fraction"].get<double>();
+      return fa > fb;
+    });
+    json index{{"source", o->batch},
+               {"foot_radius_m", topts.foot_radius},
+               {"generated_utc", report::utc_now()},
+               {"reports", rows}};
+    perception::write_file_atomically((fs::path(out_dir.path()) / "index.json").string(),
+                                      index.dump(1) + "\n");
+    perception::write_file_atomically((fs::path(out_dir.path()) / "index.html").string(),
+                                      report::render_index_html(index));
+    out_dir.commit();
+    if (o->json_output) {
+      std::cout << index.dump() << "\n";
+    } else {
+      for (size_t i = 0; i < rows.size(); ++i) {
+        const json& r = rows[i];
+        if (r.contains("error"))
+          std::cout << "  -  " << r["scan"].get<std::string>() << ": failed\n";
+        else
+          std::cout << "  " << i + 1 << ". " << r["scan"].get<std::string>() << "  safe "
+                    << r["safe_fraction"] << ", problems " << r["problems"] << "\n";
+      }
+      std::cout << "index: " << (fs::path(o->out) / "index.html").string() << "\n";
+    }
+    if (failed.size() == scans.size())
+      throw CommandError("--batch " + o->batch + ": every scan failed; first: " + failed.front());
+    if (!failed.empty()) {
+      std::string msg = std::to_string(failed.size()) + " of " + std::to_string(scans.size()) +
+                        " scans failed (the others are in " + o->out + "):";
+      for (const auto& f : failed) msg += "\n  " + f;
+      throw CommandError(msg);
+    }
+  });
+}
+
+}  // namespace terrastride::service

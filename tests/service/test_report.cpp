@@ -1,0 +1,457 @@
+// `terrastride report`: the offline foothold-safety report, driven through the real binary.
+// Plans are written here from the Trajectory struct (a simple crawl whose footholds, forces and
+// timing we control), so each test knows exactly which problem the report must find.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <set>
+#include <sstream>
+#include <string>
+
+#include "terrastride/planner/plan_io.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using terrastride::planner::Trajectory;
+
+struct RunResult {
+  int code = -1;
+  std::string out;
+  std::string err;
+};
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+std::string quote(const std::string& s) {
+  std::string q = "'";
+  for (char c : s) q += (c == '\'') ? std::string("'\\''") : std::string(1, c);
+  return q + "'";
+}
+
+RunResult run(const std::string& args, const fs::path& dir) {
+  const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
+  const std::string cmd = std::string(TERRASTRIDE_BINARY) + " " + args + " >" + quote(out.string()) +
+                          " 2>" + quote(err.string());
+  const int status = std::system(cmd.c_str());
+  RunResult r;
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  r.out = slurp(out);
+  r.err = slurp(err);
+  return r;
+}
+
+class ReportTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() /
+           (std::string("terrastride-report-") + info->test_suite_name() + "-" + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    if (!HasFailure()) fs::remove_all(dir_);
+  }
+  fs::path dir_;
+};
+
+// A statically walking crawl: the base moves `advance` m along +x at the nominal height; the feet
+// swing one after another (LH, LF, RH, RF) by `advance` with a 10 cm arc; the stance feet share
+// the weight equally (forces scaled by `force_scale` between t0 and t1 for a torque violation).
+// `foot_shift` moves every final foothold of foot `shift_foot` by that much in x.
+struct CrawlSpec {
+  double ground = 0.0;
+  double advance = 0.15;
+  double duration = 4.0;
+  double force_scale = 1.0;
+  double scale_t0 = 0.0, scale_t1 = 0.0;
+  int shift_foot = -1;
+  double foot_shift = 0.0;
+};
+
+Trajectory make_crawl(const CrawlSpec& spec) {
+  const auto model = terrastride::robot::load_robot(terrastride::robot::resolve_robot_path("hyq"));
+  Trajectory traj;
+  traj.robot = "hyq";
+  traj.gait = "crawl";
+  traj.duration = spec.duration;
+  traj.sample_dt = 0.01;
+  traj.feet = {"LF", "RF", "LH", "RH"};
+  traj.solver.status = "optimal";
+  traj.solver.iterations = 42;
+  traj.solver.wall_s = 0.5;
+  traj.solver.n_variables = 1000;
+  traj.solver.n_constraints = 900;
+  const int order[4] = {2, 0, 3, 1};  // LH, LF, RH, RF
+  const double phase = spec.duration / 5.0;  // four swings in the middle of five slots
+  const int n = static_cast<int>(std::round(spec.duration / traj.sample_dt)) + 1;
+  const double z = spec.ground + model.nominal_base_height;
+  auto base_x = [&](double t) {
+    const double s = std::clamp(t / spec.duration, 0.0, 1.0);
+    return spec.advance * s * s * (3 - 2 * s);
+  };
+  auto foot_pos = [&](int f, double t, bool* contact) {
+    const Eigen::Vector3d nominal = model.legs[f].nominal_foot;
+    const int slot = [&] {
+      for (int k = 0; k < 4; ++k)
+        if (order[k] == f) return k;
+      return 0;
+    }();
+    const double t_lift = phase * (0.5 + slot), t_land = t_lift + phase;
+    const double x0 = nominal.x(), x1 = nominal.x() + spec.advance +
+                                        (f == spec.shift_foot ? spec.foot_shift : 0.0);
+    Eigen::Vector3d p(x0, nominal.y(), spec.ground);
+    *contact = true;
+    if (t >= t_land) {
+      p.x() = x1;
+    } else if (t > t_lift) {
+      const double s = (t - t_lift) / phase;
+      p.x() = x0 + (x1 - x0) * s * s * (3 - 2 * s);
+      p.z() = spec.ground + 0.1 * std::sin(M_PI * s);
+      *contact = false;
+    }
+    return p;
+  };
+  for (int k = 0; k < n; ++k) {
+    const double t = k * traj.sample_dt;
+    terrastride::planner::TrajectorySample s;
+    s.t = t;
+    const double h = 1e-4;
+    s.base.position = Eigen::Vector3d(base_x(t), 0.0, z);
+    s.base.linear_velocity = Eigen::Vector3d((base_x(t + h) - base_x(t - h)) / (2 * h), 0, 0);
+    s.base.linear_acceleration =
+        Eigen::Vector3d((base_x(t + h) - 2 * base_x(t) + base_x(t - h)) / (h * h), 0, 0);
+    int contacts = 0;
+    for (int f = 0; f < 4; ++f) {
+      bool c = false;
+      foot_pos(f, t, &c);
+      contacts += c ? 1 : 0;
+    }
+    for (int f = 0; f < 4; ++f) {
+      terrastride::planner::FootState foot;
+      bool c = false, c1 = false, c0 = false;
+      foot.position = foot_pos(f, t, &c);
+      foot.velocity = (foot_pos(f, t + h, &c1) - foot_pos(f, t - h, &c0)) / (2 * h);
+      foot.contact = c;
+      if (c) {
+        double fz = model.mass * 9.81 / contacts;
+        if (t >= spec.scale_t0 && t <= spec.scale_t1) fz *= spec.force_scale;
+        foot.force = Eigen::Vector3d(0, 0, fz);
+      }
+      s.feet.push_back(foot);
+    }
+    traj.samples.push_back(s);
+  }
+  return traj;
+}
+
+json read_json(const fs::path& p) { return json::parse(slurp(p)); }
+
+bool has_problem(const json& report, const std::string& id) {
+  for (const json& p : report["problems"])
+    if (p["id"] == id) return true;
+  return false;
+}
+
+TEST_F(ReportTest, CleanPlanOnFlatGroundShowsNoProblem) {
+  const fs::path plan = dir_ / "clean.json";
+  terrastride::planner::write_plan_file(plan.string(), make_crawl({}));
+  const fs::path html = dir_ / "report.html";
+  const RunResult r = run("report --terrain flat --plan " + quote(plan.string()) + " --out " +
+                              quote(html.string()) + " --json",
+                          dir_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  ASSERT_TRUE(fs::exists(html));
+  const json rep = read_json(dir_ / "report.json");
+  EXPECT_TRUE(rep["ok"].get<bool>()) << rep["problems"].dump(1);
+  EXPECT_TRUE(rep["problems"].empty());
+  ASSERT_EQ(rep["plans"].size(), 1u);
+  const json& p = rep["plans"][0];
+  EXPECT_EQ(p["footholds"].size(), 8u);  // 4 initial + 4 final stances
+  for (const json& fh : p["footholds"]) EXPECT_TRUE(fh["safe"].get<bool>());
+  EXPECT_GT(p["torque"]["ratio_max"].get<double>(), 0.05);
+  EXPECT_LT(p["torque"]["ratio_max"].get<double>(), 1.0);
+  EXPECT_EQ(p["torque"]["legs"].size(), 4u);
+  EXPECT_FALSE(p["torque"]["time"].empty());
+  // The flat scene is voxelised for the capsule check: shins clear of the ground.
+  ASSERT_FALSE(p["clearance"].contains("absent")) << p["clearance"].dump();
+  EXPECT_GT(p["clearance"]["shin_min_m"].get<double>(), 0.0);
+  EXPECT_EQ(p["clearance"]["shin_collisions"].get<int>(), 0);
+  // The summary rows: nothing is flagged.
+  for (const json& row : p["summary"]) EXPECT_NE(row["status"], "problem") << row.dump();
+  // Flat ground is safe everywhere (the scene has no edge).
+  EXPECT_DOUBLE_EQ(rep["terrain"]["safe_fraction"].get<double>(), 1.0);
+  // The page inlines everything: data, script and the plotting library, no external script or
+  // image (the headless-Chromium test below checks that nothing at all is fetched).
+  const std::string page = slurp(html);
+  EXPECT_NE(page.find("window.REPORT = {"), std::string::npos);
+  EXPECT_NE(page.find("Plotly"), std::string::npos);
+  EXPECT_EQ(page.find("src=\"http"), std::string::npos);
+  EXPECT_EQ(page.find("/*__DATA__*/"), std::string::npos);
+  // --json prints the summary with the paths.
+  const json summary = json::parse(r.out);
+  EXPECT_TRUE(summary["ok"].get<bool>());
+  EXPECT_EQ(summary["html"], html.string());
+}
+
+TEST_F(ReportTest, FootholdOnThePalletEdgeIsAProblem) {
+  // pallet_10: box from x = 0.55; LF lands at 0.31 + 0.24 = 0.55, right on the edge.
+  CrawlSpec spec;
+  spec.advance = 0.24;
+  const fs::path plan = dir_ / "edge.json";
+  terrastride::planner::write_plan_file(plan.string(), make_crawl(spec));
+  const fs::path html = dir_ / "edge.html";
+  const RunResult r = run("report --terrain pallet_10 --plan " + quote(plan.string()) +
+                              " --out " + quote(html.string()),
+                          dir_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json rep = read_json(dir_ / "edge.json");
+  EXPECT_FALSE(rep["ok"].get<bool>());
+  EXPECT_TRUE(has_problem(rep, "unsafe_foothold")) << rep["problems"].dump(1);
+  EXPECT_FALSE(has_problem(rep, "torque_limit"));
+  int unsafe = 0;
+  for (const json& fh : rep["plans"][0]["footholds"])
+    if (!fh["safe"].get<bool>()) {
+      ++unsafe;
+      EXPECT_TRUE(fh["foot"] == "LF" || fh["foot"] == "RF") << fh.dump();
+      EXPECT_LT(fh["margin_m"].get<double>(), 0.0);
+    }
+  EXPECT_EQ(unsafe, 2);  // both front feet land on the edge
+  EXPECT_NE(r.out.find("PROBLEM"), std::string::npos) << r.out;
+  // The same plan, 10 cm shorter, stays clear of the edge: no problem.
+  spec.advance = 0.14;
+  terrastride::planner::write_plan_file(plan.string(), make_crawl(spec));
+  const RunResult ok = run("report --terrain pallet_10 --plan " + quote(plan.string()) +
+                               " --out " + quote(html.string()),
+                           dir_);
+  ASSERT_EQ(ok.code, 0) << ok.err;
+  EXPECT_TRUE(read_json(dir_ / "edge.json")["problems"].empty());
+}
+
+TEST_F(ReportTest, TorqueViolationIsAProblem) {
+  CrawlSpec spec;
+  spec.force_scale = 4.0;  // four times the weight on the stance legs for half a second
+  spec.scale_t0 = 1.0;
+  spec.scale_t1 = 1.5;
+  const fs::path plan = dir_ / "heavy.json";
+  terrastride::planner::write_plan_file(plan.string(), make_crawl(spec));
+  const fs::path html = dir_ / "heavy.html";
+  const RunResult r = run("report --terrain flat --plan " + quote(plan.string()) + " --out " +
+                              quote(html.string()),
+                          dir_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json rep = read_json(dir_ / "heavy.json");
+  EXPECT_TRUE(has_problem(rep, "torque_limit")) << rep["problems"].dump(1);
+  EXPECT_GT(rep["plans"][0]["torque"]["ratio_max"].get<double>(), 1.0);
+  EXPECT_GT(rep["plans"][0]["torque"]["violating_samples"].get<int>(), 10);
+  EXPECT_FALSE(has_problem(rep, "unsafe_foothold"));
+}
+
+TEST_F(ReportTest, PlanFileChecksAndSolverStatusAreFlagged) {
+  Trajectory traj = make_crawl({});
+  traj.solver.status = "time_limit";
+  traj.checks["penetration_max_m"] = 0.02;   // 2 cm > 5 mm
+  traj.checks["slip_max_m"] = 0.0001;        // fine
+  const fs::path plan = dir_ / "p.json";
+  terrastride::planner::write_plan_file(plan.string(), traj);
+  const RunResult r = run("report --terrain flat --plan " + quote(plan.string()) + " --out " +
+                              quote((dir_ / "r.html").string()),
+                          dir_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json rep = read_json(dir_ / "r.json");
+  EXPECT_TRUE(has_problem(rep, "solver"));
+  EXPECT_TRUE(has_problem(rep, "penetration_max_m"));
+  EXPECT_FALSE(has_problem(rep, "slip_max_m"));
+  bool absent_row = false;
+  for (const json& row : rep["plans"][0]["summary"])
+    if (row["label"] == "friction-pyramid violation") absent_row = row["status"] == "absent";
+  EXPECT_TRUE(absent_row) << "a check missing from the plan is shown as not available";
+}
+
+// A map folder in the terrain module's on-disk format, written with its own API.
+void write_map_dir(const fs::path& dir, const std::string& scene_name) {
+  const auto scene = terrastride::terrain::make_scene(scene_name);
+  const auto map = terrastride::terrain::TerrainMap::from_scene(*scene, 0.02, {0.02, 0.05});
+  fs::create_directories(dir / "layers");
+  json meta = terrastride::terrain::write_terrain_layers(*map, dir.string());
+  std::ofstream(dir / "terrain.json") << meta.dump(1);
+}
+
+TEST_F(ReportTest, MapFolderAndBatchRanking) {
+  write_map_dir(dir_ / "scans" / "flat_map", "flat");
+  write_map_dir(dir_ / "scans" / "stairs_map", "stairs");
+  const RunResult one = run("report --terrain " + quote((dir_ / "scans" / "stairs_map").string()) +
+                                " --out " + quote((dir_ / "stairs.html").string()) + " --json",
+                            dir_);
+  ASSERT_EQ(one.code, 0) << one.err;
+  const json rep = read_json(dir_ / "stairs.json");
+  EXPECT_EQ(rep["terrain"]["kind"], "map");
+  const double stairs_safe = rep["terrain"]["safe_fraction"].get<double>();
+  EXPECT_GT(stairs_safe, 0.3);
+  EXPECT_LT(stairs_safe, 1.0);  // the riser edges are unsafe
+  ASSERT_EQ(rep["terrain"]["layers"].size(), 2u);  // the map's radii 0.02 and 0.05
+  EXPECT_GE(rep["terrain"]["layers"][0]["safe_fraction"].get<double>(),
+            rep["terrain"]["layers"][1]["safe_fraction"].get<double>());
+
+  const fs::path out = dir_ / "batch";
+  const RunResult b = run("report --batch " + quote((dir_ / "scans").string()) + " --out " +
+                              quote(out.string()),
+                          dir_);
+  ASSERT_EQ(b.code, 0) << b.err;
+  EXPECT_TRUE(fs::exists(out / "index.html"));
+  EXPECT_TRUE(fs::exists(out / "flat_map.html"));
+  EXPECT_TRUE(fs::exists(out / "stairs_map.json"));
+  const json index = read_json(out / "index.json");
+  ASSERT_EQ(index["reports"].size(), 2u);
+  EXPECT_EQ(index["reports"][0]["scan"], "flat_map");  // flat ranks first (safer)
+  EXPECT_EQ(index["reports"][1]["scan"], "stairs_map");
+  EXPECT_GT(index["reports"][0]["safe_fraction"].get<double>(),
+            index["reports"][1]["safe_fraction"].get<double>());
+}
+
+TEST_F(ReportTest, BadInputsNameTheProblemAndWriteNothing) {
+  const fs::path html = dir_ / "r.html";
+  RunResult r = run("report --terrain " + quote((dir_ / "nope").string()) + " --out " +
+                        quote(html.string()),
+                    dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("nope"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(html));
+
+  r = run("report --terrain flat --out " + quote((dir_ / "r.txt").string()), dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find(".html"), std::string::npos) << r.err;
+
+  std::ofstream(dir_ / "broken.json") << "{\"robot\": \"hyq\", \"samples\": 3}";
+  r = run("report --terrain flat --plan " + quote((dir_ / "broken.json").string()) + " --out " +
+              quote(html.string()),
+          dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("broken.json"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(html));
+  EXPECT_FALSE(fs::exists(dir_ / "r.json"));
+
+  r = run("report --out " + quote(html.string()), dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("--terrain"), std::string::npos) << r.err;
+
+  r = run("report --terrain flat --foot-radius 0.02,-1 --out " + quote(html.string()), dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("--foot-radius"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(html));
+}
+
+// ---- headless Chromium: the page as a person opens it ----
+
+std::string find_program(const char* name) {
+  const char* path = std::getenv("PATH");
+  std::stringstream ss(path ? path : "");
+  std::string dir;
+  while (std::getline(ss, dir, ':')) {
+    const fs::path p = fs::path(dir) / name;
+    if (fs::exists(p)) return p.string();
+  }
+  return {};
+}
+
+json browser_check(const fs::path& html, const fs::path& dir, int* code,
+                   const std::string& extra = "") {
+  const std::string script = fs::path(__FILE__).parent_path() / "report_check.js";
+  const fs::path out = dir / "check.json";
+  const std::string cmd = "node " + quote(script) + " " + quote(html.string()) + " " + extra +
+                          " >" + quote(out.string()) + " 2>" + quote((dir / "check.err").string());
+  const int status = std::system(cmd.c_str());
+  *code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  try {
+    return json::parse(slurp(out));
+  } catch (const std::exception&) {
+    return json{{"unparsable", slurp(out) + slurp(dir / "check.err")}};
+  }
+}
+
+class ReportBrowserTest : public ReportTest {
+ protected:
+  void SetUp() override {
+    ReportTest::SetUp();
+    // Required, not optional: scripts/setup.sh installs both (Debian's chromium and nodejs).
+    ASSERT_FALSE(find_program("chromium").empty()) << "chromium is not installed (apt-get install chromium)";
+    ASSERT_FALSE(find_program("node").empty()) << "node is not installed (apt-get install nodejs)";
+  }
+};
+
+TEST_F(ReportBrowserTest, ReportsOpenOfflineWithEveryChartDrawnAndProblemsShown) {
+  // A plan with both problems on pallet_10, and a clean plan on flat ground.
+  CrawlSpec bad;
+  bad.advance = 0.24;
+  bad.force_scale = 4.0;
+  bad.scale_t0 = 1.0;
+  bad.scale_t1 = 1.5;
+  terrastride::planner::write_plan_file((dir_ / "bad_plan.json").string(), make_crawl(bad));
+  terrastride::planner::write_plan_file((dir_ / "clean_plan.json").string(), make_crawl({}));
+  ASSERT_EQ(run("report --terrain pallet_10 --plan " + quote((dir_ / "bad_plan.json").string()) +
+                    " --out " + quote((dir_ / "bad.html").string()),
+                dir_)
+                .code,
+            0);
+  ASSERT_EQ(run("report --terrain flat --plan " + quote((dir_ / "clean_plan.json").string()) +
+                    " --out " + quote((dir_ / "clean.html").string()),
+                dir_)
+                .code,
+            0);
+
+  int code = -1;
+  const json bad_check = browser_check(dir_ / "bad.html", dir_, &code);
+  ASSERT_EQ(code, 0) << bad_check.dump(1);
+  EXPECT_TRUE(bad_check["network_requests"].empty());
+  EXPECT_TRUE(bad_check["console_errors"].empty());
+  // Height map, profile, torques, clearance, 3-D view: all drawn with data.
+  EXPECT_EQ(bad_check["charts"].size(), 5u) << bad_check["charts"].dump();
+  for (const json& c : bad_check["charts"]) EXPECT_GT(c["points"].get<int>(), 0) << c.dump();
+  // The page flags exactly the problems of report.json.
+  const json bad_rep = read_json(dir_ / "bad.json");
+  std::set<std::string> page_flags, json_flags;
+  for (const json& f : bad_check["flags"]) page_flags.insert(f.get<std::string>());
+  for (const json& p : bad_rep["problems"]) json_flags.insert(p["id"].get<std::string>());
+  EXPECT_EQ(page_flags, json_flags);
+  EXPECT_TRUE(page_flags.count("unsafe_foothold"));
+  EXPECT_TRUE(page_flags.count("torque_limit"));
+
+  const json clean_check = browser_check(dir_ / "clean.html", dir_, &code);
+  ASSERT_EQ(code, 0) << clean_check.dump(1);
+  EXPECT_TRUE(clean_check["flags"].empty()) << clean_check["flags"].dump();
+  EXPECT_EQ(clean_check["charts"].size(), 5u);
+
+  // The checker has teeth: a page that fetches something or logs an error fails.
+  std::string page = slurp(dir_ / "clean.html");
+  const size_t at = page.find("</body>");
+  ASSERT_NE(at, std::string::npos);
+  page.insert(at, "<img src=\"http://127.0.0.1:9/pixel.png\"><script>console.error('boom')</script>");
+  std::ofstream(dir_ / "tampered.html") << page;
+  const json tampered = browser_check(dir_ / "tampered.html", dir_, &code);
+  EXPECT_EQ(code, 1) << tampered.dump(1);
+  bool saw_request = false, saw_error = false;
+  for (const json& f : tampered["failures"]) {
+    const std::string s = f.get<std::string>();
+    saw_request |= s.find("network request") != std::string::npos;
+    saw_error |= s.find("boom") != std::string::npos;
+  }
+  EXPECT_TRUE(saw_request) << tampered.dump(1);
+  EXPECT_TRUE(saw_error) << tampered.dump(1);
+}
+
+}  // namespace
