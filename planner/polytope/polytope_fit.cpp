@@ -1,0 +1,495 @@
+// Least-squares fit of the interpolated force-polytope model with Ceres.
+//
+// Residuals: for every training foot position p (exact Jacobian J, limits tau) and every vertex v_s
+// of the approximate polytope (s in {+-1}^3 picks one facet per joint), the exact torque ratios
+// x = diag(1/tau) J^T v_s should equal s: the vertex of the approximation should load each joint
+// exactly to its limit, with the sign of the facets that meet there. The 24 residuals
+// s_i x_i - 1 vanish for all vertices iff the approximation is exact, and they are expressed in the
+// quality measure itself (rho_out is the largest |x_i|). Positive residuals (a vertex beyond a
+// torque limit) are weighted `overshoot_weight` times more than negative ones (a vertex short of
+// it), which biases the fit towards polytopes inside the exact one. A final uniform scaling of all
+// offsets (the polytope scales with them, so rho_out does too) caps the training set's worst
+// rho_out.
+#include "terrastride/planner/polytope_fit.hpp"
+
+#include <ceres/ceres.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <functional>
+#include <random>
+#include <stdexcept>
+
+#include "terrastride/planner/polytope_core.hpp"
+#include "terrastride/robot/leg_kinematics.hpp"
+
+namespace terrastride::planner {
+namespace core = polytope_core;
+using Eigen::Matrix3d;
+using Eigen::Vector3d;
+
+std::vector<Vector3d> sample_leg_workspace(const robot::LegModel& leg, int count, uint64_t seed,
+                                           double box_scale) {
+  if (count < 1) throw std::invalid_argument("sample count must be positive, got " +
+                                             std::to_string(count));
+  if (!(box_scale > 0)) throw std::invalid_argument("box scale must be positive");
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  std::vector<Vector3d> feet;
+  feet.reserve(count);
+  const long max_attempts = 200L * count;
+  for (long attempt = 0; attempt < max_attempts && static_cast<int>(feet.size()) < count;
+       ++attempt) {
+    const Vector3d u(unit(rng), unit(rng), unit(rng));
+    const Vector3d p = leg.nominal_foot + box_scale * leg.range_of_motion.cwiseProduct(u);
+    if (robot::inverse_kinematics(leg, p).ok()) feet.push_back(p);
+  }
+  if (static_cast<int>(feet.size()) < count)
+    throw std::runtime_error("leg " + leg.name + ": only " + std::to_string(feet.size()) + " of " +
+                             std::to_string(count) +
+                             " sampled foot positions are within the joint limits");
+  return feet;
+}
+
+namespace {
+
+robot::ForcePolytope exact_at(const robot::LegModel& leg, const Vector3d& foot) {
+  const robot::IkResult ik = robot::inverse_kinematics(leg, foot);
+  if (ik.status == robot::IkStatus::unreachable) throw std::runtime_error(ik.message);
+  return robot::exact_force_polytope(leg, ik.q);
+}
+
+double median_of(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+double quantile_of(std::vector<double> v, double q) {
+  std::sort(v.begin(), v.end());
+  const size_t i = std::min(v.size() - 1, static_cast<size_t>(std::ceil(q * v.size())) - 1);
+  return v[i];
+}
+
+// Normal of the base frame expressed in the leg's local (un-rolled, un-tilted) frame:
+// n_loc = Ry(alpha) Rx(-gamma) n, the inverse of core::rotate.
+Vector3d to_local(const LegCoordinates& c, const Vector3d& n) {
+  const double cg = std::cos(c.gamma), sg = std::sin(c.gamma);
+  const double ca = std::cos(c.alpha), sa = std::sin(c.alpha);
+  const Vector3d w(n[0], cg * n[1] + sg * n[2], -sg * n[1] + cg * n[2]);
+  return Vector3d(ca * w[0] + sa * w[2], w[1], -sa * w[0] + ca * w[2]);
+}
+
+// Angles of a local normal about a pole; theta unwrapped to lie within pi of `theta_near`.
+void angles_of(int pole, const Vector3d& n, double theta_near, double* theta, double* phi) {
+  *phi = std::asin(std::clamp(n[pole], -1.0, 1.0));
+  double t = std::atan2(n[(pole + 2) % 3], n[(pole + 1) % 3]);
+  while (t - theta_near > M_PI) t -= 2 * M_PI;
+  while (t - theta_near < -M_PI) t += 2 * M_PI;
+  *theta = t;
+}
+
+// Pole of each facet: the local axis least aligned with the facet's normal, so phi stays far
+// from +-pi/2 where theta is undefined.
+std::array<int, kPolytopeFacets> choose_poles(const LegCoordinates& c,
+                                              const robot::ForcePolytope& exact) {
+  std::array<int, kPolytopeFacets> poles{};
+  for (int j = 0; j < kPolytopeFacets; ++j) {
+    const Vector3d n = to_local(c, exact.normals[j]);
+    n.cwiseAbs().minCoeff(&poles[j]);
+  }
+  return poles;
+}
+
+// Sets node (i, m) of `model` from an exact polytope seen at leg coordinates `c`.
+void set_node_from_exact(LegPolytopeModel* model, int i, int m, const LegCoordinates& c,
+                         const robot::ForcePolytope& exact, const double* theta_near) {
+  double* node = model->node(i, m);
+  for (int j = 0; j < kPolytopeFacets; ++j) {
+    angles_of(model->poles[j], to_local(c, exact.normals[j]),
+              theta_near ? theta_near[3 * j] : 0.0, &node[3 * j], &node[3 * j + 1]);
+    node[3 * j + 2] = exact.offsets[j];
+  }
+}
+
+// Residuals of one training sample; NC = 2 (interpolation in l only) or 4 (bilinear in l, alpha)
+// grid nodes, ordered (i, m), (i+1, m), (i, m+1), (i+1, m+1).
+template <int NC>
+struct SampleResidual {
+  const LegPolytopeModel* layout;
+  Vector3d foot;
+  Matrix3d scaled_jt;  // row i: J_i^T / tau_i
+  int cell_l, cell_alpha;
+  double overshoot_weight;
+
+  template <typename T>
+  bool evaluate(const T* hip, const T* const* corner, T* residuals) const {
+    T gamma, l, alpha;
+    core::leg_coordinates(layout->use_roll, hip, foot, &gamma, &l, &alpha);
+    const T t = core::fraction(layout->l_knots, cell_l, l);
+    T w[NC];
+    if constexpr (NC == 2) {
+      w[0] = T(1.0) - t;
+      w[1] = t;
+    } else {
+      const T s = core::fraction(layout->alpha_knots, cell_alpha, alpha);
+      w[0] = (T(1.0) - t) * (T(1.0) - s);
+      w[1] = t * (T(1.0) - s);
+      w[2] = (T(1.0) - t) * s;
+      w[3] = t * s;
+    }
+    core::Vec3<T> n[kPolytopeFacets];
+    T d[kPolytopeFacets];
+    for (int j = 0; j < kPolytopeFacets; ++j) {
+      T theta(0.0), phi(0.0);
+      d[j] = T(0.0);
+      for (int c = 0; c < NC; ++c) {
+        theta += w[c] * corner[c][3 * j];
+        phi += w[c] * corner[c][3 * j + 1];
+        d[j] += w[c] * corner[c][3 * j + 2];
+      }
+      n[j] = core::rotate(gamma, alpha, core::local_normal(layout->poles[j], theta, phi));
+    }
+    for (int k = 0; k < kPolytopeVertices; ++k) {
+      const int r0 = core::vertex_facet(k, 0), r1 = core::vertex_facet(k, 1),
+                r2 = core::vertex_facet(k, 2);
+      const core::Vec3<T> v = core::meet(n[r0], n[r1], n[r2], d[r0], d[r1], d[r2]);
+      const core::Vec3<T> x = scaled_jt.cast<T>() * v;
+      for (int i = 0; i < 3; ++i) {
+        const double sign = ((k >> i) & 1) ? 1.0 : -1.0;
+        T e = sign * x[i] - T(1.0);
+        if (e > T(0.0)) e *= T(overshoot_weight);
+        residuals[3 * k + i] = e;
+      }
+    }
+    return true;
+  }
+};
+
+struct Residual2 : SampleResidual<2> {
+  template <typename T>
+  bool operator()(const T* hip, const T* c0, const T* c1, T* r) const {
+    const T* c[2] = {c0, c1};
+    return evaluate(hip, c, r);
+  }
+};
+struct Residual4 : SampleResidual<4> {
+  template <typename T>
+  bool operator()(const T* hip, const T* c0, const T* c1, const T* c2, const T* c3,
+                  T* r) const {
+    const T* c[4] = {c0, c1, c2, c3};
+    return evaluate(hip, c, r);
+  }
+};
+
+constexpr int kNodeSize = 3 * kPolytopeFacets;
+
+// Smoothness prior on the reference grid: the second divided difference of every node value along
+// one grid direction, made dimensionless by the mean knot spacing and the value's scale (radians
+// for the angles, the central offset for the offsets). Cells that few samples visit (corners of
+// the workspace) would otherwise be fitted to a handful of points and generalise badly.
+struct SmoothnessResidual {
+  double c_prev, c_mid, c_next;  // divided-difference weights times the mean spacing
+  std::array<double, kNodeSize> inv_scale;
+  double weight;
+  template <typename T>
+  bool operator()(const T* prev, const T* mid, const T* next, T* r) const {
+    for (int k = 0; k < kNodeSize; ++k)
+      r[k] = T(weight * inv_scale[k]) *
+             (T(c_prev) * prev[k] + T(c_mid) * mid[k] + T(c_next) * next[k]);
+    return true;
+  }
+};
+
+void add_smoothness(ceres::Problem* problem, const std::vector<double>& knots, double weight,
+                    const std::array<double, kNodeSize>& inv_scale,
+                    const std::function<double*(int)>& node) {
+  const int n = static_cast<int>(knots.size());
+  if (n < 3 || weight <= 0) return;
+  const double mean_h = (knots.back() - knots.front()) / (n - 1);
+  for (int i = 1; i + 1 < n; ++i) {
+    const double h0 = knots[i] - knots[i - 1], h1 = knots[i + 1] - knots[i];
+    // (V+ - V)/h1 - (V - V-)/h0, times the mean spacing.
+    auto* f = new SmoothnessResidual{mean_h / h0, -mean_h / h0 - mean_h / h1, mean_h / h1,
+                                     inv_scale, weight};
+    problem->AddResidualBlock(
+        new ceres::AutoDiffCostFunction<SmoothnessResidual, kNodeSize, kNodeSize, kNodeSize,
+                                        kNodeSize>(f),
+        nullptr, node(i - 1), node(i), node(i + 1));
+  }
+}
+constexpr int kResiduals = 3 * kPolytopeVertices;
+
+}  // namespace
+
+double polytope_rho_out(const LegPolytopeModel& model, const robot::LegModel& leg,
+                        const Vector3d& foot) {
+  const robot::ForcePolytope exact = exact_at(leg, foot);
+  double worst = 0;
+  for (const Vector3d& v : model.vertices(foot)) {
+    const double r = exact.torque_ratio(v);
+    worst = std::max(worst, std::isfinite(r) ? r : HUGE_VAL);
+  }
+  return worst;
+}
+
+double polytope_rho_in(const LegPolytopeModel& model, const robot::LegModel& leg,
+                       const Vector3d& foot) {
+  const robot::ForcePolytope exact = exact_at(leg, foot);
+  const PolytopeFacets f = model.facets(foot);
+  double worst = 0;
+  for (const Vector3d& w : exact.vertices) {
+    for (int j = 0; j < kPolytopeFacets; ++j) {
+      if (!(f.offsets[j] > 0)) return 0.0;  // the approximation does not even hold f = 0
+      worst = std::max(worst, f.normals[j].dot(w) / f.offsets[j]);
+    }
+  }
+  return worst > 0 ? 1.0 / worst : 0.0;
+}
+
+PolytopeQuality evaluate_polytope_quality(const LegPolytopeModel& model,
+                                          const robot::LegModel& leg,
+                                          const std::vector<Vector3d>& feet) {
+  PolytopeQuality q;
+  q.samples = static_cast<int>(feet.size());
+  if (feet.empty()) return q;
+  std::vector<double> out, in;
+  out.reserve(feet.size());
+  in.reserve(feet.size());
+  for (const Vector3d& p : feet) {
+    out.push_back(polytope_rho_out(model, leg, p));
+    in.push_back(polytope_rho_in(model, leg, p));
+  }
+  q.rho_out_median = median_of(out);
+  q.rho_out_p95 = quantile_of(out, 0.95);
+  q.rho_out_max = *std::max_element(out.begin(), out.end());
+  q.rho_in_median = median_of(in);
+  q.rho_in_min = *std::min_element(in.begin(), in.end());
+  return q;
+}
+
+LegPolytopeModel paper_polytope_model(const robot::LegModel& leg,
+                                      const std::vector<Vector3d>& feet) {
+  if (feet.empty()) throw std::invalid_argument("leg " + leg.name + ": no sample foot positions");
+  const robot::IkResult nominal = robot::inverse_kinematics(leg, leg.nominal_foot);
+  if (nominal.status == robot::IkStatus::unreachable) throw std::runtime_error(nominal.message);
+  LegPolytopeModel m;
+  m.leg_name = leg.name;
+  m.use_roll = false;
+  m.hip = robot::hfe_position(leg, nominal.q);
+  m.hip_offset = 0.0;
+  double l_min = HUGE_VAL, l_max = -HUGE_VAL;
+  for (const Vector3d& p : feet) {
+    const double l = m.coordinates(p).l;
+    l_min = std::min(l_min, l);
+    l_max = std::max(l_max, l);
+  }
+  const LegCoordinates c_nom = m.coordinates(leg.nominal_foot);
+  double l_mid = c_nom.l;
+  if (!(l_mid > l_min && l_mid < l_max)) l_mid = 0.5 * (l_min + l_max);
+  m.l_knots = {l_min, l_mid, l_max};
+  m.alpha_knots = {c_nom.alpha};
+  m.nodes.assign(3 * kNodeSize, 0.0);
+  m.poles = choose_poles(c_nom, robot::exact_force_polytope(leg, nominal.q));
+  // The paper's three default configurations: the foot below the hip along the nominal x and y,
+  // at the three reference leg lengths.
+  const double dx = leg.nominal_foot.x() - m.hip.x();
+  for (int k : {1, 0, 2}) {
+    const double l = m.l_knots[k];
+    Vector3d p(leg.nominal_foot.x(), leg.nominal_foot.y(),
+               m.hip.z() - std::sqrt(std::max(0.0, l * l - dx * dx)));
+    robot::IkResult ik = robot::inverse_kinematics(leg, p);
+    if (ik.status == robot::IkStatus::unreachable) {
+      // Out of reach along the nominal line: take the sample of closest leg length instead.
+      const auto best = std::min_element(feet.begin(), feet.end(), [&](const auto& a, const auto& b) {
+        return std::abs(m.coordinates(a).l - l) < std::abs(m.coordinates(b).l - l);
+      });
+      p = *best;
+      ik = robot::inverse_kinematics(leg, p);
+    }
+    set_node_from_exact(&m, k, 0, m.coordinates(p), robot::exact_force_polytope(leg, ik.q),
+                        k == 1 ? nullptr : m.node(1, 0));
+  }
+  m.validate();
+  return m;
+}
+
+LegPolytopeModel fit_leg_polytope(const robot::LegModel& leg, const std::vector<Vector3d>& feet,
+                                  const PolytopeFitOptions& opt, LegFitReport* report) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (opt.l_refs < 2) throw std::invalid_argument("l_refs must be at least 2");
+  if (opt.alpha_refs < 1) throw std::invalid_argument("alpha_refs must be at least 1");
+  const int min_samples = 4 * opt.l_refs * opt.alpha_refs;
+  if (static_cast<int>(feet.size()) < min_samples)
+    throw std::invalid_argument("leg " + leg.name + ": " + std::to_string(feet.size()) +
+                                " samples are too few to fit " + std::to_string(opt.l_refs) + "x" +
+                                std::to_string(opt.alpha_refs) + " reference polytopes (need " +
+                                std::to_string(min_samples) + ")");
+  LegPolytopeModel m;
+  m.leg_name = leg.name;
+  m.use_roll = true;
+  // Start from the HAA axis and the HAA->HFE offset; the fit moves them if that helps.
+  m.hip = leg.haa_origin;
+  m.hip_offset = leg.l0;
+
+  std::vector<robot::ForcePolytope> exact;
+  exact.reserve(feet.size());
+  for (const Vector3d& p : feet) exact.push_back(exact_at(leg, p));
+
+  // Grid of references over the sampled range: leg lengths Chebyshev-spaced (denser at the ends,
+  // where the knee's facets turn fastest near full extension), tilts evenly spaced.
+  std::vector<LegCoordinates> coords;
+  double l_min = HUGE_VAL, l_max = -HUGE_VAL, a_min = HUGE_VAL, a_max = -HUGE_VAL;
+  for (const Vector3d& p : feet) {
+    coords.push_back(m.coordinates(p));
+    l_min = std::min(l_min, coords.back().l);
+    l_max = std::max(l_max, coords.back().l);
+    a_min = std::min(a_min, coords.back().alpha);
+    a_max = std::max(a_max, coords.back().alpha);
+  }
+  for (int k = 0; k < opt.l_refs; ++k) {
+    const double u = 0.5 * (1 - std::cos(M_PI * k / (opt.l_refs - 1)));
+    m.l_knots.push_back(l_min + (l_max - l_min) * u);
+  }
+  if (opt.alpha_refs == 1) {
+    m.alpha_knots = {0.5 * (a_min + a_max)};
+  } else {
+    for (int k = 0; k < opt.alpha_refs; ++k)
+      m.alpha_knots.push_back(a_min + (a_max - a_min) * k / (opt.alpha_refs - 1));
+  }
+  m.nodes.assign(opt.l_refs * opt.alpha_refs * kNodeSize, 0.0);
+
+  // Initial references: the exact polytope of the sample nearest to each node.
+  const double l_span = l_max - l_min, a_span = std::max(a_max - a_min, 1e-6);
+  auto nearest = [&](double l, double a) {
+    size_t best = 0;
+    double best_d = HUGE_VAL;
+    for (size_t s = 0; s < coords.size(); ++s) {
+      const double d = std::pow((coords[s].l - l) / l_span, 2) +
+                       std::pow((coords[s].alpha - a) / a_span, 2);
+      if (d < best_d) best_d = d, best = s;
+    }
+    return best;
+  };
+  const size_t centre = nearest(m.l_knots[opt.l_refs / 2], m.alpha_knots[opt.alpha_refs / 2]);
+  m.poles = choose_poles(coords[centre], exact[centre]);
+  std::vector<double> centre_node(kNodeSize);
+  {
+    LegPolytopeModel tmp = m;
+    set_node_from_exact(&tmp, 0, 0, coords[centre], exact[centre], nullptr);
+    std::copy(tmp.node(0, 0), tmp.node(0, 0) + kNodeSize, centre_node.begin());
+  }
+  for (int i = 0; i < opt.l_refs; ++i) {
+    for (int a = 0; a < opt.alpha_refs; ++a) {
+      const size_t s = nearest(m.l_knots[i], m.alpha_knots[a]);
+      set_node_from_exact(&m, i, a, coords[s], exact[s], centre_node.data());
+    }
+  }
+
+  double hip[4] = {m.hip.x(), m.hip.y(), m.hip.z(), m.hip_offset};
+  LegFitReport rep;
+  rep.leg = leg.name;
+  rep.samples = static_cast<int>(feet.size());
+  for (int round = 0; round < std::max(1, opt.rounds); ++round) {
+    // The grid cell of each sample depends on the hip point, so the problem is rebuilt per round.
+    ceres::Problem::Options popts;
+    ceres::Problem problem(popts);
+    problem.AddParameterBlock(hip, 4);
+    for (int i = 0; i < opt.l_refs; ++i)
+      for (int a = 0; a < opt.alpha_refs; ++a) problem.AddParameterBlock(m.node(i, a), kNodeSize);
+    m.hip = Vector3d(hip[0], hip[1], hip[2]);
+    m.hip_offset = hip[3];
+    for (size_t s = 0; s < feet.size(); ++s) {
+      const LegCoordinates c = m.coordinates(feet[s]);
+      const int cl = core::locate(m.l_knots, c.l);
+      const int ca = core::locate(m.alpha_knots, c.alpha);
+      Matrix3d scaled_jt = exact[s].jacobian.transpose();
+      for (int i = 0; i < 3; ++i) scaled_jt.row(i) /= exact[s].torque_limit[i];
+      if (opt.alpha_refs == 1) {
+        auto* f = new Residual2;
+        *static_cast<SampleResidual<2>*>(f) = {&m, feet[s], scaled_jt, cl, 0, opt.overshoot_weight};
+        problem.AddResidualBlock(
+            new ceres::AutoDiffCostFunction<Residual2, kResiduals, 4, kNodeSize, kNodeSize>(f),
+            nullptr, hip, m.node(cl, 0), m.node(cl + 1, 0));
+      } else {
+        auto* f = new Residual4;
+        *static_cast<SampleResidual<4>*>(f) = {&m, feet[s], scaled_jt, cl, ca,
+                                               opt.overshoot_weight};
+        problem.AddResidualBlock(
+            new ceres::AutoDiffCostFunction<Residual4, kResiduals, 4, kNodeSize, kNodeSize,
+                                            kNodeSize, kNodeSize>(f),
+            nullptr, hip, m.node(cl, ca), m.node(cl + 1, ca), m.node(cl, ca + 1),
+            m.node(cl + 1, ca + 1));
+      }
+    }
+    std::array<double, kNodeSize> inv_scale;
+    for (int k = 0; k < kNodeSize; ++k)
+      inv_scale[k] = (k % 3 == 2) ? 1.0 / std::abs(centre_node[k]) : 1.0;
+    const double reg = opt.smoothness * std::sqrt(static_cast<double>(feet.size()));
+    for (int a = 0; a < opt.alpha_refs; ++a)
+      add_smoothness(&problem, m.l_knots, reg, inv_scale, [&](int i) { return m.node(i, a); });
+    for (int i = 0; i < opt.l_refs; ++i)
+      add_smoothness(&problem, m.alpha_knots, reg, inv_scale, [&](int a) { return m.node(i, a); });
+    if (!opt.fit_hip) problem.SetParameterBlockConstant(hip);
+    // A node no sample touches would make the normal equations singular: hold it.
+    for (int i = 0; i < opt.l_refs; ++i)
+      for (int a = 0; a < opt.alpha_refs; ++a)
+        if (problem.NumResidualBlocks() > 0) {
+          std::vector<ceres::ResidualBlockId> blocks;
+          problem.GetResidualBlocksForParameterBlock(m.node(i, a), &blocks);
+          if (blocks.empty()) problem.SetParameterBlockConstant(m.node(i, a));
+        }
+    ceres::Solver::Options sopts;
+    sopts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+    sopts.max_num_iterations = opt.max_iterations;
+    sopts.num_threads = std::max(1, opt.num_threads);
+    sopts.logging_type = ceres::SILENT;
+    sopts.minimizer_progress_to_stdout = false;
+    sopts.function_tolerance = 1e-7;
+    ceres::Solver::Summary summary;
+    ceres::Solve(sopts, &problem, &summary);
+    if (round == 0) rep.initial_cost = summary.initial_cost;
+    rep.final_cost = summary.final_cost;
+    rep.iterations += static_cast<int>(summary.iterations.size()) - 1;
+    if (summary.termination_type == ceres::FAILURE)
+      throw std::runtime_error("leg " + leg.name + ": polytope fit failed: " + summary.message);
+  }
+  m.hip = Vector3d(hip[0], hip[1], hip[2]);
+  m.hip_offset = hip[3];
+
+  // Conservative scaling: the polytope scales with its offsets, and so does rho_out.
+  if (opt.max_training_rho_out > 0) {
+    double worst = 0;
+    for (const Vector3d& p : feet) worst = std::max(worst, polytope_rho_out(m, leg, p));
+    if (worst > opt.max_training_rho_out) {
+      rep.offset_scale = opt.max_training_rho_out / worst;
+      for (size_t k = 2; k < m.nodes.size(); k += 3) m.nodes[k] *= rep.offset_scale;
+    }
+  }
+  m.validate();
+  rep.training = evaluate_polytope_quality(m, leg, feet);
+  rep.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (report) *report = rep;
+  return m;
+}
+
+RobotPolytopeModel fit_robot_polytopes(const robot::RobotModel& model,
+                                       const PolytopeFitOptions& options,
+                                       std::vector<LegFitReport>* reports) {
+  RobotPolytopeModel out;
+  out.robot = model.name;
+  out.variant = "roll";
+  if (reports) reports->clear();
+  for (size_t i = 0; i < model.legs.size(); ++i) {
+    const auto& leg = model.legs[i];
+    const auto feet =
+        sample_leg_workspace(leg, options.samples, options.seed + 7919 * i, options.box_scale);
+    LegFitReport rep;
+    out.legs.push_back(fit_leg_polytope(leg, feet, options, &rep));
+    if (reports) reports->push_back(rep);
+  }
+  return out;
+}
+
+}  // namespace terrastride::planner

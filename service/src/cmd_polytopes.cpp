@@ -1,0 +1,241 @@
+// `terrastride polytopes fit|validate`: fit the interpolated force polytopes of a robot and measure
+// them (rho_out, rho_in; see polytope_fit.hpp) on held-out foot positions against the paper's
+// sagittal-only variant.
+#include <algorithm>
+#include <cstdio>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+
+#include "terrastride/planner/polytope_fit.hpp"
+#include "terrastride/planner/polytope_model.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/service/cli.hpp"
+
+namespace terrastride::service {
+namespace {
+
+using nlohmann::json;
+using planner::PolytopeQuality;
+
+struct PolytopeOptions {
+  std::string robot = "hyq";
+  int samples = 1200;
+  uint64_t seed = 1;
+  int l_refs = 7;
+  int alpha_refs = 3;
+  int threads = 2;
+  int max_iterations = 60;
+  double smoothness = planner::PolytopeFitOptions().smoothness;
+  std::string out;
+  std::string file;
+  bool json = false;
+};
+
+robot::RobotModel load(const std::string& name) {
+  try {
+    return robot::load_robot(robot::resolve_robot_path(name));
+  } catch (const robot::RobotFileError& e) {
+    throw CommandError(e.what());
+  }
+}
+
+json quality_json(const PolytopeQuality& q) {
+  return {{"samples", q.samples},          {"rho_out_median", q.rho_out_median},
+          {"rho_out_p95", q.rho_out_p95},  {"rho_out_max", q.rho_out_max},
+          {"rho_in_median", q.rho_in_median}, {"rho_in_min", q.rho_in_min}};
+}
+
+void print_quality_row(const std::string& leg, const std::string& variant,
+                       const PolytopeQuality& q) {
+  std::printf("  %-4s %-9s rho_out median %.4f  p95 %.4f  max %.4f   rho_in median %.4f  min %.4f\n",
+              leg.c_str(), variant.c_str(), q.rho_out_median, q.rho_out_p95, q.rho_out_max,
+              q.rho_in_median, q.rho_in_min);
+}
+
+void check_counts(const PolytopeOptions& o) {
+  if (o.samples < 1) throw CommandError("--samples must be positive, got " + std::to_string(o.samples));
+  if (o.l_refs < 2) throw CommandError("--l-refs must be at least 2");
+  if (o.alpha_refs < 1) throw CommandError("--alpha-refs must be at least 1");
+  if (o.threads < 1) throw CommandError("--threads must be at least 1");
+  if (o.max_iterations < 1) throw CommandError("--max-iterations must be at least 1");
+}
+
+void run_fit(const PolytopeOptions& o) {
+  check_counts(o);
+  const robot::RobotModel model = load(o.robot);
+  planner::PolytopeFitOptions fo;
+  fo.samples = o.samples;
+  fo.seed = o.seed;
+  fo.l_refs = o.l_refs;
+  fo.alpha_refs = o.alpha_refs;
+  fo.num_threads = o.threads;
+  fo.max_iterations = o.max_iterations;
+  fo.smoothness = o.smoothness;
+  std::vector<planner::LegFitReport> reports;
+  planner::RobotPolytopeModel fitted;
+  try {
+    fitted = planner::fit_robot_polytopes(model, fo, &reports);
+  } catch (const std::exception& e) {
+    throw CommandError(std::string("polytope fit for robot ") + model.name + ": " + e.what());
+  }
+  char summary[160];
+  std::snprintf(summary, sizeof summary, "samples %d per leg, seed %llu, %dx%d references",
+                o.samples, static_cast<unsigned long long>(o.seed), o.l_refs, o.alpha_refs);
+  fitted.fit_summary = summary;
+  const std::string path = o.out.empty() ? planner::polytope_path_for(model) : o.out;
+  try {
+    planner::save_polytope_model(fitted, model, path);
+  } catch (const planner::PolytopeFileError& e) {
+    throw CommandError(e.what());
+  }
+  json out{{"robot", model.name}, {"file", path}, {"fit", summary}, {"legs", json::array()}};
+  for (const auto& r : reports) {
+    out["legs"].push_back({{"leg", r.leg},
+                           {"samples", r.samples},
+                           {"iterations", r.iterations},
+                           {"initial_cost", r.initial_cost},
+                           {"final_cost", r.final_cost},
+                           {"offset_scale", r.offset_scale},
+                           {"wall_s", r.wall_s},
+                           {"training", quality_json(r.training)}});
+  }
+  if (o.json) {
+    std::cout << out.dump() << "\n";
+    return;
+  }
+  std::printf("fitted force polytopes of %s (%s) -> %s\n", model.name.c_str(), summary,
+              path.c_str());
+  for (const auto& r : reports) {
+    std::printf("  %-4s %d iterations, cost %.4g -> %.4g, offset scale %.4f, %.2f s\n",
+                r.leg.c_str(), r.iterations, r.initial_cost, r.final_cost, r.offset_scale,
+                r.wall_s);
+    print_quality_row(r.leg, "training", r.training);
+  }
+}
+
+// Quality of a model over pooled samples of several legs.
+struct Pool {
+  std::vector<double> out, in;
+  PolytopeQuality summary() const {
+    PolytopeQuality q;
+    q.samples = static_cast<int>(out.size());
+    if (out.empty()) return q;
+    auto med = [](std::vector<double> v) {
+      std::sort(v.begin(), v.end());
+      const size_t n = v.size();
+      return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+    };
+    std::vector<double> s = out;
+    std::sort(s.begin(), s.end());
+    q.rho_out_median = med(out);
+    q.rho_out_p95 = s[std::min(s.size() - 1, static_cast<size_t>(0.95 * s.size()))];
+    q.rho_out_max = s.back();
+    q.rho_in_median = med(in);
+    q.rho_in_min = *std::min_element(in.begin(), in.end());
+    return q;
+  }
+};
+
+void run_validate(const PolytopeOptions& o) {
+  check_counts(o);
+  const robot::RobotModel model = load(o.robot);
+  const std::string path = o.file.empty() ? planner::polytope_path_for(model) : o.file;
+  planner::RobotPolytopeModel fitted;
+  try {
+    fitted = planner::load_polytope_model(model, path);
+  } catch (const planner::PolytopeFileError& e) {
+    throw CommandError(e.what());
+  }
+  json out{{"robot", model.name},
+           {"file", path},
+           {"held_out_samples_per_leg", o.samples},
+           {"seed", o.seed},
+           {"legs", json::array()}};
+  Pool ours_all, paper_all;
+  if (!o.json)
+    std::printf("force polytopes of %s on %d held-out foot positions per leg (seed %llu), %s\n",
+                model.name.c_str(), o.samples, static_cast<unsigned long long>(o.seed),
+                path.c_str());
+  for (size_t i = 0; i < model.legs.size(); ++i) {
+    const auto& leg = model.legs[i];
+    std::vector<Eigen::Vector3d> feet, reference_feet;
+    try {
+      feet = planner::sample_leg_workspace(leg, o.samples, o.seed + 7919 * i);
+      // The paper's references come from a separate sample set (its leg-length range).
+      reference_feet = planner::sample_leg_workspace(leg, 500, o.seed + 104729 + 7919 * i);
+    } catch (const std::exception& e) {
+      throw CommandError(e.what());
+    }
+    const auto& ours = fitted.leg(leg.name);
+    const auto paper = planner::paper_polytope_model(leg, reference_feet);
+    Pool ours_leg, paper_leg;
+    for (const auto& p : feet) {
+      ours_leg.out.push_back(planner::polytope_rho_out(ours, leg, p));
+      ours_leg.in.push_back(planner::polytope_rho_in(ours, leg, p));
+      paper_leg.out.push_back(planner::polytope_rho_out(paper, leg, p));
+      paper_leg.in.push_back(planner::polytope_rho_in(paper, leg, p));
+    }
+    ours_all.out.insert(ours_all.out.end(), ours_leg.out.begin(), ours_leg.out.end());
+    ours_all.in.insert(ours_all.in.end(), ours_leg.in.begin(), ours_leg.in.end());
+    paper_all.out.insert(paper_all.out.end(), paper_leg.out.begin(), paper_leg.out.end());
+    paper_all.in.insert(paper_all.in.end(), paper_leg.in.begin(), paper_leg.in.end());
+    const PolytopeQuality qo = ours_leg.summary(), qp = paper_leg.summary();
+    out["legs"].push_back({{"leg", leg.name}, {"ours", quality_json(qo)}, {"paper", quality_json(qp)}});
+    if (!o.json) {
+      print_quality_row(leg.name, "ours", qo);
+      print_quality_row(leg.name, "paper", qp);
+    }
+  }
+  const PolytopeQuality qo = ours_all.summary(), qp = paper_all.summary();
+  out["all"] = {{"ours", quality_json(qo)}, {"paper", quality_json(qp)}};
+  if (o.json) {
+    std::cout << out.dump() << "\n";
+    return;
+  }
+  print_quality_row("all", "ours", qo);
+  print_quality_row("all", "paper", qp);
+}
+
+}  // namespace
+
+void add_polytopes_command(CLI::App& app) {
+  auto opts = std::make_shared<PolytopeOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "polytopes", "Fit and validate the interpolated force polytopes of a robot (paper III-A)");
+  cmd->require_subcommand(1, 1);
+
+  CLI::App* fit = cmd->add_subcommand(
+      "fit", "Fit the force-polytope model with Ceres and write it next to the robot file");
+  fit->add_option("--robot", opts->robot, "Robot name (data/robots/NAME.yaml) or file")
+      ->capture_default_str();
+  fit->add_option("--samples", opts->samples, "Training foot positions per leg")
+      ->capture_default_str();
+  fit->add_option("--seed", opts->seed, "Random seed of the samples")->capture_default_str();
+  fit->add_option("--l-refs", opts->l_refs, "Reference leg lengths")->capture_default_str();
+  fit->add_option("--alpha-refs", opts->alpha_refs, "Reference leg tilts")->capture_default_str();
+  fit->add_option("--threads", opts->threads, "Ceres threads")->capture_default_str();
+  fit->add_option("--max-iterations", opts->max_iterations, "Ceres iterations per round")
+      ->capture_default_str();
+  fit->add_option("--smoothness", opts->smoothness, "Weight of the reference-grid smoothness prior")
+      ->capture_default_str();
+  fit->add_option("--out", opts->out, "Output file (default: ROBOT.polytopes.yaml next to it)");
+  fit->add_flag("--json", opts->json, "Print the figures as one JSON object");
+  fit->callback([opts] { run_fit(*opts); });
+
+  CLI::App* val = cmd->add_subcommand(
+      "validate", "rho_out and rho_in on held-out foot positions, ours vs the paper's variant");
+  auto vopts = std::make_shared<PolytopeOptions>();
+  vopts->samples = 2000;
+  vopts->seed = 20201;
+  val->add_option("--robot", vopts->robot, "Robot name or file")->capture_default_str();
+  val->add_option("--samples", vopts->samples, "Held-out foot positions per leg")
+      ->capture_default_str();
+  val->add_option("--seed", vopts->seed, "Random seed of the held-out samples")
+      ->capture_default_str();
+  val->add_option("--file", vopts->file, "Fitted parameters (default: next to the robot file)");
+  val->add_flag("--json", vopts->json, "Print the figures as one JSON object");
+  val->callback([vopts] { run_validate(*vopts); });
+}
+
+}  // namespace terrastride::service
