@@ -152,16 +152,38 @@ TEST_F(ServerTest, CloudUpdatesAreValidated) {
   m = c.call({{"op", "map.update"}, {"origin", {0, "x", 0.8}}},
              {p::make_float_attachment("points", {1, 3}, {0, 0, 0})});
   EXPECT_EQ(error_code(m), "bad_request");
-  // A valid cloud is either fused (terrain builder built in) or refused as unavailable; never
-  // faked.
-  std::vector<float> grid;
-  for (int i = 0; i < 50; ++i)
-    for (int j = 0; j < 50; ++j) grid.insert(grid.end(), {0.02f * i, 0.02f * j - 0.5f, 0.0f});
-  m = c.call({{"op", "map.update"}, {"origin", {0, 0, 0.8}}, {"mode", "replace"}},
-             {p::make_float_attachment("points", {2500, 3}, grid)});
-  if (!m.header["ok"].get<bool>()) {
-    EXPECT_EQ(error_code(m), "unavailable") << error_message(m);
-  }
+  // A valid cloud: a flat patch at z = 0.05 over x in [0, 1), y in [-0.5, 0.5), 1 cm spacing.
+  auto patch = [](double x0, double z) {
+    std::vector<float> pts;
+    for (int i = 0; i < 100; ++i)
+      for (int j = 0; j < 100; ++j)
+        pts.insert(pts.end(), {static_cast<float>(x0 + 0.01 * i), static_cast<float>(0.01 * j - 0.5),
+                               static_cast<float>(z)});
+    return p::make_float_attachment("points", {10000, 3}, pts);
+  };
+  json up = c.call_ok({{"op", "map.update"}, {"origin", {0, 0, 0.8}}, {"mode", "replace"}},
+                      {patch(0.0, 0.05)});
+  EXPECT_EQ(up["source"], "cloud");
+  EXPECT_EQ(up["stats"]["clouds"], 1);
+  EXPECT_GT(up["stats"]["observed_cells"].get<int>(), 1000);
+  json r = c.call_ok({{"op", "map.query"}, {"points", {{0.5, 0.0}}}});
+  EXPECT_NEAR(r["results"][0]["height"].get<double>(), 0.05, 1e-3);
+  EXPECT_TRUE(r["results"][0]["observed"].get<bool>());
+  EXPECT_TRUE(r["results"][0]["safe"].get<bool>());
+  // "add" fuses a second patch beside the first: the map grows.
+  up = c.call_ok({{"op", "map.update"}, {"origin", {1.0, 0, 0.8}}, {"mode", "add"}},
+                 {patch(1.0, 0.05)});
+  EXPECT_EQ(up["stats"]["clouds"], 2);
+  r = c.call_ok({{"op", "map.query"}, {"points", {{1.5, 0.0}, {0.5, 0.0}}}});
+  EXPECT_NEAR(r["results"][0]["height"].get<double>(), 0.05, 1e-3);
+  EXPECT_TRUE(r["results"][0]["observed"].get<bool>());
+  // A radius without a precomputed layer is refused with the list of available ones.
+  m = c.call({{"op", "map.query"}, {"points", {{0.5, 0.0}}}, {"foot_radius", 0.07}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("foot_radii"), std::string::npos) << error_message(m);
+  m = c.call({{"op", "map.update"}, {"terrain_dir", "/nonexistent/terrain"}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("/nonexistent/terrain"), std::string::npos) << error_message(m);
 }
 
 TEST_F(ServerTest, PlanAndCheckAnswerHonestly) {

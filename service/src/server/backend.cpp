@@ -7,11 +7,14 @@
 #include <mutex>
 #include <thread>
 
+#include "terrastride/perception/filters.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/server.hpp"
 #include "terrastride/terrain/height_field.hpp"
+#include "terrastride/terrain/height_grid.hpp"
 #include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
 
 namespace terrastride::service {
 
@@ -36,6 +39,12 @@ struct MapSnapshot {
 };
 
 constexpr std::size_t kMaxQueryPoints = 10000;
+// Points kept for "add" updates (the map is rebuilt from every cloud since the last replace).
+constexpr std::size_t kMaxMapPoints = 20'000'000;
+
+double seconds_since(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
 
 }  // namespace
 
@@ -125,17 +134,36 @@ class Backend {
     const auto m = map();  // one snapshot for the whole batch
     if (!m)
       throw ProtocolError(pc::kNoMap, "no terrain map loaded: send map.update first");
+    // A scanned map answers only for the radii whose safety layers it holds: computing a new
+    // layer takes a distance transform over the whole grid, not a query's budget.
+    const auto* grid_map = dynamic_cast<const terrain::TerrainMap*>(m->field.get());
+    if (grid_map) {
+      const auto radii = grid_map->radii();
+      bool known = false;
+      std::string list;
+      for (double r : radii) {
+        known = known || std::abs(r - foot_radius) < 1e-9;
+        list += (list.empty() ? "" : ", ") + std::to_string(r);
+      }
+      if (!known)
+        throw ProtocolError(pc::kBadRequest,
+                            "\"foot_radius\" " + std::to_string(foot_radius) +
+                                " has no safety layer in this map (available: " + list +
+                                "); send map.update with \"foot_radii\" to add one");
+    }
     json results = json::array();
     for (std::size_t i = 0; i + 1 < xy.size(); i += 2) {
       const double x = xy[i], y = xy[i + 1];
       const auto s = m->field->sample(x, y);
       const auto mg = m->field->safety_margin(x, y, foot_radius);
       const bool observed = m->field->observed(x, y);
+      const bool safe =
+          grid_map ? grid_map->safe(x, y, foot_radius) : (observed && mg.margin > 0.0);
       results.push_back({{"x", x},
                          {"y", y},
                          {"height", s.height},
                          {"gradient", {s.gradient.x(), s.gradient.y()}},
-                         {"safe", observed && mg.margin > 0.0},
+                         {"safe", safe},
                          {"margin", mg.margin},
                          {"observed", observed}});
     }
@@ -171,23 +199,31 @@ class Backend {
       } catch (const perception::InputError& e) {
         throw ProtocolError(pc::kBadRequest, std::string("\"scene\": ") + e.what());
       }
+      clouds_.clear();
+      cloud_points_ = 0;
       next->source = "scene:" + name;
       next->stats = {{"kind", "analytic"}, {"edges", scene->edges().size()}};
       next->field = std::move(scene);
     } else if (has_dir) {
-      protocol::get_string(h, "terrain_dir", std::nullopt);
-      throw ProtocolError(pc::kUnavailable,
-                          "map.update from \"terrain_dir\": the terrain loader is not built into "
-                          "this server yet");
+      const std::string dir = protocol::get_string(h, "terrain_dir", std::nullopt);
+      const auto t0 = std::chrono::steady_clock::now();
+      std::unique_ptr<terrain::TerrainMap> tm;
+      try {
+        tm = terrain::load_terrain_dir(dir);
+      } catch (const perception::InputError& e) {
+        throw ProtocolError(pc::kBadRequest, std::string("\"terrain_dir\": ") + e.what());
+      }
+      for (double r : radii_from(h)) tm->layer(r);
+      clouds_.clear();
+      cloud_points_ = 0;
+      next->source = "terrain_dir:" + dir;
+      next->stats = grid_stats(*tm);
+      next->stats["load_s"] = seconds_since(t0);
+      next->field = std::move(tm);
     } else {
-      // Validate the cloud fully (shape, NaNs, origin) before anything else.
-      const auto pts = protocol::read_points(*points);
-      if (pts.empty()) throw ProtocolError(pc::kBadRequest, "attachment 'points' holds no points");
-      if (h.contains("origin")) protocol::get_vector(h, "origin", 3);
-      throw ProtocolError(pc::kUnavailable,
-                          "map.update from a point cloud (" + std::to_string(pts.size()) +
-                              " points): the terrain map builder is not built into this server "
-                              "yet");
+      next->stats = fuse_cloud(ctx, *points, mode);
+      next->source = "cloud";
+      next->field = std::move(pending_field_);
     }
     ctx.check_stop();
     const auto gen = publish(next);
@@ -197,8 +233,102 @@ class Backend {
     return r;
   }
 
-  // Inline and lock-free: an update still running publishes after the clear (last publish wins).
+  // Extra safety-layer radii to precompute ("foot_radii": [r, ...]); the robot's is always there.
+  std::vector<double> radii_from(const json& h) const {
+    std::vector<double> radii{robot_.foot_radius};
+    const auto it = h.find("foot_radii");
+    if (it == h.end()) return radii;
+    if (!it->is_array() || it->size() > 4)
+      throw ProtocolError(pc::kBadRequest, "\"foot_radii\" must be an array of at most 4 radii");
+    for (const json& r : *it) {
+      if (!r.is_number() || !std::isfinite(r.get<double>()) || r.get<double>() < 0 ||
+          r.get<double>() > 0.5)
+        throw ProtocolError(pc::kBadRequest, "\"foot_radii\" entries must be within [0, 0.5] m");
+      radii.push_back(r.get<double>());
+    }
+    return radii;
+  }
+
+  static json grid_stats(const terrain::TerrainMap& tm) {
+    const auto& g = tm.grid();
+    return {{"kind", "grid"},
+            {"resolution", g.geometry.resolution},
+            {"nx", g.geometry.nx},
+            {"ny", g.geometry.ny},
+            {"observed_cells", g.observed_cells},
+            {"filled_cells", g.filled_cells},
+            {"points_in_grid", g.points_in_grid},
+            {"foot_radii", tm.radii()}};
+  }
+
+  // Filters the cloud, adds it to (or replaces) the clouds of the current map, rebuilds the height
+  // grid and the safety layers; leaves the field in pending_field_. Caller holds update_mu_.
+  json fuse_cloud(OpContext& ctx, const protocol::Attachment& att, const std::string& mode) {
+    const json& h = ctx.request.header;
+    const auto t0 = std::chrono::steady_clock::now();
+    perception::PointCloud cloud;
+    cloud.points = protocol::read_points(att);  // rejects NaN / infinity, wrong shapes
+    if (cloud.points.empty())
+      throw ProtocolError(pc::kBadRequest, "attachment 'points' holds no points");
+    if (h.contains("origin") && !h["origin"].is_null())
+      cloud.sensor_origin = protocol::get_vector(h, "origin", 3);
+    cloud.source = "map.update";
+    const double resolution = protocol::get_number(h, "resolution", 0.02);
+    if (resolution < 0.002 || resolution > 1)
+      throw ProtocolError(pc::kBadRequest, "\"resolution\" must be within [0.002, 1] m");
+    const std::vector<double> radii = radii_from(h);
+    perception::CloudFilterOptions fo;
+    fo.voxel_size = static_cast<float>(protocol::get_number(h, "voxel", 0.0));
+    if (fo.voxel_size < 0 || fo.voxel_size > 1)
+      throw ProtocolError(pc::kBadRequest, "\"voxel\" must be within [0, 1] m (0 = off)");
+    const double outliers = protocol::get_number(h, "outlier_neighbours", 0.0);
+    if (outliers < 0 || outliers > 200 || outliers != std::floor(outliers))
+      throw ProtocolError(pc::kBadRequest, "\"outlier_neighbours\" must be an integer in [0, 200]");
+    fo.outlier_neighbours = static_cast<int>(outliers);
+    try {
+      cloud = perception::filter_cloud(cloud, fo);
+    } catch (const perception::InputError& e) {
+      throw ProtocolError(pc::kBadRequest, std::string("cloud filter: ") + e.what());
+    }
+    ctx.check_stop();
+    std::vector<perception::PointCloud> clouds;
+    std::size_t total = cloud.points.size();
+    if (mode == "add") {
+      clouds = clouds_;
+      total += cloud_points_;
+    }
+    if (total > kMaxMapPoints)
+      throw ProtocolError(pc::kBadRequest,
+                          "map would hold " + std::to_string(total) + " points, above the limit of " +
+                              std::to_string(kMaxMapPoints) + "; send mode \"replace\" or a voxel size");
+    clouds.push_back(std::move(cloud));
+    terrain::HeightGridOptions go;
+    go.resolution = resolution;
+    std::unique_ptr<terrain::TerrainMap> tm;
+    try {
+      terrain::HeightGrid grid = terrain::build_height_grid(clouds, go);
+      ctx.check_stop();
+      tm = std::make_unique<terrain::TerrainMap>(std::move(grid), radii);
+    } catch (const perception::InputError& e) {
+      throw ProtocolError(pc::kBadRequest, std::string("height grid: ") + e.what());
+    }
+    ctx.check_stop();
+    // Commit the new cloud set only now that the map was built.
+    clouds_ = std::move(clouds);
+    cloud_points_ = total;
+    json stats = grid_stats(*tm);
+    stats["clouds"] = clouds_.size();
+    stats["points"] = cloud_points_;
+    stats["build_s"] = seconds_since(t0);
+    pending_field_ = std::move(tm);
+    return stats;
+  }
+
+  // Serialised with updates (a worker op, so the I/O thread never waits for this lock).
   OpResult map_clear(OpContext&) {
+    std::lock_guard<std::mutex> lock(update_mu_);
+    clouds_.clear();
+    cloud_points_ = 0;
     const bool had = map() != nullptr;
     const auto gen = publish(nullptr);
     OpResult r;
@@ -239,6 +369,10 @@ class Backend {
   std::atomic<std::uint64_t> generation_{0};
   std::atomic<std::uint64_t> queries_{0}, points_queried_{0}, updates_{0};
   std::mutex update_mu_;
+  // Guarded by update_mu_: the clouds behind the current map ("add" rebuilds from all of them).
+  std::vector<perception::PointCloud> clouds_;
+  std::size_t cloud_points_ = 0;
+  std::shared_ptr<const terrain::HeightField> pending_field_;
 };
 
 std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRegistry& registry) {
@@ -250,7 +384,7 @@ std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRe
   registry.add({"map.update", OpKind::kWorker,
                 "replace or extend the terrain map (scene, terrain dir or point cloud)",
                 [p](OpContext& c) { return p->map_update(c); }});
-  registry.add({"map.clear", OpKind::kInline, "drop the terrain map",
+  registry.add({"map.clear", OpKind::kWorker, "drop the terrain map",
                 [p](OpContext& c) { return p->map_clear(c); }});
   registry.add({"plan", OpKind::kWorker, "plan a motion (as `terrastride plan`)",
                 [p](OpContext&) { return p->unavailable("plan", "planner (trajectory optimisation)"); }});
