@@ -260,7 +260,8 @@ json plan_json(const PlanInput& input, const TerrainView& terrain, const robot::
   if (!check_terrain.octree) {
     octree_note = "the terrain has no OctoMap";
   }
-  collision::CheckReport checks = collision::run_checks(model, traj, check_terrain);
+  const collision::CheckReport checks =
+      input.checks ? *input.checks : collision::run_checks(model, traj, check_terrain);
 
   // Footholds.
   json footholds = json::array();

@@ -15,6 +15,9 @@
 namespace octomap {
 class OcTree;
 }
+namespace terrastride::collision {
+struct CheckReport;
+}
 
 namespace terrastride::service::report {
 
@@ -53,8 +56,9 @@ struct PlanInput {
   std::string name;  // shown in the page (file name)
   std::string path;
   planner::Trajectory trajectory;
-  // Set by the caller when the plan's checks were just computed in-process (demo); otherwise the
-  // report runs the post-hoc checks itself when the collision module is available.
+  // The post-hoc checks (collision module) when the caller has just run them on this terrain
+  // (demo); null: the report runs them itself.
+  std::shared_ptr<const collision::CheckReport> checks;
 };
 
 struct ReportOptions {

@@ -1,0 +1,332 @@
+// `terrastride demo`: the whole pipeline on the shipped pallet scan, into out/demo/:
+//   scan (data/scans) -> map (`terrastride map`) -> plan (`terrastride plan`, every constraint set
+//   this build has) -> post-hoc checks (collision module) -> report (HTML + JSON).
+// Each stage runs the same code as its command; a stage whose module is not built in is named and
+// the demo stops with a non-zero exit rather than pretending.
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "report/report.hpp"
+#include "report/terrain_input.hpp"
+#include "terrastride/collision/checks.hpp"
+#include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/planner/nlp.hpp"
+#include "terrastride/planner/plan_io.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/service/cli.hpp"
+
+namespace terrastride::service {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+struct DemoOptions {
+  std::string out = "out/demo";
+  std::vector<std::string> scan;
+  std::string constraints;
+  double max_time = 20.0;
+  bool json_output = false;
+};
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+std::string fixed(double v, int precision) {
+  std::ostringstream os;
+  os.setf(std::ios::fixed);
+  os.precision(precision);
+  os << v;
+  return os.str();
+}
+
+// Progress lines: "[2/5] map     ... done in 0.41 s: <detail>" (overwritten in place on a terminal).
+class Progress {
+ public:
+  Progress(int stages, bool quiet) : stages_(stages), quiet_(quiet), tty_(isatty(STDOUT_FILENO)) {}
+  void start(const std::string& name, const std::string& what) {
+    ++stage_;
+    t0_ = Clock::now();
+    name_ = name;
+    if (quiet_) return;
+    line_ = "[" + std::to_string(stage_) + "/" + std::to_string(stages_) + "] " + name;
+    line_.resize(std::max<size_t>(line_.size(), 14), ' ');
+    line_ += what;
+    std::cout << line_ << (tty_ ? " ..." : "") << std::flush;
+  }
+  double done(const std::string& detail) {
+    const double s = seconds_since(t0_);
+    timings_[name_] = s;
+    if (!quiet_) {
+      if (tty_) std::cout << "\r" << line_;
+      std::cout << "  " << fixed(s, 2) << " s" << (detail.empty() ? "" : "  " + detail) << "\n"
+                << std::flush;
+    }
+    return s;
+  }
+  void fail() {
+    if (!quiet_) std::cout << (tty_ ? "\r" + line_ : std::string()) << "  FAILED\n" << std::flush;
+  }
+  const json& timings() const { return timings_; }
+
+ private:
+  int stages_;
+  bool quiet_;
+  bool tty_;
+  int stage_ = 0;
+  std::string name_, line_;
+  Clock::time_point t0_;
+  json timings_ = json::object();
+};
+
+// Runs a subcommand with its standard output captured (kept in the stage's log file).
+std::string run_captured(const std::string& name, const std::vector<std::string>& args) {
+  std::ostringstream captured;
+  std::streambuf* old = std::cout.rdbuf(captured.rdbuf());
+  try {
+    report::run_subcommand(name, args);
+  } catch (...) {
+    std::cout.rdbuf(old);
+    throw;
+  }
+  std::cout.rdbuf(old);
+  return captured.str();
+}
+
+std::string join(const std::vector<std::string>& v, const std::string& sep) {
+  std::string out;
+  for (const auto& s : v) out += (out.empty() ? "" : sep) + s;
+  return out;
+}
+
+// The shipped pallet scan: data/scans/pallet*.pcd, the 10 cm pallet first. The scan simulator
+// writes one file per sensor pose (NAME.pcd, NAME.1.pcd, ...): all of them form the scan.
+std::vector<std::string> find_pallet_scan() {
+  const fs::path dir = fs::path(robot::data_dir()) / "scans";
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) return {};
+  std::vector<fs::path> found;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    const std::string name = e.path().filename().string();
+    if (e.is_regular_file() && name.rfind("pallet", 0) == 0 && e.path().extension() == ".pcd")
+      found.push_back(e.path());
+  }
+  if (found.empty()) return {};
+  std::sort(found.begin(), found.end());
+  // The scan's name: the first file's name up to its first dot (pallet_10 before pallet_15).
+  std::string stem = found.front().filename().string();
+  for (const auto& p : found)
+    if (p.filename().string().rfind("pallet_10", 0) == 0) stem = p.filename().string();
+  stem = stem.substr(0, stem.find('.'));
+  std::vector<std::string> files;
+  for (const auto& p : found) {
+    const std::string name = p.filename().string();
+    if (name.substr(0, name.find('.')) == stem) files.push_back(p.string());
+  }
+  return files;
+}
+
+
+void run_demo(const DemoOptions& o) {
+  const auto t_all = Clock::now();
+  Progress progress(5, o.json_output);
+  json summary{{"stages", json::object()}};
+
+  // 1. scan
+  progress.start("scan", "shipped pallet scan");
+  const std::vector<std::string> scan = o.scan.empty() ? find_pallet_scan() : o.scan;
+  if (scan.empty()) {
+    progress.fail();
+    throw CommandError("stage 'scan' unavailable: no pallet scan (data/scans/pallet*.pcd) is shipped in " +
+                       (fs::path(robot::data_dir()) / "scans").string());
+  }
+  for (const auto& f : scan)
+    if (!fs::exists(f)) {
+      progress.fail();
+      throw CommandError("stage 'scan': --scan " + f + ": no such file");
+    }
+  progress.done(join(scan, " "));
+  summary["scan"] = scan;
+
+  // Everything goes into a temporary folder beside out/demo, renamed into place at the end.
+  fs::create_directories(fs::absolute(o.out).parent_path());
+  perception::AtomicOutputDir out_dir(o.out);
+  const fs::path work = out_dir.path();
+  const fs::path final_dir = o.out;
+
+  // 2. map
+  progress.start("map", "height grid, OctoMap, safety masks");
+  for (const char* stage : {"map", "plan"})
+    if (!report::has_subcommand(stage)) {
+      progress.fail();
+      throw CommandError(std::string("stage '") + stage + "' unavailable: `terrastride " + stage +
+                         "` is not built into this binary yet");
+    }
+  const fs::path terrain_dir = work / "terrain";
+  std::string log;
+  try {
+    std::vector<std::string> args = scan;
+    args.insert(args.end(), {"--out", terrain_dir.string(), "--json"});
+    log = run_captured("map", args);
+  } catch (...) {
+    progress.fail();
+    throw;
+  }
+  std::string map_detail;
+  try {
+    const json m = json::parse(log.substr(0, log.find('\n')));
+    summary["stages"]["map"] = m;
+    if (m.contains("points_kept"))
+      map_detail += std::to_string(m["points_kept"].get<long>()) + " points kept, ";
+    if (m.contains("cells")) map_detail += std::to_string(m["cells"].get<long>()) + " cells";
+  } catch (const std::exception&) {
+    summary["stages"]["map"] = log;
+  }
+  progress.done(map_detail);
+
+  // 3. plan, with every constraint set this build has.
+  const std::vector<std::string> available = planner::constraint_set_names();
+  std::string constraints = o.constraints;
+  if (constraints.empty())
+    constraints = std::find(available.begin(), available.end(), "all") != available.end()
+                      ? "all"
+                      : join(available, ",");
+  progress.start("plan", "crawl 1 m over the pallet, constraints: " + constraints);
+  const fs::path plan_path = work / "plan.json";
+  bool plan_optimal = true;
+  std::string plan_message;
+  try {
+    log = run_captured("plan", {"--terrain", terrain_dir.string(), "--constraints", constraints,
+                                "--max-time", fixed(o.max_time, 1), "--json", "--out",
+                                plan_path.string()});
+  } catch (const CommandError& e) {
+    // A non-optimal plan that nearly satisfies its constraints is still written: report it (the
+    // report shows the solver status in red) and exit non-zero at the end.
+    if (!fs::exists(plan_path)) {
+      progress.fail();
+      throw CommandError(std::string("stage 'plan' failed: ") + e.what(), e.exit_code());
+    }
+    plan_optimal = false;
+    plan_message = e.what();
+  }
+  planner::Trajectory traj;
+  try {
+    traj = planner::read_plan_file(plan_path.string());
+  } catch (const std::exception& e) {
+    progress.fail();
+    throw CommandError(std::string("stage 'plan': ") + e.what());
+  }
+  summary["stages"]["plan"] = {{"constraints", constraints},
+                               {"status", traj.solver.status},
+                               {"iterations", traj.solver.iterations},
+                               {"wall_s", traj.solver.wall_s}};
+  progress.done(traj.solver.status + ", " + std::to_string(traj.solver.iterations) +
+                " iterations, solver " + fixed(traj.solver.wall_s, 2) + " s");
+
+  // 4. post-hoc checks on the scan's own terrain: torques, FCL capsules vs the OctoMap, footholds.
+  progress.start("checks", "joint torques, shin capsules vs OctoMap, footholds");
+  robot::RobotModel model;
+  try {
+    model = robot::load_robot(robot::resolve_robot_path(traj.robot));
+  } catch (const std::exception& e) {
+    progress.fail();
+    throw CommandError(std::string("stage 'checks': ") + e.what());
+  }
+  report::TerrainInputOptions topts;
+  topts.foot_radius = model.foot_radius;
+  report::TerrainView view = report::load_terrain_view({terrain_dir.string()}, topts);
+  view.source = (final_dir / "terrain").string();
+  collision::CheckTerrain ct;
+  ct.field = view.field.get();
+  ct.octree = view.octree;
+  ct.description = view.source;
+  auto checks = std::make_shared<collision::CheckReport>();
+  try {
+    *checks = collision::run_checks(model, traj, ct);
+  } catch (const std::exception& e) {
+    progress.fail();
+    throw CommandError(std::string("stage 'checks': ") + e.what());
+  }
+  const auto keys = checks->keys();
+  summary["stages"]["checks"] = keys;
+  std::string check_detail;
+  if (keys.count("torque_ratio_max"))
+    check_detail += "torque ratio " + fixed(keys.at("torque_ratio_max"), 3);
+  if (keys.count("shin_min_distance_m"))
+    check_detail += ", shin min " + fixed(keys.at("shin_min_distance_m") * 1000, 1) + " mm";
+  if (keys.count("unsafe_footholds"))
+    check_detail += ", unsafe footholds " + fixed(keys.at("unsafe_footholds"), 0);
+  progress.done(check_detail);
+
+  // 5. report
+  progress.start("report", "self-contained HTML + JSON");
+  report::PlanInput input;
+  input.name = "plan.json";
+  input.path = (final_dir / "plan.json").string();
+  input.trajectory = traj;
+  input.checks = checks;
+  report::ReportOptions ropts;
+  ropts.title = "terrastride demo: " + fs::path(scan.front()).filename().string();
+  ropts.robot = traj.robot;
+  json rep = report::build_report(view, {input}, ropts);
+  rep["demo"] = {{"scan", scan}, {"constraints", constraints}, {"stage_s", progress.timings()}};
+  report::write_report(rep, (work / "report.html").string());
+  progress.done("");
+  out_dir.commit();
+
+  const fs::path html = final_dir / "report.html";
+  const double total = seconds_since(t_all);
+  summary["report"] = html.string();
+  summary["report_json"] = (final_dir / "report.json").string();
+  summary["problems"] = rep["problems"];
+  summary["safe_fraction"] = rep["terrain"]["safe_fraction"];
+  summary["total_s"] = total;
+  summary["stage_s"] = progress.timings();
+  if (o.json_output) {
+    std::cout << summary.dump() << "\n";
+  } else {
+    std::cout << "\nterrain: safe fraction " << fixed(rep["terrain"]["safe_fraction"].get<double>() * 100, 1)
+              << " % of observed cells for the " << fixed(model.foot_radius * 1000, 0)
+              << " mm foot\n";
+    std::cout << "plan:    " << traj.solver.status << ", " << traj.samples.size() << " samples over "
+              << fixed(traj.duration, 1) << " s\n";
+    if (rep["problems"].empty()) {
+      std::cout << "checks:  no problems found\n";
+    } else {
+      std::cout << "checks:  " << rep["problems"].size() << " problems:\n";
+      for (const json& p : rep["problems"]) std::cout << "  - " << p["text"].get<std::string>() << "\n";
+    }
+    std::cout << "total " << fixed(total, 1) << " s\nreport: " << html.string() << "\n";
+  }
+  if (!plan_optimal)
+    throw CommandError("the plan is not optimal (" + plan_message + "); the report shows it", 3);
+}
+
+}  // namespace
+
+void add_demo_command(CLI::App& app) {
+  auto o = std::make_shared<DemoOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "demo",
+      "The whole pipeline on the shipped pallet scan: map -> plan -> checks -> report, into "
+      "out/demo/");
+  cmd->add_option("--out", o->out, "Output folder")->capture_default_str();
+  cmd->add_option("--scan", o->scan,
+                  "Other cloud files instead of the shipped pallet scan (data/scans/pallet_10*.pcd)");
+  cmd->add_option("--constraints", o->constraints,
+                  "Planner constraint sets (default: all that this build has)");
+  cmd->add_option("--max-time", o->max_time, "Time limit of the solve (s)")->capture_default_str();
+  cmd->add_flag("--json", o->json_output, "Print the summary as one JSON object");
+  cmd->callback([o] { run_demo(*o); });
+}
+
+}  // namespace terrastride::service
