@@ -270,15 +270,20 @@ PolytopeQuality evaluate_polytope_quality(const LegPolytopeModel& model,
 }
 
 LegPolytopeModel paper_polytope_model(const robot::LegModel& leg,
-                                      const std::vector<Vector3d>& feet) {
+                                      const std::vector<Vector3d>& feet, bool with_roll) {
   if (feet.empty()) throw std::invalid_argument("leg " + leg.name + ": no sample foot positions");
   const robot::IkResult nominal = robot::inverse_kinematics(leg, leg.nominal_foot);
   if (nominal.status == robot::IkStatus::unreachable) throw std::runtime_error(nominal.message);
   LegPolytopeModel m;
   m.leg_name = leg.name;
-  m.use_roll = false;
-  m.hip = robot::hfe_position(leg, nominal.q);
-  m.hip_offset = 0.0;
+  m.use_roll = with_roll;
+  if (with_roll) {
+    m.hip = leg.haa_origin;
+    m.hip_offset = leg.l0;
+  } else {
+    m.hip = robot::hfe_position(leg, nominal.q);
+    m.hip_offset = 0.0;
+  }
   double l_min = HUGE_VAL, l_max = -HUGE_VAL;
   for (const Vector3d& p : feet) {
     const double l = m.coordinates(p).l;
@@ -292,18 +297,19 @@ LegPolytopeModel paper_polytope_model(const robot::LegModel& leg,
   m.alpha_knots = {c_nom.alpha};
   m.nodes.assign(3 * kNodeSize, 0.0);
   m.poles = choose_poles(c_nom, robot::exact_force_polytope(leg, nominal.q));
-  // The paper's three default configurations: the foot below the hip along the nominal x and y,
-  // at the three reference leg lengths.
-  const double dx = leg.nominal_foot.x() - m.hip.x();
+  // The paper's three default configurations: the foot along the nominal direction from the hip
+  // (nominal tilt, and roll), at the three reference leg lengths.
   for (int k : {1, 0, 2}) {
     const double l = m.l_knots[k];
-    Vector3d p(leg.nominal_foot.x(), leg.nominal_foot.y(),
-               m.hip.z() - std::sqrt(std::max(0.0, l * l - dx * dx)));
+    const double a = l * std::sin(c_nom.alpha), b = l * std::cos(c_nom.alpha) + m.hip_offset;
+    Vector3d p = with_roll ? Vector3d(m.hip + Vector3d(a, b * std::sin(c_nom.gamma),
+                                                       -b * std::cos(c_nom.gamma)))
+                           : Vector3d(m.hip.x() + a, leg.nominal_foot.y(), m.hip.z() - b);
     robot::IkResult ik = robot::inverse_kinematics(leg, p);
     if (ik.status == robot::IkStatus::unreachable) {
       // Out of reach along the nominal line: take the sample of closest leg length instead.
-      const auto best = std::min_element(feet.begin(), feet.end(), [&](const auto& a, const auto& b) {
-        return std::abs(m.coordinates(a).l - l) < std::abs(m.coordinates(b).l - l);
+      const auto best = std::min_element(feet.begin(), feet.end(), [&](const auto& x, const auto& y) {
+        return std::abs(m.coordinates(x).l - l) < std::abs(m.coordinates(y).l - l);
       });
       p = *best;
       ik = robot::inverse_kinematics(leg, p);

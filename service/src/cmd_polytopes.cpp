@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <iostream>
+#include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
 
@@ -48,7 +49,7 @@ json quality_json(const PolytopeQuality& q) {
 
 void print_quality_row(const std::string& leg, const std::string& variant,
                        const PolytopeQuality& q) {
-  std::printf("  %-4s %-9s rho_out median %.4f  p95 %.4f  max %.4f   rho_in median %.4f  min %.4f\n",
+  std::printf("  %-4s %-10s rho_out median %.4f  p95 %.4f  max %.4f   rho_in median %.4f  min %.4f\n",
               leg.c_str(), variant.c_str(), q.rho_out_median, q.rho_out_p95, q.rho_out_max,
               q.rho_in_median, q.rho_in_min);
 }
@@ -152,7 +153,7 @@ void run_validate(const PolytopeOptions& o) {
            {"held_out_samples_per_leg", o.samples},
            {"seed", o.seed},
            {"legs", json::array()}};
-  Pool ours_all, paper_all;
+  std::map<std::string, Pool> pools;
   if (!o.json)
     std::printf("force polytopes of %s on %d held-out foot positions per leg (seed %llu), %s\n",
                 model.name.c_str(), o.samples, static_cast<unsigned long long>(o.seed),
@@ -167,34 +168,34 @@ void run_validate(const PolytopeOptions& o) {
     } catch (const std::exception& e) {
       throw CommandError(e.what());
     }
-    const auto& ours = fitted.leg(leg.name);
-    const auto paper = planner::paper_polytope_model(leg, reference_feet);
-    Pool ours_leg, paper_leg;
-    for (const auto& p : feet) {
-      ours_leg.out.push_back(planner::polytope_rho_out(ours, leg, p));
-      ours_leg.in.push_back(planner::polytope_rho_in(ours, leg, p));
-      paper_leg.out.push_back(planner::polytope_rho_out(paper, leg, p));
-      paper_leg.in.push_back(planner::polytope_rho_in(paper, leg, p));
+    // Variants, from the paper's to ours; "paper_roll" is the ablation step in between.
+    const std::vector<std::pair<std::string, planner::LegPolytopeModel>> variants = {
+        {"ours", fitted.leg(leg.name)},
+        {"paper", planner::paper_polytope_model(leg, reference_feet, false)},
+        {"paper_roll", planner::paper_polytope_model(leg, reference_feet, true)}};
+    json row{{"leg", leg.name}};
+    for (const auto& [name, m] : variants) {
+      Pool pool;
+      for (const auto& p : feet) {
+        pool.out.push_back(planner::polytope_rho_out(m, leg, p));
+        pool.in.push_back(planner::polytope_rho_in(m, leg, p));
+      }
+      Pool& all = pools[name];
+      all.out.insert(all.out.end(), pool.out.begin(), pool.out.end());
+      all.in.insert(all.in.end(), pool.in.begin(), pool.in.end());
+      const PolytopeQuality q = pool.summary();
+      row[name] = quality_json(q);
+      if (!o.json) print_quality_row(leg.name, name, q);
     }
-    ours_all.out.insert(ours_all.out.end(), ours_leg.out.begin(), ours_leg.out.end());
-    ours_all.in.insert(ours_all.in.end(), ours_leg.in.begin(), ours_leg.in.end());
-    paper_all.out.insert(paper_all.out.end(), paper_leg.out.begin(), paper_leg.out.end());
-    paper_all.in.insert(paper_all.in.end(), paper_leg.in.begin(), paper_leg.in.end());
-    const PolytopeQuality qo = ours_leg.summary(), qp = paper_leg.summary();
-    out["legs"].push_back({{"leg", leg.name}, {"ours", quality_json(qo)}, {"paper", quality_json(qp)}});
-    if (!o.json) {
-      print_quality_row(leg.name, "ours", qo);
-      print_quality_row(leg.name, "paper", qp);
-    }
+    out["legs"].push_back(row);
   }
-  const PolytopeQuality qo = ours_all.summary(), qp = paper_all.summary();
-  out["all"] = {{"ours", quality_json(qo)}, {"paper", quality_json(qp)}};
-  if (o.json) {
-    std::cout << out.dump() << "\n";
-    return;
+  out["all"] = json::object();
+  for (const char* name : {"ours", "paper", "paper_roll"}) {
+    const PolytopeQuality q = pools[name].summary();
+    out["all"][name] = quality_json(q);
+    if (!o.json) print_quality_row("all", name, q);
   }
-  print_quality_row("all", "ours", qo);
-  print_quality_row("all", "paper", qp);
+  if (o.json) std::cout << out.dump() << "\n";
 }
 
 }  // namespace

@@ -149,6 +149,12 @@ TEST(PolytopeModel, PaperVariantIsExactAtItsNominalReference) {
     // Away from it the sagittal-only model errs (the reason for the roll).
     const auto q = evaluate_polytope_quality(paper, leg, feet);
     EXPECT_GT(q.rho_out_max, 1.2) << leg.name;
+    // The ablation step with the roll about the HAA axis is exact at the nominal foot too, and
+    // far better than the sagittal-only model elsewhere.
+    const LegPolytopeModel rolled = paper_polytope_model(leg, feet, true);
+    EXPECT_TRUE(rolled.use_roll);
+    EXPECT_NEAR(polytope_rho_out(rolled, leg, leg.nominal_foot), 1.0, 1e-9) << leg.name;
+    EXPECT_LT(evaluate_polytope_quality(rolled, leg, feet).rho_out_median, q.rho_out_median);
   }
 }
 

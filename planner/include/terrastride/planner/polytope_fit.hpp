@@ -70,11 +70,14 @@ struct LegFitReport {
   double wall_s = 0;
 };
 
-// The paper's sagittal-only variant: hip fixed at the nominal HFE joint, no roll, three exact
-// reference polytopes (most retracted, nominal, most extended sample along the nominal x, y),
-// nothing fitted.
+// The paper's model with three exact reference polytopes (most retracted, nominal and most
+// extended leg length of `feet`, along the nominal foot's direction), nothing fitted.
+// with_roll = false: the paper's sagittal-only variant, hip fixed at the nominal HFE joint.
+// with_roll = true: an ablation step towards ours: roll about the HAA axis and l, alpha measured
+// from the (rolled) HFE joint, taken from the robot's joint geometry.
 LegPolytopeModel paper_polytope_model(const robot::LegModel& leg,
-                                      const std::vector<Eigen::Vector3d>& feet);
+                                      const std::vector<Eigen::Vector3d>& feet,
+                                      bool with_roll = false);
 
 // Our variant, fitted by least squares on the exact polytopes at `feet` (see polytope_fit.cpp).
 LegPolytopeModel fit_leg_polytope(const robot::LegModel& leg,
