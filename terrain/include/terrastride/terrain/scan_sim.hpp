@@ -18,9 +18,9 @@ struct DepthSensorOptions {
   double pitch_deg = 40.0;  // optical axis pitched down from the horizontal
   double hfov_deg = 87.0;   // a RealSense D435-like field of view
   double vfov_deg = 58.0;
-  int columns = 128;  // depth image size (downsampled: keeps shipped scans small)
-  int rows = 96;
-  double max_range = 4.0;  // m; farther returns are dropped
+  int columns = 200;  // depth image size (downsampled: keeps shipped scans small)
+  int rows = 150;
+  double max_range = 3.0;  // m; farther returns are dropped
   // Range noise along the ray: sigma = noise_a + noise_b * range^2 (stereo depth error grows
   // with the square of the range).
   double noise_a = 0.001;

@@ -1,0 +1,287 @@
+// `terrastride map`: clouds -> cleaned clouds -> OctoMap + height grid -> smoothed field and
+// foothold-safety layers, written atomically as DIR/terrain.json, DIR/octomap.bt, DIR/layers/*.npy.
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/cloud_io.hpp"
+#include "terrastride/perception/filters.hpp"
+#include "terrastride/perception/octomap_fusion.hpp"
+#include "terrastride/service/cli.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
+
+namespace terrastride::service {
+namespace {
+
+using nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+struct MapOptions {
+  std::vector<std::string> clouds;
+  std::string origin;
+  double resolution = 0.02;
+  std::vector<double> foot_radii{0.02, 0.05, 0.10};
+  // OctoMap voxels: ray casting cost grows with range / voxel size, and the shin collision checks
+  // need centimetres, not millimetres; 5 cm keeps a whole map of a large scan near a second.
+  double octomap_resolution = 0.05;
+  double voxel = 0.0;
+  int outlier_k = 8;
+  double outlier_stddev = 2.0;
+  double max_step = terrain::SafetyOptions{}.max_step;
+  double max_slope = terrain::SafetyOptions{}.max_slope;
+  std::string out;
+  bool json = false;
+};
+
+// Stage progress on stderr, only for a terminal and only for inputs large enough to wait for.
+class Progress {
+ public:
+  explicit Progress(bool enabled) : enabled_(enabled) {}
+  void stage(const std::string& what) {
+    if (!enabled_) return;
+    std::cerr << "\r\033[K[map] " << what << std::flush;
+  }
+  void done() {
+    if (enabled_) std::cerr << "\r\033[K" << std::flush;
+  }
+
+ private:
+  bool enabled_;
+};
+
+double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+std::string fmt(double v, int precision = 3) {
+  std::ostringstream os;
+  os << std::fixed << std::setprecision(precision) << v;
+  return os.str();
+}
+
+void run_map(const MapOptions& o) {
+  // Validate every option before reading anything.
+  if (o.clouds.empty()) throw CommandError("no input clouds given");
+  if (!std::isfinite(o.resolution) || o.resolution < 0.002 || o.resolution > 1.0)
+    throw CommandError("--resolution: " + std::to_string(o.resolution) +
+                       " m is outside the accepted range [0.002, 1] m");
+  const double octo_res = o.octomap_resolution;
+  if (!std::isfinite(octo_res) || octo_res < 0.005 || octo_res > 1.0)
+    throw CommandError("--octomap-resolution: must be in [0.005, 1] m");
+  if (o.foot_radii.empty()) throw CommandError("--foot-radius: at least one radius is needed");
+  for (double r : o.foot_radii)
+    if (!std::isfinite(r) || r < 0 || r > 0.5)
+      throw CommandError("--foot-radius: " + std::to_string(r) + " m is outside [0, 0.5] m");
+  if (!(o.voxel >= 0) || !std::isfinite(o.voxel))
+    throw CommandError("--voxel: must be >= 0 (0 = off)");
+  if (o.outlier_k < 0) throw CommandError("--outlier-k: must be >= 0 (0 = off)");
+  if (!(o.max_step > 0) || !(o.max_slope > 0))
+    throw CommandError("--max-step/--max-slope: must be positive");
+  std::optional<Eigen::Vector3d> origin;
+  if (!o.origin.empty()) origin = Eigen::Vector3d(parse_numbers(o.origin, 3, "--origin"));
+  if (o.out.empty()) throw CommandError("--out: an output directory is required");
+  {
+    const std::filesystem::path parent =
+        std::filesystem::absolute(std::filesystem::path(o.out)).parent_path();
+    if (!std::filesystem::is_directory(parent))
+      throw CommandError("--out: parent directory '" + parent.string() + "' does not exist");
+  }
+
+  const auto t_start = Clock::now();
+  json timings;
+  size_t file_bytes = 0;
+  for (const auto& c : o.clouds) {
+    std::error_code ec;
+    const auto s = std::filesystem::file_size(c, ec);
+    if (!ec) file_bytes += s;
+  }
+  Progress progress(isatty(STDERR_FILENO) && file_bytes > 8u * 1024 * 1024);
+
+  // Read.
+  auto t = Clock::now();
+  std::vector<perception::PointCloud> clouds;
+  json inputs = json::array();
+  size_t points_in = 0, non_finite = 0;
+  for (size_t k = 0; k < o.clouds.size(); ++k) {
+    progress.stage("reading " + o.clouds[k] + " (" + std::to_string(k + 1) + "/" +
+                   std::to_string(o.clouds.size()) + ")");
+    perception::ReadStats rs;
+    perception::PointCloud c;
+    try {
+      c = perception::read_cloud(o.clouds[k], origin, &rs);
+    } catch (const perception::InputError& e) {
+      throw CommandError(e.what());
+    }
+    points_in += rs.points_in_file;
+    non_finite += rs.non_finite;
+    json in{{"path", o.clouds[k]}, {"points", rs.points_in_file}, {"non_finite", rs.non_finite}};
+    if (c.sensor_origin)
+      in["origin"] = {c.sensor_origin->x(), c.sensor_origin->y(), c.sensor_origin->z()};
+    inputs.push_back(in);
+    clouds.push_back(std::move(c));
+  }
+  timings["read_s"] = seconds_since(t);
+
+  // Clean.
+  t = Clock::now();
+  perception::CloudFilterOptions fo;
+  fo.voxel_size = static_cast<float>(o.voxel);
+  fo.outlier_neighbours = o.outlier_k;
+  fo.outlier_stddev = o.outlier_stddev;
+  size_t kept = 0;
+  for (size_t k = 0; k < clouds.size(); ++k) {
+    progress.stage("cleaning " + clouds[k].source);
+    try {
+      clouds[k] = perception::filter_cloud(clouds[k], fo);
+    } catch (const perception::InputError& e) {
+      throw CommandError(e.what());
+    }
+    kept += clouds[k].points.size();
+    inputs[k]["kept"] = clouds[k].points.size();
+  }
+  timings["filter_s"] = seconds_since(t);
+  if (kept == 0) throw CommandError("no points left after cleaning the input clouds");
+
+  // Height grid, smoothed field, safety layers.
+  t = Clock::now();
+  progress.stage("height grid");
+  terrain::HeightGridOptions go;
+  go.resolution = o.resolution;
+  std::unique_ptr<terrain::TerrainMap> map;
+  try {
+    terrain::HeightGrid grid = terrain::build_height_grid(clouds, go);
+    timings["grid_s"] = seconds_since(t);
+    t = Clock::now();
+    progress.stage("foothold safety");
+    terrain::SafetyOptions so;
+    so.max_step = o.max_step;
+    so.max_slope = o.max_slope;
+    map = std::make_unique<terrain::TerrainMap>(std::move(grid), o.foot_radii, so);
+  } catch (const perception::InputError& e) {
+    throw CommandError("--resolution/--foot-radius: " + std::string(e.what()));
+  }
+  timings["safety_s"] = seconds_since(t);
+
+  // OctoMap: ray casting is the expensive part, so rays go to one point per OctoMap voxel (a
+  // voxel-grid filtered copy): the same occupied voxels and nearly the same carved free space.
+  t = Clock::now();
+  progress.stage("OctoMap");
+  std::unique_ptr<octomap::OcTree> tree;
+  try {
+    perception::CloudFilterOptions vo;
+    vo.voxel_size = static_cast<float>(octo_res);
+    std::vector<perception::PointCloud> sparse;
+    for (const auto& c : clouds) sparse.push_back(perception::filter_cloud(c, vo));
+    perception::OctoMapOptions oo;
+    oo.resolution = octo_res;
+    tree = perception::build_octomap(sparse, oo);
+  } catch (const perception::InputError& e) {
+    throw CommandError(e.what());
+  }
+  timings["octomap_s"] = seconds_since(t);
+
+  // Write everything into a temporary directory, then rename it into place.
+  t = Clock::now();
+  progress.stage("writing " + o.out);
+  json meta;
+  json summary;
+  try {
+    perception::AtomicOutputDir out(o.out);
+    meta = terrain::write_terrain_layers(*map, out.path());
+    perception::write_octomap(*tree, out.path() + "/octomap.bt");
+    const auto& g = map->grid();
+    meta["octomap"] = {
+        {"file", "octomap.bt"}, {"resolution", octo_res}, {"leaf_nodes", tree->getNumLeafNodes()}};
+    meta["inputs"] = inputs;
+    meta["statistics"]["points_in"] = points_in;
+    meta["statistics"]["non_finite"] = non_finite;
+    meta["statistics"]["points_kept"] = kept;
+    meta["statistics"]["noise_sigma"] = g.noise_sigma;
+    timings["write_s"] = seconds_since(t);
+    timings["total_s"] = seconds_since(t_start);
+    meta["timings"] = timings;
+    perception::write_file_atomically(out.path() + "/terrain.json", meta.dump(2) + "\n");
+    out.commit();
+  } catch (const perception::InputError& e) {
+    throw CommandError("--out: " + std::string(e.what()));
+  }
+  progress.done();
+
+  const auto& g = map->grid();
+  json safe = json::array();
+  for (const auto& r : meta["safety"]["radii"])
+    safe.push_back({{"radius", r["radius"]}, {"safe_fraction", r["safe_fraction"]}});
+  summary = {{"out", o.out},
+             {"points_in", points_in},
+             {"points_kept", kept},
+             {"cells", g.geometry.size()},
+             {"grid", {g.geometry.nx, g.geometry.ny}},
+             {"resolution", g.geometry.resolution},
+             {"observed_cells", g.observed_cells},
+             {"noise_sigma", g.noise_sigma},
+             {"safe", safe},
+             {"timings", timings}};
+  if (o.json) {
+    std::cout << summary.dump() << "\n";
+    return;
+  }
+  std::cout << "terrain map written to " << o.out << "\n"
+            << "  points: " << points_in << " in, " << non_finite << " non-finite, " << kept
+            << " kept after cleaning\n"
+            << "  grid: " << g.geometry.nx << " x " << g.geometry.ny << " cells of "
+            << g.geometry.resolution << " m, " << g.observed_cells << " observed, "
+            << g.filled_cells << " filled, sensor noise " << fmt(g.noise_sigma * 1000, 1)
+            << " mm\n";
+  for (const auto& s : safe)
+    std::cout << "  safe for foot radius " << s["radius"].get<double>()
+              << " m: " << fmt(100.0 * s["safe_fraction"].get<double>(), 1) << " % of cells\n";
+  std::cout << "  time: read " << fmt(timings["read_s"]) << " s, clean " << fmt(timings["filter_s"])
+            << " s, grid " << fmt(timings["grid_s"]) << " s, safety " << fmt(timings["safety_s"])
+            << " s, OctoMap " << fmt(timings["octomap_s"]) << " s, write "
+            << fmt(timings["write_s"]) << " s, total " << fmt(timings["total_s"]) << " s\n";
+}
+
+}  // namespace
+
+void add_map_command(CLI::App& app) {
+  auto o = std::make_shared<MapOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "map",
+      "Build a terrain map from point clouds (PCD, PLY, XYZ, NPY): OctoMap, height grid, smoothed "
+      "field and foothold-safety layers in DIR");
+  cmd->add_option("clouds", o->clouds, "Input clouds")->required();
+  cmd->add_option("--origin", o->origin,
+                  "Sensor origin X,Y,Z for all clouds (overrides a PCD VIEWPOINT)");
+  cmd->add_option("--resolution", o->resolution, "Height grid cell size (m)")
+      ->capture_default_str();
+  cmd->add_option("--foot-radius", o->foot_radii,
+                  "Foot radius for the safety layers (m); repeat or comma-separate for several")
+      ->delimiter(',')
+      ->capture_default_str();
+  cmd->add_option("--octomap-resolution", o->octomap_resolution, "OctoMap voxel size (m)")
+      ->capture_default_str();
+  cmd->add_option("--voxel", o->voxel, "Voxel-grid downsampling of the input (m); 0 = off")
+      ->capture_default_str();
+  cmd->add_option("--outlier-k", o->outlier_k, "Statistical outlier removal neighbours (0 = off)")
+      ->capture_default_str();
+  cmd->add_option("--outlier-stddev", o->outlier_stddev, "Statistical outlier removal threshold")
+      ->capture_default_str();
+  cmd->add_option("--max-step", o->max_step, "Largest raw step in a safe foot disk (m)")
+      ->capture_default_str();
+  cmd->add_option("--max-slope", o->max_slope, "Largest slope (tan) of a safe foothold")
+      ->capture_default_str();
+  cmd->add_option("--out", o->out, "Output directory")->required();
+  cmd->add_flag("--json", o->json, "Print the summary as one JSON object");
+  cmd->callback([o] { run_map(*o); });
+}
+
+}  // namespace terrastride::service

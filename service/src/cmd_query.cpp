@@ -1,0 +1,74 @@
+// `terrastride query DIR --at X,Y [...]`: height, gradient and foothold safety at points of a map.
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/service/cli.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
+
+namespace terrastride::service {
+namespace {
+
+struct QueryOptions {
+  std::string dir;
+  std::vector<std::string> at;
+  double foot_radius = -1;  // < 0: the first radius of the map
+};
+
+void run_query(const QueryOptions& o) {
+  std::unique_ptr<terrain::TerrainMap> map;
+  try {
+    map = terrain::load_terrain_dir(o.dir);
+  } catch (const perception::InputError& e) {
+    throw CommandError(e.what());
+  }
+  const auto radii = map->radii();
+  const double r = o.foot_radius >= 0 ? o.foot_radius : (radii.empty() ? 0.02 : radii.front());
+  if (!std::isfinite(r) || r > 0.5) throw CommandError("--foot-radius: must be in [0, 0.5] m");
+  // Check every point before printing anything: no partial output on a bad query.
+  std::vector<Eigen::Vector2d> points;
+  const Eigen::Vector2d lo = map->min_corner(), hi = map->max_corner();
+  for (const auto& text : o.at) {
+    const Eigen::Vector2d p = parse_numbers(text, 2, "--at");
+    if (p.x() < lo.x() || p.x() > hi.x() || p.y() < lo.y() || p.y() > hi.y()) {
+      std::ostringstream os;
+      os << "--at " << text << ": point is outside the map (x in [" << lo.x() << ", " << hi.x()
+         << "], y in [" << lo.y() << ", " << hi.y() << "])";
+      throw CommandError(os.str());
+    }
+    points.push_back(p);
+  }
+  std::ostringstream out;
+  for (const auto& p : points) {
+    const auto s = map->sample(p.x(), p.y());
+    const auto m = map->safety_margin(p.x(), p.y(), r);
+    out << nlohmann::json{{"x", p.x()},
+                          {"y", p.y()},
+                          {"height", s.height},
+                          {"gradient", {s.gradient.x(), s.gradient.y()}},
+                          {"safe", map->safe(p.x(), p.y(), r)},
+                          {"margin", m.margin},
+                          {"observed", map->observed(p.x(), p.y())},
+                          {"foot_radius", r}}
+               .dump()
+        << "\n";
+  }
+  std::cout << out.str();
+}
+
+}  // namespace
+
+void add_query_command(CLI::App& app) {
+  auto o = std::make_shared<QueryOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "query", "Query a terrain map: one JSON object per point with height, gradient and safety");
+  cmd->add_option("dir", o->dir, "Terrain directory written by `terrastride map`")->required();
+  cmd->add_option("--at", o->at, "Query point X,Y (repeat for several)")->required();
+  cmd->add_option("--foot-radius", o->foot_radius,
+                  "Foot radius for safe/margin (m); default: the map's first radius");
+  cmd->callback([o] { run_query(*o); });
+}
+
+}  // namespace terrastride::service

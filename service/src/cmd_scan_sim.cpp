@@ -1,0 +1,136 @@
+// `terrastride scan-sim`: a simulated recorded scan of a DESIGN.md scene.
+//
+// The depth sensor rides on the robot as it approaches the start, so one scan is written per sensor
+// pose, each a PCD whose VIEWPOINT is that pose's sensor origin (so `map` carves free space from
+// the right place): --out FILE.pcd holds the first pose, FILE.1.pcd, FILE.2.pcd ... the others.
+// Map them together with `terrastride map FILE*.pcd`.
+#include <filesystem>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <random>
+
+#include "terrastride/perception/cloud_io.hpp"
+#include "terrastride/service/cli.hpp"
+#include "terrastride/terrain/scan_sim.hpp"
+#include "terrastride/terrain/scenes.hpp"
+
+namespace terrastride::service {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+struct ScanSimOptions {
+  std::string scene;
+  double height = 0.8;
+  double pitch = 40.0;
+  int poses = 3;
+  unsigned seed = 1;
+  std::string out;
+  bool json = false;
+};
+
+std::string lower(std::string s) {
+  for (auto& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return s;
+}
+
+void run_scan_sim(const ScanSimOptions& o) {
+  std::unique_ptr<terrain::Scene> scene;
+  try {
+    scene = terrain::make_scene(o.scene);
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--scene: ") + e.what());
+  }
+  const fs::path out(o.out);
+  if (lower(out.extension().string()) != ".pcd")
+    throw CommandError("--out: '" + o.out + "' must name a .pcd file");
+  const fs::path dir = out.has_parent_path() ? out.parent_path() : fs::path(".");
+  if (!fs::is_directory(dir))
+    throw CommandError("--out: directory '" + dir.string() + "' does not exist");
+  if (o.poses < 1 || o.poses > 8) throw CommandError("--poses: must be between 1 and 8");
+
+  terrain::DepthSensorOptions so;
+  so.height = o.height;
+  so.pitch_deg = o.pitch;
+  so.seed = o.seed;
+  // Sensor positions along the approach, from 1 m behind the start to just behind it.
+  so.sensor_x.clear();
+  for (int k = 0; k < o.poses; ++k)
+    so.sensor_x.push_back(o.poses == 1 ? -0.6 : -1.0 + 0.8 * k / (o.poses - 1));
+  std::vector<terrain::SimulatedScan> scans;
+  try {
+    scans = terrain::simulate_scans(*scene, so);
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--height/--pitch: ") + e.what());
+  }
+
+  // Write every pose to a temporary name first, then rename them all: nothing half-written.
+  std::vector<fs::path> finals, temps;
+  const std::string tag = std::to_string(std::random_device{}());
+  for (size_t k = 0; k < scans.size(); ++k) {
+    fs::path f = out;
+    if (k > 0) f.replace_extension("." + std::to_string(k) + ".pcd");
+    finals.push_back(f);
+    temps.push_back(dir / (".scan-sim-" + tag + "-" + std::to_string(k) + ".pcd"));
+  }
+  auto cleanup = [&] {
+    std::error_code ec;
+    for (const auto& t : temps) fs::remove(t, ec);
+  };
+  try {
+    for (size_t k = 0; k < scans.size(); ++k)
+      perception::write_pcd(scans[k].cloud, temps[k].string());
+    for (size_t k = 0; k < scans.size(); ++k) fs::rename(temps[k], finals[k]);
+  } catch (const std::exception& e) {
+    cleanup();
+    throw CommandError("--out: cannot write '" + o.out + "': " + e.what());
+  }
+
+  json files = json::array();
+  for (size_t k = 0; k < scans.size(); ++k) {
+    const auto& c = scans[k].cloud;
+    files.push_back({{"path", finals[k].string()},
+                     {"points", c.points.size()},
+                     {"origin", {c.sensor_origin->x(), c.sensor_origin->y(), c.sensor_origin->z()}},
+                     {"pixels", scans[k].pixels},
+                     {"dropped", scans[k].dropped},
+                     {"mixed_pixels", scans[k].mixed}});
+  }
+  if (o.json) {
+    std::cout << json{{"scene", scene->name()}, {"seed", o.seed}, {"files", files}}.dump() << "\n";
+    return;
+  }
+  std::cout << scene->describe() << "\n";
+  for (const auto& f : files)
+    std::cout << "wrote " << f["path"].get<std::string>() << ": " << f["points"] << " points from ("
+              << f["origin"][0] << ", " << f["origin"][1] << ", " << f["origin"][2] << "), "
+              << f["dropped"] << " dropped, " << f["mixed_pixels"] << " mixed pixels\n";
+}
+
+}  // namespace
+
+void add_scan_sim_command(CLI::App& app) {
+  auto o = std::make_shared<ScanSimOptions>();
+  std::string names;
+  for (const auto& n : terrain::scene_names()) names += (names.empty() ? "" : ", ") + n;
+  CLI::App* cmd = app.add_subcommand(
+      "scan-sim",
+      "Simulate a recorded scan of a scene: a robot-mounted depth camera (noise, dropouts, mixed "
+      "pixels) at a few poses; FILE.pcd holds the first pose, FILE.1.pcd ... the others, each "
+      "with its sensor origin as VIEWPOINT");
+  cmd->add_option("--scene", o->scene, "Scene: " + names)->required();
+  cmd->add_option("--height", o->height, "Sensor height above the ground (m)")
+      ->capture_default_str();
+  cmd->add_option("--pitch", o->pitch, "Sensor pitch down from horizontal (degrees)")
+      ->capture_default_str();
+  cmd->add_option("--poses", o->poses, "Number of sensor poses along the approach (1-8)")
+      ->capture_default_str();
+  cmd->add_option("--seed", o->seed, "Random seed (same seed, same scan)")->capture_default_str();
+  cmd->add_option("--out", o->out, "Output PCD file")->required();
+  cmd->add_flag("--json", o->json, "Print the summary as one JSON object");
+  cmd->callback([o] { run_scan_sim(*o); });
+}
+
+}  // namespace terrastride::service
