@@ -31,8 +31,8 @@ using Eigen::Vector3d;
 
 std::vector<Vector3d> sample_leg_workspace(const robot::LegModel& leg, int count, uint64_t seed,
                                            double box_scale) {
-  if (count < 1) throw std::invalid_argument("sample count must be positive, got " +
-                                             std::to_string(count));
+  if (count < 1)
+    throw std::invalid_argument("sample count must be positive, got " + std::to_string(count));
   if (!(box_scale > 0)) throw std::invalid_argument("box scale must be positive");
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> unit(-1.0, 1.0);
@@ -107,8 +107,8 @@ void set_node_from_exact(LegPolytopeModel* model, int i, int m, const LegCoordin
                          const robot::ForcePolytope& exact, const double* theta_near) {
   double* node = model->node(i, m);
   for (int j = 0; j < kPolytopeFacets; ++j) {
-    angles_of(model->poles[j], to_local(c, exact.normals[j]),
-              theta_near ? theta_near[3 * j] : 0.0, &node[3 * j], &node[3 * j + 1]);
+    angles_of(model->poles[j], to_local(c, exact.normals[j]), theta_near ? theta_near[3 * j] : 0.0,
+              &node[3 * j], &node[3 * j + 1]);
     node[3 * j + 2] = exact.offsets[j];
   }
 }
@@ -176,8 +176,7 @@ struct Residual2 : SampleResidual<2> {
 };
 struct Residual4 : SampleResidual<4> {
   template <typename T>
-  bool operator()(const T* hip, const T* c0, const T* c1, const T* c2, const T* c3,
-                  T* r) const {
+  bool operator()(const T* hip, const T* c0, const T* c1, const T* c2, const T* c3, T* r) const {
     const T* c[4] = {c0, c1, c2, c3};
     return evaluate(hip, c, r);
   }
@@ -213,10 +212,9 @@ void add_smoothness(ceres::Problem* problem, const std::vector<double>& knots, d
     // (V+ - V)/h1 - (V - V-)/h0, times the mean spacing.
     auto* f = new SmoothnessResidual{mean_h / h0, -mean_h / h0 - mean_h / h1, mean_h / h1,
                                      inv_scale, weight};
-    problem->AddResidualBlock(
-        new ceres::AutoDiffCostFunction<SmoothnessResidual, kNodeSize, kNodeSize, kNodeSize,
-                                        kNodeSize>(f),
-        nullptr, node(i - 1), node(i), node(i + 1));
+    problem->AddResidualBlock(new ceres::AutoDiffCostFunction<SmoothnessResidual, kNodeSize,
+                                                              kNodeSize, kNodeSize, kNodeSize>(f),
+                              nullptr, node(i - 1), node(i), node(i + 1));
   }
 }
 constexpr int kResiduals = 3 * kPolytopeVertices;
@@ -248,8 +246,7 @@ double polytope_rho_in(const LegPolytopeModel& model, const robot::LegModel& leg
   return worst > 0 ? 1.0 / worst : 0.0;
 }
 
-PolytopeQuality evaluate_polytope_quality(const LegPolytopeModel& model,
-                                          const robot::LegModel& leg,
+PolytopeQuality evaluate_polytope_quality(const LegPolytopeModel& model, const robot::LegModel& leg,
                                           const std::vector<Vector3d>& feet) {
   PolytopeQuality q;
   q.samples = static_cast<int>(feet.size());
@@ -269,8 +266,8 @@ PolytopeQuality evaluate_polytope_quality(const LegPolytopeModel& model,
   return q;
 }
 
-LegPolytopeModel paper_polytope_model(const robot::LegModel& leg,
-                                      const std::vector<Vector3d>& feet, bool with_roll) {
+LegPolytopeModel paper_polytope_model(const robot::LegModel& leg, const std::vector<Vector3d>& feet,
+                                      bool with_roll) {
   if (feet.empty()) throw std::invalid_argument("leg " + leg.name + ": no sample foot positions");
   const robot::IkResult nominal = robot::inverse_kinematics(leg, leg.nominal_foot);
   if (nominal.status == robot::IkStatus::unreachable) throw std::runtime_error(nominal.message);
@@ -302,15 +299,17 @@ LegPolytopeModel paper_polytope_model(const robot::LegModel& leg,
   for (int k : {1, 0, 2}) {
     const double l = m.l_knots[k];
     const double a = l * std::sin(c_nom.alpha), b = l * std::cos(c_nom.alpha) + m.hip_offset;
-    Vector3d p = with_roll ? Vector3d(m.hip + Vector3d(a, b * std::sin(c_nom.gamma),
-                                                       -b * std::cos(c_nom.gamma)))
-                           : Vector3d(m.hip.x() + a, leg.nominal_foot.y(), m.hip.z() - b);
+    Vector3d p =
+        with_roll
+            ? Vector3d(m.hip + Vector3d(a, b * std::sin(c_nom.gamma), -b * std::cos(c_nom.gamma)))
+            : Vector3d(m.hip.x() + a, leg.nominal_foot.y(), m.hip.z() - b);
     robot::IkResult ik = robot::inverse_kinematics(leg, p);
     if (ik.status == robot::IkStatus::unreachable) {
       // Out of reach along the nominal line: take the sample of closest leg length instead.
-      const auto best = std::min_element(feet.begin(), feet.end(), [&](const auto& x, const auto& y) {
-        return std::abs(m.coordinates(x).l - l) < std::abs(m.coordinates(y).l - l);
-      });
+      const auto best =
+          std::min_element(feet.begin(), feet.end(), [&](const auto& x, const auto& y) {
+            return std::abs(m.coordinates(x).l - l) < std::abs(m.coordinates(y).l - l);
+          });
       p = *best;
       ik = robot::inverse_kinematics(leg, p);
     }
@@ -372,8 +371,8 @@ LegPolytopeModel fit_leg_polytope(const robot::LegModel& leg, const std::vector<
     size_t best = 0;
     double best_d = HUGE_VAL;
     for (size_t s = 0; s < coords.size(); ++s) {
-      const double d = std::pow((coords[s].l - l) / l_span, 2) +
-                       std::pow((coords[s].alpha - a) / a_span, 2);
+      const double d =
+          std::pow((coords[s].l - l) / l_span, 2) + std::pow((coords[s].alpha - a) / a_span, 2);
       if (d < best_d) best_d = d, best = s;
     }
     return best;
@@ -420,8 +419,8 @@ LegPolytopeModel fit_leg_polytope(const robot::LegModel& leg, const std::vector<
             nullptr, hip, m.node(cl, 0), m.node(cl + 1, 0));
       } else {
         auto* f = new Residual4;
-        *static_cast<SampleResidual<4>*>(f) = {&m, feet[s], scaled_jt, cl, ca,
-                                               opt.overshoot_weight};
+        *static_cast<SampleResidual<4>*>(f) = {&m, feet[s], scaled_jt,
+                                               cl, ca,      opt.overshoot_weight};
         problem.AddResidualBlock(
             new ceres::AutoDiffCostFunction<Residual4, kResiduals, 4, kNodeSize, kNodeSize,
                                             kNodeSize, kNodeSize>(f),

@@ -51,8 +51,8 @@ Interpolated interpolate(const LegPolytopeModel& m, double l, double alpha) {
   const double* v01 = m.node(i, j + 1);
   const double* v11 = m.node(i + 1, j + 1);
   for (int k = 0; k < kN; ++k) {
-    out.value[k] = (1 - t) * (1 - s) * v00[k] + t * (1 - s) * v10[k] + (1 - t) * s * v01[k] +
-                   t * s * v11[k];
+    out.value[k] =
+        (1 - t) * (1 - s) * v00[k] + t * (1 - s) * v10[k] + (1 - t) * s * v01[k] + t * s * v11[k];
     out.d_l[k] = ((1 - s) * (v10[k] - v00[k]) + s * (v11[k] - v01[k])) / dl;
     out.d_alpha[k] = ((1 - t) * (v01[k] - v00[k]) + t * (v11[k] - v10[k])) / da;
   }
@@ -65,9 +65,11 @@ PolytopeFacets LegPolytopeModel::facets(const Vector3d& foot) const {
   const LegCoordinates c = coordinates(foot);
   const Interpolated in = interpolate(*this, c.l, c.alpha);
   PolytopeFacets f;
+  const double cg = std::cos(c.gamma), sg = std::sin(c.gamma);
+  const double ca = std::cos(c.alpha), sa = std::sin(c.alpha);
   for (int j = 0; j < kPolytopeFacets; ++j) {
     const Vector3d nl = core::local_normal(poles[j], in.value[3 * j], in.value[3 * j + 1]);
-    f.normals[j] = core::rotate(c.gamma, c.alpha, nl);
+    f.normals[j] = core::rotate_cs(cg, sg, ca, sa, nl);
     f.offsets[j] = in.value[3 * j + 2];
   }
   return f;
@@ -102,28 +104,32 @@ Eigen::Matrix<double, kPolytopeFacets, 1> LegPolytopeModel::constraint(
   const Vector3d dalpha = (b * da_dp - a * db) / (c.l * c.l);
 
   for (int j = 0; j < kPolytopeFacets; ++j) {
-    const double theta = in.value[3 * j], phi = in.value[3 * j + 1];
-    const Vector3d nl = core::local_normal(poles[j], theta, phi);
+    // One sine and cosine per angle serve the normal and its derivatives (evaluated often).
+    const double ct = std::cos(in.value[3 * j]), st = std::sin(in.value[3 * j]);
+    const double cp = std::cos(in.value[3 * j + 1]), sp = std::sin(in.value[3 * j + 1]);
+    const int p = poles[j], c1 = (p + 1) % 3, c2 = (p + 2) % 3;
+    Vector3d nl;
+    nl[c1] = cp * ct;
+    nl[c2] = cp * st;
+    nl[p] = sp;
     // w = Ry(-alpha) nl, n = Rx(gamma) w.
     const Vector3d w(ca * nl[0] - sa * nl[2], nl[1], sa * nl[0] + ca * nl[2]);
     const Vector3d n(w[0], cg * w[1] - sg * w[2], sg * w[1] + cg * w[2]);
     g[j] = n.dot(force) - in.value[3 * j + 2];
     if (dg_df) dg_df->row(j) = n.transpose();
     if (!dg_dp) continue;
-    const int p = poles[j], c1 = (p + 1) % 3, c2 = (p + 2) % 3;
     Vector3d dnl_dtheta = Vector3d::Zero(), dnl_dphi = Vector3d::Zero();
-    dnl_dtheta[c1] = -std::cos(phi) * std::sin(theta);
-    dnl_dtheta[c2] = std::cos(phi) * std::cos(theta);
-    dnl_dphi[c1] = -std::sin(phi) * std::cos(theta);
-    dnl_dphi[c2] = -std::sin(phi) * std::sin(theta);
-    dnl_dphi[p] = std::cos(phi);
-    const auto rotate = [&](const Vector3d& u) { return core::rotate(c.gamma, c.alpha, u); };
+    dnl_dtheta[c1] = -cp * st;
+    dnl_dtheta[c2] = cp * ct;
+    dnl_dphi[c1] = -sp * ct;
+    dnl_dphi[c2] = -sp * st;
+    dnl_dphi[p] = cp;
+    const auto rotate = [&](const Vector3d& u) { return core::rotate_cs(cg, sg, ca, sa, u); };
     const Vector3d dn_dgamma(0, -sg * w[1] - cg * w[2], cg * w[1] - sg * w[2]);
     const Vector3d dw_dalpha(-sa * nl[0] - ca * nl[2], 0, ca * nl[0] - sa * nl[2]);
     const Vector3d dn_dalpha_rot(dw_dalpha[0], cg * dw_dalpha[1] - sg * dw_dalpha[2],
                                  sg * dw_dalpha[1] + cg * dw_dalpha[2]);
-    const Vector3d dn_dl =
-        rotate(dnl_dtheta * in.d_l[3 * j] + dnl_dphi * in.d_l[3 * j + 1]);
+    const Vector3d dn_dl = rotate(dnl_dtheta * in.d_l[3 * j] + dnl_dphi * in.d_l[3 * j + 1]);
     const Vector3d dn_dalpha =
         dn_dalpha_rot + rotate(dnl_dtheta * in.d_alpha[3 * j] + dnl_dphi * in.d_alpha[3 * j + 1]);
     const double f_gamma = force.dot(dn_dgamma);
@@ -238,8 +244,7 @@ void save_polytope_model(const RobotPolytopeModel& model, const robot::RobotMode
                               " has no leg " + leg.leg_name);
     out << YAML::BeginMap;
     out << YAML::Key << "name" << YAML::Value << leg.leg_name;
-    out << YAML::Key << "fingerprint" << YAML::Value
-        << leg_fingerprint(robot_model.legs[idx]);
+    out << YAML::Key << "fingerprint" << YAML::Value << leg_fingerprint(robot_model.legs[idx]);
     out << YAML::Key << "use_roll" << YAML::Value << leg.use_roll;
     out << YAML::Key << "hip" << YAML::Value << YAML::Flow << YAML::BeginSeq << leg.hip.x()
         << leg.hip.y() << leg.hip.z() << YAML::EndSeq;
@@ -320,8 +325,7 @@ RobotPolytopeModel load_polytope_model(const robot::RobotModel& robot_model,
         found = true;
       }
     }
-    if (!found)
-      throw PolytopeFileError(path + ": no parameters for leg " + rleg.name + refit);
+    if (!found) throw PolytopeFileError(path + ": no parameters for leg " + rleg.name + refit);
     const std::string where = "leg " + rleg.name + ": ";
     LegPolytopeModel leg;
     leg.leg_name = rleg.name;

@@ -42,20 +42,25 @@ robot::RobotModel load(const std::string& name) {
 }
 
 json quality_json(const PolytopeQuality& q) {
-  return {{"samples", q.samples},          {"rho_out_median", q.rho_out_median},
-          {"rho_out_p95", q.rho_out_p95},  {"rho_out_max", q.rho_out_max},
-          {"rho_in_median", q.rho_in_median}, {"rho_in_min", q.rho_in_min}};
+  return {{"samples", q.samples},
+          {"rho_out_median", q.rho_out_median},
+          {"rho_out_p95", q.rho_out_p95},
+          {"rho_out_max", q.rho_out_max},
+          {"rho_in_median", q.rho_in_median},
+          {"rho_in_min", q.rho_in_min}};
 }
 
 void print_quality_row(const std::string& leg, const std::string& variant,
                        const PolytopeQuality& q) {
-  std::printf("  %-4s %-10s rho_out median %.4f  p95 %.4f  max %.4f   rho_in median %.4f  min %.4f\n",
-              leg.c_str(), variant.c_str(), q.rho_out_median, q.rho_out_p95, q.rho_out_max,
-              q.rho_in_median, q.rho_in_min);
+  std::printf(
+      "  %-4s %-10s rho_out median %.4f  p95 %.4f  max %.4f   rho_in median %.4f  min %.4f\n",
+      leg.c_str(), variant.c_str(), q.rho_out_median, q.rho_out_p95, q.rho_out_max, q.rho_in_median,
+      q.rho_in_min);
 }
 
 void check_counts(const PolytopeOptions& o) {
-  if (o.samples < 1) throw CommandError("--samples must be positive, got " + std::to_string(o.samples));
+  if (o.samples < 1)
+    throw CommandError("--samples must be positive, got " + std::to_string(o.samples));
   if (o.l_refs < 2) throw CommandError("--l-refs must be at least 2");
   if (o.alpha_refs < 1) throw CommandError("--alpha-refs must be at least 1");
   if (o.threads < 1) throw CommandError("--threads must be at least 1");

@@ -33,7 +33,8 @@ CliResult run(const std::string& args) {
   const int status = pclose(pipe);
   r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   std::ifstream e(err);
-  r.all = r.out + std::string((std::istreambuf_iterator<char>(e)), std::istreambuf_iterator<char>());
+  r.all =
+      r.out + std::string((std::istreambuf_iterator<char>(e)), std::istreambuf_iterator<char>());
   std::filesystem::remove(err);
   return r;
 }
@@ -62,8 +63,10 @@ TEST(PolytopesCli, ValidatePrintsOneJsonObjectWithBothVariants) {
 
 TEST(PolytopesCli, FitWritesAFileThatValidateReads) {
   const std::string out = temp_path("monoped.polytopes.yaml");
-  CliResult r = run("polytopes fit --robot monoped --samples 150 --l-refs 4 --alpha-refs 2 "
-                    "--threads 1 --seed 3 --json --out " + out);
+  CliResult r =
+      run("polytopes fit --robot monoped --samples 150 --l-refs 4 --alpha-refs 2 "
+          "--threads 1 --seed 3 --json --out " +
+          out);
   ASSERT_EQ(r.code, 0) << r.all;
   const auto j = nlohmann::json::parse(r.out);
   EXPECT_EQ(j["file"], out);
@@ -95,13 +98,15 @@ TEST(PolytopesCli, BadInputFailsWithAMessageNamingIt) {
   EXPECT_NE(r.all.find("nosuchrobot"), std::string::npos) << r.all;
 
   // Fitted for another robot: hyq's file is not monoped's.
-  const std::string hyq_file = std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/hyq.polytopes.yaml";
+  const std::string hyq_file =
+      std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/hyq.polytopes.yaml";
   r = run("polytopes validate --robot monoped --file " + hyq_file);
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.all.find("hyq"), std::string::npos) << r.all;
 
   // An unwritable output leaves nothing behind and names the path.
-  r = run("polytopes fit --robot monoped --samples 100 --l-refs 3 --alpha-refs 1 "
+  r =
+      run("polytopes fit --robot monoped --samples 100 --l-refs 3 --alpha-refs 1 "
           "--out /nonexistent/dir/p.yaml");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.all.find("/nonexistent/dir/p.yaml"), std::string::npos) << r.all;

@@ -109,7 +109,9 @@ void check_committed(const std::string& robot_name, int samples_per_leg) {
   EXPECT_LE(out_all.back(), 1.05) << robot_name;
 }
 
-TEST(PolytopeCommitted, HyqMeetsTheTargetsOnHeldOutPositions) { check_committed("hyq", 1500); }
+TEST(PolytopeCommitted, HyqMeetsTheTargetsOnHeldOutPositions) {
+  check_committed("hyq", 1500);
+}
 TEST(PolytopeCommitted, MonopedMeetsTheTargetsOnHeldOutPositions) {
   check_committed("monoped", 1500);
 }

@@ -49,14 +49,18 @@ void leg_coordinates(bool use_roll, const T* hip, const Eigen::Vector3d& p, T* g
   *alpha = atan2(vx, b);
 }
 
-// n = Rx(gamma) Ry(-alpha) v.
+// n = Rx(gamma) Ry(-alpha) v, from the cosines and sines of gamma and alpha.
+template <typename T>
+Vec3<T> rotate_cs(const T& cg, const T& sg, const T& ca, const T& sa, const Vec3<T>& v) {
+  const Vec3<T> w(ca * v[0] - sa * v[2], v[1], sa * v[0] + ca * v[2]);
+  return Vec3<T>(w[0], cg * w[1] - sg * w[2], sg * w[1] + cg * w[2]);
+}
+
 template <typename T>
 Vec3<T> rotate(const T& gamma, const T& alpha, const Vec3<T>& v) {
   using std::cos;
   using std::sin;
-  const T ca = cos(alpha), sa = sin(alpha), cg = cos(gamma), sg = sin(gamma);
-  const Vec3<T> w(ca * v[0] - sa * v[2], v[1], sa * v[0] + ca * v[2]);
-  return Vec3<T>(w[0], cg * w[1] - sg * w[2], sg * w[1] + cg * w[2]);
+  return rotate_cs(cos(gamma), sin(gamma), cos(alpha), sin(alpha), v);
 }
 
 // Segment of a knot vector holding x (end segments extended) and the fraction along it (< 0 or
@@ -86,6 +90,8 @@ Vec3<T> meet(const Vec3<T>& n0, const Vec3<T>& n1, const Vec3<T>& n2, const T& d
 }
 
 // Facet k of vertex v: joint i uses facet 2i when bit i of v is set, 2i+1 otherwise.
-inline int vertex_facet(int vertex, int joint) { return 2 * joint + (((vertex >> joint) & 1) ? 0 : 1); }
+inline int vertex_facet(int vertex, int joint) {
+  return 2 * joint + (((vertex >> joint) & 1) ? 0 : 1);
+}
 
 }  // namespace terrastride::planner::polytope_core

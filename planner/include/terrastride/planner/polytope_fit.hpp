@@ -20,12 +20,12 @@
 namespace terrastride::planner {
 
 struct PolytopeFitOptions {
-  int samples = 1200;          // training foot positions per leg
+  int samples = 1200;  // training foot positions per leg
   uint64_t seed = 1;
-  double box_scale = 1.25;     // sample the range-of-motion box scaled by this around the nominal
-  int l_refs = 7;              // reference leg lengths (>= 2)
-  int alpha_refs = 3;          // reference tilts (1 = the paper's interpolation in l only)
-  bool fit_hip = true;         // refine the hip point and offset (start: HAA origin and L0)
+  double box_scale = 1.25;  // sample the range-of-motion box scaled by this around the nominal
+  int l_refs = 7;           // reference leg lengths (>= 2)
+  int alpha_refs = 3;       // reference tilts (1 = the paper's interpolation in l only)
+  bool fit_hip = true;      // refine the hip point and offset (start: HAA origin and L0)
   // Weight of torque-ratio residuals above 1 (a force allowed beyond a limit) relative to those
   // below 1 (a feasible force cut off): > 1 biases the fit to the conservative side.
   double overshoot_weight = 8.0;
@@ -35,8 +35,8 @@ struct PolytopeFitOptions {
   // After the fit all offsets are scaled so that the training samples' worst rho_out is at most
   // this (<= 0 disables the scaling).
   double max_training_rho_out = 1.01;
-  int max_iterations = 60;     // Ceres iterations per round
-  int rounds = 2;              // re-assign samples to grid cells after the hip moved
+  int max_iterations = 60;  // Ceres iterations per round
+  int rounds = 2;           // re-assign samples to grid cells after the hip moved
   int num_threads = 1;
 };
 
@@ -56,8 +56,7 @@ struct PolytopeQuality {
   double rho_out_median = 0, rho_out_p95 = 0, rho_out_max = 0;
   double rho_in_median = 0, rho_in_min = 0;
 };
-PolytopeQuality evaluate_polytope_quality(const LegPolytopeModel& model,
-                                          const robot::LegModel& leg,
+PolytopeQuality evaluate_polytope_quality(const LegPolytopeModel& model, const robot::LegModel& leg,
                                           const std::vector<Eigen::Vector3d>& feet);
 
 struct LegFitReport {

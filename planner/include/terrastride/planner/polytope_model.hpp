@@ -34,7 +34,7 @@ class PolytopeFileError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-constexpr int kPolytopeFacets = 6;   // 2 per joint of a 3-DoF leg
+constexpr int kPolytopeFacets = 6;  // 2 per joint of a 3-DoF leg
 constexpr int kPolytopeVertices = 8;
 
 struct PolytopeFacets {
@@ -50,12 +50,12 @@ struct LegCoordinates {
 class LegPolytopeModel {
  public:
   std::string leg_name;
-  bool use_roll = true;                       // false: the paper's sagittal-only variant
+  bool use_roll = true;                           // false: the paper's sagittal-only variant
   Eigen::Vector3d hip = Eigen::Vector3d::Zero();  // h
-  double hip_offset = 0.0;                    // l0
-  std::vector<double> l_knots;                // K_l >= 2, increasing
-  std::vector<double> alpha_knots;            // K_a >= 1, increasing
-  std::array<int, kPolytopeFacets> poles{};   // pole axis (0 x, 1 y, 2 z) of each facet's angles
+  double hip_offset = 0.0;                        // l0
+  std::vector<double> l_knots;                    // K_l >= 2, increasing
+  std::vector<double> alpha_knots;                // K_a >= 1, increasing
+  std::array<int, kPolytopeFacets> poles{};  // pole axis (0 x, 1 y, 2 z) of each facet's angles
   // Reference values, node (i, m) = (l_knots[i], alpha_knots[m]) at index i * K_a + m, and per
   // node kPolytopeFacets triples (theta, phi, d).
   std::vector<double> nodes;
@@ -87,7 +87,7 @@ class LegPolytopeModel {
 
 struct RobotPolytopeModel {
   std::string robot;
-  std::string variant;  // "roll" (ours) or "sagittal" (the paper's)
+  std::string variant;                 // "roll" (ours) or "sagittal" (the paper's)
   std::vector<LegPolytopeModel> legs;  // same order as the robot's legs
   // Fit figures stored for the record (training set); see polytope_fit.hpp.
   std::string fit_summary;
