@@ -234,3 +234,23 @@ TEST(Protocol, FuzzCorpusReplay) {
   }
   EXPECT_GE(n, 10);
 }
+
+TEST(Protocol, RawResultSplicingAndNumbers) {
+  p::Message m = p::make_reply(7, nlohmann::json());
+  std::string raw = "{\"a\":";
+  p::append_json_number(raw, 0.1);
+  raw += ",\"b\":";
+  p::append_json_number(raw, std::numeric_limits<double>::quiet_NaN());
+  raw += ",\"c\":";
+  p::append_json_number(raw, -1e-300);
+  raw += "}";
+  const p::Message d = p::decode_body(body_of(p::encode_frame(m, raw)));
+  EXPECT_EQ(d.header["id"], 7);
+  EXPECT_EQ(d.header["ok"], true);
+  EXPECT_EQ(d.header["result"]["a"].get<double>(), 0.1);  // shortest round-trip text
+  EXPECT_TRUE(d.header["result"]["b"].is_null());
+  EXPECT_EQ(d.header["result"]["c"].get<double>(), -1e-300);
+  // Into an empty header, too.
+  p::Message empty;
+  EXPECT_EQ(p::decode_body(body_of(p::encode_frame(empty, "[1]"))).header["result"], json({1}));
+}

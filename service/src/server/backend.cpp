@@ -151,7 +151,12 @@ class Backend {
                                 " has no safety layer in this map (available: " + list +
                                 "); send map.update with \"foot_radii\" to add one");
     }
-    json results = json::array();
+    // The reply is written as text directly: building a JSON tree of N objects costs more than
+    // the terrain queries themselves.
+    OpResult r;
+    std::string text;
+    text.reserve(64 + 160 * (xy.size() / 2));
+    text += "{\"generation\":" + std::to_string(m->generation) + ",\"results\":[";
     for (std::size_t i = 0; i + 1 < xy.size(); i += 2) {
       const double x = xy[i], y = xy[i + 1];
       const auto s = m->field->sample(x, y);
@@ -159,18 +164,27 @@ class Backend {
       const bool observed = m->field->observed(x, y);
       const bool safe =
           grid_map ? grid_map->safe(x, y, foot_radius) : (observed && mg.margin > 0.0);
-      results.push_back({{"x", x},
-                         {"y", y},
-                         {"height", s.height},
-                         {"gradient", {s.gradient.x(), s.gradient.y()}},
-                         {"safe", safe},
-                         {"margin", mg.margin},
-                         {"observed", observed}});
+      text += i ? ",{\"x\":" : "{\"x\":";
+      protocol::append_json_number(text, x);
+      text += ",\"y\":";
+      protocol::append_json_number(text, y);
+      text += ",\"height\":";
+      protocol::append_json_number(text, s.height);
+      text += ",\"gradient\":[";
+      protocol::append_json_number(text, s.gradient.x());
+      text += ',';
+      protocol::append_json_number(text, s.gradient.y());
+      text += "],\"safe\":";
+      text += safe ? "true" : "false";
+      text += ",\"margin\":";
+      protocol::append_json_number(text, mg.margin);
+      text += ",\"observed\":";
+      text += observed ? "true}" : "false}";
     }
+    text += "]}";
     queries_++;
     points_queried_ += xy.size() / 2;
-    OpResult r;
-    r.result = {{"generation", m->generation}, {"results", std::move(results)}};
+    r.result_text = std::move(text);
     return r;
   }
 

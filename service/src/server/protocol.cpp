@@ -1,6 +1,7 @@
 // The wire protocol: frames, attachments, envelope (docs/protocol.md).
 #include "terrastride/service/protocol.hpp"
 
+#include <charconv>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -86,7 +87,19 @@ void check_body_length(std::uint32_t body_length, std::uint32_t max_frame_bytes)
                               " bytes is shorter than its 4-byte header length");
 }
 
-std::string encode_frame(const Message& message) {
+std::string encode_frame(const Message& message) { return encode_frame(message, {}); }
+
+void append_json_number(std::string& out, double v) {
+  if (!std::isfinite(v)) {
+    out += "null";
+    return;
+  }
+  char buf[32];
+  const auto r = std::to_chars(buf, buf + sizeof(buf), v);
+  out.append(buf, r.ptr);
+}
+
+std::string encode_frame(const Message& message, std::string_view raw_result) {
   json header = message.header;
   if (!header.is_object()) fail(code::kBadFrame, "message header must be a JSON object");
   if (!message.attachments.empty()) {
@@ -103,7 +116,16 @@ std::string encode_frame(const Message& message) {
     header.erase("attachments");
   }
   // NaN/inf are not JSON: they become null rather than failing the whole reply.
-  const std::string text = header.dump(-1, ' ', false, json::error_handler_t::replace);
+  std::string text = header.dump(-1, ' ', false, json::error_handler_t::replace);
+  if (!raw_result.empty()) {
+    header.erase("result");
+    text = header.dump(-1, ' ', false, json::error_handler_t::replace);
+    text.pop_back();  // the closing brace of the object
+    if (text.size() > 1) text += ',';
+    text += "\"result\":";
+    text += raw_result;
+    text += '}';
+  }
   std::uint64_t body = 4 + text.size();
   for (const auto& a : message.attachments) body += a.data.size();
   if (body > std::numeric_limits<std::uint32_t>::max())

@@ -478,7 +478,9 @@ void Connection::dispatch() {
     try {
       OpResult r = fn();
       server.counters.replies_ok++;
-      send_message(protocol::make_reply(id, std::move(r.result), std::move(r.attachments)));
+      const Message reply = protocol::make_reply(
+          id, r.result_text.empty() ? std::move(r.result) : json(), std::move(r.attachments));
+      send(protocol::encode_frame(reply, r.result_text));
     } catch (const ProtocolError& e) {
       send_error(id, e.code(), e.what());
     } catch (const std::exception& e) {
@@ -612,7 +614,9 @@ void Server::Impl::run_job(std::shared_ptr<Job> job) {
     ctx.check_stop();
     OpResult r = job->op->handler(ctx);
     frame = protocol::encode_frame(
-        protocol::make_reply(job->id, std::move(r.result), std::move(r.attachments)));
+        protocol::make_reply(job->id, r.result_text.empty() ? std::move(r.result) : json(),
+                             std::move(r.attachments)),
+        r.result_text);
     ok = true;
   } catch (const ProtocolError& e) {
     code = e.code();

@@ -42,6 +42,9 @@ class Client {
   // `call`, then the "result" object; throws ClientError("code: message") on an error reply.
   nlohmann::json call_ok(nlohmann::json header, std::vector<protocol::Attachment> attachments = {});
 
+  // The next frame body as bytes, undecoded (for latency measurements; bypasses wait_for's
+  // buffer).
+  std::string receive_body() { return read_body(); }
   // Raw bytes, for hostile-input tests.
   void send_raw(std::string_view bytes);
   // Half-closes or closes the socket.

@@ -70,6 +70,9 @@ struct Message {
 // Encodes a whole frame (length prefix included). Throws ProtocolError(bad_frame) if the
 // attachment shapes and byte sizes disagree or the frame exceeds 4 GiB.
 std::string encode_frame(const Message& message);
+// Same, with `raw_result` (an already serialised JSON value) spliced in as header["result"]; used
+// for large replies built without a JSON tree. The caller guarantees `raw_result` is valid JSON.
+std::string encode_frame(const Message& message, std::string_view raw_result);
 
 // Big-endian u32 of the first 4 bytes.
 std::uint32_t read_u32be(const unsigned char* p);
@@ -140,6 +143,9 @@ Attachment make_float_attachment(const std::string& name, std::vector<std::uint6
 // attachment when the shape differs or (if `require_finite`) a value is NaN or infinite.
 std::vector<float> read_floats(const Attachment& a, std::size_t cols, bool require_finite);
 std::vector<Eigen::Vector3f> read_points(const Attachment& a);
+
+// Appends the shortest text that reads back as exactly `v` (JSON null when not finite).
+void append_json_number(std::string& out, double v);
 
 // Constant-time comparison (time depends only on the lengths, not on where they differ).
 bool constant_time_equal(std::string_view a, std::string_view b);

@@ -27,6 +27,9 @@ struct OpContext {
 
 struct OpResult {
   nlohmann::json result = nlohmann::json::object();
+  // When set: the result, already serialised as a JSON object (replaces `result`); for large
+  // replies that would be slow to build as a JSON tree.
+  std::string result_text;
   std::vector<protocol::Attachment> attachments;
 };
 
