@@ -28,6 +28,7 @@ struct PolytopeOptions {
   int threads = 2;
   int max_iterations = 60;
   double smoothness = planner::PolytopeFitOptions().smoothness;
+  double box_scale = planner::PolytopeFitOptions().box_scale;
   std::string out;
   std::string file;
   bool json = false;
@@ -63,6 +64,8 @@ void check_counts(const PolytopeOptions& o) {
     throw CommandError("--samples must be positive, got " + std::to_string(o.samples));
   if (o.l_refs < 2) throw CommandError("--l-refs must be at least 2");
   if (o.alpha_refs < 1) throw CommandError("--alpha-refs must be at least 1");
+  if (!(o.box_scale > 0 && o.box_scale <= 3))
+    throw CommandError("--box-scale must be in (0, 3], got " + std::to_string(o.box_scale));
   if (o.threads < 1) throw CommandError("--threads must be at least 1");
   if (o.max_iterations < 1) throw CommandError("--max-iterations must be at least 1");
 }
@@ -78,6 +81,7 @@ void run_fit(const PolytopeOptions& o) {
   fo.num_threads = o.threads;
   fo.max_iterations = o.max_iterations;
   fo.smoothness = o.smoothness;
+  fo.box_scale = o.box_scale;
   std::vector<planner::LegFitReport> reports;
   planner::RobotPolytopeModel fitted;
   try {
@@ -86,8 +90,10 @@ void run_fit(const PolytopeOptions& o) {
     throw CommandError(std::string("polytope fit for robot ") + model.name + ": " + e.what());
   }
   char summary[160];
-  std::snprintf(summary, sizeof summary, "samples %d per leg, seed %llu, %dx%d references",
-                o.samples, static_cast<unsigned long long>(o.seed), o.l_refs, o.alpha_refs);
+  std::snprintf(summary, sizeof summary,
+                "samples %d per leg, seed %llu, box scale %g, %dx%d references, smoothness %g",
+                o.samples, static_cast<unsigned long long>(o.seed), o.box_scale, o.l_refs,
+                o.alpha_refs, o.smoothness);
   fitted.fit_summary = summary;
   const std::string path = o.out.empty() ? planner::polytope_path_for(model) : o.out;
   try {
@@ -157,6 +163,7 @@ void run_validate(const PolytopeOptions& o) {
            {"file", path},
            {"held_out_samples_per_leg", o.samples},
            {"seed", o.seed},
+           {"box_scale", o.box_scale},
            {"legs", json::array()}};
   std::map<std::string, Pool> pools;
   if (!o.json)
@@ -167,9 +174,10 @@ void run_validate(const PolytopeOptions& o) {
     const auto& leg = model.legs[i];
     std::vector<Eigen::Vector3d> feet, reference_feet;
     try {
-      feet = planner::sample_leg_workspace(leg, o.samples, o.seed + 7919 * i);
+      feet = planner::sample_leg_workspace(leg, o.samples, o.seed + 7919 * i, o.box_scale);
       // The paper's references come from a separate sample set (its leg-length range).
-      reference_feet = planner::sample_leg_workspace(leg, 500, o.seed + 104729 + 7919 * i);
+      reference_feet =
+          planner::sample_leg_workspace(leg, 500, o.seed + 104729 + 7919 * i, o.box_scale);
     } catch (const std::exception& e) {
       throw CommandError(e.what());
     }
@@ -225,6 +233,9 @@ void add_polytopes_command(CLI::App& app) {
       ->capture_default_str();
   fit->add_option("--smoothness", opts->smoothness, "Weight of the reference-grid smoothness prior")
       ->capture_default_str();
+  fit->add_option("--box-scale", opts->box_scale,
+                  "Sample the range-of-motion box scaled by this around the nominal foot")
+      ->capture_default_str();
   fit->add_option("--out", opts->out, "Output file (default: ROBOT.polytopes.yaml next to it)");
   fit->add_flag("--json", opts->json, "Print the figures as one JSON object");
   fit->callback([opts] { run_fit(*opts); });
@@ -238,6 +249,9 @@ void add_polytopes_command(CLI::App& app) {
   val->add_option("--samples", vopts->samples, "Held-out foot positions per leg")
       ->capture_default_str();
   val->add_option("--seed", vopts->seed, "Random seed of the held-out samples")
+      ->capture_default_str();
+  val->add_option("--box-scale", vopts->box_scale,
+                  "Sample the range-of-motion box scaled by this around the nominal foot")
       ->capture_default_str();
   val->add_option("--file", vopts->file, "Fitted parameters (default: next to the robot file)");
   val->add_flag("--json", vopts->json, "Print the figures as one JSON object");
