@@ -62,6 +62,9 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
         if (limits.max_normal_force > 0.0) v = std::max(v, fn - limits.max_normal_force);
         fric = std::max(fric, v);
       } else {
+        if (std::getenv("TERRASTRIDE_DEBUG_CHECKS") && hs.height - ft.position.z() > pen)
+          std::fprintf(stderr, "pen %g at t=%g foot %zu p=(%g %g %g)\n", hs.height - ft.position.z(),
+                       s.t, f, ft.position.x(), ft.position.y(), ft.position.z());
         pen = std::max(pen, hs.height - ft.position.z());
       }
       was_contact[f] = ft.contact;

@@ -321,6 +321,32 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
       double yaw;
       base_at(tm, &b, &yaw);
       p = nominal_foot_world(robot_.legs[st.foot], b, yaw);
+      // Start from the nearest locally planar spot (see the foothold_planarity constraint), so
+      // the solver does not begin with feet on step edges.
+      const double probe = options_.clearance_probe, tol = 0.5 * options_.foothold_planarity;
+      auto planarity = [&](double x, double y) {
+        const auto s0 = terrain_.sample(x, y);
+        double e = 0.0;
+        const double ox[4] = {1, -1, 0, 0}, oy[4] = {0, 0, 1, -1};
+        for (int i = 0; i < 4; ++i)
+          e = std::max(e, std::abs(terrain_.height(x + probe * ox[i], y + probe * oy[i]) -
+                                   s0.height - probe * (s0.gradient.x() * ox[i] +
+                                                        s0.gradient.y() * oy[i])));
+        return e;
+      };
+      if (probe > 0.0 && tol > 0.0 && planarity(p.x(), p.y()) > tol) {
+        bool found = false;
+        for (int r = 1; r <= 20 && !found; ++r)
+          for (const auto& dir : {Eigen::Vector2d(1, 0), Eigen::Vector2d(-1, 0),
+                                  Eigen::Vector2d(0, 1), Eigen::Vector2d(0, -1)}) {
+            const Eigen::Vector2d q = p.head<2>() + 0.01 * r * dir;
+            if (planarity(q.x(), q.y()) <= tol) {
+              p.head<2>() = q;
+              found = true;
+              break;
+            }
+          }
+      }
       p.z() = terrain_.height(p.x(), p.y());
       for (int d = 0; d < 3; ++d) x0_[st.pos_var + d] = p[d];
     }
@@ -354,8 +380,13 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
       if (L.foot_vel[f][k] < 0) continue;
       const double u = (L.nominal_knot_time[k] - ta) / (tb - ta);
       Eigen::Vector3d p = (1 - u) * pa + u * pb;
-      const double ground = std::max(terrain_.height(p.x(), p.y()), std::max(pa.z(), pb.z()));
-      p.z() = std::max(p.z(), ground) + options_.swing_clearance * 1.5 * clearance_profile(u);
+      // Above the highest terrain around the foot (the clearance constraint probes there too).
+      double ground = std::max(pa.z(), pb.z());
+      const double d = options_.clearance_probe;
+      for (const auto& o : {Eigen::Vector2d(0, 0), Eigen::Vector2d(d, 0), Eigen::Vector2d(-d, 0),
+                            Eigen::Vector2d(0, d), Eigen::Vector2d(0, -d)})
+        ground = std::max(ground, terrain_.height(p.x() + o.x(), p.y() + o.y()));
+      p.z() = std::max(p.z(), ground) + options_.swing_clearance * 1.5;
       Eigen::Vector3d v = (pb - pa) / (tb - ta);
       if (k == 0) {
         p = pa;
@@ -512,6 +543,7 @@ void SrbdProblem::build_baseline() {
 
   // Stance feet on the terrain.
   const terrain::HeightField* field = &terrain_;
+  const double hmin = options_.swing_clearance, probe = options_.clearance_probe;
   for (const auto& st : L.stances) {
     if (st.fixed) continue;
     LocalVars lv;
@@ -519,6 +551,29 @@ void SrbdProblem::build_baseline() {
     add_piece(make_piece("stance_height", lv, {0.0}, {0.0}, [=](const auto* x, auto* g) {
       g[0] = x[p[2]] - terrain_height(*field, x[p[0]], x[p[1]]);
     }));
+  }
+
+  // Footholds on locally planar terrain: |h(p + o) - h(p) - grad h(p) . o| <= tol at the four
+  // probe offsets. Keeps feet off step edges, where the smoothed surface differs from the real
+  // one and a lifting or landing foot would sweep through the edge.
+  if (options_.foothold_planarity > 0.0 && probe > 0.0) {
+    const double tol = options_.foothold_planarity;
+    for (const auto& st : L.stances) {
+      if (st.fixed) continue;
+      LocalVars lv;
+      const auto p = lv.add3(st.pos_var);
+      std::vector<double> lo(4, -tol), hi(4, tol);
+      add_piece(make_piece("foothold_planarity", lv, lo, hi, [=](const auto* x, auto* g) {
+        using T = std::decay_t<decltype(*g)>;
+        const T h0 = terrain_height(*field, x[p[0]], x[p[1]]);
+        T hx, hy;
+        terrain_gradient(*field, x[p[0]], x[p[1]], &hx, &hy);
+        static const double ox[4] = {1, -1, 0, 0}, oy[4] = {0, 0, 1, -1};
+        for (int i = 0; i < 4; ++i)
+          g[i] = terrain_height(*field, x[p[0]] + probe * ox[i], x[p[1]] + probe * oy[i]) - h0 -
+                 probe * (hx * ox[i] + hy * oy[i]);
+      }));
+    }
   }
 
   // Friction pyramid and normal-force bounds at every force knot (linear in f for the fixed
@@ -556,7 +611,6 @@ void SrbdProblem::build_baseline() {
   // the terrain under it AND above the terrain probed at +-probe in x and y around it. Probing
   // makes the bound conservative: between the points the foot moves less than the probe radius,
   // and a smoothed planning terrain underestimates a sharp step only near its edge.
-  const double hmin = options_.swing_clearance, probe = options_.clearance_probe;
   for (const auto& sw : L.swings) {
     const int f = sw.foot;
     const int nseg = sw.last_seg - sw.first_seg + 1;
@@ -571,8 +625,8 @@ void SrbdProblem::build_baseline() {
         const HermiteLocal fpl = foot_spline(lv, f, s, sigma);
         const int dur = fpl.needs_duration ? seg_duration(lv, s) : -1;
         const double frac = L.seg_fraction[s];
-        const int nrow = probe > 0.0 && w > 0.0 ? 5 : 1;
-        const double d = probe * w;
+        const int nrow = probe > 0.0 ? 5 : 1;
+        const double d = probe;
         std::vector<double> lo(nrow, hmin * w), hi(nrow, kInf);
         add_piece(make_piece("swing_clearance", lv, lo, hi, [=](const auto* x, auto* g) {
           using T = std::decay_t<decltype(*g)>;
@@ -661,6 +715,20 @@ double SrbdProblem::max_violation(const std::vector<double>& x) const {
   for (int i = 0; i < num_rows_; ++i) v = std::max({v, lo[i] - g[i], g[i] - hi[i]});
   for (std::size_t i = 0; i < x.size(); ++i) v = std::max({v, lb_[i] - x[i], x[i] - ub_[i]});
   return v;
+}
+
+std::map<std::string, double> SrbdProblem::violation_by_kind(const std::vector<double>& x) const {
+  std::vector<double> g(num_rows_);
+  eval_constraints(x.data(), g.data());
+  std::map<std::string, double> out;
+  for (std::size_t i = 0; i < pieces_.size(); ++i) {
+    double& v = out[pieces_[i]->kind];
+    for (int r = 0; r < pieces_[i]->rows(); ++r) {
+      const double gi = g[row_offset_[i] + r];
+      v = std::max({v, pieces_[i]->lb[r] - gi, gi - pieces_[i]->ub[r]});
+    }
+  }
+  return out;
 }
 
 double SrbdProblem::duration(const std::vector<double>& x) const {

@@ -3,6 +3,7 @@
 #include <IpIpoptApplication.hpp>
 #include <IpTNLP.hpp>
 #include <chrono>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <sstream>
@@ -139,6 +140,9 @@ SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
       opts->SetStringValue(k, v);
   }
   SolveResult r;
+  if (std::getenv("TERRASTRIDE_DEBUG_CHECKS"))
+    for (const auto& [k, v] : problem.violation_by_kind(const_cast<SrbdProblem&>(problem).initial_guess()))
+      std::fprintf(stderr, "initial violation %s %g\n", k.c_str(), v);
   Ipopt::ApplicationReturnStatus st = app->Initialize();
   if (st != Ipopt::Solve_Succeeded) {
     r.status = "error";

@@ -124,7 +124,8 @@ TEST(NlpDerivatives, EveryPieceMatchesFiniteDifferences) {
   std::set<std::string> kinds;
   check_all_pieces(p, &kinds);
   for (const std::string k : {"dynamics_linear", "dynamics_angular", "range_of_motion",
-                              "stance_height", "friction", "swing_clearance", "total_duration"})
+                              "stance_height", "friction", "swing_clearance", "total_duration",
+                              "foothold_planarity"})
     EXPECT_TRUE(kinds.count(k)) << "no piece of kind " << k;
 }
 

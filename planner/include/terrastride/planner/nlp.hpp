@@ -64,6 +64,9 @@ struct PlannerOptions {
   double max_normal_force_factor = 2.0;  // f_max = factor * m * g
   double swing_clearance = 0.05;         // h_min (m)
   double clearance_probe = 0.05;         // terrain probed this far around a swing foot (m)
+  // Footholds where the terrain is planar within clearance_probe (to this tolerance, m): a foot
+  // lifting off at the foot of a step would otherwise cut its corner between constraint points.
+  double foothold_planarity = 0.01;
   int angular_points = 3;                // angular dynamics points per segment
   int rom_points = 2;                    // range-of-motion points per segment
   int clearance_points = 4;              // swing-clearance points per segment
@@ -144,6 +147,8 @@ class SrbdProblem {
   std::vector<double> row_upper() const;
   // Largest bound violation of x (rows and variable bounds), in the constraint's own units.
   double max_violation(const std::vector<double>& x) const;
+  // The same, per piece kind (for diagnostics: which constraint family is violated).
+  std::map<std::string, double> violation_by_kind(const std::vector<double>& x) const;
 
   // Continuous-time evaluation of a solution x (world frame), t in [0, duration(x)].
   struct State {

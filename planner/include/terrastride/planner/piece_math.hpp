@@ -163,6 +163,22 @@ inline Ad terrain_height(const terrain::HeightField& f, const Ad& x, const Ad& y
     d = s.gradient.y() * dy;
   return Ad(s.height, d);
 }
+// Terrain gradient (hx, hy) with its derivative chained through the foot coordinates (Hessian).
+inline void terrain_gradient(const terrain::HeightField& f, double x, double y, double* hx,
+                             double* hy) {
+  const auto s = f.sample(x, y);
+  *hx = s.gradient.x();
+  *hy = s.gradient.y();
+}
+inline void terrain_gradient(const terrain::HeightField& f, const Ad& x, const Ad& y, Ad* hx,
+                             Ad* hy) {
+  const auto s = f.sample(x.value(), y.value());
+  const auto& dx = x.derivatives();
+  const auto& dy = y.derivatives();
+  *hx = Ad(s.gradient.x(), AdVector(s.hessian(0, 0) * dx + s.hessian(0, 1) * dy));
+  *hy = Ad(s.gradient.y(), AdVector(s.hessian(1, 0) * dx + s.hessian(1, 1) * dy));
+}
+
 // Unit normal and tangents of the terrain at (x, y): n ~ (-hx, -hy, 1), t1 ~ (1, 0, hx),
 // t2 = n x t1 (orthonormal).
 inline void terrain_frame(const terrain::HeightField& f, double x, double y, Vec3<double>* n,
