@@ -455,3 +455,53 @@ TEST_F(ReportBrowserTest, ReportsOpenOfflineWithEveryChartDrawnAndProblemsShown)
 }
 
 }  // namespace
+
+namespace {
+
+// ---- terrastride demo ----
+
+TEST_F(ReportTest, DemoNamesAMissingScanAndWritesNothing) {
+  const fs::path out = dir_ / "demo";
+  const RunResult r = run("demo --scan " + quote((dir_ / "missing.pcd").string()) + " --out " +
+                              quote(out.string()),
+                          dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("stage 'scan'"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("missing.pcd"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(out));
+}
+
+TEST_F(ReportTest, DemoRunsMapPlanChecksAndReport) {
+  // A simulated pallet scan (three sensor poses), as the shipped one is made.
+  const RunResult sim = run("scan-sim --scene pallet_10 --out " + quote((dir_ / "p.pcd").string()), dir_);
+  ASSERT_EQ(sim.code, 0) << sim.err;
+  std::string scans;
+  for (const char* name : {"p.pcd", "p.1.pcd", "p.2.pcd", "p.3.pcd"})
+    if (fs::exists(dir_ / name)) scans += " " + quote((dir_ / name).string());
+  const fs::path out = dir_ / "demo";
+  // A generous solver time limit: the test machine may be busy with other builds.
+  const RunResult r = run("demo --scan" + scans + " --out " + quote(out.string()) +
+                              " --max-time 60 --json",
+                          dir_);
+  // 0: every stage ran; 3: the solver did not reach optimality (the report still shows it).
+  ASSERT_TRUE(r.code == 0 || r.code == 3) << r.code << "\n" << r.err;
+  const json summary = json::parse(r.out.substr(0, r.out.find('\n')));
+  for (const char* stage : {"scan", "map", "plan", "checks", "report"})
+    EXPECT_TRUE(summary["stage_s"].contains(stage)) << stage;
+  EXPECT_EQ(summary["report"], (out / "report.html").string());
+  EXPECT_TRUE(fs::exists(out / "report.html"));
+  EXPECT_TRUE(fs::exists(out / "plan.json"));
+  EXPECT_TRUE(fs::exists(out / "terrain" / "terrain.json"));
+  const json rep = read_json(out / "report.json");
+  EXPECT_EQ(rep["terrain"]["kind"], "map");
+  ASSERT_EQ(rep["plans"].size(), 1u);
+  const json& p = rep["plans"][0];
+  EXPECT_EQ(p["torque"]["legs"].size(), 4u);
+  EXPECT_FALSE(p["clearance"].contains("absent"));  // the scan's OctoMap is used
+  EXPECT_FALSE(p["footholds"].empty());
+  // The report's paths name the final folder, not the temporary one it was written in.
+  EXPECT_EQ(p["path"], (out / "plan.json").string());
+  EXPECT_GT(rep["terrain"]["safe_fraction"].get<double>(), 0.2);
+}
+
+}  // namespace

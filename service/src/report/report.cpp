@@ -152,37 +152,26 @@ json terrain_json(const TerrainView& t, const ReportOptions& options, double foo
 
 // ---------------------------------------------------------------- plan section
 
-// Arc-length stations along the base path, and projection of points onto it (for the profile).
+// Stations for the elevation profile: distance along the line from the base's start to its end
+// position (a straight axis, so feet beside a swaying base still project smoothly); the x axis when
+// the base ends where it started.
 struct PathStations {
-  std::vector<Eigen::Vector2d> p;
-  std::vector<double> s;
+  Eigen::Vector2d origin = Eigen::Vector2d::Zero();
+  Eigen::Vector2d axis = Eigen::Vector2d::UnitX();
+  double polyline_length = 0.0;
 
   explicit PathStations(const planner::Trajectory& traj) {
-    for (const auto& sample : traj.samples) {
-      const Eigen::Vector2d q = sample.base.position.head<2>();
-      if (!p.empty() && (q - p.back()).norm() < 1e-6) continue;
-      s.push_back(p.empty() ? 0.0 : s.back() + (q - p.back()).norm());
-      p.push_back(q);
-    }
+    if (traj.samples.empty()) return;
+    origin = traj.samples.front().base.position.head<2>();
+    const Eigen::Vector2d end = traj.samples.back().base.position.head<2>();
+    if ((end - origin).norm() > 0.05) axis = (end - origin).normalized();
+    for (size_t k = 1; k < traj.samples.size(); ++k)
+      polyline_length += (traj.samples[k].base.position.head<2>() -
+                          traj.samples[k - 1].base.position.head<2>())
+                             .norm();
   }
-  double length() const { return s.empty() ? 0.0 : s.back(); }
-  // Station of the nearest point of the polyline (extended beyond its ends along the end segments).
-  double project(const Eigen::Vector2d& q) const {
-    if (p.size() < 2) return p.empty() ? q.x() : q.x() - p.front().x();
-    double best_d = std::numeric_limits<double>::infinity(), best_s = 0.0;
-    for (size_t i = 0; i + 1 < p.size(); ++i) {
-      const Eigen::Vector2d d = p[i + 1] - p[i];
-      double u = (q - p[i]).dot(d) / d.squaredNorm();
-      if (i > 0) u = std::max(u, 0.0);
-      if (i + 2 < p.size()) u = std::min(u, 1.0);
-      const double dist = (p[i] + u * d - q).norm();
-      if (dist < best_d) {
-        best_d = dist;
-        best_s = s[i] + u * (s[i + 1] - s[i]);
-      }
-    }
-    return best_s;
-  }
+  double length() const { return polyline_length; }
+  double project(const Eigen::Vector2d& q) const { return (q - origin).dot(axis); }
 };
 
 const char* kJointNames[3] = {"HAA", "HFE", "KFE"};
@@ -476,6 +465,8 @@ json plan_json(const PlanInput& input, const TerrainView& terrain, const robot::
     }
   }
   out["profile"] = {{"path_length_m", num(path.length())},
+                    {"axis_origin", {num(path.origin.x()), num(path.origin.y())}},
+                    {"axis_direction", {num(path.axis.x()), num(path.axis.y())}},
                     {"s", prof_s},
                     {"ground", prof_ground},
                     {"base_z", prof_base},
