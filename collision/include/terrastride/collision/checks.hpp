@@ -116,8 +116,22 @@ struct ClearanceOptions {
   // shin_radius + exclusion_margin.
   double shin_exclusion = -1.0;
   double exclusion_margin = 0.01;
-  // Distances beyond this are not resolved (reported as the cutoff); it bounds FCL's search.
-  double distance_cutoff = 0.5;
+  // Distances beyond this are not resolved (reported as the cutoff). It bounds FCL's search, whose
+  // cost grows with the number of voxels within that distance; 10 cm is well past where a
+  // clearance matters for collision, so a thigh high above flat ground simply reads 0.1.
+  double distance_cutoff = 0.1;
+  // Per-sample distances below `exact_below` are always exact FCL results. Above it, a sample
+  // whose capsule moved at most max(bound_tolerance, bound_relative (d - exact_below)) since the
+  // last exact query d is reported by the certified lower bound d - motion (see
+  // leg_clearance.cpp); that skips most queries along a smooth plan. Collisions are exact either
+  // way; the per-leg minima are exact below `exact_below` and within that same allowance above it.
+  // bound_tolerance = bound_relative = 0: query every sample.
+  double exact_below = 0.01;
+  double bound_tolerance = 0.002;
+  double bound_relative = 0.1;
+  // Links are queried as chains of capsules at most this long (the same union of points; tighter
+  // bounding boxes, so FCL tests far fewer voxels; see leg_clearance.cpp).
+  double piece_length = 0.1;
   bool check_thigh = true;  // thighs (HFE to knee, thigh_radius) as well as shins
 };
 
@@ -125,6 +139,8 @@ struct LegClearanceSeries {
   std::string leg;
   std::vector<double> shin_distance;   // m; <= 0 in collision (-penetration depth); NaN: no IK
   std::vector<double> thigh_distance;  // empty when the thigh is not checked
+  // 1 where the distance is an FCL result, 0 where it is a lower bound (> exact_below).
+  std::vector<char> shin_exact, thigh_exact;
   double shin_min = 0.0, thigh_min = 0.0;
   int shin_min_sample = -1, thigh_min_sample = -1;
   int shin_collision_samples = 0, thigh_collision_samples = 0;
@@ -141,6 +157,7 @@ struct ClearanceReport {
   int thigh_collisions = 0;  // same for thighs
   double first_collision_t = -1.0;
   double octree_resolution = 0.0;
+  long fcl_queries = 0;  // capsule distance queries run (the rest were bounded, see options)
 };
 
 ClearanceReport check_leg_clearance(const robot::RobotModel& model,

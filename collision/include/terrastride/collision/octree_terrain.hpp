@@ -17,8 +17,10 @@
 namespace terrastride::collision {
 
 struct VoxeliseOptions {
-  double resolution = 0.01;        // voxel edge (m); scene surfaces are exact to half of it
-  double ground_thickness = 0.10;  // how deep below ground_z the ground slab is filled (m)
+  double resolution = 0.01;  // voxel edge (m); scene surfaces are exact to half of it
+  // How deep below ground_z the ground slab is filled (m). A few voxels suffice: a leg is a chain
+  // hanging from a hip above the ground, so any part of it below the surface crosses the slab.
+  double ground_thickness = 0.05;
 };
 
 // Occupancy tree of solid boxes on a ground plane, restricted to the xy rectangle [lo, hi] (boxes
