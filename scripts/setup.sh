@@ -4,6 +4,7 @@
 #   scripts/setup.sh              Release build in build/
 #   scripts/setup.sh --sanitize   ASan+UBSan build of the fast tests in build-asan/
 #   scripts/setup.sh --deps-only  packages only
+#   scripts/setup.sh --fuzz-deps  also clang + libFuzzer runtime (for tests/fuzz/run.sh)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -12,7 +13,8 @@ case "${1:-}" in
   "") ;;
   --sanitize) mode=sanitize ;;
   --deps-only) mode=deps ;;
-  *) echo "setup.sh: unknown option '$1' (use --sanitize or --deps-only)" >&2; exit 2 ;;
+  --fuzz-deps) mode=fuzz ;;
+  *) echo "setup.sh: unknown option '$1' (use --sanitize, --deps-only or --fuzz-deps)" >&2; exit 2 ;;
 esac
 
 packages=(
@@ -21,7 +23,13 @@ packages=(
   nlohmann-json3-dev libcli11-dev libasio-dev libyaml-cpp-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   python3
+  # The offline report inlines a plotting library installed with npm (service/report), and its
+  # test opens the report in headless Chromium.
+  nodejs chromium
 )
+# The machine image's Node.js bundles npm; Debian's npm package only when it does not.
+command -v npm >/dev/null 2>&1 || packages+=(npm)
+[ "$mode" = fuzz ] && packages+=(clang libclang-rt-14-dev)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -34,7 +42,20 @@ if [ "${#missing[@]}" -gt 0 ]; then
   DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends \
     "${missing[@]}" >/dev/null
 fi
-[ "$mode" = deps ] && exit 0
+if [ "$mode" = deps ] || [ "$mode" = fuzz ]; then exit 0; fi
+
+# JavaScript assets of the report (pinned by service/report/package-lock.json). `npm ci` only
+# when the lock file changed since the last install, so re-runs stay fast and offline.
+if command -v npm >/dev/null 2>&1; then
+  stamp=service/report/node_modules/.terrastride-lock
+  if ! cmp -s service/report/package-lock.json "$stamp" 2>/dev/null; then
+    npm ci --prefix service/report --no-audit --no-fund --loglevel=error
+    cp service/report/package-lock.json "$stamp"
+  fi
+fi
+
+# Compiler cache shared by every checkout of this repository (paths hashed relative to it).
+export CCACHE_BASEDIR="$PWD"
 
 jobs=$(nproc 2>/dev/null || echo 2)
 if [ "$mode" = sanitize ]; then
