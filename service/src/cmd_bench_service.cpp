@@ -36,6 +36,7 @@ struct BenchOptions {
   std::string scene = "pallet_10";
   bool json = false;
   bool json_points = false;
+  double rate = 0;  // requests per second per client; 0 = back to back (saturation)
 };
 
 double ms_since(Clock::time_point t) {
@@ -83,7 +84,16 @@ QueryRun run_queries(const BenchOptions& o, int clients, int requests, const jso
         Client c = connect(o);
         std::mt19937 rng(1234 + t);
         std::uniform_real_distribution<double> ux(x0, x1), uy(y0, y1);
+        const auto period = std::chrono::duration_cast<Clock::duration>(
+            std::chrono::duration<double>(o.rate > 0 ? 1.0 / o.rate : 0.0));
+        // Paced clients start at random phases so they do not fire in lockstep.
+        auto next = Clock::now() + std::chrono::duration_cast<Clock::duration>(
+                                       period * std::uniform_real_distribution<double>(0, 1)(rng));
         for (int i = 0; keep_going ? keep_going->load() : i < requests; ++i) {
+          if (o.rate > 0) {
+            std::this_thread::sleep_until(next);
+            next += period;
+          }
           json request = {{"op", "map.query"}};
           std::vector<protocol::Attachment> atts;
           if (o.json_points) {
@@ -129,6 +139,7 @@ json bench_query(const BenchOptions& o, const json& extent) {
   json j = latency_json(r.latencies_ms);
   j["clients"] = o.clients;
   j["points_per_request"] = o.points;
+  j["rate_per_client"] = o.rate;
   j["points_encoding"] = o.json_points ? "json" : "float32 attachment";
   j["requests"] = r.latencies_ms.size();
   j["failures"] = r.failures;
@@ -269,6 +280,10 @@ void add_bench_service_command(CLI::App& app) {
   cmd->add_option("--requests", o->requests, "map.query requests per client")
       ->capture_default_str()
       ->check(CLI::Range(4, 1000000));
+  cmd->add_option("--rate", o->rate,
+                  "map.query requests per second per client (0 = back to back, i.e. saturation)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 100000.0));
   cmd->add_option("--points", o->points, "Points per map.query")
       ->capture_default_str()
       ->check(CLI::Range(1, 10000));
@@ -335,7 +350,8 @@ void add_bench_service_command(CLI::App& app) {
     if (out.contains("query")) {
       const json& q = out["query"];
       std::cout << std::fixed << std::setprecision(0) << "map.query: " << q["clients"]
-                << " clients x " << q["points_per_request"] << " points: "
+                << " clients x " << q["points_per_request"] << " points"
+                << (o->rate > 0 ? " at " + std::to_string(int(o->rate)) + " Hz each" : "") << ": "
                 << q["requests_per_s"].get<double>() << " requests/s, "
                 << q["points_per_s"].get<double>() << " points/s ("
                 << q["points_encoding"].get<std::string>() << "), failures " << q["failures"]

@@ -247,9 +247,18 @@ TEST(Protocol, RawResultSplicingAndNumbers) {
   const p::Message d = p::decode_body(body_of(p::encode_frame(m, raw)));
   EXPECT_EQ(d.header["id"], 7);
   EXPECT_EQ(d.header["ok"], true);
-  EXPECT_EQ(d.header["result"]["a"].get<double>(), 0.1);  // shortest round-trip text
+  EXPECT_EQ(d.header["result"]["a"].get<double>(), 0.1);
   EXPECT_TRUE(d.header["result"]["b"].is_null());
   EXPECT_EQ(d.header["result"]["c"].get<double>(), -1e-300);
+  for (double v : {1.0, -2.5, 0.123456789, 123456.000000001, 0.0001, -7e-5, 3e12, 0.0, -0.5}) {
+    std::string t;
+    p::append_json_number(t, v);
+    const double back = json::parse(t).get<double>();
+    EXPECT_NEAR(back, v, std::max(1e-9, std::abs(v) * 1e-15)) << t;
+  }
+  std::string t;
+  p::append_json_number(t, 0.07000000000000001);
+  EXPECT_EQ(t, "0.07");
   // Into an empty header, too.
   p::Message empty;
   EXPECT_EQ(p::decode_body(body_of(p::encode_frame(empty, "[1]"))).header["result"], json({1}));

@@ -251,78 +251,99 @@ struct Connection : std::enable_shared_from_this<Connection> {
   bool authenticated;
   bool closed = false;
   bool close_after_flush = false;
-  bool reading_body = false;
-  unsigned char prefix[4] = {0, 0, 0, 0};
-  std::string body;
-  std::size_t body_length = 0;
+  // Input buffer: bytes [in_start, in_end) are received and not yet consumed. Reads go into the
+  // free tail, so several pipelined frames arrive with one system call.
+  static constexpr std::size_t kInitialBuffer = 64u << 10;
+  static constexpr std::size_t kGrowStep = 1u << 20;
+  std::string inbuf = std::string(kInitialBuffer, '\0');
+  std::size_t in_start = 0, in_end = 0;
   std::deque<std::string> out;
   std::vector<std::string> writing;  // buffers of the write in progress
   std::size_t out_bytes = 0;
   std::unordered_map<std::string, std::shared_ptr<Job>> inflight;
 
-  void start() { read_prefix(); }
-
-  void read_prefix() {
-    if (closed || close_after_flush) return;
-    reading_body = false;
-    auto self = shared_from_this();
-    asio::async_read(socket, asio::buffer(prefix, 4),
-                     [self](const asio::error_code& ec, std::size_t n) {
-                       self->server.counters.bytes_in += n;
-                       if (ec) return self->close();
-                       self->on_prefix();
-                     });
-  }
-
-  void on_prefix() {
-    const std::uint32_t len = protocol::read_u32be(prefix);
-    try {
-      protocol::check_body_length(len, server.options.max_frame_bytes);
-    } catch (const ProtocolError& e) {
-      // The stream cannot be resynchronised: reply, then close once the reply is out.
-      server.counters.malformed_frames++;
-      send_error(nullptr, e.code(), e.what());
-      close_after_flush = true;
-      if (out.empty() && writing.empty()) close();
-      return;
-    }
-    body.clear();
-    body_length = len;
-    reading_body = true;
-    read_body_chunk();
-  }
-
-  // The body arrives in chunks of at most 1 MiB, so memory follows the bytes actually received,
-  // not the length a client announces.
-  void read_body_chunk() {
-    const std::size_t chunk = std::min<std::size_t>(body_length - body.size(), 1u << 20);
-    const std::size_t old = body.size();
-    body.resize(old + chunk);
-    auto self = shared_from_this();
-    asio::async_read(socket, asio::buffer(&body[old], chunk),
-                     [self](const asio::error_code& ec, std::size_t n) {
-                       self->server.counters.bytes_in += n;
-                       if (ec) {
-                         self->server.counters.disconnects_mid_request++;
-                         return self->close();
-                       }
-                       if (self->body.size() < self->body_length) return self->read_body_chunk();
-                       self->reading_body = false;
-                       self->dispatch();
-                       self->maybe_read();
-                     });
-  }
-
   // Backpressure: a client whose replies pile up unsent is not read from until they drain, so it
   // slows only itself (its own sends block in TCP).
   static constexpr std::size_t kPauseReadBytes = 4u << 20;
   bool read_paused = false;
-  void maybe_read() {
-    if (out_bytes > kPauseReadBytes) {
-      read_paused = true;
-      return;
+  bool read_pending = false;
+
+  void start() { read_more(0); }
+
+  // Makes room for `need` contiguous bytes from in_start, growing by at most kGrowStep beyond the
+  // bytes already received, so memory follows what a client sends, not what it announces.
+  void make_room(std::size_t need) {
+    if (in_start > 0 && (in_end == inbuf.size() || in_start + need > inbuf.size())) {
+      std::memmove(&inbuf[0], &inbuf[in_start], in_end - in_start);
+      in_end -= in_start;
+      in_start = 0;
     }
-    read_prefix();
+    if (in_end == inbuf.size() && inbuf.size() < need)
+      inbuf.resize(std::min(need, inbuf.size() + kGrowStep));
+  }
+
+  void read_more(std::size_t need) {
+    if (closed || close_after_flush || read_pending) return;
+    make_room(std::max<std::size_t>(need, 1));
+    if (in_end == inbuf.size()) make_room(in_end - in_start + 1);
+    read_pending = true;
+    auto self = shared_from_this();
+    socket.async_read_some(
+        asio::buffer(&inbuf[in_end], inbuf.size() - in_end),
+        [self](const asio::error_code& ec, std::size_t n) {
+          self->read_pending = false;
+          self->server.counters.bytes_in += n;
+          if (ec) {
+            if (self->in_end > self->in_start) self->server.counters.disconnects_mid_request++;
+            return self->close();
+          }
+          self->in_end += n;
+          self->process_frames();
+        });
+  }
+
+  // Dispatches every complete frame in the buffer, then reads on (unless paused or closing).
+  void process_frames() {
+    std::size_t need = 0;
+    while (!closed && !close_after_flush) {
+      if (out_bytes > kPauseReadBytes) {
+        read_paused = true;
+        return;
+      }
+      const std::size_t avail = in_end - in_start;
+      if (avail < 4) {
+        need = 4;
+        break;
+      }
+      const std::uint32_t len =
+          protocol::read_u32be(reinterpret_cast<const unsigned char*>(&inbuf[in_start]));
+      try {
+        protocol::check_body_length(len, server.options.max_frame_bytes);
+      } catch (const ProtocolError& e) {
+        // The stream cannot be resynchronised: reply, then close once the reply is out.
+        server.counters.malformed_frames++;
+        send_error(nullptr, e.code(), e.what());
+        close_after_flush = true;
+        if (out.empty() && writing.empty()) close();
+        return;
+      }
+      if (avail < 4 + std::size_t(len)) {
+        need = 4 + std::size_t(len);
+        break;
+      }
+      const std::string_view body(&inbuf[in_start + 4], len);
+      in_start += 4 + len;
+      dispatch(body);
+    }
+    if (closed || close_after_flush) return;
+    if (in_start == in_end) {
+      in_start = in_end = 0;
+      if (inbuf.size() > kInitialBuffer) {  // give back the room a large frame needed
+        inbuf.resize(kInitialBuffer);
+        inbuf.shrink_to_fit();
+      }
+    }
+    read_more(need);
   }
 
   void send(std::string frame) {
@@ -372,7 +393,7 @@ struct Connection : std::enable_shared_from_this<Connection> {
       if (ec) return self->close();
       if (self->read_paused && self->out_bytes <= kPauseReadBytes / 2) {
         self->read_paused = false;
-        self->read_prefix();
+        self->process_frames();
       }
       self->do_write();
     });
@@ -419,11 +440,11 @@ struct Connection : std::enable_shared_from_this<Connection> {
     send_error(job->id, code, message);
   }
 
-  void dispatch();
+  void dispatch(std::string_view body);
   OpResult builtin_cancel(const Message& m);
 };
 
-void Connection::dispatch() {
+void Connection::dispatch(std::string_view body) {
   server.counters.requests++;
   const auto arrival = Clock::now();
   Message m;
@@ -438,8 +459,6 @@ void Connection::dispatch() {
     send_error(id, e.code(), e.what());
     return;
   }
-  body.clear();
-  body.shrink_to_fit();
   {
     // Per-op counters for known ops only, so hostile op names cannot grow the map.
     const bool known = req.op == "hello" || req.op == "status" || req.op == "cancel" ||
@@ -511,7 +530,13 @@ void Connection::dispatch() {
       return r;
     });
   }
-  if (req.op == "status") return run_inline([&] { return OpResult{server.status_json(), {}}; });
+  if (req.op == "status") {
+    return run_inline([&] {
+      OpResult r;
+      r.result = server.status_json();
+      return r;
+    });
+  }
   if (req.op == "cancel") return run_inline([&] { return builtin_cancel(m); });
 
   const Operation* op = server.registry.find(req.op);

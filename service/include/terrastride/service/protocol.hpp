@@ -144,7 +144,8 @@ Attachment make_float_attachment(const std::string& name, std::vector<std::uint6
 std::vector<float> read_floats(const Attachment& a, std::size_t cols, bool require_finite);
 std::vector<Eigen::Vector3f> read_points(const Attachment& a);
 
-// Appends the shortest text that reads back as exactly `v` (JSON null when not finite).
+// Appends `v` as JSON: fixed point rounded to 1e-9 for 1e-4 <= |v| < 1e9, otherwise the shortest
+// round-trip text; null when not finite.
 void append_json_number(std::string& out, double v);
 
 // Constant-time comparison (time depends only on the lengths, not on where they differ).
