@@ -1,0 +1,336 @@
+// `terrastride check`: the post-hoc checks of a plan (DESIGN.md, Post-hoc checks) against a mapped
+// terrain directory or an exact scene.
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <iomanip>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "terrastride/collision/checks.hpp"
+#include "terrastride/collision/octree_terrain.hpp"
+#include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/planner/plan_io.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/service/cli.hpp"
+#include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
+
+namespace terrastride::service {
+namespace {
+
+using nlohmann::json;
+
+// Exit code when the checks ran and at least one failed (1 = bad input, 2 = usage).
+constexpr int kChecksFailed = 3;
+
+struct CheckCliOptions {
+  std::string plan;
+  std::string terrain;
+  double resolution = 0.01;
+  std::string series;
+  bool json = false;
+};
+
+// What the checks run against; owns the field and the tree.
+struct LoadedTerrain {
+  std::unique_ptr<terrain::Scene> scene;
+  std::unique_ptr<terrain::TerrainMap> map;
+  collision::CheckTerrain view;
+};
+
+LoadedTerrain load_terrain(const std::string& spec, const robot::RobotModel& model,
+                           const planner::Trajectory& traj, double resolution) {
+  namespace fs = std::filesystem;
+  LoadedTerrain t;
+  try {
+    if (fs::is_directory(spec)) {
+      t.map = terrain::load_terrain_dir(spec);
+      t.view.field = t.map.get();
+      const std::string bt = (fs::path(spec) / "octomap.bt").string();
+      if (!fs::exists(bt))
+        throw CommandError("--terrain " + spec +
+                           ": no octomap.bt (the scan's occupancy map the leg check needs)");
+      try {
+        t.view.octree = collision::read_octomap(bt);
+      } catch (const std::runtime_error& e) {
+        throw CommandError(std::string("--terrain: ") + e.what());
+      }
+      t.view.description = "map " + spec + " (scan OctoMap at " +
+                           std::to_string(t.view.octree->getResolution()) + " m)";
+      return t;
+    }
+    if (fs::exists(spec))
+      throw CommandError("--terrain " + spec +
+                         ": a file; pass a terrain directory from 'terrastride map' or a scene "
+                         "name");
+    const auto names = terrain::scene_names();
+    if (std::find(names.begin(), names.end(), spec) == names.end()) {
+      std::string list;
+      for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
+      throw CommandError("--terrain " + spec +
+                         ": neither a terrain directory nor a scene name (scenes: " + list + ")");
+    }
+    t.scene = terrain::make_scene(spec);
+    t.view.field = t.scene.get();
+    // The scene has no scan: voxelise its exact boxes where the legs go, so the very same FCL
+    // check runs on it.
+    Eigen::Vector2d lo, hi;
+    collision::trajectory_extent(model, traj, 0.1, &lo, &hi);
+    collision::VoxeliseOptions vo;
+    vo.resolution = resolution;
+    t.view.octree = collision::voxelise_scene(*t.scene, lo, hi, vo);
+    std::ostringstream d;
+    d << "scene " << spec << " (exact; voxelised at " << resolution << " m for the leg check)";
+    t.view.description = d.str();
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--terrain ") + spec + ": " + e.what());
+  } catch (const std::invalid_argument& e) {
+    throw CommandError(std::string("--terrain ") + spec + ": " + e.what());
+  }
+  return t;
+}
+
+json vec(const Eigen::Vector3d& v) {
+  return json::array({v.x(), v.y(), v.z()});
+}
+
+// NaN (no IK) becomes null: JSON has no NaN.
+json num(double v) {
+  return std::isfinite(v) ? json(v) : json(nullptr);
+}
+
+json summary_json(const collision::CheckReport& rep, const std::string& plan,
+                  const std::string& terrain) {
+  static const char* kJoints[3] = {"HAA", "HFE", "KFE"};
+  json out;
+  out["plan"] = plan;
+  out["terrain"] = terrain;
+  out["passed"] = rep.passed();
+  out["failures"] = rep.failures();
+  json checks = json::object();
+  for (const auto& [k, v] : rep.keys()) checks[k] = v;
+  out["checks"] = checks;
+  json legs = json::array();
+  for (size_t i = 0; i < rep.torque.legs.size(); ++i) {
+    const auto& t = rep.torque.legs[i];
+    json leg{{"leg", t.leg},
+             {"torque_ratio_max",
+              {{"HAA", t.worst_ratio[0]}, {"HFE", t.worst_ratio[1]}, {"KFE", t.worst_ratio[2]}}},
+             {"torque_violations", t.violating_samples}};
+    json worst_t = json::object();
+    for (int j = 0; j < 3; ++j)
+      if (t.worst_sample[j] >= 0) worst_t[kJoints[j]] = rep.torque.time[t.worst_sample[j]];
+    leg["torque_ratio_max_t"] = worst_t;
+    if (rep.clearance) {
+      const auto& c = rep.clearance->legs[i];
+      leg["shin_min_distance_m"] = c.shin_min;
+      leg["shin_collisions"] = c.shin_collision_samples;
+      if (c.shin_min_sample >= 0) leg["shin_min_t"] = rep.clearance->time[c.shin_min_sample];
+      if (!c.thigh_distance.empty()) {
+        leg["thigh_min_distance_m"] = c.thigh_min;
+        leg["thigh_collisions"] = c.thigh_collision_samples;
+      }
+      leg["first_collision_t"] = c.first_collision_t >= 0 ? json(c.first_collision_t) : json();
+    }
+    legs.push_back(leg);
+  }
+  out["legs"] = legs;
+  if (rep.torque.worst_sample >= 0)
+    out["torque_worst"] = {{"leg", rep.torque.legs[rep.torque.worst_leg].leg},
+                           {"joint", kJoints[rep.torque.worst_joint]},
+                           {"t", rep.torque.time[rep.torque.worst_sample]},
+                           {"ratio", rep.torque.ratio_max}};
+  json issues = json::array();
+  for (const auto& is : rep.kinematics.issues)
+    issues.push_back({{"t", is.t}, {"leg", rep.torque.legs[is.leg].leg}, {"message", is.message}});
+  out["kinematic_issues"] = issues;
+  if (rep.clearance) {
+    out["clearance"] = {
+        {"octree_resolution_m", rep.clearance->octree_resolution},
+        {"shin_exclusion_m", rep.clearance->shin_exclusion},
+        {"fcl_queries", rep.clearance->fcl_queries},
+        {"first_collision_t",
+         rep.clearance->first_collision_t >= 0 ? json(rep.clearance->first_collision_t) : json()}};
+  }
+  if (rep.footholds) {
+    json unsafe = json::array();
+    for (const auto& f : rep.footholds->footholds) {
+      if (f.safe()) continue;
+      unsafe.push_back({{"leg", rep.torque.legs[f.leg].leg},
+                        {"t_start", f.t_start},
+                        {"t_end", f.t_end},
+                        {"position", vec(f.position)},
+                        {"margin_m", f.margin}});
+    }
+    out["footholds"] = {{"count", rep.footholds->footholds.size()},
+                        {"unsafe", rep.footholds->unsafe},
+                        {"foot_radius_m", rep.footholds->foot_radius},
+                        {"margin_min_m", rep.footholds->worst_margin},
+                        {"unsafe_list", unsafe}};
+  }
+  out["samples"] = rep.torque.time.size();
+  out["wall_s"] = rep.wall_s;
+  return out;
+}
+
+// Per-joint torque series (and per-leg clearance series) for reports and plots.
+json series_json(const collision::CheckReport& rep, const robot::RobotModel& model) {
+  json out;
+  out["t"] = rep.torque.time;
+  json legs = json::array();
+  for (size_t i = 0; i < rep.torque.legs.size(); ++i) {
+    const auto& t = rep.torque.legs[i];
+    json tau = json::array(), ratio = json::array();
+    for (int j = 0; j < 3; ++j) {
+      json tj = json::array(), rj = json::array();
+      for (size_t k = 0; k < t.tau.size(); ++k) {
+        tj.push_back(num(t.tau[k][j]));
+        rj.push_back(num(t.ratio[k][j]));
+      }
+      tau.push_back(tj);
+      ratio.push_back(rj);
+    }
+    json leg{{"leg", t.leg},
+             {"joints", {"HAA", "HFE", "KFE"}},
+             {"torque_limit_Nm", vec(model.legs[i].torque_limit)},
+             {"tau_Nm", tau},
+             {"ratio", ratio}};
+    if (rep.clearance) {
+      const auto& c = rep.clearance->legs[i];
+      json shin = json::array(), thigh = json::array();
+      for (double d : c.shin_distance) shin.push_back(num(d));
+      for (double d : c.thigh_distance) thigh.push_back(num(d));
+      leg["shin_distance_m"] = shin;
+      leg["shin_distance_exact"] = c.shin_exact;
+      if (!c.thigh_distance.empty()) {
+        leg["thigh_distance_m"] = thigh;
+        leg["thigh_distance_exact"] = c.thigh_exact;
+      }
+    }
+    legs.push_back(leg);
+  }
+  out["legs"] = legs;
+  return out;
+}
+
+void print_human(const collision::CheckReport& rep, const std::string& plan,
+                 const std::string& terrain) {
+  static const char* kJoints[3] = {"HAA", "HFE", "KFE"};
+  std::cout << std::fixed << std::setprecision(3);
+  std::cout << "plan     " << plan << " (" << rep.torque.time.size() << " samples, "
+            << (rep.torque.time.empty() ? 0.0 : rep.torque.time.back()) << " s)\n";
+  std::cout << "terrain  " << terrain << "\n\n";
+  std::cout << "leg   torque ratio max (HAA HFE KFE)   viol.   shin min [m]  coll.   thigh min [m]"
+               "  coll.\n";
+  for (size_t i = 0; i < rep.torque.legs.size(); ++i) {
+    const auto& t = rep.torque.legs[i];
+    std::cout << std::left << std::setw(6) << t.leg << std::right << std::setw(8)
+              << t.worst_ratio[0] << std::setw(8) << t.worst_ratio[1] << std::setw(8)
+              << t.worst_ratio[2] << std::setw(14) << t.violating_samples;
+    if (rep.clearance) {
+      const auto& c = rep.clearance->legs[i];
+      std::cout << std::setw(15) << c.shin_min << std::setw(7) << c.shin_collision_samples;
+      if (!c.thigh_distance.empty())
+        std::cout << std::setw(16) << c.thigh_min << std::setw(7) << c.thigh_collision_samples;
+    }
+    std::cout << "\n";
+  }
+  std::cout << "\n";
+  if (rep.torque.worst_sample >= 0)
+    std::cout << "worst torque  " << rep.torque.ratio_max << " x limit ("
+              << rep.torque.legs[rep.torque.worst_leg].leg << " " << kJoints[rep.torque.worst_joint]
+              << " at t = " << rep.torque.time[rep.torque.worst_sample] << " s)\n";
+  if (rep.clearance)
+    std::cout << "leg capsules  shin min " << rep.clearance->shin_min_distance << " m, thigh min "
+              << rep.clearance->thigh_min_distance << " m (clearances cap at the 0.1 m cutoff)\n";
+  if (rep.footholds)
+    std::cout << "footholds     " << rep.footholds->footholds.size() << " stances, "
+              << rep.footholds->unsafe << " unsafe, worst margin " << std::setprecision(4)
+              << rep.footholds->worst_margin << " m for r = " << rep.footholds->foot_radius
+              << " m\n";
+  std::cout << std::setprecision(3) << "checked in    " << rep.wall_s << " s\n\n";
+  const auto failures = rep.failures();
+  if (failures.empty()) {
+    std::cout << "PASS: all checks passed\n";
+  } else {
+    std::cout << "FAIL:\n";
+    for (const auto& f : failures) std::cout << "  - " << f << "\n";
+  }
+}
+
+void run_check(const CheckCliOptions& o) {
+  if (!std::isfinite(o.resolution) || o.resolution < 0.002 || o.resolution > 0.2)
+    throw CommandError("--resolution: must be in [0.002, 0.2] m");
+  planner::Trajectory traj;
+  try {
+    traj = planner::read_plan_file(o.plan);
+  } catch (const planner::PlanFileError& e) {
+    throw CommandError(e.what());
+  }
+  robot::RobotModel model;
+  try {
+    model = robot::load_robot(robot::resolve_robot_path(traj.robot.empty() ? "hyq" : traj.robot));
+  } catch (const robot::RobotFileError& e) {
+    throw CommandError(o.plan + ": robot: '" + traj.robot + "' cannot be loaded: " + e.what());
+  }
+  LoadedTerrain terrain = load_terrain(o.terrain, model, traj, o.resolution);
+  collision::CheckReport rep;
+  try {
+    rep = collision::run_checks(model, traj, terrain.view);
+  } catch (const collision::TrajectoryError& e) {
+    throw CommandError(o.plan + ": " + e.what());
+  }
+  if (!o.series.empty()) {
+    try {
+      perception::write_file_atomically(o.series, series_json(rep, model).dump() + "\n");
+    } catch (const perception::InputError& e) {
+      throw CommandError(std::string("--series: ") + e.what());
+    }
+  }
+  if (o.json) {
+    std::cout << summary_json(rep, o.plan, terrain.view.description).dump() << "\n";
+  } else {
+    print_human(rep, o.plan, terrain.view.description);
+  }
+  std::cout.flush();
+  const auto failures = rep.failures();
+  if (!failures.empty()) {
+    std::string msg = std::to_string(failures.size()) + " check(s) failed: " + failures.front();
+    if (failures.size() > 1) msg += " (and " + std::to_string(failures.size() - 1) + " more)";
+    throw CommandError(msg, kChecksFailed);
+  }
+}
+
+}  // namespace
+
+void add_check_command(CLI::App& app) {
+  auto opts = std::make_shared<CheckCliOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "check",
+      "Post-hoc checks of a plan: joint torques along it (tau = M qdd + c + g - J^T f from IK of "
+      "each foot), shin and thigh capsules against the terrain's OctoMap with FCL, and stance "
+      "footholds against the foothold-safety margin.\n"
+      "Exit codes: 0 all checks pass; 3 a check failed (torque above a limit, IK failure or joint "
+      "out of range, leg collision, unsafe foothold), named on stderr; 1 bad input; 2 usage.");
+  cmd->add_option("plan", opts->plan, "plan.json written by 'terrastride plan'")
+      ->required()
+      ->check(CLI::ExistingFile);
+  cmd->add_option("--terrain", opts->terrain,
+                  "Terrain directory from 'terrastride map' (uses its octomap.bt and safety "
+                  "margins) or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap: "
+                  "exact analytic terrain, voxelised for the leg check)")
+      ->required();
+  cmd->add_option("--resolution", opts->resolution,
+                  "Voxel size (m) used to voxelise a scene for the leg check")
+      ->capture_default_str();
+  cmd->add_option("--series", opts->series,
+                  "Also write the per-joint torque series and per-leg clearance series as JSON");
+  cmd->add_flag("--json", opts->json, "Print the results as one JSON object");
+  cmd->callback([opts] { run_check(*opts); });
+}
+
+}  // namespace terrastride::service
