@@ -246,9 +246,85 @@ HeightSample BSplineField::sample(double x, double y) const {
 }
 
 // ---------------------------------------------------------------------------------------------
-SafetyLayer compute_safety(const HeightGrid& grid, double radius, const SafetyOptions& o) {
-  if (!std::isfinite(radius) || radius < 0 || radius > 1.0)
-    throw InputError("foot radius " + std::to_string(radius) + " m is outside [0, 1] m");
+namespace {
+
+// The radius-independent part of the safety computation, shared by all radii: row prefix sums
+// along y (z, z^2, j z, unobserved cells; one extra slot per row) and the sliding min of cell min /
+// max of cell max along y for every half-width 0..W.
+struct SafetyPrecompute {
+  size_t ps = 0;
+  std::vector<double> pz, pz2, pjz;
+  std::vector<int> pun;
+  std::vector<std::vector<float>> rmin, rmax;
+  double mean_support = 1.0;
+};
+
+int disk_half_width(double radius, double res) {
+  return static_cast<int>(std::floor(radius / res + 0.5 + 1e-9));
+}
+
+SafetyPrecompute precompute_safety(const HeightGrid& grid, int W) {
+  const GridGeometry& g = grid.geometry;
+  const int nx = g.nx, ny = g.ny;
+  SafetyPrecompute p;
+  p.ps = ny + 1;
+  const size_t ps = p.ps;
+  p.pz.resize(nx * ps);
+  p.pz2.resize(nx * ps);
+  p.pjz.resize(nx * ps);
+  p.pun.resize(nx * ps);
+  for (int i = 0; i < nx; ++i) {
+    double a = 0, b = 0, c = 0;
+    int u = 0;
+    p.pz[i * ps] = p.pz2[i * ps] = p.pjz[i * ps] = 0;
+    p.pun[i * ps] = 0;
+    for (int j = 0; j < ny; ++j) {
+      const size_t k = g.index(i, j);
+      const double z = grid.elevation[k];
+      a += z;
+      b += z * z;
+      c += j * z;
+      u += grid.observed[k] ? 0 : 1;
+      p.pz[i * ps + j + 1] = a;
+      p.pz2[i * ps + j + 1] = b;
+      p.pjz[i * ps + j + 1] = c;
+      p.pun[i * ps + j + 1] = u;
+    }
+  }
+  p.rmin.resize(W + 1);
+  p.rmax.resize(W + 1);
+  p.rmin[0] = grid.min;
+  p.rmax[0] = grid.max;
+  for (int k = 1; k <= W; ++k) {
+    p.rmin[k] = p.rmin[k - 1];
+    p.rmax[k] = p.rmax[k - 1];
+    float* mn = p.rmin[k].data();
+    float* mx = p.rmax[k].data();
+    for (int i = 0; i < nx; ++i) {
+      const size_t row = g.index(i, 0);
+      for (int j = k; j < ny; ++j) {
+        mn[row + j] = std::min(mn[row + j], grid.min[row + j - k]);
+        mx[row + j] = std::max(mx[row + j], grid.max[row + j - k]);
+      }
+      for (int j = 0; j + k < ny; ++j) {
+        mn[row + j] = std::min(mn[row + j], grid.min[row + j + k]);
+        mx[row + j] = std::max(mx[row + j], grid.max[row + j + k]);
+      }
+    }
+  }
+  double support_sum = 0;
+  size_t support_cells = 0;
+  for (size_t k = 0; k < g.size(); ++k)
+    if (grid.observed[k]) {
+      support_sum += grid.support[k];
+      ++support_cells;
+    }
+  p.mean_support = support_cells ? std::max(1.0, support_sum / support_cells) : 1.0;
+  return p;
+}
+
+SafetyLayer safety_for_radius(const HeightGrid& grid, const SafetyPrecompute& pre, double radius,
+                              const SafetyOptions& o) {
   const GridGeometry& g = grid.geometry;
   const int nx = g.nx, ny = g.ny;
   const double res = g.resolution;
@@ -266,50 +342,10 @@ SafetyLayer compute_safety(const HeightGrid& grid, double radius, const SafetyOp
     ncells += 2 * wi + 1;
   }
   const int W = *std::max_element(w.begin(), w.end());
-
-  // Row prefix sums along y of z, z^2, j z and unobserved cells (one extra slot per row).
-  const size_t ps = ny + 1;
-  std::vector<double> pz(nx * ps), pz2(nx * ps), pjz(nx * ps);
-  std::vector<int> pun(nx * ps);
-  for (int i = 0; i < nx; ++i) {
-    double a = 0, b = 0, c = 0;
-    int u = 0;
-    pz[i * ps] = pz2[i * ps] = pjz[i * ps] = 0;
-    pun[i * ps] = 0;
-    for (int j = 0; j < ny; ++j) {
-      const size_t k = g.index(i, j);
-      const double z = grid.elevation[k];
-      a += z;
-      b += z * z;
-      c += j * z;
-      u += grid.observed[k] ? 0 : 1;
-      pz[i * ps + j + 1] = a;
-      pz2[i * ps + j + 1] = b;
-      pjz[i * ps + j + 1] = c;
-      pun[i * ps + j + 1] = u;
-    }
-  }
-  // Sliding min of cell min / max of cell max along y for every half-width 0..W.
-  std::vector<std::vector<float>> rmin(W + 1), rmax(W + 1);
-  rmin[0] = grid.min;
-  rmax[0] = grid.max;
-  for (int k = 1; k <= W; ++k) {
-    rmin[k] = rmin[k - 1];
-    rmax[k] = rmax[k - 1];
-    for (int i = 0; i < nx; ++i)
-      for (int j = 0; j < ny; ++j) {
-        const size_t c = g.index(i, j);
-        if (j - k >= 0) {
-          rmin[k][c] = std::min(rmin[k][c], grid.min[c - k]);
-          rmax[k][c] = std::max(rmax[k][c], grid.max[c - k]);
-        }
-        if (j + k < ny) {
-          rmin[k][c] = std::min(rmin[k][c], grid.min[c + k]);
-          rmax[k][c] = std::max(rmax[k][c], grid.max[c + k]);
-        }
-      }
-  }
-
+  const size_t ps = pre.ps;
+  const std::vector<double>&pz = pre.pz, &pz2 = pre.pz2, &pjz = pre.pjz;
+  const std::vector<int>& pun = pre.pun;
+  const std::vector<std::vector<float>>&rmin = pre.rmin, &rmax = pre.rmax;
   SafetyLayer layer;
   layer.radius = radius;
   layer.safe.assign(g.size(), 0);
@@ -323,15 +359,7 @@ SafetyLayer compute_safety(const HeightGrid& grid, double radius, const SafetyOp
   // The fitted slope of a small disk is noisy: each elevation is a median of `support` points with
   // standard error about 1.25 sigma / sqrt(support), so the slope's standard error per axis is that
   // over sqrt(sum of squared offsets). Allow slope_noise_factor of those.
-  double support_sum = 0;
-  size_t support_cells = 0;
-  for (size_t k = 0; k < g.size(); ++k)
-    if (grid.observed[k]) {
-      support_sum += grid.support[k];
-      ++support_cells;
-    }
-  const double mean_support = support_cells ? std::max(1.0, support_sum / support_cells) : 1.0;
-  const double sigma_median = 1.2533 * sigma / std::sqrt(mean_support);
+  const double sigma_median = 1.2533 * sigma / std::sqrt(pre.mean_support);
   const double slope_noise = sxx > 0 ? sigma_median / std::sqrt(sxx) : 0.0;  // per cell
   const double max_slope_eff = max_slope_cells + o.slope_noise_factor * slope_noise;
   for (int i = 0; i < nx; ++i) {
@@ -385,8 +413,27 @@ SafetyLayer compute_safety(const HeightGrid& grid, double radius, const SafetyOp
       layer.margin[k] = static_cast<float>(-(d - 0.5 * res));
     }
   }
-  layer.margin_field = BSplineField(g, layer.margin, /*interpolate=*/true);
   return layer;
+}
+
+}  // namespace
+
+std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vector<double>& radii,
+                                        const SafetyOptions& o) {
+  int W = 0;
+  for (double r : radii) {
+    if (!std::isfinite(r) || r < 0 || r > 1.0)
+      throw InputError("foot radius " + std::to_string(r) + " m is outside [0, 1] m");
+    W = std::max(W, disk_half_width(r, grid.geometry.resolution));
+  }
+  const SafetyPrecompute pre = precompute_safety(grid, W);
+  std::vector<SafetyLayer> layers;
+  for (double r : radii) layers.push_back(safety_for_radius(grid, pre, r, o));
+  return layers;
+}
+
+SafetyLayer compute_safety(const HeightGrid& grid, double radius, const SafetyOptions& o) {
+  return std::move(compute_safety(grid, std::vector<double>{radius}, o).front());
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -394,7 +441,14 @@ TerrainMap::TerrainMap(HeightGrid grid, const std::vector<double>& radii, Safety
     : grid_(std::move(grid)), options_(options), height_(grid_.geometry, grid_.elevation) {
   if (!(options_.max_step > 0) || !(options_.max_rms > 0) || !(options_.max_slope > 0))
     throw InputError("safety options: max_step, max_rms and max_slope must be positive");
-  for (double r : radii) layer(r);
+  std::vector<double> todo;
+  for (double r : radii)
+    if (std::none_of(todo.begin(), todo.end(), [r](double t) { return std::abs(t - r) < 1e-9; }))
+      todo.push_back(r);
+  for (auto& l : compute_safety(grid_, todo, options_)) {
+    l.margin_field = BSplineField(grid_.geometry, l.margin, /*interpolate=*/true);
+    layers_.push_back(std::move(l));
+  }
 }
 
 std::unique_ptr<TerrainMap> TerrainMap::from_scene(const Scene& scene, double resolution,
@@ -407,7 +461,9 @@ const SafetyLayer& TerrainMap::layer(double r) const {
   std::lock_guard<std::mutex> lock(mutex_);
   for (const auto& l : layers_)
     if (std::abs(l.radius - r) < 1e-9) return l;
-  layers_.push_back(compute_safety(grid_, r, options_));
+  SafetyLayer l = compute_safety(grid_, r, options_);
+  l.margin_field = BSplineField(grid_.geometry, l.margin, /*interpolate=*/true);
+  layers_.push_back(std::move(l));
   return layers_.back();
 }
 

@@ -66,12 +66,15 @@ struct SafetyLayer {
   std::vector<uint8_t> safe;  // per cell, 1 = safe
   std::vector<float> margin;  // signed distance (m) to the nearest unsafe cell, negative inside
   size_t safe_cells = 0;
-  BSplineField margin_field;  // C2 interpolation of `margin`
+  BSplineField margin_field;  // C2 interpolation of `margin` (built by TerrainMap, not here)
 };
 
 // Computes the mask and the margin: Euclidean distance transform (Felzenszwalb-Huttenlocher) from
 // the unsafe cells for safe cells and from the safe cells for unsafe ones, each minus half a cell
 // so the zero level lies on the border between a safe and an unsafe cell.
+// Several radii share the radius-independent work (prefix sums, sliding extrema).
+std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vector<double>& radii,
+                                        const SafetyOptions& options = {});
 SafetyLayer compute_safety(const HeightGrid& grid, double radius,
                            const SafetyOptions& options = {});
 

@@ -1,0 +1,205 @@
+// `terrastride map`, `query` and `scan-sim` end to end, and their handling of bad input.
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct CliResult {
+  int code = -1;
+  std::string out;  // stdout
+  std::string err;  // stderr
+};
+
+CliResult run(const std::string& args, const fs::path& dir) {
+  CliResult r;
+  const fs::path err = dir / "stderr.txt";
+  const std::string cmd = std::string(TERRASTRIDE_BINARY) + " " + args + " 2>" + err.string();
+  FILE* pipe = popen(cmd.c_str(), "r");
+  if (!pipe) return r;
+  std::array<char, 4096> buf;
+  size_t n;
+  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) r.out.append(buf.data(), n);
+  const int status = pclose(pipe);
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream in(err);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  r.err = ss.str();
+  fs::remove(err);
+  return r;
+}
+
+class TerrainCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("terrastride_terrain_cli_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  std::string write(const std::string& name, const std::string& content) {
+    std::ofstream(dir_ / name, std::ios::binary) << content;
+    return (dir_ / name).string();
+  }
+  // A 1 m x 1 m plane at z = 0.3 sampled every 5 mm, and a 10 cm step at x = 0.5.
+  std::string plane_xyz(bool step) {
+    std::ostringstream os;
+    for (int i = 0; i < 200; ++i)
+      for (int j = 0; j < 200; ++j) {
+        const double x = i * 0.005, y = j * 0.005;
+        os << x << " " << y << " " << (0.3 + (step && x >= 0.5 ? 0.1 : 0.0)) << "\n";
+      }
+    return write(step ? "step.xyz" : "plane.xyz", os.str());
+  }
+  // Everything in the test directory except the named inputs: must be empty after a failure.
+  std::vector<std::string> leftovers(const std::vector<std::string>& inputs) {
+    std::vector<std::string> extra;
+    for (const auto& e : fs::directory_iterator(dir_)) {
+      const std::string name = e.path().filename().string();
+      if (std::find(inputs.begin(), inputs.end(), name) == inputs.end()) extra.push_back(name);
+    }
+    return extra;
+  }
+  fs::path dir_;
+};
+
+}  // namespace
+
+TEST_F(TerrainCli, MapThenQueryAPlaneWithAStep) {
+  const std::string cloud = plane_xyz(true);
+  const std::string out = (dir_ / "map").string();
+  CliResult r =
+      run("map " + cloud + " --origin 0.5,0.5,1.5 --foot-radius 0.02,0.05 --out " + out + " --json",
+          dir_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto summary = nlohmann::json::parse(r.out);
+  EXPECT_EQ(summary["points_in"].get<size_t>(), 40000u);
+  EXPECT_EQ(summary["safe"].size(), 2u);
+  EXPECT_TRUE(summary["timings"].contains("total_s"));
+  for (const char* f : {"terrain.json", "octomap.bt", "layers/elevation.npy", "layers/variance.npy",
+                        "layers/min.npy", "layers/max.npy", "layers/count.npy",
+                        "layers/observed.npy", "layers/safe_r20.npy", "layers/margin_r50.npy"})
+    EXPECT_TRUE(fs::exists(fs::path(out) / f)) << f;
+  r = run("query " + out + " --at 0.25,0.5 --at 0.75,0.5 --at 0.5,0.5", dir_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::istringstream lines(r.out);
+  std::string line;
+  std::vector<nlohmann::json> q;
+  while (std::getline(lines, line)) q.push_back(nlohmann::json::parse(line));
+  ASSERT_EQ(q.size(), 3u);
+  for (const char* key : {"x", "y", "height", "gradient", "safe", "margin", "observed"})
+    EXPECT_TRUE(q[0].contains(key)) << key;
+  EXPECT_NEAR(q[0]["height"].get<double>(), 0.3, 0.005);
+  EXPECT_NEAR(q[1]["height"].get<double>(), 0.4, 0.005);
+  EXPECT_TRUE(q[0]["safe"].get<bool>());
+  EXPECT_TRUE(q[1]["safe"].get<bool>());
+  EXPECT_FALSE(q[2]["safe"].get<bool>());  // on the step edge
+  EXPECT_LT(q[2]["margin"].get<double>(), 0.0);
+  EXPECT_GT(q[2]["gradient"][0].get<double>(), 0.5);
+  // Human summary names the figures.
+  r = run("map " + cloud + " --out " + out, dir_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("kept after cleaning"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("safe for foot radius"), std::string::npos) << r.out;
+}
+
+TEST_F(TerrainCli, ScanSimThenMapThePallet) {
+  const std::string pcd = (dir_ / "pallet.pcd").string();
+  CliResult r = run("scan-sim --scene pallet_15 --poses 2 --seed 3 --out " + pcd + " --json", dir_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto s = nlohmann::json::parse(r.out);
+  ASSERT_EQ(s["files"].size(), 2u);
+  EXPECT_TRUE(fs::exists(dir_ / "pallet.pcd"));
+  EXPECT_TRUE(fs::exists(dir_ / "pallet.1.pcd"));
+  const std::string out = (dir_ / "map").string();
+  r = run("map " + pcd + " " + (dir_ / "pallet.1.pcd").string() + " --out " + out, dir_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  r = run("query " + out + " --at 1.1,0.0 --at 0.3,0.0", dir_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::istringstream lines(r.out);
+  std::string a, b;
+  std::getline(lines, a);
+  std::getline(lines, b);
+  EXPECT_NEAR(nlohmann::json::parse(a)["height"].get<double>(), 0.15, 0.01);
+  EXPECT_NEAR(nlohmann::json::parse(b)["height"].get<double>(), 0.0, 0.01);
+  r = run("scan-sim --scene palette --out " + pcd, dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("palette"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("eur_pallet"), std::string::npos) << r.err;
+  r = run("scan-sim --scene flat --out " + (dir_ / "x.txt").string(), dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find(".pcd"), std::string::npos) << r.err;
+}
+
+TEST_F(TerrainCli, BadInputFailsCleanlyAndWritesNothing) {
+  const std::string good = plane_xyz(false);
+  const std::string out = (dir_ / "map").string();
+  struct Case {
+    std::string args, expect;
+  };
+  const std::string empty = write("empty.xyz", "");
+  const std::string nan = write("nan.xyz", "nan nan nan\nnan 1 2\n");
+  const std::string inf = write("inf.xyz", "inf 0 0\n0 -inf 0\n");
+  const std::string garbage = write("garbage.pcd", "this is not a point cloud\n\x01\x02");
+  const std::string fake_npy = write("fake.npy", "0 0 0\n1 1 1\n");
+  const std::vector<Case> cases = {
+      {"map " + empty + " --out " + out, "empty.xyz"},
+      {"map " + nan + " --out " + out, "nan.xyz"},
+      {"map " + inf + " --out " + out, "inf.xyz"},
+      {"map " + garbage + " --out " + out, "garbage.pcd"},
+      {"map " + fake_npy + " --out " + out, "fake.npy"},
+      {"map " + (dir_ / "missing.pcd").string() + " --out " + out, "missing.pcd"},
+      {"map " + good + " --resolution 0 --out " + out, "--resolution"},
+      {"map " + good + " --resolution 1e-6 --out " + out, "--resolution"},
+      {"map " + good + " --resolution 100 --out " + out, "--resolution"},
+      {"map " + good + " --resolution nan --out " + out, "resolution"},
+      {"map " + good + " --foot-radius -0.1 --out " + out, "--foot-radius"},
+      {"map " + good + " --origin 1,2 --out " + out, "--origin"},
+      {"map " + good + " --out " + (dir_ / "no" / "such" / "dir").string(), "--out"},
+  };
+  for (const auto& c : cases) {
+    const CliResult r = run(c.args, dir_);
+    EXPECT_NE(r.code, 0) << c.args;
+    EXPECT_NE(r.err.find(c.expect), std::string::npos) << c.args << "\n" << r.err;
+    EXPECT_TRUE(r.out.empty()) << c.args << "\n" << r.out;
+    EXPECT_FALSE(fs::exists(out)) << c.args;
+    const auto extra =
+        leftovers({"plane.xyz", "empty.xyz", "nan.xyz", "inf.xyz", "garbage.pcd", "fake.npy"});
+    EXPECT_TRUE(extra.empty()) << c.args << ": left " << extra.front();
+  }
+  // A failed map must not clobber an existing good one.
+  ASSERT_EQ(run("map " + good + " --out " + out, dir_).code, 0);
+  const auto before = fs::last_write_time(fs::path(out) / "terrain.json");
+  EXPECT_NE(run("map " + nan + " --out " + out, dir_).code, 0);
+  EXPECT_EQ(fs::last_write_time(fs::path(out) / "terrain.json"), before);
+  // Query: outside the map (names the point, prints nothing), bad point, not a terrain dir.
+  CliResult r = run("query " + out + " --at 0.5,0.5 --at 7,8", dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("7,8"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("outside the map"), std::string::npos) << r.err;
+  EXPECT_TRUE(r.out.empty()) << r.out;
+  r = run("query " + out + " --at 0.5", dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("--at"), std::string::npos) << r.err;
+  r = run("query " + dir_.string() + " --at 0.5,0.5", dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("terrain.json"), std::string::npos) << r.err;
+  // A mislabeled layer: elevation.npy replaced by a text file.
+  std::ofstream(fs::path(out) / "layers" / "elevation.npy") << "not an npy";
+  r = run("query " + out + " --at 0.5,0.5", dir_);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("elevation.npy"), std::string::npos) << r.err;
+}
