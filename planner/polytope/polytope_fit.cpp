@@ -437,14 +437,15 @@ LegPolytopeModel fit_leg_polytope(const robot::LegModel& leg, const std::vector<
     for (int i = 0; i < opt.l_refs; ++i)
       add_smoothness(&problem, m.alpha_knots, reg, inv_scale, [&](int a) { return m.node(i, a); });
     if (!opt.fit_hip) problem.SetParameterBlockConstant(hip);
-    // A node no sample touches would make the normal equations singular: hold it.
-    for (int i = 0; i < opt.l_refs; ++i)
-      for (int a = 0; a < opt.alpha_refs; ++a)
-        if (problem.NumResidualBlocks() > 0) {
-          std::vector<ceres::ResidualBlockId> blocks;
-          problem.GetResidualBlocksForParameterBlock(m.node(i, a), &blocks);
-          if (blocks.empty()) problem.SetParameterBlockConstant(m.node(i, a));
-        }
+    // A node that no residual touches (no sample nearby and no smoothness prior) would make the
+    // normal equations singular: hold it at its initial exact polytope.
+    for (int i = 0; i < opt.l_refs; ++i) {
+      for (int a = 0; a < opt.alpha_refs; ++a) {
+        std::vector<ceres::ResidualBlockId> blocks;
+        problem.GetResidualBlocksForParameterBlock(m.node(i, a), &blocks);
+        if (blocks.empty()) problem.SetParameterBlockConstant(m.node(i, a));
+      }
+    }
     ceres::Solver::Options sopts;
     sopts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
     sopts.max_num_iterations = opt.max_iterations;

@@ -57,9 +57,9 @@ class LegPolytopeModel {
   std::vector<double> alpha_knots;                // K_a >= 1, increasing
   std::array<int, kPolytopeFacets> poles{};  // pole axis (0 x, 1 y, 2 z) of each facet's angles
   // Reference values, node (i, m) = (l_knots[i], alpha_knots[m]) at index i * K_a + m, and per
-  // node kPolytopeFacets triples (theta, phi, d).
+  // node kPolytopeFacets triples (theta, phi, d). Facets 2i and 2i+1 bound joint i (+ and -
+  // torque limit; HAA, HFE, KFE), as in robot::ForcePolytope.
   std::vector<double> nodes;
-  // Pairs of facets (2i, 2i+1) that bound joint i: used to form the vertices.
 
   int num_l() const { return static_cast<int>(l_knots.size()); }
   int num_alpha() const { return static_cast<int>(alpha_knots.size()); }
