@@ -29,7 +29,7 @@ struct BenchOptions {
   int clients = 50;
   int requests = 200;
   int points = 100;
-  int plans = 50;
+  int plans = 5;
   int malformed = 10000;
   int disconnects = 1000;
   int workers = 2;
@@ -150,11 +150,12 @@ json bench_query(const BenchOptions& o, const json& extent) {
 }
 
 // Worker-operation overhead: round trip minus the compute time the operation reports itself
-// (plan: solver.wall_s; without a planner: debug.sleep's slept_ms, same worker path).
+// (plan: solver.wall_s, so the overhead includes the planner's own sampling and dense checks
+// besides the service's queueing and encoding; without a planner: debug.sleep's slept_ms).
 json bench_overhead(const BenchOptions& o) {
   Client c = connect(o);
-  json probe_plan = {{"op", "plan"},    {"terrain", "flat"}, {"gait", "crawl"},
-                     {"cycles", 1},     {"goal", {0.1, 0.0, 0.0}}};
+  json probe_plan = {{"op", "plan"},   {"terrain", "flat"}, {"gait", "crawl"},
+                     {"duration", 2.4}, {"goal", {0.3, 0.0, 0.0}}};
   const auto first = c.call(probe_plan);
   const bool have_plan = first.header.value("ok", false);
   std::vector<double> overhead, compute;
@@ -166,7 +167,7 @@ json bench_overhead(const BenchOptions& o) {
               {"note", "plan unavailable (" + error_text(first) +
                            ") and debug.sleep disabled (serve --debug-ops)"}};
   }
-  for (int i = 0; i < o.plans; ++i) {
+  for (int i = 0; i < (have_plan ? o.plans : 50); ++i) {
     const auto start = Clock::now();
     const auto reply = have_plan ? c.call(probe_plan) : c.call({{"op", "debug.sleep"}, {"ms", 2}});
     const double rtt = ms_since(start);

@@ -190,13 +190,23 @@ TEST_F(ServerTest, PlanAndCheckAnswerHonestly) {
   Client c = Client::connect(address_);
   p::Message m = c.call({{"op", "plan"}, {"terrain", "flat"}, {"gait", "crawl"}, {"duration", 2.4},
                          {"goal", {0.3, 0.0, 0.0}}});
-  if (m.header["ok"].get<bool>()) {
-    const json& r = m.header["result"];
-    EXPECT_TRUE(r.contains("samples"));
-    EXPECT_TRUE(r.contains("solver"));
-  } else {
-    EXPECT_EQ(error_code(m), "unavailable") << error_message(m);
-  }
+  ASSERT_TRUE(m.header["ok"].get<bool>()) << m.header.dump();
+  const json& r = m.header["result"];
+  EXPECT_EQ(r["robot"], "hyq");
+  EXPECT_EQ(r["solver"]["status"], "optimal");
+  EXPECT_GT(r["samples"].size(), 100u);
+  EXPECT_TRUE(r["checks"].contains("dynamics_linear_max_N"));
+  // Bad options name the field; a deadline stops the solve.
+  m = c.call({{"op", "plan"}, {"terrain", "moon"}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("moon"), std::string::npos);
+  m = c.call({{"op", "plan"}, {"terrain", "flat"}, {"constraints", "warp"}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("warp"), std::string::npos);
+  m = c.call({{"op", "plan"}, {"terrain", "flat"}, {"cycles", 0}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  m = c.call({{"op", "plan"}, {"terrain", "flat"}, {"goal", {1.0, 0.0, 0.0}}, {"deadline_ms", 200}});
+  EXPECT_EQ(error_code(m), "deadline_exceeded");
   m = c.call({{"op", "check"}, {"plan", json::object()}});
   EXPECT_FALSE(m.header["ok"].get<bool>());
   EXPECT_TRUE(error_code(m) == "unavailable" || error_code(m) == "bad_request") << error_code(m);

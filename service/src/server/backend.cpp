@@ -4,11 +4,16 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <filesystem>
+#include <algorithm>
 #include <mutex>
+#include <sstream>
 #include <thread>
 
 #include "terrastride/perception/filters.hpp"
 #include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/planner/plan_io.hpp"
+#include "terrastride/planner/planner.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/server.hpp"
 #include "terrastride/terrain/height_field.hpp"
@@ -350,6 +355,130 @@ class Backend {
     return r;
   }
 
+  // `terrastride plan` over the socket: terrain "current" (the published map, default), a scene
+  // name or a terrain dir. A deadline becomes the solver's wall-clock budget.
+  OpResult plan(OpContext& ctx) {
+    const json& h = ctx.request.header;
+    const std::string spec = protocol::get_string(h, "terrain", std::string("current"));
+    planner::PlannerOptions po;
+    po.gait = protocol::get_string(h, "gait", std::string("crawl"));
+    const double cycles = protocol::get_number(h, "cycles", 3.0);
+    if (cycles < 1 || cycles > 50 || cycles != std::floor(cycles))
+      throw ProtocolError(pc::kBadRequest, "\"cycles\" must be an integer in [1, 50]");
+    po.cycles = static_cast<int>(cycles);
+    po.duration = protocol::get_number(h, "duration", 0.0);
+    if (po.duration < 0 || po.duration > 120)
+      throw ProtocolError(pc::kBadRequest, "\"duration\" must be within (0, 120] s");
+    const double sample_dt = protocol::get_number(h, "sample_dt", 0.01);
+    if (!(sample_dt > 0) || sample_dt > 1)
+      throw ProtocolError(pc::kBadRequest, "\"sample_dt\" must be within (0, 1] s");
+    po.optimize_timing = protocol::get_bool(h, "optimize_timing", false);
+    po.max_time = protocol::get_number(h, "max_time", 0.0);
+    if (po.max_time < 0) throw ProtocolError(pc::kBadRequest, "\"max_time\" must be >= 0");
+    po.has_goal = true;
+    po.goal = h.contains("goal") ? Eigen::Vector3d(protocol::get_vector(h, "goal", 3))
+                                 : Eigen::Vector3d(1.0, 0.0, 0.0);
+    const auto c = h.find("constraints");
+    po.constraints.clear();
+    if (c == h.end() || c->is_null()) {
+      po.constraints = {"baseline"};
+    } else if (c->is_string()) {
+      std::stringstream ss(c->get<std::string>());
+      std::string item;
+      while (std::getline(ss, item, ','))
+        if (!item.empty()) po.constraints.push_back(item);
+    } else if (c->is_array()) {
+      for (const json& e : *c) {
+        if (!e.is_string())
+          throw ProtocolError(pc::kBadRequest, "\"constraints\" entries must be strings");
+        po.constraints.push_back(e.get<std::string>());
+      }
+    } else {
+      throw ProtocolError(pc::kBadRequest, "\"constraints\" must be a string or an array");
+    }
+    const auto available = planner::constraint_set_names();
+    if (po.constraints.empty()) throw ProtocolError(pc::kBadRequest, "\"constraints\" is empty");
+    for (const auto& name : po.constraints)
+      if (std::find(available.begin(), available.end(), name) == available.end()) {
+        std::string list;
+        for (const auto& n : available) list += (list.empty() ? "" : ", ") + n;
+        throw ProtocolError(pc::kBadRequest, "\"constraints\": '" + name +
+                                                 "' is not available (available: " + list + ")");
+      }
+    // Terrains: the optimiser needs a C2 field; exact scenes are checked as they are.
+    std::shared_ptr<const MapSnapshot> snapshot;  // keeps the published map alive while planning
+    std::unique_ptr<terrain::Scene> scene;
+    std::unique_ptr<terrain::TerrainMap> smooth;
+    const terrain::HeightField* plan_field = nullptr;
+    const terrain::HeightField* check_field = nullptr;
+    try {
+      if (spec == "current") {
+        snapshot = map();
+        if (!snapshot) throw ProtocolError(pc::kNoMap, "plan on \"current\": no map loaded");
+        if (const auto* sc = dynamic_cast<const terrain::Scene*>(snapshot->field.get())) {
+          smooth = terrain::TerrainMap::from_scene(*sc, 0.02, {});
+          plan_field = smooth.get();
+          check_field = sc;
+        } else {
+          plan_field = check_field = snapshot->field.get();
+        }
+      } else {
+        const auto names = terrain::scene_names();
+        if (std::find(names.begin(), names.end(), spec) != names.end()) {
+          scene = terrain::make_scene(spec);
+          smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
+          plan_field = smooth.get();
+          check_field = scene.get();
+        } else {
+          if (!std::filesystem::is_directory(spec)) {
+            std::string list;
+            for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
+            throw ProtocolError(pc::kBadRequest,
+                                "\"terrain\" '" + spec +
+                                    "' is neither \"current\", a scene name (" + list +
+                                    ") nor a terrain directory");
+          }
+          smooth = terrain::load_terrain_dir(spec);
+          plan_field = check_field = smooth.get();
+        }
+      }
+    } catch (const perception::InputError& e) {
+      throw ProtocolError(pc::kBadRequest, "\"terrain\" " + spec + ": " + e.what());
+    }
+    ctx.check_stop();
+    // A deadline caps the solve (Ipopt's wall-clock check); cancel cannot interrupt Ipopt until
+    // the planner polls a stop callback (see docs/protocol.md).
+    if (ctx.token->has_deadline()) {
+      const double left = std::chrono::duration<double>(ctx.token->deadline() -
+                                                        std::chrono::steady_clock::now())
+                              .count();
+      if (left <= 0) ctx.check_stop();
+      po.max_time = po.max_time > 0 ? std::min(po.max_time, left) : left;
+    }
+    planner::PlanOutcome out;
+    try {
+      out = planner::plan_motion(robot_, *plan_field, *check_field, po, sample_dt);
+    } catch (const planner::GaitError& e) {
+      throw ProtocolError(pc::kBadRequest, std::string("\"gait\": ") + e.what());
+    } catch (const std::invalid_argument& e) {
+      throw ProtocolError(pc::kBadRequest, e.what());
+    }
+    ctx.check_stop();
+    const double violation = out.solve.max_violation;
+    if (!out.success && violation > 1e-3)
+      throw ProtocolError(pc::kFailed, "plan: " + (out.message.empty()
+                                                       ? "status " + out.trajectory.solver.status
+                                                       : out.message) +
+                                           " (max violation " + std::to_string(violation) + ")");
+    out.trajectory.extra["terrain"] = spec;
+    OpResult r;
+    r.result = planner::plan_to_json(out.trajectory);
+    r.result["success"] = out.success;
+    r.result["max_violation"] = violation;
+    if (!out.message.empty()) r.result["message"] = out.message;
+    return r;
+  }
+
   OpResult unavailable(const std::string& op, const std::string& module) {
     throw ProtocolError(pc::kUnavailable, op + ": the " + module +
                                               " is not built into this server yet");
@@ -401,7 +530,7 @@ std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRe
   registry.add({"map.clear", OpKind::kWorker, "drop the terrain map",
                 [p](OpContext& c) { return p->map_clear(c); }});
   registry.add({"plan", OpKind::kWorker, "plan a motion (as `terrastride plan`)",
-                [p](OpContext&) { return p->unavailable("plan", "planner (trajectory optimisation)"); }});
+                [p](OpContext& c) { return p->plan(c); }});
   registry.add({"check", OpKind::kWorker, "post-hoc checks of a plan (as `terrastride check`)",
                 [p](OpContext&) { return p->unavailable("check", "post-hoc checks module"); }});
   if (options.debug_ops)
