@@ -18,6 +18,7 @@ namespace {
 
 using Eigen::Vector3d;
 using Mat63 = Eigen::Matrix<double, kPolytopeFacets, 3>;
+using Vec6 = Eigen::Matrix<double, kPolytopeFacets, 1>;  // not auto: expressions over temporaries
 
 robot::RobotModel hyq() {
   return robot::load_robot(std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/hyq.yaml");
@@ -62,8 +63,8 @@ void expect_derivatives_match(const LegPolytopeModel& m, const Vector3d& p, cons
   for (int k = 0; k < 3; ++k) {
     Vector3d dp = Vector3d::Zero();
     dp[k] = h;
-    const auto fd_p = (m.constraint(p + dp, f) - m.constraint(p - dp, f)) / (2 * h);
-    const auto fd_f = (m.constraint(p, f + dp) - m.constraint(p, f - dp)) / (2 * h);
+    const Vec6 fd_p = (m.constraint(p + dp, f) - m.constraint(p - dp, f)) / (2 * h);
+    const Vec6 fd_f = (m.constraint(p, f + dp) - m.constraint(p, f - dp)) / (2 * h);
     for (int j = 0; j < kPolytopeFacets; ++j) {
       // g is O(1e3) N and its position derivative O(1e4) N/m: compare relative to that scale.
       EXPECT_NEAR(dg_dp(j, k), fd_p[j], 1e-5 * (1 + std::abs(fd_p[j])))
