@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <ctime>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -33,7 +34,7 @@ struct DemoOptions {
   std::string out = "out/demo";
   std::vector<std::string> scan;
   std::string constraints;
-  double max_time = 20.0;
+  double max_time = 60.0;
   bool json_output = false;
 };
 
@@ -138,6 +139,7 @@ std::vector<std::string> find_pallet_scan() {
 
 void run_demo(const DemoOptions& o) {
   const auto t_all = Clock::now();
+  const std::clock_t cpu0 = std::clock();
   Progress progress(5, o.json_output);
   json summary{{"stages", json::object()}};
 
@@ -217,6 +219,9 @@ void run_demo(const DemoOptions& o) {
     }
     plan_optimal = false;
     plan_message = e.what();
+    // Name the final folder, not the temporary one the stages write into.
+    for (size_t at; (at = plan_message.find(work.string())) != std::string::npos;)
+      plan_message.replace(at, work.string().size(), final_dir.string());
   }
   planner::Trajectory traj;
   try {
@@ -289,7 +294,9 @@ void run_demo(const DemoOptions& o) {
   summary["report_json"] = (final_dir / "report.json").string();
   summary["problems"] = rep["problems"];
   summary["safe_fraction"] = rep["terrain"]["safe_fraction"];
+  const double cpu = static_cast<double>(std::clock() - cpu0) / CLOCKS_PER_SEC;
   summary["total_s"] = total;
+  summary["cpu_s"] = cpu;
   summary["stage_s"] = progress.timings();
   if (o.json_output) {
     std::cout << summary.dump() << "\n";
@@ -305,7 +312,8 @@ void run_demo(const DemoOptions& o) {
       std::cout << "checks:  " << rep["problems"].size() << " problems:\n";
       for (const json& p : rep["problems"]) std::cout << "  - " << p["text"].get<std::string>() << "\n";
     }
-    std::cout << "total " << fixed(total, 1) << " s\nreport: " << html.string() << "\n";
+    std::cout << "total " << fixed(total, 1) << " s (" << fixed(cpu, 1) << " s CPU)\nreport: "
+              << html.string() << "\n";
   }
   if (!plan_optimal)
     throw CommandError("the plan is not optimal (" + plan_message + "); the report shows it", 3);

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <iostream>
+#include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
 
@@ -208,14 +209,19 @@ void add_report_command(CLI::App& app) {
     // Batch mode.
     if (!o->plans.empty()) throw CommandError("--plan cannot be combined with --batch");
     if (!fs::is_directory(o->batch)) throw CommandError("--batch " + o->batch + ": not a folder");
-    std::vector<fs::path> scans;
+    // One scan per name: files NAME.ext, NAME.1.ext, NAME.2.ext ... (one per sensor pose, as the
+    // scan simulator writes them) are mapped together; map folders are scans of their own.
+    std::map<std::string, std::vector<std::string>> groups;
     for (const auto& entry : fs::directory_iterator(o->batch)) {
       const fs::path p = entry.path();
-      if ((entry.is_regular_file() && is_scan_file(p)) ||
-          (entry.is_directory() && report::is_terrain_dir(p.string())))
-        scans.push_back(p);
+      const std::string name = p.filename().string();
+      if (entry.is_regular_file() && is_scan_file(p))
+        groups[name.substr(0, name.find('.'))].push_back(p.string());
+      else if (entry.is_directory() && report::is_terrain_dir(p.string()))
+        groups[name].push_back(p.string());
     }
-    std::sort(scans.begin(), scans.end());
+    std::vector<std::pair<std::string, std::vector<std::string>>> scans(groups.begin(), groups.end());
+    for (auto& [name, files] : scans) std::sort(files.begin(), files.end());
     if (scans.empty())
       throw CommandError("--batch " + o->batch +
                          ": no scans (.pcd, .ply, .xyz, .npy) or terrain folders in it");
@@ -223,13 +229,16 @@ void add_report_command(CLI::App& app) {
     json rows = json::array();
     std::vector<std::string> failed;
     for (size_t i = 0; i < scans.size(); ++i) {
-      const std::string stem = scans[i].filename().string();
+      const std::string& stem = scans[i].first;
+      const std::vector<std::string>& files = scans[i].second;
       std::cerr << "[" << i + 1 << "/" << scans.size() << "] " << stem << "\n";
       const std::string html_name = stem + ".html";
-      json row_json{{"scan", stem}, {"path", scans[i].string()}, {"html", html_name}};
+      json files_json = json::array();
+      for (const auto& f : files) files_json.push_back(f);
+      json row_json{{"scan", stem}, {"files", files_json}, {"html", html_name}};
       try {
         ropts.title = "terrastride foothold-safety report: " + stem;
-        const json rep = report::make_report_file({scans[i].string()}, {}, topts, ropts,
+        const json rep = report::make_report_file(files, {}, topts, ropts,
                                                   (fs::path(out_dir.path()) / html_name).string());
         const json& t = rep["terrain"];
         row_json["safe_fraction"] = t["safe_fraction"];

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
+#include <sstream>
 #include <limits>
 #include <map>
 #include <random>
@@ -181,7 +183,16 @@ TerrainView load_terrain_view(const std::vector<std::string>& inputs,
     args.push_back(std::to_string(options.resolution));
     args.push_back("--out");
     args.push_back(tmp.string());
-    run_subcommand("map", args);
+    // The map command's own summary is not part of the report's output.
+    std::ostringstream captured;
+    std::streambuf* old = std::cout.rdbuf(captured.rdbuf());
+    try {
+      run_subcommand("map", args);
+    } catch (...) {
+      std::cout.rdbuf(old);
+      throw;
+    }
+    std::cout.rdbuf(old);
     TerrainInputOptions sub = options;
     TerrainView mapped = load_terrain_view({tmp.string()}, sub);
     mapped.kind = "clouds";
