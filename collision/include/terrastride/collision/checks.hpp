@@ -110,10 +110,12 @@ struct ClearanceOptions {
   // The foot touches the ground in stance by design, and the lower leg ends in the foot, so the
   // shin capsule cannot run down to the foot point without "colliding" at every footstep. The
   // capsule's axis stops `shin_exclusion` short of the foot point: the foot sphere (2 r from the
-  // contact point to its top), the shin's own radius (its end cap) and `exclusion_margin` for voxel
-  // quantisation of a scanned surface. What remains is the part of the leg the paper's shin
-  // constraint protects (knee and the points between knee and foot). Negative = use 2 foot_radius +
-  // shin_radius + exclusion_margin.
+  // contact point to its top), the shin's own radius (its end cap) and a quantisation margin, the
+  // larger of `exclusion_margin` and the octree's voxel size (a scanned surface voxel may stand up
+  // to one voxel above the true surface). What remains is the part of the leg the paper's shin
+  // constraint protects (knee and the points between knee and foot). Negative = use
+  // 2 foot_radius + shin_radius + max(exclusion_margin, voxel size). Coarse maps (5 cm voxels)
+  // exclude more of the shin and still read stance shins as touching: map with 1-2 cm voxels.
   double shin_exclusion = -1.0;
   double exclusion_margin = 0.01;
   // Distances beyond this are not resolved (reported as the cutoff). It bounds FCL's search, whose
