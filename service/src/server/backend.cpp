@@ -10,6 +10,7 @@
 #include <sstream>
 #include <thread>
 
+#include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/filters.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/planner/plan_io.hpp"
@@ -479,6 +480,62 @@ class Backend {
     return r;
   }
 
+  // `terrastride check` over the socket: the post-hoc checks of a plan.json object against the
+  // current map (or a scene). The server keeps no OctoMap, so the capsule (shin/thigh) checks do
+  // not run here and their keys are absent, never faked.
+  OpResult check(OpContext& ctx) {
+    const json& h = ctx.request.header;
+    const auto it = h.find("plan");
+    if (it == h.end() || !it->is_object())
+      throw ProtocolError(pc::kBadRequest, "check needs \"plan\": a plan.json object");
+    planner::Trajectory traj;
+    try {
+      traj = planner::plan_from_json(*it, "plan");
+    } catch (const std::exception& e) {
+      throw ProtocolError(pc::kBadRequest, e.what());
+    }
+    robot::RobotModel model = robot_;
+    if (!traj.robot.empty() && traj.robot != robot_.name) {
+      try {
+        model = robot::load_robot(robot::resolve_robot_path(traj.robot));
+      } catch (const robot::RobotFileError& e) {
+        throw ProtocolError(pc::kBadRequest, std::string("plan.robot: ") + e.what());
+      }
+    }
+    const std::string spec = protocol::get_string(h, "terrain", std::string("current"));
+    std::shared_ptr<const MapSnapshot> snapshot;
+    std::unique_ptr<terrain::Scene> scene;
+    collision::CheckTerrain terrain;
+    if (spec == "current") {
+      snapshot = map();
+      if (!snapshot) throw ProtocolError(pc::kNoMap, "check on \"current\": no map loaded");
+      terrain.field = snapshot->field.get();
+      terrain.description = snapshot->source;
+    } else {
+      try {
+        scene = terrain::make_scene(spec);
+      } catch (const perception::InputError& e) {
+        throw ProtocolError(pc::kBadRequest, std::string("\"terrain\": ") + e.what());
+      }
+      terrain.field = scene.get();
+      terrain.description = "scene:" + spec;
+    }
+    ctx.check_stop();
+    collision::CheckReport report;
+    try {
+      report = collision::run_checks(model, traj, terrain);
+    } catch (const std::invalid_argument& e) {
+      throw ProtocolError(pc::kBadRequest, e.what());
+    }
+    OpResult r;
+    r.result = {{"checks", report.keys()},
+                {"failures", report.failures()},
+                {"passed", report.passed()},
+                {"terrain", terrain.description},
+                {"wall_s", report.wall_s}};
+    return r;
+  }
+
   OpResult unavailable(const std::string& op, const std::string& module) {
     throw ProtocolError(pc::kUnavailable, op + ": the " + module +
                                               " is not built into this server yet");
@@ -532,7 +589,7 @@ std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRe
   registry.add({"plan", OpKind::kWorker, "plan a motion (as `terrastride plan`)",
                 [p](OpContext& c) { return p->plan(c); }});
   registry.add({"check", OpKind::kWorker, "post-hoc checks of a plan (as `terrastride check`)",
-                [p](OpContext&) { return p->unavailable("check", "post-hoc checks module"); }});
+                [p](OpContext& c) { return p->check(c); }});
   if (options.debug_ops)
     registry.add({"debug.sleep", OpKind::kWorker, "test op: hold a worker for ms milliseconds",
                   [p](OpContext& c) { return p->debug_sleep(c); }});
