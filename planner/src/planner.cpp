@@ -3,6 +3,8 @@
 #include <Eigen/LU>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <sstream>
 
 #include "terrastride/planner/piece_math.hpp"
@@ -208,6 +210,9 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   PlanOutcome out;
   out.solve = solve(problem, options);
   out.success = out.solve.success;
+  if (std::getenv("TERRASTRIDE_DEBUG_CHECKS"))
+    for (const auto& [k, v] : problem.violation_by_kind(out.solve.x))
+      std::fprintf(stderr, "final violation %s %g\n", k.c_str(), v);
   out.trajectory = sample_solution(problem, out.solve.x, sample_dt);
   auto& st = out.trajectory.solver;
   st.status = out.solve.status;

@@ -1,7 +1,12 @@
 // End-to-end planning: solves to optimal, reaches the goal, and holds every constraint densely.
 #include <gtest/gtest.h>
 
+#include <cstdlib>
+#include <filesystem>
+
 #include "terrastride/planner/planner.hpp"
+#include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "test_terrains.hpp"
 
@@ -41,6 +46,104 @@ TEST(Plan, FlatCrawlReachesGoal) {
               out.trajectory.solver.wall_s, out.trajectory.solver.n_variables,
               out.trajectory.solver.n_constraints);
   expect_dense_targets(out.trajectory, r.mass);
+}
+
+}  // namespace
+}  // namespace terrastride::planner
+
+namespace terrastride::planner {
+namespace {
+
+PlanOutcome plan_scene(const std::string& name, bool timing = false) {
+  const auto r = hyq();
+  auto scene = terrain::make_scene(name);
+  auto smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  o.duration = 0.0;  // the gait's default: 3 crawl cycles of 3.6667 s (the CLI's default)
+  o.optimize_timing = timing;
+  return plan_motion(r, *smooth, *scene, o, 0.01);
+}
+
+class PalletPlan : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(PalletPlan, SolvesToOptimalReachesGoalAndHoldsDensely) {
+  const PlanOutcome out = plan_scene(GetParam());
+  ASSERT_TRUE(out.success) << out.message;
+  EXPECT_EQ(out.trajectory.solver.status, "optimal");
+  const auto& last = out.trajectory.samples.back();
+  EXPECT_NEAR(last.base.position.x(), 1.0, 1e-6);
+  // Every foot ends on the pallet top, and the base stands above it.
+  for (const auto& f : last.feet) EXPECT_TRUE(f.contact);
+  EXPECT_GT(last.base.position.z(), 0.58);
+  expect_dense_targets(out.trajectory, hyq().mass);
+  EXPECT_LE(out.trajectory.checks.at("stance_height_error_max_m"), 0.005);
+}
+
+INSTANTIATE_TEST_SUITE_P(Scenes, PalletPlan, ::testing::Values("pallet_10", "pallet_15"));
+
+TEST(Plan, ImpossibleGoalEndsNonOptimalWithoutCrash) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(10.0, 0.0, 0.0);
+  o.duration = 1.0;
+  o.cycles = 1;
+  o.max_time = 10.0;
+  const PlanOutcome out = plan_motion(r, flat, flat, o, 0.01);
+  EXPECT_FALSE(out.success);
+  EXPECT_NE(out.trajectory.solver.status, "optimal");
+  EXPECT_FALSE(out.message.empty());
+  EXPECT_GT(out.solve.max_violation, 1e-3);
+}
+
+TEST(Plan, MaxTimeIsHonouredOnRepeatedSolves) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  o.duration = 11.0;
+  o.max_time = 0.05;  // far too short for this problem
+  for (int i = 0; i < 2; ++i) {
+    const PlanOutcome out = plan_motion(r, flat, flat, o, 0.01);
+    EXPECT_EQ(out.trajectory.solver.status, "time_limit");
+  }
+}
+
+TEST(Plan, MonopedHops) {
+  const auto r = robot::load_robot(robot::resolve_robot_path("monoped"));
+  testing::FlatField flat;
+  PlannerOptions o;
+  o.gait = "hop";
+  o.cycles = 2;
+  const PlanOutcome out = plan_motion(r, flat, flat, o, 0.01);
+  ASSERT_TRUE(out.success) << out.message;
+  // In flight the foot is off the ground and the force is zero; x and y never move.
+  bool flew = false;
+  for (const auto& s : out.trajectory.samples) {
+    EXPECT_NEAR(s.base.position.x(), 0.0, 1e-9);
+    if (!s.feet[0].contact) {
+      flew = true;
+      EXPECT_EQ(s.feet[0].force.norm(), 0.0);
+    }
+  }
+  EXPECT_TRUE(flew);
+  expect_dense_targets(out.trajectory, r.mass);
+}
+
+TEST(PlanCli, ImpossibleGoalExitsNonZeroAndWritesNothing) {
+  const std::string bin = TERRASTRIDE_BINARY;
+  if (!std::filesystem::exists(bin)) GTEST_SKIP() << "no terrastride binary at " << bin;
+  const std::string out = ::testing::TempDir() + "/impossible_plan.json";
+  std::filesystem::remove(out);
+  const std::string cmd = bin + " plan --terrain flat --cycles 1 --duration 1 --goal 10,0,0 " +
+                          "--max-time 10 --out " + out + " > /dev/null 2>&1";
+  const int rc = std::system(cmd.c_str());
+  EXPECT_NE(rc, 0);
+  EXPECT_FALSE(std::filesystem::exists(out));
 }
 
 }  // namespace
