@@ -47,7 +47,8 @@ json latency_json(std::vector<double> v) {
   if (v.empty()) return json::object();
   std::sort(v.begin(), v.end());
   auto q = [&](double p) {
-    const std::size_t i = std::min(v.size() - 1, static_cast<std::size_t>(p * (v.size() - 1) + 0.5));
+    const std::size_t i =
+        std::min(v.size() - 1, static_cast<std::size_t>(p * (v.size() - 1) + 0.5));
     return v[i];
   };
   double sum = 0;
@@ -154,8 +155,11 @@ json bench_query(const BenchOptions& o, const json& extent) {
 // besides the service's queueing and encoding; without a planner: debug.sleep's slept_ms).
 json bench_overhead(const BenchOptions& o) {
   Client c = connect(o);
-  json probe_plan = {{"op", "plan"},   {"terrain", "flat"}, {"gait", "crawl"},
-                     {"duration", 2.4}, {"goal", {0.3, 0.0, 0.0}}};
+  json probe_plan = {{"op", "plan"},
+                     {"terrain", "flat"},
+                     {"gait", "crawl"},
+                     {"duration", 2.4},
+                     {"goal", {0.3, 0.0, 0.0}}};
   const auto first = c.call(probe_plan);
   const bool have_plan = first.header.value("ok", false);
   std::vector<double> overhead, compute;
@@ -173,8 +177,8 @@ json bench_overhead(const BenchOptions& o) {
     const double rtt = ms_since(start);
     if (!reply.header.value("ok", false)) continue;
     const json& r = reply.header["result"];
-    const double own = have_plan ? r["solver"].value("wall_s", 0.0) * 1000.0
-                                 : r.value("slept_ms", 0.0);
+    const double own =
+        have_plan ? r["solver"].value("wall_s", 0.0) * 1000.0 : r.value("slept_ms", 0.0);
     compute.push_back(own);
     overhead.push_back(rtt - own);
   }
@@ -202,11 +206,21 @@ json bench_hostile(const BenchOptions& o, const json& extent) {
     for (int i = 0; i < n; ++i) {
       std::string header;
       switch (i % 5) {
-        case 0: header = "{not json"; break;
-        case 1: header = "[1,2,3]"; break;
-        case 2: header = R"({"v":1,"id":1,"op":7})"; break;
-        case 3: header = R"({"v":1,"id":2,"op":"no.such.op"})"; break;
-        default: header = R"({"v":1,"id":3,"op":"map.query","points":[[1,"x"]]})"; break;
+        case 0:
+          header = "{not json";
+          break;
+        case 1:
+          header = "[1,2,3]";
+          break;
+        case 2:
+          header = R"({"v":1,"id":1,"op":7})";
+          break;
+        case 3:
+          header = R"({"v":1,"id":2,"op":"no.such.op"})";
+          break;
+        default:
+          header = R"({"v":1,"id":3,"op":"map.query","points":[[1,"x"]]})";
+          break;
       }
       std::string f(8, '\0');
       protocol::write_u32be(static_cast<std::uint32_t>(4 + header.size()),
@@ -229,9 +243,15 @@ json bench_hostile(const BenchOptions& o, const json& extent) {
     const std::string f = protocol::encode_frame(
         {{{"v", 1}, {"id", 1}, {"op", "map.query"}, {"points", {{0.0, 0.0}}}}, {}});
     switch (i % 3) {
-      case 0: c.send_raw(f.substr(0, 2)); break;
-      case 1: c.send_raw(f.substr(0, f.size() - 3)); break;
-      default: c.send_raw(f); break;
+      case 0:
+        c.send_raw(f.substr(0, 2));
+        break;
+      case 1:
+        c.send_raw(f.substr(0, f.size() - 3));
+        break;
+      default:
+        c.send_raw(f);
+        break;
     }
     c.close();
     disconnects++;
@@ -255,9 +275,8 @@ json bench_hostile(const BenchOptions& o, const json& extent) {
 void print_latency(const std::string& label, const json& j) {
   if (!j.contains("p50_ms")) return;
   std::cout << std::fixed << std::setprecision(3) << label << "p50 " << j["p50_ms"].get<double>()
-            << " ms, p90 " << j["p90_ms"].get<double>() << " ms, p99 "
-            << j["p99_ms"].get<double>() << " ms, max " << j["max_ms"].get<double>() << " ms ("
-            << j["count"] << " samples)\n";
+            << " ms, p90 " << j["p90_ms"].get<double>() << " ms, p99 " << j["p99_ms"].get<double>()
+            << " ms, max " << j["max_ms"].get<double>() << " ms (" << j["count"] << " samples)\n";
 }
 
 }  // namespace

@@ -42,8 +42,9 @@ std::string read_token(const std::string& path) {
 void add_serve_command(CLI::App& app) {
   auto o = std::make_shared<ServeOptions>();
   CLI::App* cmd = app.add_subcommand(
-      "serve", "Run the socket service: terrain map updates and queries, plans and checks "
-               "(protocol: docs/protocol.md)");
+      "serve",
+      "Run the socket service: terrain map updates and queries, plans and checks "
+      "(protocol: docs/protocol.md)");
   cmd->add_option("--listen", o->listen,
                   "tcp://HOST:PORT or unix:PATH, repeatable; port 0 picks a free port. Default "
                   "tcp://127.0.0.1:7700");

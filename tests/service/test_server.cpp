@@ -83,8 +83,8 @@ TEST_F(ServerTest, HelloAndStatus) {
   EXPECT_EQ(hello["protocol"], 1);
   EXPECT_EQ(hello["robot"]["name"], "hyq");
   EXPECT_EQ(hello["robot"]["legs"].size(), 4u);
-  for (const char* op : {"map.update", "map.query", "map.clear", "plan", "check", "cancel",
-                         "status"}) {
+  for (const char* op :
+       {"map.update", "map.query", "map.clear", "plan", "check", "cancel", "status"}) {
     EXPECT_NE(std::find(hello["ops"].begin(), hello["ops"].end(), op), hello["ops"].end()) << op;
   }
   const json st = c.call_ok({{"op", "status"}});
@@ -106,7 +106,7 @@ TEST_F(ServerTest, MapQueryUpdateClear) {
   EXPECT_DOUBLE_EQ(res[1]["height"].get<double>(), 0.10);
   EXPECT_TRUE(res[1]["safe"].get<bool>());
   EXPECT_NEAR(res[1]["margin"].get<double>(), 0.45 - 0.02, 1e-9);  // nearest edge x = 0.55
-  EXPECT_FALSE(res[2]["safe"].get<bool>());                          // 1 cm from the edge
+  EXPECT_FALSE(res[2]["safe"].get<bool>());                        // 1 cm from the edge
   EXPECT_LT(res[2]["margin"].get<double>(), 0.0);
   EXPECT_EQ(res[3]["gradient"].size(), 2u);
   EXPECT_TRUE(res[3]["observed"].get<bool>());
@@ -157,8 +157,8 @@ TEST_F(ServerTest, CloudUpdatesAreValidated) {
     std::vector<float> pts;
     for (int i = 0; i < 100; ++i)
       for (int j = 0; j < 100; ++j)
-        pts.insert(pts.end(), {static_cast<float>(x0 + 0.01 * i), static_cast<float>(0.01 * j - 0.5),
-                               static_cast<float>(z)});
+        pts.insert(pts.end(), {static_cast<float>(x0 + 0.01 * i),
+                               static_cast<float>(0.01 * j - 0.5), static_cast<float>(z)});
     return p::make_float_attachment("points", {10000, 3}, pts);
   };
   json up = c.call_ok({{"op", "map.update"}, {"origin", {0, 0, 0.8}}, {"mode", "replace"}},
@@ -188,7 +188,10 @@ TEST_F(ServerTest, CloudUpdatesAreValidated) {
 
 TEST_F(ServerTest, PlanAndCheckAnswerHonestly) {
   Client c = Client::connect(address_);
-  p::Message m = c.call({{"op", "plan"}, {"terrain", "flat"}, {"gait", "crawl"}, {"duration", 2.4},
+  p::Message m = c.call({{"op", "plan"},
+                         {"terrain", "flat"},
+                         {"gait", "crawl"},
+                         {"duration", 2.4},
                          {"goal", {0.3, 0.0, 0.0}}});
   ASSERT_TRUE(m.header["ok"].get<bool>()) << m.header.dump();
   const json r = m.header["result"];
@@ -205,7 +208,8 @@ TEST_F(ServerTest, PlanAndCheckAnswerHonestly) {
   EXPECT_NE(error_message(m).find("warp"), std::string::npos);
   m = c.call({{"op", "plan"}, {"terrain", "flat"}, {"cycles", 0}});
   EXPECT_EQ(error_code(m), "bad_request");
-  m = c.call({{"op", "plan"}, {"terrain", "flat"}, {"goal", {1.0, 0.0, 0.0}}, {"deadline_ms", 200}});
+  m = c.call(
+      {{"op", "plan"}, {"terrain", "flat"}, {"goal", {1.0, 0.0, 0.0}}, {"deadline_ms", 200}});
   EXPECT_EQ(error_code(m), "deadline_exceeded");
   // The post-hoc checks of that plan on the current map (pallet_10: the plan stays before it).
   const json chk = c.call_ok({{"op", "check"}, {"plan", r}});
@@ -367,8 +371,9 @@ TEST_F(ServerTest, HostileInputLeavesOthersServed) {
       {raw_frame(R"({"v":1,"id":5,"op":"map.query","foot_radius":"big","points":[]})"),
        "bad_request"},
       {raw_frame(R"({"v":1,"id":6,"op":"status"})", "trailing"), "bad_frame"},
-      {raw_frame(R"({"v":1,"id":7,"op":"map.update","attachments":[{"name":"points","shape":[9,3]}]})",
-                 std::string(12, '\0')),
+      {raw_frame(
+           R"({"v":1,"id":7,"op":"map.update","attachments":[{"name":"points","shape":[9,3]}]})",
+           std::string(12, '\0')),
        "bad_frame"},
       {raw_frame(R"({"v":1,"id":8,"op":"cancel","target":{"a":1}})"), "bad_request"},
   };
@@ -404,10 +409,18 @@ TEST_F(ServerTest, HostileInputLeavesOthersServed) {
     Client c = Client::connect(address_);
     const std::string f = raw_frame(R"({"v":1,"id":1,"op":"map.query","points":[[0,0]]})");
     switch (i % 4) {
-      case 0: c.send_raw(f.substr(0, 2)); break;                 // inside the prefix
-      case 1: c.send_raw(f.substr(0, f.size() / 2)); break;      // inside the body
-      case 2: c.send_raw(std::string("\x00\x10\x00\x00", 4)); break;  // announces 1 MiB
-      case 3: c.send({{"op", "debug.sleep"}, {"ms", 50}}); break;  // a job, then vanish
+      case 0:
+        c.send_raw(f.substr(0, 2));
+        break;  // inside the prefix
+      case 1:
+        c.send_raw(f.substr(0, f.size() / 2));
+        break;  // inside the body
+      case 2:
+        c.send_raw(std::string("\x00\x10\x00\x00", 4));
+        break;  // announces 1 MiB
+      case 3:
+        c.send({{"op", "debug.sleep"}, {"ms", 50}});
+        break;  // a job, then vanish
     }
     c.close();
   }
@@ -448,9 +461,7 @@ TEST_F(ServerTest, SlowReaderDoesNotBlockOthers) {
 
 TEST(ServerAuth, TokenIsRequiredAndChecked) {
   const std::string token_file = temp_path("token");
-  {
-    std::ofstream(token_file) << "correct-horse-battery-staple-0123456789\n";
-  }
+  { std::ofstream(token_file) << "correct-horse-battery-staple-0123456789\n"; }
   ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--token-file", token_file});
   ASSERT_FALSE(server.tcp().empty()) << server.output;
   {
@@ -540,12 +551,12 @@ TEST(ServerSignals, DrainPeriodCancelsLongWork) {
 
 TEST(PythonClient, DrivesEveryOperation) {
   if (std::system("python3 --version > /dev/null 2>&1") != 0) GTEST_SKIP() << "no python3";
-  ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--debug-ops", "--workers", "1",
-                        "--queue", "1"});
+  ServerProcess server(
+      {"--listen", "tcp://127.0.0.1:0", "--debug-ops", "--workers", "1", "--queue", "1"});
   ASSERT_FALSE(server.tcp().empty()) << server.output;
-  const std::filesystem::path script = std::filesystem::path(__FILE__).parent_path().parent_path()
-                                           .parent_path() /
-                                       "service" / "clients" / "python" / "test_client.py";
+  const std::filesystem::path script =
+      std::filesystem::path(__FILE__).parent_path().parent_path().parent_path() / "service" /
+      "clients" / "python" / "test_client.py";
   const std::string cmd = "python3 " + script.string() + " " + server.tcp() + " 2>&1";
   FILE* pipe = ::popen(cmd.c_str(), "r");
   ASSERT_NE(pipe, nullptr);

@@ -73,8 +73,8 @@ TEST(ServerInProcess, OperationsPipeliningAndErrors) {
   EXPECT_TRUE(c.call_ok({{"op", "status"}})["requests"]["malformed_frames"].get<int>() >= 2);
   // A large frame arriving in pieces (several reads and buffer growth).
   std::vector<float> xy(2 * 9000, 0.5f);
-  const json r = c.call_ok({{"op", "map.query"}},
-                           {p::make_float_attachment("points", {9000, 2}, xy)});
+  const json r =
+      c.call_ok({{"op", "map.query"}}, {p::make_float_attachment("points", {9000, 2}, xy)});
   EXPECT_EQ(r["results"].size(), 9000u);
 }
 

@@ -1,11 +1,11 @@
 // The operations behind the socket service: the terrain map (published atomically), terrain
-// queries, plans and checks. Each operation calls the real terrain/planner/collision APIs; one whose
-// backing module is not built in answers `unavailable` instead of inventing data.
+// queries, plans and checks. Each operation calls the real terrain/planner/collision APIs; one
+// whose backing module is not built in answers `unavailable` instead of inventing data.
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
-#include <algorithm>
 #include <mutex>
 #include <sstream>
 #include <thread>
@@ -31,8 +31,7 @@ using protocol::ProtocolError;
 namespace {
 
 double unix_now() {
-  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch())
-      .count();
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
 // One published map: immutable once published; readers hold it for as long as they need it.
@@ -124,8 +123,8 @@ class Backend {
       for (std::size_t i = 0; i < it->size(); ++i) {
         const json& p = (*it)[i];
         if (!p.is_array() || p.size() != 2 || !p[0].is_number() || !p[1].is_number())
-          throw ProtocolError(pc::kBadRequest, "points[" + std::to_string(i) +
-                                                   "] must be [x, y] (two numbers)");
+          throw ProtocolError(pc::kBadRequest,
+                              "points[" + std::to_string(i) + "] must be [x, y] (two numbers)");
         const double x = p[0].get<double>(), y = p[1].get<double>();
         if (!std::isfinite(x) || !std::isfinite(y))
           throw ProtocolError(pc::kBadRequest, "points[" + std::to_string(i) + "] is not finite");
@@ -138,8 +137,7 @@ class Backend {
                                                " points exceed the batch limit of " +
                                                std::to_string(kMaxQueryPoints));
     const auto m = map();  // one snapshot for the whole batch
-    if (!m)
-      throw ProtocolError(pc::kNoMap, "no terrain map loaded: send map.update first");
+    if (!m) throw ProtocolError(pc::kNoMap, "no terrain map loaded: send map.update first");
     // A scanned map answers only for the radii whose safety layers it holds: computing a new
     // layer takes a distance transform over the whole grid, not a query's budget.
     const auto* grid_map = dynamic_cast<const terrain::TerrainMap*>(m->field.get());
@@ -198,8 +196,8 @@ class Backend {
     const json& h = ctx.request.header;
     const std::string mode = protocol::get_string(h, "mode", std::string("add"));
     if (mode != "add" && mode != "replace")
-      throw ProtocolError(pc::kBadRequest, "\"mode\" must be \"add\" or \"replace\", got '" + mode +
-                                               "'");
+      throw ProtocolError(pc::kBadRequest,
+                          "\"mode\" must be \"add\" or \"replace\", got '" + mode + "'");
     const bool has_scene = h.contains("scene");
     const bool has_dir = h.contains("terrain_dir");
     const auto* points = ctx.request.find("points");
@@ -318,9 +316,10 @@ class Backend {
       total += cloud_points_;
     }
     if (total > kMaxMapPoints)
-      throw ProtocolError(pc::kBadRequest,
-                          "map would hold " + std::to_string(total) + " points, above the limit of " +
-                              std::to_string(kMaxMapPoints) + "; send mode \"replace\" or a voxel size");
+      throw ProtocolError(pc::kBadRequest, "map would hold " + std::to_string(total) +
+                                               " points, above the limit of " +
+                                               std::to_string(kMaxMapPoints) +
+                                               "; send mode \"replace\" or a voxel size");
     clouds.push_back(std::move(cloud));
     terrain::HeightGridOptions go;
     go.resolution = resolution;
@@ -434,10 +433,9 @@ class Backend {
           if (!std::filesystem::is_directory(spec)) {
             std::string list;
             for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
-            throw ProtocolError(pc::kBadRequest,
-                                "\"terrain\" '" + spec +
-                                    "' is neither \"current\", a scene name (" + list +
-                                    ") nor a terrain directory");
+            throw ProtocolError(pc::kBadRequest, "\"terrain\" '" + spec +
+                                                     "' is neither \"current\", a scene name (" +
+                                                     list + ") nor a terrain directory");
           }
           smooth = terrain::load_terrain_dir(spec);
           plan_field = check_field = smooth.get();
@@ -450,9 +448,9 @@ class Backend {
     // A deadline caps the solve (Ipopt's wall-clock check); cancel cannot interrupt Ipopt until
     // the planner polls a stop callback (see docs/protocol.md).
     if (ctx.token->has_deadline()) {
-      const double left = std::chrono::duration<double>(ctx.token->deadline() -
-                                                        std::chrono::steady_clock::now())
-                              .count();
+      const double left =
+          std::chrono::duration<double>(ctx.token->deadline() - std::chrono::steady_clock::now())
+              .count();
       if (left <= 0) ctx.check_stop();
       po.max_time = po.max_time > 0 ? std::min(po.max_time, left) : left;
     }
@@ -467,10 +465,11 @@ class Backend {
     ctx.check_stop();
     const double violation = out.solve.max_violation;
     if (!out.success && violation > 1e-3)
-      throw ProtocolError(pc::kFailed, "plan: " + (out.message.empty()
-                                                       ? "status " + out.trajectory.solver.status
-                                                       : out.message) +
-                                           " (max violation " + std::to_string(violation) + ")");
+      throw ProtocolError(
+          pc::kFailed,
+          "plan: " +
+              (out.message.empty() ? "status " + out.trajectory.solver.status : out.message) +
+              " (max violation " + std::to_string(violation) + ")");
     out.trajectory.extra["terrain"] = spec;
     OpResult r;
     r.result = planner::plan_to_json(out.trajectory);
@@ -537,8 +536,8 @@ class Backend {
   }
 
   OpResult unavailable(const std::string& op, const std::string& module) {
-    throw ProtocolError(pc::kUnavailable, op + ": the " + module +
-                                              " is not built into this server yet");
+    throw ProtocolError(pc::kUnavailable,
+                        op + ": the " + module + " is not built into this server yet");
   }
 
   // Test operation (only with --debug-ops): holds a worker for `ms` milliseconds, polling the
@@ -554,9 +553,9 @@ class Backend {
       std::this_thread::sleep_for(std::chrono::microseconds(500));
     }
     OpResult r;
-    r.result = {{"slept_ms", std::chrono::duration<double, std::milli>(
-                                 std::chrono::steady_clock::now() - start)
-                                 .count()}};
+    r.result = {{"slept_ms",
+                 std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+                     .count()}};
     return r;
   }
 
@@ -596,7 +595,9 @@ std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRe
   return b;
 }
 
-json backend_status(const Backend& backend) { return {{"map", backend.map_json()}}; }
+json backend_status(const Backend& backend) {
+  return {{"map", backend.map_json()}};
+}
 
 json backend_hello(const Backend& backend) {
   return {{"robot", backend.robot_json()}, {"map", backend.map_json()}};

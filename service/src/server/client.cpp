@@ -95,7 +95,9 @@ Client Client::connect(const std::string& address, double timeout_s) {
   return c;
 }
 
-Client::Client(Client&& o) noexcept { *this = std::move(o); }
+Client::Client(Client&& o) noexcept {
+  *this = std::move(o);
+}
 
 Client& Client::operator=(Client&& o) noexcept {
   if (this != &o) {
@@ -112,7 +114,9 @@ Client& Client::operator=(Client&& o) noexcept {
   return *this;
 }
 
-Client::~Client() { close(); }
+Client::~Client() {
+  close();
+}
 
 void Client::close() {
   if (fd_ >= 0) ::close(fd_);

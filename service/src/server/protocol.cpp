@@ -87,7 +87,9 @@ void check_body_length(std::uint32_t body_length, std::uint32_t max_frame_bytes)
                               " bytes is shorter than its 4-byte header length");
 }
 
-std::string encode_frame(const Message& message) { return encode_frame(message, {}); }
+std::string encode_frame(const Message& message) {
+  return encode_frame(message, {});
+}
 
 void append_json_number(std::string& out, double v) {
   if (!std::isfinite(v)) {
@@ -176,7 +178,8 @@ Message decode_body(std::string_view body) {
   if (body.size() < 4)
     fail(code::kBadFrame, "frame body of " + std::to_string(body.size()) +
                               " bytes is shorter than its 4-byte header length");
-  const std::uint32_t header_length = read_u32be(reinterpret_cast<const unsigned char*>(body.data()));
+  const std::uint32_t header_length =
+      read_u32be(reinterpret_cast<const unsigned char*>(body.data()));
   if (header_length > body.size() - 4)
     fail(code::kBadFrame, "header length " + std::to_string(header_length) +
                               " exceeds the frame body (" + std::to_string(body.size() - 4) +
@@ -214,7 +217,8 @@ Message decode_body(std::string_view body) {
       if (shape == d.end() || !shape->is_array() || shape->empty() || shape->size() > 4)
         fail(code::kBadFrame, where + ".shape must be an array of 1 to 4 sizes");
       for (const json& s : *shape) {
-        if (!s.is_number_unsigned()) fail(code::kBadFrame, where + ".shape must hold integers >= 0");
+        if (!s.is_number_unsigned())
+          fail(code::kBadFrame, where + ".shape must hold integers >= 0");
         a.shape.push_back(s.get<std::uint64_t>());
       }
       const auto n = byte_size(a.shape, rest.size());
@@ -228,8 +232,8 @@ Message decode_body(std::string_view body) {
     }
   }
   if (!rest.empty())
-    fail(code::kBadFrame, std::to_string(rest.size()) +
-                              " trailing bytes after the header and attachments");
+    fail(code::kBadFrame,
+         std::to_string(rest.size()) + " trailing bytes after the header and attachments");
   return m;
 }
 
@@ -337,8 +341,8 @@ bool get_bool(const json& header, const char* key, std::optional<bool> fallback)
 
 Eigen::VectorXd get_vector(const json& header, const char* key, int n) {
   const auto it = header.find(key);
-  const std::string what = std::string("\"") + key + "\" must be an array of " +
-                           std::to_string(n) + " finite numbers";
+  const std::string what =
+      std::string("\"") + key + "\" must be an array of " + std::to_string(n) + " finite numbers";
   if (it == header.end() || !it->is_array() || it->size() != static_cast<std::size_t>(n))
     fail(code::kBadRequest, what);
   Eigen::VectorXd v(n);

@@ -54,7 +54,8 @@ ListenAddress parse_listen_address(const std::string& text) {
     return a;
   }
   std::string rest = text;
-  if (rest.rfind("tcp://", 0) == 0) rest = rest.substr(6);
+  if (rest.rfind("tcp://", 0) == 0)
+    rest = rest.substr(6);
   else if (rest.find("://") != std::string::npos)
     throw std::invalid_argument("listen address '" + text +
                                 "': scheme must be tcp:// or unix: (e.g. tcp://127.0.0.1:7700)");
@@ -75,7 +76,8 @@ ListenAddress parse_listen_address(const std::string& text) {
   if (a.host == "localhost") a.host = "127.0.0.1";
   if (a.host.empty() || port.empty() || port.size() > 5 ||
       port.find_first_not_of("0123456789") != std::string::npos || std::stoul(port) > 65535)
-    throw std::invalid_argument("listen address '" + text + "': expected HOST:PORT with port 0-65535");
+    throw std::invalid_argument("listen address '" + text +
+                                "': expected HOST:PORT with port 0-65535");
   a.port = static_cast<std::uint16_t>(std::stoul(port));
   asio::error_code ec;
   asio::ip::make_address(a.host, ec);
@@ -288,18 +290,18 @@ struct Connection : std::enable_shared_from_this<Connection> {
     if (in_end == inbuf.size()) make_room(in_end - in_start + 1);
     read_pending = true;
     auto self = shared_from_this();
-    socket.async_read_some(
-        asio::buffer(&inbuf[in_end], inbuf.size() - in_end),
-        [self](const asio::error_code& ec, std::size_t n) {
-          self->read_pending = false;
-          self->server.counters.bytes_in += n;
-          if (ec) {
-            if (self->in_end > self->in_start) self->server.counters.disconnects_mid_request++;
-            return self->close();
-          }
-          self->in_end += n;
-          self->process_frames();
-        });
+    socket.async_read_some(asio::buffer(&inbuf[in_end], inbuf.size() - in_end),
+                           [self](const asio::error_code& ec, std::size_t n) {
+                             self->read_pending = false;
+                             self->server.counters.bytes_in += n;
+                             if (ec) {
+                               if (self->in_end > self->in_start)
+                                 self->server.counters.disconnects_mid_request++;
+                               return self->close();
+                             }
+                             self->in_end += n;
+                             self->process_frames();
+                           });
   }
 
   // Dispatches every complete frame in the buffer, then reads on (unless paused or closing).
@@ -470,9 +472,9 @@ void Connection::dispatch(std::string_view body) {
   if (!authenticated) {
     // The first request must be a hello carrying the shared token.
     const auto tok = m.header.find("token");
-    const bool ok = req.op == "hello" && tok != m.header.end() && tok->is_string() &&
-                    protocol::constant_time_equal(tok->get_ref<const std::string&>(),
-                                                  *server.options.token);
+    const bool ok =
+        req.op == "hello" && tok != m.header.end() && tok->is_string() &&
+        protocol::constant_time_equal(tok->get_ref<const std::string&>(), *server.options.token);
     if (!ok) {
       server.counters.auth_failures++;
       send_error(id, pc::kUnauthorized,
@@ -550,8 +552,8 @@ void Connection::dispatch(std::string_view body) {
   if (op->kind == OpKind::kInline) {
     auto token = std::make_shared<CancellationToken>();
     if (req.deadline_ms)
-      token->set_deadline(arrival + std::chrono::microseconds(
-                                        static_cast<long long>(*req.deadline_ms * 1000)));
+      token->set_deadline(
+          arrival + std::chrono::microseconds(static_cast<long long>(*req.deadline_ms * 1000)));
     return run_inline([&] {
       OpContext ctx{m, token};
       return op->handler(ctx);
@@ -601,8 +603,9 @@ void Connection::dispatch(std::string_view body) {
       c->server.pool->try_remove(job);
       c->server.counters.deadline_exceeded++;
       c->abort_job(job, pc::kDeadlineExceeded,
-                   std::string("deadline exceeded ") + (job->running ? "while running" : "in queue") +
-                       " ('" + job->op->name + "')");
+                   std::string("deadline exceeded ") +
+                       (job->running ? "while running" : "in queue") + " ('" + job->op->name +
+                       "')");
     });
   }
 }
@@ -610,7 +613,8 @@ void Connection::dispatch(std::string_view body) {
 OpResult Connection::builtin_cancel(const Message& m) {
   const auto t = m.header.find("target");
   if (t == m.header.end() || !(t->is_number_integer() || t->is_string()))
-    throw ProtocolError(pc::kBadRequest, "cancel needs \"target\": the id of the request to cancel");
+    throw ProtocolError(pc::kBadRequest,
+                        "cancel needs \"target\": the id of the request to cancel");
   OpResult r;
   const auto it = inflight.find(t->dump());
   if (it == inflight.end()) {
@@ -699,16 +703,18 @@ void Server::Impl::accept_tcp(asio::ip::tcp::acceptor& acc) {
 }
 
 void Server::Impl::accept_unix(asio::local::stream_protocol::acceptor& acc) {
-  acc.async_accept([this, &acc](const asio::error_code& ec, asio::local::stream_protocol::socket s) {
-    if (!acc.is_open() || draining) return;
-    if (!ec) adopt(asio::generic::stream_protocol::socket(std::move(s)), false);
-    else if (ec == asio::error::no_descriptors || ec == asio::error::no_buffer_space) {
-      auto t = std::make_shared<asio::steady_timer>(io, std::chrono::milliseconds(50));
-      t->async_wait([this, &acc, t](const asio::error_code&) { accept_unix(acc); });
-      return;
-    }
-    accept_unix(acc);
-  });
+  acc.async_accept(
+      [this, &acc](const asio::error_code& ec, asio::local::stream_protocol::socket s) {
+        if (!acc.is_open() || draining) return;
+        if (!ec)
+          adopt(asio::generic::stream_protocol::socket(std::move(s)), false);
+        else if (ec == asio::error::no_descriptors || ec == asio::error::no_buffer_space) {
+          auto t = std::make_shared<asio::steady_timer>(io, std::chrono::milliseconds(50));
+          t->async_wait([this, &acc, t](const asio::error_code&) { accept_unix(acc); });
+          return;
+        }
+        accept_unix(acc);
+      });
 }
 
 json Server::Impl::status_json() {
@@ -719,33 +725,32 @@ json Server::Impl::status_json() {
     for (const auto& [k, v] : counters.errors_by_code) errors[k] = v;
     for (const auto& [k, v] : counters.ops) ops[k] = v;
   }
-  json s = {
-      {"uptime_s", std::chrono::duration<double>(Clock::now() - started).count()},
-      {"draining", draining.load()},
-      {"listen", bound},
-      {"connections",
-       {{"open", counters.connections_open.load()},
-        {"total", counters.connections_total.load()},
-        {"rejected", counters.connections_rejected.load()},
-        {"slow_client_drops", counters.slow_client_drops.load()},
-        {"disconnects_mid_request", counters.disconnects_mid_request.load()}}},
-      {"requests",
-       {{"total", counters.requests.load()},
-        {"ok", counters.replies_ok.load()},
-        {"errors", counters.replies_error.load()},
-        {"malformed_frames", counters.malformed_frames.load()},
-        {"busy", counters.busy.load()},
-        {"cancelled", counters.cancelled.load()},
-        {"deadline_exceeded", counters.deadline_exceeded.load()},
-        {"auth_failures", counters.auth_failures.load()},
-        {"errors_by_code", errors},
-        {"by_op", ops}}},
-      {"bytes", {{"in", counters.bytes_in.load()}, {"out", counters.bytes_out.load()}}},
-      {"queue",
-       {{"length", pool ? pool->queued() : std::size_t{0}},
-        {"capacity", pool ? pool->capacity() : std::size_t{0}},
-        {"running", pool ? pool->running() : std::size_t{0}},
-        {"workers", pool ? pool->workers() : std::size_t{0}}}}};
+  json s = {{"uptime_s", std::chrono::duration<double>(Clock::now() - started).count()},
+            {"draining", draining.load()},
+            {"listen", bound},
+            {"connections",
+             {{"open", counters.connections_open.load()},
+              {"total", counters.connections_total.load()},
+              {"rejected", counters.connections_rejected.load()},
+              {"slow_client_drops", counters.slow_client_drops.load()},
+              {"disconnects_mid_request", counters.disconnects_mid_request.load()}}},
+            {"requests",
+             {{"total", counters.requests.load()},
+              {"ok", counters.replies_ok.load()},
+              {"errors", counters.replies_error.load()},
+              {"malformed_frames", counters.malformed_frames.load()},
+              {"busy", counters.busy.load()},
+              {"cancelled", counters.cancelled.load()},
+              {"deadline_exceeded", counters.deadline_exceeded.load()},
+              {"auth_failures", counters.auth_failures.load()},
+              {"errors_by_code", errors},
+              {"by_op", ops}}},
+            {"bytes", {{"in", counters.bytes_in.load()}, {"out", counters.bytes_out.load()}}},
+            {"queue",
+             {{"length", pool ? pool->queued() : std::size_t{0}},
+              {"capacity", pool ? pool->capacity() : std::size_t{0}},
+              {"running", pool ? pool->running() : std::size_t{0}},
+              {"workers", pool ? pool->workers() : std::size_t{0}}}}};
   if (status_extra) s.update(status_extra());
   return s;
 }
@@ -825,7 +830,8 @@ void prepare_unix_path(const std::string& path) {
   struct stat st;
   if (::lstat(path.c_str(), &st) != 0) return;
   if (!S_ISSOCK(st.st_mode))
-    throw std::runtime_error("unix:" + path + ": exists and is not a socket; refusing to replace it");
+    throw std::runtime_error("unix:" + path +
+                             ": exists and is not a socket; refusing to replace it");
   asio::io_context probe_io;
   asio::local::stream_protocol::socket probe(probe_io);
   asio::error_code ec;
@@ -906,6 +912,8 @@ void Server::shutdown() {
   asio::post(im->io, [im] { im->begin_shutdown(); });
 }
 
-json Server::status() const { return impl_->status_json(); }
+json Server::status() const {
+  return impl_->status_json();
+}
 
 }  // namespace terrastride::service

@@ -26,10 +26,10 @@ constexpr std::size_t kMaxAttachments = 16;
 
 // Error codes carried by error replies ({"code", "message"}).
 namespace code {
-inline constexpr const char* kBadFrame = "bad_frame";            // framing/attachment layout
+inline constexpr const char* kBadFrame = "bad_frame";             // framing/attachment layout
 inline constexpr const char* kFrameTooLarge = "frame_too_large";  // length prefix above the cap
-inline constexpr const char* kBadJson = "bad_json";              // header is not a JSON object
-inline constexpr const char* kBadRequest = "bad_request";        // wrong types, missing fields
+inline constexpr const char* kBadJson = "bad_json";               // header is not a JSON object
+inline constexpr const char* kBadRequest = "bad_request";         // wrong types, missing fields
 inline constexpr const char* kUnsupportedVersion = "unsupported_version";
 inline constexpr const char* kUnknownOp = "unknown_op";
 inline constexpr const char* kUnauthorized = "unauthorized";

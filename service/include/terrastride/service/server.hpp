@@ -1,5 +1,5 @@
-// The terrastride socket service (docs/protocol.md): Asio, one I/O thread, a bounded worker pool for
-// long operations. Operations are handlers behind a small interface (OperationRegistry), so the
+// The terrastride socket service (docs/protocol.md): Asio, one I/O thread, a bounded worker pool
+// for long operations. Operations are handlers behind a small interface (OperationRegistry), so the
 // transport is independent of the terrain and planner modules behind them.
 #pragma once
 
@@ -71,9 +71,9 @@ struct ServerOptions {
   std::optional<std::string> token;  // shared secret; required for non-loopback TCP addresses
   std::uint32_t max_frame_bytes = protocol::kDefaultMaxFrameBytes;
   int workers = 2;
-  int queue = 8;                    // jobs waiting for a worker before `busy`
+  int queue = 8;  // jobs waiting for a worker before `busy`
   int max_connections = 512;
-  int max_inflight_per_connection = 64;           // queued + running worker jobs
+  int max_inflight_per_connection = 64;            // queued + running worker jobs
   std::size_t max_write_queue_bytes = 256u << 20;  // unsent replies before a client is dropped
   double drain_seconds = 5.0;  // on SIGINT/SIGTERM: time running jobs get before cancellation
   bool handle_signals = true;
