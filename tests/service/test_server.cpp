@@ -525,7 +525,11 @@ TEST(ServerSignals, TermDrainsRunningWorkThenExits) {
   ASSERT_FALSE(server.tcp().empty()) << server.output;
   Client c = Client::connect(server.tcp());
   c.send({{"op", "debug.sleep"}, {"id", 1}, {"ms", 400}});
-  c.call_ok({{"op", "status"}});  // the job was accepted
+  // Wait until a worker runs it (queued jobs are answered shutting_down instead).
+  for (int tries = 0; tries < 2000; ++tries) {
+    if (c.call_ok({{"op", "status"}})["queue"]["running"] == 1) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
   ::kill(server.pid(), SIGTERM);
   const p::Message m = c.wait_for(1);
   EXPECT_TRUE(m.header["ok"].get<bool>()) << m.header.dump();  // drained, not dropped
