@@ -217,7 +217,7 @@ TEST(Protocol, ConstantTimeEqual) {
 // The fuzz target on every seed (and a few mutations of each): it must neither crash nor trap.
 TEST(Protocol, FuzzCorpusReplay) {
   const std::filesystem::path corpus =
-      std::filesystem::path(__FILE__).parent_path().parent_path() / "fuzz" / "corpus";
+      std::filesystem::path(TERRASTRIDE_SOURCE_DIR) / "tests" / "fuzz" / "corpus";
   ASSERT_TRUE(std::filesystem::is_directory(corpus)) << corpus;
   int n = 0;
   for (const auto& entry : std::filesystem::directory_iterator(corpus)) {

@@ -371,7 +371,8 @@ std::string find_program(const char* name) {
 
 json browser_check(const fs::path& html, const fs::path& dir, int* code,
                    const std::string& extra = "") {
-  const std::string script = fs::path(__FILE__).parent_path() / "report_check.js";
+  const std::string script =
+      fs::path(TERRASTRIDE_SOURCE_DIR) / "tests" / "service" / "report_check.js";
   const fs::path out = dir / "check.json";
   const std::string cmd = "node " + quote(script) + " " + quote(html.string()) + " " + extra +
                           " >" + quote(out.string()) + " 2>" + quote((dir / "check.err").string());

@@ -559,8 +559,8 @@ TEST(PythonClient, DrivesEveryOperation) {
       {"--listen", "tcp://127.0.0.1:0", "--debug-ops", "--workers", "1", "--queue", "1"});
   ASSERT_FALSE(server.tcp().empty()) << server.output;
   const std::filesystem::path script =
-      std::filesystem::path(__FILE__).parent_path().parent_path().parent_path() / "service" /
-      "clients" / "python" / "test_client.py";
+      std::filesystem::path(TERRASTRIDE_SOURCE_DIR) / "service" / "clients" / "python" /
+      "test_client.py";
   const std::string cmd = "python3 " + script.string() + " " + server.tcp() + " 2>&1";
   FILE* pipe = ::popen(cmd.c_str(), "r");
   ASSERT_NE(pipe, nullptr);
