@@ -242,26 +242,39 @@ std::optional<Eigen::Vector3d> origin_if_recorded(const Eigen::Vector4f& origin,
 
 }  // namespace
 
-RawCloud read_pcd_with_pcl(const std::string& path) {
-  check_pcd_signature(path);
-  check_pcd_size(path);
+namespace {
+
 #ifdef TERRASTRIDE_HAVE_PCL
+// PCD and PLY differ only in PCL's reader class; both share pcl::FileReader::read.
+RawCloud read_with_pcl_reader(pcl::FileReader& reader, const std::string& path,
+                              const std::string& format) {
   silence_pcl();
   pcl::PCLPointCloud2 blob;
   Eigen::Vector4f origin = Eigen::Vector4f::Zero();
   Eigen::Quaternionf orientation = Eigen::Quaternionf::Identity();
   int version = 0;
-  pcl::PCDReader reader;
   int rc;
   try {
     rc = reader.read(path, blob, origin, orientation, version);
   } catch (const std::exception& e) {
-    throw InputError(path + ": unreadable PCD file: " + e.what());
+    throw InputError(path + ": unreadable " + format + " file: " + e.what());
   }
-  if (rc < 0) throw InputError(path + ": unreadable or corrupt PCD file (PCL reader failed)");
+  if (rc < 0)
+    throw InputError(path + ": unreadable or corrupt " + format + " file (PCL reader failed)");
   RawCloud raw = extract_xyz(path, blob);
   raw.origin = origin_if_recorded(origin, orientation);
   return raw;
+}
+#endif
+
+}  // namespace
+
+RawCloud read_pcd_with_pcl(const std::string& path) {
+  check_pcd_signature(path);
+  check_pcd_size(path);
+#ifdef TERRASTRIDE_HAVE_PCL
+  pcl::PCDReader reader;
+  return read_with_pcl_reader(reader, path, "PCD");
 #else
   throw InputError(path + ": PCD reading needs PCL (built with TERRASTRIDE_WITH_PCL=OFF)");
 #endif
@@ -271,22 +284,8 @@ RawCloud read_ply_with_pcl(const std::string& path) {
   check_ply_signature(path);
   check_ply_size(path);
 #ifdef TERRASTRIDE_HAVE_PCL
-  silence_pcl();
-  pcl::PCLPointCloud2 blob;
-  Eigen::Vector4f origin = Eigen::Vector4f::Zero();
-  Eigen::Quaternionf orientation = Eigen::Quaternionf::Identity();
-  int version = 0;
   pcl::PLYReader reader;
-  int rc;
-  try {
-    rc = reader.read(path, blob, origin, orientation, version);
-  } catch (const std::exception& e) {
-    throw InputError(path + ": unreadable PLY file: " + e.what());
-  }
-  if (rc < 0) throw InputError(path + ": unreadable or corrupt PLY file (PCL reader failed)");
-  RawCloud raw = extract_xyz(path, blob);
-  raw.origin = origin_if_recorded(origin, orientation);
-  return raw;
+  return read_with_pcl_reader(reader, path, "PLY");
 #else
   throw InputError(path + ": PLY reading needs PCL (built with TERRASTRIDE_WITH_PCL=OFF)");
 #endif
