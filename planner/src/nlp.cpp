@@ -26,19 +26,6 @@ std::mutex& registry_mutex() {
   return m;
 }
 
-template <class F>
-std::unique_ptr<Piece> make_piece(std::string kind, const LocalVars& lv, std::vector<double> lb,
-                                  std::vector<double> ub, F f) {
-  if (static_cast<int>(lv.vars.size()) > kMaxPieceVars || lb.size() > 64)
-    throw std::logic_error("piece " + kind + " too large");
-  auto p = std::make_unique<FunctionPiece<F>>(std::move(f));
-  p->kind = std::move(kind);
-  p->vars = lv.vars;
-  p->lb = std::move(lb);
-  p->ub = std::move(ub);
-  return p;
-}
-
 // Swing-clearance profile over the swing's progress u in [0, 1]: 0 at lift-off and touch-down,
 // 1 in the middle part, so the foot may leave and reach the ground while being held clear of the
 // terrain elsewhere.

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <functional>
 #include <sstream>
 
 namespace terrastride::planner {
@@ -17,7 +18,8 @@ using Ipopt::Number;
 
 class SrbdTnlp : public Ipopt::TNLP {
  public:
-  SrbdTnlp(const SrbdProblem& p, double max_wall) : p_(p), max_wall_(max_wall) {
+  SrbdTnlp(const SrbdProblem& p, double max_wall, std::function<bool()> should_stop)
+      : p_(p), max_wall_(max_wall), should_stop_(std::move(should_stop)) {
     start_ = std::chrono::steady_clock::now();
   }
   bool get_nlp_info(Index& n, Index& m, Index& nnz_jac, Index& nnz_h,
@@ -74,6 +76,7 @@ class SrbdTnlp : public Ipopt::TNLP {
       timed_out_ = true;
       return false;
     }
+    if (should_stop_ && should_stop_()) return false;
     return true;
   }
   void finalize_solution(Ipopt::SolverReturn status, Index n, const Number* x, const Number*,
@@ -94,6 +97,7 @@ class SrbdTnlp : public Ipopt::TNLP {
  private:
   const SrbdProblem& p_;
   double max_wall_;
+  std::function<bool()> should_stop_;
   std::chrono::steady_clock::time_point start_;
 };
 
@@ -102,7 +106,7 @@ class SrbdTnlp : public Ipopt::TNLP {
 SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
                   const std::vector<std::pair<std::string, std::string>>& extra_options) {
   const auto t0 = std::chrono::steady_clock::now();
-  Ipopt::SmartPtr<SrbdTnlp> nlp = new SrbdTnlp(problem, options.max_time);
+  Ipopt::SmartPtr<SrbdTnlp> nlp = new SrbdTnlp(problem, options.max_time, options.should_stop);
   Ipopt::SmartPtr<Ipopt::IpoptApplication> app = IpoptApplicationFactory();
   auto opts = app->Options();
   opts->SetIntegerValue("print_level", options.verbose ? 5 : 0);

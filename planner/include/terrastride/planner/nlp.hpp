@@ -72,6 +72,9 @@ struct PlannerOptions {
   int clearance_points = 4;              // swing-clearance points per segment
   std::vector<std::string> constraints{"baseline"};
   double max_time = 0.0;  // s per solve, 0 = none
+  // Polled once per solver iteration; returning true stops the solve (status "stopped"). The
+  // socket service uses it to cancel a plan request. Must be cheap and thread-safe.
+  std::function<bool()> should_stop;
   int max_iterations = 3000;
   bool verbose = false;
   double tolerance = 1e-4;

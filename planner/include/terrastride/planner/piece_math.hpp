@@ -6,6 +6,10 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <cmath>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
 #include <type_traits>
 #include <unsupported/Eigen/AutoDiff>
 #include <utility>
@@ -60,6 +64,21 @@ class LocalVars {
   }
   std::vector<int> vars;
 };
+
+// A piece of kind `kind` over the variables in `lv`, rows bounded by [lb, ub], from a generic
+// callable f(const T* x_local, T* g). Constraint sets outside nlp.cpp build their pieces with it.
+template <class F>
+std::unique_ptr<Piece> make_piece(std::string kind, const LocalVars& lv, std::vector<double> lb,
+                                  std::vector<double> ub, F f) {
+  if (static_cast<int>(lv.vars.size()) > kMaxPieceVars || lb.size() > 64 || lb.size() != ub.size())
+    throw std::logic_error("piece " + kind + ": too many variables or rows, or bounds mismatch");
+  auto p = std::make_unique<FunctionPiece<F>>(std::move(f));
+  p->kind = std::move(kind);
+  p->vars = lv.vars;
+  p->lb = std::move(lb);
+  p->ub = std::move(ub);
+  return p;
+}
 
 template <class T>
 using Vec3 = Eigen::Matrix<T, 3, 1>;
