@@ -7,6 +7,7 @@
 #include <mutex>
 #include <stdexcept>
 
+#include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/piece_math.hpp"
 #include "terrastride/planner/trajectory.hpp"
 
@@ -18,7 +19,8 @@ constexpr double kGravity = 9.81;
 constexpr double kInf = 2e19;  // Ipopt's default nlp_upper_bound_inf is 1e19
 
 std::map<std::string, ConstraintSetBuilder>& registry() {
-  static std::map<std::string, ConstraintSetBuilder> r;
+  // The feasibility sets (feasibility.hpp) are there from the start: no static initialisers.
+  static std::map<std::string, ConstraintSetBuilder> r = builtin_constraint_sets();
   return r;
 }
 std::mutex& registry_mutex() {
@@ -43,6 +45,7 @@ std::vector<std::string> constraint_set_names() {
   std::vector<std::string> names{"baseline"};
   for (const auto& [k, v] : registry())
     if (k != "baseline") names.push_back(k);
+  names.push_back("all");  // foot + shin + polytope, expanded in the SrbdProblem constructor
   return names;
 }
 
@@ -61,8 +64,16 @@ SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightFi
   build_layout(start_state);
   build_initial_guess(start_state);
   build_baseline();
-  for (const auto& name : options_.constraints) {
-    if (name == "baseline") continue;
+  std::vector<std::string> sets;  // "all" expanded, each set once
+  for (const auto& name : options_.constraints)
+    if (name == "all")
+      sets.insert(sets.end(), std::begin(kAllFeasibilitySets), std::end(kAllFeasibilitySets));
+    else
+      sets.push_back(name);
+  for (std::size_t i = 0; i < sets.size(); ++i) {
+    const std::string& name = sets[i];
+    if (name == "baseline" || std::find(sets.begin(), sets.begin() + i, name) != sets.begin() + i)
+      continue;
     ConstraintSetBuilder b;
     {
       std::lock_guard<std::mutex> lock(registry_mutex());

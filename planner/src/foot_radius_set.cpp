@@ -1,0 +1,35 @@
+// "foot": the foot radius (Bratta et al. 2020, III-B). The paper keeps a stance foothold where the
+// terrain is constant within the foot radius r; the terrain gives that as a signed margin (m to the
+// nearest unsafe cell for radius r, negative inside, with a gradient; see DESIGN.md, Terrain), so
+// every free stance foothold gets one row  margin(p_x, p_y; r) >= foot_margin. A stance foot does
+// not move (one position variable per stance), so one row holds it for the whole stance. The
+// initial stances are given, not optimised, and get no row.
+#include <map>
+
+#include "feasibility_common.hpp"
+#include "terrastride/planner/feasibility.hpp"
+
+namespace terrastride::planner {
+
+void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options) {
+  const Layout& L = problem.layout();
+  const terrain::HeightField* field = &problem.terrain();
+  const double r = problem.robot().foot_radius;
+  for (const auto& st : L.stances) {
+    if (st.fixed) continue;
+    LocalVars lv;
+    const int ix = lv.add(st.pos_var), iy = lv.add(st.pos_var + 1);  // z does not enter
+    problem.add_piece(make_piece("foot_radius", lv, {options.foot_margin}, {feasibility::kInf},
+                                 [=](const auto* x, auto* g) {
+                                   g[0] = feasibility::safety_margin(*field, x[ix], x[iy], r);
+                                 }));
+  }
+}
+
+std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets() {
+  return {{"foot", [](SrbdProblem& p) { build_foot_set(p); }},
+          {"shin", [](SrbdProblem& p) { build_shin_set(p); }},
+          {"polytope", [](SrbdProblem& p) { build_polytope_set(p); }}};
+}
+
+}  // namespace terrastride::planner

@@ -1,0 +1,114 @@
+// "polytope": force polytopes (Bratta et al. 2020, III-A; DESIGN.md, Force polytopes). The fitted
+// model gives, per leg, g_j(p_b, f_b) = n^j(p_b)^T f_b - d^j(p_b) <= 0 (6 facets, two per joint)
+// for the foot position p_b and the contact force f_b in the BASE frame:
+//   R = rotation_zyx(euler), p_b = R^T (p - r), f_b = R^T f.
+// The model's analytic dg/dp_b and dg/df_b are chained through p_b and f_b, which depend on the
+// piece's variables (base position and Euler splines, foothold, force knots) by forward-mode AD.
+// Rows are divided by m g, like the friction rows, so they read in body weights.
+//
+// Where. Forces are linear in time inside a stance segment and g is linear in f_b for a FIXED
+// p_b and base orientation, so if the base stood still the force knots alone would make g <= 0
+// hold along the whole segment. The base does not stand still: p_b and R change along the segment
+// (r moves about 4 cm per 0.1 s segment in the 2.4 s crawl), and g depends nonlinearly on p_b
+// (the facets turn and scale with the leg's length and tilt). So the rows are imposed at every
+// force knot AND at `polytope_inner_points` points inside each stance segment (default: its
+// midpoint), where the force is the knots' linear interpolation and the base comes from its
+// Hermite splines. The post-hoc torque check (every sample of the plan) measures what is left.
+#include <algorithm>
+#include <memory>
+
+#include "feasibility_common.hpp"
+#include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/polytope_model.hpp"
+
+namespace terrastride::planner {
+
+namespace feasibility {
+
+// g = constraint(p, f) * scale, with the model's analytic Jacobians chained for AD arguments.
+inline void polytope_rows(const LegPolytopeModel& m, const Vec3<double>& p, const Vec3<double>& f,
+                          double scale, double* g) {
+  const auto v = m.constraint(p, f);
+  for (int j = 0; j < kPolytopeFacets; ++j) g[j] = v[j] * scale;
+}
+inline void polytope_rows(const LegPolytopeModel& m, const Vec3<Ad>& p, const Vec3<Ad>& f,
+                          double scale, Ad* g) {
+  const Eigen::Vector3d pv(p[0].value(), p[1].value(), p[2].value());
+  const Eigen::Vector3d fv(f[0].value(), f[1].value(), f[2].value());
+  Eigen::Matrix<double, kPolytopeFacets, 3> dp, df;
+  const auto v = m.constraint(pv, fv, &dp, &df);
+  for (int j = 0; j < kPolytopeFacets; ++j) {
+    AdVector d;
+    for (int i = 0; i < 3; ++i) {
+      accumulate(&d, dp(j, i) * scale, p[i].derivatives());
+      accumulate(&d, df(j, i) * scale, f[i].derivatives());
+    }
+    g[j] = Ad(v[j] * scale, d);
+  }
+}
+
+}  // namespace feasibility
+
+void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options) {
+  const Layout& L = problem.layout();
+  const auto& robot = problem.robot();
+  auto model = std::make_shared<const RobotPolytopeModel>(load_polytope_model(robot));
+  if (model->legs.size() != robot.legs.size())
+    throw std::invalid_argument("force polytopes of robot " + robot.name + " have " +
+                                std::to_string(model->legs.size()) + " legs, the robot " +
+                                std::to_string(robot.legs.size()));
+  const double scale = 1.0 / (robot.mass * feasibility::kGravity);
+  const int nf = static_cast<int>(robot.legs.size());
+  const int S = L.num_segments;
+  const int ni = std::max(0, options.polytope_inner_points);
+  const std::vector<double> lo(kPolytopeFacets, -feasibility::kInf), hi(kPolytopeFacets, 0.0);
+
+  // One piece at fraction sigma of segment s for foot f. At sigma = 0 or 1 only that knot's
+  // values enter (base pose, foothold, force knot); inside, the whole Hermite segment of the base,
+  // the segment's duration and both force knots.
+  auto add = [&](int f, int s, double sigma) {
+    LocalVars lv;
+    const HermiteLocal rp = add_hermite(lv, L.base[s], L.base[s] + 3, L.base[s + 1],
+                                        L.base[s + 1] + 3, sigma, true);
+    const HermiteLocal ep = add_hermite(lv, L.base[s] + 6, L.base[s] + 9, L.base[s + 1] + 6,
+                                        L.base[s + 1] + 9, sigma, true);
+    const auto pf = lv.add3(L.foot_pos[f][s]);
+    const auto f0 = sigma < 1.0 ? lv.add3(L.force[f][s][0]) : std::array<int, 3>{-1, -1, -1};
+    const auto f1 = sigma > 0.0 ? lv.add3(L.force[f][s][1]) : std::array<int, 3>{-1, -1, -1};
+    const int dur = rp.needs_duration || ep.needs_duration
+                        ? lv.add(L.interval_var[L.seg_interval[s]])
+                        : -1;
+    const double frac = L.seg_fraction[s];
+    const LegPolytopeModel* leg = &model->legs[f];
+    problem.add_piece(make_piece(
+        "force_polytope", lv, lo, hi, [=, keep = model](const auto* x, auto* g) {
+          using T = std::decay_t<decltype(*g)>;
+          (void)keep;
+          const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);
+          Vec3<T> r, e;
+          hermite<T>(sigma, h, x, rp, &r, nullptr, nullptr);
+          hermite<T>(sigma, h, x, ep, &e, nullptr, nullptr);
+          const Eigen::Matrix<T, 3, 3> Rt = rotation_zyx<T>(e).transpose();
+          const Vec3<T> force = (1.0 - sigma) * gather3(x, f0) + sigma * gather3(x, f1);
+          const Vec3<T> pb = Rt * (gather3(x, pf) - r);
+          const Vec3<T> fb = Rt * force;
+          feasibility::polytope_rows(*leg, pb, fb, scale, g);
+        }));
+  };
+
+  for (int f = 0; f < nf; ++f) {
+    int last = -1;
+    for (int s = 0; s < S; ++s) {
+      if (!L.contact[f][s]) continue;
+      for (int side = 0; side < 2; ++side) {
+        const int fv = L.force[f][s][side];
+        if (fv < 0 || fv == last) continue;  // a knot shared by two segments: once
+        last = fv;
+        add(f, s, side);
+      }
+      for (int q = 1; q <= ni; ++q) add(f, s, static_cast<double>(q) / (ni + 1));
+    }
+  }
+}
+
+}  // namespace terrastride::planner

@@ -1,0 +1,80 @@
+// "shin": shin collision (Bratta et al. 2020, III-B, eq. 13-14; DESIGN.md, Planner). The lower
+// leg is modelled as a straight segment of length s from the foot p at a fixed angle beta to the
+// ground, in the vertical plane through the base's heading psi (yaw):
+//   point k in (0, 1]:  q_k = p + k s (cos(beta) cos(psi), cos(beta) sin(psi), sin(beta)),
+// k = 1 the knee. Each point must stay above the terrain under it:
+//   p_z + k s sin(beta) - h(q_k,x, q_k,y) >= clearance.
+// The sign of the horizontal direction is carried by beta: 37 deg on HyQ's hind legs (knee ahead
+// of the foot), 127 deg on the front legs (cos < 0: knee behind the foot), as in the paper.
+//
+// Where: over every stance. A stance foot does not move, but psi does (the base turns while the
+// foot stands), so the rows are imposed at every segment end of the stance and at
+// `shin_yaw_points - 1` points inside each segment, with psi from the base's yaw spline there.
+// Initial (fixed) stances are included: their footholds are given but the yaw is not.
+//
+// Not in swing (a choice): in swing the real leg folds (the knee rises and the shin angle is far
+// from beta), so the fixed-beta model would mostly constrain a configuration the leg is not in;
+// a swinging foot is kept clear of the terrain (probed around it) by the baseline's swing
+// clearance, and its lift-off and touch-down footholds are stance footholds covered here.
+#include <algorithm>
+#include <cmath>
+
+#include "feasibility_common.hpp"
+#include "terrastride/planner/feasibility.hpp"
+
+namespace terrastride::planner {
+
+void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options) {
+  const Layout& L = problem.layout();
+  const terrain::HeightField* field = &problem.terrain();
+  const int nk = std::max(1, options.shin_points);
+  const int ny = std::max(1, options.shin_yaw_points);
+  for (const auto& st : L.stances) {
+    const auto& leg = problem.robot().legs[st.foot];
+    const double s = leg.shin_length, cb = std::cos(leg.shin_angle), sb = std::sin(leg.shin_angle);
+    const double clearance = options.shin_clearance >= 0.0 ? options.shin_clearance : leg.shin_radius;
+    if (!(s > 0.0)) continue;
+    std::vector<double> lo(nk, clearance), hi(nk, feasibility::kInf);
+    for (int seg = st.first_seg; seg <= st.last_seg; ++seg)
+      for (int q = 0; q <= ny; ++q) {
+        if (q == ny && seg != st.last_seg) continue;  // the next segment's start covers this end
+        const double sigma = static_cast<double>(q) / ny;
+        LocalVars lv;
+        const auto p = lv.add3(st.pos_var);
+        // Yaw at sigma: only its own knot at the segment ends, the whole yaw Hermite inside.
+        int y0 = -1, v0 = -1, y1 = -1, v1 = -1, dur = -1;
+        if (sigma == 0.0) {
+          y0 = lv.add(L.base[seg] + 6);
+        } else if (sigma == 1.0) {
+          y1 = lv.add(L.base[seg + 1] + 6);
+        } else {
+          y0 = lv.add(L.base[seg] + 6);
+          v0 = lv.add(L.base[seg] + 9);
+          y1 = lv.add(L.base[seg + 1] + 6);
+          v1 = lv.add(L.base[seg + 1] + 9);
+          dur = lv.add(L.interval_var[L.seg_interval[seg]]);
+        }
+        const double frac = L.seg_fraction[seg];
+        problem.add_piece(make_piece("shin", lv, lo, hi, [=](const auto* x, auto* g) {
+          using T = std::decay_t<decltype(*g)>;
+          using std::cos;
+          using std::sin;
+          T psi;
+          if (dur < 0) {
+            psi = y0 >= 0 ? x[y0] : x[y1];
+          } else {
+            const T h = x[dur] * frac;
+            psi = feasibility::hermite_value<T>(sigma, h, x[y0], x[v0], x[y1], x[v1]);
+          }
+          const T c = cos(psi), sn = sin(psi);
+          for (int k = 1; k <= nk; ++k) {
+            const double a = static_cast<double>(k) / nk * s;
+            const T qx = x[p[0]] + a * cb * c, qy = x[p[1]] + a * cb * sn;
+            g[k - 1] = x[p[2]] + a * sb - terrain_height(*field, qx, qy);
+          }
+        }));
+      }
+  }
+}
+
+}  // namespace terrastride::planner

@@ -1,0 +1,263 @@
+// The feasibility constraint sets (foot radius, shin, force polytopes): every piece's Jacobian
+// against central finite differences on a curved terrain with a varying safety margin, the
+// pieces' values against the formulas evaluated independently, and the set registry ("all").
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <cmath>
+#include <random>
+#include <set>
+
+#include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/gait.hpp"
+#include "terrastride/planner/nlp.hpp"
+#include "terrastride/planner/polytope_model.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "test_terrains.hpp"
+
+namespace terrastride::planner {
+namespace {
+
+robot::RobotModel hyq() { return robot::load_robot(robot::resolve_robot_path("hyq")); }
+
+std::vector<std::string> feet_of(const robot::RobotModel& r) {
+  std::vector<std::string> f;
+  for (const auto& l : r.legs) f.push_back(l.name);
+  return f;
+}
+
+// The tanh step with a safety margin that varies smoothly in x and y (so the foot piece's
+// gradient chain is exercised): m = 0.03 + 0.05 sin(4x) cos(3y) - r.
+class MarginStep : public testing::TanhStep {
+ public:
+  using TanhStep::TanhStep;
+  terrain::MarginSample safety_margin(double x, double y, double r) const override {
+    terrain::MarginSample m;
+    m.margin = 0.03 + 0.05 * std::sin(4 * x) * std::cos(3 * y) - r;
+    m.gradient = Eigen::Vector2d(0.2 * std::cos(4 * x) * std::cos(3 * y),
+                                 -0.15 * std::sin(4 * x) * std::sin(3 * y));
+    return m;
+  }
+};
+
+// Central differences of each piece of the given kinds; returns the number of pieces checked.
+int check_pieces(const SrbdProblem& p, const std::set<std::string>& kinds, unsigned seed,
+                 double noise_size) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  std::vector<double> x = const_cast<SrbdProblem&>(p).initial_guess();
+  for (std::size_t i = 0; i < x.size(); ++i) x[i] += noise_size * noise(rng);
+  int checked = 0;
+  for (const auto& piece : p.pieces()) {
+    if (!kinds.count(piece->kind)) continue;
+    ++checked;
+    const int n = static_cast<int>(piece->vars.size()), m = piece->rows();
+    std::vector<double> xl(n), g(m), J(m * n), g2(m), gp(m), gm(m);
+    for (int i = 0; i < n; ++i) xl[i] = x[piece->vars[i]];
+    piece->eval_jacobian(xl.data(), g.data(), J.data());
+    piece->eval(xl.data(), g2.data());
+    for (int r = 0; r < m; ++r) EXPECT_NEAR(g[r], g2[r], 1e-12) << piece->kind;
+    for (int i = 0; i < n; ++i) {
+      const double h = 1e-6 * std::max(1.0, std::abs(xl[i]));
+      auto xp = xl, xm = xl;
+      xp[i] += h;
+      xm[i] -= h;
+      piece->eval(xp.data(), gp.data());
+      piece->eval(xm.data(), gm.data());
+      for (int r = 0; r < m; ++r) {
+        const double fd = (gp[r] - gm[r]) / (2 * h);
+        if (!(std::abs(J[r * n + i] - fd) <= 1e-5 * std::max(1.0, std::abs(fd)))) {
+          ADD_FAILURE() << piece->kind << " row " << r << " var " << i << " (global "
+                        << piece->vars[i] << "): jacobian " << J[r * n + i] << ", central "
+                        << "difference " << fd;
+          return checked;
+        }
+      }
+    }
+  }
+  return checked;
+}
+
+std::map<std::string, int> count_kinds(const SrbdProblem& p) {
+  std::map<std::string, int> c;
+  for (const auto& piece : p.pieces()) ++c[piece->kind];
+  return c;
+}
+
+TEST(FeasibilityDerivatives, HyqPiecesMatchFiniteDifferences) {
+  const auto r = hyq();
+  MarginStep terrain(0.1, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.05, 0.3);  // a turn, so the yaw paths are exercised
+  o.optimize_timing = true;                  // duration variables in the inner points
+  o.constraints = {"all"};
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem p(r, terrain, tl, o);
+  const auto kinds = count_kinds(p);
+  ASSERT_GT(kinds.count("foot_radius"), 0u);
+  ASSERT_GT(kinds.count("shin"), 0u);
+  ASSERT_GT(kinds.count("force_polytope"), 0u);
+  for (unsigned seed : {1u, 2u, 3u})
+    EXPECT_GT(check_pieces(p, {"foot_radius", "shin", "force_polytope"}, seed, 0.02), 0);
+}
+
+TEST(FeasibilityDerivatives, PiecesHaveNonzeroJacobians) {
+  // A derivative test passes trivially for a piece whose value ignores its variables: make sure
+  // each kind actually depends on its foothold (and the shin/polytope on the base too).
+  const auto r = hyq();
+  MarginStep terrain(0.1, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.0, 0.2);
+  o.constraints = {"foot", "shin", "polytope"};
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem p(r, terrain, tl, o);
+  const auto& x = p.initial_guess();
+  std::map<std::string, double> largest;
+  for (const auto& piece : p.pieces()) {
+    const int n = static_cast<int>(piece->vars.size()), m = piece->rows();
+    std::vector<double> xl(n), g(m), J(m * n);
+    for (int i = 0; i < n; ++i) xl[i] = x[piece->vars[i]];
+    piece->eval_jacobian(xl.data(), g.data(), J.data());
+    for (double v : J) largest[piece->kind] = std::max(largest[piece->kind], std::abs(v));
+  }
+  EXPECT_GT(largest["foot_radius"], 0.1);
+  EXPECT_GT(largest["shin"], 0.1);
+  EXPECT_GT(largest["force_polytope"], 1e-3);
+}
+
+TEST(FeasibilityDerivatives, MonopedPolytopePiecesMatchFiniteDifferences) {
+  const auto r = robot::load_robot(robot::resolve_robot_path("monoped"));
+  MarginStep terrain(0.0, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  o.gait = "hop";
+  o.optimize_timing = true;
+  o.constraints = {"all"};
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("hop")), feet_of(r), 1, 0.0);
+  SrbdProblem p(r, terrain, tl, o);
+  EXPECT_GT(check_pieces(p, {"foot_radius", "shin", "force_polytope"}, 5u, 0.01), 0);
+  EXPECT_GT(count_kinds(p)["force_polytope"], 0);
+}
+
+// Values: each piece against the paper's formula evaluated here from the problem's own
+// continuous-time solution (evaluate), at the initial guess perturbed. Points only at the knots
+// (shin_yaw_points 1, no inner polytope points), so the extremes must agree exactly.
+TEST(FeasibilityValues, PiecesEvaluateThePapersFormulas) {
+  const auto r = hyq();
+  MarginStep terrain(0.1, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.0, 0.3);
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem p(r, terrain, tl, o);
+  FeasibilityOptions fo;
+  fo.shin_yaw_points = 1;
+  fo.polytope_inner_points = 0;
+  build_foot_set(p, fo);
+  build_shin_set(p, fo);
+  build_polytope_set(p, fo);
+  std::vector<double> x = p.initial_guess();
+  std::mt19937 rng(11);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  for (std::size_t i = 0; i < x.size(); ++i)
+    if (p.lower()[i] < p.upper()[i]) x[i] += noise(rng);
+  const Layout& L = p.layout();
+  const auto polys = load_polytope_model(r);
+  const double mg = r.mass * 9.81;
+
+  // Minimum over each kind's rows, from the pieces, and from the formulas at the knots.
+  std::map<std::string, double> piece_min, piece_max;
+  for (const auto& piece : p.pieces()) {
+    std::vector<double> xl(piece->vars.size()), g(piece->rows());
+    for (std::size_t i = 0; i < xl.size(); ++i) xl[i] = x[piece->vars[i]];
+    piece->eval(xl.data(), g.data());
+    auto& mn = piece_min.emplace(piece->kind, 1e300).first->second;
+    auto& mx = piece_max.emplace(piece->kind, -1e300).first->second;
+    for (double v : g) {
+      mn = std::min(mn, v);
+      mx = std::max(mx, v);
+    }
+  }
+  double foot_min = 1e300, shin_min = 1e300, poly_max = -1e300;
+  double t = 0.0;
+  std::vector<double> knot_t{0.0};
+  for (int s = 0; s < L.num_segments; ++s)
+    knot_t.push_back(knot_t.back() + x[L.interval_var[L.seg_interval[s]]] * L.seg_fraction[s]);
+  for (const auto& st : L.stances) {
+    const auto& leg = r.legs[st.foot];
+    const Eigen::Vector3d pf(x[st.pos_var], x[st.pos_var + 1], x[st.pos_var + 2]);
+    if (!st.fixed)
+      foot_min = std::min(foot_min, terrain.safety_margin(pf.x(), pf.y(), r.foot_radius).margin);
+    for (int k = st.first_seg; k <= st.last_seg + 1; ++k) {
+      t = k == st.last_seg + 1 ? knot_t[k] - 1e-9 : knot_t[k];
+      const auto state = p.evaluate(x, t);
+      const double psi = state.euler[0];
+      for (int j = 1; j <= 3; ++j) {
+        const double a = j / 3.0 * leg.shin_length;
+        const double qx = pf.x() + a * std::cos(leg.shin_angle) * std::cos(psi);
+        const double qy = pf.y() + a * std::cos(leg.shin_angle) * std::sin(psi);
+        shin_min = std::min(shin_min, pf.z() + a * std::sin(leg.shin_angle) - terrain.height(qx, qy));
+      }
+      const Eigen::Matrix3d R =
+          (Eigen::AngleAxisd(state.euler[0], Eigen::Vector3d::UnitZ()) *
+           Eigen::AngleAxisd(state.euler[1], Eigen::Vector3d::UnitY()) *
+           Eigen::AngleAxisd(state.euler[2], Eigen::Vector3d::UnitX()))
+              .toRotationMatrix();
+      const Eigen::Vector3d pb = R.transpose() * (state.foot_pos[st.foot] - state.pos);
+      const Eigen::Vector3d fb = R.transpose() * state.force[st.foot];
+      poly_max = std::max(poly_max, polys.legs[st.foot].constraint(pb, fb).maxCoeff() / mg);
+    }
+  }
+  EXPECT_NEAR(piece_min["foot_radius"], foot_min, 1e-12);
+  EXPECT_NEAR(piece_min["shin"], shin_min, 1e-7);
+  EXPECT_NEAR(piece_max["force_polytope"], poly_max, 1e-7);
+  EXPECT_LT(foot_min, 0.0);  // the test terrain has unsafe spots under the guess: not vacuous
+}
+
+TEST(FeasibilityValues, DefaultsAddPointsInsideSegments) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  PlannerOptions o;
+  SrbdProblem knots(r, flat, tl, o), dflt(r, flat, tl, o);
+  FeasibilityOptions fo;
+  fo.shin_yaw_points = 1;
+  fo.polytope_inner_points = 0;
+  build_shin_set(knots, fo);
+  build_polytope_set(knots, fo);
+  build_shin_set(dflt);
+  build_polytope_set(dflt);
+  // Every stance segment gains one shin point and one polytope point.
+  int stance_segments = 0;
+  for (const auto& st : knots.layout().stances) stance_segments += st.last_seg - st.first_seg + 1;
+  auto kinds = count_kinds(knots), kinds2 = count_kinds(dflt);
+  EXPECT_EQ(kinds2["shin"] - kinds["shin"], stance_segments);
+  EXPECT_EQ(kinds2["force_polytope"] - kinds["force_polytope"], stance_segments);
+}
+
+TEST(FeasibilityRegistry, AllExpandsAndNamesAreListed) {
+  const auto names = constraint_set_names();
+  for (const std::string n : {"baseline", "foot", "shin", "polytope", "all"})
+    EXPECT_NE(std::find(names.begin(), names.end(), n), names.end()) << n;
+  const auto r = hyq();
+  testing::FlatField flat;
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  PlannerOptions a, b;
+  a.constraints = {"all"};
+  b.constraints = {"baseline", "foot", "shin", "polytope", "foot"};  // duplicates added once
+  SrbdProblem pa(r, flat, tl, a), pb(r, flat, tl, b);
+  EXPECT_EQ(count_kinds(pa), count_kinds(pb));
+  EXPECT_EQ(pa.num_constraints(), pb.num_constraints());
+  PlannerOptions c;
+  c.constraints = {"all", "shinn"};
+  try {
+    SrbdProblem pc(r, flat, tl, c);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("shinn"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace terrastride::planner
