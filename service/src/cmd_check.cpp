@@ -18,6 +18,7 @@
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
+#include "terrain_source.hpp"
 
 namespace terrastride::service {
 namespace {
@@ -34,65 +35,6 @@ struct CheckCliOptions {
   std::string series;
   bool json = false;
 };
-
-// What the checks run against; owns the field and the tree.
-struct LoadedTerrain {
-  std::unique_ptr<terrain::Scene> scene;
-  std::unique_ptr<terrain::TerrainMap> map;
-  collision::CheckTerrain view;
-};
-
-LoadedTerrain load_terrain(const std::string& spec, const robot::RobotModel& model,
-                           const planner::Trajectory& traj, double resolution) {
-  namespace fs = std::filesystem;
-  LoadedTerrain t;
-  try {
-    if (fs::is_directory(spec)) {
-      t.map = terrain::load_terrain_dir(spec);
-      t.view.field = t.map.get();
-      const std::string bt = (fs::path(spec) / "octomap.bt").string();
-      if (!fs::exists(bt))
-        throw CommandError("--terrain " + spec +
-                           ": no octomap.bt (the scan's occupancy map the leg check needs)");
-      try {
-        t.view.octree = collision::read_octomap(bt);
-      } catch (const std::runtime_error& e) {
-        throw CommandError(std::string("--terrain: ") + e.what());
-      }
-      t.view.description = "map " + spec + " (scan OctoMap at " +
-                           std::to_string(t.view.octree->getResolution()) + " m)";
-      return t;
-    }
-    if (fs::exists(spec))
-      throw CommandError("--terrain " + spec +
-                         ": a file; pass a terrain directory from 'terrastride map' or a scene "
-                         "name");
-    const auto names = terrain::scene_names();
-    if (std::find(names.begin(), names.end(), spec) == names.end()) {
-      std::string list;
-      for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
-      throw CommandError("--terrain " + spec +
-                         ": neither a terrain directory nor a scene name (scenes: " + list + ")");
-    }
-    t.scene = terrain::make_scene(spec);
-    t.view.field = t.scene.get();
-    // The scene has no scan: voxelise its exact boxes where the legs go, so the very same FCL
-    // check runs on it.
-    Eigen::Vector2d lo, hi;
-    collision::trajectory_extent(model, traj, 0.1, &lo, &hi);
-    collision::VoxeliseOptions vo;
-    vo.resolution = resolution;
-    t.view.octree = collision::voxelise_scene(*t.scene, lo, hi, vo);
-    std::ostringstream d;
-    d << "scene " << spec << " (exact; voxelised at " << resolution << " m for the leg check)";
-    t.view.description = d.str();
-  } catch (const perception::InputError& e) {
-    throw CommandError(std::string("--terrain ") + spec + ": " + e.what());
-  } catch (const std::invalid_argument& e) {
-    throw CommandError(std::string("--terrain ") + spec + ": " + e.what());
-  }
-  return t;
-}
 
 json vec(const Eigen::Vector3d& v) {
   return json::array({v.x(), v.y(), v.z()});
@@ -277,10 +219,14 @@ void run_check(const CheckCliOptions& o) {
   } catch (const robot::RobotFileError& e) {
     throw CommandError(o.plan + ": robot: '" + traj.robot + "' cannot be loaded: " + e.what());
   }
-  LoadedTerrain terrain = load_terrain(o.terrain, model, traj, o.resolution);
+  const TerrainSource source = load_terrain_source(
+      o.terrain, /*smooth_scene=*/false,
+      "a file; pass a terrain directory from 'terrastride map' or a scene name");
+  const collision::CheckTerrain view =
+      check_terrain_for(source, model, traj, o.resolution, /*require_octomap=*/true);
   collision::CheckReport rep;
   try {
-    rep = collision::run_checks(model, traj, terrain.view);
+    rep = collision::run_checks(model, traj, view);
   } catch (const collision::TrajectoryError& e) {
     throw CommandError(o.plan + ": " + e.what());
   }
@@ -292,9 +238,9 @@ void run_check(const CheckCliOptions& o) {
     }
   }
   if (o.json) {
-    std::cout << summary_json(rep, o.plan, terrain.view.description).dump() << "\n";
+    std::cout << summary_json(rep, o.plan, view.description).dump() << "\n";
   } else {
-    print_human(rep, o.plan, terrain.view.description);
+    print_human(rep, o.plan, view.description);
   }
   std::cout.flush();
   const auto failures = rep.failures();

@@ -1,11 +1,12 @@
 // `terrastride plan`: SRBD trajectory optimisation from a start to a goal over a terrain.
+#include <algorithm>
 #include <filesystem>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <sstream>
 
-#include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/collision/checks.hpp"
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"
@@ -13,6 +14,7 @@
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
+#include "terrain_source.hpp"
 
 namespace terrastride::service {
 namespace {
@@ -35,48 +37,6 @@ struct PlanCliOptions {
   std::string out;
 };
 
-// The optimiser's terrain (smooth) and the one the dense checks use (exact for scenes).
-struct Terrains {
-  std::unique_ptr<terrain::Scene> scene;
-  std::unique_ptr<terrain::TerrainMap> map;
-  const terrain::HeightField* plan = nullptr;
-  const terrain::HeightField* check = nullptr;
-  std::string kind;
-};
-
-Terrains load_terrains(const std::string& spec) {
-  Terrains t;
-  namespace fs = std::filesystem;
-  try {
-    if (fs::is_directory(spec)) {
-      t.map = terrain::load_terrain_dir(spec);
-      t.plan = t.check = t.map.get();
-      t.kind = "map";
-      return t;
-    }
-    if (fs::exists(spec))
-      throw CommandError("--terrain " + spec +
-                         ": point clouds are not planned on directly; run 'terrastride map " +
-                         spec + " --out DIR' and pass --terrain DIR");
-    const auto names = terrain::scene_names();
-    if (std::find(names.begin(), names.end(), spec) == names.end()) {
-      std::string list;
-      for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
-      throw CommandError("--terrain " + spec +
-                         ": neither a terrain directory nor a scene name (scenes: " + list + ")");
-    }
-    t.scene = terrain::make_scene(spec);
-    // A 2 cm C2 B-spline of the rasterised scene for the optimiser; checks on the exact scene.
-    t.map = terrain::TerrainMap::from_scene(*t.scene, 0.02, {});
-    t.plan = t.map.get();
-    t.check = t.scene.get();
-    t.kind = "scene";
-  } catch (const perception::InputError& e) {
-    throw CommandError(std::string("--terrain ") + spec + ": " + e.what());
-  }
-  return t;
-}
-
 std::vector<std::string> split_list(const std::string& s) {
   std::vector<std::string> out;
   std::stringstream ss(s);
@@ -84,6 +44,27 @@ std::vector<std::string> split_list(const std::string& s) {
   while (std::getline(ss, item, ','))
     if (!item.empty()) out.push_back(item);
   return out;
+}
+
+// The post-hoc checks (DESIGN.md; the same as `terrastride check` at its default resolution):
+// joint torques, leg capsules (a scene voxelised, a map's octomap.bt when it has one) and
+// footholds, added to plan.json "checks"; their failures and terrain under "post_hoc".
+void run_post_hoc_checks(const robot::RobotModel& model, const TerrainSource& terrains,
+                         planner::Trajectory* traj) {
+  if (traj->samples.empty()) return;
+  constexpr double kVoxel = 0.01;  // `terrastride check --resolution` default
+  try {
+    const collision::CheckTerrain view =
+        check_terrain_for(terrains, model, *traj, kVoxel, /*require_octomap=*/false);
+    const collision::CheckReport rep = collision::run_checks(model, *traj, view);
+    for (const auto& [k, v] : rep.keys()) traj->checks[k] = v;
+    traj->extra["post_hoc"] = {
+        {"terrain", view.description}, {"failures", rep.failures()}, {"wall_s", rep.wall_s}};
+  } catch (const collision::TrajectoryError& e) {
+    // A plan the checks cannot interpret (e.g. non-finite numbers from a failed solve): the
+    // keys stay absent (never faked) and the reason is recorded.
+    traj->extra["post_hoc"] = {{"error", e.what()}};
+  }
 }
 
 void run_plan(const PlanCliOptions& o) {
@@ -98,7 +79,10 @@ void run_plan(const PlanCliOptions& o) {
   if (o.max_time < 0.0) throw CommandError("--max-time: must be >= 0");
   if (o.duration < 0.0) throw CommandError("--duration: must be > 0");
   if (o.cycles < 1 || o.cycles > 50) throw CommandError("--cycles: must be in [1, 50]");
-  Terrains terrains = load_terrains(o.terrain);
+  const TerrainSource terrains = load_terrain_source(
+      o.terrain, /*smooth_scene=*/true,
+      "point clouds are not planned on directly; run 'terrastride map " + o.terrain +
+          " --out DIR' and pass --terrain DIR");
 
   planner::PlannerOptions po;
   po.gait = o.gait;
@@ -152,13 +136,14 @@ void run_plan(const PlanCliOptions& o) {
 
   planner::PlanOutcome out;
   try {
-    out = planner::plan_motion(model, *terrains.plan, *terrains.check, po, o.sample_dt, warm);
+    out = planner::plan_motion(model, *terrains.smooth(), *terrains.exact(), po, o.sample_dt, warm);
   } catch (const planner::GaitError& e) {
     throw CommandError(std::string("--gait: ") + e.what());
   } catch (const std::invalid_argument& e) {
     throw CommandError(e.what());
   }
   out.trajectory.extra["terrain"] = o.terrain;
+  run_post_hoc_checks(model, terrains, &out.trajectory);
   if (warm.previous) {
     out.trajectory.extra["init"] = o.init;
     out.trajectory.extra["start_time"] = o.start_time;
@@ -216,7 +201,8 @@ void add_plan_command(CLI::App& app) {
   cmd->add_option("--duration", o->duration, "total duration in s (default: the gait's)");
   cmd->add_option("--goal", o->goal, "goal X,Y,YAW of the base (default 1,0,0)");
   cmd->add_option("--constraints", o->constraints,
-                  "constraint sets, comma separated (baseline; foot, shin, polytope when built)")
+                  "constraint sets, comma separated: baseline, foot (foot radius), shin (shin "
+                  "collision), polytope (force polytopes), all (= foot,shin,polytope)")
       ->capture_default_str();
   cmd->add_option("--sample-dt", o->sample_dt, "sampling period of plan.json in s")
       ->capture_default_str();

@@ -1,0 +1,88 @@
+#include "terrain_source.hpp"
+
+#include <algorithm>
+#include <filesystem>
+#include <sstream>
+#include <stdexcept>
+
+#include "terrastride/collision/octree_terrain.hpp"
+#include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/service/cli.hpp"
+
+namespace terrastride::service {
+
+TerrainSource load_terrain_source(const std::string& spec, bool smooth_scene,
+                                  const std::string& file_hint) {
+  namespace fs = std::filesystem;
+  TerrainSource t;
+  t.spec = spec;
+  try {
+    if (fs::is_directory(spec)) {
+      t.map = terrain::load_terrain_dir(spec);
+      return t;
+    }
+    if (fs::exists(spec)) throw CommandError("--terrain " + spec + ": " + file_hint);
+    const auto names = terrain::scene_names();
+    if (std::find(names.begin(), names.end(), spec) == names.end()) {
+      std::string list;
+      for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
+      throw CommandError("--terrain " + spec +
+                         ": neither a terrain directory nor a scene name (scenes: " + list + ")");
+    }
+    t.scene = terrain::make_scene(spec);
+    // A 2 cm C2 B-spline of the rasterised scene for the optimiser; checks on the exact scene.
+    if (smooth_scene) t.map = terrain::TerrainMap::from_scene(*t.scene, 0.02, {});
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--terrain ") + spec + ": " + e.what());
+  } catch (const std::invalid_argument& e) {
+    throw CommandError(std::string("--terrain ") + spec + ": " + e.what());
+  }
+  return t;
+}
+
+collision::CheckTerrain check_terrain_for(const TerrainSource& source,
+                                          const robot::RobotModel& model,
+                                          const planner::Trajectory& trajectory,
+                                          double resolution, bool require_octomap) {
+  namespace fs = std::filesystem;
+  collision::CheckTerrain view;
+  view.field = source.exact();
+  try {
+    if (!source.scene) {
+      const std::string bt = (fs::path(source.spec) / "octomap.bt").string();
+      if (!fs::exists(bt)) {
+        if (require_octomap)
+          throw CommandError("--terrain " + source.spec +
+                             ": no octomap.bt (the scan's occupancy map the leg check needs)");
+        view.description = "map " + source.spec + " (no octomap.bt: leg capsules not checked)";
+        return view;
+      }
+      try {
+        view.octree = collision::read_octomap(bt);
+      } catch (const std::runtime_error& e) {
+        throw CommandError(std::string("--terrain: ") + e.what());
+      }
+      view.description = "map " + source.spec + " (scan OctoMap at " +
+                          std::to_string(view.octree->getResolution()) + " m)";
+      return view;
+    }
+    // The scene has no scan: voxelise its exact boxes where the legs go, so the very same FCL
+    // check runs on it.
+    Eigen::Vector2d lo, hi;
+    collision::trajectory_extent(model, trajectory, 0.1, &lo, &hi);
+    collision::VoxeliseOptions vo;
+    vo.resolution = resolution;
+    view.octree = collision::voxelise_scene(*source.scene, lo, hi, vo);
+    std::ostringstream d;
+    d << "scene " << source.spec << " (exact; voxelised at " << resolution
+      << " m for the leg check)";
+    view.description = d.str();
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--terrain ") + source.spec + ": " + e.what());
+  } catch (const std::invalid_argument& e) {
+    throw CommandError(std::string("--terrain ") + source.spec + ": " + e.what());
+  }
+  return view;
+}
+
+}  // namespace terrastride::service

@@ -1,0 +1,42 @@
+// `--terrain DIR|SCENE` for `terrastride plan` and `terrastride check`: a folder written by
+// `terrastride map`, or a scene name (DESIGN.md, Scenarios: the exact analytic terrain). One place
+// for both commands, so they read a terrain argument the same way.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "terrastride/collision/checks.hpp"
+#include "terrastride/planner/trajectory.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
+
+namespace terrastride::service {
+
+struct TerrainSource {
+  std::string spec;
+  std::unique_ptr<terrain::Scene> scene;     // SCENE: the exact terrain
+  std::unique_ptr<terrain::TerrainMap> map;  // DIR: its map; SCENE: the 2 cm B-spline (if asked)
+  // What the optimiser sees (C2): the map. What the checks use: the scene when there is one.
+  const terrain::HeightField* smooth() const { return map.get(); }
+  const terrain::HeightField* exact() const {
+    return scene ? static_cast<const terrain::HeightField*>(scene.get()) : map.get();
+  }
+  std::string kind() const { return scene ? "scene" : "map"; }
+};
+
+// Throws CommandError naming "--terrain SPEC". `smooth_scene`: also build a scene's smooth map
+// (for planning). `file_hint`: the advice given when SPEC is an existing file.
+TerrainSource load_terrain_source(const std::string& spec, bool smooth_scene,
+                                  const std::string& file_hint);
+
+// The post-hoc checks' view of the terrain: the exact field for footholds; for the leg capsules
+// a map's octomap.bt (a CommandError when missing and `require_octomap`, else no capsule check)
+// or the scene voxelised at `resolution` over the trajectory's extent.
+collision::CheckTerrain check_terrain_for(const TerrainSource& source,
+                                          const robot::RobotModel& model,
+                                          const planner::Trajectory& trajectory,
+                                          double resolution, bool require_octomap);
+
+}  // namespace terrastride::service
