@@ -42,69 +42,128 @@ inline void basis_d2(double t, double b[4]) {
   b[3] = t;
 }
 
-// 1-D squared Euclidean distance transform of f (0 at sites, +inf elsewhere), Felzenszwalb &
-// Huttenlocher 2012, in place with scratch buffers.
-void edt_1d(double* f, int n, std::vector<double>& d, std::vector<int>& v, std::vector<double>& z) {
-  constexpr double inf = std::numeric_limits<double>::infinity();
-  d.resize(n);
-  v.resize(n);
-  z.resize(n + 1);
+// Exact squared Euclidean distance transform of a binary mask (Felzenszwalb & Huttenlocher 2012),
+// separable: pass 1 along x gives, per cell, the distance to the nearest site in its column; pass
+// 2 runs the lower envelope of parabolas along each (contiguous) row. Everything is integer: the
+// envelope's breakpoints are kept as fractions and compared by cross-multiplication, so there is no
+// division and no rounding, and the result is the exact squared distance in cells (an integer,
+// hence exact as a double too). kNoSite marks "no site on this line".
+constexpr int64_t kNoSite = std::numeric_limits<int64_t>::max();
+// Breakpoint comparisons multiply a numerator (up to nx^2 + ny^2) by a denominator (up to 2 ny):
+// beyond 64 bits for the longest grids the height grid accepts (1e7 cells a side).
+__extension__ typedef __int128 Wide;
+
+struct EdtScratch {
+  std::vector<int32_t> col0, col1;  // pass 1: column distance to the nearest 0 / non-0 cell
+  std::vector<int32_t> last0, last1;
+  std::vector<int64_t> f, d, zn, zd;
+  std::vector<int> v;
+};
+
+// 1-D transform of f (squared distances, kNoSite where there is none) into d; returns false when
+// the line holds no site at all (d is left untouched then).
+bool edt_1d_exact(const int64_t* f, int n, EdtScratch& s, int64_t* d) {
+  int* v = s.v.data();
+  int64_t* zn = s.zn.data();  // breakpoint k between parabola k-1 and k is zn[k] / zd[k], zd > 0
+  int64_t* zd = s.zd.data();
   int k = -1;
   for (int q = 0; q < n; ++q) {
-    if (f[q] == inf) continue;
+    if (f[q] == kNoSite) continue;
+    const int64_t fq = f[q] + int64_t(q) * q;
     if (k < 0) {
       k = 0;
       v[0] = q;
-      z[0] = -inf;
-      z[1] = inf;
       continue;
     }
-    double s;
+    int64_t sn, sd;
     for (;;) {
       const int p = v[k];
-      s = ((f[q] + double(q) * q) - (f[p] + double(p) * p)) / (2.0 * (q - p));
-      if (s <= z[k] && k > 0) {
+      sn = fq - (f[p] + int64_t(p) * p);
+      sd = 2 * int64_t(q - p);
+      // Pop parabola k while the new one overtakes it no later than it took over (s <= z[k]).
+      if (k > 0 && Wide(sn) * zd[k] <= Wide(zn[k]) * sd) {
         --k;
       } else {
         break;
       }
     }
-    if (s <= z[k]) {  // k == 0 and the new parabola dominates everywhere
-      v[0] = q;
-      z[0] = -inf;
-      z[1] = inf;
-      continue;
-    }
     ++k;
     v[k] = q;
-    z[k] = s;
-    z[k + 1] = inf;
+    zn[k] = sn;
+    zd[k] = sd;
   }
-  if (k < 0) return;  // no site on this line: leave +inf
+  if (k < 0) return false;
   int j = 0;
   for (int q = 0; q < n; ++q) {
-    while (z[j + 1] < q) ++j;
-    const double dq = q - v[j];
+    while (j < k && zn[j + 1] < int64_t(q) * zd[j + 1]) ++j;  // z[j + 1] < q
+    const int64_t dq = q - v[j];
     d[q] = dq * dq + f[v[j]];
   }
-  std::copy(d.begin(), d.end(), f);
+  return true;
 }
 
-// Squared distance (in cells) from every cell to the nearest cell where `site` is true.
-std::vector<double> squared_distance(const GridGeometry& g, const std::vector<uint8_t>& mask,
-                                     uint8_t site) {
+// Squared distances (in cells, exact) from every cell to the nearest cell where mask == 0
+// (to_unsafe) and to the nearest cell where mask != 0 (to_safe); +inf when there is none.
+void binary_distances(const GridGeometry& g, const uint8_t* mask, EdtScratch& s, double* to_unsafe,
+                      double* to_safe) {
   constexpr double inf = std::numeric_limits<double>::infinity();
-  std::vector<double> f(g.size());
-  for (size_t k = 0; k < f.size(); ++k) f[k] = mask[k] == site ? 0.0 : inf;
-  std::vector<double> d, z, line(g.nx);
-  std::vector<int> v;
-  for (int i = 0; i < g.nx; ++i) edt_1d(&f[g.index(i, 0)], g.ny, d, v, z);  // along y
-  for (int j = 0; j < g.ny; ++j) {                                          // along x
-    for (int i = 0; i < g.nx; ++i) line[i] = f[g.index(i, j)];
-    edt_1d(line.data(), g.nx, d, v, z);
-    for (int i = 0; i < g.nx; ++i) f[g.index(i, j)] = line[i];
+  const int nx = g.nx, ny = g.ny;
+  s.col0.resize(g.size());
+  s.col1.resize(g.size());
+  s.last0.resize(ny);
+  s.last1.resize(ny);
+  // Pass 1 along x, a whole row of columns at a time (contiguous, vectorises). Distances beyond
+  // nx mean "no site in this column"; the sentinels keep them there.
+  const int32_t far = 2 * nx + 2;
+  int32_t* __restrict l0 = s.last0.data();
+  int32_t* __restrict l1 = s.last1.data();
+  std::fill(l0, l0 + ny, -far);
+  std::fill(l1, l1 + ny, -far);
+  for (int i = 0; i < nx; ++i) {  // forward: nearest site at or before row i
+    const uint8_t* __restrict m = mask + g.index(i, 0);
+    int32_t* __restrict c0 = s.col0.data() + g.index(i, 0);
+    int32_t* __restrict c1 = s.col1.data() + g.index(i, 0);
+    for (int j = 0; j < ny; ++j) {
+      l0[j] = m[j] ? l0[j] : i;
+      l1[j] = m[j] ? i : l1[j];
+      c0[j] = i - l0[j];
+      c1[j] = i - l1[j];
+    }
   }
-  return f;
+  std::fill(l0, l0 + ny, nx + far);
+  std::fill(l1, l1 + ny, nx + far);
+  for (int i = nx - 1; i >= 0; --i) {  // backward: nearest site at or after row i
+    const uint8_t* __restrict m = mask + g.index(i, 0);
+    int32_t* __restrict c0 = s.col0.data() + g.index(i, 0);
+    int32_t* __restrict c1 = s.col1.data() + g.index(i, 0);
+    for (int j = 0; j < ny; ++j) {
+      l0[j] = m[j] ? l0[j] : i;
+      l1[j] = m[j] ? i : l1[j];
+      c0[j] = std::min(c0[j], l0[j] - i);
+      c1[j] = std::min(c1[j], l1[j] - i);
+    }
+  }
+  // Pass 2 along y, row by row.
+  s.f.resize(ny);
+  s.d.resize(ny);
+  s.v.resize(ny);
+  s.zn.resize(ny + 1);
+  s.zd.resize(ny + 1);
+  for (int pass = 0; pass < 2; ++pass) {
+    const int32_t* col = pass == 0 ? s.col0.data() : s.col1.data();
+    double* out = pass == 0 ? to_unsafe : to_safe;
+    for (int i = 0; i < nx; ++i) {
+      const int32_t* c = col + g.index(i, 0);
+      int64_t* f = s.f.data();
+      for (int j = 0; j < ny; ++j) f[j] = c[j] > nx ? kNoSite : int64_t(c[j]) * c[j];
+      double* o = out + g.index(i, 0);
+      if (!edt_1d_exact(f, ny, s, s.d.data())) {
+        std::fill(o, o + ny, inf);
+        continue;
+      }
+      for (int j = 0; j < ny; ++j) o[j] = static_cast<double>(s.d[j]);
+    }
+  }
 }
 
 std::string radius_tag(double r) {
@@ -323,8 +382,32 @@ SafetyPrecompute precompute_safety(const HeightGrid& grid, int W) {
   return p;
 }
 
+// One disk row's contribution to a row of cells (a separate function so the compiler sees
+// distinct, non-aliasing arrays and vectorises it).
+void accumulate_disk_row(const double* __restrict za, const double* __restrict zb,
+                         const double* __restrict jza, const double* __restrict jzb,
+                         const double* __restrict jd, double ddi, int n, double* __restrict sz,
+                         double* __restrict sdiz, double* __restrict sdjz) {
+  for (int t = 0; t < n; ++t) {
+    const double z = zb[t] - za[t];
+    sz[t] += z;
+    sdiz[t] += ddi * z;
+    sdjz[t] += (jzb[t] - jza[t]) - jd[t] * z;
+  }
+}
+
+// Per-row accumulators and distance-transform buffers, reused across radii.
+struct SafetyScratch {
+  std::vector<double> sz, sz2, sdiz, sdjz;
+  std::vector<int> un;
+  std::vector<float> lo, hi;
+  std::vector<double> jd;
+  std::vector<double> to_unsafe, to_safe;
+  EdtScratch edt;
+};
+
 SafetyLayer safety_for_radius(const HeightGrid& grid, const SafetyPrecompute& pre, double radius,
-                              const SafetyOptions& o) {
+                              const SafetyOptions& o, SafetyScratch* scratch) {
   const GridGeometry& g = grid.geometry;
   const int nx = g.nx, ny = g.ny;
   const double res = g.resolution;
@@ -362,31 +445,72 @@ SafetyLayer safety_for_radius(const HeightGrid& grid, const SafetyPrecompute& pr
   const double sigma_median = 1.2533 * sigma / std::sqrt(pre.mean_support);
   const double slope_noise = sxx > 0 ? sigma_median / std::sqrt(sxx) : 0.0;  // per cell
   const double max_slope_eff = max_slope_cells + o.slope_noise_factor * slope_noise;
-  for (int i = 0; i < nx; ++i) {
-    if (i - R < 0 || i + R >= nx) continue;  // disk leaves the grid: not fully observed
-    for (int j = 0; j < ny; ++j) {
-      if (j - W < 0 || j + W >= ny) continue;
-      double sz = 0, sz2 = 0, sdiz = 0, sdjz = 0;
-      float lo = std::numeric_limits<float>::infinity(), hi = -lo;
-      bool ok = true;
-      for (int di = -R; di <= R && ok; ++di) {
-        const int wi = w[di + R];
-        const size_t row = static_cast<size_t>(i + di) * ps;
-        const int a = j - wi, b = j + wi + 1;  // [a, b)
-        if (pun[row + b] - pun[row + a] != 0) {
-          ok = false;
-          break;
-        }
-        const double z = pz[row + b] - pz[row + a];
-        sz += z;
-        sz2 += pz2[row + b] - pz2[row + a];
-        sdiz += di * z;
-        sdjz += (pjz[row + b] - pjz[row + a]) - j * z;
-        const size_t c = g.index(i + di, j);
-        lo = std::min(lo, rmin[wi][c]);
-        hi = std::max(hi, rmax[wi][c]);
+  // Disk sums for one row of cells at a time: the row's cells accumulate the disk rows di = -R..R
+  // in that order, exactly the additions a per-cell loop would make (so the sums are bit for bit
+  // the same), but with j innermost the loop runs over contiguous arrays and vectorises.
+  SafetyScratch& sc = *scratch;
+  sc.sz.resize(ny);
+  sc.sz2.resize(ny);
+  sc.sdiz.resize(ny);
+  sc.sdjz.resize(ny);
+  sc.un.resize(ny);
+  sc.lo.resize(ny);
+  sc.hi.resize(ny);
+  sc.jd.resize(ny);
+  for (int j = 0; j < ny; ++j) sc.jd[j] = j;  // j as a double (exact), loaded rather than converted
+  const int j0 = W, j1 = ny - W;  // cells [j0, j1) keep the disk inside the grid along y
+  for (int i = R; i + R < nx && j0 < j1; ++i) {
+    double* __restrict SZ = sc.sz.data();
+    double* __restrict SZ2 = sc.sz2.data();
+    double* __restrict SDIZ = sc.sdiz.data();
+    double* __restrict SDJZ = sc.sdjz.data();
+    int* __restrict UN = sc.un.data();
+    float* __restrict LO = sc.lo.data();
+    float* __restrict HI = sc.hi.data();
+    std::fill(SZ + j0, SZ + j1, 0.0);
+    std::fill(SZ2 + j0, SZ2 + j1, 0.0);
+    std::fill(SDIZ + j0, SDIZ + j1, 0.0);
+    std::fill(SDJZ + j0, SDJZ + j1, 0.0);
+    std::fill(UN + j0, UN + j1, 0);
+    std::fill(LO + j0, LO + j1, std::numeric_limits<float>::infinity());
+    std::fill(HI + j0, HI + j1, -std::numeric_limits<float>::infinity());
+    for (int di = -R; di <= R; ++di) {
+      const int wi = w[di + R];
+      const size_t row = static_cast<size_t>(i + di) * ps;
+      // Cell j uses the prefix-sum slots [j - wi, j + wi + 1) of its row.
+      const double* __restrict za = pz.data() + row + (j0 - wi);
+      const double* __restrict zb = pz.data() + row + (j0 + wi + 1);
+      const double* __restrict z2a = pz2.data() + row + (j0 - wi);
+      const double* __restrict z2b = pz2.data() + row + (j0 + wi + 1);
+      const double* __restrict jza = pjz.data() + row + (j0 - wi);
+      const double* __restrict jzb = pjz.data() + row + (j0 + wi + 1);
+      const int* __restrict ua = pun.data() + row + (j0 - wi);
+      const int* __restrict ub = pun.data() + row + (j0 + wi + 1);
+      const float* __restrict mn = rmin[wi].data() + g.index(i + di, j0);
+      const float* __restrict mx = rmax[wi].data() + g.index(i + di, j0);
+      const double ddi = di;
+      const int n = j1 - j0;
+      double* __restrict sz = SZ + j0;
+      double* __restrict sdiz = SDIZ + j0;
+      double* __restrict sdjz = SDJZ + j0;
+      const double* __restrict jd = sc.jd.data() + j0;
+      accumulate_disk_row(za, zb, jza, jzb, jd, ddi, n, sz, sdiz, sdjz);
+      double* __restrict sz2 = SZ2 + j0;
+      for (int t = 0; t < n; ++t) sz2[t] += z2b[t] - z2a[t];
+      int* __restrict un = UN + j0;
+      for (int t = 0; t < n; ++t) un[t] += ub[t] - ua[t];
+      float* __restrict lo = LO + j0;
+      float* __restrict hi = HI + j0;
+      for (int t = 0; t < n; ++t) {
+        lo[t] = std::min(lo[t], mn[t]);
+        hi[t] = std::max(hi[t], mx[t]);
       }
-      if (!ok || !(hi - lo <= max_step)) continue;
+    }
+    for (int j = j0; j < j1; ++j) {
+      if (UN[j] != 0) continue;  // an unobserved cell in the disk
+      const float lo = LO[j], hi = HI[j];
+      if (!(hi - lo <= max_step)) continue;
+      const double sdiz = SDIZ[j], sdjz = SDJZ[j], sz = SZ[j], sz2 = SZ2[j];
       const double a = sxx > 0 ? sdiz / sxx : 0.0;
       const double b = syy > 0 ? sdjz / syy : 0.0;
       const double mean = sz / ncells;
@@ -399,9 +523,12 @@ SafetyLayer safety_for_radius(const HeightGrid& grid, const SafetyPrecompute& pr
   }
 
   // Signed margin from two distance transforms.
-  layer.margin.assign(g.size(), 0.0f);
-  const std::vector<double> to_unsafe = squared_distance(g, layer.safe, 0);
-  const std::vector<double> to_safe = squared_distance(g, layer.safe, 1);
+  layer.margin.resize(g.size());
+  sc.to_unsafe.resize(g.size());
+  sc.to_safe.resize(g.size());
+  binary_distances(g, layer.safe.data(), sc.edt, sc.to_unsafe.data(), sc.to_safe.data());
+  const double* to_unsafe = sc.to_unsafe.data();
+  const double* to_safe = sc.to_safe.data();
   // With no unsafe (or no safe) cell at all, distances are infinite: cap at the grid diagonal.
   const double cap = std::hypot(nx, ny) * res;
   for (size_t k = 0; k < g.size(); ++k) {
@@ -427,8 +554,9 @@ std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vecto
     W = std::max(W, disk_half_width(r, grid.geometry.resolution));
   }
   const SafetyPrecompute pre = precompute_safety(grid, W);
+  SafetyScratch scratch;
   std::vector<SafetyLayer> layers;
-  for (double r : radii) layers.push_back(safety_for_radius(grid, pre, r, o));
+  for (double r : radii) layers.push_back(safety_for_radius(grid, pre, r, o, &scratch));
   return layers;
 }
 
