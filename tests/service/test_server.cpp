@@ -279,6 +279,36 @@ TEST_F(ServerTest, CancelRunningAndQueuedJobs) {
   EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(15));
 }
 
+// A running plan stops within an Ipopt iteration of a cancel: the worker is free long before the
+// solve would have ended (pallet_15 over 11 s takes seconds of solver time).
+TEST_F(ServerTest, CancelStopsARunningPlan) {
+  Client c = Client::connect(address_);
+  c.send({{"op", "plan"},
+          {"id", "long"},
+          {"terrain", "pallet_15"},
+          {"duration", 11.0},
+          {"goal", {1.0, 0.0, 0.0}}});
+  for (int tries = 0; tries < 400; ++tries) {
+    if (Client::connect(address_).call_ok({{"op", "status"}})["queue"]["running"] == 1) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));  // well inside the solve
+  const auto t_cancel = std::chrono::steady_clock::now();
+  json r = c.call_ok({{"op", "cancel"}, {"target", "long"}});
+  EXPECT_EQ(r["cancelled"], true);
+  EXPECT_EQ(r["state"], "running");
+  EXPECT_EQ(error_code(c.wait_for("long")), "cancelled");
+  // The worker notices at its next iteration, not at the end of the solve.
+  int running = -1;
+  for (int tries = 0; tries < 600; ++tries) {
+    running = c.call_ok({{"op", "status"}})["queue"]["running"].get<int>();
+    if (running == 0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  EXPECT_EQ(running, 0);
+  EXPECT_LT(std::chrono::steady_clock::now() - t_cancel, std::chrono::seconds(2));
+}
+
 TEST_F(ServerTest, Deadlines) {
   Client c = Client::connect(address_);
   p::Message m = c.call({{"op", "debug.sleep"}, {"ms", 20000}, {"deadline_ms", 100}});

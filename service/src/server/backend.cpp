@@ -445,8 +445,9 @@ class Backend {
       throw ProtocolError(pc::kBadRequest, "\"terrain\" " + spec + ": " + e.what());
     }
     ctx.check_stop();
-    // A deadline caps the solve (Ipopt's wall-clock check); cancel cannot interrupt Ipopt until
-    // the planner polls a stop callback (see docs/protocol.md).
+    // Cancel, deadline and shutdown stop the solve within one Ipopt iteration (the planner polls
+    // the token); the deadline also caps Ipopt's own wall-clock budget.
+    po.should_stop = CancellationToken::as_callback(ctx.token);
     if (ctx.token->has_deadline()) {
       const double left =
           std::chrono::duration<double>(ctx.token->deadline() - std::chrono::steady_clock::now())
