@@ -3,7 +3,10 @@
 // ground, in the vertical plane through the base's heading psi (yaw):
 //   point k in (0, 1]:  q_k = p + k s (cos(beta) cos(psi), cos(beta) sin(psi), sin(beta)),
 // k = 1 the knee. Each point must stay above the terrain under it:
-//   p_z + k s sin(beta) - h(q_k,x, q_k,y) >= clearance.
+//   p_z + k s sin(beta) - h(q_k,x, q_k,y) >= clearance,
+// at `shin_points` points from k_min (the part of the shin next to the foot, which stands on the
+// ground by design, is left out, as in the post-hoc capsule check) to the knee; the clearance
+// defaults to the shin capsule's radius / |cos(beta)| (see FeasibilityOptions).
 // The sign of the horizontal direction is carried by beta: 37 deg on HyQ's hind legs (knee ahead
 // of the foot), 127 deg on the front legs (cos < 0: knee behind the foot), as in the paper.
 //
@@ -32,8 +35,15 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   for (const auto& st : L.stances) {
     const auto& leg = problem.robot().legs[st.foot];
     const double s = leg.shin_length, cb = std::cos(leg.shin_angle), sb = std::sin(leg.shin_angle);
-    const double clearance = options.shin_clearance >= 0.0 ? options.shin_clearance : leg.shin_radius;
     if (!(s > 0.0)) continue;
+    const double clearance =
+        options.shin_clearance >= 0.0
+            ? options.shin_clearance
+            : leg.shin_radius / std::max(0.2, std::abs(cb));  // beta near 90 deg: no blow-up
+    const double exclusion = options.shin_exclusion >= 0.0
+                                 ? options.shin_exclusion
+                                 : 2.0 * problem.robot().foot_radius + leg.shin_radius + 0.01;
+    const double k_min = std::clamp(exclusion / s, 0.0, 1.0);
     std::vector<double> lo(nk, clearance), hi(nk, feasibility::kInf);
     for (int seg = st.first_seg; seg <= st.last_seg; ++seg)
       for (int q = 0; q <= ny; ++q) {
@@ -68,7 +78,7 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options) {
           }
           const T c = cos(psi), sn = sin(psi);
           for (int k = 1; k <= nk; ++k) {
-            const double a = static_cast<double>(k) / nk * s;
+            const double a = (nk == 1 ? 1.0 : k_min + (1.0 - k_min) * (k - 1) / (nk - 1)) * s;
             const T qx = x[p[0]] + a * cb * c, qy = x[p[1]] + a * cb * sn;
             g[k - 1] = x[p[2]] + a * sb - terrain_height(*field, qx, qy);
           }

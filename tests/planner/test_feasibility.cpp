@@ -153,6 +153,8 @@ TEST(FeasibilityValues, PiecesEvaluateThePapersFormulas) {
   SrbdProblem p(r, terrain, tl, o);
   FeasibilityOptions fo;
   fo.shin_yaw_points = 1;
+  fo.shin_points = 3;
+  fo.shin_exclusion = 0.1;  // k = 1/3, 2/3, 1 on the 0.3 m shin, as in the paper
   fo.polytope_inner_points = 0;
   build_foot_set(p, fo);
   build_shin_set(p, fo);

@@ -23,9 +23,18 @@ struct FeasibilityOptions {
   // height-field's margin (a B-spline of a grid distance), the post-hoc check the exact scene's;
   // a few millimetres absorb the rasterisation difference.
   double foot_margin = 0.005;
-  // shin: points k = 1/n, 2/n, ..., 1 (knee) along the shin; vertical clearance (m) of each
-  // point above the terrain under it; negative = use the leg's shin capsule radius.
-  int shin_points = 3;
+  // shin: n points evenly spaced along the modelled shin from k_min = shin_exclusion / s to the
+  // knee (k = 1). The paper checks the knee and two points; a step edge falling between two points
+  // is only seen by the next one, so the shin line there can be lower than that point's
+  // clearance by the spacing times tan(beta): 10 points keep that under ~1.5 cm on HyQ.
+  // shin_exclusion (m along the shin from the foot): the foot sphere and the shin's end cap,
+  // which stand on the ground by design (the post-hoc capsule check leaves out the same part:
+  // 2 r_foot + r_shin + 1 cm). Negative = that value.
+  int shin_points = 10;
+  double shin_exclusion = -1.0;
+  // shin: required vertical gap (m) of each point above the terrain under it. Negative = the
+  // shin capsule's radius over |cos(beta)|: a horizontal edge right below the shin's axis is then
+  // at least one capsule radius away from it (perpendicular distance = gap |cos(beta)|).
   double shin_clearance = -1.0;
   // shin: points per stance segment at which the base yaw is taken (ends of segments always).
   int shin_yaw_points = 2;
