@@ -102,10 +102,10 @@ bool edt_1d_exact(const int64_t* f, int n, EdtScratch& s, int64_t* d) {
   return true;
 }
 
-// Squared distances (in cells, exact) from every cell to the nearest cell where mask == 0
-// (to_unsafe) and to the nearest cell where mask != 0 (to_safe); +inf when there is none.
-void binary_distances(const GridGeometry& g, const uint8_t* mask, EdtScratch& s, double* to_unsafe,
-                      double* to_safe) {
+// Squared distance (in cells, exact) from every cell to the nearest cell of the other kind: for a
+// cell with mask != 0 the nearest cell with mask == 0, and the other way round; +inf when there is
+// none.
+void binary_distances(const GridGeometry& g, const uint8_t* mask, EdtScratch& s, double* out) {
   constexpr double inf = std::numeric_limits<double>::infinity();
   const int nx = g.nx, ny = g.ny;
   s.col0.resize(g.size());
@@ -150,18 +150,23 @@ void binary_distances(const GridGeometry& g, const uint8_t* mask, EdtScratch& s,
   s.zn.resize(ny + 1);
   s.zd.resize(ny + 1);
   for (int pass = 0; pass < 2; ++pass) {
+    // Pass 0: distances to mask == 0 cells, kept for mask != 0 cells; pass 1 the other way round.
     const int32_t* col = pass == 0 ? s.col0.data() : s.col1.data();
-    double* out = pass == 0 ? to_unsafe : to_safe;
+    const uint8_t keep = pass == 0 ? 1 : 0;
     for (int i = 0; i < nx; ++i) {
       const int32_t* c = col + g.index(i, 0);
-      int64_t* f = s.f.data();
-      for (int j = 0; j < ny; ++j) f[j] = c[j] > nx ? kNoSite : int64_t(c[j]) * c[j];
+      const uint8_t* m = mask + g.index(i, 0);
       double* o = out + g.index(i, 0);
-      if (!edt_1d_exact(f, ny, s, s.d.data())) {
-        std::fill(o, o + ny, inf);
-        continue;
+      int64_t* f = s.f.data();
+      bool any = false;  // a cell of the kind that keeps this pass's distances
+      for (int j = 0; j < ny; ++j) {
+        f[j] = c[j] > nx ? kNoSite : int64_t(c[j]) * c[j];
+        any |= (m[j] != 0) == (keep != 0);
       }
-      for (int j = 0; j < ny; ++j) o[j] = static_cast<double>(s.d[j]);
+      if (!any) continue;
+      const bool found = edt_1d_exact(f, ny, s, s.d.data());
+      for (int j = 0; j < ny; ++j)
+        if ((m[j] != 0) == (keep != 0)) o[j] = found ? static_cast<double>(s.d[j]) : inf;
     }
   }
 }
@@ -307,81 +312,6 @@ HeightSample BSplineField::sample(double x, double y) const {
 // ---------------------------------------------------------------------------------------------
 namespace {
 
-// The radius-independent part of the safety computation, shared by all radii: row prefix sums
-// along y (z, z^2, j z, unobserved cells; one extra slot per row) and the sliding min of cell min /
-// max of cell max along y for every half-width 0..W.
-struct SafetyPrecompute {
-  size_t ps = 0;
-  std::vector<double> pz, pz2, pjz;
-  std::vector<int> pun;
-  std::vector<std::vector<float>> rmin, rmax;
-  double mean_support = 1.0;
-};
-
-int disk_half_width(double radius, double res) {
-  return static_cast<int>(std::floor(radius / res + 0.5 + 1e-9));
-}
-
-SafetyPrecompute precompute_safety(const HeightGrid& grid, int W) {
-  const GridGeometry& g = grid.geometry;
-  const int nx = g.nx, ny = g.ny;
-  SafetyPrecompute p;
-  p.ps = ny + 1;
-  const size_t ps = p.ps;
-  p.pz.resize(nx * ps);
-  p.pz2.resize(nx * ps);
-  p.pjz.resize(nx * ps);
-  p.pun.resize(nx * ps);
-  for (int i = 0; i < nx; ++i) {
-    double a = 0, b = 0, c = 0;
-    int u = 0;
-    p.pz[i * ps] = p.pz2[i * ps] = p.pjz[i * ps] = 0;
-    p.pun[i * ps] = 0;
-    for (int j = 0; j < ny; ++j) {
-      const size_t k = g.index(i, j);
-      const double z = grid.elevation[k];
-      a += z;
-      b += z * z;
-      c += j * z;
-      u += grid.observed[k] ? 0 : 1;
-      p.pz[i * ps + j + 1] = a;
-      p.pz2[i * ps + j + 1] = b;
-      p.pjz[i * ps + j + 1] = c;
-      p.pun[i * ps + j + 1] = u;
-    }
-  }
-  p.rmin.resize(W + 1);
-  p.rmax.resize(W + 1);
-  p.rmin[0] = grid.min;
-  p.rmax[0] = grid.max;
-  for (int k = 1; k <= W; ++k) {
-    p.rmin[k] = p.rmin[k - 1];
-    p.rmax[k] = p.rmax[k - 1];
-    float* mn = p.rmin[k].data();
-    float* mx = p.rmax[k].data();
-    for (int i = 0; i < nx; ++i) {
-      const size_t row = g.index(i, 0);
-      for (int j = k; j < ny; ++j) {
-        mn[row + j] = std::min(mn[row + j], grid.min[row + j - k]);
-        mx[row + j] = std::max(mx[row + j], grid.max[row + j - k]);
-      }
-      for (int j = 0; j + k < ny; ++j) {
-        mn[row + j] = std::min(mn[row + j], grid.min[row + j + k]);
-        mx[row + j] = std::max(mx[row + j], grid.max[row + j + k]);
-      }
-    }
-  }
-  double support_sum = 0;
-  size_t support_cells = 0;
-  for (size_t k = 0; k < g.size(); ++k)
-    if (grid.observed[k]) {
-      support_sum += grid.support[k];
-      ++support_cells;
-    }
-  p.mean_support = support_cells ? std::max(1.0, support_sum / support_cells) : 1.0;
-  return p;
-}
-
 // One disk row's contribution to a row of cells (a separate function so the compiler sees
 // distinct, non-aliasing arrays and vectorises it).
 void accumulate_disk_row(const double* __restrict za, const double* __restrict zb,
@@ -396,167 +326,294 @@ void accumulate_disk_row(const double* __restrict za, const double* __restrict z
   }
 }
 
+// Observed disk and raw step: 1 where the disk holds no unobserved cell and hi - lo <= max_step.
+void test_step(const int* __restrict un, const float* __restrict lo, const float* __restrict hi,
+               double max_step, int n, int32_t* __restrict ok) {
+  for (int t = 0; t < n; ++t) {
+    const float step = hi[t] - lo[t];
+    ok[t] = (un[t] == 0) & (step <= max_step);
+  }
+}
+
+// Plane fit of a disk: the least-squares plane z = mean + a di + b dj (the offsets are symmetric,
+// so the three fits decouple), its residual sum of squares and its slope.
+struct FitLimits {
+  double sxx, syy;
+  int ncells;
+  double max_rss_n, max_slope_eff;
+};
+
+void test_fit(const double* __restrict sz, const double* __restrict sz2,
+              const double* __restrict sdiz, const double* __restrict sdjz, const FitLimits& l,
+              int n, double* __restrict rss, double* __restrict slope2, double* __restrict ok) {
+  const double sxx = l.sxx, syy = l.syy;
+  const int ncells = l.ncells;
+  if (sxx > 0 && syy > 0) {  // every disk wider than one cell: no branch in the loop
+    for (int t = 0; t < n; ++t) {
+      const double a = sdiz[t] / sxx;
+      const double b = sdjz[t] / syy;
+      const double mean = sz[t] / ncells;
+      rss[t] = sz2[t] - ncells * mean * mean - a * sdiz[t] - b * sdjz[t];
+      slope2[t] = a * a + b * b;
+    }
+  } else {
+    for (int t = 0; t < n; ++t) {
+      const double a = sxx > 0 ? sdiz[t] / sxx : 0.0;
+      const double b = syy > 0 ? sdjz[t] / syy : 0.0;
+      const double mean = sz[t] / ncells;
+      rss[t] = sz2[t] - ncells * mean * mean - a * sdiz[t] - b * sdjz[t];
+      slope2[t] = a * a + b * b;
+    }
+  }
+  const double max_rss = l.max_rss_n * ncells, max_slope2 = l.max_slope_eff * l.max_slope_eff;
+  for (int t = 0; t < n; ++t) ok[t] = rss[t] <= max_rss ? 1.0 : 0.0;
+  for (int t = 0; t < n; ++t) ok[t] = slope2[t] <= max_slope2 ? ok[t] : 0.0;
+}
+
+// One grid row's radius-independent data, shared by every radius and every cell row whose disks
+// reach it: prefix sums along y (z, z^2, j z, unobserved cells; one extra leading slot) and the
+// sliding min of cell min / max of cell max along y for every half-width 0..W.
+struct RowData {
+  std::vector<double> pz, pz2, pjz;
+  std::vector<int> pun;
+  std::vector<float> rmin, rmax;  // (W + 1) x ny, half-width major
+};
+
+void fill_row(const HeightGrid& grid, int i, int W, RowData& r) {
+  const GridGeometry& g = grid.geometry;
+  const int ny = g.ny;
+  r.pz.resize(ny + 1);
+  r.pz2.resize(ny + 1);
+  r.pjz.resize(ny + 1);
+  r.pun.resize(ny + 1);
+  double a = 0, b = 0, c = 0;
+  int u = 0;
+  r.pz[0] = r.pz2[0] = r.pjz[0] = 0;
+  r.pun[0] = 0;
+  const size_t row = g.index(i, 0);
+  for (int j = 0; j < ny; ++j) {
+    const double z = grid.elevation[row + j];
+    a += z;
+    b += z * z;
+    c += j * z;
+    u += grid.observed[row + j] ? 0 : 1;
+    r.pz[j + 1] = a;
+    r.pz2[j + 1] = b;
+    r.pjz[j + 1] = c;
+    r.pun[j + 1] = u;
+  }
+  r.rmin.resize(static_cast<size_t>(W + 1) * ny);
+  r.rmax.resize(static_cast<size_t>(W + 1) * ny);
+  const float* cmin = grid.min.data() + row;
+  const float* cmax = grid.max.data() + row;
+  std::copy(cmin, cmin + ny, r.rmin.begin());
+  std::copy(cmax, cmax + ny, r.rmax.begin());
+  for (int k = 1; k <= W; ++k) {
+    const float* pmn = r.rmin.data() + static_cast<size_t>(k - 1) * ny;
+    const float* pmx = r.rmax.data() + static_cast<size_t>(k - 1) * ny;
+    float* mn = r.rmin.data() + static_cast<size_t>(k) * ny;
+    float* mx = r.rmax.data() + static_cast<size_t>(k) * ny;
+    for (int j = 0; j < ny; ++j) {
+      float lo = pmn[j], hi = pmx[j];
+      if (j >= k) {
+        lo = std::min(lo, cmin[j - k]);
+        hi = std::max(hi, cmax[j - k]);
+      }
+      if (j + k < ny) {
+        lo = std::min(lo, cmin[j + k]);
+        hi = std::max(hi, cmax[j + k]);
+      }
+      mn[j] = lo;
+      mx[j] = hi;
+    }
+  }
+}
+
+// One radius: the disk's rows and the thresholds.
+struct DiskSpec {
+  int R = 0, W = 0;
+  std::vector<int> w;  // half-width of disk row di = -R..R (index di + R)
+  FitLimits fit{};
+  double max_step = 0;
+};
+
+DiskSpec disk_spec(const HeightGrid& grid, double radius, double mean_support,
+                   const SafetyOptions& o) {
+  const double res = grid.geometry.resolution;
+  DiskSpec d;
+  // Disk rows: for a row offset di, the cells j - w[di] .. j + w[di].
+  const double reach = radius / res + 0.5 + 1e-9;
+  const int R = static_cast<int>(std::floor(reach));
+  d.R = R;
+  d.w.resize(2 * R + 1);
+  double sxx = 0, syy = 0;
+  int ncells = 0;
+  for (int di = -R; di <= R; ++di) {
+    const int wi = static_cast<int>(std::floor(std::sqrt(std::max(0.0, reach * reach - di * di))));
+    d.w[di + R] = wi;
+    sxx += double(di) * di * (2 * wi + 1);
+    syy += wi * (wi + 1.0) * (2 * wi + 1) / 3.0;
+    ncells += 2 * wi + 1;
+  }
+  d.W = *std::max_element(d.w.begin(), d.w.end());
+  const double max_slope_cells = o.max_slope * res;  // slope per cell
+  // Sensor noise widens the raw step (a disk's extreme points lie a few sigma either side of the
+  // surface) and the fit residual; allow for it so a noisy plane is not called rough.
+  const double sigma = std::max(0.0, grid.noise_sigma);
+  d.max_step = o.max_step + o.step_noise_factor * sigma;
+  const double max_rms = o.max_rms + o.rms_noise_factor * sigma;
+  const double max_rss_n = max_rms * max_rms;
+  // The fitted slope of a small disk is noisy: each elevation is a median of `support` points with
+  // standard error about 1.25 sigma / sqrt(support), so the slope's standard error per axis is that
+  // over sqrt(sum of squared offsets). Allow slope_noise_factor of those.
+  const double sigma_median = 1.2533 * sigma / std::sqrt(mean_support);
+  const double slope_noise = sxx > 0 ? sigma_median / std::sqrt(sxx) : 0.0;  // per cell
+  const double max_slope_eff = max_slope_cells + o.slope_noise_factor * slope_noise;
+  d.fit = FitLimits{sxx, syy, ncells, max_rss_n, max_slope_eff};
+  return d;
+}
+
 // Per-row accumulators and distance-transform buffers, reused across radii.
 struct SafetyScratch {
   std::vector<double> sz, sz2, sdiz, sdjz;
   std::vector<int> un;
   std::vector<float> lo, hi;
   std::vector<double> jd;
-  std::vector<double> to_unsafe, to_safe;
+  std::vector<int32_t> ok_a;
+  std::vector<double> ok_b, rss, slope2;
+  std::vector<double> dist2;  // squared distance to the nearest cell of the other kind
   EdtScratch edt;
 };
 
-SafetyLayer safety_for_radius(const HeightGrid& grid, const SafetyPrecompute& pre, double radius,
-                              const SafetyOptions& o, SafetyScratch* scratch) {
+// The mask of cell row i for one radius. rows(r) gives the data of grid row r.
+template <class Rows>
+void mask_row(const HeightGrid& grid, int i, const DiskSpec& d, const Rows& rows, SafetyScratch& sc,
+              SafetyLayer& layer) {
   const GridGeometry& g = grid.geometry;
-  const int nx = g.nx, ny = g.ny;
-  const double res = g.resolution;
-  // Disk rows: for a row offset di, the cells j - w[di] .. j + w[di].
-  const double reach = radius / res + 0.5 + 1e-9;
-  const int R = static_cast<int>(std::floor(reach));
-  std::vector<int> w(2 * R + 1);
-  double sxx = 0, syy = 0;
-  int ncells = 0;
-  for (int di = -R; di <= R; ++di) {
-    const int wi = static_cast<int>(std::floor(std::sqrt(std::max(0.0, reach * reach - di * di))));
-    w[di + R] = wi;
-    sxx += double(di) * di * (2 * wi + 1);
-    syy += wi * (wi + 1.0) * (2 * wi + 1) / 3.0;
-    ncells += 2 * wi + 1;
-  }
-  const int W = *std::max_element(w.begin(), w.end());
-  const size_t ps = pre.ps;
-  const std::vector<double>&pz = pre.pz, &pz2 = pre.pz2, &pjz = pre.pjz;
-  const std::vector<int>& pun = pre.pun;
-  const std::vector<std::vector<float>>&rmin = pre.rmin, &rmax = pre.rmax;
-  SafetyLayer layer;
-  layer.radius = radius;
-  layer.safe.assign(g.size(), 0);
-  const double max_slope_cells = o.max_slope * res;  // slope per cell
-  // Sensor noise widens the raw step (a disk's extreme points lie a few sigma either side of the
-  // surface) and the fit residual; allow for it so a noisy plane is not called rough.
-  const double sigma = std::max(0.0, grid.noise_sigma);
-  const double max_step = o.max_step + o.step_noise_factor * sigma;
-  const double max_rms = o.max_rms + o.rms_noise_factor * sigma;
-  const double max_rss_n = max_rms * max_rms;
-  // The fitted slope of a small disk is noisy: each elevation is a median of `support` points with
-  // standard error about 1.25 sigma / sqrt(support), so the slope's standard error per axis is that
-  // over sqrt(sum of squared offsets). Allow slope_noise_factor of those.
-  const double sigma_median = 1.2533 * sigma / std::sqrt(pre.mean_support);
-  const double slope_noise = sxx > 0 ? sigma_median / std::sqrt(sxx) : 0.0;  // per cell
-  const double max_slope_eff = max_slope_cells + o.slope_noise_factor * slope_noise;
-  // Disk sums for one row of cells at a time: the row's cells accumulate the disk rows di = -R..R
-  // in that order, exactly the additions a per-cell loop would make (so the sums are bit for bit
-  // the same), but with j innermost the loop runs over contiguous arrays and vectorises.
-  SafetyScratch& sc = *scratch;
-  sc.sz.resize(ny);
-  sc.sz2.resize(ny);
-  sc.sdiz.resize(ny);
-  sc.sdjz.resize(ny);
-  sc.un.resize(ny);
-  sc.lo.resize(ny);
-  sc.hi.resize(ny);
-  sc.jd.resize(ny);
-  for (int j = 0; j < ny; ++j) sc.jd[j] = j;  // j as a double (exact), loaded rather than converted
+  const int ny = g.ny, R = d.R, W = d.W;
+  // Disk sums for the row's cells: they accumulate the disk rows di = -R..R in that order, exactly
+  // the additions a per-cell loop over the disk makes (so the sums are bit for bit those), but with
+  // the cells innermost the loops run over contiguous arrays and vectorise.
   const int j0 = W, j1 = ny - W;  // cells [j0, j1) keep the disk inside the grid along y
-  for (int i = R; i + R < nx && j0 < j1; ++i) {
-    double* __restrict SZ = sc.sz.data();
-    double* __restrict SZ2 = sc.sz2.data();
-    double* __restrict SDIZ = sc.sdiz.data();
-    double* __restrict SDJZ = sc.sdjz.data();
-    int* __restrict UN = sc.un.data();
-    float* __restrict LO = sc.lo.data();
-    float* __restrict HI = sc.hi.data();
-    std::fill(SZ + j0, SZ + j1, 0.0);
-    std::fill(SZ2 + j0, SZ2 + j1, 0.0);
-    std::fill(SDIZ + j0, SDIZ + j1, 0.0);
-    std::fill(SDJZ + j0, SDJZ + j1, 0.0);
-    std::fill(UN + j0, UN + j1, 0);
-    std::fill(LO + j0, LO + j1, std::numeric_limits<float>::infinity());
-    std::fill(HI + j0, HI + j1, -std::numeric_limits<float>::infinity());
-    for (int di = -R; di <= R; ++di) {
-      const int wi = w[di + R];
-      const size_t row = static_cast<size_t>(i + di) * ps;
-      // Cell j uses the prefix-sum slots [j - wi, j + wi + 1) of its row.
-      const double* __restrict za = pz.data() + row + (j0 - wi);
-      const double* __restrict zb = pz.data() + row + (j0 + wi + 1);
-      const double* __restrict z2a = pz2.data() + row + (j0 - wi);
-      const double* __restrict z2b = pz2.data() + row + (j0 + wi + 1);
-      const double* __restrict jza = pjz.data() + row + (j0 - wi);
-      const double* __restrict jzb = pjz.data() + row + (j0 + wi + 1);
-      const int* __restrict ua = pun.data() + row + (j0 - wi);
-      const int* __restrict ub = pun.data() + row + (j0 + wi + 1);
-      const float* __restrict mn = rmin[wi].data() + g.index(i + di, j0);
-      const float* __restrict mx = rmax[wi].data() + g.index(i + di, j0);
-      const double ddi = di;
-      const int n = j1 - j0;
-      double* __restrict sz = SZ + j0;
-      double* __restrict sdiz = SDIZ + j0;
-      double* __restrict sdjz = SDJZ + j0;
-      const double* __restrict jd = sc.jd.data() + j0;
-      accumulate_disk_row(za, zb, jza, jzb, jd, ddi, n, sz, sdiz, sdjz);
-      double* __restrict sz2 = SZ2 + j0;
-      for (int t = 0; t < n; ++t) sz2[t] += z2b[t] - z2a[t];
-      int* __restrict un = UN + j0;
-      for (int t = 0; t < n; ++t) un[t] += ub[t] - ua[t];
-      float* __restrict lo = LO + j0;
-      float* __restrict hi = HI + j0;
-      for (int t = 0; t < n; ++t) {
-        lo[t] = std::min(lo[t], mn[t]);
-        hi[t] = std::max(hi[t], mx[t]);
-      }
-    }
-    for (int j = j0; j < j1; ++j) {
-      if (UN[j] != 0) continue;  // an unobserved cell in the disk
-      const float lo = LO[j], hi = HI[j];
-      if (!(hi - lo <= max_step)) continue;
-      const double sdiz = SDIZ[j], sdjz = SDJZ[j], sz = SZ[j], sz2 = SZ2[j];
-      const double a = sxx > 0 ? sdiz / sxx : 0.0;
-      const double b = syy > 0 ? sdjz / syy : 0.0;
-      const double mean = sz / ncells;
-      const double rss = sz2 - ncells * mean * mean - a * sdiz - b * sdjz;
-      if (!(rss <= max_rss_n * ncells)) continue;
-      if (!(a * a + b * b <= max_slope_eff * max_slope_eff)) continue;
-      layer.safe[g.index(i, j)] = 1;
-      ++layer.safe_cells;
+  if (j0 >= j1) return;
+  const int n = j1 - j0;
+  double* __restrict SZ = sc.sz.data() + j0;
+  double* __restrict SZ2 = sc.sz2.data() + j0;
+  double* __restrict SDIZ = sc.sdiz.data() + j0;
+  double* __restrict SDJZ = sc.sdjz.data() + j0;
+  int* __restrict UN = sc.un.data() + j0;
+  float* __restrict LO = sc.lo.data() + j0;
+  float* __restrict HI = sc.hi.data() + j0;
+  std::fill(SZ, SZ + n, 0.0);
+  std::fill(SZ2, SZ2 + n, 0.0);
+  std::fill(SDIZ, SDIZ + n, 0.0);
+  std::fill(SDJZ, SDJZ + n, 0.0);
+  std::fill(UN, UN + n, 0);
+  std::fill(LO, LO + n, std::numeric_limits<float>::infinity());
+  std::fill(HI, HI + n, -std::numeric_limits<float>::infinity());
+  for (int di = -R; di <= R; ++di) {
+    const int wi = d.w[di + R];
+    const RowData& r = rows(i + di);
+    // Cell j uses the prefix-sum slots [j - wi, j + wi + 1) of its row.
+    const int a = j0 - wi, b = j0 + wi + 1;
+    accumulate_disk_row(r.pz.data() + a, r.pz.data() + b, r.pjz.data() + a, r.pjz.data() + b,
+                        sc.jd.data() + j0, di, n, SZ, SDIZ, SDJZ);
+    const double* __restrict z2a = r.pz2.data() + a;
+    const double* __restrict z2b = r.pz2.data() + b;
+    for (int t = 0; t < n; ++t) SZ2[t] += z2b[t] - z2a[t];
+    const int* __restrict ua = r.pun.data() + a;
+    const int* __restrict ub = r.pun.data() + b;
+    for (int t = 0; t < n; ++t) UN[t] += ub[t] - ua[t];
+    const float* __restrict mn = r.rmin.data() + static_cast<size_t>(wi) * ny + j0;
+    const float* __restrict mx = r.rmax.data() + static_cast<size_t>(wi) * ny + j0;
+    for (int t = 0; t < n; ++t) {
+      LO[t] = std::min(LO[t], mn[t]);
+      HI[t] = std::max(HI[t], mx[t]);
     }
   }
+  // The tests, branch free over the row (so they vectorise): the same expressions as a per-cell
+  // early-exit chain, evaluated for every cell.
+  test_step(UN, LO, HI, d.max_step, n, sc.ok_a.data());
+  test_fit(SZ, SZ2, SDIZ, SDJZ, d.fit, n, sc.rss.data(), sc.slope2.data(), sc.ok_b.data());
+  uint8_t* out = layer.safe.data() + g.index(i, j0);
+  size_t count = 0;
+  for (int t = 0; t < n; ++t) {
+    const uint8_t ok = sc.ok_a[t] != 0 && sc.ok_b[t] != 0.0;
+    out[t] = ok;
+    count += ok;
+  }
+  layer.safe_cells += count;
+}
 
-  // Signed margin from two distance transforms.
+// The signed margin of a finished mask: distance transforms from the unsafe cells (for safe
+// cells) and from the safe cells (for unsafe ones), minus half a cell.
+void fill_margin(const GridGeometry& g, SafetyScratch& sc, SafetyLayer& layer) {
+  const double res = g.resolution;
   layer.margin.resize(g.size());
-  sc.to_unsafe.resize(g.size());
-  sc.to_safe.resize(g.size());
-  binary_distances(g, layer.safe.data(), sc.edt, sc.to_unsafe.data(), sc.to_safe.data());
-  const double* to_unsafe = sc.to_unsafe.data();
-  const double* to_safe = sc.to_safe.data();
+  sc.dist2.resize(g.size());
+  binary_distances(g, layer.safe.data(), sc.edt, sc.dist2.data());
+  const double* dist2 = sc.dist2.data();
   // With no unsafe (or no safe) cell at all, distances are infinite: cap at the grid diagonal.
-  const double cap = std::hypot(nx, ny) * res;
+  const double cap = std::hypot(g.nx, g.ny) * res;
   for (size_t k = 0; k < g.size(); ++k) {
-    if (layer.safe[k]) {
-      const double d = std::isfinite(to_unsafe[k]) ? std::sqrt(to_unsafe[k]) * res : cap;
-      layer.margin[k] = static_cast<float>(d - 0.5 * res);
-    } else {
-      const double d = std::isfinite(to_safe[k]) ? std::sqrt(to_safe[k]) * res : cap;
-      layer.margin[k] = static_cast<float>(-(d - 0.5 * res));
-    }
+    const double d = std::isfinite(dist2[k]) ? std::sqrt(dist2[k]) * res : cap;
+    layer.margin[k] = static_cast<float>(layer.safe[k] ? d - 0.5 * res : -(d - 0.5 * res));
   }
-  return layer;
 }
 
 }  // namespace
 
 std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vector<double>& radii,
                                         const SafetyOptions& o) {
-  int W = 0;
   for (double r : radii) {
     if (!std::isfinite(r) || r < 0 || r > 1.0)
       throw InputError("foot radius " + std::to_string(r) + " m is outside [0, 1] m");
-    W = std::max(W, disk_half_width(r, grid.geometry.resolution));
   }
-  const SafetyPrecompute pre = precompute_safety(grid, W);
-  SafetyScratch scratch;
-  std::vector<SafetyLayer> layers;
-  for (double r : radii) layers.push_back(safety_for_radius(grid, pre, r, o, &scratch));
+  const GridGeometry& g = grid.geometry;
+  const int nx = g.nx, ny = g.ny;
+  double support_sum = 0;
+  size_t support_cells = 0;
+  for (size_t k = 0; k < g.size(); ++k)
+    if (grid.observed[k]) {
+      support_sum += grid.support[k];
+      ++support_cells;
+    }
+  const double mean_support = support_cells ? std::max(1.0, support_sum / support_cells) : 1.0;
+  std::vector<DiskSpec> disks;
+  int W = 0;
+  for (double r : radii) {
+    disks.push_back(disk_spec(grid, r, mean_support, o));
+    W = std::max(W, disks.back().R);
+  }
+  std::vector<SafetyLayer> layers(radii.size());
+  for (size_t l = 0; l < radii.size(); ++l) {
+    layers[l].radius = radii[l];
+    layers[l].safe.assign(g.size(), 0);
+  }
+  // Cell rows in order; the grid rows their disks reach (i - W .. i + W) live in a ring, each
+  // computed once and used by every radius while it is in cache.
+  const int ring = 2 * W + 1;
+  std::vector<RowData> rows(static_cast<size_t>(std::min(ring, nx)));
+  const auto row_at = [&](int r) -> const RowData& { return rows[r % rows.size()]; };
+  SafetyScratch sc;
+  for (auto* v : {&sc.sz, &sc.sz2, &sc.sdiz, &sc.sdjz, &sc.ok_b, &sc.rss, &sc.slope2, &sc.jd})
+    v->resize(ny);
+  sc.un.resize(ny);
+  sc.lo.resize(ny);
+  sc.hi.resize(ny);
+  sc.ok_a.resize(ny);
+  for (int j = 0; j < ny; ++j) sc.jd[j] = j;  // j as a double (exact), loaded, not converted
+  int filled = 0;                             // rows [0, filled) have been computed
+  for (int i = 0; i < nx; ++i) {
+    for (; filled < nx && filled <= i + W; ++filled)
+      fill_row(grid, filled, W, rows[filled % rows.size()]);
+    for (size_t l = 0; l < disks.size(); ++l) {
+      const int R = disks[l].R;
+      if (i - R < 0 || i + R >= nx) continue;  // disk leaves the grid: not fully observed
+      mask_row(grid, i, disks[l], row_at, sc, layers[l]);
+    }
+  }
+  for (auto& l : layers) fill_margin(g, sc, l);
   return layers;
 }
 
