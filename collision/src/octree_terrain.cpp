@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <iostream>
 #include <sstream>
 #include <stdexcept>
 #include <utility>
@@ -93,7 +94,18 @@ std::shared_ptr<octomap::OcTree> read_octomap(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw std::runtime_error(path + ": cannot open the OctoMap file");
   auto tree = std::make_shared<octomap::OcTree>(0.1);
-  if (!tree->readBinary(in))
+  // OctoMap announces every binary read on std::cerr ("Reading binary octree type OcTree"); our
+  // commands keep stderr for their own messages, so its chatter goes nowhere while it reads.
+  std::streambuf* const cerr_buffer = std::cerr.rdbuf(nullptr);
+  bool read_ok = false;
+  try {
+    read_ok = tree->readBinary(in);
+  } catch (...) {
+    std::cerr.rdbuf(cerr_buffer);
+    throw;
+  }
+  std::cerr.rdbuf(cerr_buffer);
+  if (!read_ok)
     throw std::runtime_error(path + ": not a readable OctoMap binary (.bt) file");
   if (tree->size() == 0) throw std::runtime_error(path + ": the OctoMap holds no voxels");
   return tree;
