@@ -2,6 +2,7 @@
 
 #include <Eigen/LU>
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -179,6 +180,10 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
                         const terrain::HeightField& check_terrain, const PlannerOptions& options,
                         double sample_dt, const WarmStart& warm) {
   if (!(sample_dt > 0.0)) throw std::invalid_argument("sample_dt must be > 0");
+  const auto t_start = std::chrono::steady_clock::now();
+  auto seconds_since = [](std::chrono::steady_clock::time_point t) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+  };
   std::vector<std::string> feet;
   for (const auto& leg : robot.legs) feet.push_back(leg.name);
   PhaseTimeline timeline;
@@ -207,8 +212,10 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   }
   SrbdProblem problem(robot, plan_terrain, timeline, options, start_ptr);
   if (warm.previous) problem.warm_start_from(*warm.previous, warm.shift);
+  const double build_s = seconds_since(t_start);
   PlanOutcome out;
   out.solve = solve(problem, options);
+  const auto t_after_solve = std::chrono::steady_clock::now();
   out.success = out.solve.success;
   if (std::getenv("TERRASTRIDE_DEBUG_CHECKS"))
     for (const auto& [k, v] : problem.violation_by_kind(out.solve.x))
@@ -230,6 +237,12 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   const Trajectory dense = sample_solution(problem, out.solve.x, kDenseDt);
   out.trajectory.checks = dense_checks(robot, check_terrain, dense, lim);
   out.trajectory.extra["checks_dt"] = kDenseDt;
+  // Where the planner's time went (the solve is solver.wall_s): problem construction, and the
+  // sampling plus dense checks after it.
+  out.trajectory.extra["timings"] = {{"build_s", build_s},
+                                     {"solve_s", out.solve.wall_s},
+                                     {"sample_and_checks_s", seconds_since(t_after_solve)},
+                                     {"total_s", seconds_since(t_start)}};
   if (!out.success) {
     std::ostringstream m;
     m << "the optimiser ended with status '" << out.solve.status << "' after "

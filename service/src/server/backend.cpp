@@ -3,6 +3,7 @@
 // whose backing module is not built in answers `unavailable` instead of inventing data.
 #include <algorithm>
 #include <atomic>
+#include <map>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -407,7 +408,7 @@ class Backend {
       }
     // Terrains: the optimiser needs a C2 field; exact scenes are checked as they are.
     std::shared_ptr<const MapSnapshot> snapshot;  // keeps the published map alive while planning
-    std::unique_ptr<terrain::Scene> scene;
+    std::shared_ptr<const SceneRaster> raster;
     std::unique_ptr<terrain::TerrainMap> smooth;
     const terrain::HeightField* plan_field = nullptr;
     const terrain::HeightField* check_field = nullptr;
@@ -416,8 +417,8 @@ class Backend {
         snapshot = map();
         if (!snapshot) throw ProtocolError(pc::kNoMap, "plan on \"current\": no map loaded");
         if (const auto* sc = dynamic_cast<const terrain::Scene*>(snapshot->field.get())) {
-          smooth = terrain::TerrainMap::from_scene(*sc, 0.02, {});
-          plan_field = smooth.get();
+          raster = scene_raster(snapshot->source.substr(snapshot->source.find(':') + 1), sc);
+          plan_field = raster->smooth.get();
           check_field = sc;
         } else {
           plan_field = check_field = snapshot->field.get();
@@ -425,10 +426,9 @@ class Backend {
       } else {
         const auto names = terrain::scene_names();
         if (std::find(names.begin(), names.end(), spec) != names.end()) {
-          scene = terrain::make_scene(spec);
-          smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
-          plan_field = smooth.get();
-          check_field = scene.get();
+          raster = scene_raster(spec, nullptr);
+          plan_field = raster->smooth.get();
+          check_field = raster->scene.get();
         } else {
           if (!std::filesystem::is_directory(spec)) {
             std::string list;
@@ -536,6 +536,27 @@ class Backend {
     return r;
   }
 
+  // Scenes are immutable, so their C2 rasterisation (about 10 ms) is built once per scene name
+  // and shared by every plan on it. `scene` may be given (the published map's own scene object,
+  // which then checks the plans) or is made from the name.
+  struct SceneRaster {
+    std::shared_ptr<const terrain::Scene> scene;
+    std::unique_ptr<terrain::TerrainMap> smooth;
+  };
+  std::shared_ptr<const SceneRaster> scene_raster(const std::string& name,
+                                                  const terrain::Scene* given) {
+    {
+      std::lock_guard<std::mutex> lock(raster_mu_);
+      const auto it = rasters_.find(name);
+      if (it != rasters_.end()) return it->second;
+    }
+    auto r = std::make_shared<SceneRaster>();
+    r->scene = terrain::make_scene(name);
+    r->smooth = terrain::TerrainMap::from_scene(given ? *given : *r->scene, 0.02, {});
+    std::lock_guard<std::mutex> lock(raster_mu_);
+    return rasters_.emplace(name, std::move(r)).first->second;
+  }
+
   OpResult unavailable(const std::string& op, const std::string& module) {
     throw ProtocolError(pc::kUnavailable,
                         op + ": the " + module + " is not built into this server yet");
@@ -569,6 +590,8 @@ class Backend {
   std::atomic<std::uint64_t> generation_{0};
   std::atomic<std::uint64_t> queries_{0}, points_queried_{0}, updates_{0};
   std::mutex update_mu_;
+  std::mutex raster_mu_;
+  std::map<std::string, std::shared_ptr<const SceneRaster>> rasters_;
   // Guarded by update_mu_: the clouds behind the current map ("add" rebuilds from all of them).
   std::vector<perception::PointCloud> clouds_;
   std::size_t cloud_points_ = 0;
