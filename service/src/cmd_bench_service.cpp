@@ -155,13 +155,15 @@ json bench_query(const BenchOptions& o, const json& extent) {
 // so the overhead is what the service adds: framing, parsing, queueing, terrain lookup, JSON
 // encoding and transport; without a planner: debug.sleep's slept_ms). The planner's own time
 // outside the Ipopt solve is reported next to it as planner_outside_solve.
-json bench_overhead(const BenchOptions& o) {
+// `samples` is the plan's sample encoding: "attachment" (a float32 table) or "json".
+json bench_overhead(const BenchOptions& o, const std::string& samples) {
   Client c = connect(o);
   json probe_plan = {{"op", "plan"},
                      {"terrain", "flat"},
                      {"gait", "crawl"},
                      {"duration", 2.4},
-                     {"goal", {0.3, 0.0, 0.0}}};
+                     {"goal", {0.3, 0.0, 0.0}},
+                     {"samples", samples}};
   const auto first = c.call(probe_plan);
   const bool have_plan = first.header.value("ok", false);
   std::vector<double> overhead, compute, outside_solve;
@@ -191,6 +193,7 @@ json bench_overhead(const BenchOptions& o) {
   }
   json j = latency_json(overhead);
   j["op"] = op;
+  if (have_plan) j["samples"] = samples;
   j["compute"] = latency_json(compute);
   if (!outside_solve.empty()) j["planner_outside_solve"] = latency_json(outside_solve);
   if (!have_plan) j["note"] = "plan unavailable: " + error_text(first) + "; measured debug.sleep";
@@ -357,7 +360,10 @@ void add_bench_service_command(CLI::App& app) {
       const json st = c.call_ok({{"op", "status"}});
       const json extent = {st["map"]["min_corner"], st["map"]["max_corner"]};
       if (o->mode == "query" || o->mode == "all") out["query"] = bench_query(*o, extent);
-      if (o->mode == "plan" || o->mode == "all") out["plan_overhead"] = bench_overhead(*o);
+      if (o->mode == "plan" || o->mode == "all") {
+        out["plan_overhead"] = bench_overhead(*o, "attachment");
+        out["plan_overhead_json_samples"] = bench_overhead(*o, "json");
+      }
       if (o->mode == "hostile" || o->mode == "all") out["hostile"] = bench_hostile(*o, extent);
     } catch (const ClientError& e) {
       if (server) {
@@ -386,10 +392,12 @@ void add_bench_service_command(CLI::App& app) {
                 << "\n";
       print_latency("  latency: ", q);
     }
-    if (out.contains("plan_overhead")) {
-      const json& p = out["plan_overhead"];
-      std::cout << "worker overhead (" << p["op"].get<std::string>() << ", round trip minus own "
-                << "compute time):\n";
+    for (const char* key : {"plan_overhead", "plan_overhead_json_samples"}) {
+      if (!out.contains(key)) continue;
+      const json& p = out[key];
+      std::cout << "worker overhead (" << p["op"].get<std::string>()
+                << (p.contains("samples") ? ", samples as " + p["samples"].get<std::string>() : "")
+                << ", round trip minus own compute time):\n";
       print_latency("  overhead: ", p);
       if (p.contains("planner_outside_solve"))
         print_latency("  planner outside the solve (build, sampling, dense checks): ",

@@ -8,6 +8,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -218,6 +219,47 @@ TEST_F(ServerTest, PlanAndCheckAnswerHonestly) {
   m = c.call({{"op", "check"}, {"plan", json::object()}});
   EXPECT_EQ(error_code(m), "bad_request");
   EXPECT_FALSE(error_message(m).empty());
+}
+
+// The samples as a float32 table: the same plan as with JSON samples, column for column.
+TEST_F(ServerTest, PlanSamplesAsAttachmentMatchJson) {
+  Client c = Client::connect(address_);
+  json req = {{"op", "plan"}, {"terrain", "flat"}, {"duration", 2.4}, {"goal", {0.3, 0.0, 0.0}}};
+  const json as_json = c.call_ok(req);
+  req["samples"] = "attachment";
+  const p::Message m = c.call(req);
+  ASSERT_TRUE(m.header["ok"].get<bool>()) << m.header.dump();
+  const json& r = m.header["result"];
+  const p::Attachment* table = m.find("samples");
+  ASSERT_NE(table, nullptr);
+  const auto& columns = r["samples"]["columns"];
+  const std::size_t rows = as_json["samples"].size(), cols = columns.size();
+  ASSERT_EQ(r["samples"]["rows"].get<std::size_t>(), rows);
+  ASSERT_EQ(table->shape, (std::vector<std::uint64_t>{rows, cols}));
+  EXPECT_EQ(cols, 1u + 6 * 3 + 4 * 10);  // t, base, 4 feet x (position, velocity, force, contact)
+  std::vector<float> v(rows * cols);
+  std::memcpy(v.data(), table->data.data(), v.size() * sizeof(float));
+  auto col = [&](const std::string& name) {
+    for (std::size_t k = 0; k < cols; ++k)
+      if (columns[k] == name) return k;
+    ADD_FAILURE() << "no column " << name;
+    return std::size_t{0};
+  };
+  const std::string lf = as_json["feet"][0].get<std::string>();
+  for (std::size_t i = 0; i < rows; i += 17) {
+    const json& s = as_json["samples"][i];
+    EXPECT_NEAR(v[i * cols + col("t")], s["t"].get<double>(), 1e-6);
+    EXPECT_NEAR(v[i * cols + col("base.position.x")], s["base"]["position"][0].get<double>(), 1e-5);
+    EXPECT_NEAR(v[i * cols + col("base.euler_zyx.z")], s["base"]["euler_zyx"][2].get<double>(), 1e-5);
+    EXPECT_NEAR(v[i * cols + col(lf + ".force.z")], s["feet"][0]["force"][2].get<double>(),
+                1e-4 * std::max(1.0, std::abs(s["feet"][0]["force"][2].get<double>())));
+    EXPECT_EQ(v[i * cols + col(lf + ".contact")] == 1.0f, s["feet"][0]["contact"].get<bool>());
+  }
+  // Everything but the samples is the same plan.
+  EXPECT_EQ(r["solver"]["iterations"], as_json["solver"]["iterations"]);
+  EXPECT_EQ(r["checks"].size(), as_json["checks"].size());
+  req["samples"] = "csv";
+  EXPECT_EQ(error_code(c.call(req)), "bad_request");
 }
 
 TEST_F(ServerTest, PipelinedRepliesCarryTheirIds) {

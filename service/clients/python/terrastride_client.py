@@ -189,6 +189,24 @@ class Client:
         """Sends and waits; returns (header, attachments) whether ok or not."""
         return self.wait_for(self.send(op, attachments, **fields))
 
+    def plan_table(self, **fields):
+        """A plan with its samples as a float32 table (the fast encoding, docs/protocol.md).
+        Returns (result, columns): columns maps each column name ("t", "base.position.x",
+        "LF.force.z", ...) to its list of values, one per sample."""
+        header, atts = self.request("plan", samples="attachment", **fields)
+        if not header.get("ok"):
+            err = header.get("error", {})
+            raise ServiceError(err.get("code", "?"), err.get("message", "?"), header)
+        result = header.get("result", {})
+        desc = result.get("samples", {})
+        table = next((a for a in atts if a.name == desc.get("attachment")), None)
+        if table is None:
+            raise ServiceError("bad_reply", "plan reply without its samples attachment", header)
+        names = desc["columns"]
+        width = len(names)
+        columns = {name: list(table.values[k::width]) for k, name in enumerate(names)}
+        return result, columns
+
     def call(self, op, attachments=(), **fields):
         """Sends and waits; returns the result object or raises ServiceError."""
         header, _ = self.request(op, attachments, **fields)

@@ -92,6 +92,16 @@ def main(address):
             if not header["ok"]:
                 assert header["error"]["code"] in ("unavailable", "bad_request"), header
 
+        # A plan with its samples as a float32 table: one value per sample in every column,
+        # times increasing, every foot's contact flag 0 or 1.
+        result, cols = c.plan_table(terrain="flat", duration=2.4, goal=[0.3, 0.0, 0.0])
+        n = result["samples"]["rows"]
+        assert n > 100 and all(len(v) == n for v in cols.values()), (n, len(cols))
+        assert all(a < b for a, b in zip(cols["t"], cols["t"][1:]))
+        for foot in result["feet"]:
+            assert set(cols[foot + ".contact"]) <= {0.0, 1.0}
+        assert abs(cols["base.position.x"][-1] - 0.3) < 1e-3, cols["base.position.x"][-1]
+
         c.call("map.clear")
         expect_error("no_map", lambda: c.call("map.query", points=[[0, 0]]))
         st = c.call("status")

@@ -370,6 +370,9 @@ class Backend {
     po.duration = protocol::get_number(h, "duration", 0.0);
     if (po.duration < 0 || po.duration > 120)
       throw ProtocolError(pc::kBadRequest, "\"duration\" must be within (0, 120] s");
+    const std::string samples_encoding = protocol::get_string(h, "samples", std::string("json"));
+    if (samples_encoding != "json" && samples_encoding != "attachment")
+      throw ProtocolError(pc::kBadRequest, "\"samples\" must be \"json\" or \"attachment\"");
     const double sample_dt = protocol::get_number(h, "sample_dt", 0.01);
     if (!(sample_dt > 0) || sample_dt > 1)
       throw ProtocolError(pc::kBadRequest, "\"sample_dt\" must be within (0, 1] s");
@@ -473,7 +476,16 @@ class Backend {
               " (max violation " + std::to_string(violation) + ")");
     out.trajectory.extra["terrain"] = spec;
     OpResult r;
-    r.result = planner::plan_to_json(out.trajectory);
+    if (samples_encoding == "attachment") {
+      // The samples as one float32 table (see docs/protocol.md): building, printing and parsing a
+      // JSON tree of a thousand samples costs tens of milliseconds; the table costs a copy.
+      std::vector<planner::TrajectorySample> samples = std::move(out.trajectory.samples);
+      out.trajectory.samples.clear();
+      r.result = planner::plan_to_json(out.trajectory);
+      r.attachments.push_back(samples_table(samples, out.trajectory.feet, &r.result));
+    } else {
+      r.result = planner::plan_to_json(out.trajectory);
+    }
     r.result["success"] = out.success;
     r.result["max_violation"] = violation;
     if (!out.message.empty()) r.result["message"] = out.message;
@@ -534,6 +546,50 @@ class Backend {
                 {"terrain", terrain.description},
                 {"wall_s", report.wall_s}};
     return r;
+  }
+
+  // Plan samples as a float32 attachment named "samples", one row per sample; the column names
+  // go into result["samples"] = {"attachment", "columns", "rows"}.
+  static protocol::Attachment samples_table(const std::vector<planner::TrajectorySample>& samples,
+                                            const std::vector<std::string>& feet, json* result) {
+    std::vector<std::string> columns{"t"};
+    auto add3 = [&](const std::string& prefix) {
+      for (const char* axis : {".x", ".y", ".z"}) columns.push_back(prefix + axis);
+    };
+    for (const char* field : {"position", "euler_zyx", "linear_velocity", "angular_velocity",
+                              "linear_acceleration", "angular_acceleration"})
+      add3(std::string("base.") + field);
+    for (const auto& foot : feet) {
+      for (const char* field : {"position", "velocity", "force"}) add3(foot + "." + field);
+      columns.push_back(foot + ".contact");
+    }
+    protocol::Attachment a;
+    a.name = "samples";
+    a.shape = {samples.size(), columns.size()};
+    std::vector<float> table;
+    table.reserve(samples.size() * columns.size());
+    auto put3 = [&](const Eigen::Vector3d& v) {
+      for (int i = 0; i < 3; ++i) table.push_back(static_cast<float>(v[i]));
+    };
+    for (const auto& smp : samples) {
+      table.push_back(static_cast<float>(smp.t));
+      put3(smp.base.position);
+      put3(smp.base.euler_zyx);
+      put3(smp.base.linear_velocity);
+      put3(smp.base.angular_velocity);
+      put3(smp.base.linear_acceleration);
+      put3(smp.base.angular_acceleration);
+      for (std::size_t f = 0; f < feet.size(); ++f) {
+        const planner::FootState& fs = smp.feet.at(f);
+        put3(fs.position);
+        put3(fs.velocity);
+        put3(fs.force);
+        table.push_back(fs.contact ? 1.0f : 0.0f);
+      }
+    }
+    a.data.assign(reinterpret_cast<const char*>(table.data()), table.size() * sizeof(float));
+    (*result)["samples"] = {{"attachment", a.name}, {"columns", columns}, {"rows", samples.size()}};
+    return a;
   }
 
   // Scenes are immutable, so their C2 rasterisation (about 10 ms) is built once per scene name
