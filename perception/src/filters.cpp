@@ -10,6 +10,7 @@
 #include <pcl/filters/crop_box.h>
 #include <pcl/filters/statistical_outlier_removal.h>
 #include <pcl/filters/voxel_grid.h>
+#include <pcl/octree/octree_pointcloud_pointvector.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 #endif
@@ -30,6 +31,9 @@ void validate(const CloudFilterOptions& o, const std::string& name) {
     bad("voxel size must be a finite number >= 0 (0 = off)");
   }
   if (o.outlier_neighbours < 0) bad("outlier neighbour count must be >= 0 (0 = off)");
+  if (!std::isfinite(o.outlier_voxel) || o.outlier_voxel < 0.0f) {
+    bad("outlier voxel size must be a finite number >= 0 (0 = judge single points)");
+  }
   if (o.outlier_neighbours > 0 && !(std::isfinite(o.outlier_stddev) && o.outlier_stddev > 0.0)) {
     bad("outlier stddev multiplier must be a finite number > 0");
   }
@@ -100,7 +104,58 @@ PointCloud filter_cloud(const PointCloud& cloud, const CloudFilterOptions& optio
   }
   s.after_voxel = current->size();
 
-  if (options.outlier_neighbours > 0 && current->size() > 1) {
+  if (options.outlier_neighbours > 0 && current->size() > 1 && options.outlier_voxel > 0.0f) {
+    // Statistical outlier removal by voxel: the points are grouped into the leaves of a PCL octree
+    // of outlier_voxel cells (memory grows with the occupied cells only), the removal runs on one
+    // centroid per occupied cell, and each cell's points are kept or dropped together. SOR then
+    // costs per occupied cell instead of per point, and a dense patch near the sensor no longer
+    // sets the neighbour-distance statistics for the sparse returns far away.
+    Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
+    Eigen::Vector3f hi = -lo;
+    for (const auto& p : current->points) {
+      lo = lo.cwiseMin(p.getVector3fMap());
+      hi = hi.cwiseMax(p.getVector3fMap());
+    }
+    // Octree keys hold 31 levels; refuse cells that small rather than let PCL fail.
+    if (((hi - lo).cast<double>().array() / options.outlier_voxel).maxCoeff() > double(1 << 30)) {
+      throw InputError(name + ": outlier voxel size " + std::to_string(options.outlier_voxel) +
+                       " m is too small for the cloud's extent");
+    }
+    pcl::octree::OctreePointCloudPointVector<pcl::PointXYZ> octree(options.outlier_voxel);
+    octree.setInputCloud(current);
+    octree.addPointsFromInputCloud();
+    Cloud::Ptr centroids(new Cloud);
+    std::vector<const pcl::Indices*> members;
+    centroids->reserve(octree.getLeafCount());
+    members.reserve(octree.getLeafCount());
+    for (auto it = octree.leaf_depth_begin(); it != octree.leaf_depth_end(); ++it) {
+      const pcl::Indices& idx = it.getLeafContainer().getPointIndicesVector();
+      if (idx.empty()) continue;
+      Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+      for (const auto i : idx) sum += (*current)[i].getVector3fMap().cast<double>();
+      const Eigen::Vector3f c = (sum / static_cast<double>(idx.size())).cast<float>();
+      centroids->push_back(pcl::PointXYZ(c.x(), c.y(), c.z()));
+      members.push_back(&idx);
+    }
+    s.outlier_cells = centroids->size();
+    if (centroids->size() > 1) {
+      pcl::StatisticalOutlierRemoval<pcl::PointXYZ> sor;
+      sor.setMeanK(options.outlier_neighbours);
+      sor.setStddevMulThresh(options.outlier_stddev);
+      sor.setInputCloud(centroids);
+      pcl::Indices kept_cells;
+      sor.filter(kept_cells);
+      std::vector<uint8_t> keep(current->size(), 0);
+      for (const auto c : kept_cells)
+        for (const auto i : *members[c]) keep[i] = 1;
+      Cloud::Ptr next(new Cloud);
+      next->reserve(current->size());
+      for (size_t i = 0; i < current->size(); ++i)
+        if (keep[i]) next->push_back((*current)[i]);
+      next->is_dense = true;
+      current = next;
+    }
+  } else if (options.outlier_neighbours > 0 && current->size() > 1) {
     pcl::StatisticalOutlierRemoval<pcl::PointXYZ> sor;
     sor.setMeanK(options.outlier_neighbours);
     sor.setStddevMulThresh(options.outlier_stddev);

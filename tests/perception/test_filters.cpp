@@ -116,6 +116,41 @@ TEST(FilterCloud, OutlierRemovalDropsFarOutliersKeepsTreads) {
   EXPECT_GT(out.points.size(), c.points.size() * 9 / 10);
 }
 
+// The same outliers and treads when the removal judges 1 cm cells by their centroids (the map
+// command's default): whole cells are kept or dropped, and the kept points are the input's own.
+TEST(FilterCloud, OutlierRemovalByVoxelDropsFarOutliersKeepsTreads) {
+  const PointCloud c = read_cloud(scan("terrain_understanding_mit/grid_stairs.npy"));
+  ASSERT_EQ(count_if_z(c, -3.0f, -2.0f), 11u);
+  CloudFilterOptions o;
+  o.outlier_neighbours = 8;
+  o.outlier_stddev = 2.0;
+  o.outlier_voxel = 0.01f;
+  FilterStats s;
+  const PointCloud out = filter_cloud(c, o, &s);
+  EXPECT_EQ(count_if_z(out, -3.0f, -2.0f), 0u);
+  for (float tread : {-0.75f, -0.56f, -0.39f, -0.19f, -0.02f}) {
+    SCOPED_TRACE(tread);
+    const size_t before = count_if_z(c, tread - 0.03f, tread + 0.03f);
+    EXPECT_GE(count_if_z(out, tread - 0.03f, tread + 0.03f), before * 95 / 100);
+  }
+  EXPECT_EQ(s.after_outliers, out.points.size());
+  EXPECT_LT(out.points.size(), c.points.size());
+  EXPECT_GT(s.outlier_cells, 100u);
+  EXPECT_LT(s.outlier_cells, c.points.size());
+  // Kept points are input points, in input order.
+  size_t k = 0;
+  for (const auto& p : out.points) {
+    while (k < c.points.size() && c.points[k] != p) ++k;
+    ASSERT_LT(k, c.points.size());
+    ++k;
+  }
+  // Bad cell sizes are refused.
+  o.outlier_voxel = -0.01f;
+  expect_input_error([&] { filter_cloud(c, o); }, {"outlier voxel"});
+  o.outlier_voxel = 1e-12f;
+  expect_input_error([&] { filter_cloud(c, o); }, {"too small"});
+}
+
 TEST(FilterCloud, StagesChainInOrder) {
   const PointCloud c = read_cloud(scan("terrain_understanding_mit/curb_w_grass.npy"));
   CloudFilterOptions o;
