@@ -29,6 +29,7 @@ void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options) {
 std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets() {
   return {{"foot", [](SrbdProblem& p) { build_foot_set(p); }},
           {"shin", [](SrbdProblem& p) { build_shin_set(p); }},
+          {"shin_ik", [](SrbdProblem& p) { build_shin_kinematic_set(p); }},
           {"polytope", [](SrbdProblem& p) { build_polytope_set(p); }}};
 }
 

@@ -87,4 +87,88 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   }
 }
 
+// ---------------------------------------------------------------------------------------------
+// "shin_ik" (beyond the paper): the same inequality on the leg's REAL shin, from the foot to the
+// knee that the leg's inverse kinematics puts there for the current base pose (DESIGN.md, IK):
+//   p_b = R^T (p - r), v = p_b - p_HAA, gamma = atan2(v_y, -v_z), rho = hypot(v_y, v_z),
+//   X = v_x, Z = -(rho - l0), q_K = kappa acos((X^2 + Z^2 - l1^2 - l2^2) / (2 l1 l2)),
+//   q_H = atan2(-X, -Z) - atan2(l2 sin q_K, l1 + l2 cos q_K),
+//   knee_b = p_HAA + Rx(gamma) (-l1 sin q_H, 0, -l0 - l1 cos q_H),   knee = r + R knee_b.
+// Points q_j = p + t_j (knee - p), t_j from the excluded foot end to 1, must stand above the
+// terrain by the capsule radius over the cosine of the shin's actual inclination. The paper's
+// fixed beta is a heuristic: measured on our pallet plans, a hind shin flattens to ~30 deg when
+// the base moves on over a foot planted before the step, and the knee is ~0.33 m from the foot,
+// so the fixed-beta rows hold while the real shin hits the edge (see the issue #5 report).
+// Imposed at the segment ends of every stance (base knots: value-only, few columns).
+namespace {
+
+template <class T>
+Vec3<T> knee_in_base(const robot::LegModel& leg, const Vec3<T>& pb) {
+  using std::acos;
+  using std::atan2;
+  using std::cos;
+  using std::sin;
+  using std::sqrt;
+  const Vec3<T> v = pb - leg.haa_origin.cast<T>();
+  const T gamma = atan2(v[1], -v[2]);
+  const T rho = sqrt(v[1] * v[1] + v[2] * v[2]);
+  const T X = v[0], Z = -(rho - leg.l0);
+  T c = (X * X + Z * Z - leg.l1 * leg.l1 - leg.l2 * leg.l2) / (2.0 * leg.l1 * leg.l2);
+  // Out of reach (the range-of-motion box allows a little): the stretched leg's limit.
+  if (value_of(c) > 1.0 - 1e-6) c = T(1.0 - 1e-6);
+  if (value_of(c) < -1.0 + 1e-6) c = T(-1.0 + 1e-6);
+  const T qK = static_cast<double>(leg.knee_sign) * acos(c);
+  const T qH = atan2(-X, -Z) - atan2(leg.l2 * sin(qK), leg.l1 + leg.l2 * cos(qK));
+  const T ky = T(0.0), kz = -leg.l0 - leg.l1 * cos(qH), kx = -leg.l1 * sin(qH);
+  const T cg = cos(gamma), sg = sin(gamma);
+  return Vec3<T>(leg.haa_origin.x() + kx, leg.haa_origin.y() + cg * ky - sg * kz,
+                 leg.haa_origin.z() + sg * ky + cg * kz);
+}
+
+}  // namespace
+
+void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& options) {
+  const Layout& L = problem.layout();
+  const terrain::HeightField* field = &problem.terrain();
+  const int nk = std::max(2, options.shin_points);
+  for (const auto& st : L.stances) {
+    const robot::LegModel leg = problem.robot().legs[st.foot];
+    const double exclusion = options.shin_exclusion >= 0.0
+                                 ? options.shin_exclusion
+                                 : 2.0 * problem.robot().foot_radius + leg.shin_radius + 0.01;
+    const double radius = options.shin_clearance >= 0.0 ? -1.0 : leg.shin_radius;
+    const double fixed_clearance = options.shin_clearance;
+    std::vector<double> lo(nk, radius >= 0.0 ? 0.0 : fixed_clearance), hi(nk, feasibility::kInf);
+    for (int k = st.first_seg; k <= st.last_seg + 1; ++k) {
+      LocalVars lv;
+      const auto p = lv.add3(st.pos_var);
+      const auto r = lv.add3(L.base[k]);
+      const auto e = lv.add3(L.base[k] + 6);
+      problem.add_piece(make_piece("shin_ik", lv, lo, hi, [=](const auto* x, auto* g) {
+        using T = std::decay_t<decltype(*g)>;
+        using std::sqrt;
+        const Vec3<T> foot = gather3(x, p), base = gather3(x, r);
+        const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(gather3(x, e));
+        const Vec3<T> knee = base + R * knee_in_base<T>(leg, R.transpose() * (foot - base));
+        const Vec3<T> d = knee - foot;
+        const T len = sqrt(d.squaredNorm());
+        const T horiz = sqrt(d[0] * d[0] + d[1] * d[1] + 1e-12);
+        // Vertical gap for one capsule radius of perpendicular distance: r / cos(inclination).
+        T gap = T(0.0);
+        if (radius >= 0.0) {
+          T cosi = horiz / len;
+          if (value_of(cosi) < 0.2) cosi = T(0.2);
+          gap = radius / cosi;
+        }
+        const T t0 = exclusion / len;
+        for (int j = 0; j < nk; ++j) {
+          const T t = t0 + (1.0 - t0) * (static_cast<double>(j) / (nk - 1));
+          const Vec3<T> q = foot + t * d;
+          g[j] = q[2] - terrain_height(*field, q[0], q[1]) - gap;
+        }
+      }));
+    }
+  }
+}
+
 }  // namespace terrastride::planner

@@ -12,6 +12,7 @@
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/polytope_model.hpp"
+#include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "test_terrains.hpp"
 
@@ -100,6 +101,63 @@ TEST(FeasibilityDerivatives, HyqPiecesMatchFiniteDifferences) {
   ASSERT_GT(kinds.count("force_polytope"), 0u);
   for (unsigned seed : {1u, 2u, 3u})
     EXPECT_GT(check_pieces(p, {"foot_radius", "shin", "force_polytope"}, seed, 0.02), 0);
+}
+
+TEST(FeasibilityDerivatives, ShinKinematicPiecesMatchFiniteDifferences) {
+  const auto r = hyq();
+  MarginStep terrain(0.1, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.05, 0.3);
+  o.constraints = {"shin_ik"};
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem p(r, terrain, tl, o);
+  ASSERT_GT(count_kinds(p)["shin_ik"], 0);
+  for (unsigned seed : {1u, 2u}) EXPECT_GT(check_pieces(p, {"shin_ik"}, seed, 0.02), 0);
+}
+
+// The shin_ik knee is the robot's own IK knee: at a stance knot, the piece's first row (t = t0
+// along foot -> knee) and last row (the knee) match robot::knee_position at the IK solution.
+TEST(FeasibilityValues, ShinKinematicKneeIsTheIkKnee) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o;
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem p(r, flat, tl, o);
+  FeasibilityOptions fo;
+  fo.shin_clearance = 0.0;  // rows are plain heights above the flat ground
+  build_shin_kinematic_set(p, fo);
+  std::vector<double> x = p.initial_guess();
+  std::mt19937 rng(3);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  for (std::size_t i = 0; i < x.size(); ++i)
+    if (p.lower()[i] < p.upper()[i]) x[i] += noise(rng);
+  const Layout& L = p.layout();
+  int checked = 0;
+  for (const auto& piece : p.pieces()) {
+    if (piece->kind != "shin_ik") continue;
+    // Which stance and knot: the piece's variables are foothold (3), base position (3), euler (3).
+    const int pv = piece->vars[0], bv = piece->vars[3];
+    int foot = -1;
+    for (const auto& st : L.stances)
+      if (st.pos_var == pv) foot = st.foot;
+    ASSERT_GE(foot, 0);
+    const Eigen::Vector3d pf(x[pv], x[pv + 1], x[pv + 2]), base(x[bv], x[bv + 1], x[bv + 2]);
+    const Eigen::Vector3d e(x[bv + 6], x[bv + 7], x[bv + 8]);
+    const Eigen::Matrix3d R = (Eigen::AngleAxisd(e[0], Eigen::Vector3d::UnitZ()) *
+                               Eigen::AngleAxisd(e[1], Eigen::Vector3d::UnitY()) *
+                               Eigen::AngleAxisd(e[2], Eigen::Vector3d::UnitX()))
+                                  .toRotationMatrix();
+    const auto ik = robot::inverse_kinematics(r.legs[foot], R.transpose() * (pf - base));
+    if (ik.status == robot::IkStatus::unreachable) continue;
+    const Eigen::Vector3d knee = base + R * robot::knee_position(r.legs[foot], ik.q);
+    std::vector<double> xl(piece->vars.size()), g(piece->rows());
+    for (std::size_t i = 0; i < xl.size(); ++i) xl[i] = x[piece->vars[i]];
+    piece->eval(xl.data(), g.data());
+    EXPECT_NEAR(g.back(), knee.z(), 1e-9);  // flat ground at z = 0
+    ++checked;
+  }
+  EXPECT_GT(checked, 10);
 }
 
 TEST(FeasibilityDerivatives, PiecesHaveNonzeroJacobians) {

@@ -44,9 +44,12 @@ struct FeasibilityOptions {
 
 void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+// "shin_ik" (not in "all"; beyond the paper): the shin inequality on the leg's real shin, foot to
+// the knee from inverse kinematics at the base pose (see shin_set.cpp).
+void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 
-// {"foot", "shin", "polytope"} with their default options (the registry's initial content).
+// {"foot", "shin", "shin_ik", "polytope"} with their default options (the registry's initial content).
 std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets();
 
 // What "all" expands to, in order.
