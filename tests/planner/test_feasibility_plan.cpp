@@ -131,8 +131,10 @@ TEST(FeasibilityPlan, FootRadiusKeepsFootholdsOffUnsafeGround) {
 }
 
 // Paper, section IV-B: onto the 10 cm pallet in 11 s. The shin inequality (eq. 13-14) at every
-// 2 ms stance sample and 30 points along the modelled shin (the constraint has 10), on the terrain
-// the planner sees, minus the clearance the set asks for (FeasibilityOptions defaults).
+// 2 ms stance sample and 30 points along the modelled shin (the constraint has 10), on the EXACT
+// scene (sharp edge; the planner sees its 2 cm B-spline), minus the clearance the set asks for
+// (FeasibilityOptions defaults). On the smoothed field the baseline happens to pass; on the real
+// edge it does not.
 double shin_min(const robot::RobotModel& r, const terrain::HeightField& field, const Trajectory& t) {
   double m = 1e9;
   for (const auto& s : t.samples)
@@ -161,10 +163,11 @@ TEST(FeasibilityPlan, ShinConstraintHoldsOnThePallet) {
   const PlanOutcome shin = plan(r, *smooth, *scene, {"shin"}, 11.0);
   ASSERT_TRUE(base.success) << base.message;
   ASSERT_TRUE(shin.success) << shin.message;
-  const double mb = shin_min(r, *smooth, base.trajectory), ms = shin_min(r, *smooth, shin.trajectory);
+  const double mb = shin_min(r, *scene, base.trajectory), ms = shin_min(r, *scene, shin.trajectory);
   std::printf("shin clearance beyond the capsule radius: baseline %.4f m, shin %.4f m\n", mb, ms);
   EXPECT_LT(mb, -0.01);
-  EXPECT_GE(ms, -0.015);  // between the 10 constraint points (see FeasibilityOptions)
+  // Left to the set: the spacing of its 10 points and the smoothing of the edge (measured -7 mm).
+  EXPECT_GE(ms, -0.015);
 }
 
 }  // namespace
