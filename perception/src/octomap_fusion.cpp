@@ -82,8 +82,19 @@ std::unique_ptr<octomap::OcTree> build_octomap(const std::vector<PointCloud>& cl
 }
 
 void write_octomap(const octomap::OcTree& tree, const std::string& path) {
+  // The byte stream of AbstractOccupancyOcTree::writeBinaryConst (header, then the node bits from
+  // the root), written here because the Debian liboctomap is built with debug output on and its
+  // writeBinaryConst / writeBinaryData print "Writing N nodes to output stream... done." to stderr.
+  // writeBinaryNode is the silent public part they call.
   std::ostringstream out(std::ios::binary);
-  if (!tree.writeBinaryConst(out)) throw InputError(path + ": cannot serialise the OctoMap");
+  out << "# Octomap OcTree binary file\n# (feel free to add / change comments, but leave the first "
+         "line as it is!)\n#\n";
+  out << "id " << tree.getTreeType() << std::endl;
+  out << "size " << tree.size() << std::endl;
+  out << "res " << tree.getResolution() << std::endl;
+  out << "data" << std::endl;
+  if (tree.getRoot()) tree.writeBinaryNode(out, tree.getRoot());
+  if (!out.good()) throw InputError(path + ": cannot serialise the OctoMap");
   write_file_atomically(path, out.str());
 }
 

@@ -2,6 +2,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <fstream>
+#include <iterator>
+#include <sstream>
 
 #include "terrastride/perception/cloud_io.hpp"
 #include "terrastride/perception/octomap_fusion.hpp"
@@ -122,6 +125,38 @@ TEST(OctoMap, WriteBinaryRoundTrip) {
   EXPECT_DOUBLE_EQ(back.getResolution(), 0.02);
   EXPECT_EQ(back.size(), tree->size());
   EXPECT_EQ(state(back, Eigen::Vector3d(0.31, -0.19, 0.001)), 1);
+}
+
+// write_octomap writes exactly the bytes of OctoMap's own writeBinaryConst, without the
+// "Writing N nodes to output stream... done." the Debian library prints to stderr.
+TEST(OctoMap, WriteBinaryMatchesOctoMapBytesAndIsQuiet) {
+  ScratchDir dir;
+  PointCloud c = read_cloud(scan("octomap/scan.xyz"), Eigen::Vector3d::Zero());
+  OctoMapOptions o;
+  o.resolution = 0.2;
+  const auto tree = build_octomap({c}, o);
+  testing::internal::CaptureStderr();
+  write_octomap(*tree, dir.file("octomap.bt"));
+  EXPECT_EQ(testing::internal::GetCapturedStderr(), "");
+  std::ostringstream want(std::ios::binary);
+  testing::internal::CaptureStderr();  // the library's own writer is the noisy one
+  ASSERT_TRUE(tree->writeBinaryConst(want));
+  testing::internal::GetCapturedStderr();
+  std::ifstream in(dir.file("octomap.bt"), std::ios::binary);
+  const std::string got((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_GT(got.size(), 1000u);
+  EXPECT_TRUE(got == want.str()) << got.size() << " vs " << want.str().size() << " bytes";
+  // An empty tree too.
+  octomap::OcTree empty(0.05);
+  write_octomap(empty, dir.file("empty.bt"));
+  std::ostringstream want_empty(std::ios::binary);
+  testing::internal::CaptureStderr();
+  ASSERT_TRUE(empty.writeBinaryConst(want_empty));
+  testing::internal::GetCapturedStderr();
+  std::ifstream in_empty(dir.file("empty.bt"), std::ios::binary);
+  EXPECT_EQ(
+      std::string((std::istreambuf_iterator<char>(in_empty)), std::istreambuf_iterator<char>()),
+      want_empty.str());
 }
 
 TEST(OctoMap, BadInput) {
