@@ -228,6 +228,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   st.n_variables = problem.num_free_variables();
   st.n_constraints = problem.num_constraints();
   out.trajectory.extra["solver_max_violation"] = out.solve.max_violation;
+  out.trajectory.extra["solver_termination"] = out.solve.termination;
   out.trajectory.extra["cycles"] = options.cycles;
   out.trajectory.extra["optimize_timing"] = options.optimize_timing;
   out.trajectory.extra["constraints"] = options.constraints;

@@ -56,8 +56,9 @@ class SrbdTnlp : public Ipopt::TNLP {
     std::fill(g, g + n, 0.0);
     return true;
   }
-  bool eval_g(Index, const Number* x, bool, Index, Number* g) override {
+  bool eval_g(Index n, const Number* x, bool, Index, Number* g) override {
     p_.eval_constraints(x, g);
+    last_x_.assign(x, x + n);
     return true;
   }
   bool eval_jac_g(Index, const Number* x, bool, Index, Index nele, Index* irow, Index* jcol,
@@ -68,15 +69,26 @@ class SrbdTnlp : public Ipopt::TNLP {
       p_.eval_jacobian(x, values);
     return true;
   }
-  bool intermediate_callback(Ipopt::AlgorithmMode, Index iter, Number, Number, Number, Number,
-                             Number, Number, Number, Number, Index, const Ipopt::IpoptData*,
-                             Ipopt::IpoptCalculatedQuantities*) override {
+  // The objective is identically zero, so every feasible point is an optimum: once the primal
+  // infeasibility is small, the last evaluated point is checked with our own violation measure
+  // (every row and variable bound, in the constraints' own units) and the solve stops there
+  // instead of iterating on for the multipliers (which the plan does not use). Ipopt's inf_pr only
+  // triggers the check; the point returned is verified.
+  bool intermediate_callback(Ipopt::AlgorithmMode mode, Index iter, Number, Number inf_pr, Number,
+                             Number, Number, Number, Number, Number, Index,
+                             const Ipopt::IpoptData*, Ipopt::IpoptCalculatedQuantities*) override {
     iterations_ = iter;
     if (max_wall_ > 0.0 && elapsed() > max_wall_) {
       timed_out_ = true;
       return false;
     }
     if (should_stop_ && should_stop_()) return false;
+    if (feasibility_tol_ > 0.0 && mode == Ipopt::RegularMode && inf_pr < 1e3 * feasibility_tol_ &&
+        static_cast<int>(last_x_.size()) == p_.num_variables() &&
+        p_.max_violation(last_x_) <= feasibility_tol_) {
+      feasible_x_ = last_x_;
+      return false;
+    }
     return true;
   }
   void finalize_solution(Ipopt::SolverReturn status, Index n, const Number* x, const Number*,
@@ -90,6 +102,9 @@ class SrbdTnlp : public Ipopt::TNLP {
   }
 
   std::vector<double> x_;
+  std::vector<double> last_x_;      // the last point whose constraints Ipopt evaluated
+  std::vector<double> feasible_x_;  // set when the solve stopped at a verified feasible point
+  double feasibility_tol_ = 0.0;
   Ipopt::SolverReturn status_ = Ipopt::INTERNAL_ERROR;
   int iterations_ = 0;
   bool timed_out_ = false;
@@ -153,12 +168,23 @@ SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
     r.ipopt_status = st;
     return r;
   }
+  nlp->feasibility_tol_ = options.feasibility_stop_tolerance;
   st = app->OptimizeTNLP(nlp);
   r.ipopt_status = st;
   r.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   r.iterations = nlp->iterations_;
   r.x = nlp->x_.empty() ? problem.lower() : nlp->x_;
   if (nlp->x_.empty()) r.x = const_cast<SrbdProblem&>(problem).initial_guess();
+  if (!nlp->feasible_x_.empty()) {
+    // Stopped at a verified feasible point: for this zero-objective problem that is a solution.
+    r.x = nlp->feasible_x_;
+    r.status = "optimal";
+    r.termination = "feasible_point";
+    r.success = true;
+    r.max_violation = problem.max_violation(r.x);
+    return r;
+  }
+  r.termination = "ipopt";
   switch (st) {
     case Ipopt::Solve_Succeeded: r.status = "optimal"; break;
     case Ipopt::Solved_To_Acceptable_Level: r.status = "acceptable"; break;

@@ -143,6 +143,30 @@ TEST(NlpDerivatives, MonopedPiecesMatchFiniteDifferences) {
   EXPECT_TRUE(kinds.count("dynamics_linear"));
 }
 
+// The objective is zero, so the solve may stop at the first iterate that is feasible; the point it
+// returns must really be feasible (checked here independently), and with the early stop disabled
+// Ipopt's own convergence ends the solve.
+TEST(Solve, StopsAtAVerifiedFeasiblePoint) {
+  const auto r = hyq();
+  testing::TanhStep terrain(0.05, 0.3, 0.08, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.2, 0.0, 0.0);
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem p(r, terrain, tl, o);
+  const SolveResult early = solve(p, o);
+  ASSERT_TRUE(early.success) << early.status;
+  EXPECT_EQ(early.termination, "feasible_point");
+  EXPECT_LE(p.max_violation(early.x), o.feasibility_stop_tolerance);
+  PlannerOptions full = o;
+  full.feasibility_stop_tolerance = 0.0;
+  const SolveResult converged = solve(p, full);
+  ASSERT_TRUE(converged.success) << converged.status;
+  EXPECT_EQ(converged.termination, "ipopt");
+  EXPECT_EQ(converged.status, "optimal");
+  EXPECT_LE(early.iterations, converged.iterations);
+}
+
 TEST(NlpDerivatives, IpoptDerivativeCheckerFindsNoErrors) {
   const auto r = hyq();
   testing::TanhStep terrain(0.05, 0.3, 0.08, 0.01);

@@ -78,6 +78,10 @@ struct PlannerOptions {
   int max_iterations = 3000;
   bool verbose = false;
   double tolerance = 1e-4;
+  // The solve stops at the first iterate whose largest constraint or bound violation (rows in
+  // their scaled units: forces / m g, lengths in m) is at most this; 0 = wait for Ipopt's own
+  // convergence test, which also converges the multipliers.
+  double feasibility_stop_tolerance = 1e-6;
 };
 
 class SrbdProblem;

@@ -17,6 +17,10 @@ struct SolveResult {
   double wall_s = 0.0;
   std::vector<double> x;
   double max_violation = 0.0;  // largest bound/constraint violation of x
+  // "feasible_point": stopped at the first iterate verified feasible to
+  // options.feasibility_stop_tolerance (the objective is zero, so that is a solution);
+  // "ipopt": Ipopt's own termination.
+  std::string termination;
 };
 
 // Honours options.max_time on this call (Ipopt's max_cpu_time plus a wall-clock check in the
