@@ -30,8 +30,11 @@ struct MapOptions {
   std::string origin;
   double resolution = 0.02;
   std::vector<double> foot_radii{0.02, 0.05, 0.10};
-  // OctoMap voxels: ray casting cost grows with range / voxel size, and the shin collision checks
-  // need centimetres, not millimetres; 5 cm keeps a whole map of a large scan near a second.
+  // OctoMap voxels: ray casting cost grows with range / voxel size. 2 cm was measured against 5 cm
+  // (2026-11-22, 2 cores under load): 10-15x the OctoMap time on every shipped scan (0.05-0.1 s ->
+  // 0.6-1.3 s for data/scans, 0.2 -> 1.7 s for 1 M points), ~10x the octomap.bt size, and 4.6 s /
+  // 0.4 GB -> 17-26 s / 1.8 GB for ../shared/scans/octomap/scan.xyz; so 5 cm stays the default and
+  // finer voxels are an option (--octomap-resolution) for small scans.
   double octomap_resolution = 0.05;
   double voxel = 0.0;
   int outlier_k = 8;

@@ -94,9 +94,9 @@ void BM_MapCommand1M(benchmark::State& state) {
   std::string cmd = std::string(TERRASTRIDE_BINARY) + " map";
   for (const auto& f : files) cmd += " " + f;
   cmd += " --out " + (dir / "map").string() + " --json > /dev/null 2>&1";
-  if (state.range(0) == 0) cmd += "";
-  const std::string full =
-      state.range(0) ? cmd : std::string(cmd).insert(cmd.find(" --out"), " --outlier-k 0");
+  // 0: no outlier removal; 1: defaults (removal judging 1 cm cells); 2: removal judging every point.
+  const char* extra[] = {" --outlier-k 0", "", " --outlier-voxel 0"};
+  const std::string full = std::string(cmd).insert(cmd.find(" --out"), extra[state.range(0)]);
   for (auto _ : state) {
     const auto t0 = std::chrono::steady_clock::now();
     if (std::system(full.c_str()) != 0) state.SkipWithError("terrastride map failed");
@@ -104,12 +104,15 @@ void BM_MapCommand1M(benchmark::State& state) {
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
   }
   state.SetItemsProcessed(state.iterations() * 1'000'000);
-  state.SetLabel(state.range(0) ? "defaults (statistical outlier removal on)" : "--outlier-k 0");
+  const char* label[] = {"--outlier-k 0", "defaults (outlier removal by 1 cm cell)",
+                         "--outlier-voxel 0 (outlier removal per point)"};
+  state.SetLabel(label[state.range(0)]);
   fs::remove_all(dir);
 }
 BENCHMARK(BM_MapCommand1M)
     ->Arg(0)
     ->Arg(1)
+    ->Arg(2)
     ->UseManualTime()
     ->Unit(benchmark::kMillisecond)
     ->Iterations(2);
