@@ -56,14 +56,17 @@ __extension__ typedef __int128 Wide;
 struct EdtScratch {
   std::vector<int32_t> col0, col1;  // pass 1: column distance to the nearest 0 / non-0 cell
   std::vector<int32_t> last0, last1;
-  std::vector<int64_t> f, d, zn, zd;
+  std::vector<int64_t> f, d, h, zn, zd;
   std::vector<int> v;
 };
 
 // 1-D transform of f (squared distances, kNoSite where there is none) into d; returns false when
-// the line holds no site at all (d is left untouched then).
+// the line holds no site at all (d is left untouched then). Product is the type of the
+// cross-multiplied breakpoint comparison: int64_t when it cannot overflow, Wide otherwise.
+template <class Product>
 bool edt_1d_exact(const int64_t* f, int n, EdtScratch& s, int64_t* d) {
   int* v = s.v.data();
+  int64_t* h = s.h.data();    // f[v[k]] + v[k]^2 of the parabolas on the envelope
   int64_t* zn = s.zn.data();  // breakpoint k between parabola k-1 and k is zn[k] / zd[k], zd > 0
   int64_t* zd = s.zd.data();
   int k = -1;
@@ -73,15 +76,15 @@ bool edt_1d_exact(const int64_t* f, int n, EdtScratch& s, int64_t* d) {
     if (k < 0) {
       k = 0;
       v[0] = q;
+      h[0] = fq;
       continue;
     }
     int64_t sn, sd;
     for (;;) {
-      const int p = v[k];
-      sn = fq - (f[p] + int64_t(p) * p);
-      sd = 2 * int64_t(q - p);
+      sn = fq - h[k];
+      sd = 2 * int64_t(q - v[k]);
       // Pop parabola k while the new one overtakes it no later than it took over (s <= z[k]).
-      if (k > 0 && Wide(sn) * zd[k] <= Wide(zn[k]) * sd) {
+      if (k > 0 && Product(sn) * zd[k] <= Product(zn[k]) * sd) {
         --k;
       } else {
         break;
@@ -89,6 +92,7 @@ bool edt_1d_exact(const int64_t* f, int n, EdtScratch& s, int64_t* d) {
     }
     ++k;
     v[k] = q;
+    h[k] = fq;
     zn[k] = sn;
     zd[k] = sd;
   }
@@ -148,6 +152,10 @@ void binary_distances(const GridGeometry& g, const uint8_t* mask, EdtScratch& s,
   s.d.resize(ny);
   s.v.resize(ny);
   s.zn.resize(ny + 1);
+  s.h.resize(ny + 1);
+  // Breakpoint numerators stay below nx^2 + ny^2 (plus q^2 terms), denominators below 2 ny.
+  const double worst = (4.0 * nx * nx + 4.0 * ny * ny) * (2.0 * ny + 2.0);
+  const bool narrow = worst < 4e18;
   s.zd.resize(ny + 1);
   for (int pass = 0; pass < 2; ++pass) {
     // Pass 0: distances to mask == 0 cells, kept for mask != 0 cells; pass 1 the other way round.
@@ -164,7 +172,8 @@ void binary_distances(const GridGeometry& g, const uint8_t* mask, EdtScratch& s,
         any |= (m[j] != 0) == (keep != 0);
       }
       if (!any) continue;
-      const bool found = edt_1d_exact(f, ny, s, s.d.data());
+      const bool found = narrow ? edt_1d_exact<int64_t>(f, ny, s, s.d.data())
+                                : edt_1d_exact<Wide>(f, ny, s, s.d.data());
       for (int j = 0; j < ny; ++j)
         if ((m[j] != 0) == (keep != 0)) o[j] = found ? static_cast<double>(s.d[j]) : inf;
     }
