@@ -1,13 +1,12 @@
 // `terrastride check`: exit codes, JSON output, series file and errors naming the bad input.
 #include <gtest/gtest.h>
 
-#include <array>
-#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "support/run_command.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "trajectories.hpp"
 
@@ -16,11 +15,7 @@ using namespace terrastride;
 
 namespace {
 
-struct CliResult {
-  int code = -1;
-  std::string out;  // stdout
-  std::string err;  // stderr
-};
+using test_support::CommandResult;
 
 std::string slurp(const std::string& path) {
   std::ifstream in(path);
@@ -39,20 +34,7 @@ class CheckCli : public ::testing::Test {
 
   std::string path(const std::string& name) const { return (dir_ / name).string(); }
 
-  CliResult run(const std::string& args) const {
-    CliResult r;
-    const std::string err = path("stderr.txt");
-    const std::string cmd = std::string(TERRASTRIDE_BINARY) + " " + args + " 2>" + err;
-    FILE* pipe = popen(cmd.c_str(), "r");
-    if (!pipe) return r;
-    std::array<char, 4096> buf;
-    size_t n;
-    while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) r.out.append(buf.data(), n);
-    const int status = pclose(pipe);
-    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    r.err = slurp(err);
-    return r;
-  }
+  CommandResult run(const std::string& args) const { return test_support::run_terrastride(args); }
 
   std::string write_plan(const std::string& name, const planner::Trajectory& traj) const {
     const std::string p = path(name);
@@ -68,7 +50,8 @@ class CheckCli : public ::testing::Test {
 TEST_F(CheckCli, StandingPlanPassesOnFlat) {
   const auto model = collision::test::hyq();
   const std::string plan = write_plan("stand.json", collision::test::standing(model, 0.5, 0.01));
-  const CliResult r = run("check " + plan + " --terrain flat --json --series " + path("s.json"));
+  const CommandResult r =
+      run("check " + plan + " --terrain flat --json --series " + path("s.json"));
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   const auto j = nlohmann::json::parse(r.out);
   EXPECT_TRUE(j.at("passed").get<bool>());
@@ -86,7 +69,7 @@ TEST_F(CheckCli, StandingPlanPassesOnFlat) {
   EXPECT_EQ(s["legs"][2]["shin_distance_m"].size(), 51u);
 
   // Human summary by default.
-  const CliResult h = run("check " + plan + " --terrain flat");
+  const CommandResult h = run("check " + plan + " --terrain flat");
   EXPECT_EQ(h.code, 0) << h.err;
   EXPECT_NE(h.out.find("PASS"), std::string::npos) << h.out;
 }
@@ -99,7 +82,7 @@ TEST_F(CheckCli, FailingChecksExitWith3AndSayWhy) {
     s.feet[0].position = Eigen::Vector3d(0.55, 0.29, 0.0);  // LF: on the pallet's edge
   }
   const std::string plan = write_plan("push.json", traj);
-  const CliResult r = run("check " + plan + " --terrain pallet_10 --json");
+  const CommandResult r = run("check " + plan + " --terrain pallet_10 --json");
   EXPECT_EQ(r.code, 3) << r.err;
   const auto j = nlohmann::json::parse(r.out);
   EXPECT_FALSE(j.at("passed").get<bool>());
@@ -119,7 +102,7 @@ TEST_F(CheckCli, BadInputIsNamed) {
   auto j = nlohmann::json::parse(slurp(good));
   j["samples"][3]["feet"][2]["force"][1] = "nan";
   std::ofstream(path("nan.json")) << j.dump();
-  CliResult r = run("check " + path("nan.json") + " --terrain flat");
+  CommandResult r = run("check " + path("nan.json") + " --terrain flat");
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.err.find("nan.json"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("samples[3]"), std::string::npos) << r.err;

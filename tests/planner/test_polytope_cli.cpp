@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "support/run_command.hpp"
 #include "terrastride/planner/polytope_model.hpp"
 #include "terrastride/robot/robot_model.hpp"
 
@@ -21,22 +22,9 @@ struct CliResult {
 };
 
 CliResult run(const std::string& args) {
-  CliResult r;
-  const std::string err = std::filesystem::temp_directory_path() /
-                          ("terrastride_polytope_cli_err_" + std::to_string(::getpid()));
-  const std::string cmd = std::string(TERRASTRIDE_BINARY) + " " + args + " 2>" + err;
-  FILE* pipe = popen(cmd.c_str(), "r");
-  if (!pipe) return r;
-  std::array<char, 4096> buf;
-  size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) r.out.append(buf.data(), n);
-  const int status = pclose(pipe);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream e(err);
-  r.all =
-      r.out + std::string((std::istreambuf_iterator<char>(e)), std::istreambuf_iterator<char>());
-  std::filesystem::remove(err);
-  return r;
+  const terrastride::test_support::CommandResult r =
+      terrastride::test_support::run_terrastride(args);
+  return {r.code, r.out, r.all()};
 }
 
 std::string temp_path(const std::string& name) {

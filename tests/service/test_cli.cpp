@@ -1,29 +1,23 @@
 // The command line: help, unknown commands, bad flags, robot subcommands.
 #include <gtest/gtest.h>
 
-#include <array>
-#include <cstdio>
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "support/run_command.hpp"
+
 namespace {
 
+// stdout and stderr together, as a user sees them.
 struct CliResult {
   int code = -1;
-  std::string out;  // stdout and stderr together
+  std::string out;
 };
 
 CliResult run(const std::string& args) {
-  CliResult r;
-  const std::string cmd = std::string(TERRASTRIDE_BINARY) + " " + args + " 2>&1";
-  FILE* pipe = popen(cmd.c_str(), "r");
-  if (!pipe) return r;
-  std::array<char, 4096> buf;
-  size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) r.out.append(buf.data(), n);
-  const int status = pclose(pipe);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
+  const terrastride::test_support::CommandResult r =
+      terrastride::test_support::run_terrastride(args);
+  return {r.code, r.all()};
 }
 
 }  // namespace

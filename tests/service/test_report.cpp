@@ -13,6 +13,7 @@
 #include <sstream>
 #include <string>
 
+#include "support/run_command.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/scenes.hpp"
@@ -24,11 +25,8 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 using terrastride::planner::Trajectory;
 
-struct RunResult {
-  int code = -1;
-  std::string out;
-  std::string err;
-};
+using RunResult = terrastride::test_support::CommandResult;
+using terrastride::test_support::shell_quote;
 
 std::string slurp(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);
@@ -37,22 +35,8 @@ std::string slurp(const fs::path& p) {
   return ss.str();
 }
 
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += (c == '\'') ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-RunResult run(const std::string& args, const fs::path& dir) {
-  const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
-  const std::string cmd = std::string(TERRASTRIDE_BINARY) + " " + args + " >" + quote(out.string()) +
-                          " 2>" + quote(err.string());
-  const int status = std::system(cmd.c_str());
-  RunResult r;
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  r.out = slurp(out);
-  r.err = slurp(err);
-  return r;
+RunResult run(const std::string& args) {
+  return terrastride::test_support::run_terrastride(args);
 }
 
 class ReportTest : public ::testing::Test {
@@ -97,7 +81,7 @@ Trajectory make_crawl(const CrawlSpec& spec) {
   traj.solver.wall_s = 0.5;
   traj.solver.n_variables = 1000;
   traj.solver.n_constraints = 900;
-  const int order[4] = {2, 0, 3, 1};  // LH, LF, RH, RF
+  const int order[4] = {2, 0, 3, 1};         // LH, LF, RH, RF
   const double phase = spec.duration / 5.0;  // four swings in the middle of five slots
   const int n = static_cast<int>(std::round(spec.duration / traj.sample_dt)) + 1;
   const double z = spec.ground + model.nominal_base_height;
@@ -113,8 +97,8 @@ Trajectory make_crawl(const CrawlSpec& spec) {
       return 0;
     }();
     const double t_lift = phase * (0.5 + slot), t_land = t_lift + phase;
-    const double x0 = nominal.x(), x1 = nominal.x() + spec.advance +
-                                        (f == spec.shift_foot ? spec.foot_shift : 0.0);
+    const double x0 = nominal.x(),
+                 x1 = nominal.x() + spec.advance + (f == spec.shift_foot ? spec.foot_shift : 0.0);
     Eigen::Vector3d p(x0, nominal.y(), spec.ground);
     *contact = true;
     if (t >= t_land) {
@@ -160,7 +144,9 @@ Trajectory make_crawl(const CrawlSpec& spec) {
   return traj;
 }
 
-json read_json(const fs::path& p) { return json::parse(slurp(p)); }
+json read_json(const fs::path& p) {
+  return json::parse(slurp(p));
+}
 
 bool has_problem(const json& report, const std::string& id) {
   for (const json& p : report["problems"])
@@ -172,9 +158,8 @@ TEST_F(ReportTest, CleanPlanOnFlatGroundShowsNoProblem) {
   const fs::path plan = dir_ / "clean.json";
   terrastride::planner::write_plan_file(plan.string(), make_crawl({}));
   const fs::path html = dir_ / "report.html";
-  const RunResult r = run("report --terrain flat --plan " + quote(plan.string()) + " --out " +
-                              quote(html.string()) + " --json",
-                          dir_);
+  const RunResult r = run("report --terrain flat --plan " + shell_quote(plan.string()) + " --out " +
+                          shell_quote(html.string()) + " --json");
   ASSERT_EQ(r.code, 0) << r.err;
   ASSERT_TRUE(fs::exists(html));
   const json rep = read_json(dir_ / "report.json");
@@ -216,9 +201,8 @@ TEST_F(ReportTest, FootholdOnThePalletEdgeIsAProblem) {
   const fs::path plan = dir_ / "edge.json";
   terrastride::planner::write_plan_file(plan.string(), make_crawl(spec));
   const fs::path html = dir_ / "edge.html";
-  const RunResult r = run("report --terrain pallet_10 --plan " + quote(plan.string()) +
-                              " --out " + quote(html.string()),
-                          dir_);
+  const RunResult r = run("report --terrain pallet_10 --plan " + shell_quote(plan.string()) +
+                          " --out " + shell_quote(html.string()));
   ASSERT_EQ(r.code, 0) << r.err;
   const json rep = read_json(dir_ / "edge.json");
   EXPECT_FALSE(rep["ok"].get<bool>());
@@ -236,9 +220,8 @@ TEST_F(ReportTest, FootholdOnThePalletEdgeIsAProblem) {
   // The same plan, 10 cm shorter, stays clear of the edge: no problem.
   spec.advance = 0.14;
   terrastride::planner::write_plan_file(plan.string(), make_crawl(spec));
-  const RunResult ok = run("report --terrain pallet_10 --plan " + quote(plan.string()) +
-                               " --out " + quote(html.string()),
-                           dir_);
+  const RunResult ok = run("report --terrain pallet_10 --plan " + shell_quote(plan.string()) +
+                           " --out " + shell_quote(html.string()));
   ASSERT_EQ(ok.code, 0) << ok.err;
   EXPECT_TRUE(read_json(dir_ / "edge.json")["problems"].empty());
 }
@@ -251,9 +234,8 @@ TEST_F(ReportTest, TorqueViolationIsAProblem) {
   const fs::path plan = dir_ / "heavy.json";
   terrastride::planner::write_plan_file(plan.string(), make_crawl(spec));
   const fs::path html = dir_ / "heavy.html";
-  const RunResult r = run("report --terrain flat --plan " + quote(plan.string()) + " --out " +
-                              quote(html.string()),
-                          dir_);
+  const RunResult r = run("report --terrain flat --plan " + shell_quote(plan.string()) + " --out " +
+                          shell_quote(html.string()));
   ASSERT_EQ(r.code, 0) << r.err;
   const json rep = read_json(dir_ / "heavy.json");
   EXPECT_TRUE(has_problem(rep, "torque_limit")) << rep["problems"].dump(1);
@@ -265,13 +247,12 @@ TEST_F(ReportTest, TorqueViolationIsAProblem) {
 TEST_F(ReportTest, PlanFileChecksAndSolverStatusAreFlagged) {
   Trajectory traj = make_crawl({});
   traj.solver.status = "time_limit";
-  traj.checks["penetration_max_m"] = 0.02;   // 2 cm > 5 mm
-  traj.checks["slip_max_m"] = 0.0001;        // fine
+  traj.checks["penetration_max_m"] = 0.02;  // 2 cm > 5 mm
+  traj.checks["slip_max_m"] = 0.0001;       // fine
   const fs::path plan = dir_ / "p.json";
   terrastride::planner::write_plan_file(plan.string(), traj);
-  const RunResult r = run("report --terrain flat --plan " + quote(plan.string()) + " --out " +
-                              quote((dir_ / "r.html").string()),
-                          dir_);
+  const RunResult r = run("report --terrain flat --plan " + shell_quote(plan.string()) + " --out " +
+                          shell_quote((dir_ / "r.html").string()));
   ASSERT_EQ(r.code, 0) << r.err;
   const json rep = read_json(dir_ / "r.json");
   EXPECT_TRUE(has_problem(rep, "solver"));
@@ -295,23 +276,22 @@ void write_map_dir(const fs::path& dir, const std::string& scene_name) {
 TEST_F(ReportTest, MapFolderAndBatchRanking) {
   write_map_dir(dir_ / "scans" / "flat_map", "flat");
   write_map_dir(dir_ / "scans" / "stairs_map", "stairs");
-  const RunResult one = run("report --terrain " + quote((dir_ / "scans" / "stairs_map").string()) +
-                                " --out " + quote((dir_ / "stairs.html").string()) + " --json",
-                            dir_);
+  const RunResult one =
+      run("report --terrain " + shell_quote((dir_ / "scans" / "stairs_map").string()) + " --out " +
+          shell_quote((dir_ / "stairs.html").string()) + " --json");
   ASSERT_EQ(one.code, 0) << one.err;
   const json rep = read_json(dir_ / "stairs.json");
   EXPECT_EQ(rep["terrain"]["kind"], "map");
   const double stairs_safe = rep["terrain"]["safe_fraction"].get<double>();
   EXPECT_GT(stairs_safe, 0.3);
-  EXPECT_LT(stairs_safe, 1.0);  // the riser edges are unsafe
+  EXPECT_LT(stairs_safe, 1.0);                     // the riser edges are unsafe
   ASSERT_EQ(rep["terrain"]["layers"].size(), 2u);  // the map's radii 0.02 and 0.05
   EXPECT_GE(rep["terrain"]["layers"][0]["safe_fraction"].get<double>(),
             rep["terrain"]["layers"][1]["safe_fraction"].get<double>());
 
   const fs::path out = dir_ / "batch";
-  const RunResult b = run("report --batch " + quote((dir_ / "scans").string()) + " --out " +
-                              quote(out.string()),
-                          dir_);
+  const RunResult b = run("report --batch " + shell_quote((dir_ / "scans").string()) + " --out " +
+                          shell_quote(out.string()));
   ASSERT_EQ(b.code, 0) << b.err;
   EXPECT_TRUE(fs::exists(out / "index.html"));
   EXPECT_TRUE(fs::exists(out / "flat_map.html"));
@@ -326,31 +306,29 @@ TEST_F(ReportTest, MapFolderAndBatchRanking) {
 
 TEST_F(ReportTest, BadInputsNameTheProblemAndWriteNothing) {
   const fs::path html = dir_ / "r.html";
-  RunResult r = run("report --terrain " + quote((dir_ / "nope").string()) + " --out " +
-                        quote(html.string()),
-                    dir_);
+  RunResult r = run("report --terrain " + shell_quote((dir_ / "nope").string()) + " --out " +
+                    shell_quote(html.string()));
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("nope"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(html));
 
-  r = run("report --terrain flat --out " + quote((dir_ / "r.txt").string()), dir_);
+  r = run("report --terrain flat --out " + shell_quote((dir_ / "r.txt").string()));
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find(".html"), std::string::npos) << r.err;
 
   std::ofstream(dir_ / "broken.json") << "{\"robot\": \"hyq\", \"samples\": 3}";
-  r = run("report --terrain flat --plan " + quote((dir_ / "broken.json").string()) + " --out " +
-              quote(html.string()),
-          dir_);
+  r = run("report --terrain flat --plan " + shell_quote((dir_ / "broken.json").string()) +
+          " --out " + shell_quote(html.string()));
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("broken.json"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(html));
   EXPECT_FALSE(fs::exists(dir_ / "r.json"));
 
-  r = run("report --out " + quote(html.string()), dir_);
+  r = run("report --out " + shell_quote(html.string()));
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("--terrain"), std::string::npos) << r.err;
 
-  r = run("report --terrain flat --foot-radius 0.02,-1 --out " + quote(html.string()), dir_);
+  r = run("report --terrain flat --foot-radius 0.02,-1 --out " + shell_quote(html.string()));
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("--foot-radius"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(html));
@@ -374,8 +352,9 @@ json browser_check(const fs::path& html, const fs::path& dir, int* code,
   const std::string script =
       fs::path(TERRASTRIDE_SOURCE_DIR) / "tests" / "service" / "report_check.js";
   const fs::path out = dir / "check.json";
-  const std::string cmd = "node " + quote(script) + " " + quote(html.string()) + " " + extra +
-                          " >" + quote(out.string()) + " 2>" + quote((dir / "check.err").string());
+  const std::string cmd = "node " + shell_quote(script) + " " + shell_quote(html.string()) + " " +
+                          extra + " >" + shell_quote(out.string()) + " 2>" +
+                          shell_quote((dir / "check.err").string());
   const int status = std::system(cmd.c_str());
   *code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   try {
@@ -390,7 +369,8 @@ class ReportBrowserTest : public ReportTest {
   void SetUp() override {
     ReportTest::SetUp();
     // Required, not optional: scripts/setup.sh installs both (Debian's chromium and nodejs).
-    ASSERT_FALSE(find_program("chromium").empty()) << "chromium is not installed (apt-get install chromium)";
+    ASSERT_FALSE(find_program("chromium").empty())
+        << "chromium is not installed (apt-get install chromium)";
     ASSERT_FALSE(find_program("node").empty()) << "node is not installed (apt-get install nodejs)";
   }
 };
@@ -404,14 +384,13 @@ TEST_F(ReportBrowserTest, ReportsOpenOfflineWithEveryChartDrawnAndProblemsShown)
   bad.scale_t1 = 1.5;
   terrastride::planner::write_plan_file((dir_ / "bad_plan.json").string(), make_crawl(bad));
   terrastride::planner::write_plan_file((dir_ / "clean_plan.json").string(), make_crawl({}));
-  ASSERT_EQ(run("report --terrain pallet_10 --plan " + quote((dir_ / "bad_plan.json").string()) +
-                    " --out " + quote((dir_ / "bad.html").string()),
-                dir_)
-                .code,
-            0);
-  ASSERT_EQ(run("report --terrain flat --plan " + quote((dir_ / "clean_plan.json").string()) +
-                    " --out " + quote((dir_ / "clean.html").string()),
-                dir_)
+  ASSERT_EQ(
+      run("report --terrain pallet_10 --plan " + shell_quote((dir_ / "bad_plan.json").string()) +
+          " --out " + shell_quote((dir_ / "bad.html").string()))
+          .code,
+      0);
+  ASSERT_EQ(run("report --terrain flat --plan " + shell_quote((dir_ / "clean_plan.json").string()) +
+                " --out " + shell_quote((dir_ / "clean.html").string()))
                 .code,
             0);
 
@@ -441,7 +420,8 @@ TEST_F(ReportBrowserTest, ReportsOpenOfflineWithEveryChartDrawnAndProblemsShown)
   std::string page = slurp(dir_ / "clean.html");
   const size_t at = page.find("</body>");
   ASSERT_NE(at, std::string::npos);
-  page.insert(at, "<img src=\"http://127.0.0.1:9/pixel.png\"><script>console.error('boom')</script>");
+  page.insert(at,
+              "<img src=\"http://127.0.0.1:9/pixel.png\"><script>console.error('boom')</script>");
   std::ofstream(dir_ / "tampered.html") << page;
   const json tampered = browser_check(dir_ / "tampered.html", dir_, &code);
   EXPECT_EQ(code, 1) << tampered.dump(1);
@@ -463,9 +443,8 @@ namespace {
 
 TEST_F(ReportTest, DemoNamesAMissingScanAndWritesNothing) {
   const fs::path out = dir_ / "demo";
-  const RunResult r = run("demo --scan " + quote((dir_ / "missing.pcd").string()) + " --out " +
-                              quote(out.string()),
-                          dir_);
+  const RunResult r = run("demo --scan " + shell_quote((dir_ / "missing.pcd").string()) +
+                          " --out " + shell_quote(out.string()));
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("stage 'scan'"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("missing.pcd"), std::string::npos) << r.err;
@@ -474,16 +453,16 @@ TEST_F(ReportTest, DemoNamesAMissingScanAndWritesNothing) {
 
 TEST_F(ReportTest, DemoRunsMapPlanChecksAndReport) {
   // A simulated pallet scan (three sensor poses), as the shipped one is made.
-  const RunResult sim = run("scan-sim --scene pallet_10 --out " + quote((dir_ / "p.pcd").string()), dir_);
+  const RunResult sim =
+      run("scan-sim --scene pallet_10 --out " + shell_quote((dir_ / "p.pcd").string()));
   ASSERT_EQ(sim.code, 0) << sim.err;
   std::string scans;
   for (const char* name : {"p.pcd", "p.1.pcd", "p.2.pcd", "p.3.pcd"})
-    if (fs::exists(dir_ / name)) scans += " " + quote((dir_ / name).string());
+    if (fs::exists(dir_ / name)) scans += " " + shell_quote((dir_ / name).string());
   const fs::path out = dir_ / "demo";
   // A generous solver time limit: the test machine may be busy with other builds.
-  const RunResult r = run("demo --scan" + scans + " --out " + quote(out.string()) +
-                              " --max-time 60 --json",
-                          dir_);
+  const RunResult r =
+      run("demo --scan" + scans + " --out " + shell_quote(out.string()) + " --max-time 60 --json");
   // 0: every stage ran; 3: the solver did not reach optimality (the report still shows it).
   ASSERT_TRUE(r.code == 0 || r.code == 3) << r.code << "\n" << r.err;
   const json summary = json::parse(r.out.substr(0, r.out.find('\n')));
