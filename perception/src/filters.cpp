@@ -104,6 +104,7 @@ PointCloud filter_cloud(const PointCloud& cloud, const CloudFilterOptions& optio
   }
   s.after_voxel = current->size();
 
+  bool sparse = false;
   if (options.outlier_neighbours > 0 && current->size() > 1 && options.outlier_voxel > 0.0f) {
     // Statistical outlier removal by voxel: the points are grouped into the leaves of a PCL octree
     // of outlier_voxel cells (memory grows with the occupied cells only), the removal runs on one
@@ -137,8 +138,11 @@ PointCloud filter_cloud(const PointCloud& cloud, const CloudFilterOptions& optio
       centroids->push_back(pcl::PointXYZ(c.x(), c.y(), c.z()));
       members.push_back(&idx);
     }
-    s.outlier_cells = centroids->size();
-    if (centroids->size() > 1) {
+    // Cells holding under two points on average (a sparse cloud): judging cells would save little
+    // and blur the neighbour distances, so the points are judged themselves below.
+    sparse = centroids->size() * 2 > current->size();
+    if (!sparse) s.outlier_cells = centroids->size();
+    if (!sparse && centroids->size() > 1) {
       pcl::StatisticalOutlierRemoval<pcl::PointXYZ> sor;
       sor.setMeanK(options.outlier_neighbours);
       sor.setStddevMulThresh(options.outlier_stddev);
@@ -155,7 +159,9 @@ PointCloud filter_cloud(const PointCloud& cloud, const CloudFilterOptions& optio
       next->is_dense = true;
       current = next;
     }
-  } else if (options.outlier_neighbours > 0 && current->size() > 1) {
+  }
+  if (options.outlier_neighbours > 0 && current->size() > 1 &&
+      (options.outlier_voxel <= 0.0f || sparse)) {
     pcl::StatisticalOutlierRemoval<pcl::PointXYZ> sor;
     sor.setMeanK(options.outlier_neighbours);
     sor.setStddevMulThresh(options.outlier_stddev);

@@ -123,6 +123,24 @@ void BM_FilterVoxelAndOutliers(benchmark::State& state) {
 }
 BENCHMARK(BM_FilterVoxelAndOutliers)->Arg(0)->Arg(20)->Unit(benchmark::kMillisecond);
 
+// Outlier removal as `terrastride map` runs it (no downsampling, k = 8): per point (arg 0) or
+// judging 1 cm cells by their centroids (arg 10, in mm; the map default).
+void BM_OutlierRemoval(benchmark::State& state) {
+  const tp::PointCloud cloud = tp::read_cloud(scan("octomap/scan.xyz"));
+  tp::CloudFilterOptions options;
+  options.outlier_neighbours = 8;
+  options.outlier_voxel = static_cast<float>(state.range(0)) * 1e-3f;
+  tp::FilterStats stats;
+  for (auto _ : state) {
+    const tp::PointCloud out = tp::filter_cloud(cloud, options, &stats);
+    benchmark::DoNotOptimize(out.points.data());
+  }
+  state.SetItemsProcessed(static_cast<int64_t>(state.iterations() * cloud.points.size()));
+  state.counters["kept"] = static_cast<double>(stats.after_outliers);
+  state.counters["cells"] = static_cast<double>(stats.outlier_cells);
+}
+BENCHMARK(BM_OutlierRemoval)->Arg(0)->Arg(10)->Unit(benchmark::kMillisecond);
+
 }  // namespace
 
 BENCHMARK_MAIN();

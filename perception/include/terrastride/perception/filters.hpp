@@ -17,13 +17,14 @@ struct CloudFilterOptions {
   double outlier_stddev = 2.0;  // StatisticalOutlierRemoval stddev multiplier
   // > 0: the outlier removal judges cells of this size (m) by their centroids and keeps or drops
   // each cell's points together (much faster on dense clouds, and the points themselves stay);
-  // 0: it judges every point.
+  // when the cells would hold under two points on average it judges the points instead. 0: it
+  // always judges every point.
   float outlier_voxel = 0.0f;
 };
 
 struct FilterStats {
   size_t points_in = 0, non_finite = 0, after_crop = 0, after_voxel = 0, after_outliers = 0;
-  size_t outlier_cells = 0;  // cells the outlier removal judged (outlier_voxel > 0)
+  size_t outlier_cells = 0;  // cells the outlier removal judged (0: it judged points)
   double seconds = 0;
 };
 
