@@ -2,41 +2,22 @@
 #include <gtest/gtest.h>
 
 #include <unistd.h>
-#include <array>
-#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 
+#include "support/run_command.hpp"
+
 namespace fs = std::filesystem;
 
 namespace {
 
-struct CliResult {
-  int code = -1;
-  std::string out;  // stdout
-  std::string err;  // stderr
-};
+using CliResult = terrastride::test_support::CommandResult;
 
-CliResult run(const std::string& args, const fs::path& dir) {
-  CliResult r;
-  const fs::path err = dir / "stderr.txt";
-  const std::string cmd = std::string(TERRASTRIDE_BINARY) + " " + args + " 2>" + err.string();
-  FILE* pipe = popen(cmd.c_str(), "r");
-  if (!pipe) return r;
-  std::array<char, 4096> buf;
-  size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) r.out.append(buf.data(), n);
-  const int status = pclose(pipe);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream in(err);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  r.err = ss.str();
-  fs::remove(err);
-  return r;
+CliResult run(const std::string& args) {
+  return terrastride::test_support::run_terrastride(args);
 }
 
 class TerrainCli : public ::testing::Test {
@@ -81,9 +62,8 @@ class TerrainCli : public ::testing::Test {
 TEST_F(TerrainCli, MapThenQueryAPlaneWithAStep) {
   const std::string cloud = plane_xyz(true);
   const std::string out = (dir_ / "map").string();
-  CliResult r =
-      run("map " + cloud + " --origin 0.5,0.5,1.5 --foot-radius 0.02,0.05 --out " + out + " --json",
-          dir_);
+  CliResult r = run("map " + cloud + " --origin 0.5,0.5,1.5 --foot-radius 0.02,0.05 --out " + out +
+                    " --json");
   ASSERT_EQ(r.code, 0) << r.err;
   const auto summary = nlohmann::json::parse(r.out);
   EXPECT_EQ(summary["points_in"].get<size_t>(), 40000u);
@@ -93,7 +73,7 @@ TEST_F(TerrainCli, MapThenQueryAPlaneWithAStep) {
                         "layers/min.npy", "layers/max.npy", "layers/count.npy",
                         "layers/observed.npy", "layers/safe_r20.npy", "layers/margin_r50.npy"})
     EXPECT_TRUE(fs::exists(fs::path(out) / f)) << f;
-  r = run("query " + out + " --at 0.25,0.5 --at 0.75,0.5 --at 0.5,0.5", dir_);
+  r = run("query " + out + " --at 0.25,0.5 --at 0.75,0.5 --at 0.5,0.5");
   ASSERT_EQ(r.code, 0) << r.err;
   std::istringstream lines(r.out);
   std::string line;
@@ -110,7 +90,7 @@ TEST_F(TerrainCli, MapThenQueryAPlaneWithAStep) {
   EXPECT_LT(q[2]["margin"].get<double>(), 0.0);
   EXPECT_GT(q[2]["gradient"][0].get<double>(), 0.5);
   // Human summary names the figures.
-  r = run("map " + cloud + " --out " + out, dir_);
+  r = run("map " + cloud + " --out " + out);
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("kept after cleaning"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("safe for foot radius"), std::string::npos) << r.out;
@@ -118,16 +98,16 @@ TEST_F(TerrainCli, MapThenQueryAPlaneWithAStep) {
 
 TEST_F(TerrainCli, ScanSimThenMapThePallet) {
   const std::string pcd = (dir_ / "pallet.pcd").string();
-  CliResult r = run("scan-sim --scene pallet_15 --poses 2 --seed 3 --out " + pcd + " --json", dir_);
+  CliResult r = run("scan-sim --scene pallet_15 --poses 2 --seed 3 --out " + pcd + " --json");
   ASSERT_EQ(r.code, 0) << r.err;
   const auto s = nlohmann::json::parse(r.out);
   ASSERT_EQ(s["files"].size(), 2u);
   EXPECT_TRUE(fs::exists(dir_ / "pallet.pcd"));
   EXPECT_TRUE(fs::exists(dir_ / "pallet.1.pcd"));
   const std::string out = (dir_ / "map").string();
-  r = run("map " + pcd + " " + (dir_ / "pallet.1.pcd").string() + " --out " + out, dir_);
+  r = run("map " + pcd + " " + (dir_ / "pallet.1.pcd").string() + " --out " + out);
   ASSERT_EQ(r.code, 0) << r.err;
-  r = run("query " + out + " --at 1.1,0.0 --at 0.3,0.0", dir_);
+  r = run("query " + out + " --at 1.1,0.0 --at 0.3,0.0");
   ASSERT_EQ(r.code, 0) << r.err;
   std::istringstream lines(r.out);
   std::string a, b;
@@ -135,11 +115,11 @@ TEST_F(TerrainCli, ScanSimThenMapThePallet) {
   std::getline(lines, b);
   EXPECT_NEAR(nlohmann::json::parse(a)["height"].get<double>(), 0.15, 0.01);
   EXPECT_NEAR(nlohmann::json::parse(b)["height"].get<double>(), 0.0, 0.01);
-  r = run("scan-sim --scene palette --out " + pcd, dir_);
+  r = run("scan-sim --scene palette --out " + pcd);
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("palette"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("eur_pallet"), std::string::npos) << r.err;
-  r = run("scan-sim --scene flat --out " + (dir_ / "x.txt").string(), dir_);
+  r = run("scan-sim --scene flat --out " + (dir_ / "x.txt").string());
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find(".pcd"), std::string::npos) << r.err;
 }
@@ -171,7 +151,7 @@ TEST_F(TerrainCli, BadInputFailsCleanlyAndWritesNothing) {
       {"map " + good + " --out " + (dir_ / "no" / "such" / "dir").string(), "--out"},
   };
   for (const auto& c : cases) {
-    const CliResult r = run(c.args, dir_);
+    const CliResult r = run(c.args);
     EXPECT_NE(r.code, 0) << c.args;
     EXPECT_NE(r.err.find(c.expect), std::string::npos) << c.args << "\n" << r.err;
     EXPECT_TRUE(r.out.empty()) << c.args << "\n" << r.out;
@@ -181,25 +161,25 @@ TEST_F(TerrainCli, BadInputFailsCleanlyAndWritesNothing) {
     EXPECT_TRUE(extra.empty()) << c.args << ": left " << extra.front();
   }
   // A failed map must not clobber an existing good one.
-  ASSERT_EQ(run("map " + good + " --out " + out, dir_).code, 0);
+  ASSERT_EQ(run("map " + good + " --out " + out).code, 0);
   const auto before = fs::last_write_time(fs::path(out) / "terrain.json");
-  EXPECT_NE(run("map " + nan + " --out " + out, dir_).code, 0);
+  EXPECT_NE(run("map " + nan + " --out " + out).code, 0);
   EXPECT_EQ(fs::last_write_time(fs::path(out) / "terrain.json"), before);
   // Query: outside the map (names the point, prints nothing), bad point, not a terrain dir.
-  CliResult r = run("query " + out + " --at 0.5,0.5 --at 7,8", dir_);
+  CliResult r = run("query " + out + " --at 0.5,0.5 --at 7,8");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("7,8"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("outside the map"), std::string::npos) << r.err;
   EXPECT_TRUE(r.out.empty()) << r.out;
-  r = run("query " + out + " --at 0.5", dir_);
+  r = run("query " + out + " --at 0.5");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("--at"), std::string::npos) << r.err;
-  r = run("query " + dir_.string() + " --at 0.5,0.5", dir_);
+  r = run("query " + dir_.string() + " --at 0.5,0.5");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("terrain.json"), std::string::npos) << r.err;
   // A mislabeled layer: elevation.npy replaced by a text file.
   std::ofstream(fs::path(out) / "layers" / "elevation.npy") << "not an npy";
-  r = run("query " + out + " --at 0.5,0.5", dir_);
+  r = run("query " + out + " --at 0.5,0.5");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("elevation.npy"), std::string::npos) << r.err;
 }
