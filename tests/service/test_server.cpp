@@ -175,6 +175,18 @@ TEST_F(ServerTest, CloudUpdatesAreValidated) {
   up = c.call_ok({{"op", "map.update"}, {"origin", {1.0, 0, 0.8}}, {"mode", "add"}},
                  {patch(1.0, 0.05)});
   EXPECT_EQ(up["stats"]["clouds"], 2);
+  // Outlier removal per 1 cm cell (the default cell) keeps a clean patch; a bad cell is refused.
+  up = c.call_ok({{"op", "map.update"}, {"origin", {0, 0, 0.8}}, {"mode", "replace"},
+                  {"outlier_neighbours", 8}},
+                 {patch(0.0, 0.05)});
+  EXPECT_GT(up["stats"]["observed_cells"].get<int>(), 1000);
+  m = c.call({{"op", "map.update"}, {"origin", {0, 0, 0.8}}, {"outlier_neighbours", 8},
+              {"outlier_cell", -1}},
+             {patch(0.0, 0.05)});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("outlier_cell"), std::string::npos) << error_message(m);
+  up = c.call_ok({{"op", "map.update"}, {"origin", {1.0, 0, 0.8}}, {"mode", "add"}},
+                 {patch(1.0, 0.05)});
   r = c.call_ok({{"op", "map.query"}, {"points", {{1.5, 0.0}, {0.5, 0.0}}}});
   EXPECT_NEAR(r["results"][0]["height"].get<double>(), 0.05, 1e-3);
   EXPECT_TRUE(r["results"][0]["observed"].get<bool>());
