@@ -153,11 +153,13 @@ void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& op
         const Vec3<T> d = knee - foot;
         const T len = sqrt(d.squaredNorm());
         const T horiz = sqrt(d[0] * d[0] + d[1] * d[1] + 1e-12);
-        // Vertical gap for one capsule radius of perpendicular distance: r / cos(inclination).
+        // Vertical gap for one capsule radius of perpendicular distance to an edge below the
+        // axis: r / cos(inclination), capped at 2 r (inclination 60 deg): steeper, the lowest
+        // points (just past the excluded foot end) could not clear flat ground by r / cos.
         T gap = T(0.0);
         if (radius >= 0.0) {
           T cosi = horiz / len;
-          if (value_of(cosi) < 0.2) cosi = T(0.2);
+          if (value_of(cosi) < 0.5) cosi = T(0.5);
           gap = radius / cosi;
         }
         const T t0 = exclusion / len;
