@@ -138,7 +138,8 @@ void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& op
                                  : 2.0 * problem.robot().foot_radius + leg.shin_radius + 0.01;
     const double radius = options.shin_clearance >= 0.0 ? -1.0 : leg.shin_radius;
     const double fixed_clearance = options.shin_clearance;
-    std::vector<double> lo(nk, radius >= 0.0 ? 0.0 : fixed_clearance), hi(nk, feasibility::kInf);
+    std::vector<double> lo(2 * nk - 1, radius >= 0.0 ? 0.0 : fixed_clearance),
+        hi(2 * nk - 1, feasibility::kInf);
     for (int k = st.first_seg; k <= st.last_seg + 1; ++k) {
       LocalVars lv;
       const auto p = lv.add3(st.pos_var);
@@ -162,11 +163,19 @@ void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& op
           if (value_of(cosi) < 0.5) cosi = T(0.5);
           gap = radius / cosi;
         }
+        // Rows 0..nk-1: each point above the terrain under it. Rows nk..2nk-2: each point above
+        // the terrain under the NEXT point: the shin rises from foot to knee, so a step edge
+        // between two points is held by the lower one too (measured on pallet_10 without these
+        // rows: the edge slipped between points, capsule 2 cm into it).
         const T t0 = exclusion / len;
+        Vec3<T> prev;
         for (int j = 0; j < nk; ++j) {
           const T t = t0 + (1.0 - t0) * (static_cast<double>(j) / (nk - 1));
           const Vec3<T> q = foot + t * d;
-          g[j] = q[2] - terrain_height(*field, q[0], q[1]) - gap;
+          const T h = terrain_height(*field, q[0], q[1]);
+          g[j] = q[2] - h - gap;
+          if (j > 0) g[nk + j - 1] = prev[2] - h - gap;
+          prev = q;
         }
       }));
     }
