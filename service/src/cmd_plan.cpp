@@ -202,7 +202,8 @@ void add_plan_command(CLI::App& app) {
   cmd->add_option("--goal", o->goal, "goal X,Y,YAW of the base (default 1,0,0)");
   cmd->add_option("--constraints", o->constraints,
                   "constraint sets, comma separated: baseline, foot (foot radius), shin (shin "
-                  "collision), polytope (force polytopes), all (= foot,shin,polytope)")
+                  "collision, the paper's fixed-angle model), shin_ik (shin collision on the leg's "
+                  "IK shin), polytope (force polytopes), all (= foot,shin,polytope)")
       ->capture_default_str();
   cmd->add_option("--sample-dt", o->sample_dt, "sampling period of plan.json in s")
       ->capture_default_str();
