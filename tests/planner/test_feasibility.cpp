@@ -14,6 +14,7 @@
 #include "terrastride/planner/polytope_model.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
+#include "piece_derivatives.hpp"
 #include "test_terrains.hpp"
 
 namespace terrastride::planner {
@@ -44,39 +45,8 @@ class MarginStep : public testing::TanhStep {
 // Central differences of each piece of the given kinds; returns the number of pieces checked.
 int check_pieces(const SrbdProblem& p, const std::set<std::string>& kinds, unsigned seed,
                  double noise_size) {
-  std::mt19937 rng(seed);
-  std::normal_distribution<double> noise(0.0, 1.0);
-  std::vector<double> x = const_cast<SrbdProblem&>(p).initial_guess();
-  for (std::size_t i = 0; i < x.size(); ++i) x[i] += noise_size * noise(rng);
-  int checked = 0;
-  for (const auto& piece : p.pieces()) {
-    if (!kinds.count(piece->kind)) continue;
-    ++checked;
-    const int n = static_cast<int>(piece->vars.size()), m = piece->rows();
-    std::vector<double> xl(n), g(m), J(m * n), g2(m), gp(m), gm(m);
-    for (int i = 0; i < n; ++i) xl[i] = x[piece->vars[i]];
-    piece->eval_jacobian(xl.data(), g.data(), J.data());
-    piece->eval(xl.data(), g2.data());
-    for (int r = 0; r < m; ++r) EXPECT_NEAR(g[r], g2[r], 1e-12) << piece->kind;
-    for (int i = 0; i < n; ++i) {
-      const double h = 1e-6 * std::max(1.0, std::abs(xl[i]));
-      auto xp = xl, xm = xl;
-      xp[i] += h;
-      xm[i] -= h;
-      piece->eval(xp.data(), gp.data());
-      piece->eval(xm.data(), gm.data());
-      for (int r = 0; r < m; ++r) {
-        const double fd = (gp[r] - gm[r]) / (2 * h);
-        if (!(std::abs(J[r * n + i] - fd) <= 1e-5 * std::max(1.0, std::abs(fd)))) {
-          ADD_FAILURE() << piece->kind << " row " << r << " var " << i << " (global "
-                        << piece->vars[i] << "): jacobian " << J[r * n + i] << ", central "
-                        << "difference " << fd;
-          return checked;
-        }
-      }
-    }
-  }
-  return checked;
+  return testing::check_piece_derivatives(
+      p, seed, noise_size, [&](const Piece& piece) { return kinds.count(piece.kind) > 0; });
 }
 
 std::map<std::string, int> count_kinds(const SrbdProblem& p) {

@@ -13,6 +13,7 @@
 #include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/solver.hpp"
 #include "terrastride/robot/robot_model.hpp"
+#include "piece_derivatives.hpp"
 #include "test_terrains.hpp"
 
 namespace terrastride::planner {
@@ -81,33 +82,11 @@ TEST(Gait, BadInputIsNamed) {
 
 // Every piece's Jacobian against central differences of its own values, at a perturbed point.
 void check_all_pieces(const SrbdProblem& p, std::set<std::string>* kinds) {
-  std::mt19937 rng(7);
-  std::normal_distribution<double> noise(0.0, 1.0);
-  std::vector<double> x = const_cast<SrbdProblem&>(p).initial_guess();
-  for (std::size_t i = 0; i < x.size(); ++i) x[i] += 0.01 * noise(rng);
-  for (const auto& piece : p.pieces()) {
-    kinds->insert(piece->kind);
-    const int n = static_cast<int>(piece->vars.size()), m = piece->rows();
-    std::vector<double> xl(n), g(m), J(m * n), gp(m), gm(m);
-    for (int i = 0; i < n; ++i) xl[i] = x[piece->vars[i]];
-    piece->eval_jacobian(xl.data(), g.data(), J.data());
-    std::vector<double> g2(m);
-    piece->eval(xl.data(), g2.data());
-    for (int r = 0; r < m; ++r) ASSERT_NEAR(g[r], g2[r], 1e-12) << piece->kind;
-    for (int i = 0; i < n; ++i) {
-      const double h = 1e-6 * std::max(1.0, std::abs(xl[i]));
-      auto xp = xl, xm = xl;
-      xp[i] += h;
-      xm[i] -= h;
-      piece->eval(xp.data(), gp.data());
-      piece->eval(xm.data(), gm.data());
-      for (int r = 0; r < m; ++r) {
-        const double fd = (gp[r] - gm[r]) / (2 * h);
-        ASSERT_NEAR(J[r * n + i], fd, 1e-5 * std::max(1.0, std::abs(fd)))
-            << piece->kind << " row " << r << " var " << i;
-      }
-    }
-  }
+  const int checked = testing::check_piece_derivatives(p, 7, 0.01, [&](const Piece& piece) {
+    kinds->insert(piece.kind);
+    return true;
+  });
+  EXPECT_EQ(checked, static_cast<int>(p.pieces().size()));
 }
 
 TEST(NlpDerivatives, EveryPieceMatchesFiniteDifferences) {
