@@ -15,18 +15,14 @@
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "piece_derivatives.hpp"
+#include "test_robots.hpp"
 #include "test_terrains.hpp"
 
 namespace terrastride::planner {
 namespace {
 
-robot::RobotModel hyq() { return robot::load_robot(robot::resolve_robot_path("hyq")); }
-
-std::vector<std::string> feet_of(const robot::RobotModel& r) {
-  std::vector<std::string> f;
-  for (const auto& l : r.legs) f.push_back(l.name);
-  return f;
-}
+using testing::feet_of;
+using testing::hyq;
 
 // The tanh step with a safety margin that varies smoothly in x and y (so the foot piece's
 // gradient chain is exercised): m = 0.03 + 0.05 sin(4x) cos(3y) - r.

@@ -14,18 +14,14 @@
 #include "terrastride/planner/solver.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "piece_derivatives.hpp"
+#include "test_robots.hpp"
 #include "test_terrains.hpp"
 
 namespace terrastride::planner {
 namespace {
 
-robot::RobotModel hyq() { return robot::load_robot(robot::resolve_robot_path("hyq")); }
-
-std::vector<std::string> feet_of(const robot::RobotModel& r) {
-  std::vector<std::string> f;
-  for (const auto& l : r.legs) f.push_back(l.name);
-  return f;
-}
+using testing::feet_of;
+using testing::hyq;
 
 TEST(Gait, AllShippedGaitsBuildTimelines) {
   const auto r = hyq();
