@@ -19,7 +19,7 @@ void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options) {
     if (st.fixed) continue;
     LocalVars lv;
     const int ix = lv.add(st.pos_var), iy = lv.add(st.pos_var + 1);  // z does not enter
-    problem.add_piece(make_piece("foot_radius", lv, {options.foot_margin}, {feasibility::kInf},
+    problem.add_piece(make_piece("foot_radius", lv, {options.foot_margin}, {kInf},
                                  [=](const auto* x, auto* g) {
                                    g[0] = feasibility::safety_margin(*field, x[ix], x[iy], r);
                                  }));

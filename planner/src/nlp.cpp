@@ -15,9 +15,6 @@ namespace terrastride::planner {
 
 namespace {
 
-constexpr double kGravity = 9.81;
-constexpr double kInf = 2e19;  // Ipopt's default nlp_upper_bound_inf is 1e19
-
 std::map<std::string, ConstraintSetBuilder>& registry() {
   // The feasibility sets (feasibility.hpp) are there from the start: no static initialisers.
   static std::map<std::string, ConstraintSetBuilder> r = builtin_constraint_sets();

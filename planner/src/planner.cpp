@@ -241,7 +241,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   out.trajectory.extra["constraints"] = options.constraints;
   DenseCheckLimits lim;
   lim.friction = options.friction;
-  lim.max_normal_force = options.max_normal_force_factor * robot.mass * 9.81;
+  lim.max_normal_force = options.max_normal_force_factor * robot.mass * kGravity;
   const Trajectory dense = sample_solution(problem, out.solve.x, kDenseDt);
   out.trajectory.checks = dense_checks(robot, check_terrain, dense, lim);
   out.trajectory.extra["checks_dt"] = kDenseDt;

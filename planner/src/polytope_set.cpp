@@ -57,11 +57,11 @@ void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options)
     throw std::invalid_argument("force polytopes of robot " + robot.name + " have " +
                                 std::to_string(model->legs.size()) + " legs, the robot " +
                                 std::to_string(robot.legs.size()));
-  const double scale = 1.0 / (robot.mass * feasibility::kGravity);
+  const double scale = 1.0 / (robot.mass * kGravity);
   const int nf = static_cast<int>(robot.legs.size());
   const int S = L.num_segments;
   const int ni = std::max(0, options.polytope_inner_points);
-  const std::vector<double> lo(kPolytopeFacets, -feasibility::kInf), hi(kPolytopeFacets, 0.0);
+  const std::vector<double> lo(kPolytopeFacets, -kInf), hi(kPolytopeFacets, 0.0);
 
   // One piece at fraction sigma of segment s for foot f. At sigma = 0 or 1 only that knot's
   // values enter (base pose, foothold, force knot); inside, the whole Hermite segment of the base,

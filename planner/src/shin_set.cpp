@@ -44,7 +44,7 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options) {
                                  ? options.shin_exclusion
                                  : 2.0 * problem.robot().foot_radius + leg.shin_radius + 0.01;
     const double k_min = std::clamp(exclusion / s, 0.0, 1.0);
-    std::vector<double> lo(nk, clearance), hi(nk, feasibility::kInf);
+    std::vector<double> lo(nk, clearance), hi(nk, kInf);
     for (int seg = st.first_seg; seg <= st.last_seg; ++seg)
       for (int q = 0; q <= ny; ++q) {
         if (q == ny && seg != st.last_seg) continue;  // the next segment's start covers this end
@@ -74,7 +74,7 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options) {
             psi = y0 >= 0 ? x[y0] : x[y1];
           } else {
             const T h = x[dur] * frac;
-            psi = feasibility::hermite_value<T>(sigma, h, x[y0], x[v0], x[y1], x[v1]);
+            psi = hermite_value<T>(sigma, h, x[y0], x[v0], x[y1], x[v1]);
           }
           const T c = cos(psi), sn = sin(psi);
           for (int k = 1; k <= nk; ++k) {
@@ -139,7 +139,7 @@ void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& op
     const double radius = options.shin_clearance >= 0.0 ? -1.0 : leg.shin_radius;
     const double fixed_clearance = options.shin_clearance;
     std::vector<double> lo(2 * nk - 1, radius >= 0.0 ? 0.0 : fixed_clearance),
-        hi(2 * nk - 1, feasibility::kInf);
+        hi(2 * nk - 1, kInf);
     for (int k = st.first_seg; k <= st.last_seg + 1; ++k) {
       LocalVars lv;
       const auto p = lv.add3(st.pos_var);

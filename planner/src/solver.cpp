@@ -18,8 +18,11 @@ using Ipopt::Number;
 
 class SrbdTnlp : public Ipopt::TNLP {
  public:
-  SrbdTnlp(const SrbdProblem& p, double max_wall, std::function<bool()> should_stop)
-      : p_(p), max_wall_(max_wall), should_stop_(std::move(should_stop)) {
+  SrbdTnlp(const SrbdProblem& p, const PlannerOptions& options)
+      : p_(p),
+        max_wall_(options.max_time),
+        should_stop_(options.should_stop),
+        feasibility_tol_(options.feasibility_stop_tolerance) {
     start_ = std::chrono::steady_clock::now();
   }
   bool get_nlp_info(Index& n, Index& m, Index& nnz_jac, Index& nnz_h,
@@ -75,8 +78,8 @@ class SrbdTnlp : public Ipopt::TNLP {
   // instead of iterating on for the multipliers (which the plan does not use). Ipopt's inf_pr only
   // triggers the check; the point returned is verified.
   bool intermediate_callback(Ipopt::AlgorithmMode mode, Index iter, Number, Number inf_pr, Number,
-                             Number, Number, Number, Number, Number, Index,
-                             const Ipopt::IpoptData*, Ipopt::IpoptCalculatedQuantities*) override {
+                             Number, Number, Number, Number, Number, Index, const Ipopt::IpoptData*,
+                             Ipopt::IpoptCalculatedQuantities*) override {
     iterations_ = iter;
     if (max_wall_ > 0.0 && elapsed() > max_wall_) {
       timed_out_ = true;
@@ -84,10 +87,13 @@ class SrbdTnlp : public Ipopt::TNLP {
     }
     if (should_stop_ && should_stop_()) return false;
     if (feasibility_tol_ > 0.0 && mode == Ipopt::RegularMode && inf_pr < 1e3 * feasibility_tol_ &&
-        static_cast<int>(last_x_.size()) == p_.num_variables() &&
-        p_.max_violation(last_x_) <= feasibility_tol_) {
-      feasible_x_ = last_x_;
-      return false;
+        static_cast<int>(last_x_.size()) == p_.num_variables()) {
+      const double violation = p_.max_violation(last_x_);
+      if (violation <= feasibility_tol_) {
+        feasible_x_ = last_x_;
+        feasible_violation_ = violation;
+        return false;
+      }
     }
     return true;
   }
@@ -102,9 +108,9 @@ class SrbdTnlp : public Ipopt::TNLP {
   }
 
   std::vector<double> x_;
-  std::vector<double> last_x_;      // the last point whose constraints Ipopt evaluated
-  std::vector<double> feasible_x_;  // set when the solve stopped at a verified feasible point
-  double feasibility_tol_ = 0.0;
+  std::vector<double> last_x_;       // the last point whose constraints Ipopt evaluated
+  std::vector<double> feasible_x_;   // set when the solve stopped at a verified feasible point
+  double feasible_violation_ = 0.0;  // its largest violation
   Ipopt::SolverReturn status_ = Ipopt::INTERNAL_ERROR;
   int iterations_ = 0;
   bool timed_out_ = false;
@@ -113,6 +119,7 @@ class SrbdTnlp : public Ipopt::TNLP {
   const SrbdProblem& p_;
   double max_wall_;
   std::function<bool()> should_stop_;
+  double feasibility_tol_;
   std::chrono::steady_clock::time_point start_;
 };
 
@@ -121,7 +128,7 @@ class SrbdTnlp : public Ipopt::TNLP {
 SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
                   const std::vector<std::pair<std::string, std::string>>& extra_options) {
   const auto t0 = std::chrono::steady_clock::now();
-  Ipopt::SmartPtr<SrbdTnlp> nlp = new SrbdTnlp(problem, options.max_time, options.should_stop);
+  Ipopt::SmartPtr<SrbdTnlp> nlp = new SrbdTnlp(problem, options);
   Ipopt::SmartPtr<Ipopt::IpoptApplication> app = IpoptApplicationFactory();
   auto opts = app->Options();
   opts->SetIntegerValue("print_level", options.verbose ? 5 : 0);
@@ -141,7 +148,8 @@ SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
     std::string item;
     while (in >> item) {
       const auto eq = item.find('=');
-      if (eq != std::string::npos) all_options.emplace_back(item.substr(0, eq), item.substr(eq + 1));
+      if (eq != std::string::npos)
+        all_options.emplace_back(item.substr(0, eq), item.substr(eq + 1));
     }
   }
   for (const auto& [k, v] : all_options) {
@@ -160,7 +168,8 @@ SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
   }
   SolveResult r;
   if (std::getenv("TERRASTRIDE_DEBUG_CHECKS"))
-    for (const auto& [k, v] : problem.violation_by_kind(const_cast<SrbdProblem&>(problem).initial_guess()))
+    for (const auto& [k, v] :
+         problem.violation_by_kind(const_cast<SrbdProblem&>(problem).initial_guess()))
       std::fprintf(stderr, "initial violation %s %g\n", k.c_str(), v);
   Ipopt::ApplicationReturnStatus st = app->Initialize();
   if (st != Ipopt::Solve_Succeeded) {
@@ -168,7 +177,6 @@ SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
     r.ipopt_status = st;
     return r;
   }
-  nlp->feasibility_tol_ = options.feasibility_stop_tolerance;
   st = app->OptimizeTNLP(nlp);
   r.ipopt_status = st;
   r.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -181,24 +189,50 @@ SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
     r.status = "optimal";
     r.termination = "feasible_point";
     r.success = true;
-    r.max_violation = problem.max_violation(r.x);
+    r.max_violation = nlp->feasible_violation_;
     return r;
   }
   r.termination = "ipopt";
   switch (st) {
-    case Ipopt::Solve_Succeeded: r.status = "optimal"; break;
-    case Ipopt::Solved_To_Acceptable_Level: r.status = "acceptable"; break;
-    case Ipopt::Infeasible_Problem_Detected: r.status = "infeasible"; break;
-    case Ipopt::Maximum_Iterations_Exceeded: r.status = "max_iterations"; break;
-    case Ipopt::Maximum_CpuTime_Exceeded: r.status = "time_limit"; break;
-    case Ipopt::User_Requested_Stop: r.status = nlp->timed_out_ ? "time_limit" : "stopped"; break;
-    case Ipopt::Diverging_Iterates: r.status = "diverging"; break;
-    case Ipopt::Restoration_Failed: r.status = "restoration_failed"; break;
-    case Ipopt::Search_Direction_Becomes_Too_Small: r.status = "step_too_small"; break;
-    case Ipopt::Error_In_Step_Computation: r.status = "step_failed"; break;
-    case Ipopt::Not_Enough_Degrees_Of_Freedom: r.status = "too_few_degrees_of_freedom"; break;
-    case Ipopt::Invalid_Number_Detected: r.status = "invalid_number"; break;
-    default: r.status = "error"; break;
+    case Ipopt::Solve_Succeeded:
+      r.status = "optimal";
+      break;
+    case Ipopt::Solved_To_Acceptable_Level:
+      r.status = "acceptable";
+      break;
+    case Ipopt::Infeasible_Problem_Detected:
+      r.status = "infeasible";
+      break;
+    case Ipopt::Maximum_Iterations_Exceeded:
+      r.status = "max_iterations";
+      break;
+    case Ipopt::Maximum_CpuTime_Exceeded:
+      r.status = "time_limit";
+      break;
+    case Ipopt::User_Requested_Stop:
+      r.status = nlp->timed_out_ ? "time_limit" : "stopped";
+      break;
+    case Ipopt::Diverging_Iterates:
+      r.status = "diverging";
+      break;
+    case Ipopt::Restoration_Failed:
+      r.status = "restoration_failed";
+      break;
+    case Ipopt::Search_Direction_Becomes_Too_Small:
+      r.status = "step_too_small";
+      break;
+    case Ipopt::Error_In_Step_Computation:
+      r.status = "step_failed";
+      break;
+    case Ipopt::Not_Enough_Degrees_Of_Freedom:
+      r.status = "too_few_degrees_of_freedom";
+      break;
+    case Ipopt::Invalid_Number_Detected:
+      r.status = "invalid_number";
+      break;
+    default:
+      r.status = "error";
+      break;
   }
   r.success = st == Ipopt::Solve_Succeeded || st == Ipopt::Solved_To_Acceptable_Level;
   r.max_violation = problem.max_violation(r.x);

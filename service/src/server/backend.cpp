@@ -426,7 +426,7 @@ class Backend {
         snapshot = map();
         if (!snapshot) throw ProtocolError(pc::kNoMap, "plan on \"current\": no map loaded");
         if (const auto* sc = dynamic_cast<const terrain::Scene*>(snapshot->field.get())) {
-          raster = scene_raster(snapshot->source.substr(snapshot->source.find(':') + 1), sc);
+          raster = scene_raster(snapshot->source.substr(snapshot->source.find(':') + 1));
           plan_field = raster->smooth.get();
           check_field = sc;
         } else {
@@ -435,7 +435,7 @@ class Backend {
       } else {
         const auto names = terrain::scene_names();
         if (std::find(names.begin(), names.end(), spec) != names.end()) {
-          raster = scene_raster(spec, nullptr);
+          raster = scene_raster(spec);
           plan_field = raster->smooth.get();
           check_field = raster->scene.get();
         } else {
@@ -598,15 +598,13 @@ class Backend {
     return a;
   }
 
-  // Scenes are immutable, so their C2 rasterisation (about 10 ms) is built once per scene name
-  // and shared by every plan on it. `scene` may be given (the published map's own scene object,
-  // which then checks the plans) or is made from the name.
+  // Scenes are immutable and made from their name alone, so a scene and its C2 rasterisation
+  // (about 10 ms) are built once per name and shared by every plan on it.
   struct SceneRaster {
     std::shared_ptr<const terrain::Scene> scene;
     std::unique_ptr<terrain::TerrainMap> smooth;
   };
-  std::shared_ptr<const SceneRaster> scene_raster(const std::string& name,
-                                                  const terrain::Scene* given) {
+  std::shared_ptr<const SceneRaster> scene_raster(const std::string& name) {
     {
       std::lock_guard<std::mutex> lock(raster_mu_);
       const auto it = rasters_.find(name);
@@ -614,7 +612,7 @@ class Backend {
     }
     auto r = std::make_shared<SceneRaster>();
     r->scene = terrain::make_scene(name);
-    r->smooth = terrain::TerrainMap::from_scene(given ? *given : *r->scene, 0.02, {});
+    r->smooth = terrain::TerrainMap::from_scene(*r->scene, 0.02, {});
     std::lock_guard<std::mutex> lock(raster_mu_);
     return rasters_.emplace(name, std::move(r)).first->second;
   }

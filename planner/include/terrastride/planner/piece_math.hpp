@@ -22,6 +22,17 @@ namespace terrastride::planner {
 using AdVector = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxPieceVars, 1>;
 using Ad = Eigen::AutoDiffScalar<AdVector>;
 
+constexpr double kGravity = 9.81;
+constexpr double kInf = 2e19;  // an unbounded row or variable (Ipopt's nlp_upper_bound_inf is 1e19)
+
+// d = a * da + b * db for AD derivative vectors that may be empty (constants).
+inline AdVector chain2(double a, const AdVector& da, double b, const AdVector& db) {
+  if (da.size() && db.size()) return a * da + b * db;
+  if (da.size()) return a * da;
+  if (db.size()) return b * db;
+  return AdVector();
+}
+
 inline double value_of(double v) { return v; }
 inline double value_of(const Ad& v) { return v.value(); }
 
@@ -129,6 +140,14 @@ void hermite(double s, const T& h, const Vec3<T>& p0, const Vec3<T>& v0, const V
          ((6 * s - 4) * v0 + (6 * s - 2) * v1) / h;
 }
 
+// The value alone of one scalar Hermite segment (e.g. the yaw, without pitch and roll).
+template <class T>
+T hermite_value(double s, const T& h, const T& p0, const T& v0, const T& p1, const T& v1) {
+  const double s2 = s * s, s3 = s2 * s;
+  return (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * h * v0 + (-2 * s3 + 3 * s2) * p1 +
+         (s3 - s2) * h * v1;
+}
+
 template <class T>
 void hermite(double s, const T& h, const T* x, const HermiteLocal& l, Vec3<T>* p, Vec3<T>* v,
              Vec3<T>* a) {
@@ -171,16 +190,7 @@ inline double terrain_height(const terrain::HeightField& f, double x, double y) 
 }
 inline Ad terrain_height(const terrain::HeightField& f, const Ad& x, const Ad& y) {
   const terrain::HeightSample s = f.sample(x.value(), y.value());
-  AdVector d;
-  const auto& dx = x.derivatives();
-  const auto& dy = y.derivatives();
-  if (dx.size() && dy.size())
-    d = s.gradient.x() * dx + s.gradient.y() * dy;
-  else if (dx.size())
-    d = s.gradient.x() * dx;
-  else
-    d = s.gradient.y() * dy;
-  return Ad(s.height, d);
+  return Ad(s.height, chain2(s.gradient.x(), x.derivatives(), s.gradient.y(), y.derivatives()));
 }
 // Terrain gradient (hx, hy) with its derivative chained through the foot coordinates (Hessian).
 inline void terrain_gradient(const terrain::HeightField& f, double x, double y, double* hx,
