@@ -4,8 +4,6 @@
 // every free stance foothold gets one row  margin(p_x, p_y; r) >= foot_margin. A stance foot does
 // not move (one position variable per stance), so one row holds it for the whole stance. The
 // initial stances are given, not optimised, and get no row.
-#include <map>
-
 #include "feasibility_common.hpp"
 #include "terrastride/planner/feasibility.hpp"
 
@@ -24,13 +22,6 @@ void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options) {
                                    g[0] = feasibility::safety_margin(*field, x[ix], x[iy], r);
                                  }));
   }
-}
-
-std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets() {
-  return {{"foot", [](SrbdProblem& p) { build_foot_set(p); }},
-          {"shin", [](SrbdProblem& p) { build_shin_set(p); }},
-          {"shin_ik", [](SrbdProblem& p) { build_shin_kinematic_set(p); }},
-          {"polytope", [](SrbdProblem& p) { build_polytope_set(p); }}};
 }
 
 }  // namespace terrastride::planner

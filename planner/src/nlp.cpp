@@ -25,10 +25,17 @@ std::mutex& registry_mutex() {
   return m;
 }
 
-// Swing-clearance profile over the swing's progress u in [0, 1]: 0 at lift-off and touch-down,
-// 1 in the middle part, so the foot may leave and reach the ground while being held clear of the
-// terrain elsewhere.
-double clearance_profile(double u) { return std::clamp(std::min(u, 1.0 - u) / 0.2, 0.0, 1.0); }
+// Swing-clearance profile: the fraction of h_min demanded at time t into a swing of duration T.
+// 0 at lift-off and touch-down (the foot must be allowed to leave and reach the ground), 1 from
+// `ramp` after lift-off to `ramp` before touch-down, sin^2 in between so that the lower bound it
+// puts on the foot height has a bounded second derivative.
+double clearance_profile(double t, double T, double ramp) {
+  const double edge = std::min(t, T - t);
+  const double tau = std::min(ramp, 0.5 * T);
+  if (!(tau > 0.0)) return edge > 0.0 ? 1.0 : 0.0;
+  const double s = std::sin(0.5 * M_PI * std::clamp(edge / tau, 0.0, 1.0));
+  return s * s;
+}
 
 }  // namespace
 
@@ -61,12 +68,14 @@ SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightFi
   build_layout(start_state);
   build_initial_guess(start_state);
   build_baseline();
-  std::vector<std::string> sets;  // "all" expanded, each set once
+  std::vector<std::string> sets;  // "all" expanded, implied sets added, each set once
   for (const auto& name : options_.constraints)
     if (name == "all")
       sets.insert(sets.end(), std::begin(kAllFeasibilitySets), std::end(kAllFeasibilitySets));
     else
       sets.push_back(name);
+  for (const auto& [set, implied] : kImpliedFeasibilitySets)
+    if (std::find(sets.begin(), sets.end(), set) != sets.end()) sets.push_back(implied);
   for (std::size_t i = 0; i < sets.size(); ++i) {
     const std::string& name = sets[i];
     if (name == "baseline" || std::find(sets.begin(), sets.begin() + i, name) != sets.begin() + i)
@@ -610,14 +619,17 @@ void SrbdProblem::build_baseline() {
   // and a smoothed planning terrain underestimates a sharp step only near its edge.
   for (const auto& sw : L.swings) {
     const int f = sw.foot;
-    const int nseg = sw.last_seg - sw.first_seg + 1;
     const int np = std::max(1, options_.clearance_points);
+    // Nominal times: with optimised timing the profile keeps its shape in swing fraction.
+    const double t0 = L.nominal_knot_time[sw.first_seg];
+    const double swing_T = L.nominal_knot_time[sw.last_seg + 1] - t0;
     for (int s = sw.first_seg; s <= sw.last_seg; ++s)
       for (int q = 0; q < np; ++q) {
         if (s == sw.first_seg && q == 0) continue;  // lift-off knot
         const double sigma = static_cast<double>(q) / np;
-        const double u = (s - sw.first_seg + sigma) / nseg;
-        const double w = clearance_profile(u);
+        const double t = L.nominal_knot_time[s] +
+                         sigma * (L.nominal_knot_time[s + 1] - L.nominal_knot_time[s]) - t0;
+        const double w = clearance_profile(t, swing_T, options_.clearance_ramp);
         LocalVars lv;
         const HermiteLocal fpl = foot_spline(lv, f, s, sigma);
         const int dur = fpl.needs_duration ? seg_duration(lv, s) : -1;

@@ -69,25 +69,39 @@ PolytopeFigures polytope_figures(const robot::RobotModel& r, const Trajectory& t
   return fig;
 }
 
-// Paper, section IV-A: 1 m in 2.4 s on flat ground. The baseline asks for forces the legs
-// cannot produce; with the polytopes the plan stays inside them at every 2 ms sample.
+// Paper, section IV-A: 1 m in 2.4 s on flat ground. With the polytopes every stance force stays
+// inside the fitted polytope at every 2 ms sample (not only at the constraint points), and so
+// within the exact one to the fit's accuracy. Whether the baseline's stance forces leave it
+// depends on where the zero-objective solve stops, so the baseline is judged by the post-hoc
+// torque check in tests/collision/test_torque_experiment.cpp instead. Without "swing" (implied by
+// "polytope") the swing feet move fast enough for that check to fail in the air.
 TEST(FeasibilityPlan, PolytopesHoldTheTorqueLimitsOnTheFastFlatCrawl) {
   const auto r = hyq();
   testing::FlatField flat;
-  const PlanOutcome base = plan(r, flat, flat, {"baseline"}, 2.4);
   const PlanOutcome poly = plan(r, flat, flat, {"polytope"}, 2.4);
-  ASSERT_TRUE(base.success) << base.message;
   ASSERT_TRUE(poly.success) << poly.message;
-  const PolytopeFigures fb = polytope_figures(r, base.trajectory);
   const PolytopeFigures fp = polytope_figures(r, poly.trajectory);
-  std::printf("baseline: polytope g max %.4f m g, static torque ratio %.3f\n", fb.g_max,
-              fb.static_ratio);
   std::printf("polytope: polytope g max %.4f m g, static torque ratio %.3f\n", fp.g_max,
               fp.static_ratio);
-  EXPECT_GT(fb.g_max, 0.05);
-  EXPECT_GT(fb.static_ratio, 1.2);
   EXPECT_LE(fp.g_max, 0.005);        // between the constraint points too
   EXPECT_LE(fp.static_ratio, 1.05);  // the fitted polytope is an approximation (DESIGN: ~1.06)
+  // The swing feet's acceleration holds densely too, each component within the bound. The plan
+  // is sampled every 2 ms; velocity is quadratic within a segment, so its central difference is
+  // the exact acceleration there (and the mean of both sides at a knot).
+  const double bound = FeasibilityOptions{}.swing_acceleration;
+  const auto& smp = poly.trajectory.samples;
+  double a_max = 0.0;
+  for (std::size_t k = 1; k + 1 < smp.size(); ++k)
+    for (std::size_t f = 0; f < smp[k].feet.size(); ++f) {
+      if (smp[k - 1].feet[f].contact || smp[k].feet[f].contact || smp[k + 1].feet[f].contact)
+        continue;
+      const Eigen::Vector3d a = (smp[k + 1].feet[f].velocity - smp[k - 1].feet[f].velocity) /
+                                (smp[k + 1].t - smp[k - 1].t);
+      a_max = std::max(a_max, a.cwiseAbs().maxCoeff());
+    }
+  std::printf("polytope: swing foot acceleration max %.1f m/s^2 (bound %.0f)\n", a_max, bound);
+  EXPECT_GT(a_max, 0.0);
+  EXPECT_LE(a_max, bound * 1.001);
 }
 
 // Flat ground whose foothold-safety margin is negative in a band across the path: a smooth

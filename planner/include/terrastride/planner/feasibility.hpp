@@ -5,14 +5,19 @@
 //  - "shin"     shin collision (III-B, eq. 13-14): p_z + k s sin(beta) - h(p_knee,k) >= clearance
 //               for points k along the modelled shin, over the whole stance;
 //  - "polytope" force polytopes (III-A): n^j(p_b)^T f_b <= d^j(p_b) in the base frame, at every
-//               force knot and at points inside each stance segment.
-// "all" means all three. Each set is built by one function (its own source file); the registry in
+//               force knot and at points inside each stance segment;
+//  - "swing"    (beyond the paper) each component of a swing foot's acceleration within
+//               +-swing_acceleration: the torque a swing leg needs to accelerate itself.
+// "polytope" implies "swing": the joint-torque limits hold for stance legs (polytopes) and swing
+// legs (acceleration) alike, as the post-hoc torque check judges them (tau = M q'' + c + g - J^T f).
+// "all" means foot, shin and polytope (so swing too). Each set is built by one function (its own source file); the registry in
 // nlp.cpp gets them from builtin_constraint_sets(), so they are available whenever the planner
 // library is linked (no static initialisers).
 #pragma once
 
 #include <map>
 #include <string>
+#include <utility>
 
 #include "terrastride/planner/nlp.hpp"
 
@@ -40,6 +45,11 @@ struct FeasibilityOptions {
   int shin_yaw_points = 2;
   // polytope: points per stance segment besides its two force knots (see polytope_set.cpp).
   int polytope_inner_points = 1;
+  // swing: bound on each world-frame component of a swing foot's acceleration (m/s^2). HyQ's
+  // swing leg (about 3.5 kg of thigh and shin within 0.6 m of the HFE axis) needs some 40-60 N m
+  // of its 150 N m at 100 m/s^2, leaving the rest for velocity and gravity terms and for the base's
+  // own acceleration; the flat 2.4 s crawl's 0.33 m steps in 0.16 s need about 80 m/s^2.
+  double swing_acceleration = 100.0;
 };
 
 void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
@@ -48,11 +58,15 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options = {}
 // the knee from inverse kinematics at the base pose (see shin_set.cpp).
 void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 
-// {"foot", "shin", "shin_ik", "polytope"} with their default options (the registry's initial content).
+// {"foot", "shin", "shin_ik", "polytope", "swing"} with their default options (the registry's
+// initial content); defined in swing_set.cpp.
 std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets();
 
 // What "all" expands to, in order.
 inline const char* const kAllFeasibilitySets[] = {"foot", "shin", "polytope"};
+// {set, the set it implies}: the second is added whenever the first is asked for.
+inline const std::pair<const char*, const char*> kImpliedFeasibilitySets[] = {{"polytope", "swing"}};
 
 }  // namespace terrastride::planner

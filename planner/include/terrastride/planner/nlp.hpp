@@ -64,6 +64,11 @@ struct PlannerOptions {
   double max_normal_force_factor = 2.0;  // f_max = factor * m * g
   double swing_clearance = 0.05;         // h_min (m)
   double clearance_probe = 0.05;         // terrain probed this far around a swing foot (m)
+  // The clearance demanded of a swing foot rises from 0 at lift-off to h_min over this time (s),
+  // smoothly (sin^2), and falls likewise before touch-down; a swing shorter than twice this
+  // spends all of it rising and falling. A ramp in time rather than in swing fraction keeps the
+  // foot acceleration it implies bounded on short swings (2 h_min pi^2 / (2 ramp)^2).
+  double clearance_ramp = 0.1;
   // Footholds where the terrain is planar within clearance_probe (to this tolerance, m): a foot
   // lifting off at the foot of a step would otherwise cut its corner between constraint points.
   double foothold_planarity = 0.01;
