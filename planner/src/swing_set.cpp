@@ -45,7 +45,8 @@ std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets() {
           {"shin", [](SrbdProblem& p) { build_shin_set(p); }},
           {"shin_ik", [](SrbdProblem& p) { build_shin_kinematic_set(p); }},
           {"polytope", [](SrbdProblem& p) { build_polytope_set(p); }},
-          {"swing", [](SrbdProblem& p) { build_swing_set(p); }}};
+          {"swing", [](SrbdProblem& p) { build_swing_set(p); }},
+          {"joints", [](SrbdProblem& p) { build_joint_limit_set(p); }}};
 }
 
 }  // namespace terrastride::planner

@@ -50,6 +50,9 @@ struct FeasibilityOptions {
   // of its 150 N m at 100 m/s^2, leaving the rest for velocity and gravity terms and for the base's
   // own acceleration; the flat 2.4 s crawl's 0.33 m steps in 0.16 s need about 80 m/s^2.
   double swing_acceleration = 100.0;
+  // joints: the joint angles keep this far (rad) inside their ranges at the spline's knots; it
+  // covers the motion between knots.
+  double joint_margin = 0.035;
 };
 
 void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
@@ -59,8 +62,11 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options = {}
 void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+// "joints" (not in "all"; beyond the paper): joint angles from IK within the joint ranges at every
+// knot of the base spline (see joint_limit_set.cpp).
+void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 
-// {"foot", "shin", "shin_ik", "polytope", "swing"} with their default options (the registry's
+// {"foot", "shin", "shin_ik", "polytope", "swing", "joints"} with their default options (the registry's
 // initial content); defined in swing_set.cpp.
 std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets();
 

@@ -1,13 +1,18 @@
-// The "swing" set (swing foot acceleration bound): Jacobians against central differences, values
-// against the second derivative of the foot spline, and how the set is pulled in by "polytope".
+// The sets beyond the paper that bound the legs' own motion: "swing" (swing foot acceleration) and
+// "joints" (joint ranges). Jacobians against central differences, values against independent
+// evaluations (the foot spline's second derivative; the robot's inverse kinematics), and how
+// "swing" is pulled in by "polytope".
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+#include <cmath>
 #include <map>
 #include <string>
 
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/nlp.hpp"
+#include "terrastride/robot/leg_kinematics.hpp"
 #include "piece_derivatives.hpp"
 #include "test_robots.hpp"
 #include "test_terrains.hpp"
@@ -118,6 +123,67 @@ TEST(SwingSetRegistry, PolytopeImpliesSwing) {
   EXPECT_EQ(count_kinds(pa)["swing_acceleration"], count_kinds(pp)["swing_acceleration"]);
   const auto names = constraint_set_names();
   EXPECT_NE(std::find(names.begin(), names.end(), "swing"), names.end());
+}
+
+TEST(JointLimitSetDerivatives, PiecesMatchFiniteDifferences) {
+  const auto r = hyq();
+  testing::TanhStep terrain(0.1, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.05, 0.3);  // a turn: yaw enters the base-frame foot position
+  o.constraints = {"joints"};
+  SrbdProblem p(r, terrain, crawl(r), o);
+  ASSERT_GT(count_kinds(p)["joint_limits"], 0);
+  for (unsigned seed : {1u, 2u, 3u})
+    EXPECT_GT(testing::check_piece_derivatives(
+                  p, seed, 0.02, [](const Piece& piece) { return piece.kind == "joint_limits"; }),
+              0);
+}
+
+// One piece per foot and base knot; its rows are the IK joint angles, bounded by the joint range
+// shrunk by the margin.
+TEST(JointLimitSetValues, RowsAreTheIkAnglesWithinTheRangeLessTheMargin) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.0, 0.2);
+  SrbdProblem p(r, flat, crawl(r), o);
+  const std::size_t before = p.pieces().size();
+  FeasibilityOptions fo;
+  fo.joint_margin = 0.05;
+  build_joint_limit_set(p, fo);
+  const Layout& L = p.layout();
+  const int nf = static_cast<int>(r.legs.size());
+  ASSERT_EQ(static_cast<int>(p.pieces().size() - before), nf * (L.num_segments + 1));
+  std::vector<double> x = p.initial_guess();
+  for (std::size_t i = 0; i < x.size(); ++i)
+    if (p.lower()[i] < p.upper()[i]) x[i] += 0.02 * std::sin(2.3 * static_cast<double>(i));
+  std::vector<double> g(p.num_constraints());
+  p.eval_constraints(x.data(), g.data());
+  int row = 0;
+  for (std::size_t i = 0; i < before; ++i) row += p.pieces()[i]->rows();
+  for (int f = 0; f < nf; ++f)
+    for (int k = 0; k <= L.num_segments; ++k, row += 3) {
+      const auto v = [&](int i) { return Eigen::Vector3d(x[i], x[i + 1], x[i + 2]); };
+      const Eigen::Vector3d e = v(L.base[k] + 6);
+      const Eigen::Matrix3d R = (Eigen::AngleAxisd(e[0], Eigen::Vector3d::UnitZ()) *
+                                 Eigen::AngleAxisd(e[1], Eigen::Vector3d::UnitY()) *
+                                 Eigen::AngleAxisd(e[2], Eigen::Vector3d::UnitX()))
+                                    .toRotationMatrix();
+      const auto ik =
+          robot::inverse_kinematics(r.legs[f], R.transpose() * (v(L.foot_pos[f][k]) - v(L.base[k])));
+      ASSERT_NE(ik.status, robot::IkStatus::unreachable) << ik.message;
+      const Piece& piece = *p.pieces()[before + f * (L.num_segments + 1) + k];
+      for (int j = 0; j < 3; ++j) {
+        EXPECT_NEAR(g[row + j], ik.q[j], 1e-9) << "foot " << f << " knot " << k << " joint " << j;
+        EXPECT_DOUBLE_EQ(piece.lb[j], r.legs[f].q_min[j] + 0.05);
+        EXPECT_DOUBLE_EQ(piece.ub[j], r.legs[f].q_max[j] - 0.05);
+      }
+    }
+  FeasibilityOptions bad;
+  bad.joint_margin = 2.0;  // more than half of every range
+  EXPECT_THROW(build_joint_limit_set(p, bad), std::invalid_argument);
 }
 
 }  // namespace
