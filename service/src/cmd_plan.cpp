@@ -203,7 +203,9 @@ void add_plan_command(CLI::App& app) {
   cmd->add_option("--constraints", o->constraints,
                   "constraint sets, comma separated: baseline, foot (foot radius), shin (shin "
                   "collision, the paper's fixed-angle model), shin_ik (shin collision on the leg's "
-                  "IK shin), polytope (force polytopes), all (= foot,shin,polytope)")
+                  "IK shin), polytope (force polytopes in stance; implies swing), swing (swing "
+                  "foot acceleration bound), joints (joint ranges from IK), all "
+                  "(= foot,shin,polytope)")
       ->capture_default_str();
   cmd->add_option("--sample-dt", o->sample_dt, "sampling period of plan.json in s")
       ->capture_default_str();
