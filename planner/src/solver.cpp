@@ -1,6 +1,7 @@
 #include "terrastride/planner/solver.hpp"
 
 #include <IpIpoptApplication.hpp>
+#include <IpIpoptCalculatedQuantities.hpp>
 #include <IpTNLP.hpp>
 #include <chrono>
 #include <cstdio>
@@ -76,16 +77,20 @@ class SrbdTnlp : public Ipopt::TNLP {
   // infeasibility is small, the last evaluated point is checked with our own violation measure
   // (every row and variable bound, in the constraints' own units) and the solve stops there
   // instead of iterating on for the multipliers (which the plan does not use). Ipopt's inf_pr only
-  // triggers the check; the point returned is verified.
+  // triggers the check; the point returned is verified. The trigger is the unscaled max-norm
+  // violation (the "inf_pr" column of Ipopt's output), not the callback's inf_pr argument, which
+  // in Ipopt 3.11 is measured on the scaled problem: measured on a warm start, the argument stayed
+  // near 1e-2 for seven iterations in which the unscaled violation was below 1e-10.
   bool intermediate_callback(Ipopt::AlgorithmMode mode, Index iter, Number, Number inf_pr, Number,
                              Number, Number, Number, Number, Number, Index, const Ipopt::IpoptData*,
-                             Ipopt::IpoptCalculatedQuantities*) override {
+                             Ipopt::IpoptCalculatedQuantities* cq) override {
     iterations_ = iter;
     if (max_wall_ > 0.0 && elapsed() > max_wall_) {
       timed_out_ = true;
       return false;
     }
     if (should_stop_ && should_stop_()) return false;
+    if (cq != nullptr) inf_pr = cq->unscaled_curr_nlp_constraint_violation(Ipopt::NORM_MAX);
     if (feasibility_tol_ > 0.0 && mode == Ipopt::RegularMode && inf_pr < 1e3 * feasibility_tol_ &&
         static_cast<int>(last_x_.size()) == p_.num_variables()) {
       const double violation = p_.max_violation(last_x_);
