@@ -160,6 +160,10 @@ PhaseTimeline PhaseTimeline::cropped(double t0) const {
   const double tol = 1e-6;
   for (int j = 0; j < num_intervals(); ++j) {
     if (events[j + 1] <= t0 + tol) continue;
+    if (out.events.size() == 1) {
+      const double begun = t0 - events[j] + (j == 0 ? first_interval_elapsed : 0.0);
+      out.first_interval_elapsed = begun > tol ? begun : 0.0;
+    }
     out.events.push_back(events[j + 1] - t0);
     for (std::size_t f = 0; f < feet.size(); ++f) out.contact[f].push_back(contact[f][j]);
   }

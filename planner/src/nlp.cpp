@@ -137,6 +137,27 @@ void SrbdProblem::build_layout(const StartState* start) {
       hi = options_.interval_max_scale * d;
     }
     L.interval_var.push_back(add(1, lo, hi));
+    const double elapsed = j == 0 ? timeline_.first_interval_elapsed : 0.0;
+    if (elapsed > 0.0) {
+      // The tail of a longer interval (a cropped timeline): knots where that interval had them,
+      // a first segment up to the next one (merged into the following segment when shorter than
+      // a tenth of a segment, which would only make the problem stiff).
+      const double full = d + elapsed;
+      const int nf = std::max(1, static_cast<int>(std::ceil(full / options_.segment_dt - 1e-6)));
+      const double len = full / nf;
+      std::vector<double> bounds{0.0};
+      for (int k = 1; k <= nf; ++k) {
+        const double b = k * len - elapsed;
+        if (b <= 0.1 * len || b >= d - 1e-9) continue;
+        bounds.push_back(b);
+      }
+      bounds.push_back(d);
+      for (std::size_t k = 0; k + 1 < bounds.size(); ++k) {
+        L.seg_interval.push_back(j);
+        L.seg_fraction.push_back((bounds[k + 1] - bounds[k]) / d);
+      }
+      continue;
+    }
     for (int k = 0; k < n; ++k) {
       L.seg_interval.push_back(j);
       L.seg_fraction.push_back(1.0 / n);

@@ -26,7 +26,12 @@ Eigen::Matrix3d euler_rate_matrix(const Eigen::Vector3d& e) {
 nlohmann::json timeline_json(const PhaseTimeline& tl, const std::vector<double>& events) {
   nlohmann::json c = nlohmann::json::array();
   for (const auto& foot : tl.contact) c.push_back(foot);
-  return {{"events", events}, {"contact", c}};
+  nlohmann::json j = {{"events", events}, {"contact", c}};
+  // Scaled like the first interval when the timing was optimised.
+  if (tl.first_interval_elapsed > 0.0 && tl.num_intervals() > 0)
+    j["first_interval_elapsed"] =
+        tl.first_interval_elapsed * (events[1] - events[0]) / (tl.events[1] - tl.events[0]);
+  return j;
 }
 
 }  // namespace
@@ -82,6 +87,79 @@ Trajectory sample_solution(const SrbdProblem& problem, const std::vector<double>
   return tr;
 }
 
+namespace {
+
+// The state at t on the cubic through samples a and b (t may lie outside [a.t, b.t]): positions
+// and their rates by cubic Hermite interpolation with the samples' velocities, exact when both
+// samples lie on one cubic spline segment (the planner's splines are cubic); accelerations and
+// forces linear (forces are linear within a segment).
+TrajectorySample hermite_between(const TrajectorySample& a, const TrajectorySample& b, double t) {
+  const double u = (t - a.t) / std::max(1e-12, b.t - a.t);
+  TrajectorySample s = a;
+  s.t = t;
+  auto mix = [u](const Eigen::Vector3d& p, const Eigen::Vector3d& q) { return (1 - u) * p + u * q; };
+  // Positions by cubic Hermite interpolation with the samples' velocities: exact between two
+  // samples of one spline segment (the planner's splines are cubic), so a warm start reproduces
+  // the previous plan at its knots.
+  const double h = b.t - a.t;
+  auto cubic = [u, h](const Eigen::Vector3d& p0, const Eigen::Vector3d& v0, const Eigen::Vector3d& p1,
+                      const Eigen::Vector3d& v1) -> Eigen::Vector3d {
+    const double u2 = u * u, u3 = u2 * u;
+    return (2 * u3 - 3 * u2 + 1) * p0 + (u3 - 2 * u2 + u) * h * v0 + (-2 * u3 + 3 * u2) * p1 +
+           (u3 - u2) * h * v1;
+  };
+  auto cubic_rate = [u, h](const Eigen::Vector3d& p0, const Eigen::Vector3d& v0,
+                           const Eigen::Vector3d& p1, const Eigen::Vector3d& v1) -> Eigen::Vector3d {
+    const double u2 = u * u;
+    return ((6 * u2 - 6 * u) * p0 + (-6 * u2 + 6 * u) * p1) / h + (3 * u2 - 4 * u + 1) * v0 +
+           (3 * u2 - 2 * u) * v1;
+  };
+  auto rates = [](const TrajectorySample& x) -> Eigen::Vector3d {
+    return euler_rate_matrix(x.base.euler_zyx).fullPivLu().solve(x.base.angular_velocity);
+  };
+  s.base.position =
+      cubic(a.base.position, a.base.linear_velocity, b.base.position, b.base.linear_velocity);
+  s.base.euler_zyx = cubic(a.base.euler_zyx, rates(a), b.base.euler_zyx, rates(b));
+  s.base.linear_velocity =
+      cubic_rate(a.base.position, a.base.linear_velocity, b.base.position, b.base.linear_velocity);
+  s.base.angular_velocity = euler_rate_matrix(s.base.euler_zyx) *
+                            cubic_rate(a.base.euler_zyx, rates(a), b.base.euler_zyx, rates(b));
+  s.base.linear_acceleration = mix(a.base.linear_acceleration, b.base.linear_acceleration);
+  s.base.angular_acceleration = mix(a.base.angular_acceleration, b.base.angular_acceleration);
+  for (std::size_t f = 0; f < s.feet.size() && f < b.feet.size(); ++f) {
+    s.feet[f].position =
+        cubic(a.feet[f].position, a.feet[f].velocity, b.feet[f].position, b.feet[f].velocity);
+    s.feet[f].velocity =
+        cubic_rate(a.feet[f].position, a.feet[f].velocity, b.feet[f].position, b.feet[f].velocity);
+    // Forces jump at contact switches: blend only inside one contact state.
+    if (a.feet[f].contact == b.feet[f].contact) s.feet[f].force = mix(a.feet[f].force, b.feet[f].force);
+  }
+  return s;
+}
+
+
+// The state at t of the plan's spline segment [lo, hi], from the two samples inside it nearest t
+// (exact even at the segment's ends, where interpolating across the knot would mix two cubics).
+TrajectorySample segment_state(const Trajectory& plan, double t, double lo, double hi) {
+  const auto& S = plan.samples;
+  if (S.empty()) throw std::invalid_argument("plan has no samples");
+  const double tol = 1e-9;
+  auto first = std::lower_bound(S.begin(), S.end(), lo - tol,
+                                [](const TrajectorySample& s, double v) { return s.t < v; });
+  auto last = std::upper_bound(S.begin(), S.end(), hi + tol,
+                               [](double v, const TrajectorySample& s) { return v < s.t; });
+  if (last - first < 2) return interpolate_plan(plan, t);
+  // The two samples in [lo, hi] nearest t.
+  auto b = std::lower_bound(first, last, t,
+                            [](const TrajectorySample& s, double v) { return s.t < v; });
+  if (b == first) ++b;
+  if (b == last) --b;
+  if (b != last - 1 && std::abs(b->t - t) > std::abs((b - 1)->t - t) && b - 1 != first) --b;
+  return hermite_between(*(b - 1), *b, t);
+}
+
+}  // namespace
+
 TrajectorySample interpolate_plan(const Trajectory& plan, double t) {
   const auto& S = plan.samples;
   if (S.empty()) throw std::invalid_argument("plan has no samples");
@@ -89,26 +167,9 @@ TrajectorySample interpolate_plan(const Trajectory& plan, double t) {
   if (t >= S.back().t) return S.back();
   const auto it = std::upper_bound(S.begin(), S.end(), t,
                                    [](double v, const TrajectorySample& s) { return v < s.t; });
-  const TrajectorySample& b = *it;
-  const TrajectorySample& a = *(it - 1);
-  const double u = (t - a.t) / std::max(1e-12, b.t - a.t);
-  TrajectorySample s = a;
-  s.t = t;
-  auto mix = [u](const Eigen::Vector3d& p, const Eigen::Vector3d& q) { return (1 - u) * p + u * q; };
-  s.base.position = mix(a.base.position, b.base.position);
-  s.base.euler_zyx = mix(a.base.euler_zyx, b.base.euler_zyx);
-  s.base.linear_velocity = mix(a.base.linear_velocity, b.base.linear_velocity);
-  s.base.angular_velocity = mix(a.base.angular_velocity, b.base.angular_velocity);
-  s.base.linear_acceleration = mix(a.base.linear_acceleration, b.base.linear_acceleration);
-  s.base.angular_acceleration = mix(a.base.angular_acceleration, b.base.angular_acceleration);
-  for (std::size_t f = 0; f < s.feet.size() && f < b.feet.size(); ++f) {
-    s.feet[f].position = mix(a.feet[f].position, b.feet[f].position);
-    s.feet[f].velocity = mix(a.feet[f].velocity, b.feet[f].velocity);
-    // Forces jump at contact switches: blend only inside one contact state.
-    if (a.feet[f].contact == b.feet[f].contact) s.feet[f].force = mix(a.feet[f].force, b.feet[f].force);
-  }
-  return s;
+  return hermite_between(*(it - 1), *it, t);
 }
+
 
 PhaseTimeline timeline_of(const Trajectory& plan) {
   const auto& ex = plan.extra;
@@ -119,11 +180,14 @@ PhaseTimeline timeline_of(const Trajectory& plan) {
   try {
     tl.events = ex["timeline"]["events"].get<std::vector<double>>();
     for (const auto& c : ex["timeline"]["contact"]) tl.contact.push_back(c.get<std::vector<bool>>());
+    tl.first_interval_elapsed = ex["timeline"].value("first_interval_elapsed", 0.0);
   } catch (const nlohmann::json::exception& e) {
     throw std::invalid_argument(std::string("plan \"timeline\": ") + e.what());
   }
   if (tl.events.size() < 2 || tl.contact.size() != tl.feet.size())
     throw std::invalid_argument("plan \"timeline\": inconsistent sizes");
+  if (!(tl.first_interval_elapsed >= 0.0) || !std::isfinite(tl.first_interval_elapsed))
+    throw std::invalid_argument("plan \"timeline\": first_interval_elapsed must be >= 0");
   for (const auto& c : tl.contact)
     if (static_cast<int>(c.size()) != tl.num_intervals())
       throw std::invalid_argument("plan \"timeline\": contact lists must have one entry per interval");
@@ -133,9 +197,16 @@ PhaseTimeline timeline_of(const Trajectory& plan) {
 void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
   const Layout& L = *layout_;
   const int S = L.num_segments;
-  auto at = [&](double t) { return interpolate_plan(prev, t + shift); };
+  // The previous plan at knot k, from its samples in the segment to the left of the knot (to the
+  // right for the first): with aligned knots (PhaseTimeline::first_interval_elapsed) that
+  // reproduces the previous splines exactly.
+  const auto& kt = L.nominal_knot_time;
+  auto at_knot = [&](int k) {
+    const int seg = k > 0 ? k - 1 : 0;
+    return segment_state(prev, kt[k] + shift, kt[seg] + shift, kt[seg + 1] + shift);
+  };
   for (int k = 0; k <= S; ++k) {
-    const auto s = at(L.nominal_knot_time[k]);
+    const auto s = at_knot(k);
     const int b = L.base[k];
     const Eigen::Vector3d rates =
         euler_rate_matrix(s.base.euler_zyx).fullPivLu().solve(s.base.angular_velocity);
@@ -152,14 +223,13 @@ void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
   const int nf = static_cast<int>(robot_.legs.size());
   for (int f = 0; f < nf; ++f)
     for (int k = 0; k <= S; ++k) {
-      const double t = L.nominal_knot_time[k];
       const int pv = L.foot_pos[f][k], vv = L.foot_vel[f][k];
       if (pv >= 0 && lb_[pv] < ub_[pv]) {
-        const auto s = at(t);
+        const auto s = at_knot(k);
         for (int d = 0; d < 3; ++d) x0_[pv + d] = s.feet[f].position[d];
       }
       if (vv >= 0 && lb_[vv] < ub_[vv]) {
-        const auto s = at(t);
+        const auto s = at_knot(k);
         for (int d = 0; d < 3; ++d) x0_[vv + d] = s.feet[f].velocity[d];
       }
     }
@@ -168,9 +238,7 @@ void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
       for (int side = 0; side < 2; ++side) {
         const int fv = L.force[f][s][side];
         if (fv < 0) continue;
-        const double eps = 1e-6;
-        const double t = side == 0 ? L.nominal_knot_time[s] + eps : L.nominal_knot_time[s + 1] - eps;
-        const auto smp = at(t);
+        const auto smp = segment_state(prev, kt[s + side] + shift, kt[s] + shift, kt[s + 1] + shift);
         if (!smp.feet[f].contact) continue;
         for (int d = 0; d < 3; ++d) x0_[fv + d] = smp.feet[f].force[d];
       }
@@ -216,10 +284,17 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   PlanOutcome out;
   std::vector<std::pair<std::string, std::string>> ipopt_options;
   if (warm.previous) {
-    // The shifted previous plan is nearly feasible already. Ipopt's defaults would push it 1 %
-    // away from its bounds and restart the barrier at mu = 0.1, undoing the warm start (pallet_15
-    // shifted by 0.1 s: 93 iterations vs 26 cold); a small barrier and push keep it (4).
-    ipopt_options = {{"mu_init", "1e-4"}, {"bound_push", "1e-5"}, {"bound_frac", "1e-5"}};
+    // The shifted previous plan is nearly feasible already (its knots are kept, see
+    // PhaseTimeline::first_interval_elapsed; only constraint points that moved see it violated,
+    // by ~1e-4). Ipopt's defaults would push it 1 % away from its bounds and restart the barrier
+    // at mu = 0.1, undoing the warm start (pallet_15 shifted by 0.1 s: 93 iterations vs 26 cold);
+    // a small barrier and push keep it, and a monotone barrier keeps the barrier from growing
+    // again and moving the iterate off the active constraints (adaptive mu: 9 iterations,
+    // monotone: 2; shifts of 0.37 s and 1 s: 1 and 6).
+    ipopt_options = {{"mu_init", "1e-4"},
+                     {"bound_push", "1e-5"},
+                     {"bound_frac", "1e-5"},
+                     {"mu_strategy", "monotone"}};
   }
   out.solve = solve(problem, options, ipopt_options);
   const auto t_after_solve = std::chrono::steady_clock::now();

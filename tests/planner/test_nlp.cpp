@@ -61,6 +61,38 @@ TEST(Gait, CrawlMatchesThePaperSchedule) {
   EXPECT_NEAR(c.duration(), 10.5, 1e-9);
 }
 
+// A cropped timeline remembers how far into its first interval it starts, and the problem built on
+// it keeps the knots of the uncropped one at the same absolute times (so a warm start can
+// reproduce the previous plan's splines exactly); cropping twice accumulates.
+TEST(Gait, CroppedTimelineKeepsTheSegmentKnots) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 3, 11.0);
+  PlannerOptions o;
+  const SrbdProblem full(r, flat, tl, o);
+  std::vector<double> knots = full.layout().nominal_knot_time;
+  for (double shift : {0.1, 0.37, 1.0}) {
+    const PhaseTimeline c = tl.cropped(shift);
+    int j = 0;  // the interval of tl that contains `shift`
+    while (tl.events[j + 1] <= shift) ++j;
+    EXPECT_NEAR(c.first_interval_elapsed, shift - tl.events[j], 1e-12) << shift;
+    const SrbdProblem part(r, flat, c, o);
+    // Every knot of the cropped problem after its first segment is a knot of the full one.
+    const auto& kc = part.layout().nominal_knot_time;
+    for (std::size_t k = 1; k < kc.size(); ++k) {
+      const double t = kc[k] + shift;
+      const auto it = std::min_element(knots.begin(), knots.end(), [t](double a, double b) {
+        return std::abs(a - t) < std::abs(b - t);
+      });
+      EXPECT_NEAR(*it, t, 1e-9) << "shift " << shift << " knot " << k;
+    }
+    const PhaseTimeline cc = c.cropped(0.25);
+    int i = 0;
+    while (tl.events[i + 1] <= shift + 0.25) ++i;
+    EXPECT_NEAR(cc.first_interval_elapsed, shift + 0.25 - tl.events[i], 1e-9) << shift;
+  }
+}
+
 TEST(Gait, BadInputIsNamed) {
   EXPECT_THROW(resolve_gait_path("no_such_gait"), GaitError);
   const std::string path = ::testing::TempDir() + "/bad_gait.yaml";

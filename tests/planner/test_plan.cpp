@@ -102,6 +102,9 @@ TEST(Plan, WarmStartFromAShiftedPlanConvergesFast) {
   ASSERT_TRUE(next.success) << next.message;
   std::printf("cold %d iterations, warm %d\n", cold.trajectory.solver.iterations,
               next.trajectory.solver.iterations);
+  // The shifted plan keeps the previous knots, so it is feasible but for the constraint points of
+  // the first, shortened segment: a couple of iterations (measured: 1-2 against 15-17 cold).
+  EXPECT_LE(next.trajectory.solver.iterations, 3);
   EXPECT_LE(2 * next.trajectory.solver.iterations, cold.trajectory.solver.iterations);
   EXPECT_NEAR(next.trajectory.duration, cold.trajectory.duration - 0.1, 1e-6);
   EXPECT_NEAR(next.trajectory.samples.back().base.position.x(), 1.0, 1e-6);

@@ -1,10 +1,12 @@
-// plan.json round trip and validation of malformed plan files.
+// plan.json round trip, validation of malformed plan files, and interpolation between samples.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
 #include "terrastride/planner/plan_io.hpp"
+#include "terrastride/planner/planner.hpp"
 
 using namespace terrastride::planner;
 using nlohmann::json;
@@ -104,4 +106,41 @@ TEST(PlanIo, MalformedPlansNameTheField) {
     EXPECT_NE(std::string(e.what()).find("not valid JSON"), std::string::npos);
   }
   EXPECT_THROW(write_plan_file("/nonexistent/dir/plan.json", two_sample_plan()), PlanFileError);
+}
+
+// interpolate_plan: positions and their rates come from the cubic through the two neighbouring
+// samples, so a cubic motion (what the planner's splines are between knots) is reproduced exactly
+// between samples, not only at them.
+TEST(InterpolatePlan, ReproducesACubicMotionBetweenSamples) {
+  using terrastride::planner::Trajectory;
+  using terrastride::planner::TrajectorySample;
+  auto pos = [](double t) { return Eigen::Vector3d(t * t * t - t, 0.5 * t * t, 0.2 * t); };
+  auto vel = [](double t) { return Eigen::Vector3d(3 * t * t - 1, t, 0.2); };
+  Trajectory tr;
+  tr.feet = {"F"};
+  for (int k = 0; k <= 10; ++k) {
+    TrajectorySample s;
+    s.t = 0.1 * k;
+    s.base.position = pos(s.t);
+    s.base.linear_velocity = vel(s.t);
+    s.base.euler_zyx = 0.1 * pos(s.t);  // small angles, rates 0.1 vel; omega = E(e) e_dot
+    const Eigen::Vector3d e = s.base.euler_zyx, ed = 0.1 * vel(s.t);
+    Eigen::Matrix3d E;
+    E << 0, -std::sin(e[0]), std::cos(e[0]) * std::cos(e[1]), 0, std::cos(e[0]),
+        std::sin(e[0]) * std::cos(e[1]), 1, 0, -std::sin(e[1]);
+    s.base.angular_velocity = E * ed;
+    terrastride::planner::FootState f;
+    f.position = pos(s.t) + Eigen::Vector3d(1, 0, 0);
+    f.velocity = vel(s.t);
+    s.feet.push_back(f);
+    tr.samples.push_back(s);
+  }
+  for (double t : {0.03, 0.47, 0.951}) {
+    const TrajectorySample s = terrastride::planner::interpolate_plan(tr, t);
+    EXPECT_LT((s.base.position - pos(t)).norm(), 1e-12) << t;
+    EXPECT_LT((s.base.linear_velocity - vel(t)).norm(), 1e-12) << t;
+    EXPECT_LT((s.base.euler_zyx - 0.1 * pos(t)).norm(), 1e-12) << t;
+    EXPECT_LT((s.feet[0].position - pos(t) - Eigen::Vector3d(1, 0, 0)).norm(), 1e-12) << t;
+    EXPECT_LT((s.feet[0].velocity - vel(t)).norm(), 1e-12) << t;
+  }
 }

@@ -35,6 +35,10 @@ struct PhaseTimeline {
   std::vector<std::string> feet;
   std::vector<double> events;              // 0 = e_0 < e_1 < ... < e_N = duration
   std::vector<std::vector<bool>> contact;  // [foot][interval]
+  // A cropped timeline's first interval is the tail of one that began this long before t = 0. The
+  // planner then keeps that interval's segment knots (at the same absolute times), so that a plan
+  // warm-started from a shifted previous plan can reproduce it exactly.
+  double first_interval_elapsed = 0.0;
   double duration() const { return events.empty() ? 0.0 : events.back(); }
   int num_intervals() const { return static_cast<int>(events.size()) - 1; }
   // Per foot, the phases as [start, end, contact] triples (consecutive intervals merged).

@@ -36,7 +36,8 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
 // The timeline of a plan: its stored "timeline" key, or rebuilt from gait/cycles/duration.
 PhaseTimeline timeline_of(const Trajectory& plan);
 
-// State of a plan at time t (linear interpolation between samples; contact from the sample at or
+// State of a plan at time t (positions and their rates by cubic Hermite interpolation between
+// samples, exact within one cubic spline segment; accelerations and forces linear; contact from the sample at or
 // before t).
 TrajectorySample interpolate_plan(const Trajectory& plan, double t);
 
