@@ -314,6 +314,11 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   out.trajectory.extra["cycles"] = options.cycles;
   out.trajectory.extra["optimize_timing"] = options.optimize_timing;
   out.trajectory.extra["constraints"] = options.constraints;
+  if (!options.feasibility_settings.empty()) {
+    nlohmann::json fs = nlohmann::json::object();
+    for (const auto& [k, v] : options.feasibility_settings) fs[k] = v;
+    out.trajectory.extra["feasibility_settings"] = fs;
+  }
   DenseCheckLimits lim;
   lim.friction = options.friction;
   lim.max_normal_force = options.max_normal_force_factor * robot.mass * kGravity;

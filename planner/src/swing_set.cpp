@@ -6,7 +6,7 @@
 // foot's acceleration is bounded. The bound is exact along the whole swing: a cubic Hermite
 // segment's acceleration is linear in time, so its extremes are at the segment's ends. Rows are in
 // units of the bound (a / a_max in [-1, 1]).
-#include <map>
+#include <stdexcept>
 
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/piece_math.hpp"
@@ -38,15 +38,6 @@ void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options) {
                                      }
                                    }));
     }
-}
-
-std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets() {
-  return {{"foot", [](SrbdProblem& p) { build_foot_set(p); }},
-          {"shin", [](SrbdProblem& p) { build_shin_set(p); }},
-          {"shin_ik", [](SrbdProblem& p) { build_shin_kinematic_set(p); }},
-          {"polytope", [](SrbdProblem& p) { build_polytope_set(p); }},
-          {"swing", [](SrbdProblem& p) { build_swing_set(p); }},
-          {"joints", [](SrbdProblem& p) { build_joint_limit_set(p); }}};
 }
 
 }  // namespace terrastride::planner

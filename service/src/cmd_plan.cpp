@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "terrastride/collision/checks.hpp"
+#include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"
@@ -27,6 +28,7 @@ struct PlanCliOptions {
   double duration = 0.0;
   std::string goal;
   std::string constraints = "baseline";
+  std::vector<std::string> feasibility;  // NAME=VALUE settings of the constraint sets
   double sample_dt = 0.01;
   double max_time = 0.0;
   std::string init;
@@ -101,6 +103,29 @@ void run_plan(const PlanCliOptions& o) {
       throw CommandError("--constraints: '" + c + "' is not available in this build (available: " +
                          list + ")");
     }
+
+  for (const auto& item : o.feasibility)
+    for (const auto& setting : split_list(item)) {
+      const auto eq = setting.find('=');
+      if (eq == std::string::npos || eq == 0)
+        throw CommandError("--feasibility: '" + setting + "' is not NAME=VALUE");
+      const std::string name = setting.substr(0, eq), text = setting.substr(eq + 1);
+      double value = 0.0;
+      std::size_t used = 0;
+      try {
+        value = std::stod(text, &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used == 0 || used != text.size())
+        throw CommandError("--feasibility: " + name + " = '" + text + "' is not a number");
+      po.feasibility_settings.emplace_back(name, value);
+    }
+  try {
+    planner::feasibility_options(po.feasibility_settings);  // validated before the solve
+  } catch (const std::invalid_argument& e) {
+    throw CommandError(std::string("--feasibility: ") + e.what());
+  }
 
   planner::Trajectory previous;
   planner::WarmStart warm;
@@ -207,6 +232,13 @@ void add_plan_command(CLI::App& app) {
                   "foot acceleration bound), joints (joint ranges from IK), all "
                   "(= foot,shin,polytope)")
       ->capture_default_str();
+  {
+    std::string names;
+    for (const auto& n : planner::feasibility_option_names()) names += (names.empty() ? "" : ", ") + n;
+    cmd->add_option("--feasibility", o->feasibility,
+                    "settings of the constraint sets, NAME=VALUE (comma separated or repeated): " +
+                        names);
+  }
   cmd->add_option("--sample-dt", o->sample_dt, "sampling period of plan.json in s")
       ->capture_default_str();
   cmd->add_option("--max-time", o->max_time, "time limit of the solve in s (0 = none)");

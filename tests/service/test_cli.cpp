@@ -3,6 +3,8 @@
 
 #include <nlohmann/json.hpp>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "support/run_command.hpp"
 
@@ -71,4 +73,17 @@ TEST(Cli, BadInputNamesTheProblem) {
   r = run("robot show --robot nosuchbot");
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.out.find("unknown robot 'nosuchbot'"), std::string::npos) << r.out;
+  // Settings of the constraint sets: unknown names, non-numbers and out-of-range values are named
+  // before any solve.
+  for (const auto& [arg, says] : std::vector<std::pair<std::string, std::string>>{
+           {"bogus=1", "unknown feasibility setting 'bogus'"},
+           {"swing_acceleration=fast", "swing_acceleration = 'fast' is not a number"},
+           {"shin_points=2.5", "shin_points = 2.5: must be an integer"},
+           {"joint_margin=-1", "joint_margin = -1: must be in [0, 0.5] rad"},
+           {"swing_acceleration", "is not NAME=VALUE"}}) {
+    r = run("plan --terrain flat --out /nonexistent/never.json --feasibility " + arg);
+    EXPECT_NE(r.code, 0) << arg;
+    EXPECT_NE(r.out.find("--feasibility"), std::string::npos) << arg << ": " << r.out;
+    EXPECT_NE(r.out.find(says), std::string::npos) << arg << ": " << r.out;
+  }
 }

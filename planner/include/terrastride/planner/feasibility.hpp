@@ -18,6 +18,7 @@
 #include <map>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "terrastride/planner/nlp.hpp"
 
@@ -66,8 +67,16 @@ void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options = {
 // knot of the base spline (see joint_limit_set.cpp).
 void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 
-// {"foot", "shin", "shin_ik", "polytope", "swing", "joints"} with their default options (the registry's
-// initial content); defined in swing_set.cpp.
+// FeasibilityOptions from the defaults and NAME=VALUE settings (PlannerOptions::
+// feasibility_settings, `terrastride plan --feasibility`); names are the fields' names. Throws
+// std::invalid_argument naming the setting when the name is unknown or the value out of range.
+FeasibilityOptions feasibility_options(const std::vector<std::pair<std::string, double>>& settings);
+// The names feasibility_options() accepts.
+std::vector<std::string> feasibility_option_names();
+
+// {"foot", "shin", "shin_ik", "polytope", "swing", "joints"}, each built with
+// feasibility_options(problem.options().feasibility_settings) (the registry's initial content;
+// constraint_sets.cpp).
 std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets();
 
 // What "all" expands to, in order.

@@ -23,6 +23,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "terrastride/planner/gait.hpp"
@@ -76,6 +77,9 @@ struct PlannerOptions {
   int rom_points = 2;                    // range-of-motion points per segment
   int clearance_points = 4;              // swing-clearance points per segment
   std::vector<std::string> constraints{"baseline"};
+  // NAME=VALUE settings of the constraint sets' FeasibilityOptions (feasibility.hpp), applied in
+  // order over the defaults; feasibility_options() validates them.
+  std::vector<std::pair<std::string, double>> feasibility_settings;
   double max_time = 0.0;  // s per solve, 0 = none
   // Polled once per solver iteration; returning true stops the solve (status "stopped"). The
   // socket service uses it to cancel a plan request. Must be cheap and thread-safe.
