@@ -2,6 +2,7 @@
 // polytope_set.cpp): AD overloads of the terrain/model queries they use.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 
 #include "terrastride/planner/piece_math.hpp"
@@ -23,6 +24,34 @@ inline double safety_margin(const terrain::HeightField& f, double x, double y, d
 inline Ad safety_margin(const terrain::HeightField& f, const Ad& x, const Ad& y, double r) {
   const terrain::MarginSample s = f.safety_margin(x.value(), y.value(), r);
   return Ad(s.margin, chain2(s.gradient.x(), x.derivatives(), s.gradient.y(), y.derivatives()));
+}
+
+// Smooth conservative minimum of v[0..n-1] at scale t > 0 (log-sum-exp):
+//   soft_min = -t log(sum_k exp(-v_k / t)),  min_k v_k - t log(n) <= soft_min <= min_k v_k.
+// So soft_min >= c implies v_k >= c for every k: one row soft_min(v) >= c replaces n rows
+// v_k >= c without admitting anything they forbid, and asks at most t log(n) more (as much only
+// when all v_k are equal; a value t above the minimum weighs exp(-1) of it). Shifted by the
+// minimum's value (a constant for the derivatives) so the exponentials cannot overflow.
+template <class T>
+T soft_min(const T* v, int n, double t) {
+  using std::exp;
+  using std::log;
+  double m = value_of(v[0]);
+  for (int k = 1; k < n; ++k) m = std::min(m, value_of(v[k]));
+  T sum = exp(-(v[0] - m) / t);
+  for (int k = 1; k < n; ++k) sum += exp(-(v[k] - m) / t);
+  return m - t * log(sum);
+}
+// The conservative smooth maximum: soft_max >= max_k v_k (so soft_max <= c implies v_k <= c).
+template <class T>
+T soft_max(const T* v, int n, double t) {
+  using std::exp;
+  using std::log;
+  double m = value_of(v[0]);
+  for (int k = 1; k < n; ++k) m = std::max(m, value_of(v[k]));
+  T sum = exp((v[0] - m) / t);
+  for (int k = 1; k < n; ++k) sum += exp((v[k] - m) / t);
+  return m + t * log(sum);
 }
 
 }  // namespace terrastride::planner::feasibility

@@ -16,12 +16,18 @@
 // Hermite splines. The post-hoc torque check (every sample of the plan) measures what is left.
 #include <algorithm>
 #include <memory>
+#include <stdexcept>
+#include <vector>
 
 #include "feasibility_common.hpp"
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/polytope_model.hpp"
 
 namespace terrastride::planner {
+
+namespace {
+constexpr int kMaxPolytopeValues = 64;  // facet values one merged piece may fold into its row
+}  // namespace
 
 namespace feasibility {
 
@@ -96,10 +102,60 @@ void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options)
         }));
   };
 
+  // Merged (polytope_softmax > 0): one piece and ONE row per stance segment, the soft maximum of
+  // the 6 facet rows at its two force knots and its inner points (>= each of them, so the row
+  // holds all of them). Its variables are those of the inner points' pieces above: the whole
+  // base Hermite segment, the foothold, both force knots (a missing knot reads as zero force).
+  auto add_segment = [&](int f, int s) {
+    std::vector<double> sigmas{0.0};
+    for (int q = 1; q <= ni; ++q) sigmas.push_back(static_cast<double>(q) / (ni + 1));
+    sigmas.push_back(1.0);
+    const int n_values = static_cast<int>(sigmas.size()) * kPolytopeFacets;
+    if (n_values > kMaxPolytopeValues)
+      throw std::invalid_argument("polytope: too many points per segment");
+    LocalVars lv;
+    const HermiteLocal rp = add_hermite(lv, L.base[s], L.base[s] + 3, L.base[s + 1],
+                                        L.base[s + 1] + 3, 0.5, false);
+    const HermiteLocal ep = add_hermite(lv, L.base[s] + 6, L.base[s] + 9, L.base[s + 1] + 6,
+                                        L.base[s + 1] + 9, 0.5, false);
+    const auto pf = lv.add3(L.foot_pos[f][s]);
+    const auto f0 = lv.add3(L.force[f][s][0]);
+    const auto f1 = lv.add3(L.force[f][s][1]);
+    const int dur = lv.add(L.interval_var[L.seg_interval[s]]);
+    const double frac = L.seg_fraction[s];
+    const double t_soft = options.polytope_softmax;
+    const LegPolytopeModel* leg = &model->legs[f];
+    problem.add_piece(make_piece(
+        "force_polytope", lv, {-kInf}, {0.0}, [=, keep = model](const auto* x, auto* g) {
+          using T = std::decay_t<decltype(*g)>;
+          (void)keep;
+          const T h = x[dur] * frac;
+          const Vec3<T> pf_w = gather3(x, pf), fk0 = gather3(x, f0), fk1 = gather3(x, f1);
+          T values[kMaxPolytopeValues] = {};
+          int n = 0;
+          for (const double sigma : sigmas) {
+            Vec3<T> r, e;
+            hermite<T>(sigma, h, x, rp, &r, nullptr, nullptr);
+            hermite<T>(sigma, h, x, ep, &e, nullptr, nullptr);
+            const Eigen::Matrix<T, 3, 3> Rt = rotation_zyx<T>(e).transpose();
+            const Vec3<T> force = (1.0 - sigma) * fk0 + sigma * fk1;
+            const Vec3<T> pb = Rt * (pf_w - r);
+            const Vec3<T> fb = Rt * force;
+            feasibility::polytope_rows(*leg, pb, fb, scale, values + n);
+            n += kPolytopeFacets;
+          }
+          g[0] = feasibility::soft_max(values, n, t_soft);
+        }));
+  };
+
   for (int f = 0; f < nf; ++f) {
     int last = -1;
     for (int s = 0; s < S; ++s) {
       if (!L.contact[f][s]) continue;
+      if (options.polytope_softmax > 0.0) {
+        add_segment(f, s);
+        continue;
+      }
       for (int side = 0; side < 2; ++side) {
         const int fv = L.force[f][s][side];
         if (fv < 0 || fv == last) continue;  // a knot shared by two segments: once

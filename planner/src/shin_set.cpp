@@ -21,17 +21,24 @@
 // clearance, and its lift-off and touch-down footholds are stance footholds covered here.
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
+#include <vector>
 
 #include "feasibility_common.hpp"
 #include "terrastride/planner/feasibility.hpp"
 
 namespace terrastride::planner {
 
+namespace {
+constexpr int kMaxShinValues = 64;  // values one shin piece may fold into its soft minimum
+}  // namespace
+
 void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   const Layout& L = problem.layout();
   const terrain::HeightField* field = &problem.terrain();
   const int nk = std::max(1, options.shin_points);
   const int ny = std::max(1, options.shin_yaw_points);
+  const double t_soft = options.shin_softmin;
   for (const auto& st : L.stances) {
     const auto& leg = problem.robot().legs[st.foot];
     const double s = leg.shin_length, cb = std::cos(leg.shin_angle), sb = std::sin(leg.shin_angle);
@@ -44,31 +51,41 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options) {
                                  ? options.shin_exclusion
                                  : 2.0 * problem.robot().foot_radius + leg.shin_radius + 0.01;
     const double k_min = std::clamp(exclusion / s, 0.0, 1.0);
-    std::vector<double> lo(nk, clearance), hi(nk, kInf);
-    for (int seg = st.first_seg; seg <= st.last_seg; ++seg)
-      for (int q = 0; q <= ny; ++q) {
-        if (q == ny && seg != st.last_seg) continue;  // the next segment's start covers this end
-        const double sigma = static_cast<double>(q) / ny;
-        LocalVars lv;
-        const auto p = lv.add3(st.pos_var);
-        // Yaw at sigma: only its own knot at the segment ends, the whole yaw Hermite inside.
-        int y0 = -1, v0 = -1, y1 = -1, v1 = -1, dur = -1;
-        if (sigma == 0.0) {
-          y0 = lv.add(L.base[seg] + 6);
-        } else if (sigma == 1.0) {
-          y1 = lv.add(L.base[seg + 1] + 6);
-        } else {
-          y0 = lv.add(L.base[seg] + 6);
-          v0 = lv.add(L.base[seg] + 9);
-          y1 = lv.add(L.base[seg + 1] + 6);
-          v1 = lv.add(L.base[seg + 1] + 9);
-          dur = lv.add(L.interval_var[L.seg_interval[seg]]);
-        }
-        const double frac = L.seg_fraction[seg];
-        problem.add_piece(make_piece("shin", lv, lo, hi, [=](const auto* x, auto* g) {
-          using T = std::decay_t<decltype(*g)>;
-          using std::cos;
-          using std::sin;
+    // One piece over the points at fractions `sigmas` of segment seg: nk rows per fraction, or
+    // (shin_softmin > 0) one row, their soft minimum.
+    auto add = [&](int seg, std::vector<double> sigmas) {
+      const int n_values = static_cast<int>(sigmas.size()) * nk;
+      if (n_values > kMaxShinValues)
+        throw std::invalid_argument("shin: too many points per piece (shin_points x yaw points)");
+      const bool merged = t_soft > 0.0;
+      const int rows = merged ? 1 : n_values;
+      std::vector<double> lo(rows, clearance), hi(rows, kInf);
+      LocalVars lv;
+      const auto p = lv.add3(st.pos_var);
+      // Yaw: only its own knot at a lone segment end, the whole yaw Hermite otherwise.
+      int y0 = -1, v0 = -1, y1 = -1, v1 = -1, dur = -1;
+      const bool only_start = sigmas.size() == 1 && sigmas[0] == 0.0;
+      const bool only_end = sigmas.size() == 1 && sigmas[0] == 1.0;
+      if (only_start) {
+        y0 = lv.add(L.base[seg] + 6);
+      } else if (only_end) {
+        y1 = lv.add(L.base[seg + 1] + 6);
+      } else {
+        y0 = lv.add(L.base[seg] + 6);
+        v0 = lv.add(L.base[seg] + 9);
+        y1 = lv.add(L.base[seg + 1] + 6);
+        v1 = lv.add(L.base[seg + 1] + 9);
+        dur = lv.add(L.interval_var[L.seg_interval[seg]]);
+      }
+      const double frac = L.seg_fraction[seg];
+      problem.add_piece(make_piece("shin", lv, lo, hi, [=](const auto* x, auto* g) {
+        using T = std::decay_t<decltype(*g)>;
+        using std::cos;
+        using std::sin;
+        T values[kMaxShinValues] = {};
+        T* out = merged ? values : g;
+        int n = 0;
+        for (const double sigma : sigmas) {
           T psi;
           if (dur < 0) {
             psi = y0 >= 0 ? x[y0] : x[y1];
@@ -80,10 +97,24 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options) {
           for (int k = 1; k <= nk; ++k) {
             const double a = (nk == 1 ? 1.0 : k_min + (1.0 - k_min) * (k - 1) / (nk - 1)) * s;
             const T qx = x[p[0]] + a * cb * c, qy = x[p[1]] + a * cb * sn;
-            g[k - 1] = x[p[2]] + a * sb - terrain_height(*field, qx, qy);
+            out[n++] = x[p[2]] + a * sb - terrain_height(*field, qx, qy);
           }
-        }));
+        }
+        if (merged) g[0] = feasibility::soft_min(values, n, t_soft);
+      }));
+    };
+    for (int seg = st.first_seg; seg <= st.last_seg; ++seg) {
+      std::vector<double> sigmas;
+      for (int q = 0; q <= ny; ++q) {
+        if (q == ny && seg != st.last_seg) continue;  // the next segment's start covers this end
+        sigmas.push_back(static_cast<double>(q) / ny);
       }
+      if (t_soft > 0.0) {
+        add(seg, sigmas);  // one row for the whole segment
+      } else {
+        for (const double sigma : sigmas) add(seg, {sigma});
+      }
+    }
   }
 }
 

@@ -14,6 +14,7 @@
 #include "terrastride/planner/polytope_model.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
+#include "../../planner/src/feasibility_common.hpp"
 #include "piece_derivatives.hpp"
 #include "test_robots.hpp"
 #include "test_terrains.hpp"
@@ -180,6 +181,8 @@ TEST(FeasibilityValues, PiecesEvaluateThePapersFormulas) {
   fo.shin_points = 3;
   fo.shin_exclusion = 0.1;  // k = 1/3, 2/3, 1 on the 0.3 m shin, as in the paper
   fo.polytope_inner_points = 0;
+  fo.shin_softmin = 0.0;  // one row per point, so the extremes compare exactly
+  fo.polytope_softmax = 0.0;
   build_foot_set(p, fo);
   build_shin_set(p, fo);
   build_polytope_set(p, fo);
@@ -241,19 +244,169 @@ TEST(FeasibilityValues, PiecesEvaluateThePapersFormulas) {
   EXPECT_LT(foot_min, 0.0);  // the test terrain has unsafe spots under the guess: not vacuous
 }
 
+// Both variants of the shin and polytope sets (per-point rows, and the default merged rows: one
+// per stance segment): Jacobians against finite differences, optimised timing and a turn.
+class FeasibilityVariants : public ::testing::TestWithParam<double> {};
+INSTANTIATE_TEST_SUITE_P(SoftScale, FeasibilityVariants, ::testing::Values(0.0, 0.003));
+TEST_P(FeasibilityVariants, PiecesMatchFiniteDifferences) {
+  const double t_soft = GetParam();
+  const auto r = hyq();
+  MarginStep terrain(0.1, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.05, 0.3);
+  o.optimize_timing = true;
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem p(r, terrain, tl, o);
+  FeasibilityOptions fo;
+  fo.shin_softmin = t_soft;
+  fo.polytope_softmax = t_soft;
+  build_shin_set(p, fo);
+  build_polytope_set(p, fo);
+  for (const auto& piece : p.pieces()) {
+    if (piece->kind == "shin") {
+      EXPECT_EQ(piece->rows(), t_soft > 0 ? 1 : fo.shin_points);
+    } else if (piece->kind == "force_polytope") {
+      EXPECT_EQ(piece->rows(), t_soft > 0 ? 1 : 6);
+    }
+  }
+  for (unsigned seed : {1u, 2u, 3u})
+    EXPECT_GT(check_pieces(p, {"shin", "force_polytope"}, seed, 0.02), 0);
+}
+
+TEST(FeasibilityValues, SoftMinIsAConservativeBound) {
+  const double v[4] = {0.05, 0.02, 0.021, 0.3}, t = 0.004;
+  const double sm = feasibility::soft_min(v, 4, t), sx = feasibility::soft_max(v, 4, t);
+  EXPECT_LE(sm, 0.02);
+  EXPECT_GE(sm, 0.02 - t * std::log(4.0));
+  EXPECT_GE(sx, 0.3);
+  EXPECT_LE(sx, 0.3 + t * std::log(4.0));
+  // Exact formula, and far apart values: the soft minimum is the minimum to within t e^-(gap/t).
+  EXPECT_NEAR(sm, -t * std::log(std::exp(-0.05 / t) + std::exp(-0.02 / t) + std::exp(-0.021 / t) +
+                                std::exp(-0.3 / t)),
+              1e-15);
+  const double w[2] = {1.0, 1.5};
+  EXPECT_NEAR(feasibility::soft_min(w, 2, 0.01), 1.0, 1e-15);
+  // Large values do not overflow (the minimum is factored out).
+  const double big[2] = {1e4, -1e4};
+  EXPECT_DOUBLE_EQ(feasibility::soft_max(big, 2, 1e-3), 1e4);
+}
+
+// Each merged shin row is the soft minimum of the per-point rows it replaces (so it lies below
+// every one of them), and each merged polytope row the soft maximum of the facet rows at the
+// segment's force knots and midpoint, evaluated here from the continuous solution.
+TEST(FeasibilityValues, MergedRowsBoundThePointRows) {
+  const auto r = hyq();
+  MarginStep terrain(0.1, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.0, 0.3);
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem points(r, terrain, tl, o), merged(r, terrain, tl, o);
+  FeasibilityOptions fp, fm;
+  fp.shin_softmin = 0.0;
+  fm.shin_softmin = 0.004;
+  fm.polytope_softmax = 0.004;
+  build_shin_set(points, fp);
+  build_shin_set(merged, fm);
+  build_polytope_set(merged, fm);
+  std::vector<double> x = points.initial_guess();
+  std::mt19937 rng(5);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  for (std::size_t i = 0; i < x.size(); ++i)
+    if (points.lower()[i] < points.upper()[i]) x[i] += noise(rng);
+  auto values = [&](const Piece& piece) {
+    std::vector<double> xl(piece.vars.size()), g(piece.rows());
+    for (std::size_t i = 0; i < xl.size(); ++i) xl[i] = x[piece.vars[i]];
+    piece.eval(xl.data(), g.data());
+    return g;
+  };
+  std::vector<const Piece*> pp, mp, poly;
+  for (const auto& piece : points.pieces())
+    if (piece->kind == "shin") pp.push_back(piece.get());
+  for (const auto& piece : merged.pieces()) {
+    if (piece->kind == "shin") mp.push_back(piece.get());
+    if (piece->kind == "force_polytope") poly.push_back(piece.get());
+  }
+  // Per stance segment: shin_yaw_points pieces (one more in the stance's last segment).
+  const Layout& L = points.layout();
+  const int ny = fp.shin_yaw_points;
+  std::size_t next = 0, m = 0;
+  int checked = 0;
+  for (const auto& st : L.stances) {
+    if (!(r.legs[st.foot].shin_length > 0.0)) continue;
+    for (int seg = st.first_seg; seg <= st.last_seg; ++seg, ++m) {
+      const int group = ny + (seg == st.last_seg ? 1 : 0);
+      std::vector<double> all;
+      for (int k = 0; k < group; ++k) {
+        ASSERT_LT(next, pp.size());
+        const auto g = values(*pp[next++]);
+        all.insert(all.end(), g.begin(), g.end());
+      }
+      ASSERT_LT(m, mp.size());
+      const double merged_value = values(*mp[m])[0];
+      double sum = 0.0, mn = 1e300;
+      for (double v : all) mn = std::min(mn, v);
+      for (double v : all) sum += std::exp(-(v - mn) / fm.shin_softmin);
+      EXPECT_NEAR(merged_value, mn - fm.shin_softmin * std::log(sum), 1e-12);
+      EXPECT_LE(merged_value, mn);
+      ++checked;
+    }
+  }
+  EXPECT_EQ(next, pp.size());
+  EXPECT_EQ(m, mp.size());
+  EXPECT_GT(checked, 10);
+
+  // Polytope: pieces in order foot, stance segment.
+  const auto polys = load_polytope_model(r);
+  const double mg = r.mass * 9.81;
+  std::vector<double> knot_t{0.0};
+  for (int s = 0; s < L.num_segments; ++s)
+    knot_t.push_back(knot_t.back() + x[L.interval_var[L.seg_interval[s]]] * L.seg_fraction[s]);
+  std::size_t q = 0;
+  for (int f = 0; f < static_cast<int>(r.legs.size()); ++f)
+    for (int s = 0; s < L.num_segments; ++s) {
+      if (!L.contact[f][s]) continue;
+      ASSERT_LT(q, poly.size());
+      std::vector<double> facets;
+      for (double t : {knot_t[s] + 1e-12, 0.5 * (knot_t[s] + knot_t[s + 1]), knot_t[s + 1] - 1e-12}) {
+        const auto state = merged.evaluate(x, t);
+        const Eigen::Matrix3d R =
+            (Eigen::AngleAxisd(state.euler[0], Eigen::Vector3d::UnitZ()) *
+             Eigen::AngleAxisd(state.euler[1], Eigen::Vector3d::UnitY()) *
+             Eigen::AngleAxisd(state.euler[2], Eigen::Vector3d::UnitX()))
+                .toRotationMatrix();
+        const Eigen::Vector3d pb = R.transpose() * (state.foot_pos[f] - state.pos);
+        const Eigen::Vector3d fb = R.transpose() * state.force[f];
+        const auto v = polys.legs[f].constraint(pb, fb);
+        for (int j = 0; j < v.size(); ++j) facets.push_back(v[j] / mg);
+      }
+      double mx = -1e300, sum = 0.0;
+      for (double v : facets) mx = std::max(mx, v);
+      for (double v : facets) sum += std::exp((v - mx) / fm.polytope_softmax);
+      const double merged_value = values(*poly[q++])[0];
+      EXPECT_NEAR(merged_value, mx + fm.polytope_softmax * std::log(sum), 1e-7);
+      EXPECT_GE(merged_value, mx - 1e-7);
+    }
+  EXPECT_EQ(q, poly.size());
+  EXPECT_GT(q, 10u);
+}
+
 TEST(FeasibilityValues, DefaultsAddPointsInsideSegments) {
   const auto r = hyq();
   testing::FlatField flat;
   const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
   PlannerOptions o;
   SrbdProblem knots(r, flat, tl, o), dflt(r, flat, tl, o);
-  FeasibilityOptions fo;
+  FeasibilityOptions fo, fd;
   fo.shin_yaw_points = 1;
   fo.polytope_inner_points = 0;
+  fo.shin_softmin = fd.shin_softmin = 0.0;  // piece counts of the per-point rows
+  fo.polytope_softmax = fd.polytope_softmax = 0.0;
   build_shin_set(knots, fo);
   build_polytope_set(knots, fo);
-  build_shin_set(dflt);
-  build_polytope_set(dflt);
+  build_shin_set(dflt, fd);
+  build_polytope_set(dflt, fd);
   // Every stance segment gains one shin point and one polytope point.
   int stance_segments = 0;
   for (const auto& st : knots.layout().stances) stance_segments += st.last_seg - st.first_seg + 1;

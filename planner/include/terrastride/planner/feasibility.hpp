@@ -10,9 +10,11 @@
 //               +-swing_acceleration: the torque a swing leg needs to accelerate itself.
 // "polytope" implies "swing": the joint-torque limits hold for stance legs (polytopes) and swing
 // legs (acceleration) alike, as the post-hoc torque check judges them (tau = M q'' + c + g - J^T f).
-// "all" means foot, shin and polytope (so swing too). Each set is built by one function (its own source file); the registry in
-// nlp.cpp gets them from builtin_constraint_sets(), so they are available whenever the planner
-// library is linked (no static initialisers).
+// By default the shin and polytope rows of one stance segment are folded into one row each, a
+// conservative smooth minimum/maximum (fewer rows: a cheaper KKT factorisation; see the options).
+// "all" means foot, shin and polytope (so swing too). Each set is built by one function (its own
+// source file); nlp.cpp gets them from builtin_constraint_sets() (constraint_sets.cpp), so they
+// are available whenever the planner library is linked (no static initialisers).
 #pragma once
 
 #include <map>
@@ -44,8 +46,18 @@ struct FeasibilityOptions {
   double shin_clearance = -1.0;
   // shin: points per stance segment at which the base yaw is taken (ends of segments always).
   int shin_yaw_points = 2;
+  // shin: > 0 folds each stance segment's shin values (shin_points at each of its yaw points) into
+  // ONE row, their soft minimum at this scale (m; feasibility::soft_min, <= the true minimum, so
+  // the row implies every point's; at most scale * log(n) stricter: 7 mm for n = 30 points).
+  // 0: one row per point. Measured (issue #5, pallet_15 "all" on a loaded 2-core machine): rows
+  // 21,744 -> 9,968 with polytope_softmax, solve 28 s user / 57 iterations -> 3.6 s / 22.
+  double shin_softmin = 0.002;
   // polytope: points per stance segment besides its two force knots (see polytope_set.cpp).
   int polytope_inner_points = 1;
+  // polytope: > 0 folds each stance segment's facet rows (6 at each force knot and inner point)
+  // into ONE row, their soft maximum at this scale (body weights; >= the true maximum, so the row
+  // implies every facet row; at most scale * log(18) = 0.006 m g stricter). 0: 6 rows per point.
+  double polytope_softmax = 0.002;
   // swing: bound on each world-frame component of a swing foot's acceleration (m/s^2). HyQ's
   // swing leg (about 3.5 kg of thigh and shin within 0.6 m of the HFE axis) needs some 40-60 N m
   // of its 150 N m at 100 m/s^2, leaving the rest for velocity and gravity terms and for the base's
