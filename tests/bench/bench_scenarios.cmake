@@ -2,4 +2,5 @@
 # directory: ./tests/bench/bench_scenarios [--repeat 3] [--only pallet_15,flat_2.4s] [--json]
 add_executable(bench_scenarios bench_scenarios.cpp)
 target_link_libraries(bench_scenarios PRIVATE terrastride::planner terrastride::terrain
+                      terrastride::collision
                       nlohmann_json::nlohmann_json terrastride_warnings)

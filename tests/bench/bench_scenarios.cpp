@@ -1,6 +1,11 @@
 // Scenario runner for the planner (DESIGN.md, Scenarios): one row per scenario with problem size,
 // iterations, wall time (median of --repeat runs), peak memory and the dense checks.
-//   bench_scenarios [--repeat 3] [--only NAME[,NAME...]] [--json]
+//   bench_scenarios [--repeat 3] [--only NAME[,NAME...]] [--feasibility] [--json]
+// --feasibility (or --only naming them) adds the feasibility-variant rows SCENE/SETS (baseline,
+// foot, foot,shin, all on pallet_10 and pallet_15; issue #5) with their own columns: rows and
+// Jacobian nonzeros, iterations, wall and user CPU s, the post-hoc checks on the exact scene
+// (worst joint torque ratio over the whole plan, capsule collisions and minimum distance, unsafe
+// footholds) and the worst quasi-static stance torque ratio max |J_i^T f| / tau_i.
 #include <sys/resource.h>
 
 #include <algorithm>
@@ -14,7 +19,12 @@
 #include <string>
 #include <vector>
 
+#include "terrastride/collision/checks.hpp"
+#include "terrastride/collision/octree_terrain.hpp"
+#include "terrastride/planner/gait.hpp"
+#include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/planner.hpp"
+#include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
@@ -29,7 +39,32 @@ struct Scenario {
   double duration;
   bool optimize_timing;
   double warm_shift = -1.0;  // >= 0: re-plan from the cold plan's state at this time
+  std::vector<std::string> constraints{"baseline"};
+  bool feasibility_row = false;  // printed with the feasibility columns; run on request only
 };
+
+double user_cpu_s() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return u.ru_utime.tv_sec + 1e-6 * u.ru_utime.tv_usec;
+}
+
+// Worst quasi-static stance torque ratio max_i |J_i^T f_b| / tau_i (exact polytope at IK).
+double stance_torque_ratio(const robot::RobotModel& r, const planner::Trajectory& t) {
+  double worst = 0.0;
+  for (const auto& s : t.samples) {
+    const Eigen::Matrix3d R = collision::rotation_zyx(s.base.euler_zyx);
+    for (std::size_t f = 0; f < s.feet.size(); ++f) {
+      if (!s.feet[f].contact) continue;
+      const Eigen::Vector3d pb = R.transpose() * (s.feet[f].position - s.base.position);
+      const auto ik = robot::inverse_kinematics(r.legs[f], pb);
+      if (ik.status == robot::IkStatus::unreachable) continue;
+      worst = std::max(worst, robot::exact_force_polytope(r.legs[f], ik.q)
+                                  .torque_ratio(-(R.transpose() * s.feet[f].force)));
+    }
+  }
+  return worst;
+}
 
 double peak_mb() {
   rusage u{};
@@ -42,6 +77,7 @@ double peak_mb() {
 int main(int argc, char** argv) {
   int repeat = 3;
   bool json = false;
+  bool feasibility = false;
   std::vector<std::string> only;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -51,14 +87,16 @@ int main(int argc, char** argv) {
       std::stringstream ss(argv[++i]);
       std::string item;
       while (std::getline(ss, item, ',')) only.push_back(item);
+    } else if (a == "--feasibility") {
+      feasibility = true;
     } else if (a == "--json") {
       json = true;
     } else {
-      std::cerr << "usage: bench_scenarios [--repeat N] [--only NAME,...] [--json]\n";
+      std::cerr << "usage: bench_scenarios [--repeat N] [--only NAME,...] [--feasibility] [--json]\n";
       return 2;
     }
   }
-  const std::vector<Scenario> scenarios = {
+  std::vector<Scenario> scenarios = {
       {"flat_2.4s", "flat", 2.4, false},
       {"flat_2.4s_timing", "flat", 2.4, true},
       {"pallet_10", "pallet_10", 11.0, false},
@@ -69,14 +107,29 @@ int main(int argc, char** argv) {
       {"stairs_timing", "stairs", 11.0, true},
       {"pallet_15_warm_0.1s", "pallet_15", 11.0, false, 0.1},
   };
+  for (const char* scene : {"pallet_10", "pallet_15"})
+    for (const char* sets : {"baseline", "foot", "foot,shin", "all"}) {
+      Scenario sc{std::string(scene) + "/" + sets, scene, 11.0, false};
+      sc.constraints.clear();
+      std::stringstream ss(sets);
+      std::string item;
+      while (std::getline(ss, item, ',')) sc.constraints.push_back(item);
+      sc.feasibility_row = true;
+      scenarios.push_back(sc);
+    }
   const auto robot = robot::load_robot(robot::resolve_robot_path("hyq"));
-  if (!json)
+  if (!json && feasibility)
+    std::printf("%-20s %6s %7s %5s %7s %7s %-10s (post-hoc on the exact scene)\n", "scenario/sets",
+                "rows", "nnz", "iter", "wall_s", "user_s", "status");
+  if (!json && !feasibility)
     std::printf("%-22s %6s %6s %5s %8s %7s %-10s %8s %8s %8s %8s %8s %8s %6s\n", "scenario", "vars",
                 "cons", "iter", "wall_s", "peakMB", "status", "lin_N", "ang_Nm", "pen_mm",
                 "fric_N", "slip_mm", "rom_mm", "goal");
   nlohmann::json rows = nlohmann::json::array();
   for (const auto& sc : scenarios) {
     if (!only.empty() && std::find(only.begin(), only.end(), sc.name) == only.end()) continue;
+    if (only.empty() && sc.feasibility_row && !feasibility) continue;
+    if (only.empty() && !sc.feasibility_row && feasibility) continue;
     auto scene = terrain::make_scene(sc.scene);
     auto smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
     planner::PlannerOptions o;
@@ -86,12 +139,13 @@ int main(int argc, char** argv) {
     o.optimize_timing = sc.optimize_timing;
     o.has_goal = true;
     o.goal = Eigen::Vector3d(scene->goal().x(), scene->goal().y(), 0.0);
+    o.constraints = sc.constraints;
     planner::Trajectory cold;
     if (sc.warm_shift >= 0.0) {
       const auto c = planner::plan_motion(robot, *smooth, *scene, o, 0.01);
       cold = c.trajectory;
     }
-    std::vector<double> walls;
+    std::vector<double> walls, users;
     planner::PlanOutcome out;
     for (int r = 0; r < repeat; ++r) {
       planner::WarmStart warm;
@@ -99,11 +153,15 @@ int main(int argc, char** argv) {
         warm.previous = &cold;
         warm.shift = sc.warm_shift;
       }
+      const double u0 = user_cpu_s();
       out = planner::plan_motion(robot, *smooth, *scene, o, 0.01, warm);
+      users.push_back(user_cpu_s() - u0);
       walls.push_back(out.trajectory.solver.wall_s);
     }
     std::sort(walls.begin(), walls.end());
+    std::sort(users.begin(), users.end());
     const double wall = walls[walls.size() / 2];
+    const double user = users[users.size() / 2];
     const auto& t = out.trajectory;
     const auto& last = t.samples.back().base.position;
     const double goal_err = std::hypot(last.x() - o.goal.x(), last.y() - o.goal.y());
@@ -119,6 +177,40 @@ int main(int argc, char** argv) {
                           {"goal_error_m", goal_err},
                           {"checks", t.checks}};
     if (sc.warm_shift >= 0.0) row["cold_wall_s"] = cold.solver.wall_s;
+    if (sc.feasibility_row) {
+      // Problem size (the same problem plan_motion built), the post-hoc checks of `terrastride
+      // plan` (capsules against the scene voxelised at 1 cm) and the stance torque ratio.
+      std::vector<std::string> feet;
+      for (const auto& leg : robot.legs) feet.push_back(leg.name);
+      const planner::PhaseTimeline tl = planner::make_timeline(
+          planner::load_gait(planner::resolve_gait_path(o.gait)), feet, o.cycles, o.duration);
+      const planner::SrbdProblem problem(robot, *smooth, tl, o);
+      row["n_rows"] = problem.num_constraints();
+      row["jacobian_nonzeros"] = problem.jacobian_nonzeros();
+      row["user_s_median"] = user;
+      row["stance_torque_ratio"] = stance_torque_ratio(robot, t);
+      Eigen::Vector2d lo, hi;
+      collision::trajectory_extent(robot, t, 0.1, &lo, &hi);
+      collision::CheckTerrain view;
+      view.field = scene.get();
+      collision::VoxeliseOptions vo;
+      vo.resolution = 0.01;
+      view.octree = collision::voxelise_scene(*scene, lo, hi, vo);
+      const auto keys = collision::run_checks(robot, t, view).keys();
+      for (const auto& [k, v] : keys) row["post_hoc"][k] = v;
+      auto key = [&](const char* k) { return keys.count(k) ? keys.at(k) : -1.0; };
+      if (!json) {
+        std::printf("%-20s %6d %7d %5d %7.2f %7.2f %-10s tau %5.2f stance %5.3f shin %7.4f m "
+                    "coll %3.0f unsafe %2.0f\n",
+                    sc.name.c_str(), problem.num_constraints(), problem.jacobian_nonzeros(),
+                    t.solver.iterations, wall, user, t.solver.status.c_str(),
+                    key("torque_ratio_max"), static_cast<double>(row["stance_torque_ratio"]),
+                    key("shin_min_distance_m"), key("shin_collisions"), key("unsafe_footholds"));
+        std::fflush(stdout);
+      }
+      rows.push_back(row);
+      continue;
+    }
     rows.push_back(row);
     if (!json) {
       std::printf("%-22s %6d %6d %5d %8.3f %7.1f %-10s %8.3g %8.3g %8.3g %8.3g %8.3g %8.3g %6.3f\n",
