@@ -130,7 +130,9 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options) {
 // fixed beta is a heuristic: measured on our pallet plans, a hind shin flattens to ~30 deg when
 // the base moves on over a foot planted before the step, and the knee is ~0.33 m from the foot,
 // so the fixed-beta rows hold while the real shin hits the edge (see the issue #5 report).
-// Imposed at the segment ends of every stance (base knots: value-only, few columns).
+// Imposed at the segment ends of every stance (base knots: value-only, few columns). With
+// shin_softmin > 0 (the default) the 2 nk - 1 rows of one knot are folded into one, their soft
+// minimum (as for "shin").
 namespace {
 
 template <class T>
@@ -162,6 +164,7 @@ void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& op
   const Layout& L = problem.layout();
   const terrain::HeightField* field = &problem.terrain();
   const int nk = std::max(2, options.shin_points);
+  if (2 * nk - 1 > kMaxShinValues) throw std::invalid_argument("shin_ik: too many shin points");
   for (const auto& st : L.stances) {
     const robot::LegModel leg = problem.robot().legs[st.foot];
     const double exclusion = options.shin_exclusion >= 0.0
@@ -169,8 +172,10 @@ void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& op
                                  : 2.0 * problem.robot().foot_radius + leg.shin_radius + 0.01;
     const double radius = options.shin_clearance >= 0.0 ? -1.0 : leg.shin_radius;
     const double fixed_clearance = options.shin_clearance;
-    std::vector<double> lo(2 * nk - 1, radius >= 0.0 ? 0.0 : fixed_clearance),
-        hi(2 * nk - 1, kInf);
+    // shin_softmin > 0: the 2 nk - 1 values folded into one row (their soft minimum).
+    const double t_soft = options.shin_softmin;
+    const int rows = t_soft > 0.0 ? 1 : 2 * nk - 1;
+    std::vector<double> lo(rows, radius >= 0.0 ? 0.0 : fixed_clearance), hi(rows, kInf);
     for (int k = st.first_seg; k <= st.last_seg + 1; ++k) {
       LocalVars lv;
       const auto p = lv.add3(st.pos_var);
@@ -200,14 +205,17 @@ void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& op
         // rows: the edge slipped between points, capsule 2 cm into it).
         const T t0 = exclusion / len;
         Vec3<T> prev;
+        T values[kMaxShinValues] = {};
+        T* out = t_soft > 0.0 ? values : g;
         for (int j = 0; j < nk; ++j) {
           const T t = t0 + (1.0 - t0) * (static_cast<double>(j) / (nk - 1));
           const Vec3<T> q = foot + t * d;
           const T h = terrain_height(*field, q[0], q[1]);
-          g[j] = q[2] - h - gap;
-          if (j > 0) g[nk + j - 1] = prev[2] - h - gap;
+          out[j] = q[2] - h - gap;
+          if (j > 0) out[nk + j - 1] = prev[2] - h - gap;
           prev = q;
         }
+        if (t_soft > 0.0) g[0] = feasibility::soft_min(values, 2 * nk - 1, t_soft);
       }));
     }
   }

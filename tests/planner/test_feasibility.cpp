@@ -93,6 +93,7 @@ TEST(FeasibilityValues, ShinKinematicKneeIsTheIkKnee) {
   SrbdProblem p(r, flat, tl, o);
   FeasibilityOptions fo;
   fo.shin_clearance = 0.0;  // rows are plain heights above the flat ground
+  fo.shin_softmin = 0.0;    // one row per point
   build_shin_kinematic_set(p, fo);
   std::vector<double> x = p.initial_guess();
   std::mt19937 rng(3);
@@ -125,6 +126,44 @@ TEST(FeasibilityValues, ShinKinematicKneeIsTheIkKnee) {
     ++checked;
   }
   EXPECT_GT(checked, 10);
+}
+
+// Merged shin_ik (the default): each knot's row is the soft minimum of its 2 nk - 1 point rows.
+TEST(FeasibilityValues, MergedShinKinematicRowIsTheSoftMinimum) {
+  const auto r = hyq();
+  MarginStep terrain(0.1, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem points(r, terrain, tl, o), merged(r, terrain, tl, o);
+  FeasibilityOptions fp, fm;
+  fp.shin_softmin = 0.0;
+  build_shin_kinematic_set(points, fp);
+  build_shin_kinematic_set(merged, fm);
+  ASSERT_GT(fm.shin_softmin, 0.0);
+  std::vector<double> x = points.initial_guess();
+  std::mt19937 rng(7);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  for (std::size_t i = 0; i < x.size(); ++i)
+    if (points.lower()[i] < points.upper()[i]) x[i] += noise(rng);
+  std::vector<const Piece*> pp, mp;
+  for (const auto& piece : points.pieces())
+    if (piece->kind == "shin_ik") pp.push_back(piece.get());
+  for (const auto& piece : merged.pieces())
+    if (piece->kind == "shin_ik") mp.push_back(piece.get());
+  ASSERT_EQ(pp.size(), mp.size());
+  ASSERT_GT(pp.size(), 10u);
+  for (std::size_t i = 0; i < pp.size(); ++i) {
+    ASSERT_EQ(pp[i]->vars, mp[i]->vars);
+    std::vector<double> xl(pp[i]->vars.size()), g(pp[i]->rows()), gm(1);
+    for (std::size_t k = 0; k < xl.size(); ++k) xl[k] = x[pp[i]->vars[k]];
+    pp[i]->eval(xl.data(), g.data());
+    mp[i]->eval(xl.data(), gm.data());
+    double mn = 1e300, sum = 0.0;
+    for (double v : g) mn = std::min(mn, v);
+    for (double v : g) sum += std::exp(-(v - mn) / fm.shin_softmin);
+    EXPECT_NEAR(gm[0], mn - fm.shin_softmin * std::log(sum), 1e-12);
+    EXPECT_LE(gm[0], mn);
+  }
 }
 
 TEST(FeasibilityDerivatives, PiecesHaveNonzeroJacobians) {
@@ -262,16 +301,19 @@ TEST_P(FeasibilityVariants, PiecesMatchFiniteDifferences) {
   fo.shin_softmin = t_soft;
   fo.polytope_softmax = t_soft;
   build_shin_set(p, fo);
+  build_shin_kinematic_set(p, fo);
   build_polytope_set(p, fo);
   for (const auto& piece : p.pieces()) {
     if (piece->kind == "shin") {
       EXPECT_EQ(piece->rows(), t_soft > 0 ? 1 : fo.shin_points);
+    } else if (piece->kind == "shin_ik") {
+      EXPECT_EQ(piece->rows(), t_soft > 0 ? 1 : 2 * fo.shin_points - 1);
     } else if (piece->kind == "force_polytope") {
       EXPECT_EQ(piece->rows(), t_soft > 0 ? 1 : 6);
     }
   }
   for (unsigned seed : {1u, 2u, 3u})
-    EXPECT_GT(check_pieces(p, {"shin", "force_polytope"}, seed, 0.02), 0);
+    EXPECT_GT(check_pieces(p, {"shin", "shin_ik", "force_polytope"}, seed, 0.02), 0);
 }
 
 TEST(FeasibilityValues, SoftMinIsAConservativeBound) {
