@@ -15,6 +15,11 @@
 // `shin_yaw_points - 1` points inside each segment, with psi from the base's yaw spline there.
 // Initial (fixed) stances are included: their footholds are given but the yaw is not.
 //
+// Rows: by default (shin_softmin > 0) all values of one stance segment (shin_points per yaw point)
+// are folded into ONE row, their soft minimum (feasibility::soft_min <= every value, so the row
+// holds each point's inequality); its variables are those of the segment's inner yaw point
+// (foothold, yaw Hermite segment, duration), so cliques do not grow while the rows drop ~20x.
+//
 // Not in swing (a choice): in swing the real leg folds (the knee rises and the shin angle is far
 // from beta), so the fixed-beta model would mostly constrain a configuration the leg is not in;
 // a swinging foot is kept clear of the terrain (probed around it) by the baseline's swing
