@@ -227,7 +227,7 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
       EXPECT_NE(std::string(e.what()).find(bad.first), std::string::npos) << e.what();
     }
   }
-  EXPECT_EQ(feasibility_option_names().size(), 8u);
+  EXPECT_EQ(feasibility_option_names().size(), 10u);
 }
 
 }  // namespace
