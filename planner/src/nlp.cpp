@@ -49,7 +49,7 @@ std::vector<std::string> constraint_set_names() {
   std::vector<std::string> names{"baseline"};
   for (const auto& [k, v] : registry())
     if (k != "baseline") names.push_back(k);
-  names.push_back("all");  // foot + shin + polytope, expanded in the SrbdProblem constructor
+  names.push_back("all");  // kAllFeasibilitySets, expanded in the SrbdProblem constructor
   return names;
 }
 

@@ -1,4 +1,7 @@
-// Plans judged by the post-hoc checks, end to end through the CLI. The joint ranges: the baseline's
+// Plans judged by the post-hoc checks, end to end through the CLI. The paper's terrain experiment
+// (section IV-B): onto the pallets, the point-foot plan drives shins into the edge (FCL capsules
+// against the exact scene), "all" keeps every capsule clear, every foothold safe and every joint
+// torque within its limit. The joint ranges: the baseline's
 // range-of-motion box lets feet go where the joints cannot follow; "joints" keeps them in range.
 // The paper's torque experiment (Bratta et al. 2020, section IV-A):
 // `terrastride plan` solves, then judges its own plan with the post-hoc joint-torque check
@@ -24,6 +27,8 @@ struct TorqueFigures {
   double ratio_max = 0.0;
   double violations = 0.0;
   double joint_limit_violations = 0.0;
+  double shin_collisions = 0.0;
+  double unsafe_footholds = 0.0;
 };
 
 TorqueFigures plan_and_check(const std::string& args, const std::string& name) {
@@ -43,8 +48,13 @@ TorqueFigures plan_and_check(const std::string& args, const std::string& name) {
   t.ratio_max = plan["checks"].at("torque_ratio_max").get<double>();
   t.violations = plan["checks"].at("torque_violations").get<double>();
   t.joint_limit_violations = plan["checks"].at("joint_limit_violations").get<double>();
-  std::printf("%-20s %s, torque ratio max %.3f, %g violating samples, %g outside joint ranges\n",
-              name.c_str(), t.status.c_str(), t.ratio_max, t.violations, t.joint_limit_violations);
+  t.shin_collisions = plan["checks"].at("shin_collisions").get<double>();
+  t.unsafe_footholds = plan["checks"].at("unsafe_footholds").get<double>();
+  std::printf(
+      "%-20s %s, torque ratio max %.3f, %g violating samples, %g outside joint ranges, %g shin "
+      "collisions, %g unsafe footholds\n",
+      name.c_str(), t.status.c_str(), t.ratio_max, t.violations, t.joint_limit_violations,
+      t.shin_collisions, t.unsafe_footholds);
   return t;
 }
 
@@ -81,4 +91,24 @@ TEST(JointLimits, PalletCrawlStaysInRange) {
   EXPECT_EQ(joints.status, "optimal");
   EXPECT_GT(base.joint_limit_violations, 0.0);
   EXPECT_EQ(joints.joint_limit_violations, 0.0);
+}
+
+void expect_all_constraints_clear_the_pallet(const std::string& terrain) {
+  const std::string scenario = "--terrain " + terrain + " --duration 11 --goal 1,0,0 --max-time 120";
+  const TorqueFigures base = plan_and_check(scenario + " --constraints baseline", terrain + "_baseline");
+  const TorqueFigures all = plan_and_check(scenario + " --constraints all", terrain + "_all");
+  EXPECT_EQ(base.status, "optimal");
+  EXPECT_GT(base.shin_collisions, 0.0) << "the point-foot plan should hit the edge";
+  EXPECT_EQ(all.status, "optimal");
+  EXPECT_EQ(all.shin_collisions, 0.0);
+  EXPECT_EQ(all.unsafe_footholds, 0.0);
+  EXPECT_LE(all.ratio_max, 1.05);
+}
+
+TEST(PalletExperiment, AllConstraintsClearThe10cmPallet) {
+  expect_all_constraints_clear_the_pallet("pallet_10");
+}
+
+TEST(PalletExperiment, AllConstraintsClearThe15cmPallet) {
+  expect_all_constraints_clear_the_pallet("pallet_15");
 }

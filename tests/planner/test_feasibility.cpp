@@ -59,7 +59,7 @@ TEST(FeasibilityDerivatives, HyqPiecesMatchFiniteDifferences) {
   o.has_goal = true;
   o.goal = Eigen::Vector3d(0.4, 0.05, 0.3);  // a turn, so the yaw paths are exercised
   o.optimize_timing = true;                  // duration variables in the inner points
-  o.constraints = {"all"};
+  o.constraints = {"all", "shin"};
   const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
   SrbdProblem p(r, terrain, tl, o);
   const auto kinds = count_kinds(p);
@@ -197,7 +197,7 @@ TEST(FeasibilityDerivatives, MonopedPolytopePiecesMatchFiniteDifferences) {
   PlannerOptions o;
   o.gait = "hop";
   o.optimize_timing = true;
-  o.constraints = {"all"};
+  o.constraints = {"all", "shin"};
   const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("hop")), feet_of(r), 1, 0.0);
   SrbdProblem p(r, terrain, tl, o);
   EXPECT_GT(check_pieces(p, {"foot_radius", "shin", "force_polytope"}, 5u, 0.01), 0);
@@ -459,14 +459,14 @@ TEST(FeasibilityValues, DefaultsAddPointsInsideSegments) {
 
 TEST(FeasibilityRegistry, AllExpandsAndNamesAreListed) {
   const auto names = constraint_set_names();
-  for (const std::string n : {"baseline", "foot", "shin", "polytope", "all"})
+  for (const std::string n : {"baseline", "foot", "shin", "shin_ik", "polytope", "swing", "joints", "all"})
     EXPECT_NE(std::find(names.begin(), names.end(), n), names.end()) << n;
   const auto r = hyq();
   testing::FlatField flat;
   const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
   PlannerOptions a, b;
   a.constraints = {"all"};
-  b.constraints = {"baseline", "foot", "shin", "polytope", "foot"};  // duplicates added once
+  b.constraints = {"baseline", "foot", "shin_ik", "polytope", "foot"};  // duplicates added once
   SrbdProblem pa(r, flat, tl, a), pb(r, flat, tl, b);
   EXPECT_EQ(count_kinds(pa), count_kinds(pb));
   EXPECT_EQ(pa.num_constraints(), pb.num_constraints());

@@ -1,6 +1,7 @@
 // The NLP's pieces: gaits and timelines, every constraint's Jacobian against finite differences,
 // and Ipopt's own derivative checker on a small problem.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cstdio>
 #include <filesystem>
@@ -184,7 +185,9 @@ TEST(NlpDerivatives, IpoptDerivativeCheckerFindsNoErrors) {
   o.max_iterations = 0;
   const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("trot")), feet_of(r), 1, 0.8);
   SrbdProblem p(r, terrain, tl, o);
-  const std::string log = ::testing::TempDir() + "/ipopt_derivative_test.txt";
+  // Per process: ctest runs test binaries (and other checkouts run theirs) at the same time.
+  const std::string log =
+      ::testing::TempDir() + "/ipopt_derivative_test_" + std::to_string(::getpid()) + ".txt";
   std::filesystem::remove(log);
   solve(p, o,
         {{"derivative_test", "first-order"},
@@ -196,6 +199,7 @@ TEST(NlpDerivatives, IpoptDerivativeCheckerFindsNoErrors) {
   std::stringstream ss;
   ss << in.rdbuf();
   const std::string text = ss.str();
+  std::filesystem::remove(log);
   ASSERT_NE(text.find("derivative checker"), std::string::npos) << "no checker output in " << log;
   EXPECT_NE(text.find("No errors detected by derivative checker"), std::string::npos)
       << text.substr(0, 4000);
