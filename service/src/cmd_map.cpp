@@ -36,6 +36,10 @@ struct MapOptions {
   // 0.4 GB -> 17-26 s / 1.8 GB for ../shared/scans/octomap/scan.xyz; so 5 cm stays the default and
   // finer voxels are an option (--octomap-resolution) for small scans.
   double octomap_resolution = 0.05;
+  // Rays longer than this are cut there (OctoMap's maxrange: free space carved up to it, the far
+  // hit not marked). 0 = off, today's behaviour: the height grid cannot tell which far returns
+  // matter, so dropping them stays the caller's choice.
+  double octomap_max_range = 0.0;
   double voxel = 0.0;
   int outlier_k = 8;
   double outlier_stddev = 2.0;
@@ -83,6 +87,9 @@ void run_map(const MapOptions& o) {
   const double octo_res = o.octomap_resolution;
   if (!std::isfinite(octo_res) || octo_res < 0.005 || octo_res > 1.0)
     throw CommandError("--octomap-resolution: must be in [0.005, 1] m");
+  if (!std::isfinite(o.octomap_max_range) || o.octomap_max_range < 0)
+    throw CommandError("--octomap-max-range: " + std::to_string(o.octomap_max_range) +
+                       " m is not a finite number >= 0 (0 = no limit)");
   if (o.foot_radii.empty()) throw CommandError("--foot-radius: at least one radius is needed");
   for (double r : o.foot_radii)
     if (!std::isfinite(r) || r < 0 || r > 0.5)
@@ -192,6 +199,7 @@ void run_map(const MapOptions& o) {
     for (const auto& c : clouds) sparse.push_back(perception::filter_cloud(c, vo));
     perception::OctoMapOptions oo;
     oo.resolution = octo_res;
+    oo.max_range = o.octomap_max_range > 0 ? o.octomap_max_range : -1.0;
     tree = perception::build_octomap(sparse, oo);
   } catch (const perception::InputError& e) {
     throw CommandError(e.what());
@@ -210,6 +218,7 @@ void run_map(const MapOptions& o) {
     const auto& g = map->grid();
     meta["octomap"] = {
         {"file", "octomap.bt"}, {"resolution", octo_res}, {"leaf_nodes", tree->getNumLeafNodes()}};
+    if (o.octomap_max_range > 0) meta["octomap"]["max_range"] = o.octomap_max_range;
     meta["inputs"] = inputs;
     meta["statistics"]["points_in"] = points_in;
     meta["statistics"]["non_finite"] = non_finite;
@@ -277,6 +286,10 @@ void add_map_command(CLI::App& app) {
       ->delimiter(',')
       ->capture_default_str();
   cmd->add_option("--octomap-resolution", o->octomap_resolution, "OctoMap voxel size (m)")
+      ->capture_default_str();
+  cmd->add_option("--octomap-max-range", o->octomap_max_range,
+                  "Cut OctoMap rays at this range (m): faster on long-range scans, but hits "
+                  "beyond it are not marked occupied; 0 = no limit")
       ->capture_default_str();
   cmd->add_option("--voxel", o->voxel, "Voxel-grid downsampling of the input (m); 0 = off")
       ->capture_default_str();

@@ -1,5 +1,6 @@
 // `terrastride map`, `query` and `scan-sim` end to end, and their handling of bad input.
 #include <gtest/gtest.h>
+#include <octomap/OcTree.h>
 
 #include <unistd.h>
 #include <filesystem>
@@ -96,6 +97,38 @@ TEST_F(TerrainCli, MapThenQueryAPlaneWithAStep) {
   EXPECT_NE(r.out.find("safe for foot radius"), std::string::npos) << r.out;
 }
 
+TEST_F(TerrainCli, OctoMapMaxRangeCutsLongRays) {
+  // Sensor 1.2 m above the middle of the plane: the plane's corners are ~1.39 m away.
+  const std::string cloud = plane_xyz(false);
+  // The plane z = 0.3 lies on a 5 cm voxel border: look just above and below it.
+  const auto occupied = [](const std::string& bt, double x, double y, double z) {
+    octomap::OcTree tree(bt);
+    for (double dz : {-0.01, 0.01}) {
+      const octomap::OcTreeNode* n = tree.search(x, y, z + dz);
+      if (n != nullptr && tree.isNodeOccupied(n)) return true;
+    }
+    return false;
+  };
+  const std::string full = (dir_ / "full").string(), cut = (dir_ / "cut").string();
+  CliResult r = run("map " + cloud + " --origin 0.5,0.5,1.5 --out " + full + " --json");
+  ASSERT_EQ(r.code, 0) << r.err;
+  r = run("map " + cloud + " --origin 0.5,0.5,1.5 --octomap-max-range 1.3 --out " + cut +
+          " --json");
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::ifstream meta(fs::path(cut) / "terrain.json");
+  EXPECT_DOUBLE_EQ(nlohmann::json::parse(meta)["octomap"]["max_range"].get<double>(), 1.3);
+  EXPECT_TRUE(occupied(full + "/octomap.bt", 0.5, 0.5, 0.3));  // 1.2 m: a hit either way
+  EXPECT_TRUE(occupied(cut + "/octomap.bt", 0.5, 0.5, 0.3));
+  EXPECT_TRUE(occupied(full + "/octomap.bt", 0.02, 0.02, 0.3));  // 1.39 m: cut off
+  EXPECT_FALSE(occupied(cut + "/octomap.bt", 0.02, 0.02, 0.3));
+  // The height grid does not depend on it.
+  r = run("query " + cut + " --at 0.05,0.05");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NEAR(nlohmann::json::parse(r.out)["height"].get<double>(), 0.3, 0.005);
+  r = run("map --help");
+  EXPECT_NE(r.out.find("--octomap-max-range"), std::string::npos) << r.out;
+}
+
 TEST_F(TerrainCli, ScanSimThenMapThePallet) {
   const std::string pcd = (dir_ / "pallet.pcd").string();
   CliResult r = run("scan-sim --scene pallet_15 --poses 2 --seed 3 --out " + pcd + " --json");
@@ -148,6 +181,9 @@ TEST_F(TerrainCli, BadInputFailsCleanlyAndWritesNothing) {
       {"map " + good + " --resolution nan --out " + out, "resolution"},
       {"map " + good + " --foot-radius -0.1 --out " + out, "--foot-radius"},
       {"map " + good + " --origin 1,2 --out " + out, "--origin"},
+      {"map " + good + " --octomap-max-range -1 --out " + out, "--octomap-max-range"},
+      {"map " + good + " --octomap-max-range nan --out " + out, "--octomap-max-range"},
+      {"map " + good + " --octomap-max-range inf --out " + out, "--octomap-max-range"},
       {"map " + good + " --out " + (dir_ / "no" / "such" / "dir").string(), "--out"},
   };
   for (const auto& c : cases) {
