@@ -2,7 +2,10 @@
 // foothold-safety layers, written atomically as DIR/terrain.json, DIR/octomap.bt, DIR/layers/*.npy.
 #include <unistd.h>
 
+#include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <exception>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -11,6 +14,8 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <sstream>
+#include <thread>
+#include <vector>
 
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/cloud_io.hpp"
@@ -70,6 +75,30 @@ class Progress {
 
 double seconds_since(Clock::time_point t) {
   return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+// Runs body(k) for k in [0, n) on up to one thread per core. Each k must write only its own
+// results. When calls fail, the exception of the lowest k is rethrown (the same error as a loop).
+template <class Body>
+void parallel_for(size_t n, const Body& body) {
+  const size_t workers = std::min<size_t>(n, std::max(1u, std::thread::hardware_concurrency()));
+  std::vector<std::exception_ptr> errors(n);
+  std::atomic<size_t> next{0};
+  const auto work = [&] {
+    for (size_t k; (k = next.fetch_add(1)) < n;) {
+      try {
+        body(k);
+      } catch (...) {
+        errors[k] = std::current_exception();
+      }
+    }
+  };
+  std::vector<std::thread> threads;
+  for (size_t w = 1; w < workers; ++w) threads.emplace_back(work);
+  work();
+  for (auto& th : threads) th.join();
+  for (const auto& e : errors)
+    if (e) std::rethrow_exception(e);
 }
 
 std::string fmt(double v, int precision = 3) {
@@ -146,65 +175,82 @@ void run_map(const MapOptions& o) {
   }
   timings["read_s"] = seconds_since(t);
 
-  // Clean.
+  // Clean. Each cloud is cleaned on its own (outlier statistics are per cloud), so the clouds are
+  // spread over the cores; every result lands in its own slot, hence the same output as in order.
   t = Clock::now();
+  progress.stage("cleaning " + std::to_string(clouds.size()) + " cloud(s)");
   perception::CloudFilterOptions fo;
   fo.voxel_size = static_cast<float>(o.voxel);
   fo.outlier_neighbours = o.outlier_k;
   fo.outlier_stddev = o.outlier_stddev;
   fo.outlier_voxel = static_cast<float>(o.outlier_voxel);
-  size_t kept = 0;
-  for (size_t k = 0; k < clouds.size(); ++k) {
-    progress.stage("cleaning " + clouds[k].source);
+  parallel_for(clouds.size(), [&](size_t k) {
     try {
       clouds[k] = perception::filter_cloud(clouds[k], fo);
     } catch (const perception::InputError& e) {
       throw CommandError(e.what());
     }
+  });
+  size_t kept = 0;
+  for (size_t k = 0; k < clouds.size(); ++k) {
     kept += clouds[k].points.size();
     inputs[k]["kept"] = clouds[k].points.size();
   }
   timings["filter_s"] = seconds_since(t);
   if (kept == 0) throw CommandError("no points left after cleaning the input clouds");
 
+  // The OctoMap and the height grid only read the cleaned clouds: the OctoMap is built on a second
+  // thread while this one builds the grid, the smoothed field and the safety layers.
+  // OctoMap: ray casting is the expensive part, so rays go to one point per OctoMap voxel (a
+  // voxel-grid filtered copy): the same occupied voxels and nearly the same carved free space.
+  progress.stage("height grid, foothold safety and OctoMap");
+  std::unique_ptr<octomap::OcTree> tree;
+  std::exception_ptr octomap_error;
+  double octomap_s = 0;
+  std::thread octomap_thread([&] {
+    const auto t0 = Clock::now();
+    try {
+      perception::CloudFilterOptions vo;
+      vo.voxel_size = static_cast<float>(octo_res);
+      std::vector<perception::PointCloud> sparse;
+      for (const auto& c : clouds) sparse.push_back(perception::filter_cloud(c, vo));
+      perception::OctoMapOptions oo;
+      oo.resolution = octo_res;
+      oo.max_range = o.octomap_max_range > 0 ? o.octomap_max_range : -1.0;
+      tree = perception::build_octomap(sparse, oo);
+    } catch (const perception::InputError& e) {
+      octomap_error = std::make_exception_ptr(CommandError(e.what()));
+    } catch (...) {
+      octomap_error = std::current_exception();
+    }
+    octomap_s = seconds_since(t0);
+  });
+
   // Height grid, smoothed field, safety layers.
   t = Clock::now();
-  progress.stage("height grid");
-  terrain::HeightGridOptions go;
-  go.resolution = o.resolution;
   std::unique_ptr<terrain::TerrainMap> map;
+  std::exception_ptr map_error;
   try {
+    terrain::HeightGridOptions go;
+    go.resolution = o.resolution;
     terrain::HeightGrid grid = terrain::build_height_grid(clouds, go);
     timings["grid_s"] = seconds_since(t);
     t = Clock::now();
-    progress.stage("foothold safety");
     terrain::SafetyOptions so;
     so.max_step = o.max_step;
     so.max_slope = o.max_slope;
     map = std::make_unique<terrain::TerrainMap>(std::move(grid), o.foot_radii, so);
+    timings["safety_s"] = seconds_since(t);
   } catch (const perception::InputError& e) {
-    throw CommandError("--resolution/--foot-radius: " + std::string(e.what()));
+    map_error = std::make_exception_ptr(
+        CommandError("--resolution/--foot-radius: " + std::string(e.what())));
+  } catch (...) {
+    map_error = std::current_exception();
   }
-  timings["safety_s"] = seconds_since(t);
-
-  // OctoMap: ray casting is the expensive part, so rays go to one point per OctoMap voxel (a
-  // voxel-grid filtered copy): the same occupied voxels and nearly the same carved free space.
-  t = Clock::now();
-  progress.stage("OctoMap");
-  std::unique_ptr<octomap::OcTree> tree;
-  try {
-    perception::CloudFilterOptions vo;
-    vo.voxel_size = static_cast<float>(octo_res);
-    std::vector<perception::PointCloud> sparse;
-    for (const auto& c : clouds) sparse.push_back(perception::filter_cloud(c, vo));
-    perception::OctoMapOptions oo;
-    oo.resolution = octo_res;
-    oo.max_range = o.octomap_max_range > 0 ? o.octomap_max_range : -1.0;
-    tree = perception::build_octomap(sparse, oo);
-  } catch (const perception::InputError& e) {
-    throw CommandError(e.what());
-  }
-  timings["octomap_s"] = seconds_since(t);
+  octomap_thread.join();
+  if (map_error) std::rethrow_exception(map_error);
+  if (octomap_error) std::rethrow_exception(octomap_error);
+  timings["octomap_s"] = octomap_s;
 
   // Write everything into a temporary directory, then rename it into place.
   t = Clock::now();

@@ -129,6 +129,41 @@ TEST_F(TerrainCli, OctoMapMaxRangeCutsLongRays) {
   EXPECT_NE(r.out.find("--octomap-max-range"), std::string::npos) << r.out;
 }
 
+// Clouds are cleaned in parallel and the OctoMap is built beside the height grid: the output must
+// not depend on the scheduling, and a failure must name the same cloud as a sequential run would.
+TEST_F(TerrainCli, ParallelStagesAreDeterministic) {
+  const std::string pcd = (dir_ / "scan.pcd").string();
+  ASSERT_EQ(run("scan-sim --scene eur_pallet --poses 3 --seed 5 --out " + pcd).code, 0);
+  const std::string clouds =
+      pcd + " " + (dir_ / "scan.1.pcd").string() + " " + (dir_ / "scan.2.pcd").string();
+  const auto slurp = [](const fs::path& p) {
+    std::ifstream in(p, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  std::vector<std::string> outs;
+  for (int k = 0; k < 3; ++k) {
+    outs.push_back((dir_ / ("map" + std::to_string(k))).string());
+    const CliResult r = run("map " + clouds + " --out " + outs.back());
+    ASSERT_EQ(r.code, 0) << r.err;
+  }
+  size_t files = 0;
+  for (const auto& e : fs::recursive_directory_iterator(outs[0])) {
+    if (!e.is_regular_file() || e.path().filename() == "terrain.json") continue;  // has timings
+    const fs::path rel = fs::relative(e.path(), outs[0]);
+    for (int k = 1; k < 3; ++k)
+      EXPECT_EQ(slurp(e.path()), slurp(fs::path(outs[k]) / rel)) << rel << " differs in run " << k;
+    ++files;
+  }
+  EXPECT_GE(files, 10u);
+  // Every cloud fails to clean (a voxel far too small): the error names the first one.
+  const std::string a = plane_xyz(false), b = plane_xyz(true);
+  const CliResult r = run("map " + a + " " + b + " --voxel 1e-7 --out " + (dir_ / "bad").string());
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("plane.xyz"), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("step.xyz"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / "bad"));
+}
+
 TEST_F(TerrainCli, ScanSimThenMapThePallet) {
   const std::string pcd = (dir_ / "pallet.pcd").string();
   CliResult r = run("scan-sim --scene pallet_15 --poses 2 --seed 3 --out " + pcd + " --json");
