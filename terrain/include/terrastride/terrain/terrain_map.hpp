@@ -39,6 +39,8 @@ class BSplineField {
   // Padded control points: 2 extra on the low side, 3 on the high side of each axis.
   const double* locate(double x, double y, double* tx, double* ty) const;
   GridGeometry geometry_;
+  double inv_resolution_ = 0.0;
+  double gradient_scale_ = 0.0;  // 1 / (12 resolution), see value_gradient
   int stride_ = 0;
   std::vector<double> coeffs_;
 };
