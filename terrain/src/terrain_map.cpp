@@ -429,7 +429,7 @@ void fill_row(const HeightGrid& grid, int i, int W, RowData& r) {
     const float* pmx = r.rmax.data() + static_cast<size_t>(k - 1) * ny;
     float* mn = r.rmin.data() + static_cast<size_t>(k) * ny;
     float* mx = r.rmax.data() + static_cast<size_t>(k) * ny;
-    for (int j = 0; j < ny; ++j) {
+    const auto edge = [&](int j) {
       float lo = pmn[j], hi = pmx[j];
       if (j >= k) {
         lo = std::min(lo, cmin[j - k]);
@@ -441,7 +441,16 @@ void fill_row(const HeightGrid& grid, int i, int W, RowData& r) {
       }
       mn[j] = lo;
       mx[j] = hi;
+    };
+    // Cells [k, ny - k) have both neighbours: the same min/max in the same order, without the
+    // branches, so the loop vectorises.
+    const int a = std::min(k, ny), b = std::max(a, ny - k);
+    for (int j = 0; j < a; ++j) edge(j);
+    for (int j = a; j < b; ++j) {
+      mn[j] = std::min(std::min(pmn[j], cmin[j - k]), cmin[j + k]);
+      mx[j] = std::max(std::max(pmx[j], cmax[j - k]), cmax[j + k]);
     }
+    for (int j = b; j < ny; ++j) edge(j);
   }
 }
 
