@@ -275,10 +275,10 @@ double BSplineField::value_gradient(double x, double y, Eigen::Vector2d* gradien
   const double* c = locate(x, y, &tx, &ty);
   const double sx = 1.0 - tx, tx2 = tx * tx, tx3 = tx2 * tx;
   const double sy = 1.0 - ty, ty2 = ty * ty, ty3 = ty2 * ty;
-  const double bx[4] = {sx * sx * sx, 3.0 * tx3 - 6.0 * tx2 + 4.0, -3.0 * tx3 + 3.0 * tx2 + 3.0 * tx + 1.0,
-                        tx3};
-  const double by[4] = {sy * sy * sy, 3.0 * ty3 - 6.0 * ty2 + 4.0, -3.0 * ty3 + 3.0 * ty2 + 3.0 * ty + 1.0,
-                        ty3};
+  const double bx[4] = {sx * sx * sx, 3.0 * tx3 - 6.0 * tx2 + 4.0,
+                        -3.0 * tx3 + 3.0 * tx2 + 3.0 * tx + 1.0, tx3};
+  const double by[4] = {sy * sy * sy, 3.0 * ty3 - 6.0 * ty2 + 4.0,
+                        -3.0 * ty3 + 3.0 * ty2 + 3.0 * ty + 1.0, ty3};
   const double dx[4] = {-sx * sx, 3.0 * tx2 - 4.0 * tx, -3.0 * tx2 + 2.0 * tx + 1.0, tx2};
   const double dy[4] = {-sy * sy, 3.0 * ty2 - 4.0 * ty, -3.0 * ty2 + 2.0 * ty + 1.0, ty2};
   double h = 0, gx = 0, gy = 0;

@@ -67,10 +67,9 @@ void BM_OctoMapScanXyz(benchmark::State& state) {
     benchmark::DoNotOptimize(tree.get());
   }
   state.SetItemsProcessed(state.iterations() * cloud.points.size());
-  state.SetLabel(state.range(0) > 0
-                     ? "0.05 m voxels, rays from the origin cut at " +
-                           std::to_string(state.range(0)) + " m"
-                     : std::string("0.05 m voxels, rays from the origin"));
+  state.SetLabel(state.range(0) > 0 ? "0.05 m voxels, rays from the origin cut at " +
+                                          std::to_string(state.range(0)) + " m"
+                                    : std::string("0.05 m voxels, rays from the origin"));
 }
 BENCHMARK(BM_OctoMapScanXyz)->Arg(0)->Arg(10)->Arg(5)->Unit(benchmark::kMillisecond)->Iterations(2);
 
@@ -101,7 +100,8 @@ void BM_MapCommand1M(benchmark::State& state) {
   std::string cmd = std::string(TERRASTRIDE_BINARY) + " map";
   for (const auto& f : files) cmd += " " + f;
   cmd += " --out " + (dir / "map").string() + " --json > /dev/null 2>&1";
-  // 0: no outlier removal; 1: defaults (removal judging 1 cm cells); 2: removal judging every point.
+  // 0: no outlier removal; 1: defaults (removal judging 1 cm cells); 2: removal judging every
+  // point.
   const char* extra[] = {" --outlier-k 0", "", " --outlier-voxel 0"};
   const std::string full = std::string(cmd).insert(cmd.find(" --out"), extra[state.range(0)]);
   for (auto _ : state) {
