@@ -663,7 +663,10 @@ std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vecto
       throw InputError("foot radius " + std::to_string(r) + " m is outside [0, 1] m");
   }
 #ifdef TERRASTRIDE_SAFETY_AVX2
-  static const bool avx2 = __builtin_cpu_supports("avx2");
+  static const bool avx2 = [] {
+    __builtin_cpu_init();  // a no-op after start-up; needed if this runs from a static initialiser
+    return __builtin_cpu_supports("avx2") != 0;
+  }();
   if (avx2) return safety_layers_avx2(grid, radii, o);
 #endif
   return safety_layers_portable(grid, radii, o);
