@@ -10,35 +10,10 @@
 #include <algorithm>
 #include <cmath>
 
+#include "feasibility_common.hpp"
 #include "terrastride/planner/feasibility.hpp"
-#include "terrastride/planner/piece_math.hpp"
 
 namespace terrastride::planner {
-
-namespace {
-
-// Joint angles (HAA, HFE, KFE) of `leg` for the foot at pb in the base frame; a foot beyond reach
-// gets the stretched knee's angles (the rows then push it back).
-template <class T>
-Vec3<T> joint_angles(const robot::LegModel& leg, const Vec3<T>& pb) {
-  using std::acos;
-  using std::atan2;
-  using std::sqrt;
-  const Vec3<T> v = pb - leg.haa_origin.cast<T>();
-  const T gamma = atan2(v[1], -v[2]);
-  const T rho = sqrt(v[1] * v[1] + v[2] * v[2]);
-  const T X = v[0], Z = -(rho - leg.l0);
-  T c = (X * X + Z * Z - leg.l1 * leg.l1 - leg.l2 * leg.l2) / (2.0 * leg.l1 * leg.l2);
-  if (value_of(c) > 1.0 - 1e-6) c = T(1.0 - 1e-6);
-  if (value_of(c) < -1.0 + 1e-6) c = T(-1.0 + 1e-6);
-  const T qK = static_cast<double>(leg.knee_sign) * acos(c);
-  using std::cos;
-  using std::sin;
-  const T qH = atan2(-X, -Z) - atan2(leg.l2 * sin(qK), leg.l1 + leg.l2 * cos(qK));
-  return Vec3<T>(-static_cast<double>(leg.side) * gamma, qH, qK);
-}
-
-}  // namespace
 
 void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   const Layout& L = problem.layout();
@@ -65,7 +40,7 @@ void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& optio
         using T = std::decay_t<decltype(*g)>;
         const Vec3<T> base = gather3(x, r);
         const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(gather3(x, e));
-        const Vec3<T> q = joint_angles<T>(leg, R.transpose() * (gather3(x, p) - base));
+        const Vec3<T> q = feasibility::leg_joint_angles<T>(leg, R.transpose() * (gather3(x, p) - base));
         for (int j = 0; j < 3; ++j) g[j] = q[j];
       }));
     }

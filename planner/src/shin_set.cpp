@@ -142,22 +142,11 @@ namespace {
 
 template <class T>
 Vec3<T> knee_in_base(const robot::LegModel& leg, const Vec3<T>& pb) {
-  using std::acos;
-  using std::atan2;
   using std::cos;
   using std::sin;
-  using std::sqrt;
-  const Vec3<T> v = pb - leg.haa_origin.cast<T>();
-  const T gamma = atan2(v[1], -v[2]);
-  const T rho = sqrt(v[1] * v[1] + v[2] * v[2]);
-  const T X = v[0], Z = -(rho - leg.l0);
-  T c = (X * X + Z * Z - leg.l1 * leg.l1 - leg.l2 * leg.l2) / (2.0 * leg.l1 * leg.l2);
-  // Out of reach (the range-of-motion box allows a little): the stretched leg's limit.
-  if (value_of(c) > 1.0 - 1e-6) c = T(1.0 - 1e-6);
-  if (value_of(c) < -1.0 + 1e-6) c = T(-1.0 + 1e-6);
-  const T qK = static_cast<double>(leg.knee_sign) * acos(c);
-  const T qH = atan2(-X, -Z) - atan2(leg.l2 * sin(qK), leg.l1 + leg.l2 * cos(qK));
-  const T ky = T(0.0), kz = -leg.l0 - leg.l1 * cos(qH), kx = -leg.l1 * sin(qH);
+  const Vec3<T> q = feasibility::leg_joint_angles<T>(leg, pb);
+  const T gamma = -static_cast<double>(leg.side) * q[0];
+  const T ky = T(0.0), kz = -leg.l0 - leg.l1 * cos(q[1]), kx = -leg.l1 * sin(q[1]);
   const T cg = cos(gamma), sg = sin(gamma);
   return Vec3<T>(leg.haa_origin.x() + kx, leg.haa_origin.y() + cg * ky - sg * kz,
                  leg.haa_origin.z() + sg * ky + cg * kz);
