@@ -143,10 +143,11 @@ void SrbdProblem::build_layout(const StartState* start) {
       // a first segment up to the next one (merged into the following segment when shorter than
       // a tenth of a segment, which would only make the problem stiff).
       const double full = d + elapsed;
-      const int nf = std::max(1, static_cast<int>(std::ceil(full / options_.segment_dt - 1e-6)));
-      const double len = full / nf;
+      const int n_full =
+          std::max(1, static_cast<int>(std::ceil(full / options_.segment_dt - 1e-6)));
+      const double len = full / n_full;
       std::vector<double> bounds{0.0};
-      for (int k = 1; k <= nf; ++k) {
+      for (int k = 1; k <= n_full; ++k) {
         const double b = k * len - elapsed;
         if (b <= 0.1 * len || b >= d - 1e-9) continue;
         bounds.push_back(b);

@@ -23,6 +23,11 @@ Eigen::Matrix3d euler_rate_matrix(const Eigen::Vector3d& e) {
   return E;
 }
 
+// The Euler-angle rates of a sample (from its angular velocity).
+Eigen::Vector3d euler_rates(const TrajectorySample& s) {
+  return euler_rate_matrix(s.base.euler_zyx).fullPivLu().solve(s.base.angular_velocity);
+}
+
 nlohmann::json timeline_json(const PhaseTimeline& tl, const std::vector<double>& events) {
   nlohmann::json c = nlohmann::json::array();
   for (const auto& foot : tl.contact) c.push_back(foot);
@@ -94,49 +99,27 @@ namespace {
 // samples lie on one cubic spline segment (the planner's splines are cubic); accelerations and
 // forces linear (forces are linear within a segment).
 TrajectorySample hermite_between(const TrajectorySample& a, const TrajectorySample& b, double t) {
-  const double u = (t - a.t) / std::max(1e-12, b.t - a.t);
+  const double h = b.t - a.t;
+  const double u = (t - a.t) / std::max(1e-12, h);
   TrajectorySample s = a;
   s.t = t;
   auto mix = [u](const Eigen::Vector3d& p, const Eigen::Vector3d& q) { return (1 - u) * p + u * q; };
-  // Positions by cubic Hermite interpolation with the samples' velocities: exact between two
-  // samples of one spline segment (the planner's splines are cubic), so a warm start reproduces
-  // the previous plan at its knots.
-  const double h = b.t - a.t;
-  auto cubic = [u, h](const Eigen::Vector3d& p0, const Eigen::Vector3d& v0, const Eigen::Vector3d& p1,
-                      const Eigen::Vector3d& v1) -> Eigen::Vector3d {
-    const double u2 = u * u, u3 = u2 * u;
-    return (2 * u3 - 3 * u2 + 1) * p0 + (u3 - 2 * u2 + u) * h * v0 + (-2 * u3 + 3 * u2) * p1 +
-           (u3 - u2) * h * v1;
-  };
-  auto cubic_rate = [u, h](const Eigen::Vector3d& p0, const Eigen::Vector3d& v0,
-                           const Eigen::Vector3d& p1, const Eigen::Vector3d& v1) -> Eigen::Vector3d {
-    const double u2 = u * u;
-    return ((6 * u2 - 6 * u) * p0 + (-6 * u2 + 6 * u) * p1) / h + (3 * u2 - 4 * u + 1) * v0 +
-           (3 * u2 - 2 * u) * v1;
-  };
-  auto rates = [](const TrajectorySample& x) -> Eigen::Vector3d {
-    return euler_rate_matrix(x.base.euler_zyx).fullPivLu().solve(x.base.angular_velocity);
-  };
-  s.base.position =
-      cubic(a.base.position, a.base.linear_velocity, b.base.position, b.base.linear_velocity);
-  s.base.euler_zyx = cubic(a.base.euler_zyx, rates(a), b.base.euler_zyx, rates(b));
-  s.base.linear_velocity =
-      cubic_rate(a.base.position, a.base.linear_velocity, b.base.position, b.base.linear_velocity);
-  s.base.angular_velocity = euler_rate_matrix(s.base.euler_zyx) *
-                            cubic_rate(a.base.euler_zyx, rates(a), b.base.euler_zyx, rates(b));
+  hermite<double>(u, h, a.base.position, a.base.linear_velocity, b.base.position,
+                  b.base.linear_velocity, &s.base.position, &s.base.linear_velocity, nullptr);
+  Eigen::Vector3d euler_rate;
+  hermite<double>(u, h, a.base.euler_zyx, euler_rates(a), b.base.euler_zyx, euler_rates(b),
+                  &s.base.euler_zyx, &euler_rate, nullptr);
+  s.base.angular_velocity = euler_rate_matrix(s.base.euler_zyx) * euler_rate;
   s.base.linear_acceleration = mix(a.base.linear_acceleration, b.base.linear_acceleration);
   s.base.angular_acceleration = mix(a.base.angular_acceleration, b.base.angular_acceleration);
   for (std::size_t f = 0; f < s.feet.size() && f < b.feet.size(); ++f) {
-    s.feet[f].position =
-        cubic(a.feet[f].position, a.feet[f].velocity, b.feet[f].position, b.feet[f].velocity);
-    s.feet[f].velocity =
-        cubic_rate(a.feet[f].position, a.feet[f].velocity, b.feet[f].position, b.feet[f].velocity);
+    hermite<double>(u, h, a.feet[f].position, a.feet[f].velocity, b.feet[f].position,
+                    b.feet[f].velocity, &s.feet[f].position, &s.feet[f].velocity, nullptr);
     // Forces jump at contact switches: blend only inside one contact state.
     if (a.feet[f].contact == b.feet[f].contact) s.feet[f].force = mix(a.feet[f].force, b.feet[f].force);
   }
   return s;
 }
-
 
 // The state at t of the plan's spline segment [lo, hi], from the two samples inside it nearest t
 // (exact even at the segment's ends, where interpolating across the knot would mix two cubics).
@@ -149,12 +132,10 @@ TrajectorySample segment_state(const Trajectory& plan, double t, double lo, doub
   auto last = std::upper_bound(S.begin(), S.end(), hi + tol,
                                [](double v, const TrajectorySample& s) { return v < s.t; });
   if (last - first < 2) return interpolate_plan(plan, t);
-  // The two samples in [lo, hi] nearest t.
+  // The pair of samples in [lo, hi] around t (or the end pair when t is at an end).
   auto b = std::lower_bound(first, last, t,
                             [](const TrajectorySample& s, double v) { return s.t < v; });
-  if (b == first) ++b;
-  if (b == last) --b;
-  if (b != last - 1 && std::abs(b->t - t) > std::abs((b - 1)->t - t) && b - 1 != first) --b;
+  b = std::clamp(b, first + 1, last - 1);
   return hermite_between(*(b - 1), *b, t);
 }
 
@@ -169,7 +150,6 @@ TrajectorySample interpolate_plan(const Trajectory& plan, double t) {
                                    [](double v, const TrajectorySample& s) { return v < s.t; });
   return hermite_between(*(it - 1), *it, t);
 }
-
 
 PhaseTimeline timeline_of(const Trajectory& plan) {
   const auto& ex = plan.extra;
@@ -201,15 +181,15 @@ void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
   // right for the first): with aligned knots (PhaseTimeline::first_interval_elapsed) that
   // reproduces the previous splines exactly.
   const auto& kt = L.nominal_knot_time;
-  auto at_knot = [&](int k) {
-    const int seg = k > 0 ? k - 1 : 0;
-    return segment_state(prev, kt[k] + shift, kt[seg] + shift, kt[seg + 1] + shift);
-  };
+  std::vector<TrajectorySample> knot(S + 1);
   for (int k = 0; k <= S; ++k) {
-    const auto s = at_knot(k);
+    const int seg = k > 0 ? k - 1 : 0;
+    knot[k] = segment_state(prev, kt[k] + shift, kt[seg] + shift, kt[seg + 1] + shift);
+  }
+  for (int k = 0; k <= S; ++k) {
+    const auto& s = knot[k];
     const int b = L.base[k];
-    const Eigen::Vector3d rates =
-        euler_rate_matrix(s.base.euler_zyx).fullPivLu().solve(s.base.angular_velocity);
+    const Eigen::Vector3d rates = euler_rates(s);
     for (int d = 0; d < 3; ++d) {
       auto set = [&](int i, double v) {
         if (lb_[i] < ub_[i]) x0_[i] = std::clamp(v, lb_[i], ub_[i]);
@@ -224,14 +204,10 @@ void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
   for (int f = 0; f < nf; ++f)
     for (int k = 0; k <= S; ++k) {
       const int pv = L.foot_pos[f][k], vv = L.foot_vel[f][k];
-      if (pv >= 0 && lb_[pv] < ub_[pv]) {
-        const auto s = at_knot(k);
-        for (int d = 0; d < 3; ++d) x0_[pv + d] = s.feet[f].position[d];
-      }
-      if (vv >= 0 && lb_[vv] < ub_[vv]) {
-        const auto s = at_knot(k);
-        for (int d = 0; d < 3; ++d) x0_[vv + d] = s.feet[f].velocity[d];
-      }
+      if (pv >= 0 && lb_[pv] < ub_[pv])
+        for (int d = 0; d < 3; ++d) x0_[pv + d] = knot[k].feet[f].position[d];
+      if (vv >= 0 && lb_[vv] < ub_[vv])
+        for (int d = 0; d < 3; ++d) x0_[vv + d] = knot[k].feet[f].velocity[d];
     }
   for (int f = 0; f < nf; ++f)
     for (int s = 0; s < S; ++s)
@@ -267,8 +243,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     start.position = s.base.position;
     start.euler_zyx = s.base.euler_zyx;
     start.linear_velocity = s.base.linear_velocity;
-    start.euler_rates =
-        euler_rate_matrix(s.base.euler_zyx).fullPivLu().solve(s.base.angular_velocity);
+    start.euler_rates = euler_rates(s);
     for (const auto& f : s.feet) {
       start.foot_position.push_back(f.position);
       start.foot_velocity.push_back(f.velocity);

@@ -1,6 +1,6 @@
 // Finite-difference check of constraint pieces, shared by the NLP and feasibility tests: every
 // checked piece's exact Jacobian against central differences of its own values, at the initial
-// guess perturbed by Gaussian noise.
+// guess perturbed by Gaussian noise. Also: the number of pieces of each kind.
 #pragma once
 
 #include <gtest/gtest.h>
@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <map>
 #include <random>
 #include <string>
 #include <vector>
@@ -15,6 +16,13 @@
 #include "terrastride/planner/nlp.hpp"
 
 namespace terrastride::planner::testing {
+
+// Pieces per kind ("swing_acceleration" -> 24, ...).
+inline std::map<std::string, int> count_kinds(const SrbdProblem& p) {
+  std::map<std::string, int> c;
+  for (const auto& piece : p.pieces()) ++c[piece->kind];
+  return c;
+}
 
 // Checks the pieces for which `select(piece)` is true; stops at the first mismatch (reported with
 // the piece kind, row and variable). Returns the number of pieces checked.

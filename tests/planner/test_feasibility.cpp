@@ -22,6 +22,7 @@
 namespace terrastride::planner {
 namespace {
 
+using testing::count_kinds;
 using testing::feet_of;
 using testing::hyq;
 
@@ -44,12 +45,6 @@ int check_pieces(const SrbdProblem& p, const std::set<std::string>& kinds, unsig
                  double noise_size) {
   return testing::check_piece_derivatives(
       p, seed, noise_size, [&](const Piece& piece) { return kinds.count(piece.kind) > 0; });
-}
-
-std::map<std::string, int> count_kinds(const SrbdProblem& p) {
-  std::map<std::string, int> c;
-  for (const auto& piece : p.pieces()) ++c[piece->kind];
-  return c;
 }
 
 TEST(FeasibilityDerivatives, HyqPiecesMatchFiniteDifferences) {

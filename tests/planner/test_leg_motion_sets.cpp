@@ -22,14 +22,9 @@
 namespace terrastride::planner {
 namespace {
 
+using testing::count_kinds;
 using testing::feet_of;
 using testing::hyq;
-
-std::map<std::string, int> count_kinds(const SrbdProblem& p) {
-  std::map<std::string, int> c;
-  for (const auto& piece : p.pieces()) ++c[piece->kind];
-  return c;
-}
 
 PhaseTimeline crawl(const robot::RobotModel& r) {
   return make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
