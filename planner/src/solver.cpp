@@ -140,6 +140,14 @@ SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
   opts->SetStringValue("sb", "yes");  // no banner
   opts->SetStringValue("hessian_approximation", "limited-memory");
   opts->SetStringValue("linear_solver", "mumps");
+  // Approximate minimum degree: on these banded-in-time KKT systems it needs 1.4-2.4x fewer
+  // factorisation flops and 15-33 % fewer factor entries than MUMPS's automatic choice (AMF),
+  // with the same iteration counts (pallet_15 baseline: 3.8e7 against 9.0e7 flops per factorisation).
+  opts->SetIntegerValue("mumps_pivot_order", 0);
+  // The L-BFGS update as extra rows of the factorised system instead of Sherman-Morrison: the
+  // default spends 2 x history extra back-solves per iteration (pallet_15: 117 solves against 48),
+  // and MUMPS's back-solves cost a fifth of a factorisation each on these small fronts.
+  opts->SetStringValue("limited_memory_aug_solver", "extended");
   opts->SetStringValue("fixed_variable_treatment", "make_parameter");
   // The adaptive barrier falls back to a monotone mode when it stops making progress, and on the
   // demo's scanned pallet that fallback held mu near 6 for some 40 iterations (48 in all). Without
