@@ -25,6 +25,7 @@ const std::map<std::string, Setting>& settings_table() {
       {"shin_points", {[](FeasibilityOptions& o, double v) { o.shin_points = static_cast<int>(v); }, 1, 100, true, ""}},
       {"shin_exclusion", {[](FeasibilityOptions& o, double v) { o.shin_exclusion = v; }, -1.0, 1.0, false, "m (negative: the default)"}},
       {"shin_clearance", {[](FeasibilityOptions& o, double v) { o.shin_clearance = v; }, -1.0, 0.5, false, "m (negative: the default)"}},
+      {"shin_ik_margin", {[](FeasibilityOptions& o, double v) { o.shin_ik_margin = v; }, 0.0, 0.1, false, "m"}},
       {"shin_yaw_points", {[](FeasibilityOptions& o, double v) { o.shin_yaw_points = static_cast<int>(v); }, 1, 20, true, ""}},
       {"shin_softmin", {[](FeasibilityOptions& o, double v) { o.shin_softmin = v; }, 0.0, 0.05, false, "m (0: a row per point)"}},
       {"polytope_softmax", {[](FeasibilityOptions& o, double v) { o.polytope_softmax = v; }, 0.0, 0.1, false, "m g (0: a row per facet)"}},

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <mutex>
+#include <Eigen/Cholesky>
 #include <stdexcept>
 
 #include "terrastride/planner/feasibility.hpp"
@@ -267,20 +268,48 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
                                base_height(goal_xyyaw.x(), goal_xyyaw.y(), goal_xyyaw.z()));
   const Eigen::Vector3d e_goal(goal_xyyaw.z(), 0.0, 0.0);
 
+  // Progress from start to goal follows a minimum-jerk profile, s(u) = 10u^3 - 15u^4 + 6u^5, so
+  // the guess leaves and reaches rest smoothly. (A linear ramp between resting end knots put
+  // spikes of up to 8 m g into the first and last segments' accelerations.)
+  auto progress = [T](double t, double* rate) {
+    const double u = std::clamp(t / T, 0.0, 1.0), u2 = u * u;
+    if (rate) *rate = 30.0 * u2 * (1.0 - u) * (1.0 - u) / T;
+    return u2 * u * (10.0 - 15.0 * u + 6.0 * u2);
+  };
+  // The base height follows the terrain under the nominal feet, averaged over a window around t
+  // (triangular weights): a foot crossing a step edge then lifts the guess gradually instead of
+  // by a step between two knots.
+  constexpr double kHeightWindow = 0.4;  // s, half width
+  auto smoothed_height = [&](double t) {
+    double sum = 0.0, weight = 0.0;
+    constexpr int kSamples = 8;
+    for (int i = -kSamples; i <= kSamples; ++i) {
+      const double ti = std::clamp(t + kHeightWindow * i / kSamples, 0.0, T);
+      const double w = 1.0 - std::abs(static_cast<double>(i)) / (kSamples + 1);
+      const double u = progress(ti, nullptr);
+      const Eigen::Vector3d p = (1 - u) * p_start + u * p_goal;
+      sum += w * base_height(p.x(), p.y(), (1 - u) * e_start[0] + u * e_goal[0]);
+      weight += w;
+    }
+    return sum / weight;
+  };
   for (int k = 0; k <= S; ++k) {
-    const double u = L.nominal_knot_time[k] / T;
+    const double t = L.nominal_knot_time[k];
+    double rate = 0.0;
+    const double u = progress(t, &rate);
     const int b = L.base[k];
     const Eigen::Vector3d p = (1 - u) * p_start + u * p_goal;
     const Eigen::Vector3d e = (1 - u) * e_start + u * e_goal;
-    const double zb = k == 0 ? p_start.z() : base_height(p.x(), p.y(), e[0]);
     const bool inner = k > 0 && k < S;
+    constexpr double kDt = 1e-3;
+    const double zb = k == 0 ? p_start.z() : smoothed_height(t);
+    const double zd = inner ? (smoothed_height(t + kDt) - smoothed_height(t - kDt)) / (2 * kDt) : 0.0;
     for (int d = 0; d < 3; ++d) {
       x0_[b + d] = d == 2 ? zb : p[d];
-      x0_[b + 3 + d] = inner ? (p_goal[d] - p_start[d]) / T : 0.0;
+      x0_[b + 3 + d] = d == 2 ? zd : rate * (p_goal[d] - p_start[d]);
       x0_[b + 6 + d] = e[d];
-      x0_[b + 9 + d] = inner ? (e_goal[d] - e_start[d]) / T : 0.0;
+      x0_[b + 9 + d] = rate * (e_goal[d] - e_start[d]);
     }
-    if (inner) x0_[b + 5] = 0.0;
   }
   // Start state and goal as bounds; fixed degrees of freedom held at their start value.
   auto fix = [&](int i, double v) {
@@ -432,18 +461,82 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
       }
     }
   }
-  // Forces: the weight shared by the feet in stance.
-  for (int s = 0; s < S; ++s) {
-    int n = 0;
-    for (int f = 0; f < nf; ++f) n += L.contact[f][s];
-    if (n == 0) continue;
-    for (int f = 0; f < nf; ++f)
-      for (int side = 0; side < 2; ++side)
-        if (L.force[f][s][side] >= 0) {
-          const int i = L.force[f][s][side];
-          x0_[i] = x0_[i + 1] = 0.0;
-          x0_[i + 2] = robot_.mass * kGravity / n;
+  guess_forces();
+}
+
+// Forces of the initial guess: at each knot, the forces of the feet in stance that best satisfy
+// both neighbouring segments' linear and angular dynamics for the guessed base motion, nearest to
+// the weight shared equally (a small regularised least-squares problem per knot), then held in
+// the friction pyramid. Ipopt then starts near dynamic balance instead of 1-2 m g away from it.
+void SrbdProblem::guess_forces() {
+  const Layout& L = *layout_;
+  const int S = L.num_segments;
+  const int nf = static_cast<int>(robot_.legs.size());
+  const double mg = robot_.mass * kGravity, mu = options_.friction;
+  const double fmax = options_.max_normal_force_factor * mg;
+  const bool rot_free =
+      robot_.base_dof_free[3] || robot_.base_dof_free[4] || robot_.base_dof_free[5];
+  auto v3 = [&](int i) { return Eigen::Vector3d(x0_[i], x0_[i + 1], x0_[i + 2]); };
+  // Angular rows are divided by this lever arm so that they weigh like the force rows.
+  constexpr double kLever = 0.3;  // m
+  constexpr double kRegularisation = 1e-3;
+  for (int k = 0; k <= S; ++k) {
+    std::vector<int> feet, vars;
+    for (int f = 0; f < nf; ++f) {
+      const int v = k < S && L.force[f][k][0] >= 0 ? L.force[f][k][0]
+                    : k > 0                        ? L.force[f][k - 1][1]
+                                                   : -1;
+      if (v >= 0) {
+        feet.push_back(f);
+        vars.push_back(v);
+      }
+    }
+    if (feet.empty()) continue;
+    const int n = static_cast<int>(feet.size());
+    Eigen::MatrixXd A = Eigen::MatrixXd::Zero(12, 3 * n);
+    Eigen::VectorXd b = Eigen::VectorXd::Zero(12);
+    int rows = 0;
+    for (int side = 0; side < 2; ++side) {
+      const int s = side == 0 ? k - 1 : k;  // the segment ending (0) or starting (1) at knot k
+      if (s < 0 || s >= S) continue;
+      const double sigma = side == 0 ? 1.0 : 0.0;
+      const double h = x0_[L.interval_var[L.seg_interval[s]]] * L.seg_fraction[s];
+      const int b0 = L.base[s], b1 = L.base[s + 1];
+      Eigen::Vector3d r, acc, e, ed, edd, w, wd;
+      hermite<double>(sigma, h, v3(b0), v3(b0 + 3), v3(b1), v3(b1 + 3), &r, nullptr, &acc);
+      hermite<double>(sigma, h, v3(b0 + 6), v3(b0 + 9), v3(b1 + 6), v3(b1 + 9), &e, &ed, &edd);
+      euler_to_angular<double>(e, ed, edd, &w, &wd);
+      const Eigen::Matrix3d R = rotation_zyx<double>(e);
+      const Eigen::Matrix3d Iw = R * robot_.inertia * R.transpose();
+      b.segment<3>(rows) = robot_.mass * acc + Eigen::Vector3d(0, 0, mg);
+      if (rot_free) b.segment<3>(rows + 3) = (Iw * wd + w.cross(Iw * w)) / kLever;
+      for (int i = 0; i < n; ++i) {
+        if (!L.contact[feet[i]][s]) continue;
+        A.block<3, 3>(rows, 3 * i).setIdentity();
+        if (rot_free) {
+          const Eigen::Vector3d lever = v3(L.foot_pos[feet[i]][k]) - r;
+          Eigen::Matrix3d cross;  // lever x f as a matrix acting on f
+          cross << 0, -lever.z(), lever.y(), lever.z(), 0, -lever.x(), -lever.y(), lever.x(), 0;
+          A.block<3, 3>(rows + 3, 3 * i) = cross / kLever;
         }
+      }
+      rows += 6;
+    }
+    // Nearest to the equal share: min |A f - b|^2 + eps |f - f_equal|^2.
+    Eigen::VectorXd f_equal = Eigen::VectorXd::Zero(3 * n);
+    for (int i = 0; i < n; ++i) f_equal[3 * i + 2] = mg / n;
+    const Eigen::MatrixXd At = A.topRows(rows).transpose();
+    const Eigen::MatrixXd N =
+        At * A.topRows(rows) + kRegularisation * Eigen::MatrixXd::Identity(3 * n, 3 * n);
+    const Eigen::VectorXd f = N.ldlt().solve(At * b.head(rows) + kRegularisation * f_equal);
+    for (int i = 0; i < n; ++i) {
+      Eigen::Vector3d fi = f.segment<3>(3 * i);
+      if (!fi.allFinite()) fi = f_equal.segment<3>(3 * i);
+      fi.z() = std::clamp(fi.z(), 0.0, fmax);
+      const double tangential = fi.head<2>().norm(), limit = mu * fi.z() / std::sqrt(2.0);
+      if (tangential > limit) fi.head<2>() *= limit / tangential;
+      for (int d = 0; d < 3; ++d) x0_[vars[i] + d] = fi[d];
+    }
   }
 }
 

@@ -1,4 +1,5 @@
 #include "terrastride/planner/solver.hpp"
+#include "terrastride/planner/piece_math.hpp"  // kGravity
 
 #include <IpIpoptApplication.hpp>
 #include <IpIpoptCalculatedQuantities.hpp>
@@ -48,6 +49,27 @@ class SrbdTnlp : public Ipopt::TNLP {
     if (init_z || init_lambda) return false;
     auto& x0 = const_cast<SrbdProblem&>(p_).initial_guess();
     std::copy(x0.begin(), x0.end(), x);
+    return true;
+  }
+  // Forces are variables in newtons, hundreds of them, beside positions and angles of order one:
+  // unscaled, the L-BFGS model and the fraction-to-the-boundary rule treat a newton like a metre,
+  // and the first iterations crawl (steps of 1-10 % for some ten iterations). Forces are
+  // therefore scaled to units of the robot's weight; the rows are already scaled by construction
+  // (dynamics / m g, lengths in m), so Ipopt's own row scaling is not used. Measured over ten
+  // scenarios (flat, pallets, EUR pallet, trot, monoped hop; baseline and all): 191 iterations
+  // in all before, 90 after.
+  bool get_scaling_parameters(Number& obj_scaling, bool& use_x_scaling, Index n, Number* x_scaling,
+                              bool& use_g_scaling, Index, Number*) override {
+    obj_scaling = 1.0;
+    use_x_scaling = true;
+    std::fill(x_scaling, x_scaling + n, 1.0);
+    const double weight = p_.robot().mass * kGravity;
+    for (const auto& foot : p_.layout().force)
+      for (const auto& knot : foot)
+        for (int v : knot)
+          if (v >= 0)
+            for (int d = 0; d < 3; ++d) x_scaling[v + d] = 1.0 / weight;
+    use_g_scaling = false;
     return true;
   }
   // Feasibility problem with a tiny regulariser: the squared distance of the variables to the
@@ -149,6 +171,7 @@ SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
   // and MUMPS's back-solves cost a fifth of a factorisation each on these small fronts.
   opts->SetStringValue("limited_memory_aug_solver", "extended");
   opts->SetStringValue("fixed_variable_treatment", "make_parameter");
+  opts->SetStringValue("nlp_scaling_method", "user-scaling");  // see get_scaling_parameters
   // The adaptive barrier falls back to a monotone mode when it stops making progress, and on the
   // demo's scanned pallet that fallback held mu near 6 for some 40 iterations (48 in all). Without
   // the fallback: 25 iterations, plan 4.3-4.7 s instead of 7.4-8.6 s. Flat, pallet_10 and pallet_15,

@@ -5,9 +5,9 @@
 // range-of-motion box lets feet go where the joints cannot follow; "joints" keeps them in range.
 // The paper's torque experiment (Bratta et al. 2020, section IV-A):
 // `terrastride plan` solves, then judges its own plan with the post-hoc joint-torque check
-// (tau = M q'' + c + g - J^T f from IK, every sample). Without the torque constraints the check
-// must find violations (it has teeth); with "polytope" (force polytopes in stance, the foot
-// acceleration bound in swing) the worst ratio must stay within 1.05 of the limits.
+// (tau = M q'' + c + g - J^T f from IK, every sample). With "polytope" (force polytopes in
+// stance, the foot acceleration bound in swing) the worst ratio must stay within 1.05 of the
+// limits; on a scenario where the baseline's plan exceeds them, the check must say so (teeth).
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -58,31 +58,49 @@ TorqueFigures plan_and_check(const std::string& args, const std::string& name) {
   return t;
 }
 
-void expect_polytopes_hold_the_limits(const std::string& scenario, const std::string& tag) {
+// Both plans optimal; with "polytope" the worst ratio within 1.05 of the limits and no violating
+// sample. With `baseline_must_violate`, the point-foot plan must exceed the limits: the check has
+// teeth on this scenario.
+void expect_polytopes_hold_the_limits(const std::string& scenario, const std::string& tag,
+                                      bool baseline_must_violate) {
   const TorqueFigures base = plan_and_check(scenario + " --constraints baseline", tag + "_baseline");
   const TorqueFigures poly = plan_and_check(scenario + " --constraints polytope", tag + "_polytope");
   EXPECT_EQ(base.status, "optimal");
   EXPECT_EQ(poly.status, "optimal");
-  EXPECT_GT(base.ratio_max, 1.05) << "the baseline plan should exceed the torque limits";
-  EXPECT_GT(base.violations, 0.0);
+  if (baseline_must_violate) {
+    EXPECT_GT(base.ratio_max, 1.05) << "the baseline plan should exceed the torque limits";
+    EXPECT_GT(base.violations, 0.0);
+  }
   EXPECT_LE(poly.ratio_max, 1.05);
   EXPECT_EQ(poly.violations, 0.0);
 }
 
 }  // namespace
 
-// 1 m in 2.4 s on flat ground, HyQ crawl.
+// The paper's scenario: 1 m in 2.4 s on flat ground, HyQ crawl. Whether the baseline's plan
+// exceeds the limits depends on which feasible point the solver stops at: from the earlier
+// initial guess (linear ramps, equal forces) it did (worst ratio 1.99, 27 samples); from the
+// dynamically balanced guess (nlp.cpp, guess_forces) it stays at 0.98. Nothing in the baseline
+// formulation holds the limits, so the teeth are shown on the trot below.
 TEST(TorqueExperiment, FastFlatCrawl) {
-  expect_polytopes_hold_the_limits("--terrain flat --duration 2.4 --goal 1,0,0", "crawl");
+  expect_polytopes_hold_the_limits("--terrain flat --duration 2.4 --goal 1,0,0", "crawl", false);
 }
 
-// The monoped (one HyQ leg on a slider) hopping 1 m.
+// The monoped (one HyQ leg on a slider) hopping 1 m. Baseline: worst ratio 1.25 from the earlier
+// guess, 0.49 from the balanced one.
 TEST(TorqueExperiment, MonopedHop) {
-  expect_polytopes_hold_the_limits("--robot monoped --gait hop --terrain flat --goal 1,0,0", "hop");
+  expect_polytopes_hold_the_limits("--robot monoped --gait hop --terrain flat --goal 1,0,0", "hop",
+                                   false);
 }
 
-// Onto the 15 cm pallet: the baseline plan needs HFE beyond its range at some samples (measured: 72
-// samples, up to 8 deg); with "joints" no sample of the plan leaves a joint range.
+// HyQ trotting 1 m on flat ground (the gait's default duration): the baseline plan asks for up to
+// 1.8x the joint torques the motors have (measured: 25 violating samples); "polytope" holds them.
+TEST(TorqueExperiment, TrotChecksHaveTeeth) {
+  expect_polytopes_hold_the_limits("--terrain flat --gait trot --goal 1,0,0", "trot", true);
+}
+
+// Onto the 15 cm pallet: the baseline plan needs HFE beyond its range at some samples (measured: 49
+// samples); with "joints" no sample of the plan leaves a joint range.
 TEST(JointLimits, PalletCrawlStaysInRange) {
   const std::string scenario = "--terrain pallet_15 --duration 11 --goal 1,0,0 --max-time 120";
   const TorqueFigures base = plan_and_check(scenario + " --constraints baseline", "p15_baseline");
@@ -93,22 +111,27 @@ TEST(JointLimits, PalletCrawlStaysInRange) {
   EXPECT_EQ(joints.joint_limit_violations, 0.0);
 }
 
-void expect_all_constraints_clear_the_pallet(const std::string& terrain) {
+// "all" optimal with no capsule collision, no unsafe foothold and the torques within 1.05 of the
+// limits. With `baseline_must_collide`, the point-foot plan must drive a shin into the edge.
+void expect_all_constraints_clear_the_pallet(const std::string& terrain, bool baseline_must_collide) {
   const std::string scenario = "--terrain " + terrain + " --duration 11 --goal 1,0,0 --max-time 120";
   const TorqueFigures base = plan_and_check(scenario + " --constraints baseline", terrain + "_baseline");
   const TorqueFigures all = plan_and_check(scenario + " --constraints all", terrain + "_all");
   EXPECT_EQ(base.status, "optimal");
-  EXPECT_GT(base.shin_collisions, 0.0) << "the point-foot plan should hit the edge";
+  if (baseline_must_collide)
+    EXPECT_GT(base.shin_collisions, 0.0) << "the point-foot plan should hit the edge";
   EXPECT_EQ(all.status, "optimal");
   EXPECT_EQ(all.shin_collisions, 0.0);
   EXPECT_EQ(all.unsafe_footholds, 0.0);
   EXPECT_LE(all.ratio_max, 1.05);
 }
 
+// On the 10 cm pallet the baseline's plan happens to clear the edge (measured: 0 capsule
+// collisions, 25 samples outside a joint range); on the 15 cm pallet it does not (230 samples).
 TEST(PalletExperiment, AllConstraintsClearThe10cmPallet) {
-  expect_all_constraints_clear_the_pallet("pallet_10");
+  expect_all_constraints_clear_the_pallet("pallet_10", false);
 }
 
 TEST(PalletExperiment, AllConstraintsClearThe15cmPallet) {
-  expect_all_constraints_clear_the_pallet("pallet_15");
+  expect_all_constraints_clear_the_pallet("pallet_15", true);
 }

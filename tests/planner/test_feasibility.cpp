@@ -99,11 +99,13 @@ TEST(FeasibilityValues, ShinKinematicKneeIsTheIkKnee) {
   int checked = 0;
   for (const auto& piece : p.pieces()) {
     if (piece->kind != "shin_ik") continue;
-    // Which stance and knot: the piece's variables are foothold (3), base position (3), euler (3).
+    // Which foot and knot: the piece's variables are the foot's position at a knot (3; its
+    // foothold in stance, its spline knot in swing), base position (3), euler (3).
     const int pv = piece->vars[0], bv = piece->vars[3];
     int foot = -1;
-    for (const auto& st : L.stances)
-      if (st.pos_var == pv) foot = st.foot;
+    for (std::size_t f = 0; f < L.foot_pos.size(); ++f)
+      for (int k = 0; k <= L.num_segments; ++k)
+        if (L.foot_pos[f][k] == pv && L.base[k] == bv) foot = static_cast<int>(f);
     ASSERT_GE(foot, 0);
     const Eigen::Vector3d pf(x[pv], x[pv + 1], x[pv + 2]), base(x[bv], x[bv + 1], x[bv + 2]);
     const Eigen::Vector3d e(x[bv + 6], x[bv + 7], x[bv + 8]);

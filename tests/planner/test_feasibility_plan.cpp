@@ -144,7 +144,7 @@ TEST(FeasibilityPlan, FootRadiusKeepsFootholdsOffUnsafeGround) {
   EXPECT_GE(worst_margin(foot.trajectory), FeasibilityOptions{}.foot_margin - 1e-6);
 }
 
-// Paper, section IV-B: onto the 10 cm pallet in 11 s. The shin inequality (eq. 13-14) at every
+// Paper, section IV-B: onto the 15 cm pallet in 11 s. The shin inequality (eq. 13-14) at every
 // 2 ms stance sample and 30 points along the modelled shin (the constraint has 10), on the EXACT
 // scene (sharp edge; the planner sees its 2 cm B-spline), minus the clearance the set asks for
 // (FeasibilityOptions defaults). On the smoothed field the baseline happens to pass; on the real
@@ -171,7 +171,7 @@ double shin_min(const robot::RobotModel& r, const terrain::HeightField& field, c
 
 TEST(FeasibilityPlan, ShinConstraintHoldsOnThePallet) {
   const auto r = hyq();
-  auto scene = terrain::make_scene("pallet_10");
+  auto scene = terrain::make_scene("pallet_15");
   auto smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
   const PlanOutcome base = plan(r, *smooth, *scene, {"baseline"}, 11.0);
   const PlanOutcome shin = plan(r, *smooth, *scene, {"shin"}, 11.0);

@@ -183,6 +183,7 @@ class SrbdProblem {
  private:
   void build_layout(const StartState* start);
   void build_initial_guess(const StartState* start);
+  void guess_forces();
   void build_baseline();
 
   const robot::RobotModel& robot_;
