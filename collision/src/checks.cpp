@@ -5,6 +5,8 @@
 #include <chrono>
 #include <sstream>
 
+#include "terrastride/collision/octree_terrain.hpp"
+
 namespace terrastride::collision {
 namespace {
 
@@ -29,9 +31,15 @@ std::map<std::string, double> CheckReport::keys() const {
   if (clearance) {
     k["shin_min_distance_m"] = clearance->shin_min_distance;
     k["shin_collisions"] = clearance->shin_collisions;
+    k["shin_collisions_certain"] = clearance->shin_collisions_certain;
+    k["shin_contacts_uncertain"] = clearance->shin_contacts_uncertain;
+    k["shin_min_certain_distance_m"] = clearance->shin_min_certain_distance;
     if (!clearance->legs.empty() && !clearance->legs.front().thigh_distance.empty()) {
       k["thigh_min_distance_m"] = clearance->thigh_min_distance;
       k["thigh_collisions"] = clearance->thigh_collisions;
+      k["thigh_collisions_certain"] = clearance->thigh_collisions_certain;
+      k["thigh_contacts_uncertain"] = clearance->thigh_contacts_uncertain;
+      k["thigh_min_certain_distance_m"] = clearance->thigh_min_certain_distance;
     }
   }
   if (footholds) {
@@ -72,17 +80,24 @@ std::vector<std::string> CheckReport::failures() const {
                   kJointNames[torque.worst_joint] +
                   ", t = " + fmt(torque.time[torque.worst_sample]) + " s");
   }
-  if (clearance && clearance->shin_collisions + clearance->thigh_collisions > 0) {
+  if (clearance && clearance->shin_collisions_certain + clearance->thigh_collisions_certain > 0) {
     std::string legs;
     for (const auto& l : clearance->legs) {
-      if (l.shin_collision_samples + l.thigh_collision_samples == 0) continue;
+      if (l.shin_certain_samples + l.thigh_certain_samples == 0) continue;
       legs += (legs.empty() ? "" : ", ") + l.leg + " (shin " +
-              std::to_string(l.shin_collision_samples) + ", thigh " +
-              std::to_string(l.thigh_collision_samples) + ")";
+              std::to_string(l.shin_certain_samples) + ", thigh " +
+              std::to_string(l.thigh_certain_samples) + ")";
     }
-    out.push_back("leg collides with the terrain at " + std::to_string(clearance->shin_collisions) +
-                  " samples (shin) and " + std::to_string(clearance->thigh_collisions) +
-                  " (thigh), first at t = " + fmt(clearance->first_collision_t) + " s: " + legs);
+    std::string more;
+    const int uncertain = clearance->shin_contacts_uncertain + clearance->thigh_contacts_uncertain;
+    if (!clearance->certain_source.empty() && uncertain > 0)
+      more = "; besides, " + std::to_string(clearance->shin_contacts_uncertain) + " (shin) and " +
+             std::to_string(clearance->thigh_contacts_uncertain) +
+             " (thigh) samples touch voxels only within the map's uncertainty";
+    out.push_back("leg collides with the terrain at " +
+                  std::to_string(clearance->shin_collisions_certain) + " samples (shin) and " +
+                  std::to_string(clearance->thigh_collisions_certain) + " (thigh), first at t = " +
+                  fmt(clearance->first_certain_collision_t) + " s: " + legs + more);
   }
   if (footholds && footholds->unsafe > 0) {
     const Foothold& w = footholds->footholds[footholds->worst];
@@ -103,9 +118,16 @@ CheckReport run_checks(const robot::RobotModel& model, const planner::Trajectory
   CheckReport rep;
   rep.kinematics = leg_kinematics(model, trajectory);
   rep.torque = check_joint_torques(model, trajectory, rep.kinematics, options.torque);
-  if (terrain.octree)
-    rep.clearance =
-        check_leg_clearance(model, trajectory, rep.kinematics, *terrain.octree, options.clearance);
+  if (terrain.octree) {
+    std::shared_ptr<const CertainSolid> certain = terrain.certain;
+    if (!certain && terrain.field) {
+      Eigen::Vector2d lo, hi;
+      trajectory_extent(model, trajectory, options.clearance.distance_cutoff + 0.05, &lo, &hi);
+      certain = certain_solid_for(*terrain.field, *terrain.octree, lo, hi);
+    }
+    rep.clearance = check_leg_clearance(model, trajectory, rep.kinematics, *terrain.octree,
+                                        options.clearance, certain.get());
+  }
   if (terrain.field) rep.footholds = check_footholds(trajectory, *terrain.field, model.foot_radius);
   rep.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return rep;

@@ -1,6 +1,9 @@
 // Leg capsules (shin: knee to near the foot; thigh: HFE to knee) against the terrain's OctoMap,
 // with FCL's octree-shape distance and collision queries.
+#include <fcl/broadphase/broadphase_dynamic_AABB_tree.h>
+#include <fcl/broadphase/default_broadphase_callbacks.h>
 #include <fcl/geometry/octree/octree.h>
+#include <fcl/geometry/shape/box.h>
 #include <fcl/geometry/shape/capsule.h>
 #include <fcl/narrowphase/collision.h>
 #include <fcl/narrowphase/distance.h>
@@ -9,8 +12,10 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 
 #include "terrastride/collision/checks.hpp"
+#include "terrastride/collision/octree_terrain.hpp"
 
 namespace terrastride::collision {
 namespace {
@@ -49,6 +54,46 @@ double signed_distance(const fcl::OcTree<double>& tree, const fcl::Capsule<doubl
     depth = std::max(depth, cres.getContact(c).penetration_depth);
   return -depth;
 }
+
+// The certain solid (boxes) in an FCL broadphase tree, queried with the same capsules.
+class SolidGeometry {
+ public:
+  explicit SolidGeometry(const CertainSolid& solid) {
+    objects_.reserve(solid.boxes.size());
+    for (const auto& b : solid.boxes) {
+      auto box = std::make_shared<fcl::Box<double>>(b.hi - b.lo);
+      Transform3d tf = Transform3d::Identity();
+      tf.translation() = 0.5 * (b.lo + b.hi);
+      objects_.push_back(std::make_unique<fcl::CollisionObject<double>>(box, tf));
+      manager_.registerObject(objects_.back().get());
+    }
+    manager_.setup();
+  }
+
+  // Signed distance as for the octree: >= 0 clearance (capped at cutoff), < 0 minus the deepest
+  // penetration into one box (a rough depth; the sign is the verdict).
+  double signed_distance(const std::shared_ptr<fcl::Capsule<double>>& capsule,
+                         const Transform3d& pose, double cutoff) {
+    if (objects_.empty()) return cutoff;
+    fcl::CollisionObject<double> obj(capsule, pose);
+    fcl::DefaultDistanceData<double> dd;
+    dd.result.min_distance = cutoff;
+    manager_.distance(&obj, &dd, fcl::DefaultDistanceFunction<double>);
+    if (dd.result.min_distance > 1e-9) return std::min(dd.result.min_distance, cutoff);
+    fcl::DefaultCollisionData<double> cd;
+    cd.request = fcl::CollisionRequest<double>(std::numeric_limits<int>::max() / 2, true);
+    manager_.collide(&obj, &cd, fcl::DefaultCollisionFunction<double>);
+    if (!cd.result.isCollision()) return 0.0;
+    double depth = 0.0;
+    for (size_t c = 0; c < cd.result.numContacts(); ++c)
+      depth = std::max(depth, cd.result.getContact(c).penetration_depth);
+    return -depth;
+  }
+
+ private:
+  std::vector<std::unique_ptr<fcl::CollisionObject<double>>> objects_;
+  fcl::DynamicAABBTreeCollisionManager<double> manager_;
+};
 
 // One capsule's axis end points over the samples (valid = IK gave a configuration).
 struct CapsuleTrack {
@@ -114,15 +159,24 @@ std::vector<double> capsule_distances(const fcl::OcTree<double>& tree,
 // lowest point along its whole footprint, so FCL would test every voxel under it. Short pieces
 // have tight boxes and only the lowest piece comes near the ground. Distance = minimum over
 // pieces (a lower bound if that piece's value was a bound).
-std::vector<double> link_distances(const fcl::OcTree<double>& tree, double radius,
-                                   const CapsuleTrack& track, double length,
-                                   const ClearanceOptions& options, std::vector<char>* exact,
-                                   long* queries) {
+struct LinkResult {
+  std::vector<double> distance, certain_distance;
+  std::vector<char> exact;
+};
+
+// Voxel distances of a link (min over pieces) and, where a piece comes within exact_below of the
+// voxels, its distance to the certain solid (`solid` null: the voxel distance stands for it).
+LinkResult link_distances(const fcl::OcTree<double>& tree, SolidGeometry* solid, double radius,
+                          const CapsuleTrack& track, double length, const ClearanceOptions& options,
+                          long* queries, long* certain_queries) {
   const size_t n = track.valid.size();
   const int pieces = std::max(1, static_cast<int>(std::ceil(length / options.piece_length - 1e-9)));
-  const fcl::Capsule<double> capsule(radius, length / pieces);
-  std::vector<double> out(n, std::numeric_limits<double>::quiet_NaN());
-  exact->assign(n, 0);
+  const auto capsule_ptr = std::make_shared<fcl::Capsule<double>>(radius, length / pieces);
+  const fcl::Capsule<double>& capsule = *capsule_ptr;
+  LinkResult r;
+  r.distance.assign(n, std::numeric_limits<double>::quiet_NaN());
+  r.certain_distance.assign(n, std::numeric_limits<double>::quiet_NaN());
+  r.exact.assign(n, 0);
   CapsuleTrack piece = track;
   std::vector<char> piece_exact;
   for (int j = 0; j < pieces; ++j) {
@@ -135,20 +189,28 @@ std::vector<double> link_distances(const fcl::OcTree<double>& tree, double radiu
         capsule_distances(tree, capsule, piece, options, &piece_exact, queries);
     for (size_t k = 0; k < n; ++k) {
       if (std::isnan(d[k])) continue;
-      if (std::isnan(out[k]) || d[k] < out[k] || (d[k] == out[k] && piece_exact[k])) {
-        out[k] = d[k];
-        (*exact)[k] = piece_exact[k];
+      if (std::isnan(r.distance[k]) || d[k] < r.distance[k] ||
+          (d[k] == r.distance[k] && piece_exact[k])) {
+        r.distance[k] = d[k];
+        r.exact[k] = piece_exact[k];
       }
+      double c = d[k];
+      if (solid && d[k] < options.exact_below) {
+        c = solid->signed_distance(capsule_ptr, capsule_pose(piece.a[k], piece.b[k]),
+                                   options.distance_cutoff);
+        ++*certain_queries;
+      }
+      if (std::isnan(r.certain_distance[k]) || c < r.certain_distance[k]) r.certain_distance[k] = c;
     }
   }
-  return out;
+  return r;
 }
 
 }  // namespace
 
 ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planner::Trajectory& traj,
                                     const TrajectoryKinematics& kin, const octomap::OcTree& octree,
-                                    const ClearanceOptions& options) {
+                                    const ClearanceOptions& options, const CertainSolid* certain) {
   const size_t n = traj.samples.size();
   const size_t n_legs = model.legs.size();
   if (kin.time.size() != n || kin.legs.size() != n_legs)
@@ -180,25 +242,60 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
                                                     &octree);
   const fcl::OcTree<double> tree(view);
 
-  // Summarises one capsule's series into the leg's minimum, collision count and first collision.
-  auto summarise = [&](const std::vector<double>& d, double* min, int* min_sample, int* collisions,
-                       std::vector<char>* hit, double* first_t) {
-    *min = options.distance_cutoff;
+  std::unique_ptr<SolidGeometry> solid;
+  if (certain) {
+    solid = std::make_unique<SolidGeometry>(*certain);
+    rep.certain_source = certain->source;
+  }
+  rep.shin_min_certain_distance = options.distance_cutoff;
+  rep.thigh_min_certain_distance = options.distance_cutoff;
+
+  // Per-capsule summary: minima, voxel contacts, certain collisions and the verdicts.
+  struct Summary {
+    double* min;
+    int* min_sample;
+    double* certain_min;
+    int* collisions;
+    int* certain_collisions;
+    std::vector<ContactVerdict>* verdict;
+  };
+  std::vector<ContactVerdict> shin_worst(n, ContactVerdict::clear),
+      thigh_worst(n, ContactVerdict::clear);
+  auto summarise = [&](const LinkResult& r, const Summary& out, std::vector<ContactVerdict>* worst,
+                       LegClearanceSeries* series) {
+    *out.min = options.distance_cutoff;
+    *out.certain_min = options.distance_cutoff;
+    out.verdict->assign(n, ContactVerdict::clear);
     for (size_t k = 0; k < n; ++k) {
-      if (std::isnan(d[k])) continue;
-      if (d[k] < *min) {
-        *min = d[k];
-        *min_sample = static_cast<int>(k);
+      const double d = r.distance[k];
+      if (std::isnan(d)) continue;
+      if (d < *out.min) {
+        *out.min = d;
+        *out.min_sample = static_cast<int>(k);
       }
-      if (d[k] <= 0) {
-        ++*collisions;
-        (*hit)[k] = 1;
-        if (*first_t < 0 || kin.time[k] < *first_t) *first_t = kin.time[k];
+      *out.certain_min = std::min(*out.certain_min, r.certain_distance[k]);
+      ContactVerdict v = ContactVerdict::clear;
+      if (r.certain_distance[k] <= 0) {
+        v = ContactVerdict::certain;
+      } else if (d <= 0) {
+        v = ContactVerdict::uncertain;
       }
+      if (d <= 0 || v == ContactVerdict::certain) {
+        ++*out.collisions;
+        if (series->first_collision_t < 0 || kin.time[k] < series->first_collision_t)
+          series->first_collision_t = kin.time[k];
+      }
+      if (v == ContactVerdict::certain) {
+        ++*out.certain_collisions;
+        if (series->first_certain_collision_t < 0 ||
+            kin.time[k] < series->first_certain_collision_t)
+          series->first_certain_collision_t = kin.time[k];
+      }
+      (*out.verdict)[k] = v;
+      (*worst)[k] = std::max((*worst)[k], v);
     }
   };
 
-  std::vector<char> shin_hit(n, 0), thigh_hit(n, 0);
   for (size_t i = 0; i < n_legs; ++i) {
     const auto& leg = model.legs[i];
     const double exclusion = exclusion_for(leg);
@@ -228,26 +325,51 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
     }
     LegClearanceSeries& series = rep.legs[i];
     series.leg = leg.name;
-    series.shin_distance = link_distances(tree, leg.shin_radius, shin_track, leg.l2 - exclusion,
-                                          options, &series.shin_exact, &rep.fcl_queries);
-    summarise(series.shin_distance, &series.shin_min, &series.shin_min_sample,
-              &series.shin_collision_samples, &shin_hit, &series.first_collision_t);
+    LinkResult shin =
+        link_distances(tree, solid.get(), leg.shin_radius, shin_track, leg.l2 - exclusion, options,
+                       &rep.fcl_queries, &rep.certain_queries);
+    summarise(shin,
+              {&series.shin_min, &series.shin_min_sample, &series.shin_certain_min,
+               &series.shin_collision_samples, &series.shin_certain_samples, &series.shin_verdict},
+              &shin_worst, &series);
+    series.shin_distance = std::move(shin.distance);
+    series.shin_exact = std::move(shin.exact);
+    series.shin_certain_distance = std::move(shin.certain_distance);
     series.thigh_min = options.distance_cutoff;
+    series.thigh_certain_min = options.distance_cutoff;
     if (options.check_thigh) {
-      series.thigh_distance = link_distances(tree, leg.thigh_radius, thigh_track, leg.l1, options,
-                                             &series.thigh_exact, &rep.fcl_queries);
-      summarise(series.thigh_distance, &series.thigh_min, &series.thigh_min_sample,
-                &series.thigh_collision_samples, &thigh_hit, &series.first_collision_t);
+      LinkResult thigh = link_distances(tree, solid.get(), leg.thigh_radius, thigh_track, leg.l1,
+                                        options, &rep.fcl_queries, &rep.certain_queries);
+      summarise(
+          thigh,
+          {&series.thigh_min, &series.thigh_min_sample, &series.thigh_certain_min,
+           &series.thigh_collision_samples, &series.thigh_certain_samples, &series.thigh_verdict},
+          &thigh_worst, &series);
+      series.thigh_distance = std::move(thigh.distance);
+      series.thigh_exact = std::move(thigh.exact);
+      series.thigh_certain_distance = std::move(thigh.certain_distance);
     }
     rep.shin_min_distance = std::min(rep.shin_min_distance, series.shin_min);
     rep.thigh_min_distance = std::min(rep.thigh_min_distance, series.thigh_min);
+    rep.shin_min_certain_distance =
+        std::min(rep.shin_min_certain_distance, series.shin_certain_min);
+    rep.thigh_min_certain_distance =
+        std::min(rep.thigh_min_certain_distance, series.thigh_certain_min);
     if (series.first_collision_t >= 0 &&
         (rep.first_collision_t < 0 || series.first_collision_t < rep.first_collision_t))
       rep.first_collision_t = series.first_collision_t;
+    if (series.first_certain_collision_t >= 0 &&
+        (rep.first_certain_collision_t < 0 ||
+         series.first_certain_collision_t < rep.first_certain_collision_t))
+      rep.first_certain_collision_t = series.first_certain_collision_t;
   }
   for (size_t k = 0; k < n; ++k) {
-    rep.shin_collisions += shin_hit[k];
-    rep.thigh_collisions += thigh_hit[k];
+    rep.shin_collisions += shin_worst[k] != ContactVerdict::clear;
+    rep.thigh_collisions += thigh_worst[k] != ContactVerdict::clear;
+    rep.shin_collisions_certain += shin_worst[k] == ContactVerdict::certain;
+    rep.thigh_collisions_certain += thigh_worst[k] == ContactVerdict::certain;
+    rep.shin_contacts_uncertain += shin_worst[k] == ContactVerdict::uncertain;
+    rep.thigh_contacts_uncertain += thigh_worst[k] == ContactVerdict::uncertain;
   }
   return rep;
 }

@@ -293,3 +293,160 @@ TEST(LegClearance, VoxelisedBoxHasExactFaces) {
   EXPECT_FALSE(occupied(0.0, 0.0, 0.01));
   EXPECT_FALSE(occupied(0.0, 0.0, -0.07));
 }
+
+// ---- The resolution-aware verdict: certain collisions vs contacts within the map's uncertainty --
+
+namespace {
+
+// A scan-like map of a box standing on the ground, both as terrastride map builds them from the
+// same points: a 5 cm OctoMap (every voxel holding a point is occupied) and the 2 cm height grid.
+// Points every 5 mm with +-1 mm of deterministic noise on the ground (not under the box), the box
+// top and its four side faces.
+struct ScannedBox {
+  std::shared_ptr<octomap::OcTree> tree;
+  terrain::HeightGrid grid;
+};
+
+ScannedBox scan_box(const terrain::Box& box, const Eigen::Vector2d& lo, const Eigen::Vector2d& hi,
+                    double voxel) {
+  std::vector<Eigen::Vector3f> pts;
+  unsigned state = 12345;
+  auto noise = [&] {
+    state = state * 1103515245u + 12345u;
+    return ((state >> 8) % 2001) / 1000.0 * 1e-3 - 1e-3;
+  };
+  auto inside = [&](double x, double y) {
+    return x >= box.lo.x() && x <= box.hi.x() && y >= box.lo.y() && y <= box.hi.y();
+  };
+  const double step = 0.005;
+  for (double x = lo.x(); x <= hi.x(); x += step)
+    for (double y = lo.y(); y <= hi.y(); y += step)
+      pts.emplace_back(x, y, inside(x, y) ? box.hi.z() + noise() : noise());
+  for (double z = 0; z < box.hi.z(); z += step) {
+    for (double x = box.lo.x(); x <= box.hi.x(); x += step) {
+      pts.emplace_back(x, box.lo.y() + noise(), z);
+      pts.emplace_back(x, box.hi.y() + noise(), z);
+    }
+    for (double y = box.lo.y(); y <= box.hi.y(); y += step) {
+      pts.emplace_back(box.lo.x() + noise(), y, z);
+      pts.emplace_back(box.hi.x() + noise(), y, z);
+    }
+  }
+  ScannedBox s;
+  s.tree = std::make_shared<octomap::OcTree>(voxel);
+  for (const auto& p : pts) s.tree->updateNode(octomap::point3d(p.x(), p.y(), p.z()), true, true);
+  s.tree->updateInnerOccupancy();
+  terrain::PointBatch batch;
+  batch.points = pts.data();
+  batch.size = pts.size();
+  s.grid = terrain::build_height_grid(std::vector<terrain::PointBatch>{batch});
+  return s;
+}
+
+// A 20 x 20 cm box under LH's shin, its top `below` under the capsule's lowest point (negative:
+// the capsule reaches that far into it), scanned at 5 cm; the verdicts of the check against it.
+struct BoxVerdict {
+  ClearanceReport rep;
+  double voxel_top = 0.0, capsule_bottom = 0.0;
+};
+
+BoxVerdict box_under_the_shin(double below) {
+  const auto model = hyq();
+  const auto traj = standing(model, 0.01, 0.002);
+  const double voxel = 0.05;
+  const double exclusion = 2 * model.foot_radius + model.legs[2].shin_radius + voxel;
+  const ShinGeometry g = shin_of(model, traj, 2, exclusion);
+  const double r = model.legs[2].shin_radius;
+  const Eigen::Vector3d low = g.end.z() < g.knee.z() ? g.end : g.knee;
+  BoxVerdict v;
+  v.capsule_bottom = low.z() - r;
+  const terrain::Box box{Eigen::Vector3d(low.x() - 0.1, low.y() - 0.1, 0.0),
+                         Eigen::Vector3d(low.x() + 0.1, low.y() + 0.1, v.capsule_bottom - below)};
+  Eigen::Vector2d lo, hi;
+  trajectory_extent(model, traj, 0.1, &lo, &hi);
+  const ScannedBox scan = scan_box(box, lo, hi, voxel);
+  v.voxel_top = std::ceil(box.hi.z() / voxel) * voxel;
+  const auto certain = certain_solid_from_grid(scan.grid, *scan.tree, lo, hi);
+  v.rep =
+      check_leg_clearance(model, traj, leg_kinematics(model, traj), *scan.tree, {}, certain.get());
+  return v;
+}
+
+}  // namespace
+
+TEST(LegClearanceVerdict, ShinHoveringMillimetresAboveAScannedBoxIsNotACertainCollision) {
+  const BoxVerdict v = box_under_the_shin(0.004);
+  // The premise: the box top's voxels stand above the capsule's lowest point.
+  ASSERT_GT(v.voxel_top, v.capsule_bottom + 0.01);
+  const auto& lh = v.rep.legs[2];
+  // The voxel-only check (the old verdict) calls it a collision...
+  EXPECT_GT(lh.shin_collision_samples, 0);
+  EXPECT_LE(lh.shin_min, -0.01);
+  // ...the resolution-aware one: only within the map's uncertainty.
+  EXPECT_FALSE(v.rep.certain_source.empty());
+  EXPECT_EQ(lh.shin_certain_samples, 0);
+  EXPECT_EQ(v.rep.shin_collisions_certain, 0);
+  EXPECT_EQ(v.rep.shin_contacts_uncertain, v.rep.shin_collisions);
+  // The certain solid lies under the true top, by the noise allowance (3 sigma, ~2 mm here).
+  EXPECT_GE(lh.shin_certain_min, 0.004 - 1e-6);
+  EXPECT_LE(lh.shin_certain_min, 0.004 + 0.005);
+  for (auto verdict : lh.shin_verdict) EXPECT_EQ(verdict, ContactVerdict::uncertain);
+  EXPECT_LT(v.rep.first_certain_collision_t, 0.0);
+}
+
+TEST(LegClearanceVerdict, ShinThreeCentimetresIntoAScannedBoxIsACertainCollision) {
+  const BoxVerdict v = box_under_the_shin(-0.03);
+  const auto& lh = v.rep.legs[2];
+  EXPECT_GT(lh.shin_collision_samples, 0);
+  EXPECT_EQ(lh.shin_certain_samples, lh.shin_collision_samples);
+  EXPECT_EQ(v.rep.shin_collisions_certain, v.rep.shin_collisions);
+  EXPECT_LT(lh.shin_certain_min, 0.0);
+  for (auto verdict : lh.shin_verdict) EXPECT_EQ(verdict, ContactVerdict::certain);
+  EXPECT_DOUBLE_EQ(v.rep.first_certain_collision_t, 0.0);
+  EXPECT_EQ(v.rep.legs[0].shin_collision_samples, 0);  // LF stands far from the box
+}
+
+TEST(LegClearanceVerdict, ExactSceneDecidesVoxelContactsAndNoSolidKeepsTheOldVerdict) {
+  // An exact box 4 mm under LH's shin, voxelised at 5 cm: the voxels touch the capsule, the exact
+  // box does not. Without a certain solid every voxel contact is a certain collision.
+  const auto model = hyq();
+  const auto traj = standing(model, 0.01, 0.002);
+  const double exclusion = 2 * model.foot_radius + model.legs[2].shin_radius + 0.05;
+  const ShinGeometry g = shin_of(model, traj, 2, exclusion);
+  const Eigen::Vector3d low = g.end.z() < g.knee.z() ? g.end : g.knee;
+  const double bottom = low.z() - model.legs[2].shin_radius;
+  Eigen::Vector2d lo, hi;
+  trajectory_extent(model, traj, 0.1, &lo, &hi);
+  for (double below : {0.004, -0.03}) {
+    const terrain::Box box{Eigen::Vector3d(low.x() - 0.1, low.y() - 0.1, 0.0),
+                           Eigen::Vector3d(low.x() + 0.1, low.y() + 0.1, bottom - below)};
+    const terrain::Scene scene("box", "a box", 0.0, {box}, lo, hi);
+    VoxeliseOptions vo;
+    vo.resolution = 0.05;
+    // Voxels are occupied when their centre is inside: a box 5 cm taller puts voxels above the
+    // capsule whatever the grid alignment (as a scan's surface voxels stand above its surface).
+    const auto tree = voxelise_boxes(
+        0.0, {terrain::Box{box.lo, box.hi + Eigen::Vector3d(0, 0, 0.05)}}, lo, hi, vo);
+    CheckTerrain terrain;
+    terrain.field = &scene;
+    terrain.octree = tree;
+    const CheckReport rep = run_checks(model, traj, terrain);
+    ASSERT_TRUE(rep.clearance);
+    EXPECT_GT(rep.clearance->shin_collisions, 0) << below;
+    EXPECT_NE(rep.clearance->certain_source.find("exact scene"), std::string::npos);
+    if (below > 0) {
+      EXPECT_EQ(rep.clearance->shin_collisions_certain, 0);
+      EXPECT_TRUE(rep.passed()) << rep.failures().front();
+      EXPECT_NEAR(rep.clearance->shin_min_certain_distance, below, 1e-3);
+    } else {
+      EXPECT_EQ(rep.clearance->shin_collisions_certain, rep.clearance->shin_collisions);
+      EXPECT_FALSE(rep.passed());
+    }
+    CheckTerrain voxels_only;
+    voxels_only.octree = tree;
+    const CheckReport old = run_checks(model, traj, voxels_only);
+    EXPECT_TRUE(old.clearance->certain_source.empty());
+    EXPECT_EQ(old.clearance->shin_collisions_certain, old.clearance->shin_collisions);
+    EXPECT_FALSE(old.passed());
+  }
+}

@@ -137,16 +137,32 @@ struct ClearanceOptions {
   bool check_thigh = true;  // thighs (HFE to knee, thigh_radius) as well as shins
 };
 
+// The resolution-aware verdict of one capsule at one sample (see CertainSolid in
+// octree_terrain.hpp): clear of every occupied voxel; touching occupied voxels but clear of the
+// solid the map is certain of (within the map's uncertainty: voxel quantisation, mixed pixels);
+// or reaching into that certain solid (a certain collision).
+enum class ContactVerdict : char { clear = 0, uncertain = 1, certain = 2 };
+
 struct LegClearanceSeries {
   std::string leg;
+  // Distance to the occupied voxels (the map's own, conservative view).
   std::vector<double> shin_distance;   // m; <= 0 in collision (-penetration depth); NaN: no IK
   std::vector<double> thigh_distance;  // empty when the thigh is not checked
   // 1 where the distance is an FCL result, 0 where it is a lower bound (> exact_below).
   std::vector<char> shin_exact, thigh_exact;
+  // Distance to the certain solid (<= 0: certain collision). Computed with FCL where the voxel
+  // distance is below exact_below; elsewhere the voxel distance is repeated (a lower bound). With
+  // no certain solid (ClearanceReport::certain_source empty) it equals the voxel distance.
+  std::vector<double> shin_certain_distance, thigh_certain_distance;
+  std::vector<ContactVerdict> shin_verdict, thigh_verdict;  // clear where NaN (no IK)
   double shin_min = 0.0, thigh_min = 0.0;
   int shin_min_sample = -1, thigh_min_sample = -1;
+  double shin_certain_min = 0.0, thigh_certain_min = 0.0;
+  // Samples touching an occupied voxel (certain + uncertain), and the certain ones among them.
   int shin_collision_samples = 0, thigh_collision_samples = 0;
-  double first_collision_t = -1.0;  // < 0: none
+  int shin_certain_samples = 0, thigh_certain_samples = 0;
+  double first_collision_t = -1.0;          // first voxel contact; < 0: none
+  double first_certain_collision_t = -1.0;  // first certain collision; < 0: none
 };
 
 struct ClearanceReport {
@@ -158,15 +174,30 @@ struct ClearanceReport {
   int shin_collisions = 0;   // samples where any shin capsule touches an occupied voxel
   int thigh_collisions = 0;  // same for thighs
   double first_collision_t = -1.0;
+  // The resolution-aware split of those samples: a certain collision of some shin (thigh), and
+  // voxel contacts only within the map's uncertainty (shin_collisions = certain + uncertain).
+  int shin_collisions_certain = 0, shin_contacts_uncertain = 0;
+  int thigh_collisions_certain = 0, thigh_contacts_uncertain = 0;
+  double shin_min_certain_distance = 0.0;  // min distance to the certain solid (m)
+  double thigh_min_certain_distance = 0.0;
+  double first_certain_collision_t = -1.0;
+  // How the certain solid was made; empty: none was given, every voxel contact counts as certain.
+  std::string certain_source;
   double octree_resolution = 0.0;
-  long fcl_queries = 0;  // capsule distance queries run (the rest were bounded, see options)
+  long fcl_queries = 0;      // capsule distance queries run (the rest were bounded, see options)
+  long certain_queries = 0;  // capsule queries against the certain solid
 };
 
+struct CertainSolid;
+
+// `certain`: the solid the map is certain of (octree_terrain.hpp); null = count every voxel contact
+// as a certain collision (the voxel map alone cannot tell).
 ClearanceReport check_leg_clearance(const robot::RobotModel& model,
                                     const planner::Trajectory& trajectory,
                                     const TrajectoryKinematics& kinematics,
                                     const octomap::OcTree& octree,
-                                    const ClearanceOptions& options = {});
+                                    const ClearanceOptions& options = {},
+                                    const CertainSolid* certain = nullptr);
 
 // ---- Stance footholds against the foothold-safety margin ----
 
@@ -198,6 +229,10 @@ FootholdReport check_footholds(const planner::Trajectory& trajectory,
 struct CheckTerrain {
   const terrain::HeightField* field = nullptr;    // for footholds; null = footholds not checked
   std::shared_ptr<const octomap::OcTree> octree;  // for capsules; null = capsules not checked
+  // What the capsule check may call a certain collision (octree_terrain.hpp). Null: derived by
+  // run_checks from `field` (an exact scene's boxes, or a scanned map's height grid confirmed by
+  // the OctoMap) over the trajectory's extent when it can, else every voxel contact counts.
+  std::shared_ptr<const CertainSolid> certain;
   std::string description;
 };
 
@@ -215,7 +250,11 @@ struct CheckReport {
 
   // plan.json "checks" keys: torque_ratio_max, torque_violations, shin_min_distance_m,
   // shin_collisions, unsafe_footholds, plus thigh_min_distance_m, thigh_collisions,
-  // foothold_margin_min_m, ik_failures, joint_limit_violations. Checks that did not run are absent.
+  // foothold_margin_min_m, ik_failures, joint_limit_violations; and the resolution-aware split of
+  // the capsule contacts: shin_collisions_certain, shin_contacts_uncertain,
+  // shin_min_certain_distance_m (thigh_* likewise). shin_collisions and shin_min_distance_m keep
+  // their meaning (contact with / distance to the occupied voxels); failures() and the report's
+  // problems count certain collisions only. Checks that did not run are absent.
   std::map<std::string, double> keys() const;
   // One line per failed check, empty when all pass.
   std::vector<std::string> failures() const;
