@@ -71,12 +71,20 @@ json summary_json(const collision::CheckReport& rep, const std::string& plan,
       const auto& c = rep.clearance->legs[i];
       leg["shin_min_distance_m"] = c.shin_min;
       leg["shin_collisions"] = c.shin_collision_samples;
+      leg["shin_collisions_certain"] = c.shin_certain_samples;
+      leg["shin_contacts_uncertain"] = c.shin_collision_samples - c.shin_certain_samples;
+      leg["shin_min_certain_distance_m"] = c.shin_certain_min;
       if (c.shin_min_sample >= 0) leg["shin_min_t"] = rep.clearance->time[c.shin_min_sample];
       if (!c.thigh_distance.empty()) {
         leg["thigh_min_distance_m"] = c.thigh_min;
         leg["thigh_collisions"] = c.thigh_collision_samples;
+        leg["thigh_collisions_certain"] = c.thigh_certain_samples;
+        leg["thigh_contacts_uncertain"] = c.thigh_collision_samples - c.thigh_certain_samples;
+        leg["thigh_min_certain_distance_m"] = c.thigh_certain_min;
       }
       leg["first_collision_t"] = c.first_collision_t >= 0 ? json(c.first_collision_t) : json();
+      leg["first_certain_collision_t"] =
+          c.first_certain_collision_t >= 0 ? json(c.first_certain_collision_t) : json();
     }
     legs.push_back(leg);
   }
@@ -95,8 +103,14 @@ json summary_json(const collision::CheckReport& rep, const std::string& plan,
         {"octree_resolution_m", rep.clearance->octree_resolution},
         {"shin_exclusion_m", rep.clearance->shin_exclusion},
         {"fcl_queries", rep.clearance->fcl_queries},
+        {"certain_queries", rep.clearance->certain_queries},
+        // Empty: no certain solid, every voxel contact counts as a certain collision.
+        {"certain_solid", rep.clearance->certain_source},
         {"first_collision_t",
-         rep.clearance->first_collision_t >= 0 ? json(rep.clearance->first_collision_t) : json()}};
+         rep.clearance->first_collision_t >= 0 ? json(rep.clearance->first_collision_t) : json()},
+        {"first_certain_collision_t", rep.clearance->first_certain_collision_t >= 0
+                                          ? json(rep.clearance->first_certain_collision_t)
+                                          : json()}};
   }
   if (rep.footholds) {
     json unsafe = json::array();
@@ -146,11 +160,24 @@ json series_json(const collision::CheckReport& rep, const robot::RobotModel& mod
       json shin = json::array(), thigh = json::array();
       for (double d : c.shin_distance) shin.push_back(num(d));
       for (double d : c.thigh_distance) thigh.push_back(num(d));
+      auto verdicts = [](const std::vector<collision::ContactVerdict>& v) {
+        json out = json::array();
+        for (auto x : v) out.push_back(static_cast<int>(x));
+        return out;
+      };
+      json shin_c = json::array(), thigh_c = json::array();
+      for (double d : c.shin_certain_distance) shin_c.push_back(num(d));
+      for (double d : c.thigh_certain_distance) thigh_c.push_back(num(d));
       leg["shin_distance_m"] = shin;
       leg["shin_distance_exact"] = c.shin_exact;
+      leg["shin_certain_distance_m"] = shin_c;
+      // 0 clear, 1 touching voxels within the map's uncertainty, 2 certain collision.
+      leg["shin_verdict"] = verdicts(c.shin_verdict);
       if (!c.thigh_distance.empty()) {
         leg["thigh_distance_m"] = thigh;
         leg["thigh_distance_exact"] = c.thigh_exact;
+        leg["thigh_certain_distance_m"] = thigh_c;
+        leg["thigh_verdict"] = verdicts(c.thigh_verdict);
       }
     }
     legs.push_back(leg);
@@ -166,8 +193,10 @@ void print_human(const collision::CheckReport& rep, const std::string& plan,
   std::cout << "plan     " << plan << " (" << rep.torque.time.size() << " samples, "
             << (rep.torque.time.empty() ? 0.0 : rep.torque.time.back()) << " s)\n";
   std::cout << "terrain  " << terrain << "\n\n";
-  std::cout << "leg   torque ratio max (HAA HFE KFE)   viol.   shin min [m]  coll.   thigh min [m]"
-               "  coll.\n";
+  // Capsule columns: minimum distance to the occupied voxels, then samples in certain collision
+  // "/" samples touching voxels only within the map's uncertainty.
+  std::cout << "leg   torque ratio max (HAA HFE KFE)   viol.   shin min [m]  certain/unc.   thigh "
+               "min [m]  certain/unc.\n";
   for (size_t i = 0; i < rep.torque.legs.size(); ++i) {
     const auto& t = rep.torque.legs[i];
     std::cout << std::left << std::setw(6) << t.leg << std::right << std::setw(8)
@@ -175,9 +204,14 @@ void print_human(const collision::CheckReport& rep, const std::string& plan,
               << t.worst_ratio[2] << std::setw(14) << t.violating_samples;
     if (rep.clearance) {
       const auto& c = rep.clearance->legs[i];
-      std::cout << std::setw(15) << c.shin_min << std::setw(7) << c.shin_collision_samples;
+      auto pair = [](int certain, int all) {
+        return std::to_string(certain) + "/" + std::to_string(all - certain);
+      };
+      std::cout << std::setw(15) << c.shin_min << std::setw(15)
+                << pair(c.shin_certain_samples, c.shin_collision_samples);
       if (!c.thigh_distance.empty())
-        std::cout << std::setw(16) << c.thigh_min << std::setw(7) << c.thigh_collision_samples;
+        std::cout << std::setw(16) << c.thigh_min << std::setw(15)
+                  << pair(c.thigh_certain_samples, c.thigh_collision_samples);
     }
     std::cout << "\n";
   }
@@ -186,9 +220,26 @@ void print_human(const collision::CheckReport& rep, const std::string& plan,
     std::cout << "worst torque  " << rep.torque.ratio_max << " x limit ("
               << rep.torque.legs[rep.torque.worst_leg].leg << " " << kJoints[rep.torque.worst_joint]
               << " at t = " << rep.torque.time[rep.torque.worst_sample] << " s)\n";
-  if (rep.clearance)
-    std::cout << "leg capsules  shin min " << rep.clearance->shin_min_distance << " m, thigh min "
-              << rep.clearance->thigh_min_distance << " m (clearances cap at the 0.1 m cutoff)\n";
+  if (rep.clearance) {
+    const auto& cl = *rep.clearance;
+    std::cout << "leg capsules  distance to the occupied voxels: shin min " << cl.shin_min_distance
+              << " m, thigh min " << cl.thigh_min_distance
+              << " m (clearances cap at the 0.1 m cutoff)\n";
+    if (cl.certain_source.empty()) {
+      std::cout << "              no surface estimate: every voxel contact counts as a collision\n";
+    } else {
+      std::cout << "              distance to the certain solid: shin min "
+                << cl.shin_min_certain_distance << " m, thigh min "
+                << cl.thigh_min_certain_distance << " m\n"
+                << "              certain collisions: " << cl.shin_collisions_certain
+                << " samples (shin), " << cl.thigh_collisions_certain
+                << " (thigh); within the map's uncertainty (" << std::setprecision(2)
+                << cl.octree_resolution << " m voxels): " << cl.shin_contacts_uncertain
+                << " (shin), " << cl.thigh_contacts_uncertain << " (thigh)\n"
+                << std::setprecision(3) << "              certain solid: " << cl.certain_source
+                << "\n";
+    }
+  }
   if (rep.footholds)
     std::cout << "footholds     " << rep.footholds->footholds.size() << " stances, "
               << rep.footholds->unsafe << " unsafe, worst margin " << std::setprecision(4)
@@ -261,7 +312,12 @@ void add_check_command(CLI::App& app) {
       "each foot), shin and thigh capsules against the terrain's OctoMap with FCL, and stance "
       "footholds against the foothold-safety margin.\n"
       "Exit codes: 0 all checks pass; 3 a check failed (torque above a limit, IK failure or joint "
-      "out of range, leg collision, unsafe foothold), named on stderr; 1 bad input; 2 usage.");
+      "out of range, certain leg collision, unsafe foothold), named on stderr; 1 bad input; 2 "
+      "usage.\n"
+      "Leg capsules get a three-way verdict per sample: clear of the occupied voxels; touching "
+      "voxels but clear of the solid the map is certain of (within the map's uncertainty: voxels "
+      "reach up to one voxel above the surface, mixed pixels add some); or a certain collision. "
+      "Only certain collisions fail the check (docs/leg-check.md).");
   cmd->add_option("plan", opts->plan, "plan.json written by 'terrastride plan'")
       ->required()
       ->check(CLI::ExistingFile);

@@ -266,8 +266,13 @@ void run_demo(const DemoOptions& o) {
   std::string check_detail;
   if (keys.count("torque_ratio_max"))
     check_detail += "torque ratio " + fixed(keys.at("torque_ratio_max"), 3);
+  if (keys.count("shin_collisions_certain"))
+    check_detail += ", shin certain collisions " + fixed(keys.at("shin_collisions_certain"), 0) +
+                    " (" + fixed(keys.at("shin_contacts_uncertain"), 0) +
+                    " voxel contacts within the map's uncertainty)";
   if (keys.count("shin_min_distance_m"))
-    check_detail += ", shin min " + fixed(keys.at("shin_min_distance_m") * 1000, 1) + " mm";
+    check_detail += ", shin min " + fixed(keys.at("shin_min_distance_m") * 1000, 1) +
+                    " mm to the voxels";
   if (keys.count("unsafe_footholds"))
     check_detail += ", unsafe footholds " + fixed(keys.at("unsafe_footholds"), 0);
   progress.done(check_detail);

@@ -346,42 +346,71 @@ json plan_json(const PlanInput& input, const TerrainView& terrain, const robot::
   // Leg capsules against the OctoMap.
   if (checks.clearance) {
     const auto& cl = *checks.clearance;
+    const bool resolved = !cl.certain_source.empty();
     json legs = json::array();
     for (const auto& series : cl.legs) {
-      json shin = json::array(), thigh = json::array();
-      for (size_t k = 0; k < series.shin_distance.size(); k += stride)
+      json shin = json::array(), thigh = json::array(), shin_c = json::array(),
+           verdict = json::array();
+      for (size_t k = 0; k < series.shin_distance.size(); k += stride) {
         shin.push_back(num(series.shin_distance[k], 4));
+        shin_c.push_back(num(series.shin_certain_distance[k], 4));
+        // Worst verdict within the stride, so a short certain collision is not dropped.
+        int v = 0;
+        for (size_t m = k; m < std::min(k + stride, series.shin_verdict.size()); ++m)
+          v = std::max(v, static_cast<int>(series.shin_verdict[m]));
+        verdict.push_back(v);
+      }
       for (size_t k = 0; k < series.thigh_distance.size(); k += stride)
         thigh.push_back(num(series.thigh_distance[k], 4));
       legs.push_back({{"name", series.leg}, {"shin_m", shin}, {"thigh_m", thigh},
+                      {"shin_certain_m", shin_c}, {"shin_verdict", verdict},
                       {"shin_min_m", num(series.shin_min)},
-                      {"shin_collision_samples", series.shin_collision_samples}});
+                      {"shin_certain_min_m", num(series.shin_certain_min)},
+                      {"shin_collision_samples", series.shin_collision_samples},
+                      {"shin_certain_samples", series.shin_certain_samples}});
     }
     json time = json::array();
     for (size_t k = 0; k < cl.time.size(); k += stride) time.push_back(num(cl.time[k], 4));
     out["clearance"] = {{"source", "collision::check_leg_clearance (FCL capsules vs the OctoMap, " +
                                        fmt(cl.octree_resolution, 3) + " m voxels)"},
+                        {"certain_solid", cl.certain_source},
+                        {"octree_resolution_m", num(cl.octree_resolution)},
                         {"time", time},
                         {"legs", legs},
                         {"shin_min_m", num(cl.shin_min_distance)},
                         {"thigh_min_m", num(cl.thigh_min_distance)},
+                        {"shin_certain_min_m", num(cl.shin_min_certain_distance)},
+                        {"thigh_certain_min_m", num(cl.thigh_min_certain_distance)},
                         {"shin_collisions", cl.shin_collisions},
-                        {"thigh_collisions", cl.thigh_collisions}};
-    const bool bad = cl.shin_collisions > 0 || cl.shin_min_distance <= 0.0;
-    summary.push_back(row("minimum shin distance", num(cl.shin_min_distance), "m",
+                        {"thigh_collisions", cl.thigh_collisions},
+                        {"shin_collisions_certain", cl.shin_collisions_certain},
+                        {"shin_contacts_uncertain", cl.shin_contacts_uncertain},
+                        {"thigh_collisions_certain", cl.thigh_collisions_certain},
+                        {"thigh_contacts_uncertain", cl.thigh_contacts_uncertain}};
+    // The problem is the certain count; contacts within the map's uncertainty are a note.
+    const bool bad = cl.shin_collisions_certain > 0;
+    summary.push_back(row("shin samples in certain collision", cl.shin_collisions_certain, "",
                           bad ? "problem" : "ok",
-                          std::to_string(cl.shin_collisions) + " samples with a shin collision"));
+                          resolved ? "minimum distance to the certain solid " +
+                                         fmt(cl.shin_min_certain_distance * 1000, 1) + " mm"
+                                   : "no surface estimate: every voxel contact counts"));
+    summary.push_back(row("minimum shin distance to the voxels", num(cl.shin_min_distance), "m",
+                          bad ? "problem" : (cl.shin_contacts_uncertain > 0 ? "note" : "ok"),
+                          std::to_string(cl.shin_contacts_uncertain) +
+                              " samples touch voxels only within the map's uncertainty (" +
+                              fmt(cl.octree_resolution * 100, 1) + " cm voxels)"));
     if (bad)
       problems.push_back(problem("shin_collision", name,
-                                 "shin capsule touches the terrain in " +
-                                     std::to_string(cl.shin_collisions) +
-                                     " samples (minimum distance " +
-                                     fmt(cl.shin_min_distance * 1000, 1) + " mm, first at t = " +
-                                     fmt(cl.first_collision_t, 2) + " s)"));
-    if (cl.thigh_collisions > 0)
+                                 "shin capsule certainly collides with the terrain in " +
+                                     std::to_string(cl.shin_collisions_certain) +
+                                     " samples (first at t = " +
+                                     fmt(cl.first_certain_collision_t, 2) + " s; " +
+                                     std::to_string(cl.shin_contacts_uncertain) +
+                                     " more touch voxels within the map's uncertainty)"));
+    if (cl.thigh_collisions_certain > 0)
       problems.push_back(problem("thigh_collision", name,
-                                 "thigh capsule touches the terrain in " +
-                                     std::to_string(cl.thigh_collisions) + " samples"));
+                                 "thigh capsule certainly collides with the terrain in " +
+                                     std::to_string(cl.thigh_collisions_certain) + " samples"));
   } else {
     out["clearance"] = {{"absent", "leg capsules not checked: " + octree_note}};
     summary.push_back(row("minimum shin distance", nullptr, "m", "absent", octree_note));
