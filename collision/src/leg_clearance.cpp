@@ -65,8 +65,12 @@ class SolidGeometry {
       Transform3d tf = Transform3d::Identity();
       tf.translation() = 0.5 * (b.lo + b.hi);
       objects_.push_back(std::make_unique<fcl::CollisionObject<double>>(box, tf));
-      manager_.registerObject(objects_.back().get());
     }
+    // One bulk (top-down) build of the AABB tree: much cheaper than inserting leaf by leaf.
+    std::vector<fcl::CollisionObject<double>*> all;
+    all.reserve(objects_.size());
+    for (const auto& o : objects_) all.push_back(o.get());
+    manager_.registerObjects(all);
     manager_.setup();
   }
 
