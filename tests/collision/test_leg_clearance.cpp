@@ -308,8 +308,8 @@ struct ScannedBox {
 };
 
 ScannedBox scan_box(const terrain::Box& box, const Eigen::Vector2d& lo, const Eigen::Vector2d& hi,
-                    double voxel) {
-  std::vector<Eigen::Vector3f> pts;
+                    double voxel, const std::vector<Eigen::Vector3f>& extra = {}) {
+  std::vector<Eigen::Vector3f> pts = extra;
   unsigned state = 12345;
   auto noise = [&] {
     state = state * 1103515245u + 12345u;
@@ -350,7 +350,9 @@ struct BoxVerdict {
   double voxel_top = 0.0, capsule_bottom = 0.0;
 };
 
-BoxVerdict box_under_the_shin(double below) {
+// `mixed_pixels`: also a few stray returns in free air inside the capsule's lowest part, as mixed
+// pixels at an edge give (they occupy a voxel the capsule passes through).
+BoxVerdict box_under_the_shin(double below, bool mixed_pixels = false) {
   const auto model = hyq();
   const auto traj = standing(model, 0.01, 0.002);
   const double voxel = 0.05;
@@ -364,7 +366,11 @@ BoxVerdict box_under_the_shin(double below) {
                          Eigen::Vector3d(low.x() + 0.1, low.y() + 0.1, v.capsule_bottom - below)};
   Eigen::Vector2d lo, hi;
   trajectory_extent(model, traj, 0.1, &lo, &hi);
-  const ScannedBox scan = scan_box(box, lo, hi, voxel);
+  std::vector<Eigen::Vector3f> stray;
+  if (mixed_pixels)
+    for (int m = 0; m < 3; ++m)
+      stray.emplace_back(low.x() + 0.004 * m, low.y(), v.capsule_bottom + 0.01 + 0.003 * m);
+  const ScannedBox scan = scan_box(box, lo, hi, voxel, stray);
   v.voxel_top = std::ceil(box.hi.z() / voxel) * voxel;
   const auto certain = certain_solid_from_grid(scan.grid, *scan.tree, lo, hi);
   v.rep =
@@ -392,6 +398,16 @@ TEST(LegClearanceVerdict, ShinHoveringMillimetresAboveAScannedBoxIsNotACertainCo
   EXPECT_LE(lh.shin_certain_min, 0.004 + 0.005);
   for (auto verdict : lh.shin_verdict) EXPECT_EQ(verdict, ContactVerdict::uncertain);
   EXPECT_LT(v.rep.first_certain_collision_t, 0.0);
+}
+
+TEST(LegClearanceVerdict, MixedPixelsInsideTheCapsuleAreNotACertainCollision) {
+  // The stray returns lie inside the capsule: the voxels collide wherever the grid puts them, but
+  // the certain solid stays under the box's lowest plausible top.
+  const BoxVerdict v = box_under_the_shin(0.004, /*mixed_pixels=*/true);
+  const auto& lh = v.rep.legs[2];
+  EXPECT_GT(lh.shin_collision_samples, 0);
+  EXPECT_EQ(lh.shin_certain_samples, 0);
+  EXPECT_GE(lh.shin_certain_min, 0.004 - 1e-6);
 }
 
 TEST(LegClearanceVerdict, ShinThreeCentimetresIntoAScannedBoxIsACertainCollision) {
