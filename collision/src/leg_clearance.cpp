@@ -228,6 +228,7 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
   ClearanceReport rep;
   rep.time = kin.time;
   rep.octree_resolution = octree.getResolution();
+  rep.certain_resolved_below = options.exact_below;
   auto exclusion_for = [&](const robot::LegModel& leg) {
     return options.shin_exclusion >= 0
                ? options.shin_exclusion

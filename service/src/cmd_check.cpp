@@ -106,6 +106,7 @@ json summary_json(const collision::CheckReport& rep, const std::string& plan,
         {"certain_queries", rep.clearance->certain_queries},
         // Empty: no certain solid, every voxel contact counts as a certain collision.
         {"certain_solid", rep.clearance->certain_source},
+        {"certain_resolved_below_m", rep.clearance->certain_resolved_below},
         {"first_collision_t",
          rep.clearance->first_collision_t >= 0 ? json(rep.clearance->first_collision_t) : json()},
         {"first_certain_collision_t", rep.clearance->first_certain_collision_t >= 0
@@ -228,9 +229,17 @@ void print_human(const collision::CheckReport& rep, const std::string& plan,
     if (cl.certain_source.empty()) {
       std::cout << "              no surface estimate: every voxel contact counts as a collision\n";
     } else {
+      // Resolved only below exact_below: a minimum at or above it is a lower bound.
+      auto at_least = [&](double d) {
+        std::ostringstream o;
+        o << std::fixed << std::setprecision(3);
+        if (d >= cl.certain_resolved_below - 1e-9) o << ">= ";
+        o << d;
+        return o.str();
+      };
       std::cout << "              distance to the certain solid: shin min "
-                << cl.shin_min_certain_distance << " m, thigh min "
-                << cl.thigh_min_certain_distance << " m\n"
+                << at_least(cl.shin_min_certain_distance) << " m, thigh min "
+                << at_least(cl.thigh_min_certain_distance) << " m\n"
                 << "              certain collisions: " << cl.shin_collisions_certain
                 << " samples (shin), " << cl.thigh_collisions_certain
                 << " (thigh); within the map's uncertainty (" << std::setprecision(2)

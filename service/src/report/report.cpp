@@ -374,6 +374,7 @@ json plan_json(const PlanInput& input, const TerrainView& terrain, const robot::
     out["clearance"] = {{"source", "collision::check_leg_clearance (FCL capsules vs the OctoMap, " +
                                        fmt(cl.octree_resolution, 3) + " m voxels)"},
                         {"certain_solid", cl.certain_source},
+                        {"certain_resolved_below_m", num(cl.certain_resolved_below)},
                         {"octree_resolution_m", num(cl.octree_resolution)},
                         {"time", time},
                         {"legs", legs},
@@ -392,6 +393,10 @@ json plan_json(const PlanInput& input, const TerrainView& terrain, const robot::
     summary.push_back(row("shin samples in certain collision", cl.shin_collisions_certain, "",
                           bad ? "problem" : "ok",
                           resolved ? "minimum distance to the certain solid " +
+                                         std::string(cl.shin_min_certain_distance >=
+                                                             cl.certain_resolved_below - 1e-9
+                                                         ? ">= "
+                                                         : "") +
                                          fmt(cl.shin_min_certain_distance * 1000, 1) + " mm"
                                    : "no surface estimate: every voxel contact counts"));
     summary.push_back(row("minimum shin distance to the voxels", num(cl.shin_min_distance), "m",

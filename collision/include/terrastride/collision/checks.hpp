@@ -183,6 +183,9 @@ struct ClearanceReport {
   double first_certain_collision_t = -1.0;
   // How the certain solid was made; empty: none was given, every voxel contact counts as certain.
   std::string certain_source;
+  // Distances to the certain solid are resolved below this (ClearanceOptions::exact_below); a
+  // minimum at or above it reads "at least this much".
+  double certain_resolved_below = 0.0;
   double octree_resolution = 0.0;
   long fcl_queries = 0;      // capsule distance queries run (the rest were bounded, see options)
   long certain_queries = 0;  // capsule queries against the certain solid
