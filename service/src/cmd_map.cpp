@@ -6,12 +6,14 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <exception>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <iostream>
 #include <memory>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <thread>
@@ -150,81 +152,120 @@ void run_map(const MapOptions& o) {
   }
   Progress progress(isatty(STDERR_FILENO) && file_bytes > 8u * 1024 * 1024);
 
-  // Read.
+  // Read, spread over the cores like the cleaning below (a failure names the first bad cloud, as
+  // a sequential read would).
   auto t = Clock::now();
-  std::vector<perception::PointCloud> clouds;
-  json inputs = json::array();
-  size_t points_in = 0, non_finite = 0;
-  for (size_t k = 0; k < o.clouds.size(); ++k) {
-    progress.stage("reading " + o.clouds[k] + " (" + std::to_string(k + 1) + "/" +
-                   std::to_string(o.clouds.size()) + ")");
-    perception::ReadStats rs;
-    perception::PointCloud c;
+  progress.stage("reading " + std::to_string(o.clouds.size()) + " cloud(s)");
+  std::vector<perception::PointCloud> clouds(o.clouds.size());
+  std::vector<perception::ReadStats> read_stats(o.clouds.size());
+  parallel_for(o.clouds.size(), [&](size_t k) {
     try {
-      c = perception::read_cloud(o.clouds[k], origin, &rs);
+      clouds[k] = perception::read_cloud(o.clouds[k], origin, &read_stats[k]);
     } catch (const perception::InputError& e) {
       throw CommandError(e.what());
     }
+  });
+  json inputs = json::array();
+  size_t points_in = 0, non_finite = 0;
+  for (size_t k = 0; k < o.clouds.size(); ++k) {
+    const auto& rs = read_stats[k];
     points_in += rs.points_in_file;
     non_finite += rs.non_finite;
     json in{{"path", o.clouds[k]}, {"points", rs.points_in_file}, {"non_finite", rs.non_finite}};
+    const auto& c = clouds[k];
     if (c.sensor_origin)
       in["origin"] = {c.sensor_origin->x(), c.sensor_origin->y(), c.sensor_origin->z()};
     inputs.push_back(in);
-    clouds.push_back(std::move(c));
   }
   timings["read_s"] = seconds_since(t);
 
-  // Clean. Each cloud is cleaned on its own (outlier statistics are per cloud), so the clouds are
-  // spread over the cores; every result lands in its own slot, hence the same output as in order.
+  // Clean, and build the OctoMap beside it. Each cloud is cleaned on its own (outlier statistics
+  // are per cloud), so the clouds are spread over the cores; every result lands in its own slot,
+  // hence the same output as in order. The OctoMap only reads cleaned clouds: its thread starts
+  // now and inserts cloud k (in input order, as build_octomap does) as soon as k is cleaned, so a
+  // core left without a cloud to clean (3 clouds on 2 cores) works on the OctoMap meanwhile; this
+  // thread then builds the grid, the smoothed field and the safety layers beside the rest of it.
+  // OctoMap: ray casting is the expensive part, so rays go to one point per OctoMap voxel (a
+  // voxel-grid filtered copy): the same occupied voxels and nearly the same carved free space.
   t = Clock::now();
-  progress.stage("cleaning " + std::to_string(clouds.size()) + " cloud(s)");
+  progress.stage("cleaning " + std::to_string(clouds.size()) + " cloud(s) and building the OctoMap");
   perception::CloudFilterOptions fo;
   fo.voxel_size = static_cast<float>(o.voxel);
   fo.outlier_neighbours = o.outlier_k;
   fo.outlier_stddev = o.outlier_stddev;
   fo.outlier_voxel = static_cast<float>(o.outlier_voxel);
-  parallel_for(clouds.size(), [&](size_t k) {
+
+  std::mutex cleaned_mutex;
+  std::condition_variable cleaned_cv;
+  std::vector<char> cleaned(clouds.size(), 0);
+  bool cleaning_failed = false;
+  std::unique_ptr<octomap::OcTree> tree;
+  std::exception_ptr octomap_error;
+  double octomap_s = 0;
+  std::thread octomap_thread([&] {
+    auto t0 = Clock::now();  // octomap_s counts the work, not the waits for cleaned clouds
     try {
-      clouds[k] = perception::filter_cloud(clouds[k], fo);
+      perception::OctoMapOptions oo;
+      oo.resolution = octo_res;
+      oo.max_range = o.octomap_max_range > 0 ? o.octomap_max_range : -1.0;
+      auto built = perception::build_octomap({}, oo);  // validates the options
+      perception::CloudFilterOptions vo;
+      vo.voxel_size = static_cast<float>(octo_res);
+      for (size_t k = 0; k < clouds.size(); ++k) {
+        {
+          octomap_s += seconds_since(t0);
+          std::unique_lock<std::mutex> lock(cleaned_mutex);
+          cleaned_cv.wait(lock, [&] { return cleaned[k] || cleaning_failed; });
+          if (!cleaned[k]) return;  // cleaning failed: that error is reported
+          t0 = Clock::now();
+        }
+        perception::insert_into_octomap(*built, perception::filter_cloud(clouds[k], vo),
+                                        oo.max_range, oo.discretize);
+      }
+      tree = std::move(built);
     } catch (const perception::InputError& e) {
-      throw CommandError(e.what());
+      octomap_error = std::make_exception_ptr(CommandError(e.what()));
+    } catch (...) {
+      octomap_error = std::current_exception();
     }
+    octomap_s += seconds_since(t0);
   });
+  const auto mark_cleaned = [&](size_t k, bool ok) {
+    {
+      std::lock_guard<std::mutex> lock(cleaned_mutex);
+      if (ok) cleaned[k] = 1;
+      else cleaning_failed = true;
+    }
+    cleaned_cv.notify_all();
+  };
+  try {
+    parallel_for(clouds.size(), [&](size_t k) {
+      try {
+        clouds[k] = perception::filter_cloud(clouds[k], fo);
+      } catch (const perception::InputError& e) {
+        mark_cleaned(k, false);
+        throw CommandError(e.what());
+      } catch (...) {
+        mark_cleaned(k, false);
+        throw;
+      }
+      mark_cleaned(k, true);
+    });
+  } catch (...) {
+    octomap_thread.join();
+    throw;
+  }
   size_t kept = 0;
   for (size_t k = 0; k < clouds.size(); ++k) {
     kept += clouds[k].points.size();
     inputs[k]["kept"] = clouds[k].points.size();
   }
   timings["filter_s"] = seconds_since(t);
-  if (kept == 0) throw CommandError("no points left after cleaning the input clouds");
-
-  // The OctoMap and the height grid only read the cleaned clouds: the OctoMap is built on a second
-  // thread while this one builds the grid, the smoothed field and the safety layers.
-  // OctoMap: ray casting is the expensive part, so rays go to one point per OctoMap voxel (a
-  // voxel-grid filtered copy): the same occupied voxels and nearly the same carved free space.
+  if (kept == 0) {
+    octomap_thread.join();
+    throw CommandError("no points left after cleaning the input clouds");
+  }
   progress.stage("height grid, foothold safety and OctoMap");
-  std::unique_ptr<octomap::OcTree> tree;
-  std::exception_ptr octomap_error;
-  double octomap_s = 0;
-  std::thread octomap_thread([&] {
-    const auto t0 = Clock::now();
-    try {
-      perception::CloudFilterOptions vo;
-      vo.voxel_size = static_cast<float>(octo_res);
-      std::vector<perception::PointCloud> sparse;
-      for (const auto& c : clouds) sparse.push_back(perception::filter_cloud(c, vo));
-      perception::OctoMapOptions oo;
-      oo.resolution = octo_res;
-      oo.max_range = o.octomap_max_range > 0 ? o.octomap_max_range : -1.0;
-      tree = perception::build_octomap(sparse, oo);
-    } catch (const perception::InputError& e) {
-      octomap_error = std::make_exception_ptr(CommandError(e.what()));
-    } catch (...) {
-      octomap_error = std::current_exception();
-    }
-    octomap_s = seconds_since(t0);
-  });
 
   // Height grid, smoothed field, safety layers.
   t = Clock::now();
