@@ -152,30 +152,28 @@ void run_map(const MapOptions& o) {
   }
   Progress progress(isatty(STDERR_FILENO) && file_bytes > 8u * 1024 * 1024);
 
-  // Read, spread over the cores like the cleaning below (a failure names the first bad cloud, as
-  // a sequential read would).
+  // Read.
   auto t = Clock::now();
-  progress.stage("reading " + std::to_string(o.clouds.size()) + " cloud(s)");
-  std::vector<perception::PointCloud> clouds(o.clouds.size());
-  std::vector<perception::ReadStats> read_stats(o.clouds.size());
-  parallel_for(o.clouds.size(), [&](size_t k) {
-    try {
-      clouds[k] = perception::read_cloud(o.clouds[k], origin, &read_stats[k]);
-    } catch (const perception::InputError& e) {
-      throw CommandError(e.what());
-    }
-  });
+  std::vector<perception::PointCloud> clouds;
   json inputs = json::array();
   size_t points_in = 0, non_finite = 0;
   for (size_t k = 0; k < o.clouds.size(); ++k) {
-    const auto& rs = read_stats[k];
+    progress.stage("reading " + o.clouds[k] + " (" + std::to_string(k + 1) + "/" +
+                   std::to_string(o.clouds.size()) + ")");
+    perception::ReadStats rs;
+    perception::PointCloud c;
+    try {
+      c = perception::read_cloud(o.clouds[k], origin, &rs);
+    } catch (const perception::InputError& e) {
+      throw CommandError(e.what());
+    }
     points_in += rs.points_in_file;
     non_finite += rs.non_finite;
     json in{{"path", o.clouds[k]}, {"points", rs.points_in_file}, {"non_finite", rs.non_finite}};
-    const auto& c = clouds[k];
     if (c.sensor_origin)
       in["origin"] = {c.sensor_origin->x(), c.sensor_origin->y(), c.sensor_origin->z()};
     inputs.push_back(in);
+    clouds.push_back(std::move(c));
   }
   timings["read_s"] = seconds_since(t);
 
