@@ -250,6 +250,7 @@ void run_map(const MapOptions& o) {
       mark_cleaned(k, true);
     });
   } catch (...) {
+    mark_cleaned(0, false);  // whatever failed, the OctoMap thread must not wait for more clouds
     octomap_thread.join();
     throw;
   }
