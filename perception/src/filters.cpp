@@ -252,8 +252,8 @@ PointCloud filter_cloud(const PointCloud& cloud, const CloudFilterOptions& optio
     sparse = centroids->size() * 2 > current->size();
     if (!sparse) s.outlier_cells = centroids->size();
     if (!sparse && centroids->size() > 1) {
-      const pcl::Indices kept_cells =
-          remove_statistical_outliers(*centroids, options.outlier_neighbours, options.outlier_stddev);
+      const pcl::Indices kept_cells = remove_statistical_outliers(
+          *centroids, options.outlier_neighbours, options.outlier_stddev);
       std::vector<uint8_t> keep(current->size(), 0);
       for (const auto c : kept_cells)
         for (const auto i : *members[c]) keep[i] = 1;

@@ -186,7 +186,8 @@ void run_map(const MapOptions& o) {
   // OctoMap: ray casting is the expensive part, so rays go to one point per OctoMap voxel (a
   // voxel-grid filtered copy): the same occupied voxels and nearly the same carved free space.
   t = Clock::now();
-  progress.stage("cleaning " + std::to_string(clouds.size()) + " cloud(s) and building the OctoMap");
+  progress.stage("cleaning " + std::to_string(clouds.size()) +
+                 " cloud(s) and building the OctoMap");
   perception::CloudFilterOptions fo;
   fo.voxel_size = static_cast<float>(o.voxel);
   fo.outlier_neighbours = o.outlier_k;
@@ -231,8 +232,10 @@ void run_map(const MapOptions& o) {
   const auto mark_cleaned = [&](size_t k, bool ok) {
     {
       std::lock_guard<std::mutex> lock(cleaned_mutex);
-      if (ok) cleaned[k] = 1;
-      else cleaning_failed = true;
+      if (ok)
+        cleaned[k] = 1;
+      else
+        cleaning_failed = true;
     }
     cleaned_cv.notify_all();
   };
