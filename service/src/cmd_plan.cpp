@@ -230,7 +230,7 @@ void add_plan_command(CLI::App& app) {
                   "collision, the paper's fixed-angle model), shin_ik (shin collision on the leg's "
                   "IK shin), polytope (force polytopes in stance; implies swing), swing (swing "
                   "foot acceleration bound), joints (joint ranges from IK), all "
-                  "(= foot,shin_ik,polytope)")
+                  "(= foot,shin_ik,polytope,joints)")
       ->capture_default_str();
   {
     std::string names;

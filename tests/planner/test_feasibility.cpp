@@ -463,7 +463,7 @@ TEST(FeasibilityRegistry, AllExpandsAndNamesAreListed) {
   const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
   PlannerOptions a, b;
   a.constraints = {"all"};
-  b.constraints = {"baseline", "foot", "shin_ik", "polytope", "foot"};  // duplicates added once
+  b.constraints = {"baseline", "foot", "shin_ik", "polytope", "joints", "foot"};  // duplicates added once
   SrbdProblem pa(r, flat, tl, a), pb(r, flat, tl, b);
   EXPECT_EQ(count_kinds(pa), count_kinds(pb));
   EXPECT_EQ(pa.num_constraints(), pb.num_constraints());

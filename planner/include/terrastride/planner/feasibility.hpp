@@ -79,12 +79,12 @@ struct FeasibilityOptions {
 
 void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
-// "shin_ik" (not in "all"; beyond the paper): the shin inequality on the leg's real shin, foot to
+// "shin_ik" (in "all"; beyond the paper): the shin inequality on the leg's real shin, foot to
 // the knee from inverse kinematics at the base pose (see shin_set.cpp).
 void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
-// "joints" (not in "all"; beyond the paper): joint angles from IK within the joint ranges at every
+// "joints" (in "all"; beyond the paper): joint angles from IK within the joint ranges at every
 // knot of the base spline (see joint_limit_set.cpp).
 void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 
@@ -101,7 +101,7 @@ std::vector<std::string> feasibility_option_names();
 std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets();
 
 // What "all" expands to, in order.
-inline const char* const kAllFeasibilitySets[] = {"foot", "shin_ik", "polytope"};
+inline const char* const kAllFeasibilitySets[] = {"foot", "shin_ik", "polytope", "joints"};
 // {set, the set it implies}: the second is added whenever the first is asked for.
 inline const std::pair<const char*, const char*> kImpliedFeasibilitySets[] = {{"polytope", "swing"}};
 
