@@ -266,7 +266,37 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
   if (!robot_.base_dof_free[3]) goal_xyyaw.z() = e_start[0];
   const Eigen::Vector3d p_goal(goal_xyyaw.x(), goal_xyyaw.y(),
                                base_height(goal_xyyaw.x(), goal_xyyaw.y(), goal_xyyaw.z()));
-  const Eigen::Vector3d e_goal(goal_xyyaw.z(), 0.0, 0.0);
+  // The goal's pitch and roll follow the plane fitted (least squares, in the yawed base frame)
+  // through the terrain heights under the nominal feet. With the goal on a slope or a staircase a
+  // level base cannot rest there: on the stairs scenario the front feet stand 0.24 m above the
+  // hind feet at the goal, more than the range-of-motion box's 2 x 0.10 m allows at zero pitch.
+  auto terrain_tilt = [&](double x, double y, double yaw) {
+    double sxx = 0, sxh = 0, syy = 0, syh = 0, sx = 0, sy = 0, sh = 0;
+    for (const auto& leg : robot_.legs) {
+      const Eigen::Vector3d p = nominal_foot_world(leg, Eigen::Vector3d(x, y, 0.0), yaw);
+      const double h = terrain_.height(p.x(), p.y());
+      sx += leg.nominal_foot.x();
+      sy += leg.nominal_foot.y();
+      sh += h;
+    }
+    const double mx = sx / nf, my = sy / nf, mh = sh / nf;
+    for (const auto& leg : robot_.legs) {
+      const Eigen::Vector3d p = nominal_foot_world(leg, Eigen::Vector3d(x, y, 0.0), yaw);
+      const double h = terrain_.height(p.x(), p.y()) - mh;
+      const double dx = leg.nominal_foot.x() - mx, dy = leg.nominal_foot.y() - my;
+      sxx += dx * dx;
+      sxh += dx * h;
+      syy += dy * dy;
+      syh += dy * h;
+    }
+    // R = Rz(yaw) Ry(pitch) Rx(roll): a positive pitch lowers the nose, a positive roll lifts
+    // the left side.
+    const double pitch = sxx > 1e-9 ? -std::atan(sxh / sxx) : 0.0;
+    const double roll = syy > 1e-9 ? std::atan(syh / syy) : 0.0;
+    return Eigen::Vector2d(pitch, roll);
+  };
+  const Eigen::Vector2d tilt_goal = terrain_tilt(goal_xyyaw.x(), goal_xyyaw.y(), goal_xyyaw.z());
+  const Eigen::Vector3d e_goal(goal_xyyaw.z(), tilt_goal.x(), tilt_goal.y());
 
   // Progress from start to goal follows a minimum-jerk profile, s(u) = 10u^3 - 15u^4 + 6u^5, so
   // the guess leaves and reaches rest smoothly. (A linear ramp between resting end knots put
@@ -329,8 +359,8 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
       fix(g + 1, p_goal.y());
       fix(g + 6, e_goal[0]);
     }
-    fix(g + 7, 0.0);
-    fix(g + 8, 0.0);
+    fix(g + 7, e_goal[1]);
+    fix(g + 8, e_goal[2]);
     for (int d = 0; d < 3; ++d) {
       fix(g + 3 + d, 0.0);
       fix(g + 9 + d, 0.0);
