@@ -83,6 +83,38 @@ TEST_P(PalletPlan, SolvesToOptimalReachesGoalAndHoldsDensely) {
 
 INSTANTIATE_TEST_SUITE_P(Scenes, PalletPlan, ::testing::Values("pallet_10", "pallet_15"));
 
+// The stairs (three 0.12 m risers, 0.30 m treads): at the goal the front feet stand on the top
+// (0.36 m) and the hind feet on the first tread (0.12 m), 0.24 m lower -- more than the
+// range-of-motion box's 2 x 0.10 m allows with a level base, so the goal pose pitches the base
+// nose-up with the terrain. Fixed and optimised timing both solve.
+class StairsPlan : public ::testing::TestWithParam<bool> {};
+
+TEST_P(StairsPlan, SolvesToOptimalReachesGoalAndHoldsDensely) {
+  const PlanOutcome out = plan_scene("stairs", GetParam());
+  ASSERT_TRUE(out.success) << out.message;
+  EXPECT_EQ(out.trajectory.solver.status, "optimal");
+  const auto& last = out.trajectory.samples.back();
+  EXPECT_NEAR(last.base.position.x(), 1.0, 1e-6);
+  EXPECT_NEAR(last.base.position.y(), 0.0, 1e-6);
+  for (const auto& f : last.feet) EXPECT_TRUE(f.contact);
+  // Front feet on the top step, hind feet on a tread below it; the base pitched nose-up.
+  EXPECT_NEAR(last.feet[0].position.z(), 0.36, 0.005);
+  EXPECT_NEAR(last.feet[1].position.z(), 0.36, 0.005);
+  EXPECT_LT(last.feet[2].position.z(), 0.30);
+  EXPECT_LT(last.feet[3].position.z(), 0.30);
+  EXPECT_LT(last.base.euler_zyx[1], -0.1);
+  expect_dense_targets(out.trajectory, hyq().mass);
+  EXPECT_LE(out.trajectory.checks.at("stance_height_error_max_m"), 0.005);
+  if (out.trajectory.checks.count("unsafe_footholds")) {
+    EXPECT_EQ(out.trajectory.checks.at("unsafe_footholds"), 0.0);
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Timing, StairsPlan, ::testing::Values(false, true),
+                         [](const ::testing::TestParamInfo<bool>& i) {
+                           return std::string(i.param ? "Optimised" : "Fixed");
+                         });
+
 // Replanning from the previous plan shifted by 0.1 s (what a robot does every control period):
 // the warm start converges in a fraction of the cold iterations, to a plan that still reaches
 // the goal and holds densely.
