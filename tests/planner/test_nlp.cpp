@@ -205,6 +205,31 @@ TEST(NlpDerivatives, IpoptDerivativeCheckerFindsNoErrors) {
       << text.substr(0, 4000);
 }
 
+// The goal pose rests on the terrain: its pitch follows the plane through the terrain under the
+// nominal feet (nose up when the front feet stand higher), and is level on flat ground. A level
+// base could not stand with its front feet 0.24 m above its hind feet: the range-of-motion box
+// spans 2 x 0.10 m in height (the stairs scenario).
+TEST(Nlp, GoalPitchFollowsTheTerrainUnderTheNominalFeet) {
+  const auto r = hyq();
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 3, 11.0);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  testing::FlatField flat;
+  testing::TanhStep step(0.24, 1.0, 0.005);  // 0 under the hind feet (x 0.69), 0.24 under the front (x 1.31)
+  const SrbdProblem pf(r, flat, tl, o), ps(r, step, tl, o);
+  const int gf = pf.layout().base.back(), gs = ps.layout().base.back();
+  for (int d = 7; d <= 8; ++d) {  // pitch, roll: fixed at the goal
+    EXPECT_EQ(pf.lower()[gf + d], pf.upper()[gf + d]);
+    EXPECT_EQ(ps.lower()[gs + d], ps.upper()[gs + d]);
+  }
+  EXPECT_NEAR(pf.lower()[gf + 7], 0.0, 1e-12);
+  EXPECT_NEAR(pf.lower()[gf + 8], 0.0, 1e-12);
+  const double dx = r.legs[0].nominal_foot.x() - r.legs[2].nominal_foot.x();  // 0.62 m
+  EXPECT_NEAR(ps.lower()[gs + 7], -std::atan(0.24 / dx), 1e-4);
+  EXPECT_NEAR(ps.lower()[gs + 8], 0.0, 1e-9);
+}
+
 TEST(Nlp, UnknownConstraintSetIsNamed) {
   const auto r = hyq();
   testing::FlatField flat;
