@@ -211,12 +211,14 @@ TEST(NlpDerivatives, IpoptDerivativeCheckerFindsNoErrors) {
 // spans 2 x 0.10 m in height (the stairs scenario).
 TEST(Nlp, GoalPitchFollowsTheTerrainUnderTheNominalFeet) {
   const auto r = hyq();
-  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 3, 11.0);
+  const PhaseTimeline tl =
+      make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 3, 11.0);
   PlannerOptions o;
   o.has_goal = true;
   o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
   testing::FlatField flat;
-  testing::TanhStep step(0.24, 1.0, 0.005);  // 0 under the hind feet (x 0.69), 0.24 under the front (x 1.31)
+  // 0 under the hind feet (x 0.69), 0.24 m under the front feet (x 1.31).
+  testing::TanhStep step(0.24, 1.0, 0.005);
   const SrbdProblem pf(r, flat, tl, o), ps(r, step, tl, o);
   const int gf = pf.layout().base.back(), gs = ps.layout().base.back();
   for (int d = 7; d <= 8; ++d) {  // pitch, roll: fixed at the goal
