@@ -864,6 +864,10 @@ std::vector<double> SrbdProblem::row_upper() const {
 double SrbdProblem::max_violation(const std::vector<double>& x) const {
   std::vector<double> g(num_rows_);
   eval_constraints(x.data(), g.data());
+  return max_violation(x, g);
+}
+
+double SrbdProblem::max_violation(const std::vector<double>& x, const std::vector<double>& g) const {
   const auto lo = row_lower(), hi = row_upper();
   double v = 0.0;
   for (int i = 0; i < num_rows_; ++i) v = std::max({v, lo[i] - g[i], g[i] - hi[i]});

@@ -82,9 +82,10 @@ class SrbdTnlp : public Ipopt::TNLP {
     std::fill(g, g + n, 0.0);
     return true;
   }
-  bool eval_g(Index n, const Number* x, bool, Index, Number* g) override {
+  bool eval_g(Index n, const Number* x, bool, Index m, Number* g) override {
     p_.eval_constraints(x, g);
     last_x_.assign(x, x + n);
+    last_g_.assign(g, g + m);
     return true;
   }
   bool eval_jac_g(Index, const Number* x, bool, Index, Index nele, Index* irow, Index* jcol,
@@ -115,7 +116,9 @@ class SrbdTnlp : public Ipopt::TNLP {
     if (cq != nullptr) inf_pr = cq->unscaled_curr_nlp_constraint_violation(Ipopt::NORM_MAX);
     if (feasibility_tol_ > 0.0 && mode == Ipopt::RegularMode && inf_pr < 1e3 * feasibility_tol_ &&
         static_cast<int>(last_x_.size()) == p_.num_variables()) {
-      const double violation = p_.max_violation(last_x_);
+      // From the values eval_g computed there: a second evaluation cost 30 ms of a 150 ms warm
+      // re-plan on pallet_15.
+      const double violation = p_.max_violation(last_x_, last_g_);
       if (violation <= feasibility_tol_) {
         feasible_x_ = last_x_;
         feasible_violation_ = violation;
@@ -136,6 +139,7 @@ class SrbdTnlp : public Ipopt::TNLP {
 
   std::vector<double> x_;
   std::vector<double> last_x_;       // the last point whose constraints Ipopt evaluated
+  std::vector<double> last_g_;       // and its constraint values
   std::vector<double> feasible_x_;   // set when the solve stopped at a verified feasible point
   double feasible_violation_ = 0.0;  // its largest violation
   Ipopt::SolverReturn status_ = Ipopt::INTERNAL_ERROR;

@@ -163,6 +163,8 @@ class SrbdProblem {
   std::vector<double> row_upper() const;
   // Largest bound violation of x (rows and variable bounds), in the constraint's own units.
   double max_violation(const std::vector<double>& x) const;
+  // The same from the constraint values g = eval_constraints(x) already at hand.
+  double max_violation(const std::vector<double>& x, const std::vector<double>& g) const;
   // The same, per piece kind (for diagnostics: which constraint family is violated).
   std::map<std::string, double> violation_by_kind(const std::vector<double>& x) const;
 
