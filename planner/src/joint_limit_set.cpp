@@ -18,6 +18,20 @@
 
 namespace terrastride::planner {
 
+namespace {
+
+// The rows: the IK joint angles of the foot at `foot` (world) for the base at `base` with ZYX
+// Euler angles `euler`.
+template <class T>
+void joint_angle_rows(const robot::LegModel& leg, const Vec3<T>& base, const Vec3<T>& euler,
+                      const Vec3<T>& foot, T* g) {
+  const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(euler);
+  const Vec3<T> q = feasibility::leg_joint_angles<T>(leg, R.transpose() * (foot - base));
+  for (int j = 0; j < 3; ++j) g[j] = q[j];
+}
+
+}  // namespace
+
 void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   const Layout& L = problem.layout();
   const int S = L.num_segments;
@@ -44,11 +58,7 @@ void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& optio
       const auto r = lv.add3(L.base[k]);
       const auto e = lv.add3(L.base[k] + 6);
       problem.add_piece(make_piece("joint_limits", lv, lo[f], hi[f], [=](const auto* x, auto* g) {
-        using T = std::decay_t<decltype(*g)>;
-        const Vec3<T> base = gather3(x, r);
-        const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(gather3(x, e));
-        const Vec3<T> q = feasibility::leg_joint_angles<T>(leg, R.transpose() * (gather3(x, p) - base));
-        for (int j = 0; j < 3; ++j) g[j] = q[j];
+        joint_angle_rows(leg, gather3(x, r), gather3(x, e), gather3(x, p), g);
       }));
     }
   }
@@ -76,9 +86,7 @@ void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& optio
         hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
         hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
         hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
-        const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(euler);
-        const Vec3<T> q = feasibility::leg_joint_angles<T>(leg, R.transpose() * (foot - base));
-        for (int j = 0; j < 3; ++j) g[j] = q[j];
+        joint_angle_rows(leg, base, euler, foot, g);
       }));
     }
   }

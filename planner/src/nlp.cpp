@@ -272,17 +272,18 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
   // hind feet at the goal, more than the range-of-motion box's 2 x 0.10 m allows at zero pitch.
   auto terrain_tilt = [&](double x, double y, double yaw) {
     double sxx = 0, sxh = 0, syy = 0, syh = 0, sx = 0, sy = 0, sh = 0;
+    std::vector<double> heights;
     for (const auto& leg : robot_.legs) {
       const Eigen::Vector3d p = nominal_foot_world(leg, Eigen::Vector3d(x, y, 0.0), yaw);
-      const double h = terrain_.height(p.x(), p.y());
+      heights.push_back(terrain_.height(p.x(), p.y()));
       sx += leg.nominal_foot.x();
       sy += leg.nominal_foot.y();
-      sh += h;
+      sh += heights.back();
     }
     const double mx = sx / nf, my = sy / nf, mh = sh / nf;
-    for (const auto& leg : robot_.legs) {
-      const Eigen::Vector3d p = nominal_foot_world(leg, Eigen::Vector3d(x, y, 0.0), yaw);
-      const double h = terrain_.height(p.x(), p.y()) - mh;
+    for (int f = 0; f < nf; ++f) {
+      const auto& leg = robot_.legs[f];
+      const double h = heights[f] - mh;
       const double dx = leg.nominal_foot.x() - mx, dy = leg.nominal_foot.y() - my;
       sxx += dx * dx;
       sxh += dx * h;
