@@ -642,9 +642,11 @@ void SrbdProblem::build_baseline() {
             f1.push_back(sigma > 0.0 ? lv.add3(L.force[f][s][1]) : std::array<int, 3>{-1, -1, -1});
           }
         const double scale = 1.0 / (0.1 * mg);
-        std::vector<double> z(3, 0.0);
+        const bool interior = q > 0 && q < np - 1;  // see angular_band
+        const double band = interior ? options_.angular_band * scale : 0.0;
         add_piece(make_piece(
-            "dynamics_angular", lv, z, z, [=](const auto* x, auto* g) {
+            "dynamics_angular", lv, std::vector<double>(3, -band), std::vector<double>(3, band),
+            [=](const auto* x, auto* g) {
               using T = std::decay_t<decltype(*g)>;
               const T h = x[dur] * frac;
               Vec3<T> r, e, ed, edd, w, wd;

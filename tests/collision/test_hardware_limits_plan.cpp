@@ -79,9 +79,9 @@ void expect_polytopes_hold_the_limits(const std::string& scenario, const std::st
 
 // The paper's scenario: 1 m in 2.4 s on flat ground, HyQ crawl. Whether the baseline's plan
 // exceeds the limits depends on which feasible point the solver stops at: from the earlier
-// initial guess (linear ramps, equal forces) it did (worst ratio 1.99, 27 samples); from the
-// dynamically balanced guess (nlp.cpp, guess_forces) it stays at 0.98. Nothing in the baseline
-// formulation holds the limits, so the teeth are shown on the trot below.
+// initial guess (linear ramps, equal forces) it did (worst ratio 1.99, 27 samples); since the
+// dynamically balanced guess it stays below 1 (0.98, then 0.77 with the angular band). Nothing in
+// the baseline formulation holds the limits, so the teeth are shown on the pace below.
 TEST(TorqueExperiment, FastFlatCrawl) {
   expect_polytopes_hold_the_limits("--terrain flat --duration 2.4 --goal 1,0,0", "crawl", false);
 }
@@ -93,10 +93,14 @@ TEST(TorqueExperiment, MonopedHop) {
                                    false);
 }
 
-// HyQ trotting 1 m on flat ground (the gait's default duration): the baseline plan asks for up to
-// 1.8x the joint torques the motors have (measured: 25 violating samples); "polytope" holds them.
-TEST(TorqueExperiment, TrotChecksHaveTeeth) {
-  expect_polytopes_hold_the_limits("--terrain flat --gait trot --goal 1,0,0", "trot", true);
+// HyQ pacing 1 m on flat ground (the gait's default duration): the two legs of one side in stance
+// together, so the baseline plan loads them hard (measured: worst ratio 1.48, 44 violating
+// samples); "polytope" holds the limits (0.91). The trot showed this until the angular band
+// changed where the solver stops (baseline 1.77 before, 0.60 after): which feasible point a
+// formulation without torque limits stops at is not something a test can pin down, so if this
+// one loses its teeth, find the scenario that has them rather than loosening the assertion.
+TEST(TorqueExperiment, PaceChecksHaveTeeth) {
+  expect_polytopes_hold_the_limits("--terrain flat --gait pace --goal 1,0,0", "pace", true);
 }
 
 // Onto the 15 cm pallet: the baseline plan needs HFE beyond its range at some samples (measured: 49
