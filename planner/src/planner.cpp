@@ -311,6 +311,8 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     m << "the optimiser ended with status '" << out.solve.status << "' after "
       << out.solve.iterations << " iterations (" << out.solve.wall_s
       << " s); largest constraint violation " << out.solve.max_violation;
+    if (out.solve.status == "stalled")
+      m << ", no 1 % reduction of it in the last " << options.stall_iterations << " iterations";
     out.message = m.str();
   }
   return out;

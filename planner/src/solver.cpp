@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <functional>
+#include <limits>
 #include <sstream>
 
 namespace terrastride::planner {
@@ -24,7 +25,8 @@ class SrbdTnlp : public Ipopt::TNLP {
       : p_(p),
         max_wall_(options.max_time),
         should_stop_(options.should_stop),
-        feasibility_tol_(options.feasibility_stop_tolerance) {
+        feasibility_tol_(options.feasibility_stop_tolerance),
+        stall_iterations_(options.stall_iterations) {
     start_ = std::chrono::steady_clock::now();
   }
   bool get_nlp_info(Index& n, Index& m, Index& nnz_jac, Index& nnz_h,
@@ -114,6 +116,16 @@ class SrbdTnlp : public Ipopt::TNLP {
     }
     if (should_stop_ && should_stop_()) return false;
     if (cq != nullptr) inf_pr = cq->unscaled_curr_nlp_constraint_violation(Ipopt::NORM_MAX);
+    // Progress is judged on regular iterations only: in the restoration phase the calculated
+    // quantities are those of the restoration problem. Its iterations still count as time spent.
+    if (mode == Ipopt::RegularMode && inf_pr < 0.99 * best_violation_) {
+      best_violation_ = inf_pr;
+      best_iteration_ = iter;
+    }
+    if (stall_iterations_ > 0 && iter - best_iteration_ > stall_iterations_) {
+      stalled_ = true;
+      return false;
+    }
     if (feasibility_tol_ > 0.0 && mode == Ipopt::RegularMode && inf_pr < 1e3 * feasibility_tol_ &&
         static_cast<int>(last_x_.size()) == p_.num_variables()) {
       // From the values eval_g computed there: a second evaluation cost 30 ms of a 150 ms warm
@@ -145,12 +157,16 @@ class SrbdTnlp : public Ipopt::TNLP {
   Ipopt::SolverReturn status_ = Ipopt::INTERNAL_ERROR;
   int iterations_ = 0;
   bool timed_out_ = false;
+  bool stalled_ = false;
+  double best_violation_ = std::numeric_limits<double>::infinity();  // see stall_iterations
+  int best_iteration_ = 0;
 
  private:
   const SrbdProblem& p_;
   double max_wall_;
   std::function<bool()> should_stop_;
   double feasibility_tol_;
+  int stall_iterations_;
   std::chrono::steady_clock::time_point start_;
 };
 
@@ -269,7 +285,7 @@ SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
       r.status = "time_limit";
       break;
     case Ipopt::User_Requested_Stop:
-      r.status = nlp->timed_out_ ? "time_limit" : "stopped";
+      r.status = nlp->timed_out_ ? "time_limit" : nlp->stalled_ ? "stalled" : "stopped";
       break;
     case Ipopt::Diverging_Iterates:
       r.status = "diverging";

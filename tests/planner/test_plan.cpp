@@ -1,6 +1,7 @@
 // End-to-end planning: solves to optimal, reaches the goal, and holds every constraint densely.
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 
@@ -157,6 +158,28 @@ TEST(Plan, ImpossibleGoalEndsNonOptimalWithoutCrash) {
   EXPECT_NE(out.trajectory.solver.status, "optimal");
   EXPECT_FALSE(out.message.empty());
   EXPECT_GT(out.solve.max_violation, 1e-3);
+}
+
+// 1 m in 1.6 s of crawl with force polytopes is more than HyQ's legs can do: without the stall
+// test it ran the 3000 iterations Ipopt allows (62 s), its violation least (5e-3) at iteration
+// 560. It must end "stalled", well before that, with a message that says so.
+TEST(Plan, UnreachableRequestStallsInsteadOfRunningToTheIterationLimit) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  o.duration = 1.6;
+  o.constraints = {"polytope"};
+  o.stall_iterations = 50;
+  o.max_time = 60.0;  // a safety net only: the assertion is on the status
+  const PlanOutcome out = plan_motion(r, flat, flat, o, 0.01);
+  EXPECT_FALSE(out.success);
+  EXPECT_EQ(out.trajectory.solver.status, "stalled") << out.message;
+  EXPECT_LT(out.trajectory.solver.iterations, 1000);
+  EXPECT_NE(out.message.find("no 1 % reduction"), std::string::npos) << out.message;
+  std::printf("stalled after %d iterations, %.1f s: %s\n", out.trajectory.solver.iterations,
+              out.trajectory.solver.wall_s, out.message.c_str());
 }
 
 TEST(Plan, MaxTimeIsHonouredOnRepeatedSolves) {

@@ -94,6 +94,12 @@ struct PlannerOptions {
   // socket service uses it to cancel a plan request. Must be cheap and thread-safe.
   std::function<bool()> should_stop;
   int max_iterations = 3000;
+  // The solve stops with status "stalled" when the largest constraint violation has not fallen
+  // 1 % below its best for this many iterations (0 = never). An unreachable request otherwise
+  // runs to max_iterations: the 1 m flat crawl in 1.6 s with "polytope" reached its least
+  // violation (5e-3) at iteration 560 and then wandered in and out of restoration for 2400 more
+  // (62 s). Every solvable scenario measured converges in under 20 iterations.
+  int stall_iterations = 200;
   bool verbose = false;
   double tolerance = 1e-4;
   // The solve stops at the first iterate whose largest constraint or bound violation (rows in

@@ -9,7 +9,8 @@
 namespace terrastride::planner {
 
 struct SolveResult {
-  // optimal, acceptable, infeasible, time_limit, max_iterations, diverging, error, ...
+  // optimal, acceptable, infeasible, time_limit, stalled (see PlannerOptions::stall_iterations),
+  // max_iterations, diverging, error, ...
   std::string status;
   bool success = false;  // optimal or acceptable
   int ipopt_status = 0;
