@@ -97,6 +97,23 @@ SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightFi
   }
 }
 
+std::vector<double> Layout::segment_points(int s, int n, bool with_end) const {
+  std::vector<double> sigmas;
+  const double c = s == 0 ? first_segment_cropped : 0.0;
+  for (int q = 0; q <= n; ++q) {
+    if (q == n && !with_end) break;
+    const double old_sigma = static_cast<double>(q) / n;
+    if (c == 0.0) {
+      sigmas.push_back(old_sigma);
+    } else if (q == 0) {
+      sigmas.push_back(0.0);  // the new start
+    } else if (old_sigma > c + 1e-9) {
+      sigmas.push_back(q == n ? 1.0 : (old_sigma - c) / (1.0 - c));
+    }
+  }
+  return sigmas;
+}
+
 int SrbdProblem::num_free_variables() const {
   int n = 0;
   for (std::size_t i = 0; i < lb_.size(); ++i) n += lb_[i] < ub_[i];
@@ -154,6 +171,11 @@ void SrbdProblem::build_layout(const StartState* start) {
         bounds.push_back(b);
       }
       bounds.push_back(d);
+      // The previous segment the start falls in: [k0 len, (k0 + 1) len] of the full interval.
+      const int k0 = static_cast<int>(std::floor(elapsed / len + 1e-9));
+      const double first_end = (k0 + 1) * len - elapsed;
+      if (bounds.size() > 1 && std::abs(bounds[1] - first_end) < 1e-9)
+        L.first_segment_cropped = elapsed / len - k0;
       for (std::size_t k = 0; k + 1 < bounds.size(); ++k) {
         L.seg_interval.push_back(j);
         L.seg_fraction.push_back((bounds[k + 1] - bounds[k]) / d);
@@ -628,8 +650,7 @@ void SrbdProblem::build_baseline() {
     // Angular dynamics at `angular_points` points (ends included).
     if (rot_free) {
       const int np = std::max(2, options_.angular_points);
-      for (int q = 0; q < np; ++q) {
-        const double sigma = static_cast<double>(q) / (np - 1);
+      for (const double sigma : L.segment_points(s, np - 1, true)) {
         LocalVars lv;
         const HermiteLocal rp = base_pos(lv, s, sigma, true);
         const HermiteLocal ep = base_euler(lv, s, sigma, false);
@@ -642,7 +663,9 @@ void SrbdProblem::build_baseline() {
             f1.push_back(sigma > 0.0 ? lv.add3(L.force[f][s][1]) : std::array<int, 3>{-1, -1, -1});
           }
         const double scale = 1.0 / (0.1 * mg);
-        const bool interior = q > 0 && q < np - 1;  // see angular_band
+        // See angular_band. A cropped first segment's start was an interior point of the
+        // previous plan's segment, so it keeps the band.
+        const bool interior = (sigma > 0.0 && sigma < 1.0) || (s == 0 && L.first_segment_cropped > 0.0);
         const double band = interior ? options_.angular_band * scale : 0.0;
         add_piece(make_piece(
             "dynamics_angular", lv, std::vector<double>(3, -band), std::vector<double>(3, band),
@@ -669,9 +692,8 @@ void SrbdProblem::build_baseline() {
     // feet move fast, so they get twice the points.
     for (int f = 0; f < nf; ++f) {
       const int nr = std::max(1, options_.rom_points) * (L.contact[f][s] ? 1 : 2);
-      for (int q = 0; q <= nr; ++q) {
-        if (q == nr && s != S - 1) continue;  // the next segment's start covers this end
-        const double sigma = static_cast<double>(q) / nr;
+      // The segment's end only in the last segment: the next segment's start covers it.
+      for (const double sigma : L.segment_points(s, nr, s == S - 1)) {
         LocalVars lv;
         const HermiteLocal rp = base_pos(lv, s, sigma, true);
         const HermiteLocal ep = base_euler(lv, s, sigma, true);
@@ -772,9 +794,8 @@ void SrbdProblem::build_baseline() {
     const double t0 = L.nominal_knot_time[sw.first_seg];
     const double swing_T = L.nominal_knot_time[sw.last_seg + 1] - t0;
     for (int s = sw.first_seg; s <= sw.last_seg; ++s)
-      for (int q = 0; q < np; ++q) {
-        if (s == sw.first_seg && q == 0) continue;  // lift-off knot
-        const double sigma = static_cast<double>(q) / np;
+      for (const double sigma : L.segment_points(s, np, false)) {
+        if (s == sw.first_seg && sigma == 0.0) continue;  // lift-off knot
         const double t = L.nominal_knot_time[s] +
                          sigma * (L.nominal_knot_time[s + 1] - L.nominal_knot_time[s]) - t0;
         const double w = clearance_profile(t, swing_T, options_.clearance_ramp);

@@ -39,6 +39,9 @@ struct Scenario {
   double duration;
   bool optimize_timing;
   double warm_shift = -1.0;  // >= 0: re-plan from the cold plan's state at this time
+  // With warm_shift: the base starts this far (m) to the side of the plan and 0.05 m/s faster
+  // along it, as a robot's measured state would (0: exactly on the plan).
+  double warm_base_offset = 0.0;
   std::vector<std::string> constraints{"baseline"};
   bool feasibility_row = false;  // printed with the feasibility columns; run on request only
 };
@@ -106,6 +109,7 @@ int main(int argc, char** argv) {
       {"stairs", "stairs", 11.0, false},
       {"stairs_timing", "stairs", 11.0, true},
       {"pallet_15_warm_0.1s", "pallet_15", 11.0, false, 0.1},
+      {"pallet_15_warm_0.1s_off", "pallet_15", 11.0, false, 0.1, 0.01},
   };
   for (const char* scene : {"pallet_10", "pallet_15"})
     for (const char* sets : {"baseline", "foot", "foot,shin", "all"}) {
@@ -147,11 +151,18 @@ int main(int argc, char** argv) {
     }
     std::vector<double> walls, users;
     planner::PlanOutcome out;
+    planner::SrbdProblem::StartState measured;
+    if (sc.warm_shift >= 0.0) {
+      measured = planner::start_state_of(cold, sc.warm_shift);
+      measured.position.y() += sc.warm_base_offset;
+      if (sc.warm_base_offset != 0.0) measured.linear_velocity.x() += 0.05;
+    }
     for (int r = 0; r < repeat; ++r) {
       planner::WarmStart warm;
       if (sc.warm_shift >= 0.0) {
         warm.previous = &cold;
         warm.shift = sc.warm_shift;
+        warm.start = &measured;
       }
       const double u0 = user_cpu_s();
       out = planner::plan_motion(robot, *smooth, *scene, o, 0.01, warm);

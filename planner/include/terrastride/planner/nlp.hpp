@@ -138,6 +138,15 @@ struct Layout {
   };
   std::vector<Swing> swings;
   std::vector<double> nominal_knot_time;
+  // A re-plan's timeline starts inside an interval of the previous plan (first_interval_elapsed);
+  // its first segment is then the tail of one of the previous plan's segments, of which this
+  // fraction had elapsed (0 when it is not: a plan from rest, or a tail merged with the next).
+  double first_segment_cropped = 0.0;
+  // The constraint points of segment s for n points per segment: fractions q / n, q = 0 .. n - 1
+  // (and n when with_end). In a cropped first segment the points stay where the previous plan had
+  // them (the previous solution, exact there, then needs no iteration to re-verify), plus the
+  // segment's new start.
+  std::vector<double> segment_points(int s, int n, bool with_end) const;
 };
 
 class SrbdProblem {

@@ -25,6 +25,8 @@ struct PlanOutcome {
 struct WarmStart {
   const Trajectory* previous = nullptr;
   double shift = 0.0;
+  // The state to re-plan from (a robot's measured state); default: the previous plan at `shift`.
+  const SrbdProblem::StartState* start = nullptr;
 };
 
 // `plan_terrain` is what the optimiser sees (smooth, C2); `check_terrain` the exact one the
@@ -40,6 +42,9 @@ PhaseTimeline timeline_of(const Trajectory& plan);
 // samples, exact within one cubic spline segment; accelerations and forces linear; contact from the sample at or
 // before t).
 TrajectorySample interpolate_plan(const Trajectory& plan, double t);
+
+// The start state a re-plan from `plan` at time t begins with (base pose and rates, feet).
+SrbdProblem::StartState start_state_of(const Trajectory& plan, double t);
 
 // Samples the solution x every dt (and at its end) into a Trajectory (without solver/checks).
 Trajectory sample_solution(const SrbdProblem& problem, const std::vector<double>& x, double dt);
