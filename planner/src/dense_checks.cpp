@@ -26,6 +26,7 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
   const bool rot_free = robot.base_dof_free[3] || robot.base_dof_free[4] || robot.base_dof_free[5];
   std::vector<Eigen::Vector3d> anchor(nf);
   std::vector<bool> was_contact(nf, false);
+  const bool debug = std::getenv("TERRASTRIDE_DEBUG_CHECKS") != nullptr;  // once, not per sample
   for (const auto& s : dense.samples) {
     if (s.feet.size() != nf) continue;
     const auto& b = s.base;
@@ -62,7 +63,7 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
         if (limits.max_normal_force > 0.0) v = std::max(v, fn - limits.max_normal_force);
         fric = std::max(fric, v);
       } else {
-        if (std::getenv("TERRASTRIDE_DEBUG_CHECKS") && hs.height - ft.position.z() > pen)
+        if (debug && hs.height - ft.position.z() > pen)
           std::fprintf(stderr, "pen %g at t=%g foot %zu p=(%g %g %g)\n", hs.height - ft.position.z(),
                        s.t, f, ft.position.x(), ft.position.y(), ft.position.z());
         pen = std::max(pen, hs.height - ft.position.z());
@@ -71,7 +72,7 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
       const Eigen::Vector3d pb = R.transpose() * (ft.position - b.position);
       const Eigen::Vector3d ex =
           (pb - robot.legs[f].nominal_foot).cwiseAbs() - robot.legs[f].range_of_motion;
-      if (std::getenv("TERRASTRIDE_DEBUG_CHECKS") && ex.maxCoeff() > rom)
+      if (debug && ex.maxCoeff() > rom)
         std::fprintf(stderr, "rom %g at t=%g foot %zu contact %d pb=(%g %g %g)\n", ex.maxCoeff(), s.t, f,
                      int(ft.contact), pb.x(), pb.y(), pb.z());
       rom = std::max(rom, ex.maxCoeff());
