@@ -164,6 +164,18 @@ PhaseTimeline PhaseTimeline::cropped(double t0) const {
       const double begun = t0 - events[j] + (j == 0 ? first_interval_elapsed : 0.0);
       out.first_interval_elapsed = begun > tol ? begun : 0.0;
     }
+    if (out.events.size() == 1) {
+      // Feet in swing at t0: time since their lift-off (in an earlier interval, or before this
+      // timeline began).
+      out.swing_elapsed.assign(feet.size(), 0.0);
+      for (std::size_t f = 0; f < feet.size(); ++f) {
+        if (contact[f][j]) continue;
+        int first = j;
+        while (first > 0 && !contact[f][first - 1]) --first;
+        const double since = t0 - events[first] + (first == 0 ? swing_elapsed_of(f) : 0.0);
+        out.swing_elapsed[f] = since > tol ? since : 0.0;
+      }
+    }
     out.events.push_back(events[j + 1] - t0);
     for (std::size_t f = 0; f < feet.size(); ++f) out.contact[f].push_back(contact[f][j]);
   }

@@ -790,8 +790,10 @@ void SrbdProblem::build_baseline() {
   for (const auto& sw : L.swings) {
     const int f = sw.foot;
     const int np = std::max(1, options_.clearance_points);
-    // Nominal times: with optimised timing the profile keeps its shape in swing fraction.
-    const double t0 = L.nominal_knot_time[sw.first_seg];
+    // Nominal times: with optimised timing the profile keeps its shape in swing fraction. A swing
+    // under way at the start of a re-plan lifted off swing_elapsed before it.
+    const double t0 = L.nominal_knot_time[sw.first_seg] -
+                      (sw.first_seg == 0 ? timeline_.swing_elapsed_of(static_cast<std::size_t>(f)) : 0.0);
     const double swing_T = L.nominal_knot_time[sw.last_seg + 1] - t0;
     for (int s = sw.first_seg; s <= sw.last_seg; ++s)
       for (const double sigma : L.segment_points(s, np, false)) {

@@ -94,6 +94,29 @@ TEST(Gait, CroppedTimelineKeepsTheSegmentKnots) {
   }
 }
 
+// A foot in swing at the crop point remembers when it lifted off, also across two crops and
+// from a swing that began intervals earlier; feet in stance have 0.
+TEST(Gait, CroppedTimelineRemembersWhenSwingingFeetLiftedOff) {
+  const auto r = hyq();
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("trot")), feet_of(r), 3, 0.0);
+  for (double shift : {0.05, 0.3, 0.77, 1.1}) {
+    const PhaseTimeline c = tl.cropped(shift);
+    ASSERT_EQ(c.swing_elapsed.size(), tl.feet.size());
+    for (std::size_t f = 0; f < tl.feet.size(); ++f) {
+      // Lift-off: the start of the swing phase containing `shift`, from the uncropped timeline.
+      double lift_off = -1.0;
+      for (const auto& ph : tl.phases(static_cast<int>(f)))
+        if (!ph.contact && ph.start <= shift + 1e-9 && shift < ph.end - 1e-6) lift_off = ph.start;
+      EXPECT_NEAR(c.swing_elapsed_of(f), lift_off < 0.0 ? 0.0 : shift - lift_off, 1e-9)
+          << "shift " << shift << " foot " << f;
+      const PhaseTimeline cc = c.cropped(0.02);
+      const bool still_swinging = lift_off >= 0.0 && !cc.contact[f][0];
+      EXPECT_NEAR(cc.swing_elapsed_of(f), still_swinging ? shift + 0.02 - lift_off : 0.0, 1e-9)
+          << "twice, shift " << shift << " foot " << f;
+    }
+  }
+}
+
 TEST(Gait, BadInputIsNamed) {
   EXPECT_THROW(resolve_gait_path("no_such_gait"), GaitError);
   const std::string path = ::testing::TempDir() + "/bad_gait.yaml";

@@ -164,6 +164,44 @@ TEST(Plan, WarmStartFromAShiftedPlanConvergesFast) {
   expect_dense_targets(off.trajectory, r.mass);
 }
 
+// The paper's flat 2.4 s crawl switches contacts on the 0.01 s sample grid, and its swings are
+// under way at most re-plan starts: re-planned from its own state at any of these times, the
+// previous plan is re-verified without iterating (before: infeasible at 0.1, 0.3 and 0.55 s, the
+// lifting foot's last force read from the sample after lift-off and the swing clearance
+// restarted at the crop point).
+TEST(Plan, WarmStartOnTheFastCrawlReverifiesThePreviousPlan) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  o.duration = 2.4;
+  const PlanOutcome cold = plan_motion(r, flat, flat, o, 0.01);
+  ASSERT_TRUE(cold.success) << cold.message;
+  for (double shift : {0.1, 0.2, 0.3, 0.55, 1.0}) {
+    WarmStart warm;
+    warm.previous = &cold.trajectory;
+    warm.shift = shift;
+    const PlanOutcome next = plan_motion(r, flat, flat, o, 0.01, warm);
+    ASSERT_TRUE(next.success) << shift << ": " << next.message;
+    EXPECT_EQ(next.trajectory.solver.iterations, 0) << shift;
+    expect_dense_targets(next.trajectory, r.mass);
+  }
+  // Re-planning from a re-plan (the swing clearance's lift-off time carried through plan.json's
+  // timeline as swing_elapsed).
+  WarmStart first;
+  first.previous = &cold.trajectory;
+  first.shift = 0.1;
+  const PlanOutcome a = plan_motion(r, flat, flat, o, 0.01, first);
+  ASSERT_TRUE(a.success);
+  WarmStart second;
+  second.previous = &a.trajectory;
+  second.shift = 0.05;
+  const PlanOutcome b = plan_motion(r, flat, flat, o, 0.01, second);
+  ASSERT_TRUE(b.success) << b.message;
+  EXPECT_EQ(b.trajectory.solver.iterations, 0);
+}
+
 // The constraint points of a re-plan's first segment stay where the previous plan had them.
 TEST(Layout, CroppedFirstSegmentKeepsThePreviousConstraintPoints) {
   Layout L;

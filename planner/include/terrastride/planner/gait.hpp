@@ -39,6 +39,14 @@ struct PhaseTimeline {
   // planner then keeps that interval's segment knots (at the same absolute times), so that a plan
   // warm-started from a shifted previous plan can reproduce it exactly.
   double first_interval_elapsed = 0.0;
+  // Per foot (empty: all 0): a foot in swing at t = 0 lifted off this long before. The swing
+  // clearance demanded along a swing follows its time since lift-off, so a re-plan must demand
+  // what the previous plan did (a swing restarted at the crop point demanded a full step height
+  // of a foot already coming down: the flat 2.4 s crawl re-planned at 0.1 s ended infeasible).
+  std::vector<double> swing_elapsed;
+  double swing_elapsed_of(std::size_t foot) const {
+    return foot < swing_elapsed.size() ? swing_elapsed[foot] : 0.0;
+  }
   double duration() const { return events.empty() ? 0.0 : events.back(); }
   int num_intervals() const { return static_cast<int>(events.size()) - 1; }
   // Per foot, the phases as [start, end, contact] triples (consecutive intervals merged).
