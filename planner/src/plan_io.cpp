@@ -1,16 +1,18 @@
 #include "terrastride/planner/plan_io.hpp"
 
+#include <unistd.h>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
-#include <unistd.h>
 
 namespace terrastride::planner {
 namespace {
 
 using nlohmann::json;
 
-json vec3(const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); }
+json vec3(const Eigen::Vector3d& v) {
+  return json::array({v.x(), v.y(), v.z()});
+}
 
 // Field access with a path for error messages.
 class Reader {
@@ -60,7 +62,8 @@ class Reader {
     Eigen::Vector3d out;
     for (int i = 0; i < 3; ++i) {
       // nlohmann writes NaN as null: report it as non-finite.
-      if (!v[i].is_number()) fail(field, "element " + std::to_string(i) + " is not a finite number");
+      if (!v[i].is_number())
+        fail(field, "element " + std::to_string(i) + " is not a finite number");
       out[i] = v[i].get<double>();
       if (!std::isfinite(out[i])) fail(field, "element " + std::to_string(i) + " is not finite");
     }
@@ -81,8 +84,8 @@ class Reader {
   std::string path_;
 };
 
-const char* const kKnownKeys[] = {"robot",   "gait",   "duration", "sample_dt", "feet",
-                                  "samples", "solver", "checks"};
+const char* const kKnownKeys[] = {"robot", "gait",    "duration", "sample_dt",
+                                  "feet",  "samples", "solver",   "checks"};
 
 }  // namespace
 

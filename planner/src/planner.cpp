@@ -106,7 +106,9 @@ TrajectorySample hermite_between(const TrajectorySample& a, const TrajectorySamp
   const double u = (t - a.t) / std::max(1e-12, h);
   TrajectorySample s = a;
   s.t = t;
-  auto mix = [u](const Eigen::Vector3d& p, const Eigen::Vector3d& q) { return (1 - u) * p + u * q; };
+  auto mix = [u](const Eigen::Vector3d& p, const Eigen::Vector3d& q) {
+    return (1 - u) * p + u * q;
+  };
   hermite<double>(u, h, a.base.position, a.base.linear_velocity, b.base.position,
                   b.base.linear_velocity, &s.base.position, &s.base.linear_velocity, nullptr);
   Eigen::Vector3d euler_rate;
@@ -119,7 +121,8 @@ TrajectorySample hermite_between(const TrajectorySample& a, const TrajectorySamp
     hermite<double>(u, h, a.feet[f].position, a.feet[f].velocity, b.feet[f].position,
                     b.feet[f].velocity, &s.feet[f].position, &s.feet[f].velocity, nullptr);
     // Forces jump at contact switches: blend only inside one contact state.
-    if (a.feet[f].contact == b.feet[f].contact) s.feet[f].force = mix(a.feet[f].force, b.feet[f].force);
+    if (a.feet[f].contact == b.feet[f].contact)
+      s.feet[f].force = mix(a.feet[f].force, b.feet[f].force);
   }
   return s;
 }
@@ -143,8 +146,8 @@ TrajectorySample segment_state(const Trajectory& plan, double t, double lo, doub
   // 30 N m out of balance and ended infeasible; on pallet_15 no switch falls on a sample.)
   if (last - first >= 3 && std::abs((last - 1)->t - hi) <= tol) --last;
   // The pair of samples in [lo, hi] around t (or the end pair when t is at an end).
-  auto b = std::lower_bound(first, last, t,
-                            [](const TrajectorySample& s, double v) { return s.t < v; });
+  auto b =
+      std::lower_bound(first, last, t, [](const TrajectorySample& s, double v) { return s.t < v; });
   b = std::clamp(b, first + 1, last - 1);
   return hermite_between(*(b - 1), *b, t);
 }
@@ -169,7 +172,8 @@ PhaseTimeline timeline_of(const Trajectory& plan) {
   tl.feet = plan.feet;
   try {
     tl.events = ex["timeline"]["events"].get<std::vector<double>>();
-    for (const auto& c : ex["timeline"]["contact"]) tl.contact.push_back(c.get<std::vector<bool>>());
+    for (const auto& c : ex["timeline"]["contact"])
+      tl.contact.push_back(c.get<std::vector<bool>>());
     tl.first_interval_elapsed = ex["timeline"].value("first_interval_elapsed", 0.0);
     if (ex["timeline"].contains("swing_elapsed"))
       tl.swing_elapsed = ex["timeline"]["swing_elapsed"].get<std::vector<double>>();
@@ -187,7 +191,8 @@ PhaseTimeline timeline_of(const Trajectory& plan) {
       throw std::invalid_argument("plan \"timeline\": swing_elapsed entries must be >= 0");
   for (const auto& c : tl.contact)
     if (static_cast<int>(c.size()) != tl.num_intervals())
-      throw std::invalid_argument("plan \"timeline\": contact lists must have one entry per interval");
+      throw std::invalid_argument(
+          "plan \"timeline\": contact lists must have one entry per interval");
   return tl;
 }
 
@@ -231,7 +236,8 @@ void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
       for (int side = 0; side < 2; ++side) {
         const int fv = L.force[f][s][side];
         if (fv < 0) continue;
-        const auto smp = segment_state(prev, kt[s + side] + shift, kt[s] + shift, kt[s + 1] + shift);
+        const auto smp =
+            segment_state(prev, kt[s + side] + shift, kt[s] + shift, kt[s + 1] + shift);
         if (!smp.feet[f].contact) continue;
         for (int d = 0; d < 3; ++d) x0_[fv + d] = smp.feet[f].force[d];
       }
@@ -274,10 +280,9 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     if (warm.start) {
       if (warm.start->foot_position.size() != feet.size() ||
           warm.start->foot_velocity.size() != feet.size())
-        throw std::invalid_argument("warm-start state has " +
-                                    std::to_string(warm.start->foot_position.size()) +
-                                    " feet, robot " + robot.name + " has " +
-                                    std::to_string(feet.size()));
+        throw std::invalid_argument(
+            "warm-start state has " + std::to_string(warm.start->foot_position.size()) +
+            " feet, robot " + robot.name + " has " + std::to_string(feet.size()));
       start = *warm.start;
     }
     start_ptr = &start;

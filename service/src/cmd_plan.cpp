@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/gait.hpp"
@@ -15,7 +16,6 @@
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
-#include "terrain_source.hpp"
 
 namespace terrastride::service {
 namespace {
@@ -81,10 +81,10 @@ void run_plan(const PlanCliOptions& o) {
   if (o.max_time < 0.0) throw CommandError("--max-time: must be >= 0");
   if (o.duration < 0.0) throw CommandError("--duration: must be > 0");
   if (o.cycles < 1 || o.cycles > 50) throw CommandError("--cycles: must be in [1, 50]");
-  const TerrainSource terrains = load_terrain_source(
-      o.terrain, /*smooth_scene=*/true,
-      "point clouds are not planned on directly; run 'terrastride map " + o.terrain +
-          " --out DIR' and pass --terrain DIR");
+  const TerrainSource terrains =
+      load_terrain_source(o.terrain, /*smooth_scene=*/true,
+                          "point clouds are not planned on directly; run 'terrastride map " +
+                              o.terrain + " --out DIR' and pass --terrain DIR");
 
   planner::PlannerOptions po;
   po.gait = o.gait;
@@ -100,8 +100,8 @@ void run_plan(const PlanCliOptions& o) {
     if (std::find(available.begin(), available.end(), c) == available.end()) {
       std::string list;
       for (const auto& n : available) list += (list.empty() ? "" : ", ") + n;
-      throw CommandError("--constraints: '" + c + "' is not available in this build (available: " +
-                         list + ")");
+      throw CommandError("--constraints: '" + c +
+                         "' is not available in this build (available: " + list + ")");
     }
 
   for (const auto& item : o.feasibility)
@@ -234,10 +234,11 @@ void add_plan_command(CLI::App& app) {
       ->capture_default_str();
   {
     std::string names;
-    for (const auto& n : planner::feasibility_option_names()) names += (names.empty() ? "" : ", ") + n;
-    cmd->add_option("--feasibility", o->feasibility,
-                    "settings of the constraint sets, NAME=VALUE (comma separated or repeated): " +
-                        names);
+    for (const auto& n : planner::feasibility_option_names())
+      names += (names.empty() ? "" : ", ") + n;
+    cmd->add_option(
+        "--feasibility", o->feasibility,
+        "settings of the constraint sets, NAME=VALUE (comma separated or repeated): " + names);
   }
   cmd->add_option("--sample-dt", o->sample_dt, "sampling period of plan.json in s")
       ->capture_default_str();

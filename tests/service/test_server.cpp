@@ -176,11 +176,15 @@ TEST_F(ServerTest, CloudUpdatesAreValidated) {
                  {patch(1.0, 0.05)});
   EXPECT_EQ(up["stats"]["clouds"], 2);
   // Outlier removal per 1 cm cell (the default cell) keeps a clean patch; a bad cell is refused.
-  up = c.call_ok({{"op", "map.update"}, {"origin", {0, 0, 0.8}}, {"mode", "replace"},
+  up = c.call_ok({{"op", "map.update"},
+                  {"origin", {0, 0, 0.8}},
+                  {"mode", "replace"},
                   {"outlier_neighbours", 8}},
                  {patch(0.0, 0.05)});
   EXPECT_GT(up["stats"]["observed_cells"].get<int>(), 1000);
-  m = c.call({{"op", "map.update"}, {"origin", {0, 0, 0.8}}, {"outlier_neighbours", 8},
+  m = c.call({{"op", "map.update"},
+              {"origin", {0, 0, 0.8}},
+              {"outlier_neighbours", 8},
               {"outlier_cell", -1}},
              {patch(0.0, 0.05)});
   EXPECT_EQ(error_code(m), "bad_request");
@@ -267,7 +271,8 @@ TEST_F(ServerTest, PlanSamplesAsAttachmentMatchJson) {
     const json& s = as_json["samples"][i];
     EXPECT_NEAR(v[i * cols + col("t")], s["t"].get<double>(), 1e-6);
     EXPECT_NEAR(v[i * cols + col("base.position.x")], s["base"]["position"][0].get<double>(), 1e-5);
-    EXPECT_NEAR(v[i * cols + col("base.euler_zyx.z")], s["base"]["euler_zyx"][2].get<double>(), 1e-5);
+    EXPECT_NEAR(v[i * cols + col("base.euler_zyx.z")], s["base"]["euler_zyx"][2].get<double>(),
+                1e-5);
     EXPECT_NEAR(v[i * cols + col(lf + ".force.z")], s["feet"][0]["force"][2].get<double>(),
                 1e-4 * std::max(1.0, std::abs(s["feet"][0]["force"][2].get<double>())));
     EXPECT_EQ(v[i * cols + col(lf + ".contact")] == 1.0f, s["feet"][0]["contact"].get<bool>());
@@ -647,9 +652,8 @@ TEST(PythonClient, DrivesEveryOperation) {
   ServerProcess server(
       {"--listen", "tcp://127.0.0.1:0", "--debug-ops", "--workers", "1", "--queue", "1"});
   ASSERT_FALSE(server.tcp().empty()) << server.output;
-  const std::filesystem::path script =
-      std::filesystem::path(TERRASTRIDE_SOURCE_DIR) / "service" / "clients" / "python" /
-      "test_client.py";
+  const std::filesystem::path script = std::filesystem::path(TERRASTRIDE_SOURCE_DIR) / "service" /
+                                       "clients" / "python" / "test_client.py";
   const std::string cmd = "python3 " + script.string() + " " + server.tcp() + " 2>&1";
   FILE* pipe = ::popen(cmd.c_str(), "r");
   ASSERT_NE(pipe, nullptr);

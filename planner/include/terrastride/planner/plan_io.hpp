@@ -1,4 +1,5 @@
-// plan.json: reading and writing a Trajectory (format in DESIGN.md, "The terrastride command line").
+// plan.json: reading and writing a Trajectory (format in DESIGN.md, "The terrastride command
+// line").
 #pragma once
 
 #include <nlohmann/json.hpp>

@@ -16,8 +16,8 @@ namespace terrastride::planner {
 struct PlanOutcome {
   Trajectory trajectory;  // samples every sample_dt, solver stats and dense checks
   SolveResult solve;
-  bool success = false;   // solver optimal/acceptable
-  std::string message;    // why not, when !success
+  bool success = false;  // solver optimal/acceptable
+  std::string message;   // why not, when !success
 };
 
 // Warm start: a previous plan whose state at `shift` seconds becomes the new start; its contact
@@ -39,8 +39,8 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
 PhaseTimeline timeline_of(const Trajectory& plan);
 
 // State of a plan at time t (positions and their rates by cubic Hermite interpolation between
-// samples, exact within one cubic spline segment; accelerations and forces linear; contact from the sample at or
-// before t).
+// samples, exact within one cubic spline segment; accelerations and forces linear; contact from the
+// sample at or before t).
 TrajectorySample interpolate_plan(const Trajectory& plan, double t);
 
 // The start state a re-plan from `plan` at time t begins with (base pose and rates, feet).
