@@ -1,9 +1,13 @@
 #include "terrastride/planner/plan_io.hpp"
 
 #include <unistd.h>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <initializer_list>
+
+#include "terrastride/planner/planner.hpp"
 
 namespace terrastride::planner {
 namespace {
@@ -68,6 +72,22 @@ class Reader {
       if (!std::isfinite(out[i])) fail(field, "element " + std::to_string(i) + " is not finite");
     }
     return out;
+  }
+  // This node must be a JSON object holding no keys but `known` (a misspelt optional field
+  // would otherwise be silently ignored).
+  void only(std::initializer_list<const char*> known) const {
+    if (!node_.is_object())
+      throw PlanFileError(source_ + ": " + (path_.empty() ? "top level" : path_) +
+                          ": must be an object");
+    for (const auto& [key, value] : node_.items()) {
+      bool ok = false;
+      std::string list;
+      for (const char* k : known) {
+        ok = ok || key == k;
+        list += (list.empty() ? "" : ", ") + std::string(k);
+      }
+      if (!ok) fail(key, "unknown field (known: " + list + ")");
+    }
   }
   size_t array_size(const std::string& field) const {
     const json& v = at(field);
@@ -199,6 +219,56 @@ Trajectory plan_from_json(const json& j, const std::string& source) {
   return t;
 }
 
+SrbdProblem::StartState start_state_from_json(const json& j, const std::string& source,
+                                              const Trajectory& previous, double start_time) {
+  TrajectorySample state = interpolate_plan(previous, start_time);
+  const Reader top(source, j, "");
+  top.only({"base", "feet"});
+  if (top.has("base")) {
+    const Reader b = top.sub("base");
+    b.only({"position", "euler_zyx", "linear_velocity", "angular_velocity"});
+    if (b.has("position")) state.base.position = b.vec3("position");
+    if (b.has("euler_zyx")) state.base.euler_zyx = b.vec3("euler_zyx");
+    if (b.has("linear_velocity")) state.base.linear_velocity = b.vec3("linear_velocity");
+    if (b.has("angular_velocity")) state.base.angular_velocity = b.vec3("angular_velocity");
+    // The Euler rates of an angular velocity are undefined at pitch +-90 deg (gimbal lock).
+    if (b.has("euler_zyx") && std::abs(std::cos(state.base.euler_zyx[1])) < 1e-3)
+      b.fail("euler_zyx", "pitch " + std::to_string(state.base.euler_zyx[1]) +
+                              " rad is at +-pi/2, where ZYX Euler rates are undefined");
+  }
+  if (top.has("feet")) {
+    std::string names;
+    for (const auto& n : previous.feet) names += (names.empty() ? "" : ", ") + n;
+    if (!j["feet"].is_object())
+      top.fail("feet", "must be an object keyed by foot name (the plan's feet: " + names + ")");
+    const Reader feet = top.sub("feet");
+    for (const auto& [name, value] : j["feet"].items()) {
+      const auto it = std::find(previous.feet.begin(), previous.feet.end(), name);
+      if (it == previous.feet.end())
+        feet.fail(name, "unknown foot (the plan's feet: " + names + ")");
+      const Reader f = feet.sub(name);
+      f.only({"position", "velocity"});
+      FootState& foot = state.feet.at(static_cast<size_t>(it - previous.feet.begin()));
+      if (f.has("position")) foot.position = f.vec3("position");
+      if (f.has("velocity")) foot.velocity = f.vec3("velocity");
+    }
+  }
+  return start_state_of(state);
+}
+
+SrbdProblem::StartState read_start_state_file(const std::string& path, const Trajectory& previous,
+                                              double start_time) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw PlanFileError(path + ": cannot open start-state file");
+  json j;
+  try {
+    j = json::parse(in);
+  } catch (const json::exception& e) {  // parse errors, and numbers beyond double (1e999)
+    throw PlanFileError(path + ": not valid JSON: " + e.what());
+  }
+  return start_state_from_json(j, path, previous, start_time);
+}
+
 void write_plan_file(const std::string& path, const Trajectory& trajectory) {
   const std::string text = plan_to_json(trajectory).dump(1) + "\n";
   const std::string tmp = path + ".tmp." + std::to_string(::getpid());
@@ -224,7 +294,7 @@ Trajectory read_plan_file(const std::string& path) {
   json j;
   try {
     j = json::parse(in);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse errors, and numbers beyond double (1e999)
     throw PlanFileError(path + ": not valid JSON: " + e.what());
   }
   return plan_from_json(j, path);

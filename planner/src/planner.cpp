@@ -23,9 +23,18 @@ Eigen::Matrix3d euler_rate_matrix(const Eigen::Vector3d& e) {
   return E;
 }
 
+}  // namespace
+
+Eigen::Vector3d euler_rates_of(const Eigen::Vector3d& euler_zyx,
+                               const Eigen::Vector3d& angular_velocity) {
+  return euler_rate_matrix(euler_zyx).fullPivLu().solve(angular_velocity);
+}
+
+namespace {
+
 // The Euler-angle rates of a sample (from its angular velocity).
 Eigen::Vector3d euler_rates(const TrajectorySample& s) {
-  return euler_rate_matrix(s.base.euler_zyx).fullPivLu().solve(s.base.angular_velocity);
+  return euler_rates_of(s.base.euler_zyx, s.base.angular_velocity);
 }
 
 nlohmann::json timeline_json(const PhaseTimeline& tl, const std::vector<double>& events) {
@@ -244,7 +253,10 @@ void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
 }
 
 SrbdProblem::StartState start_state_of(const Trajectory& plan, double t) {
-  const auto s = interpolate_plan(plan, t);
+  return start_state_of(interpolate_plan(plan, t));
+}
+
+SrbdProblem::StartState start_state_of(const TrajectorySample& s) {
   SrbdProblem::StartState start;
   start.position = s.base.position;
   start.euler_zyx = s.base.euler_zyx;

@@ -1,10 +1,16 @@
-// plan.json round trip, validation of malformed plan files, and interpolation between samples.
+// plan.json round trip, validation of malformed plan files, interpolation between samples, and
+// measured start states in plan.json's conventions.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <string>
+#include <utility>
+#include <vector>
 
+#include "terrastride/planner/piece_math.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"
 
@@ -142,5 +148,91 @@ TEST(InterpolatePlan, ReproducesACubicMotionBetweenSamples) {
     EXPECT_LT((s.base.euler_zyx - 0.1 * pos(t)).norm(), 1e-12) << t;
     EXPECT_LT((s.feet[0].position - pos(t) - Eigen::Vector3d(1, 0, 0)).norm(), 1e-12) << t;
     EXPECT_LT((s.feet[0].velocity - vel(t)).norm(), 1e-12) << t;
+  }
+}
+
+namespace {
+
+std::string start_state_error(const json& j) {
+  try {
+    start_state_from_json(j, "state.json", two_sample_plan(), 0.015);
+  } catch (const PlanFileError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+void expect_same_start(const SrbdProblem::StartState& a, const SrbdProblem::StartState& b) {
+  EXPECT_EQ(a.position, b.position);
+  EXPECT_EQ(a.euler_zyx, b.euler_zyx);
+  EXPECT_EQ(a.linear_velocity, b.linear_velocity);
+  EXPECT_EQ(a.euler_rates, b.euler_rates);
+  EXPECT_EQ(a.foot_position, b.foot_position);
+  EXPECT_EQ(a.foot_velocity, b.foot_velocity);
+}
+
+}  // namespace
+
+// A measured state need not hold every field: what it leaves out is the previous plan's state at
+// the start time, exactly as a re-plan without a measured state would start.
+TEST(StartState, FieldsLeftOutAreThePlansStateAtTheStartTime) {
+  Trajectory plan = two_sample_plan();
+  for (auto& s : plan.samples) s.base.angular_velocity = Eigen::Vector3d(0.1, -0.2, 0.3);
+  expect_same_start(start_state_from_json(json::object(), "state.json", plan, 0.015),
+                    start_state_of(plan, 0.015));
+
+  const json given = {{"base", {{"position", {1.0, 2.0, 0.5}}}},
+                      {"feet", {{"RF", {{"velocity", {0.0, 0.0, 1.0}}}}}}};
+  const SrbdProblem::StartState s = start_state_from_json(given, "state.json", plan, 0.015);
+  SrbdProblem::StartState expected = start_state_of(plan, 0.015);
+  expected.position = Eigen::Vector3d(1.0, 2.0, 0.5);
+  expected.foot_velocity[1] = Eigen::Vector3d(0.0, 0.0, 1.0);
+  expect_same_start(s, expected);
+}
+
+// plan.json's angular velocity is in the world frame; the planner's start state holds ZYX Euler
+// rates. Converted back with the planner's own kinematics, the rates give the angular velocity.
+TEST(StartState, AngularVelocityBecomesEulerRatesAtTheGivenOrientation) {
+  const Eigen::Vector3d euler(0.3, 0.2, -0.1), omega(0.4, -0.5, 0.6);
+  const json given = {{"base",
+                       {{"euler_zyx", {euler.x(), euler.y(), euler.z()}},
+                        {"angular_velocity", {omega.x(), omega.y(), omega.z()}}}}};
+  const SrbdProblem::StartState s =
+      start_state_from_json(given, "state.json", two_sample_plan(), 0.015);
+  EXPECT_EQ(s.euler_zyx, euler);
+  EXPECT_EQ(s.euler_rates, euler_rates_of(euler, omega));
+  Eigen::Vector3d back;
+  euler_to_angular<double>(euler, s.euler_rates, Eigen::Vector3d::Zero(), &back, nullptr);
+  EXPECT_NEAR((back - omega).norm(), 0.0, 1e-12);
+}
+
+TEST(StartState, MalformedStatesNameTheField) {
+  // JSON text cannot hold infinity (nlohmann refuses 1e999), but a json value built in code can.
+  const json inf = {{"base", {{"position", {std::numeric_limits<double>::infinity(), 0.0, 0.5}}}}};
+  for (const auto& [state, says] : std::vector<std::pair<json, std::string>>{
+           {json::array(), "state.json: top level: must be an object"},
+           {{{"base", 3}}, "state.json: base: must be an object"},
+           {{{"base", {{"position", {0.0, 0.0}}}}},
+            "state.json: base.position: must be an array of 3 numbers"},
+           {{{"base", {{"linear_velocity", "fast"}}}},
+            "state.json: base.linear_velocity: must be an array of 3 numbers"},
+           {{{"base", {{"position", {0.0, nullptr, 0.5}}}}},
+            "state.json: base.position: element 1 is not a finite number"},
+           {inf, "state.json: base.position: element 0 is not finite"},
+           {{{"base", {{"postion", {0.0, 0.0, 0.5}}}}},
+            "state.json: base.postion: unknown field (known: position, euler_zyx, "
+            "linear_velocity, angular_velocity)"},
+           {{{"base", {{"euler_zyx", {0.0, M_PI / 2, 0.0}}}}},
+            "state.json: base.euler_zyx: pitch 1.570796 rad is at +-pi/2"},
+           {{{"feet", json::array()}}, "state.json: feet: must be an object keyed by foot name"},
+           {{{"feet", {{"XX", {{"position", {0.0, 0.0, 0.0}}}}}}},
+            "state.json: feet.XX: unknown foot (the plan's feet: LF, RF)"},
+           {{{"feet", {{"LF", {{"force", {0.0, 0.0, 0.0}}}}}}},
+            "state.json: feet.LF.force: unknown field (known: position, velocity)"},
+           {{{"feet", {{"LF", {{"velocity", {0.0, 0.0, 0.0, 1.0}}}}}}},
+            "state.json: feet.LF.velocity: must be an array of 3 numbers"},
+           {{{"time", 0.1}}, "state.json: time: unknown field (known: base, feet)"}}) {
+    const std::string e = start_state_error(state);
+    EXPECT_NE(e.find(says), std::string::npos) << state.dump() << " -> '" << e << "'";
   }
 }

@@ -45,6 +45,14 @@ TrajectorySample interpolate_plan(const Trajectory& plan, double t);
 
 // The start state a re-plan from `plan` at time t begins with (base pose and rates, feet).
 SrbdProblem::StartState start_state_of(const Trajectory& plan, double t);
+// The same from one state (a plan sample, or a measured state in plan.json's terms).
+SrbdProblem::StartState start_state_of(const TrajectorySample& state);
+
+// The ZYX Euler-angle rates (yaw, pitch, roll rates, as in SrbdProblem::StartState) of a base at
+// orientation `euler_zyx` turning with the world-frame `angular_velocity` (plan.json's): solves
+// w = E(e) e', the convention the planner's splines use. E is singular at pitch = +-90 deg.
+Eigen::Vector3d euler_rates_of(const Eigen::Vector3d& euler_zyx,
+                               const Eigen::Vector3d& angular_velocity);
 
 // Samples the solution x every dt (and at its end) into a Trajectory (without solver/checks).
 Trajectory sample_solution(const SrbdProblem& problem, const std::vector<double>& x, double dt);
