@@ -33,6 +33,7 @@ struct PlanCliOptions {
   double max_time = 0.0;
   std::string init;
   double start_time = 0.0;
+  std::string start_state;  // measured state to re-plan from (JSON file), with init
   bool optimize_timing = false;
   bool verbose = false;
   bool json = false;
@@ -128,6 +129,7 @@ void run_plan(const PlanCliOptions& o) {
   }
 
   planner::Trajectory previous;
+  planner::SrbdProblem::StartState measured;
   planner::WarmStart warm;
   if (!o.init.empty()) {
     try {
@@ -143,12 +145,23 @@ void run_plan(const PlanCliOptions& o) {
                          ") for " + o.init);
     warm.previous = &previous;
     warm.shift = o.start_time;
+    if (!o.start_state.empty()) {
+      try {
+        measured = planner::read_start_state_file(o.start_state, previous, o.start_time);
+      } catch (const planner::PlanFileError& e) {
+        throw CommandError(std::string("--start-state: ") + e.what());
+      }
+      warm.start = &measured;
+    }
     po.gait = previous.gait;
     po.has_goal = true;
     const auto& last = previous.samples.back().base;
     po.goal = Eigen::Vector3d(last.position.x(), last.position.y(), last.euler_zyx[0]);
   } else if (o.start_time != 0.0) {
     throw CommandError("--start-time: needs --init");
+  } else if (!o.start_state.empty()) {
+    throw CommandError("--start-state: needs --init (the plan it continues; fields left out of " +
+                       o.start_state + " are that plan's state at --start-time)");
   }
   if (!o.goal.empty()) {
     const Eigen::VectorXd g = parse_numbers(o.goal, 3, "--goal");
@@ -172,6 +185,7 @@ void run_plan(const PlanCliOptions& o) {
   if (warm.previous) {
     out.trajectory.extra["init"] = o.init;
     out.trajectory.extra["start_time"] = o.start_time;
+    if (warm.start) out.trajectory.extra["start_state"] = o.start_state;
   }
   const double violation = out.solve.max_violation;
   // A non-optimal plan is still written when it nearly satisfies every constraint (useful as a
@@ -246,6 +260,11 @@ void add_plan_command(CLI::App& app) {
   cmd->add_option("--init", o->init, "previous plan.json to warm start from");
   cmd->add_option("--start-time", o->start_time,
                   "with --init: start the new plan from the previous plan's state at this time");
+  cmd->add_option("--start-state", o->start_state,
+                  "with --init: JSON file with the measured state to start from, in plan.json's "
+                  "terms: {\"base\": {\"position\", \"euler_zyx\", \"linear_velocity\", "
+                  "\"angular_velocity\"}, \"feet\": {NAME: {\"position\", \"velocity\"}}} "
+                  "(world frame); fields left out are the previous plan's at --start-time");
   cmd->add_flag("--optimize-timing", o->optimize_timing, "optimise the phase durations too");
   cmd->add_flag("--verbose", o->verbose, "show Ipopt's output");
   cmd->add_flag("--json", o->json, "print the summary as one JSON object");
