@@ -13,6 +13,8 @@
 #include <fstream>
 #include <limits>
 #include <thread>
+#include <tuple>
+#include <vector>
 
 #include "terrastride/service/client.hpp"
 #include "terrastride/service/protocol.hpp"
@@ -240,6 +242,68 @@ TEST_F(ServerTest, PlanAndCheckAnswerHonestly) {
   m = c.call({{"op", "check"}, {"plan", json::object()}});
   EXPECT_EQ(error_code(m), "bad_request");
   EXPECT_FALSE(error_message(m).empty());
+}
+
+// A re-plan from the robot's measured state, as `terrastride plan --init --start-time
+// --start-state`: the previous plan result goes back as "init".
+TEST_F(ServerTest, ReplanFromAMeasuredState) {
+  Client c = Client::connect(address_);
+  // pallet_10's 11 s crawl: the 2.4 s flat crawl's re-plans from t = 0.1 s end infeasible even
+  // on the plan (a planner limitation, not the service's).
+  const json first = c.call_ok({{"op", "plan"}, {"terrain", "pallet_10"}});
+  ASSERT_EQ(first["solver"]["status"], "optimal");
+  json req = {{"op", "plan"}, {"terrain", "pallet_10"}, {"init", first}, {"start_time", 0.1}};
+  const json on_plan = c.call_ok(req);
+  EXPECT_EQ(on_plan["solver"]["iterations"].get<int>(), 0);
+
+  json position = first["samples"][10]["base"]["position"];  // t = 0.1 s
+  position[1] = position[1].get<double>() + 0.01;
+  req["start_state"] = {{"base", {{"position", position}}}};
+  const json beside = c.call_ok(req);
+  EXPECT_EQ(beside["solver"]["status"], "optimal");
+  EXPECT_GT(beside["solver"]["iterations"].get<int>(), 0);
+  for (int d = 0; d < 3; ++d)
+    EXPECT_NEAR(beside["samples"][0]["base"]["position"][d].get<double>(),
+                position[d].get<double>(), 1e-9)
+        << d;
+  const json& last = beside["samples"].back()["base"]["position"];
+  EXPECT_NEAR(last[0].get<double>(), 1.0, 1e-6);  // the previous plan's goal
+  EXPECT_NEAR(last[1].get<double>(), 0.0, 1e-6);
+
+  // Malformed re-plan fields are bad requests naming the field; the server keeps serving.
+  for (const auto& [field, value, says] : std::vector<std::tuple<std::string, json, std::string>>{
+           {"start_state",
+            {{"base", {{"position", {0.0, 0.0}}}}},
+            "start_state: base.position: must be an array of 3 numbers"},
+           {"start_state",
+            {{"base", {{"euler_zyx", {0.0, nullptr, 0.0}}}}},
+            "start_state: base.euler_zyx: element 1 is not a finite number"},
+           {"start_state",
+            {{"feet", {{"XX", {{"position", {0.0, 0.0, 0.0}}}}}}},
+            "start_state: feet.XX: unknown foot"},
+           {"start_state", "beside", "start_state: top level: must be an object"},
+           {"start_state",
+            {{"base", {{"velocity", {0.0, 0.0, 0.0}}}}},
+            "start_state: base.velocity: unknown field"},
+           {"start_time", 12.0, "\"start_time\" must be within [0, 11"},
+           {"start_time", "soon", "\"start_time\" must be a number"},
+           {"init", 3, "\"init\" must be a plan.json object"},
+           {"init", json::object(), "init: robot: missing"}}) {
+    json bad = req;
+    bad[field] = value;
+    const p::Message m = c.call(bad);
+    EXPECT_EQ(error_code(m), "bad_request") << field << " = " << value.dump();
+    EXPECT_NE(error_message(m).find(says), std::string::npos)
+        << field << " = " << value.dump() << ": " << error_message(m);
+  }
+  for (const auto& [field, value] : std::vector<std::pair<std::string, json>>{
+           {"start_state", req["start_state"]}, {"start_time", 0.1}}) {
+    const p::Message m = c.call({{"op", "plan"}, {"terrain", "pallet_10"}, {field, value}});
+    EXPECT_EQ(error_code(m), "bad_request") << field;
+    EXPECT_NE(error_message(m).find("\"" + field + "\" needs \"init\""), std::string::npos)
+        << error_message(m);
+  }
+  expect_healthy(address_);
 }
 
 // The samples as a float32 table: the same plan as with JSON samples, column for column.

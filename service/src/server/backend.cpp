@@ -385,9 +385,66 @@ class Backend {
     po.optimize_timing = protocol::get_bool(h, "optimize_timing", false);
     po.max_time = protocol::get_number(h, "max_time", 0.0);
     if (po.max_time < 0) throw ProtocolError(pc::kBadRequest, "\"max_time\" must be >= 0");
+    // A re-plan (as `terrastride plan --init --start-time --start-state`): "init" is the plan
+    // being continued, and its gait, contact schedule and (unless "goal" is given) goal are kept.
+    planner::Trajectory previous;
+    planner::SrbdProblem::StartState measured;
+    planner::WarmStart warm;
+    const auto init = h.find("init");
+    if (init != h.end() && !init->is_null()) {
+      if (!init->is_object())
+        throw ProtocolError(pc::kBadRequest,
+                            "\"init\" must be a plan.json object (a previous plan result with "
+                            "JSON samples)");
+      try {
+        previous = planner::plan_from_json(*init, "init");
+      } catch (const planner::PlanFileError& e) {
+        throw ProtocolError(pc::kBadRequest, e.what());
+      }
+      if (previous.robot != robot_.name)
+        throw ProtocolError(pc::kBadRequest, "init.robot: plan is for robot '" + previous.robot +
+                                                 "', this server plans for '" + robot_.name + "'");
+      std::vector<std::string> feet;
+      for (const auto& leg : robot_.legs) feet.push_back(leg.name);
+      if (previous.feet != feet)
+        throw ProtocolError(pc::kBadRequest,
+                            "init.feet: the plan's feet differ from robot " + robot_.name + "'s");
+      try {
+        planner::timeline_of(previous);  // the contact schedule the re-plan continues
+      } catch (const std::invalid_argument& e) {
+        throw ProtocolError(pc::kBadRequest, std::string("init: ") + e.what());
+      }
+      warm.previous = &previous;
+      warm.shift = protocol::get_number(h, "start_time", 0.0);
+      if (!(warm.shift >= 0.0 && warm.shift < previous.duration))
+        throw ProtocolError(pc::kBadRequest, "\"start_time\" must be within [0, " +
+                                                 std::to_string(previous.duration) +
+                                                 ") s, the duration of \"init\"");
+      const auto state = h.find("start_state");
+      if (state != h.end() && !state->is_null()) {
+        try {
+          measured = planner::start_state_from_json(*state, "start_state", previous, warm.shift);
+        } catch (const planner::PlanFileError& e) {
+          throw ProtocolError(pc::kBadRequest, e.what());
+        }
+        warm.start = &measured;
+      }
+      po.gait = previous.gait;
+    } else {
+      for (const char* key : {"start_time", "start_state"})
+        if (h.contains(key) && !h[key].is_null())
+          throw ProtocolError(pc::kBadRequest, std::string("\"") + key +
+                                                   "\" needs \"init\" (the plan it continues)");
+    }
     po.has_goal = true;
-    po.goal = h.contains("goal") ? Eigen::Vector3d(protocol::get_vector(h, "goal", 3))
-                                 : Eigen::Vector3d(1.0, 0.0, 0.0);
+    if (h.contains("goal")) {
+      po.goal = protocol::get_vector(h, "goal", 3);
+    } else if (warm.previous) {
+      const auto& last = previous.samples.back().base;
+      po.goal = Eigen::Vector3d(last.position.x(), last.position.y(), last.euler_zyx[0]);
+    } else {
+      po.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+    }
     const auto c = h.find("constraints");
     po.constraints.clear();
     if (c == h.end() || c->is_null()) {
@@ -466,7 +523,7 @@ class Backend {
     }
     planner::PlanOutcome out;
     try {
-      out = planner::plan_motion(robot_, *plan_field, *check_field, po, sample_dt);
+      out = planner::plan_motion(robot_, *plan_field, *check_field, po, sample_dt, warm);
     } catch (const planner::GaitError& e) {
       throw ProtocolError(pc::kBadRequest, std::string("\"gait\": ") + e.what());
     } catch (const std::invalid_argument& e) {
@@ -481,6 +538,7 @@ class Backend {
               (out.message.empty() ? "status " + out.trajectory.solver.status : out.message) +
               " (max violation " + std::to_string(violation) + ")");
     out.trajectory.extra["terrain"] = spec;
+    if (warm.previous) out.trajectory.extra["start_time"] = warm.shift;
     OpResult r;
     if (samples_encoding == "attachment") {
       // The samples as one float32 table (see docs/protocol.md): building, printing and parsing a
