@@ -191,6 +191,14 @@ PhaseTimeline timeline_of(const Trajectory& plan) {
   }
   if (tl.events.size() < 2 || tl.contact.size() != tl.feet.size())
     throw std::invalid_argument("plan \"timeline\": inconsistent sizes");
+  // The events span the plan from 0 to its duration: a timeline that does not would have a
+  // re-plan build a problem for a different (possibly enormous) horizon than the samples cover.
+  for (std::size_t i = 0; i < tl.events.size(); ++i)
+    if (!std::isfinite(tl.events[i]) || (i > 0 && !(tl.events[i] > tl.events[i - 1])))
+      throw std::invalid_argument("plan \"timeline\": events must be finite and increasing");
+  if (std::abs(tl.events.front()) > 1e-9 || std::abs(tl.events.back() - plan.duration) > 1e-6)
+    throw std::invalid_argument("plan \"timeline\": events must run from 0 to the duration " +
+                                std::to_string(plan.duration) + " s");
   if (!(tl.first_interval_elapsed >= 0.0) || !std::isfinite(tl.first_interval_elapsed))
     throw std::invalid_argument("plan \"timeline\": first_interval_elapsed must be >= 0");
   if (!tl.swing_elapsed.empty() && tl.swing_elapsed.size() != tl.feet.size())

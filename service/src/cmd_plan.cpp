@@ -140,6 +140,11 @@ void run_plan(const PlanCliOptions& o) {
     if (previous.robot != model.name)
       throw CommandError("--init " + o.init + ": plan is for robot '" + previous.robot +
                          "', not '" + model.name + "'");
+    try {
+      planner::timeline_of(previous);  // the contact schedule the re-plan continues
+    } catch (const std::invalid_argument& e) {
+      throw CommandError("--init " + o.init + ": " + e.what());
+    }
     if (!(o.start_time >= 0.0 && o.start_time < previous.duration))
       throw CommandError("--start-time: must be in [0, " + std::to_string(previous.duration) +
                          ") for " + o.init);

@@ -178,6 +178,13 @@ TEST_F(CliReplan, BadStartStatesAreNamedAndWriteNothing) {
   const fs::path missing = dir_ / "no_such_state.json";
   expect_refused(init + " --start-state " + missing.string(),
                  {"--start-state", missing.string(), "cannot open"});
+  // A previous plan whose timeline does not span its samples is refused before any solve.
+  json stretched = read_json(first_);
+  for (auto& e : stretched["timeline"]["events"]) e = 100 * e.get<double>();
+  const fs::path stretched_path = dir_ / "stretched.json";
+  write_text(stretched_path, stretched.dump());
+  expect_refused(" --init " + stretched_path.string() + " --start-time 0.1",
+                 {"--init " + stretched_path.string(), "events must run from 0 to the duration"});
   const fs::path state = dir_ / "bad_state.json";
   expect_refused(" --start-state " + state.string(), {"--start-state: needs --init"});
   for (const auto& [text, says] : std::vector<std::pair<std::string, std::string>>{
