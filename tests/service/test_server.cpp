@@ -270,7 +270,13 @@ TEST_F(ServerTest, ReplanFromAMeasuredState) {
   EXPECT_NEAR(last[0].get<double>(), 1.0, 1e-6);  // the previous plan's goal
   EXPECT_NEAR(last[1].get<double>(), 0.0, 1e-6);
 
-  // Malformed re-plan fields are bad requests naming the field; the server keeps serving.
+  // Malformed re-plan fields are bad requests naming the field; the server keeps serving. A
+  // timeline stretched beyond the samples (or a plan beyond the 120 s of "duration") would have
+  // a worker build a problem for an 1100 s horizon before any deadline could stop it.
+  json stretched = first;
+  for (auto& e : stretched["timeline"]["events"]) e = 100 * e.get<double>();
+  json too_long = stretched;
+  too_long["duration"] = 1100.01;
   for (const auto& [field, value, says] : std::vector<std::tuple<std::string, json, std::string>>{
            {"start_state",
             {{"base", {{"position", {0.0, 0.0}}}}},
@@ -288,7 +294,9 @@ TEST_F(ServerTest, ReplanFromAMeasuredState) {
            {"start_time", 12.0, "\"start_time\" must be within [0, 11"},
            {"start_time", "soon", "\"start_time\" must be a number"},
            {"init", 3, "\"init\" must be a plan.json object"},
-           {"init", json::object(), "init: robot: missing"}}) {
+           {"init", json::object(), "init: robot: missing"},
+           {"init", stretched, "init: plan \"timeline\": events must run from 0 to the duration"},
+           {"init", too_long, "init.duration: must be within (0, 120] s"}}) {
     json bad = req;
     bad[field] = value;
     const p::Message m = c.call(bad);

@@ -404,6 +404,10 @@ class Backend {
       if (previous.robot != robot_.name)
         throw ProtocolError(pc::kBadRequest, "init.robot: plan is for robot '" + previous.robot +
                                                  "', this server plans for '" + robot_.name + "'");
+      // The same horizon limit as "duration": the problem is built before the solve can be
+      // stopped, so a longer one would hold a worker past any deadline.
+      if (previous.duration > 120)
+        throw ProtocolError(pc::kBadRequest, "init.duration: must be within (0, 120] s");
       std::vector<std::string> feet;
       for (const auto& leg : robot_.legs) feet.push_back(leg.name);
       if (previous.feet != feet)
