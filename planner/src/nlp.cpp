@@ -9,6 +9,7 @@
 #include <stdexcept>
 
 #include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/foothold_planarity.hpp"
 #include "terrastride/planner/piece_math.hpp"
 #include "terrastride/planner/trajectory.hpp"
 
@@ -435,14 +436,7 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
       // the solver does not begin with feet on step edges.
       const double probe = options_.clearance_probe, tol = 0.5 * options_.foothold_planarity;
       auto planarity = [&](double x, double y) {
-        const auto s0 = terrain_.sample(x, y);
-        double e = 0.0;
-        const double ox[4] = {1, -1, 0, 0}, oy[4] = {0, 0, 1, -1};
-        for (int i = 0; i < 4; ++i)
-          e = std::max(e, std::abs(terrain_.height(x + probe * ox[i], y + probe * oy[i]) -
-                                   s0.height - probe * (s0.gradient.x() * ox[i] +
-                                                        s0.gradient.y() * oy[i])));
-        return e;
+        return foothold_planarity_error(terrain_, x, y, probe);
       };
       if (probe > 0.0 && tol > 0.0 && planarity(p.x(), p.y()) > tol) {
         bool found = false;
@@ -740,14 +734,7 @@ void SrbdProblem::build_baseline() {
       const auto p = lv.add3(st.pos_var);
       std::vector<double> lo(4, -tol), hi(4, tol);
       add_piece(make_piece("foothold_planarity", lv, lo, hi, [=](const auto* x, auto* g) {
-        using T = std::decay_t<decltype(*g)>;
-        const T h0 = terrain_height(*field, x[p[0]], x[p[1]]);
-        T hx, hy;
-        terrain_gradient(*field, x[p[0]], x[p[1]], &hx, &hy);
-        static const double ox[4] = {1, -1, 0, 0}, oy[4] = {0, 0, 1, -1};
-        for (int i = 0; i < 4; ++i)
-          g[i] = terrain_height(*field, x[p[0]] + probe * ox[i], x[p[1]] + probe * oy[i]) - h0 -
-                 probe * (hx * ox[i] + hy * oy[i]);
+        foothold_planarity_residuals(*field, x[p[0]], x[p[1]], probe, g);
       }));
     }
   }
