@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "terrastride/planner/piece_math.hpp"
+#include "terrastride/planner/reachability.hpp"
 
 namespace terrastride::planner {
 
@@ -311,6 +312,10 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     timeline = make_timeline(gait, feet, options.cycles, options.duration);
   }
   SrbdProblem problem(robot, plan_terrain, timeline, options, start_ptr);
+  // An unreachable goal stance otherwise costs seconds of iterations before "infeasible".
+  const auto t_reach = std::chrono::steady_clock::now();
+  require_reachable(problem);
+  const double reachability_s = seconds_since(t_reach);
   if (warm.previous) problem.warm_start_from(*warm.previous, warm.shift);
   const double build_s = seconds_since(t_start);
   PlanOutcome out;
@@ -355,9 +360,10 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   const Trajectory dense = sample_solution(problem, out.solve.x, kDenseDt);
   out.trajectory.checks = dense_checks(robot, check_terrain, dense, lim);
   out.trajectory.extra["checks_dt"] = kDenseDt;
-  // Where the planner's time went (the solve is solver.wall_s): problem construction, and the
-  // sampling plus dense checks after it.
+  // Where the planner's time went (the solve is solver.wall_s): problem construction (with the
+  // reachability check), and the sampling plus dense checks after it.
   out.trajectory.extra["timings"] = {{"build_s", build_s},
+                                     {"reachability_check_s", reachability_s},
                                      {"solve_s", out.solve.wall_s},
                                      {"sample_and_checks_s", seconds_since(t_after_solve)},
                                      {"total_s", seconds_since(t_start)}};
