@@ -85,8 +85,11 @@ StanceReach reach_stance(const robot::RobotModel& robot, const terrain::HeightFi
     FootReach fr;
     fr.name = leg.name;
     // Sampling on a grid could step over a foothold the solver finds between two grid points:
-    // the box is inflated by a grid step, so every such foothold has a sample that passes.
-    const Eigen::Vector3d box = leg.range_of_motion + Eigen::Vector3d::Constant(step);
+    // the box is inflated by a grid step, so that the nearest sample (at most 0.71 steps away in
+    // xy, and as much times the slope in height) still fits wherever that foothold fits. The
+    // solver's own slack adds to that.
+    const Eigen::Vector3d box =
+        leg.range_of_motion + Eigen::Vector3d::Constant(step + stance.violation_slack);
     // The box's world xy extent (its height is free with the base height); reported uninflated.
     fr.box_min = Eigen::Vector2d::Constant(1e300);
     fr.box_max = Eigen::Vector2d::Constant(-1e300);
@@ -107,7 +110,7 @@ StanceReach reach_stance(const robot::RobotModel& robot, const terrain::HeightFi
       fr.terrain_min = std::min(fr.terrain_min, p.z());
       fr.terrain_max = std::max(fr.terrain_max, p.z());
       if (check_planar && foothold_planarity_error(terrain, p.x(), p.y(), stance.planarity_probe) >
-                              stance.planarity_tolerance)
+                              stance.planarity_tolerance + stance.violation_slack)
         return;
       ++fr.planar;
       heights.push_back(z);
@@ -148,23 +151,18 @@ StanceReach reach_stance(const robot::RobotModel& robot, const terrain::HeightFi
       why += "; none of the " + std::to_string(fr.in_box) + " points sampled there every " +
              fmt("%.0f cm", 100 * step) + " is " + planar_text;
       if (fr.terrain_max - fr.terrain_min > stance.planarity_tolerance)
-        why += fmt("; the terrain there drops %.2f m", fr.terrain_max - fr.terrain_min) +
-               " (heights " + range(fr.terrain_min, fr.terrain_max) + " m)";
+        why += fmt("; the terrain heights there span %.2f m", fr.terrain_max - fr.terrain_min) +
+               " (" + range(fr.terrain_min, fr.terrain_max) + " m)";
     }
     out.reason = why;
     return out;
   }
-  // Every foot alone can stand, but not at one base height: name the two whose heights differ most.
-  std::size_t low = 0, high = 0;
-  for (std::size_t i = 0; i < out.feet.size(); ++i) {
-    if (out.feet[i].base_heights.back().second < out.feet[low].base_heights.back().second) low = i;
-    if (out.feet[i].base_heights.front().first > out.feet[high].base_heights.front().first)
-      high = i;
-  }
-  out.reason = "no base height lets every foot stand on reachable ground " + planar_text +
-               ": foot " + out.feet[low].name + " needs the base at z " +
-               heights_text(out.feet[low].base_heights) + ", foot " + out.feet[high].name +
-               " at z " + heights_text(out.feet[high].base_heights);
+  // Every foot alone can stand, but not at one base height: list the heights each one needs.
+  out.reason = "no base height lets every foot stand on reachable ground " + planar_text + ": ";
+  for (std::size_t i = 0; i < out.feet.size(); ++i)
+    out.reason += (i == 0 ? "foot " + out.feet[i].name + " needs the base at z "
+                          : ", " + out.feet[i].name + " at z ") +
+                  heights_text(out.feet[i].base_heights);
   return out;
 }
 
@@ -225,9 +223,9 @@ void require_reachable(const SrbdProblem& problem) {
   const Layout& L = problem.layout();
   const auto& lb = problem.lower();
   // Start: base pose and every foot are fixed at the first knot, so each range-of-motion row
-  // there is a constant. Only a violation beyond what Ipopt may still call "acceptable" (its
-  // acceptable_constr_viol_tol, 0.01 by default) is rejected.
-  constexpr double kStartSlack = 0.01;
+  // there is a constant. Only a violation beyond what Ipopt may still call "acceptable" is
+  // rejected.
+  constexpr double kStartSlack = kAcceptableViolation;
   {
     const int b = L.base[0];
     const Eigen::Vector3d r(lb[b], lb[b + 1], lb[b + 2]), e(lb[b + 6], lb[b + 7], lb[b + 8]);

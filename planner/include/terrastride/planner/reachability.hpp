@@ -8,8 +8,9 @@
 // check samples each foot's box on a grid and looks for such points; a goal none of whose
 // footholds exists, or whose feet need incompatible base heights, is rejected in milliseconds
 // instead of after seconds of iterations that end "infeasible" (gap scene, 1 m goal: 73).
-// It only tests necessary conditions of the goal knot, with the box inflated by the grid step,
-// so it never rejects a request the solver could solve.
+// It only tests necessary conditions of the goal knot, with the box inflated by the grid step and
+// box and planarity relaxed by the violation an "acceptable" solve may keep, so it never rejects
+// a request the solver could solve.
 #pragma once
 
 #include <Eigen/Core>
@@ -33,6 +34,10 @@ class UnreachableRequest : public std::invalid_argument {
   using std::invalid_argument::invalid_argument;
 };
 
+// Ipopt's default acceptable_constr_viol_tol (m for lengths): a solve can end "acceptable", which
+// counts as success, with constraints violated up to this much.
+constexpr double kAcceptableViolation = 0.01;
+
 // One foot of a resting stance: the leg, and the foothold when it is fixed (a stance that began
 // before the plan and never lifts); otherwise any reachable planar point of the terrain will do.
 struct StanceFoot {
@@ -50,6 +55,10 @@ struct RestingStance {
   double planarity_tolerance = 0.01;  // m; <= 0: any terrain point will do
   double planarity_probe = 0.05;      // m
   double grid_step = 0.01;            // m, sampling of each foot's box
+  // Constraint violation a solve may still end "acceptable" with (Ipopt's
+  // acceptable_constr_viol_tol, 0.01 by default): boxes and planarity are relaxed by it, so that
+  // no stance the solver could return is rejected.
+  double violation_slack = kAcceptableViolation;
 };
 
 struct FootReach {
