@@ -433,18 +433,24 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
       base_at(tm, &b, &yaw);
       p = nominal_foot_world(robot_.legs[st.foot], b, yaw);
       // Start from the nearest locally planar spot (see the foothold_planarity constraint), so
-      // the solver does not begin with feet on step edges.
+      // the solver does not begin with feet on step edges, and one at a height the leg can reach
+      // from the guessed base (within 1.5 times the range-of-motion box's half-height of the
+      // nominal foot height): a planar trench floor 0.30 m down under the nominal foot is no
+      // foothold (gap scene, 1 m goal: the hind feet started there and the solve ended infeasible).
       const double probe = options_.clearance_probe, tol = 0.5 * options_.foothold_planarity;
-      auto planarity = [&](double x, double y) {
-        return foothold_planarity_error(terrain_, x, y, probe);
+      const auto& leg = robot_.legs[st.foot];
+      auto usable = [&](double x, double y) {
+        if (foothold_planarity_error(terrain_, x, y, probe) > tol) return false;
+        const double below_base = terrain_.height(x, y) - b.z() - leg.nominal_foot.z();
+        return std::abs(below_base) <= 1.5 * leg.range_of_motion.z();
       };
-      if (probe > 0.0 && tol > 0.0 && planarity(p.x(), p.y()) > tol) {
+      if (probe > 0.0 && tol > 0.0 && !usable(p.x(), p.y())) {
         bool found = false;
         for (int r = 1; r <= 20 && !found; ++r)
           for (const auto& dir : {Eigen::Vector2d(1, 0), Eigen::Vector2d(-1, 0),
                                   Eigen::Vector2d(0, 1), Eigen::Vector2d(0, -1)}) {
             const Eigen::Vector2d q = p.head<2>() + 0.01 * r * dir;
-            if (planarity(q.x(), q.y()) <= tol) {
+            if (usable(q.x(), q.y())) {
               p.head<2>() = q;
               found = true;
               break;

@@ -202,6 +202,27 @@ TEST(Plan, WarmStartOnTheFastCrawlReverifiesThePreviousPlan) {
   EXPECT_EQ(b.trajectory.solver.iterations, 0);
 }
 
+// The gap scene with DESIGN.md's 1 m goal: the hind feet's nominal end footholds lie on the
+// planar floor of the 0.30 m trench, out of the legs' reach; the initial guess now moves them to
+// ground the leg can reach (before: infeasible after 73 iterations).
+TEST(Plan, GapSceneWithTheOneMetreGoalSolves) {
+  const auto r = hyq();
+  auto scene = terrain::make_scene("gap");
+  auto smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  o.duration = 11.0;
+  o.max_time = 60.0;
+  const PlanOutcome out = plan_motion(r, *smooth, *scene, o, 0.01);
+  ASSERT_TRUE(out.success) << out.message;
+  EXPECT_EQ(out.trajectory.solver.status, "optimal");
+  EXPECT_NEAR(out.trajectory.samples.back().base.position.x(), 1.0, 1e-6);
+  expect_dense_targets(out.trajectory, r.mass);
+  // No stance foot ends in the trench (x in [0.50, 0.70], floor 0.30 m down).
+  for (const auto& f : out.trajectory.samples.back().feet) EXPECT_GT(f.position.z(), -0.05);
+}
+
 // The constraint points of a re-plan's first segment stay where the previous plan had them.
 TEST(Layout, CroppedFirstSegmentKeepsThePreviousConstraintPoints) {
   Layout L;
