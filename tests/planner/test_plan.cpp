@@ -28,12 +28,18 @@ void expect_dense_targets(const Trajectory& t, double mass) {
   EXPECT_LE(c.at("range_of_motion_excess_max_m"), 0.005);
 }
 
+// Planner options with a goal x metres ahead (y 0, yaw 0), the rest default.
+PlannerOptions options_to_goal(double x) {
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(x, 0.0, 0.0);
+  return o;
+}
+
 TEST(Plan, FlatCrawlReachesGoal) {
   const auto r = hyq();
   testing::FlatField flat;
-  PlannerOptions o;
-  o.has_goal = true;
-  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  PlannerOptions o = options_to_goal(1.0);
   o.duration = 2.4;
   const PlanOutcome out = plan_motion(r, flat, flat, o, 0.01);
   ASSERT_TRUE(out.success) << out.message;
@@ -59,9 +65,7 @@ PlanOutcome plan_scene(const std::string& name, bool timing = false) {
   const auto r = hyq();
   auto scene = terrain::make_scene(name);
   auto smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
-  PlannerOptions o;
-  o.has_goal = true;
-  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  PlannerOptions o = options_to_goal(1.0);
   o.duration = 0.0;  // the gait's default: 3 crawl cycles of 3.6667 s (the CLI's default)
   o.optimize_timing = timing;
   return plan_motion(r, *smooth, *scene, o, 0.01);
@@ -123,9 +127,7 @@ TEST(Plan, WarmStartFromAShiftedPlanConvergesFast) {
   const auto r = hyq();
   auto scene = terrain::make_scene("pallet_10");
   auto smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
-  PlannerOptions o;
-  o.has_goal = true;
-  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  PlannerOptions o = options_to_goal(1.0);
   const PlanOutcome cold = plan_motion(r, *smooth, *scene, o, 0.01);
   ASSERT_TRUE(cold.success) << cold.message;
   WarmStart warm;
@@ -172,9 +174,7 @@ TEST(Plan, WarmStartFromAShiftedPlanConvergesFast) {
 TEST(Plan, WarmStartOnTheFastCrawlReverifiesThePreviousPlan) {
   const auto r = hyq();
   testing::FlatField flat;
-  PlannerOptions o;
-  o.has_goal = true;
-  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  PlannerOptions o = options_to_goal(1.0);
   o.duration = 2.4;
   const PlanOutcome cold = plan_motion(r, flat, flat, o, 0.01);
   ASSERT_TRUE(cold.success) << cold.message;
@@ -209,9 +209,7 @@ TEST(Plan, GapSceneWithTheOneMetreGoalSolves) {
   const auto r = hyq();
   auto scene = terrain::make_scene("gap");
   auto smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
-  PlannerOptions o;
-  o.has_goal = true;
-  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  PlannerOptions o = options_to_goal(1.0);
   o.duration = 11.0;
   o.max_time = 60.0;
   const PlanOutcome out = plan_motion(r, *smooth, *scene, o, 0.01);
@@ -246,9 +244,7 @@ TEST(Layout, CroppedFirstSegmentKeepsThePreviousConstraintPoints) {
 TEST(Plan, ImpossibleGoalEndsNonOptimalWithoutCrash) {
   const auto r = hyq();
   testing::FlatField flat;
-  PlannerOptions o;
-  o.has_goal = true;
-  o.goal = Eigen::Vector3d(10.0, 0.0, 0.0);
+  PlannerOptions o = options_to_goal(10.0);
   o.duration = 1.0;
   o.cycles = 1;
   o.max_time = 10.0;
@@ -265,9 +261,7 @@ TEST(Plan, ImpossibleGoalEndsNonOptimalWithoutCrash) {
 TEST(Plan, UnreachableRequestStallsInsteadOfRunningToTheIterationLimit) {
   const auto r = hyq();
   testing::FlatField flat;
-  PlannerOptions o;
-  o.has_goal = true;
-  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  PlannerOptions o = options_to_goal(1.0);
   o.duration = 1.6;
   o.constraints = {"polytope"};
   o.stall_iterations = 50;
@@ -284,9 +278,7 @@ TEST(Plan, UnreachableRequestStallsInsteadOfRunningToTheIterationLimit) {
 TEST(Plan, MaxTimeIsHonouredOnRepeatedSolves) {
   const auto r = hyq();
   testing::FlatField flat;
-  PlannerOptions o;
-  o.has_goal = true;
-  o.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
+  PlannerOptions o = options_to_goal(1.0);
   o.duration = 11.0;
   o.max_time = 0.05;  // far too short for this problem
   for (int i = 0; i < 2; ++i) {
