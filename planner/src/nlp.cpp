@@ -242,17 +242,6 @@ void SrbdProblem::build_layout(const StartState* start) {
   (void)start;
 }
 
-namespace {
-
-Eigen::Vector3d nominal_foot_world(const robot::LegModel& leg, const Eigen::Vector3d& base,
-                                   double yaw) {
-  const Eigen::Vector3d n = leg.nominal_foot;
-  return base + Eigen::Vector3d(std::cos(yaw) * n.x() - std::sin(yaw) * n.y(),
-                                std::sin(yaw) * n.x() + std::cos(yaw) * n.y(), n.z());
-}
-
-}  // namespace
-
 void SrbdProblem::build_initial_guess(const StartState* start) {
   Layout& L = *layout_;
   const int S = L.num_segments;

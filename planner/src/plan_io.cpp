@@ -104,6 +104,17 @@ class Reader {
   std::string path_;
 };
 
+// The JSON document in `path`; `what` names the file's role in the error when it cannot be opened.
+json read_json_file(const std::string& path, const char* what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw PlanFileError(path + ": cannot open " + what);
+  try {
+    return json::parse(in);
+  } catch (const json::exception& e) {  // parse errors, and numbers beyond double (1e999)
+    throw PlanFileError(path + ": not valid JSON: " + e.what());
+  }
+}
+
 const char* const kKnownKeys[] = {"robot", "gait",    "duration", "sample_dt",
                                   "feet",  "samples", "solver",   "checks"};
 
@@ -258,15 +269,8 @@ SrbdProblem::StartState start_state_from_json(const json& j, const std::string& 
 
 SrbdProblem::StartState read_start_state_file(const std::string& path, const Trajectory& previous,
                                               double start_time) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw PlanFileError(path + ": cannot open start-state file");
-  json j;
-  try {
-    j = json::parse(in);
-  } catch (const json::exception& e) {  // parse errors, and numbers beyond double (1e999)
-    throw PlanFileError(path + ": not valid JSON: " + e.what());
-  }
-  return start_state_from_json(j, path, previous, start_time);
+  return start_state_from_json(read_json_file(path, "start-state file"), path, previous,
+                               start_time);
 }
 
 void write_plan_file(const std::string& path, const Trajectory& trajectory) {
@@ -289,15 +293,7 @@ void write_plan_file(const std::string& path, const Trajectory& trajectory) {
 }
 
 Trajectory read_plan_file(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw PlanFileError(path + ": cannot open plan file");
-  json j;
-  try {
-    j = json::parse(in);
-  } catch (const json::exception& e) {  // parse errors, and numbers beyond double (1e999)
-    throw PlanFileError(path + ": not valid JSON: " + e.what());
-  }
-  return plan_from_json(j, path);
+  return plan_from_json(read_json_file(path, "plan file"), path);
 }
 
 }  // namespace terrastride::planner

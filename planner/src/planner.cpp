@@ -261,6 +261,12 @@ void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
       }
 }
 
+Eigen::Vector3d goal_of(const Trajectory& plan) {
+  if (plan.samples.empty()) throw std::invalid_argument("plan has no samples");
+  const auto& last = plan.samples.back().base;
+  return Eigen::Vector3d(last.position.x(), last.position.y(), last.euler_zyx[0]);
+}
+
 SrbdProblem::StartState start_state_of(const Trajectory& plan, double t) {
   return start_state_of(interpolate_plan(plan, t));
 }
@@ -297,7 +303,6 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
       throw std::invalid_argument("--init plan is for feet that differ from robot " + robot.name);
     timeline = timeline_of(prev);
     if (warm.shift > 0.0) timeline = timeline.cropped(warm.shift);
-    start = start_state_of(prev, warm.shift);
     if (warm.start) {
       if (warm.start->foot_position.size() != feet.size() ||
           warm.start->foot_velocity.size() != feet.size())
@@ -305,6 +310,8 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
             "warm-start state has " + std::to_string(warm.start->foot_position.size()) +
             " feet, robot " + robot.name + " has " + std::to_string(feet.size()));
       start = *warm.start;
+    } else {
+      start = start_state_of(prev, warm.shift);
     }
     start_ptr = &start;
   } else {

@@ -203,10 +203,9 @@ std::string nominal_terrain_text(const robot::RobotModel& robot,
                                  double yaw) {
   std::string s;
   for (const auto& leg : robot.legs) {
-    const Eigen::Vector3d n = leg.nominal_foot;
-    const double x = xy.x() + std::cos(yaw) * n.x() - std::sin(yaw) * n.y(),
-                 y = xy.y() + std::sin(yaw) * n.x() + std::cos(yaw) * n.y();
-    s += (s.empty() ? "" : ", ") + leg.name + " " + fmt("%.2f", terrain.height(x, y));
+    const Eigen::Vector3d p =
+        robot::nominal_foot_world(leg, Eigen::Vector3d(xy.x(), xy.y(), 0.0), yaw);
+    s += (s.empty() ? "" : ", ") + leg.name + " " + fmt("%.2f", terrain.height(p.x(), p.y()));
   }
   return s + " m";
 }

@@ -160,8 +160,7 @@ void run_plan(const PlanCliOptions& o) {
     }
     po.gait = previous.gait;
     po.has_goal = true;
-    const auto& last = previous.samples.back().base;
-    po.goal = Eigen::Vector3d(last.position.x(), last.position.y(), last.euler_zyx[0]);
+    po.goal = planner::goal_of(previous);
   } else if (o.start_time != 0.0) {
     throw CommandError("--start-time: needs --init");
   } else if (!o.start_state.empty()) {

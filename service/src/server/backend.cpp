@@ -444,8 +444,7 @@ class Backend {
     if (h.contains("goal")) {
       po.goal = protocol::get_vector(h, "goal", 3);
     } else if (warm.previous) {
-      const auto& last = previous.samples.back().base;
-      po.goal = Eigen::Vector3d(last.position.x(), last.position.y(), last.euler_zyx[0]);
+      po.goal = planner::goal_of(previous);
     } else {
       po.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
     }

@@ -43,6 +43,9 @@ PhaseTimeline timeline_of(const Trajectory& plan);
 // sample at or before t).
 TrajectorySample interpolate_plan(const Trajectory& plan, double t);
 
+// The goal a re-plan of `plan` keeps: x, y and yaw of the base at its last sample.
+Eigen::Vector3d goal_of(const Trajectory& plan);
+
 // The start state a re-plan from `plan` at time t begins with (base pose and rates, feet).
 SrbdProblem::StartState start_state_of(const Trajectory& plan, double t);
 // The same from one state (a plan sample, or a measured state in plan.json's terms).

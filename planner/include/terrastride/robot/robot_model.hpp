@@ -4,6 +4,7 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <cmath>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -49,6 +50,14 @@ struct LegModel {
   double thigh_radius = 0.0; // capsule radius of the upper leg for the post-hoc check
   bool is_front = true;      // front legs have knee_sign -1 on HyQ; kept for reporting only
 };
+
+// The leg's nominal foot in the world for a base at `base` turned by `yaw` (no pitch or roll).
+inline Eigen::Vector3d nominal_foot_world(const LegModel& leg, const Eigen::Vector3d& base,
+                                          double yaw) {
+  const Eigen::Vector3d& n = leg.nominal_foot;
+  return base + Eigen::Vector3d(std::cos(yaw) * n.x() - std::sin(yaw) * n.y(),
+                                std::sin(yaw) * n.x() + std::cos(yaw) * n.y(), n.z());
+}
 
 // A robot: the single rigid body of the SRBD model and its legs.
 struct RobotModel {
