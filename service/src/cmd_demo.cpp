@@ -136,10 +136,26 @@ std::vector<std::string> find_pallet_scan() {
   return files;
 }
 
+// What `demo --out` writes, for perception::AtomicOutputDir: outputs of versions before the marker
+// file are recognised by their names (the map's folder inside included).
+perception::OutputDirKind demo_output_kind() {
+  return {"demo",
+          {"plan.json", "report.html", "report.json", "terrain/terrain.json"},
+          {"plan.json", "report.html", "report.json", "terrain/", "terrain/terrain.json",
+           "terrain/octomap.bt", "terrain/layers/", "terrain/layers/*.npy"},
+          {}};
+}
 
 void run_demo(const DemoOptions& o) {
   const auto t_all = Clock::now();
   const std::clock_t cpu0 = std::clock();
+  // Before any stage: an --out folder holding anything but an earlier demo, or an unwritable one,
+  // fails now rather than after the map and the solve.
+  try {
+    perception::check_output_dir(o.out, demo_output_kind());
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--out: ") + e.what());
+  }
   Progress progress(5, o.json_output);
   json summary{{"stages", json::object()}};
 
@@ -161,7 +177,7 @@ void run_demo(const DemoOptions& o) {
 
   // Everything goes into a temporary folder beside out/demo, renamed into place at the end.
   fs::create_directories(fs::absolute(o.out).parent_path());
-  perception::AtomicOutputDir out_dir(o.out);
+  perception::AtomicOutputDir out_dir(o.out, demo_output_kind());
   const fs::path work = out_dir.path();
   const fs::path final_dir = o.out;
 

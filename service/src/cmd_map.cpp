@@ -103,6 +103,12 @@ void parallel_for(size_t n, const Body& body) {
     if (e) std::rethrow_exception(e);
 }
 
+// What `map --out` writes, for perception::AtomicOutputDir: outputs of versions before the marker
+// file are recognised by their names (terrain.json is always there).
+perception::OutputDirKind map_output_kind() {
+  return {"map", {"terrain.json"}, {"terrain.json", "octomap.bt", "layers/", "layers/*.npy"}, {}};
+}
+
 std::string fmt(double v, int precision = 3) {
   std::ostringstream os;
   os << std::fixed << std::setprecision(precision) << v;
@@ -140,6 +146,13 @@ void run_map(const MapOptions& o) {
         std::filesystem::absolute(std::filesystem::path(o.out)).parent_path();
     if (!std::filesystem::is_directory(parent))
       throw CommandError("--out: parent directory '" + parent.string() + "' does not exist");
+  }
+  // Before reading and fusing the clouds (seconds to minutes): an existing folder that is not an
+  // earlier output (e.g. the folder of the scans themselves) or an unwritable one fails now.
+  try {
+    perception::check_output_dir(o.out, map_output_kind());
+  } catch (const perception::InputError& e) {
+    throw CommandError("--out: " + std::string(e.what()));
   }
 
   const auto t_start = Clock::now();
@@ -301,7 +314,7 @@ void run_map(const MapOptions& o) {
   json meta;
   json summary;
   try {
-    perception::AtomicOutputDir out(o.out);
+    perception::AtomicOutputDir out(o.out, map_output_kind());
     meta = terrain::write_terrain_layers(*map, out.path());
     perception::write_octomap(*tree, out.path() + "/octomap.bt");
     const auto& g = map->grid();

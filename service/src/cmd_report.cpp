@@ -3,6 +3,7 @@
 // mode: one report per scan and an index page ranking them by safe fraction).
 #include <algorithm>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <map>
 #include <memory>
@@ -64,6 +65,36 @@ void check_out_html(const std::string& out) {
   const fs::path parent = fs::absolute(out).parent_path();
   if (!fs::is_directory(parent))
     throw CommandError("--out " + out + ": folder " + parent.string() + " does not exist");
+  // Both files can be written (not a directory, socket, read-only folder...): checked before the
+  // terrain is mapped, not after.
+  try {
+    perception::check_output_file(out);
+    perception::check_output_file(fs::path(out).replace_extension(".json").string());
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--out: ") + e.what());
+  }
+}
+
+// What `report --batch --out DIR` writes, for perception::AtomicOutputDir. Outputs of versions
+// before the marker file are recognised by index.json and index.html plus exactly the reports
+// index.json lists (NAME.html and the NAME.json beside it), so a folder that merely holds some
+// .html/.json files is never taken for one.
+perception::OutputDirKind batch_output_kind() {
+  perception::OutputDirKind kind{
+      "report --batch", {"index.json", "index.html"}, {"index.json", "index.html"}, {}};
+  kind.legacy_listed = [](const std::string& dir) {
+    std::vector<std::string> names;
+    std::ifstream in(fs::path(dir) / "index.json");
+    const json index = json::parse(in);
+    for (const json& row : index.at("reports")) {
+      const std::string html = row.at("html").get<std::string>();
+      if (html.find('/') != std::string::npos || fs::path(html).extension() != ".html") continue;
+      names.push_back(html);
+      names.push_back(fs::path(html).replace_extension(".json").string());
+    }
+    return names;
+  };
+  return kind;
 }
 
 json summary_json(const json& report, const std::string& html, const std::string& json_path) {
@@ -209,6 +240,13 @@ void add_report_command(CLI::App& app) {
     // Batch mode.
     if (!o->plans.empty()) throw CommandError("--plan cannot be combined with --batch");
     if (!fs::is_directory(o->batch)) throw CommandError("--batch " + o->batch + ": not a folder");
+    // Before mapping every scan: refuse an --out folder holding anything but an earlier report
+    // (e.g. --out equal to --batch, the scans themselves), and an unwritable one.
+    try {
+      perception::check_output_dir(o->out, batch_output_kind());
+    } catch (const perception::InputError& e) {
+      throw CommandError(std::string("--out: ") + e.what());
+    }
     // One scan per name: files NAME.ext, NAME.1.ext, NAME.2.ext ... (one per sensor pose, as the
     // scan simulator writes them) are mapped together; map folders are scans of their own.
     std::map<std::string, std::vector<std::string>> groups;
@@ -225,7 +263,7 @@ void add_report_command(CLI::App& app) {
     if (scans.empty())
       throw CommandError("--batch " + o->batch +
                          ": no scans (.pcd, .ply, .xyz, .npy) or terrain folders in it");
-    perception::AtomicOutputDir out_dir(o->out);
+    perception::AtomicOutputDir out_dir(o->out, batch_output_kind());
     json rows = json::array();
     std::vector<std::string> failed;
     for (size_t i = 0; i < scans.size(); ++i) {
