@@ -267,6 +267,14 @@ void print_human(const collision::CheckReport& rep, const std::string& plan,
 void run_check(const CheckCliOptions& o) {
   if (!std::isfinite(o.resolution) || o.resolution < 0.002 || o.resolution > 0.2)
     throw CommandError("--resolution: must be in [0.002, 0.2] m");
+  if (!o.series.empty()) {
+    // Before loading the terrain and running the checks: a bad --series path fails now.
+    try {
+      perception::check_output_file(o.series);
+    } catch (const perception::InputError& e) {
+      throw CommandError(std::string("--series: ") + e.what());
+    }
+  }
   planner::Trajectory traj;
   try {
     traj = planner::read_plan_file(o.plan);

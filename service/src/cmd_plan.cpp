@@ -1,4 +1,6 @@
 // `terrastride plan`: SRBD trajectory optimisation from a start to a goal over a terrain.
+#include <unistd.h>
+
 #include <algorithm>
 #include <filesystem>
 #include <iostream>
@@ -8,6 +10,7 @@
 
 #include "terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
+#include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/plan_io.hpp"
@@ -176,6 +179,18 @@ void run_plan(const PlanCliOptions& o) {
     po.has_goal = true;
   }
 
+  // --out is checked before the solve (a probe file in its folder), so a missing or read-only
+  // folder, or a directory or socket at the path, fails in milliseconds instead of after it.
+  try {
+    perception::check_output_file(o.out);
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--out: ") + e.what());
+  }
+  // With --out /dev/stdout (or the file or terminal standard output is) the plan owns standard
+  // output; the summary, --json or not, goes to standard error so the two never interleave.
+  std::ostream& summary_out =
+      perception::same_file_as_descriptor(o.out, STDOUT_FILENO) ? std::cerr : std::cout;
+
   planner::PlanOutcome out;
   try {
     out = planner::plan_motion(model, *terrains.smooth(), *terrains.exact(), po, o.sample_dt, warm);
@@ -196,8 +211,12 @@ void run_plan(const PlanCliOptions& o) {
   // warm start or for inspection); the exit code says it is not optimal either way.
   const bool useful = out.success || violation <= 1e-3;
   if (useful) {
+    // The same text as planner::write_plan_file, written by perception::write_file_atomically:
+    // atomic for files (through symbolic links), written through for pipes and devices.
     try {
-      planner::write_plan_file(o.out, out.trajectory);
+      std::cout.flush();
+      perception::write_file_atomically(o.out,
+                                        planner::plan_to_json(out.trajectory).dump(1) + "\n");
     } catch (const std::exception& e) {
       throw CommandError(std::string("--out: ") + e.what());
     }
@@ -211,14 +230,14 @@ void run_plan(const PlanCliOptions& o) {
                             {"checks", out.trajectory.checks},
                             {"written", useful ? o.out : ""}};
   if (o.json) {
-    std::cout << summary.dump() << "\n";
+    summary_out << summary.dump() << "\n";
   } else {
-    std::cout << "plan: " << out.trajectory.solver.status << " after "
-              << out.trajectory.solver.iterations << " iterations in "
-              << out.trajectory.solver.wall_s << " s (" << out.trajectory.solver.n_variables
-              << " variables, " << out.trajectory.solver.n_constraints << " constraints)\n";
-    for (const auto& [k, v] : out.trajectory.checks) std::cout << "  " << k << " = " << v << "\n";
-    if (useful) std::cout << "wrote " << o.out << "\n";
+    summary_out << "plan: " << out.trajectory.solver.status << " after "
+                << out.trajectory.solver.iterations << " iterations in "
+                << out.trajectory.solver.wall_s << " s (" << out.trajectory.solver.n_variables
+                << " variables, " << out.trajectory.solver.n_constraints << " constraints)\n";
+    for (const auto& [k, v] : out.trajectory.checks) summary_out << "  " << k << " = " << v << "\n";
+    if (useful) summary_out << "wrote " << o.out << "\n";
   }
   if (out.trajectory.solver.status != "optimal") {
     std::string msg = out.message.empty() ? "status " + out.trajectory.solver.status : out.message;

@@ -8,6 +8,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 
+#include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/planner/polytope_fit.hpp"
 #include "terrastride/planner/polytope_model.hpp"
 #include "terrastride/robot/robot_model.hpp"
@@ -73,6 +74,14 @@ void check_counts(const PolytopeOptions& o) {
 void run_fit(const PolytopeOptions& o) {
   check_counts(o);
   const robot::RobotModel model = load(o.robot);
+  const std::string path = o.out.empty() ? planner::polytope_path_for(model) : o.out;
+  // Before the fit (seconds per leg): a missing or read-only folder, or a directory, device or
+  // socket at the path, fails now.
+  try {
+    perception::check_output_file(path);
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string(o.out.empty() ? "" : "--out: ") + e.what());
+  }
   planner::PolytopeFitOptions fo;
   fo.samples = o.samples;
   fo.seed = o.seed;
@@ -95,7 +104,6 @@ void run_fit(const PolytopeOptions& o) {
                 o.samples, static_cast<unsigned long long>(o.seed), o.box_scale, o.l_refs,
                 o.alpha_refs, o.smoothness);
   fitted.fit_summary = summary;
-  const std::string path = o.out.empty() ? planner::polytope_path_for(model) : o.out;
   try {
     planner::save_polytope_model(fitted, model, path);
   } catch (const planner::PolytopeFileError& e) {

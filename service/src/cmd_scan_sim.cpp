@@ -4,12 +4,17 @@
 // pose, each a PCD whose VIEWPOINT is that pose's sensor origin (so `map` carves free space from
 // the right place): --out FILE.pcd holds the first pose, FILE.1.pcd, FILE.2.pcd ... the others.
 // Map them together with `terrastride map FILE*.pcd`.
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
-#include <random>
 
+#include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/cloud_io.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/scan_sim.hpp"
@@ -50,6 +55,17 @@ void run_scan_sim(const ScanSimOptions& o) {
   if (!fs::is_directory(dir))
     throw CommandError("--out: directory '" + dir.string() + "' does not exist");
   if (o.poses < 1 || o.poses > 8) throw CommandError("--poses: must be between 1 and 8");
+  // Every file this run writes (FILE.pcd, FILE.1.pcd, ...), checked before the simulation.
+  std::vector<perception::OutputFile> finals;
+  for (int k = 0; k < o.poses; ++k) {
+    fs::path f = out;
+    if (k > 0) f.replace_extension("." + std::to_string(k) + ".pcd");
+    try {
+      finals.push_back(perception::check_output_file(f.string()));
+    } catch (const perception::InputError& e) {
+      throw CommandError(std::string("--out: ") + e.what());
+    }
+  }
 
   terrain::DepthSensorOptions so;
   so.height = o.height;
@@ -66,23 +82,37 @@ void run_scan_sim(const ScanSimOptions& o) {
     throw CommandError(std::string("--height/--pitch: ") + e.what());
   }
 
-  // Write every pose to a temporary name first, then rename them all: nothing half-written.
-  std::vector<fs::path> finals, temps;
-  const std::string tag = std::to_string(std::random_device{}());
-  for (size_t k = 0; k < scans.size(); ++k) {
-    fs::path f = out;
-    if (k > 0) f.replace_extension("." + std::to_string(k) + ".pcd");
-    finals.push_back(f);
-    temps.push_back(dir / (".scan-sim-" + tag + "-" + std::to_string(k) + ".pcd"));
-  }
+  if (scans.size() != finals.size())
+    throw CommandError("scan-sim: " + std::to_string(scans.size()) + " scans for " +
+                       std::to_string(finals.size()) + " poses");
+
+  // Write every pose to a temporary name first (beside the file it replaces, a symbolic link's
+  // target included), then rename them all: nothing half-written. A device or pipe is written
+  // through afterwards instead (renaming over it would destroy it). Temporaries of a killed run
+  // are removed by the next one (perception::temporary_path_for).
+  std::vector<std::string> temps(scans.size());
   auto cleanup = [&] {
-    std::error_code ec;
-    for (const auto& t : temps) fs::remove(t, ec);
+    for (const auto& t : temps)
+      if (!t.empty()) ::unlink(t.c_str());
+  };
+  const auto renamed = [](const perception::OutputFile& f) {
+    return f.kind == perception::OutputFile::Kind::kNew ||
+           f.kind == perception::OutputFile::Kind::kRegular;
   };
   try {
+    for (size_t k = 0; k < scans.size(); ++k) {
+      if (!renamed(finals[k])) continue;
+      temps[k] = perception::temporary_path_for(finals[k].target);
+      perception::write_pcd(scans[k].cloud, temps[k]);
+    }
+    for (size_t k = 0; k < scans.size(); ++k) {
+      if (!renamed(finals[k])) continue;
+      if (::rename(temps[k].c_str(), finals[k].target.c_str()) != 0)
+        throw perception::InputError(finals[k].path + ": rename failed: " + std::strerror(errno));
+      temps[k].clear();
+    }
     for (size_t k = 0; k < scans.size(); ++k)
-      perception::write_pcd(scans[k].cloud, temps[k].string());
-    for (size_t k = 0; k < scans.size(); ++k) fs::rename(temps[k], finals[k]);
+      if (!renamed(finals[k])) perception::write_pcd(scans[k].cloud, finals[k].path);
   } catch (const std::exception& e) {
     cleanup();
     throw CommandError("--out: cannot write '" + o.out + "': " + e.what());
@@ -91,7 +121,7 @@ void run_scan_sim(const ScanSimOptions& o) {
   json files = json::array();
   for (size_t k = 0; k < scans.size(); ++k) {
     const auto& c = scans[k].cloud;
-    files.push_back({{"path", finals[k].string()},
+    files.push_back({{"path", finals[k].path},
                      {"points", c.points.size()},
                      {"origin", {c.sensor_origin->x(), c.sensor_origin->y(), c.sensor_origin->z()}},
                      {"pixels", scans[k].pixels},
