@@ -9,7 +9,9 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
+#include <string_view>
 
 #include "cloud_io_internal.hpp"
 #include "terrastride/perception/atomic_output.hpp"
@@ -42,7 +44,10 @@ std::string read_whole_file(const std::string& path) {
   if (!in) throw InputError(path + ": cannot open file: " + std::strerror(errno));
   std::string data;
   in.seekg(0, std::ios::end);
-  data.resize(static_cast<size_t>(in.tellg()));
+  const std::streamoff size = in.tellg();
+  // A pipe or device has no size; resizing to (size_t)-1 would throw bad_alloc, not an InputError.
+  if (size < 0) throw InputError(path + ": cannot determine the file size (not a regular file?)");
+  data.resize(static_cast<size_t>(size));
   in.seekg(0);
   in.read(data.data(), static_cast<std::streamsize>(data.size()));
   if (!in) throw InputError(path + ": read error");
@@ -77,18 +82,33 @@ detail::RawCloud read_xyz_text(const std::string& path) {
     while (n < 3) {
       while (q < content_end && is_separator(*q)) ++q;
       if (q >= content_end) break;
-      if (*q == '+') ++q;  // from_chars does not take a leading '+'
-      const auto [next, err] = std::from_chars(q, content_end, v[n]);
-      if (err == std::errc::result_out_of_range) {
-        v[n] = std::numeric_limits<float>::infinity();  // dropped later as non-finite
-      } else if (err != std::errc() || (next < content_end && !is_separator(*next))) {
-        throw InputError(path + ": line " + std::to_string(line_no) +
-                         ": expected numbers 'x y z', found '" +
-                         std::string(p, std::min<size_t>(40, line_end - p)) + "'");
+      const char* token = q;
+      // from_chars does not take a leading '+' (and "+-1" is not a number).
+      if (*q == '+' && q + 1 < content_end && q[1] != '-') ++q;
+      // Parsed as double and narrowed: from_chars<float> calls "1e-50" out of range, which would
+      // turn a near-zero coordinate into a dropped point.
+      double d = 0;
+      const auto [next, err] = std::from_chars(q, content_end, d);
+      const char* token_end = q;
+      while (token_end < content_end && !is_separator(*token_end)) ++token_end;
+      bool ok = err == std::errc() && next == token_end;
+      constexpr float kMax = std::numeric_limits<float>::max();
+      constexpr float kInf = std::numeric_limits<float>::infinity();
+      v[n] = d > kMax ? kInf : d < -kMax ? -kInf : static_cast<float>(d);
+      if (err == std::errc::result_out_of_range &&
+          std::string_view(q, token_end - q).find_first_not_of("0123456789.eE+-") ==
+              std::string_view::npos) {
+        v[n] = kInf;  // beyond even a double: dropped later as non-finite
+        ok = true;
       }
-      q = next;
-      // from_chars leaves `next` at the token start on out_of_range; skip the token.
-      while (q < content_end && !is_separator(*q)) ++q;
+      if (!ok) {
+        static const char* const kAxis[] = {"x", "y", "z"};
+        const std::string_view bad(token, std::min<size_t>(40, token_end - token));
+        throw InputError(path + ": line " + std::to_string(line_no) + ": column " +
+                         std::to_string(n + 1) + " (" + kAxis[n] + "): '" + std::string(bad) +
+                         "' is not a number");
+      }
+      q = token_end;
       ++n;
     }
     if (n == 3) {
@@ -108,12 +128,22 @@ detail::RawCloud read_npy_cloud(const std::string& path) {
     throw InputError(path + ": NPY dtype '" + a.dtype +
                      "' is not a point cloud; expected float32 (<f4) or float64 (<f8)");
   }
+  std::ostringstream shape;
+  shape << "(";
+  for (size_t i = 0; i < a.shape.size(); ++i) shape << (i ? ", " : "") << a.shape[i];
+  shape << (a.shape.size() == 1 ? ",)" : ")");
   if (a.shape.size() != 2 || a.shape[1] < 3) {
-    std::ostringstream s;
-    s << "(";
-    for (size_t i = 0; i < a.shape.size(); ++i) s << (i ? ", " : "") << a.shape[i];
-    s << (a.shape.size() == 1 ? ",)" : ")");
-    throw InputError(path + ": NPY shape " + s.str() + " is not a point cloud; expected (N, 3)");
+    throw InputError(path + ": NPY shape " + shape.str() +
+                     " is not a point cloud; expected (N, 3)");
+  }
+  // (3, N) is x, y, z stored as rows, one column per point: read as (N, >=3) it would make three
+  // points out of the first three columns. A cloud with more values per point than points is
+  // implausible, while (2, 4) (two points with an extra column) cannot be a transposed x y z.
+  if (a.shape[0] >= 3 && a.shape[1] > a.shape[0]) {
+    throw InputError(path + ": NPY shape " + shape.str() +
+                     " has more columns than rows: it looks like one row per coordinate and one "
+                     "column per point; a cloud is one row per point, shape (N, 3) or (N, >=3): "
+                     "save the transpose (numpy: np.save(path, a.T))");
   }
   detail::RawCloud raw;
   const size_t rows = a.shape[0], cols = a.shape[1];

@@ -35,6 +35,14 @@ class HeaderParser {
       const std::string key = parse_string();
       expect(':');
       if (key == "descr") {
+        skip_ws();
+        if (peek() == '[') {
+          // Fields are named in a list of tuples, e.g. [('x', '<f4'), ('y', '<f4'), ...].
+          throw InputError(file_ +
+                           ": NPY array has a structured dtype (named fields); only plain "
+                           "numeric arrays are supported: save a float array of shape "
+                           "(N, 3), e.g. np.stack([a['x'], a['y'], a['z']], axis=1)");
+        }
         descr = parse_string();
         have_descr = true;
       } else if (key == "fortran_order") {
@@ -231,10 +239,6 @@ NpyArray read_npy(const std::string& path) {
   NpyArray a;
   bool fortran = false;
   HeaderParser(header, path).parse(a.dtype, fortran, a.shape);
-  if (fortran) {
-    throw InputError(path + ": NPY array is in Fortran order; save it in C order " +
-                     "(numpy.ascontiguousarray)");
-  }
   a.item_size = item_size_of(a.dtype);
   if (a.item_size == 0) {
     throw InputError(path + ": unsupported NPY dtype '" + a.dtype +
@@ -261,9 +265,29 @@ NpyArray read_npy(const std::string& path) {
     throw InputError(path + ": NPY data is truncated (header promises " + std::to_string(payload) +
                      " bytes, file has " + std::to_string(end - here) + ")");
   }
+  // np.save writes exactly the array; more bytes mean a wrong shape in the header or several
+  // arrays saved into one file, and reading only the first part would silently lose data.
+  if (end - here > static_cast<std::streamoff>(payload)) {
+    const auto extra = static_cast<uint64_t>(end - here) - payload;
+    throw InputError(path + ": NPY file has " + std::to_string(extra) +
+                     " bytes after the data of its header's shape (" + std::to_string(payload) +
+                     " bytes): wrong shape in the header, or more than one array in the file");
+  }
   a.bytes.resize(payload);
   in.read(a.bytes.data(), static_cast<std::streamsize>(payload));
   if (!in) throw InputError(path + ": cannot read NPY data");
+  // numpy writes a transposed array (a.T) in Fortran order: column after column. Reordered here
+  // so that every reader sees rows; a 1-D array is the same either way.
+  if (fortran && a.shape.size() == 2 && a.shape[0] > 1 && a.shape[1] > 1) {
+    const size_t rows = a.shape[0], cols = a.shape[1], item = a.item_size;
+    std::vector<char> c_order(payload);
+    for (size_t c = 0; c < cols; ++c) {
+      for (size_t r = 0; r < rows; ++r) {
+        std::memcpy(&c_order[(r * cols + c) * item], &a.bytes[(c * rows + r) * item], item);
+      }
+    }
+    a.bytes.swap(c_order);
+  }
   return a;
 }
 

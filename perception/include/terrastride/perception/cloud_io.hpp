@@ -15,11 +15,17 @@ namespace terrastride::perception {
 //               identity-zero default becomes sensor_origin.
 //   .ply        PCL's PLY reader (extra properties such as normals or intensity are ignored).
 //   .xyz, .txt  text, "x y z" per line; extra columns ignored; '#' starts a comment; blank lines
-//   ok. .npy        float32/float64 array of shape (N, >=3), C order, little endian; columns 0..2 =
-//   x y z.
-// Non-finite points are dropped (count them with read_cloud_stats). `origin`, when given, overrides
-// the file's sensor origin. Throws InputError naming the file and the problem: missing/unreadable,
-// unknown extension, mislabeled content (e.g. a .pcd that is text garbage), empty, all non-finite.
+//               ok.
+//   .npy        float32/float64 array of shape (N, >=3), little endian, C or Fortran order;
+//               columns 0..2 = x y z. (3, N) and other shapes with more columns than rows (and at
+//               least 3 rows) are refused as transposed.
+// Non-finite points are dropped (the ReadStats overload counts them). `origin`, when given,
+// overrides the file's sensor origin. Throws InputError naming the file and the problem:
+// missing/unreadable, unknown extension, mislabeled content (e.g. a .pcd that is text garbage),
+// empty, all non-finite, and a body that disagrees with its header: a value that is not a number
+// (named by line and field), a line with the wrong number of values, fewer or more points than the
+// header says, binary data shorter than the header says or with non-zero data after the declared
+// points.
 PointCloud read_cloud(const std::string& path,
                       std::optional<Eigen::Vector3d> origin = std::nullopt);
 

@@ -18,7 +18,7 @@ void write_npy(const std::string& path, const uint8_t* data, size_t rows, size_t
 struct NpyArray {
   std::string dtype;           // numpy descr as in the file, e.g. "<f4", "<f8", "|u1"
   std::vector<size_t> shape;   // 1-D arrays have one entry
-  bool fortran_order = false;  // always false: fortran order is rejected
+  bool fortran_order = false;  // always false: Fortran-order files are reordered to C order
   std::vector<char> bytes;     // raw little-endian data, size = product(shape) * itemsize
   size_t item_size = 0;
   size_t rows() const { return shape.empty() ? 0 : shape[0]; }
@@ -27,8 +27,9 @@ struct NpyArray {
   double at(size_t r, size_t c) const;
 };
 
-// Reads a 1-D or 2-D C-order array of dtype <f4 <f8 |u1 <i4 <i8. Throws InputError naming the file
-// on a bad magic/header, fortran order, big-endian or other dtype, or a truncated data section.
+// Reads a 1-D or 2-D array of dtype <f4 <f8 |u1 <i4 <i8 (Fortran order is reordered to C order).
+// Throws InputError naming the file on a bad magic/header, a big-endian, structured or other dtype,
+// or a data section shorter or longer than the header's shape.
 NpyArray read_npy(const std::string& path);
 
 }  // namespace terrastride::perception
