@@ -2,7 +2,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdint>
 #include <limits>
+#include <string>
 #include <vector>
 
 #include "terrastride/perception/cloud_io.hpp"
@@ -313,7 +315,7 @@ TEST(ReadCloudErrors, NpyWrongDtypeShapeOrder) {
   write_npy(dir.file("n2.npy"), two.data(), 3, 2);
   expect_input_error([&] { read_cloud(dir.file("n2.npy")); }, {"n2.npy", "shape (3, 2)"});
 
-  // Hand-written headers: fortran order, 1-D, big endian, text garbage.
+  // Hand-written headers: 1-D, big endian, truncated, text garbage.
   const auto npy_with = [&](const std::string& name, const std::string& dict, size_t payload) {
     std::string header = dict;
     while ((10 + header.size() + 1) % 64) header += ' ';
@@ -324,8 +326,6 @@ TEST(ReadCloudErrors, NpyWrongDtypeShapeOrder) {
     bytes += header + std::string(payload, '\0');
     write_text(dir.file(name), bytes);
   };
-  npy_with("f.npy", "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 3), }", 24);
-  expect_input_error([&] { read_cloud(dir.file("f.npy")); }, {"f.npy", "Fortran order"});
   npy_with("one.npy", "{'descr': '<f4', 'fortran_order': False, 'shape': (6,), }", 24);
   expect_input_error([&] { read_cloud(dir.file("one.npy")); }, {"one.npy", "shape (6,)"});
   npy_with("be.npy", "{'descr': '>f4', 'fortran_order': False, 'shape': (2, 3), }", 24);
@@ -345,6 +345,298 @@ TEST(ReadCloudErrors, NonFiniteOriginArgument) {
                    Eigen::Vector3d(0, std::numeric_limits<double>::quiet_NaN(), 0));
       },
       {"scan.xyz", "origin"});
+}
+
+// ---- strict readers (issue #13): a body that disagrees with its header is an error ----
+//
+// PCL reads an unparsable ASCII value as 0 (PCD) or NaN (PLY), skips PCD lines with the wrong
+// number of values, and ignores points beyond the header's count. Each case below used to give a
+// wrong cloud (or a vague "PCL reader failed") without a word.
+
+// A 10-line ASCII PCD header with x y z float fields: body line k is file line 10 + k.
+std::string ascii_pcd(size_t points, const std::string& body) {
+  const std::string n = std::to_string(points);
+  return "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\n"
+         "TYPE F F F\nCOUNT 1 1 1\nWIDTH " +
+         n + "\nHEIGHT 1\nPOINTS " + n + "\nDATA ascii\n" + body;
+}
+
+// A 7-line ASCII PLY header with float x y z: body line k is file line 7 + k.
+std::string ascii_ply(size_t points, const std::string& body) {
+  return "ply\nformat ascii 1.0\nelement vertex " + std::to_string(points) +
+         "\nproperty float x\nproperty float y\nproperty float z\nend_header\n" + body;
+}
+
+std::string float_bytes(const std::vector<float>& v) {
+  return std::string(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(float));
+}
+
+TEST(StrictCloudReaders, PcdNonNumericValueNamesLineAndField) {
+  ScratchDir dir;
+  write_text(dir.file("abc.pcd"), ascii_pcd(3, "1 2 3\n5 abc 0\n4 5 6\n"));
+  expect_input_error([&] { read_cloud(dir.file("abc.pcd")); },
+                     {"abc.pcd", "line 12", "field 'y'", "'abc' is not a number"});
+  // A number followed by garbage: PCL would read its numeric prefix.
+  write_text(dir.file("pre.pcd"), ascii_pcd(2, "1 2 3\n4 5 6.5cm\n"));
+  expect_input_error([&] { read_cloud(dir.file("pre.pcd")); },
+                     {"pre.pcd", "line 12", "field 'z'", "'6.5cm'"});
+}
+
+TEST(StrictCloudReaders, PcdPointCountMustMatchTheData) {
+  ScratchDir dir;
+  // More points than declared: PCL stops after POINTS and drops the rest.
+  write_text(dir.file("more.pcd"), ascii_pcd(2, "1 2 3\n4 5 6\n7 8 9\n10 11 12\n\n"));
+  expect_input_error([&] { read_cloud(dir.file("more.pcd")); },
+                     {"more.pcd", "header says 2 points", "2 more line(s)", "from line 13"});
+  // Fewer: the data ends early.
+  write_text(dir.file("less.pcd"), ascii_pcd(5, "1 2 3\n4 5 6\n7 8 9\n"));
+  expect_input_error([&] { read_cloud(dir.file("less.pcd")); },
+                     {"less.pcd", "header says 5 points, data ends after 3", "line 13"});
+  // A huge count with a tiny body is refused without allocating what the header promises.
+  write_text(dir.file("huge.pcd"), ascii_pcd(2000000000, "1 2 3\n"));
+  expect_input_error([&] { read_cloud(dir.file("huge.pcd")); },
+                     {"huge.pcd", "header says 2000000000 points, data ends after 1"});
+  // WIDTH x HEIGHT must be POINTS.
+  std::string text = ascii_pcd(3, "1 2 3\n4 5 6\n7 8 9\n");
+  text.replace(text.find("POINTS 3"), 8, "POINTS 4");
+  write_text(dir.file("wh.pcd"), text);
+  expect_input_error([&] { read_cloud(dir.file("wh.pcd")); },
+                     {"wh.pcd", "WIDTH 3 x HEIGHT 1 is not POINTS 4"});
+}
+
+TEST(StrictCloudReaders, PcdLineWithWrongValueCountIsNamed) {
+  ScratchDir dir;
+  // PCL skipped such a line and took the next one as the point ("1 1 1" here).
+  write_text(dir.file("skip.pcd"), ascii_pcd(3, "1 2 3\n4 5\n7 8 9\n1 1 1\n"));
+  expect_input_error([&] { read_cloud(dir.file("skip.pcd")); },
+                     {"skip.pcd", "line 12", "expected 3 values (x y z), found 2"});
+  // Truncated in the middle of a line: said so instead of "PCL reader failed".
+  write_text(dir.file("cut.pcd"), ascii_pcd(3, "1 2 3\n4 5 6\n7.2"));
+  expect_input_error([&] { read_cloud(dir.file("cut.pcd")); },
+                     {"cut.pcd", "line 13", "expected 3 values (x y z), found 1", "truncated"});
+  // Commas are not PCD separators.
+  write_text(dir.file("csv.pcd"), ascii_pcd(1, "1,2,3\n"));
+  expect_input_error([&] { read_cloud(dir.file("csv.pcd")); }, {"csv.pcd", "line 11", "found 1"});
+}
+
+TEST(StrictCloudReaders, PcdHeaderInconsistencyIsNamed) {
+  ScratchDir dir;
+  std::string text = ascii_pcd(1, "1 2 3\n");
+  text.replace(text.find("SIZE 4 4 4"), 10, "SIZE 4 4");
+  write_text(dir.file("size.pcd"), text);
+  expect_input_error([&] { read_cloud(dir.file("size.pcd")); },
+                     {"size.pcd", "3 FIELDS but 2 SIZE entries"});
+  text = ascii_pcd(1, "1 2 3\n");
+  text.replace(text.find("DATA ascii"), 10, "DATA text");
+  write_text(dir.file("data.pcd"), text);
+  expect_input_error([&] { read_cloud(dir.file("data.pcd")); },
+                     {"data.pcd", "DATA 'text' is not ascii, binary or binary_compressed"});
+}
+
+TEST(StrictCloudReaders, RealWorldAsciiPcdStillReads) {
+  ScratchDir dir;
+  // An organised 2 x 2 cloud as PCL writes it: extra fields (intensity, packed rgb, a COUNT 2
+  // field), NaN points, CRLF line ends, a header comment, blank lines at the end.
+  write_text(dir.file("org.pcd"),
+             "# .PCD v0.7 - Point Cloud Data file format\r\nVERSION 0.7\r\n"
+             "FIELDS x y z intensity rgb ring\r\nSIZE 4 4 4 4 4 2\r\nTYPE F F F F F U\r\n"
+             "COUNT 1 1 1 1 1 2\r\nWIDTH 2\r\nHEIGHT 2\r\nVIEWPOINT 0 0 0 1 0 0 0\r\n"
+             "POINTS 4\r\nDATA ascii\r\n"
+             "1 2 3 0.5 4.2108e+06 7 8\r\n"
+             "nan nan nan 0 0 0 0\r\n"
+             "-4.5 +5 6e-1 12 1.1e-38 1 2\r\n"
+             "NaN NaN NaN 0 0 0 0\r\n\r\n\r\n");
+  ReadStats stats;
+  const PointCloud c = read_cloud(dir.file("org.pcd"), std::nullopt, &stats);
+  ASSERT_EQ(c.points.size(), 2u);
+  EXPECT_EQ(stats.non_finite, 2u);
+  EXPECT_EQ(c.points[0], Eigen::Vector3f(1, 2, 3));
+  EXPECT_EQ(c.points[1], Eigen::Vector3f(-4.5f, 5, 0.6f));
+  // No final newline after the last point (the old size estimate refused this).
+  write_text(dir.file("nonl.pcd"), ascii_pcd(3, "1 2 3\n4 5 6\n7 8 9"));
+  EXPECT_EQ(read_cloud(dir.file("nonl.pcd")).points.back(), Eigen::Vector3f(7, 8, 9));
+}
+
+TEST(StrictCloudReaders, BinaryPcdLongerThanItsHeader) {
+  ScratchDir dir;
+  const std::string header =
+      "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\n"
+      "POINTS 2\nDATA binary\n";
+  // Three points of data under a header that says two: the third would be dropped.
+  write_text(dir.file("more.pcd"), header + float_bytes({1, 2, 3, 4, 5, 6, 7, 8, 9}));
+  expect_input_error([&] { read_cloud(dir.file("more.pcd")); },
+                     {"more.pcd", "header says 2 points", "12 more bytes", "room for 1 more"});
+  // Zero padding after the data, as old PCL versions wrote (the real grid_map sample has it),
+  // and a stray final newline are fine.
+  write_text(dir.file("pad.pcd"),
+             header + float_bytes({1, 2, 3, 4, 5, 6}) + std::string(4096, '\0'));
+  EXPECT_EQ(read_cloud(dir.file("pad.pcd")).points.size(), 2u);
+  write_text(dir.file("nl.pcd"), header + float_bytes({1, 2, 3, 4, 5, 6}) + "\n");
+  EXPECT_EQ(read_cloud(dir.file("nl.pcd")).points.size(), 2u);
+}
+
+TEST(StrictCloudReaders, CompressedPcdSizesMustMatchTheHeader) {
+  ScratchDir dir;
+  const auto u32 = [](uint32_t v) { return std::string(reinterpret_cast<const char*>(&v), 4); };
+  const auto pcd = [&](size_t points, const std::vector<float>& soa) {
+    // LZF: a control byte c < 32 is a literal run of c + 1 bytes. binary_compressed stores the
+    // fields one after the other (all x, then all y, then all z).
+    const std::string raw = float_bytes(soa);
+    const std::string lzf = std::string(1, static_cast<char>(raw.size() - 1)) + raw;
+    const std::string n = std::to_string(points);
+    return "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH " + n +
+           "\nHEIGHT 1\nPOINTS " + n + "\nDATA binary_compressed\n" + u32(lzf.size()) +
+           u32(raw.size()) + lzf;
+  };
+  write_text(dir.file("ok.pcd"), pcd(2, {1, 4, 2, 5, 3, 6}));
+  const PointCloud c = read_cloud(dir.file("ok.pcd"));
+  ASSERT_EQ(c.points.size(), 2u);
+  EXPECT_EQ(c.points[1], Eigen::Vector3f(4, 5, 6));
+  // The compressed block holds 3 points, the header says 2.
+  write_text(dir.file("more.pcd"), pcd(2, {1, 4, 7, 2, 5, 8, 3, 6, 9}));
+  expect_input_error(
+      [&] { read_cloud(dir.file("more.pcd")); },
+      {"more.pcd", "header says 2 points (24 bytes)", "unpacks to 36 bytes (3 points)"});
+  std::string cut = pcd(2, {1, 4, 2, 5, 3, 6});
+  cut.resize(cut.size() - 5);
+  write_text(dir.file("cut.pcd"), cut);
+  expect_input_error([&] { read_cloud(dir.file("cut.pcd")); }, {"cut.pcd", "truncated"});
+}
+
+TEST(StrictCloudReaders, PlyNonNumericValueNamesLineAndProperty) {
+  ScratchDir dir;
+  // PCL read 'abc' as NaN, so the point vanished as "non-finite".
+  write_text(dir.file("abc.ply"), ascii_ply(3, "1 2 3\n5 abc 0\n4 5 6\n"));
+  expect_input_error(
+      [&] { read_cloud(dir.file("abc.ply")); },
+      {"abc.ply", "line 9", "point 2 of 3", "property 'y'", "'abc' is not a number"});
+}
+
+TEST(StrictCloudReaders, PlyVertexCountMustMatchTheData) {
+  ScratchDir dir;
+  write_text(dir.file("more.ply"), ascii_ply(3, "1 2 3\n4 5 6\n7 8 9\n1 1 1\n\n"));
+  expect_input_error([&] { read_cloud(dir.file("more.ply")); },
+                     {"more.ply", "header says 3 points", "1 more line(s)", "from line 11"});
+  write_text(dir.file("less.ply"), ascii_ply(5, "1 2 3\n4 5 6\n7 8 9\n"));
+  expect_input_error([&] { read_cloud(dir.file("less.ply")); },
+                     {"less.ply", "header says 5 points, data ends after 3"});
+  write_text(dir.file("short.ply"), ascii_ply(3, "1 2 3\n4 5\n7 8 9\n"));
+  expect_input_error([&] { read_cloud(dir.file("short.ply")); },
+                     {"short.ply", "line 9", "point 2 of 3", "expected 3 values, found 2"});
+  // A blank line inside the data is a missing point, not a separator.
+  write_text(dir.file("blank.ply"), ascii_ply(3, "1 2 3\n\n4 5 6\n7 8 9\n"));
+  expect_input_error([&] { read_cloud(dir.file("blank.ply")); },
+                     {"blank.ply", "line 9", "expected 3 values, found 0"});
+}
+
+TEST(StrictCloudReaders, PlyWithFacesCommentsAndCrlfStillReads) {
+  ScratchDir dir;
+  const std::string header =
+      "ply\r\nformat ascii 1.0\r\ncomment made by hand\r\nelement vertex 3\r\n"
+      "property float x\r\nproperty float y\r\nproperty float z\r\nproperty uchar red\r\n"
+      "element face 1\r\nproperty list uchar int vertex_indices\r\nend_header\r\n";
+  write_text(dir.file("mesh.ply"), header + "1 2 3 255\r\n4 5 6 0\r\n7 8 9 12\r\n3 0 1 2\r\n\r\n");
+  const PointCloud c = read_cloud(dir.file("mesh.ply"));
+  ASSERT_EQ(c.points.size(), 3u);
+  EXPECT_EQ(c.points[2], Eigen::Vector3f(7, 8, 9));
+  // No final newline (the old size estimate refused this).
+  write_text(dir.file("nonl.ply"), ascii_ply(3, "1 2 3\n4 5 6\n7 8 9"));
+  EXPECT_EQ(read_cloud(dir.file("nonl.ply")).points.size(), 3u);
+  // A face list with a bad length or too few indices.
+  write_text(dir.file("face.ply"), header + "1 2 3 255\r\n4 5 6 0\r\n7 8 9 12\r\nx 0 1 2\r\n");
+  expect_input_error([&] { read_cloud(dir.file("face.ply")); },
+                     {"face.ply", "line 15", "'face' 1 of 1", "length 'x'"});
+  write_text(dir.file("face2.ply"), header + "1 2 3 255\r\n4 5 6 0\r\n7 8 9 12\r\n3 0 1\r\n");
+  expect_input_error([&] { read_cloud(dir.file("face2.ply")); },
+                     {"face2.ply", "line 15", "expected 4 values, found 3"});
+}
+
+TEST(StrictCloudReaders, BinaryPlyLongerThanItsHeader) {
+  ScratchDir dir;
+  const std::string header =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty float x\n"
+      "property float y\nproperty float z\nend_header\n";
+  write_text(dir.file("more.ply"), header + float_bytes({1, 2, 3, 4, 5, 6, 7, 8, 9}));
+  expect_input_error([&] { read_cloud(dir.file("more.ply")); },
+                     {"more.ply", "header says 2 points", "12 more bytes"});
+  write_text(dir.file("ok.ply"), header + float_bytes({1, 2, 3, 4, 5, 6}));
+  EXPECT_EQ(read_cloud(dir.file("ok.ply")).points.back(), Eigen::Vector3f(4, 5, 6));
+}
+
+TEST(StrictCloudReaders, XyzNamesTheColumnAndKeepsTinyValues) {
+  ScratchDir dir;
+  write_text(dir.file("w.xyz"), "1 2 3\n4 five 6\n");
+  expect_input_error([&] { read_cloud(dir.file("w.xyz")); },
+                     {"w.xyz", "line 2", "column 2 (y)", "'five' is not a number"});
+  write_text(dir.file("pm.xyz"), "+-1 2 3\n");
+  expect_input_error([&] { read_cloud(dir.file("pm.xyz")); },
+                     {"pm.xyz", "line 1", "column 1 (x)", "'+-1'"});
+  // Below float's range is zero, not "non-finite" (from_chars<float> calls it out of range).
+  write_text(dir.file("tiny.xyz"), "1 2 1e-50\n4 5 -3e-300\n");
+  ReadStats stats;
+  const PointCloud c = read_cloud(dir.file("tiny.xyz"), std::nullopt, &stats);
+  ASSERT_EQ(c.points.size(), 2u);
+  EXPECT_EQ(stats.non_finite, 0u);
+  EXPECT_EQ(c.points[0].z(), 0.0f);
+  EXPECT_EQ(c.points[1].z(), 0.0f);
+}
+
+// Writes an NPY v1 file with the given header dict and payload.
+void write_raw_npy(const std::string& path, const std::string& dict, const std::string& payload) {
+  std::string header = dict;
+  while ((10 + header.size() + 1) % 64) header += ' ';
+  header += '\n';
+  std::string bytes("\x93NUMPY\x01\x00", 8);
+  bytes += static_cast<char>(header.size() & 0xff);
+  bytes += static_cast<char>(header.size() >> 8);
+  write_text(path, bytes + header + payload);
+}
+
+TEST(StrictCloudReaders, NpyTransposedShapeIsRefused) {
+  ScratchDir dir;
+  // Five points stored as rows x, y, z: read as (N, >=3) this made 3 points of the first columns.
+  const std::vector<float> xyz_rows = {1, 2, 3, 4, 5, 10, 20, 30, 40, 50, 7, 7, 7, 7, 7};
+  write_npy(dir.file("t.npy"), xyz_rows.data(), 3, 5);
+  expect_input_error([&] { read_cloud(dir.file("t.npy")); },
+                     {"t.npy", "shape (3, 5)", "more columns than rows", "transpose"});
+  write_npy(dir.file("t4.npy"), xyz_rows.data(), 3, 4);
+  expect_input_error([&] { read_cloud(dir.file("t4.npy")); }, {"t4.npy", "shape (3, 4)"});
+  // (3, 3) is three points; (N, 4) is N points with an extra column.
+  write_npy(dir.file("sq.npy"), xyz_rows.data(), 3, 3);
+  EXPECT_EQ(read_cloud(dir.file("sq.npy")).points.size(), 3u);
+}
+
+TEST(StrictCloudReaders, NpyFortranOrderIsReadAsRows) {
+  ScratchDir dir;
+  // np.save(path, a.T) of a (3, 2) C array writes shape (2, 3) in Fortran order: column by
+  // column, i.e. x0 x1 y0 y1 z0 z1.
+  write_raw_npy(dir.file("f.npy"), "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 3), }",
+                float_bytes({1, 4, 2, 5, 3, 6}));
+  const PointCloud c = read_cloud(dir.file("f.npy"));
+  ASSERT_EQ(c.points.size(), 2u);
+  EXPECT_EQ(c.points[0], Eigen::Vector3f(1, 2, 3));
+  EXPECT_EQ(c.points[1], Eigen::Vector3f(4, 5, 6));
+}
+
+TEST(StrictCloudReaders, NpyStructuredDtypeAndTrailingDataAreRefused) {
+  ScratchDir dir;
+  write_raw_npy(dir.file("s.npy"),
+                "{'descr': [('x', '<f4'), ('y', '<f4'), ('z', '<f4')], 'fortran_order': False, "
+                "'shape': (2,), }",
+                float_bytes({1, 2, 3, 4, 5, 6}));
+  expect_input_error([&] { read_cloud(dir.file("s.npy")); }, {"s.npy", "structured dtype"});
+  // Two points of data, but the header's shape says one: the second would be lost.
+  write_raw_npy(dir.file("x.npy"), "{'descr': '<f4', 'fortran_order': False, 'shape': (1, 3), }",
+                float_bytes({1, 2, 3, 4, 5, 6}));
+  expect_input_error([&] { read_cloud(dir.file("x.npy")); },
+                     {"x.npy", "12 bytes after the data", "(12 bytes)"});
+  // Integer coordinates and half floats are not clouds.
+  write_raw_npy(dir.file("i.npy"), "{'descr': '<i4', 'fortran_order': False, 'shape': (1, 3), }",
+                std::string(12, '\0'));
+  expect_input_error([&] { read_cloud(dir.file("i.npy")); }, {"i.npy", "dtype '<i4'"});
+  write_raw_npy(dir.file("h.npy"), "{'descr': '<f2', 'fortran_order': False, 'shape': (1, 3), }",
+                std::string(6, '\0'));
+  expect_input_error([&] { read_cloud(dir.file("h.npy")); }, {"h.npy", "'<f2'"});
 }
 
 }  // namespace
