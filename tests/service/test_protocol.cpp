@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <sstream>
 
@@ -165,6 +166,49 @@ TEST(Protocol, Envelope) {
   EXPECT_EQ(p::salvage_id(json{{"id", 5}, {"v", "bad"}}), 5);
   EXPECT_TRUE(p::salvage_id(json{{"id", {1, 2}}}).is_null());
   EXPECT_TRUE(p::salvage_id(json::array()).is_null());
+}
+
+std::string message_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const p::ProtocolError& e) {
+    return e.code() + ": " + e.what();
+  }
+  return "";
+}
+
+TEST(Protocol, UnknownFieldsAreRefusedWithASuggestion) {
+  const std::vector<std::string> plan = {"terrain", "gait", "optimize_timing", "max_time"};
+  const json ok = {{"v", 1},           {"id", 1},         {"op", "plan"},
+                   {"deadline_ms", 5}, {"gait", "crawl"}, {"optimize_timing", true}};
+  EXPECT_EQ(message_of([&] { p::check_fields(ok, "plan", plan); }), "");
+  json h = ok;
+  h["optimise_timing"] = true;
+  EXPECT_EQ(message_of([&] { p::check_fields(h, "plan", plan); }),
+            "bad_request: unknown field \"optimise_timing\" for op plan (did you mean "
+            "\"optimize_timing\"?)");
+  // Envelope keys are suggested too; nothing close: the accepted fields are listed.
+  EXPECT_NE(message_of([&] {
+              p::check_fields({{"dedline_ms", 5}}, "plan", plan);
+            }).find("did you mean \"deadline_ms\"?"),
+            std::string::npos);
+  EXPECT_EQ(message_of([&] {
+              p::check_fields({{"colour", 1}}, "plan", plan);
+            }),
+            "bad_request: unknown field \"colour\" for op plan (fields: terrain, gait, "
+            "optimize_timing, max_time)");
+  EXPECT_NE(message_of([&] {
+              p::check_fields({{"verbose", 1}}, "status", {});
+            }).find("no fields"),
+            std::string::npos);
+  // A hostile key is shown truncated and costs no quadratic work.
+  const std::string huge(1 << 20, 'k');
+  const std::string m = message_of([&] { p::check_fields({{huge, 1}}, "plan", plan); });
+  EXPECT_LT(m.size(), 300u) << m.substr(0, 300);
+  EXPECT_EQ(p::edit_distance("optimise", "optimize", 2), 1u);
+  EXPECT_EQ(p::edit_distance("gati", "gait", 2), 1u);  // transposition
+  EXPECT_EQ(p::edit_distance("terrain", "t", 2), 3u);  // beyond the limit: limit + 1
+  EXPECT_EQ(p::edit_distance("", "", 2), 0u);
 }
 
 TEST(Protocol, TypedFieldsNameTheField) {

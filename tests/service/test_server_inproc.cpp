@@ -78,6 +78,52 @@ TEST(ServerInProcess, OperationsPipeliningAndErrors) {
   EXPECT_EQ(r["results"].size(), 9000u);
 }
 
+// Operations declare the fields they read (Operation::fields); anything else is refused, with a
+// suggestion when a known field is close. Built-in operations declare theirs too.
+TEST(ServerInProcess, UnknownFieldsAreRefused) {
+  InProcessServer s(1, 1);
+  Client c = Client::connect(s.address);
+  auto message = [](const p::Message& m) {
+    return code_of(m) + ": " + m.header["error"].value("message", "");
+  };
+  EXPECT_EQ(message(c.call({{"op", "status"}, {"verbose", true}})),
+            "bad_request: unknown field \"verbose\" for op status (it takes no fields besides v, "
+            "id, op, deadline_ms, attachments)");
+  EXPECT_EQ(message(c.call({{"op", "cancel"}, {"targte", 1}})),
+            "bad_request: unknown field \"targte\" for op cancel (did you mean \"target\"?)");
+  EXPECT_EQ(message(c.call({{"op", "hello"}, {"tokn", "x"}})),
+            "bad_request: unknown field \"tokn\" for op hello (did you mean \"token\"?)");
+  c.call_ok({{"op", "status"}, {"deadline_ms", 1000}});
+  c.call_ok({{"op", "cancel"}, {"target", 5}});
+}
+
+TEST(ServerInProcess, RegisteredOperationsDeclareTheirFields) {
+  ServerOptions so;
+  so.handle_signals = false;
+  OperationRegistry reg;
+  auto echo = [](OpContext& ctx) {
+    OpResult r;
+    r.result = {{"got", ctx.request.header.value("optimize_timing", false)}};
+    return r;
+  };
+  reg.add({"echo", OpKind::kInline, "test", echo, std::vector<std::string>{"optimize_timing"}});
+  reg.add({"loose", OpKind::kWorker, "test: fields unchecked", echo});
+  Server server(so, std::move(reg));
+  const std::string address = server.bind().front();
+  std::thread t([&] { server.run(); });
+  {
+    Client c = Client::connect(address);
+    EXPECT_EQ(c.call_ok({{"op", "echo"}, {"optimize_timing", true}})["got"], true);
+    const p::Message m = c.call({{"op", "echo"}, {"optimise_timing", true}});
+    EXPECT_EQ(code_of(m), "bad_request");
+    EXPECT_EQ(m.header["error"]["message"],
+              "unknown field \"optimise_timing\" for op echo (did you mean \"optimize_timing\"?)");
+    EXPECT_EQ(c.call_ok({{"op", "loose"}, {"anything", 1}})["got"], false);
+  }
+  server.shutdown();
+  t.join();
+}
+
 TEST(ServerInProcess, CancelBusyDeadline) {
   InProcessServer s(1, 1);
   Client c = Client::connect(s.address);

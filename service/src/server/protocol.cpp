@@ -1,6 +1,7 @@
 // The wire protocol: frames, attachments, envelope (docs/protocol.md).
 #include "terrastride/service/protocol.hpp"
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <cstring>
@@ -289,6 +290,63 @@ Request parse_envelope(const json& header, json* id_out) {
     r.deadline_ms = d;
   }
   return r;
+}
+
+std::size_t edit_distance(std::string_view a, std::string_view b, std::size_t limit) {
+  const std::size_t n = a.size(), m = b.size();
+  if ((n > m ? n - m : m - n) > limit) return limit + 1;
+  // Optimal string alignment over three rows; keys here are short once the length test passed.
+  std::vector<std::size_t> prev2(m + 1), prev(m + 1), cur(m + 1);
+  for (std::size_t j = 0; j <= m; ++j) prev[j] = j;
+  for (std::size_t i = 1; i <= n; ++i) {
+    cur[0] = i;
+    std::size_t row_min = cur[0];
+    for (std::size_t j = 1; j <= m; ++j) {
+      const std::size_t cost = a[i - 1] == b[j - 1] ? 0 : 1;
+      cur[j] = std::min({prev[j] + 1, cur[j - 1] + 1, prev[j - 1] + cost});
+      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1])
+        cur[j] = std::min(cur[j], prev2[j - 2] + 1);
+      row_min = std::min(row_min, cur[j]);
+    }
+    if (row_min > limit) return limit + 1;
+    std::swap(prev2, prev);
+    std::swap(prev, cur);
+  }
+  return std::min(prev[m], limit + 1);
+}
+
+void check_fields(const json& header, const std::string& op,
+                  const std::vector<std::string>& accepted) {
+  if (!header.is_object()) return;
+  auto known = [&](const std::string& key) {
+    for (const char* e : kEnvelopeKeys)
+      if (key == e) return true;
+    return std::find(accepted.begin(), accepted.end(), key) != accepted.end();
+  };
+  for (const auto& [key, value] : header.items()) {
+    if (known(key)) continue;
+    // Hostile keys can be megabytes long: show at most 64 bytes of them.
+    const std::string shown = key.size() > 64 ? key.substr(0, 64) + "..." : key;
+    std::string message = "unknown field \"" + shown + "\" for op " + op;
+    std::string best;
+    std::size_t best_d = 3;
+    auto consider = [&](const std::string& candidate) {
+      const std::size_t d = edit_distance(key, candidate, 2);
+      if (d < best_d) best_d = d, best = candidate;
+    };
+    for (const auto& f : accepted) consider(f);
+    for (const char* e : kEnvelopeKeys) consider(e);
+    if (!best.empty()) {
+      message += " (did you mean \"" + best + "\"?)";
+    } else if (accepted.empty()) {
+      message += " (it takes no fields besides v, id, op, deadline_ms, attachments)";
+    } else {
+      message += " (fields: ";
+      for (std::size_t i = 0; i < accepted.size(); ++i) message += (i ? ", " : "") + accepted[i];
+      message += ")";
+    }
+    fail(code::kBadRequest, message);
+  }
 }
 
 Message make_reply(const json& id, json result, std::vector<Attachment> attachments) {

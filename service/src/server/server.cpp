@@ -509,6 +509,37 @@ void Connection::dispatch(std::string_view body) {
     }
   };
 
+  // The built-in operations' fields (registered operations carry theirs in Operation::fields).
+  static const std::vector<std::string> kHelloFields{"token"}, kStatusFields{},
+      kCancelFields{"target"};
+  const Operation* op = nullptr;
+  const std::vector<std::string>* fields = nullptr;
+  if (req.op == "hello") {
+    fields = &kHelloFields;
+  } else if (req.op == "status") {
+    fields = &kStatusFields;
+  } else if (req.op == "cancel") {
+    fields = &kCancelFields;
+  } else {
+    op = server.registry.find(req.op);
+    if (!op) {
+      std::string known = "hello, status, cancel";
+      for (const auto& n : server.registry.names()) known += ", " + n;
+      const std::string shown = req.op.size() > 64 ? req.op.substr(0, 64) + "..." : req.op;
+      send_error(id, pc::kUnknownOp, "unknown op '" + shown + "' (known: " + known + ")");
+      return;
+    }
+    if (op->fields) fields = &*op->fields;
+  }
+  if (fields) {
+    try {
+      protocol::check_fields(m.header, req.op, *fields);
+    } catch (const ProtocolError& e) {
+      send_error(id, e.code(), e.what());
+      return;
+    }
+  }
+
   if (req.op == "hello") {
     return run_inline([&] {
       OpResult r;
@@ -541,14 +572,6 @@ void Connection::dispatch(std::string_view body) {
   }
   if (req.op == "cancel") return run_inline([&] { return builtin_cancel(m); });
 
-  const Operation* op = server.registry.find(req.op);
-  if (!op) {
-    std::string known = "hello, status, cancel";
-    for (const auto& n : server.registry.names()) known += ", " + n;
-    const std::string shown = req.op.size() > 64 ? req.op.substr(0, 64) + "..." : req.op;
-    send_error(id, pc::kUnknownOp, "unknown op '" + shown + "' (known: " + known + ")");
-    return;
-  }
   if (op->kind == OpKind::kInline) {
     auto token = std::make_shared<CancellationToken>();
     if (req.deadline_ms)

@@ -116,6 +116,20 @@ struct Request {
 // replies can carry it.
 Request parse_envelope(const nlohmann::json& header, nlohmann::json* id_out = nullptr);
 
+// Header keys every request may carry besides its operation's own fields.
+inline constexpr const char* kEnvelopeKeys[] = {"v", "id", "op", "deadline_ms", "attachments"};
+
+// Throws ProtocolError(bad_request) naming the first header key that is neither an envelope key
+// nor one of `accepted` (the fields operation `op` reads), so a misspelt option is refused rather
+// than silently ignored. When a known key is within edit distance 2 the message suggests it:
+// unknown field "optimise_timing" for op plan (did you mean "optimize_timing"?).
+void check_fields(const nlohmann::json& header, const std::string& op,
+                  const std::vector<std::string>& accepted);
+
+// Edit distance (insertions, deletions, substitutions, adjacent transpositions) between a and b,
+// or `limit` + 1 when it exceeds `limit` (cheap for long hostile keys).
+std::size_t edit_distance(std::string_view a, std::string_view b, std::size_t limit);
+
 // Best-effort id for replies to malformed requests: the id if it is an integer or a string
 // (strings capped at 256 bytes), else null.
 nlohmann::json salvage_id(const nlohmann::json& header);

@@ -47,6 +47,11 @@ struct Operation {
   OpKind kind = OpKind::kInline;
   std::string summary;
   OpHandler handler;
+  // The request fields the handler reads, besides the envelope (v, id, op, deadline_ms,
+  // attachments). The server refuses any other header key with bad_request naming it (and a close
+  // match, "did you mean"), so a misspelt option is an error rather than silently ignored.
+  // nullopt: the fields are not checked.
+  std::optional<std::vector<std::string>> fields = std::nullopt;
 };
 
 class OperationRegistry {
