@@ -140,7 +140,8 @@ std::vector<std::string> find_pallet_scan() {
 // file are recognised by their names (the map's folder inside included).
 perception::OutputDirKind demo_output_kind() {
   return {"demo",
-          {"plan.json", "report.html", "report.json", "terrain/terrain.json"},
+          {"plan.json", "report.html", "report.json", "terrain/terrain.json", "terrain/octomap.bt",
+           "terrain/layers/"},
           {"plan.json", "report.html", "report.json", "terrain/", "terrain/terrain.json",
            "terrain/octomap.bt", "terrain/layers/", "terrain/layers/*.npy"},
           {}};

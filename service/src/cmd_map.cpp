@@ -104,9 +104,13 @@ void parallel_for(size_t n, const Body& body) {
 }
 
 // What `map --out` writes, for perception::AtomicOutputDir: outputs of versions before the marker
-// file are recognised by their names (terrain.json is always there).
+// file are recognised by their names (every version wrote all three of terrain.json, octomap.bt
+// and layers/, so a folder that merely holds a terrain.json is not taken for one).
 perception::OutputDirKind map_output_kind() {
-  return {"map", {"terrain.json"}, {"terrain.json", "octomap.bt", "layers/", "layers/*.npy"}, {}};
+  return {"map",
+          {"terrain.json", "octomap.bt", "layers/"},
+          {"terrain.json", "octomap.bt", "layers/", "layers/*.npy"},
+          {}};
 }
 
 std::string fmt(double v, int precision = 3) {

@@ -46,8 +46,10 @@ namespace fs = std::filesystem;
 const OutputDirKind kTestKind{"test", {}, {}, {}};
 
 // The map's kind as cmd_map.cpp declares it (older outputs recognised by their names).
-const OutputDirKind kMapLikeKind{
-    "map", {"terrain.json"}, {"terrain.json", "octomap.bt", "layers/", "layers/*.npy"}, {}};
+const OutputDirKind kMapLikeKind{"map",
+                                 {"terrain.json", "octomap.bt", "layers/"},
+                                 {"terrain.json", "octomap.bt", "layers/", "layers/*.npy"},
+                                 {}};
 
 mode_t file_type(const std::string& path) {
   struct stat st;
@@ -203,11 +205,15 @@ TEST(AtomicDir, RefusesAForeignFolderAndLeavesItUntouched) {
   expect_input_error([&] { AtomicOutputDir o(out, kMapLikeKind); },
                      {out, "did not write", "choose an empty or new folder"});
   // A folder that merely holds a file the command writes is not an output either.
-  test::write_text(out + "/terrain.json", "{}");
-  expect_input_error([&] { AtomicOutputDir o(out, kMapLikeKind); }, {out, "did not write"});
+  const std::string lone = dir.file("lone");
+  fs::create_directory(lone);
+  test::write_text(lone + "/terrain.json", "{\"mine\": true}");
+  expect_input_error([&] { AtomicOutputDir o(lone, kMapLikeKind); },
+                     {lone, "not an earlier `map` output"});
+  EXPECT_EQ(slurp(lone + "/terrain.json"), "{\"mine\": true}");
   EXPECT_EQ(slurp(out + "/scan.pcd"), "my only scan");
   EXPECT_EQ(slurp(out + "/sub/notes.txt"), "notes");
-  EXPECT_EQ(entries(dir.path()), 1u);  // no temporary directory left beside it
+  EXPECT_EQ(entries(dir.path()), 2u);  // no temporary directory left beside them
 }
 
 TEST(AtomicDir, RefusesAtCommitWhenAFileAppearedMeanwhile) {
