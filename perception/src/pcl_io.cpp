@@ -123,7 +123,7 @@ bool is_number(std::string_view t) {
   double v;
   const auto r = std::from_chars(t.data(), end, v);
   if (r.ec == std::errc::result_out_of_range) {
-    // Too large for a double (read as infinite, then dropped); `ptr` is not reliable here.
+    // Beyond a double's range (PCL reads it as infinite or 0); `ptr` is not reliable here.
     return t.find_first_not_of("0123456789.eE+-") == std::string_view::npos;
   }
   return r.ec == std::errc() && r.ptr == end;
