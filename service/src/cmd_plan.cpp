@@ -291,7 +291,10 @@ void add_plan_command(CLI::App& app) {
   cmd->add_flag("--optimize-timing", o->optimize_timing, "optimise the phase durations too");
   cmd->add_flag("--verbose", o->verbose, "show Ipopt's output");
   cmd->add_flag("--json", o->json, "print the summary as one JSON object");
-  cmd->add_option("--out", o->out, "plan.json to write")->required();
+  cmd->add_option("--out", o->out,
+                  "plan.json to write (a symbolic link: its target; /dev/stdout: the plan on "
+                  "standard output and the summary on standard error)")
+      ->required();
   cmd->callback([o]() { run_plan(*o); });
 }
 
