@@ -82,11 +82,21 @@ std::string resolve_gait_path(const std::string& name_or_path) {
   const fs::path p = dir / (name_or_path + ".yaml");
   if (fs::exists(p)) return p.string();
   std::string names;
-  if (fs::is_directory(dir))
-    for (const auto& e : fs::directory_iterator(dir))
-      if (e.path().extension() == ".yaml") names += (names.empty() ? "" : ", ") + e.path().stem().string();
+  for (const auto& n : gait_names()) names += (names.empty() ? "" : ", ") + n;
   throw GaitError("gait '" + name_or_path + "': unknown (gaits in " + dir.string() + ": " + names +
                   ")");
+}
+
+std::vector<std::string> gait_names() {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::path(robot::data_dir()) / "gaits";
+  std::vector<std::string> names;
+  std::error_code ec;
+  if (fs::is_directory(dir, ec))
+    for (const auto& e : fs::directory_iterator(dir, ec))
+      if (e.path().extension() == ".yaml") names.push_back(e.path().stem().string());
+  std::sort(names.begin(), names.end());
+  return names;
 }
 
 PhaseTimeline make_timeline(const Gait& gait, const std::vector<std::string>& feet, int cycles,

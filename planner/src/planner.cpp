@@ -10,6 +10,7 @@
 
 #include "terrastride/planner/piece_math.hpp"
 #include "terrastride/planner/reachability.hpp"
+#include "terrastride/planner/request_limits.hpp"
 
 namespace terrastride::planner {
 
@@ -287,7 +288,7 @@ SrbdProblem::StartState start_state_of(const TrajectorySample& s) {
 PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightField& plan_terrain,
                         const terrain::HeightField& check_terrain, const PlannerOptions& options,
                         double sample_dt, const WarmStart& warm) {
-  if (!(sample_dt > 0.0)) throw std::invalid_argument("sample_dt must be > 0");
+  check_plan_request(options, sample_dt);
   const auto t_start = std::chrono::steady_clock::now();
   auto seconds_since = [](std::chrono::steady_clock::time_point t) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
@@ -300,7 +301,11 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   if (warm.previous) {
     const Trajectory& prev = *warm.previous;
     if (prev.feet != feet)
-      throw std::invalid_argument("--init plan is for feet that differ from robot " + robot.name);
+      throw RequestError("init.feet", "the plan's feet differ from robot " + robot.name + "'s");
+    check_plan_horizon(prev.duration, "init.duration");
+    if (!(warm.shift >= 0.0 && warm.shift < prev.duration))
+      throw RequestError("start_time", "must be within [0, " + std::to_string(prev.duration) +
+                                           ") s, the duration of the plan it continues");
     timeline = timeline_of(prev);
     if (warm.shift > 0.0) timeline = timeline.cropped(warm.shift);
     if (warm.start) {
@@ -317,6 +322,8 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   } else {
     const Gait gait = load_gait(resolve_gait_path(options.gait));
     timeline = make_timeline(gait, feet, options.cycles, options.duration);
+    // Without a duration the horizon is the gait's period times its cycles (plus lead-in/out).
+    check_plan_horizon(timeline.duration(), options.duration > 0.0 ? "duration" : "cycles");
   }
   SrbdProblem problem(robot, plan_terrain, timeline, options, start_ptr);
   // An unreachable goal stance otherwise costs seconds of iterations before "infeasible".
@@ -384,6 +391,38 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     out.message = m.str();
   }
   return out;
+}
+
+void check_plan_horizon(double duration, const std::string& field) {
+  if (!(duration > 0.0) || duration > PlanLimits::kMaxDuration) {
+    std::ostringstream m;
+    m << "the plan would last " << duration << " s; plans last at most " << PlanLimits::kMaxDuration
+      << " s (plan a long route in parts, re-planning from the previous plan)";
+    throw RequestError(field, m.str());
+  }
+}
+
+void check_plan_request(const PlannerOptions& options, double sample_dt) {
+  auto fail = [](const std::string& field, double got, const std::string& rule) {
+    std::ostringstream m;
+    m << rule << ", got " << got;
+    throw RequestError(field, m.str());
+  };
+  // Written so that NaN fails every test.
+  if (!(options.duration >= 0.0)) fail("duration", options.duration, "must be > 0 s");
+  if (options.duration > 0.0) check_plan_horizon(options.duration, "duration");
+  if (!(options.cycles >= PlanLimits::kMinCycles && options.cycles <= PlanLimits::kMaxCycles))
+    fail("cycles", options.cycles, "must be an integer within [1, 50]");
+  if (!(sample_dt >= PlanLimits::kMinSampleDt && sample_dt <= PlanLimits::kMaxSampleDt))
+    fail("sample_dt", sample_dt, "must be within [0.001, 1] s");
+  if (!(options.max_time >= 0.0) || std::isinf(options.max_time))
+    fail("max_time", options.max_time, "must be a finite number of seconds >= 0 (0 = no limit)");
+  if (!options.goal.allFinite()) throw RequestError("goal", "must be three finite numbers");
+  if (!options.start.allFinite()) throw RequestError("start", "must be three finite numbers");
+  const double reach = (options.goal.head<2>() - options.start.head<2>()).norm();
+  if (options.has_goal && reach > PlanLimits::kMaxGoalDistance)
+    fail("goal", reach,
+         "must lie within 1000 m of the start (distance from the start in m shown)");
 }
 
 }  // namespace terrastride::planner

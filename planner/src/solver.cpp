@@ -4,13 +4,18 @@
 #include <IpIpoptApplication.hpp>
 #include <IpIpoptCalculatedQuantities.hpp>
 #include <IpTNLP.hpp>
+#include <pthread.h>
+
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <functional>
 #include <limits>
+#include <mutex>
+#include <new>
 #include <sstream>
+#include <thread>
 
 namespace terrastride::planner {
 
@@ -170,10 +175,45 @@ class SrbdTnlp : public Ipopt::TNLP {
   std::chrono::steady_clock::time_point start_;
 };
 
+// Debian's sequential MUMPS (libdmumps_seq, Ipopt's only linear solver there) is not re-entrant:
+// two solves at once in one process crash inside it (the service's two workers: SIGSEGV in 11 of
+// 11 tries). So one solve runs at a time per process, from building the IpoptApplication to
+// destroying it (MUMPS's instance is terminated in its destructor). Concurrency comes from
+// processes: the service runs each plan in a child process (service/src/server/plan_process.cpp).
+std::timed_mutex& solver_mutex() {
+  static std::timed_mutex m;
+  return m;
+}
+
+// A child forked while another thread of the parent held the lock would inherit it locked, with
+// no thread to release it; the child starts with a fresh one (the lock guards only the solve in
+// progress in the parent, which the child does not continue).
+void reset_solver_mutex_in_child() { new (&solver_mutex()) std::timed_mutex; }
+
+// Takes the solver lock, polling `should_stop` while another solve holds it so that a cancelled
+// or expired request does not wait for someone else's solve. Returns an unlocked lock if stopped.
+std::unique_lock<std::timed_mutex> acquire_solver(const PlannerOptions& options) {
+  static std::once_flag atfork_once;
+  std::call_once(atfork_once, [] { pthread_atfork(nullptr, nullptr, &reset_solver_mutex_in_child); });
+  std::unique_lock<std::timed_mutex> lock(solver_mutex(), std::defer_lock);
+  while (!lock.try_lock_for(std::chrono::milliseconds(5)))
+    if (options.should_stop && options.should_stop()) break;
+  return lock;
+}
+
 }  // namespace
 
 SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
                   const std::vector<std::pair<std::string, std::string>>& extra_options) {
+  const auto lock = acquire_solver(options);
+  if (!lock.owns_lock()) {
+    SolveResult stopped;
+    stopped.status = "stopped";
+    stopped.termination = "stopped before the solve (another solve held the solver)";
+    stopped.x = const_cast<SrbdProblem&>(problem).initial_guess();
+    stopped.max_violation = problem.max_violation(stopped.x);
+    return stopped;
+  }
   const auto t0 = std::chrono::steady_clock::now();
   Ipopt::SmartPtr<SrbdTnlp> nlp = new SrbdTnlp(problem, options);
   Ipopt::SmartPtr<Ipopt::IpoptApplication> app = IpoptApplicationFactory();

@@ -27,6 +27,8 @@ struct Gait {
 Gait load_gait(const std::string& path);
 // data/gaits/<name>.yaml (TERRASTRIDE_DATA_DIR honoured), or a path to a .yaml file.
 std::string resolve_gait_path(const std::string& name_or_path);
+// The gait names in the data folder (data/gaits/NAME.yaml), sorted.
+std::vector<std::string> gait_names();
 
 // The contact schedule of a whole plan: the merged switch times of all feet (events) and, per
 // interval between consecutive events, which feet are in stance. Every plan piece (base, feet,
