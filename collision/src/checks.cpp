@@ -44,7 +44,10 @@ std::map<std::string, double> CheckReport::keys() const {
   }
   if (footholds) {
     k["unsafe_footholds"] = footholds->unsafe;
-    k["foothold_margin_min_m"] = footholds->worst_margin;
+    // An analytic scene's margin is 1e9 where no edge is in reach: there the figure means
+    // "nothing to measure", and a number that large would read as a real distance. Left out.
+    if (footholds->worst >= 0 && footholds->worst_margin < 1e8)
+      k["foothold_margin_min_m"] = footholds->worst_margin;
   }
   return k;
 }

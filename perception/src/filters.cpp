@@ -150,6 +150,14 @@ pcl::Indices remove_statistical_outliers(const pcl::PointCloud<pcl::PointXYZ>& c
 
 }  // namespace
 
+CloudFilterOptions default_map_cleaning() {
+  CloudFilterOptions o;
+  o.outlier_neighbours = 8;
+  o.outlier_stddev = 2.0;
+  o.outlier_voxel = 0.01f;
+  return o;
+}
+
 PointCloud filter_cloud(const PointCloud& cloud, const CloudFilterOptions& options,
                         FilterStats* stats) {
   const auto start = std::chrono::steady_clock::now();

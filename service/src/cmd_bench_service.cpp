@@ -346,7 +346,9 @@ void add_bench_service_command(CLI::App& app) {
       so.queue = 64;
       so.handle_signals = false;
       OperationRegistry reg;
-      backend = make_backend({"hyq", /*debug_ops=*/true}, reg);
+      BackendOptions bo;
+      bo.debug_ops = true;
+      backend = make_backend(bo, reg);
       server = std::make_unique<Server>(
           so, std::move(reg), [backend] { return backend_status(*backend); },
           [backend] { return backend_hello(*backend); });

@@ -15,6 +15,7 @@
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"
+#include "terrastride/planner/request_limits.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/scenes.hpp"
@@ -29,6 +30,7 @@ struct PlanCliOptions {
   std::string gait = "crawl";
   int cycles = 3;
   double duration = 0.0;
+  bool duration_given = false;
   std::string goal;
   std::string constraints = "baseline";
   std::vector<std::string> feasibility;  // NAME=VALUE settings of the constraint sets
@@ -50,6 +52,15 @@ std::vector<std::string> split_list(const std::string& s) {
   while (std::getline(ss, item, ','))
     if (!item.empty()) out.push_back(item);
   return out;
+}
+
+// A plan request's field as this command names it: "sample_dt" -> "--sample-dt",
+// "init.duration" -> "--init: duration".
+std::string cli_field(const std::string& field) {
+  const auto dot = field.find('.');
+  std::string flag = "--" + field.substr(0, dot);
+  std::replace(flag.begin(), flag.end(), '_', '-');
+  return dot == std::string::npos ? flag : flag + ": " + field.substr(dot + 1);
 }
 
 // The post-hoc checks (DESIGN.md; the same as `terrastride check` at its default resolution):
@@ -80,16 +91,9 @@ void run_plan(const PlanCliOptions& o) {
   } catch (const robot::RobotFileError& e) {
     throw CommandError(std::string("--robot: ") + e.what());
   }
-  if (!(o.sample_dt > 0.0) || o.sample_dt > 1.0)
-    throw CommandError("--sample-dt: must be in (0, 1] s");
-  if (o.max_time < 0.0) throw CommandError("--max-time: must be >= 0");
-  if (o.duration < 0.0) throw CommandError("--duration: must be > 0");
-  if (o.cycles < 1 || o.cycles > 50) throw CommandError("--cycles: must be in [1, 50]");
-  const TerrainSource terrains =
-      load_terrain_source(o.terrain, /*smooth_scene=*/true,
-                          "point clouds are not planned on directly; run 'terrastride map " +
-                              o.terrain + " --out DIR' and pass --terrain DIR");
-
+  // "Leave it out for the gait's default": an explicit 0 is a mistake, not a request.
+  if (o.duration_given && !(o.duration > 0.0))
+    throw CommandError("--duration: must be > 0 s (leave it out for the gait's default)");
   planner::PlannerOptions po;
   po.gait = o.gait;
   po.cycles = o.cycles;
@@ -97,6 +101,16 @@ void run_plan(const PlanCliOptions& o) {
   po.optimize_timing = o.optimize_timing;
   po.max_time = o.max_time;
   po.verbose = o.verbose;
+  try {
+    planner::check_plan_request(po, o.sample_dt);  // the limits the socket's plan has too
+  } catch (const planner::RequestError& e) {
+    throw CommandError(cli_field(e.field()) + ": " + e.problem());
+  }
+  const TerrainSource terrains =
+      load_terrain_source(o.terrain, /*smooth_scene=*/true,
+                          "point clouds are not planned on directly; run 'terrastride map " +
+                              o.terrain + " --out DIR' and pass --terrain DIR");
+
   po.constraints = split_list(o.constraints);
   if (po.constraints.empty()) throw CommandError("--constraints: empty list");
   const auto available = planner::constraint_set_names();
@@ -196,6 +210,8 @@ void run_plan(const PlanCliOptions& o) {
     out = planner::plan_motion(model, *terrains.smooth(), *terrains.exact(), po, o.sample_dt, warm);
   } catch (const planner::GaitError& e) {
     throw CommandError(std::string("--gait: ") + e.what());
+  } catch (const planner::RequestError& e) {
+    throw CommandError(cli_field(e.field()) + ": " + e.problem());
   } catch (const std::invalid_argument& e) {
     throw CommandError(e.what());
   }
@@ -295,7 +311,10 @@ void add_plan_command(CLI::App& app) {
                   "plan.json to write (a symbolic link: its target; /dev/stdout: the plan on "
                   "standard output and the summary on standard error)")
       ->required();
-  cmd->callback([o]() { run_plan(*o); });
+  cmd->callback([o, cmd]() {
+    o->duration_given = cmd->count("--duration") > 0;
+    run_plan(*o);
+  });
 }
 
 }  // namespace terrastride::service

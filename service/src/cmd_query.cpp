@@ -1,4 +1,5 @@
 // `terrastride query DIR --at X,Y [...]`: height, gradient and foothold safety at points of a map.
+#include <cmath>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -14,7 +15,8 @@ namespace {
 struct QueryOptions {
   std::string dir;
   std::vector<std::string> at;
-  double foot_radius = -1;  // < 0: the first radius of the map
+  double foot_radius = 0.0;
+  bool foot_radius_given = false;  // else: the map's first radius (the robot's)
 };
 
 void run_query(const QueryOptions& o) {
@@ -25,8 +27,21 @@ void run_query(const QueryOptions& o) {
     throw CommandError(e.what());
   }
   const auto radii = map->radii();
-  const double r = o.foot_radius >= 0 ? o.foot_radius : (radii.empty() ? 0.02 : radii.front());
-  if (!std::isfinite(r) || r > 0.5) throw CommandError("--foot-radius: must be in [0, 0.5] m");
+  if (o.foot_radius_given && !(o.foot_radius >= 0 && o.foot_radius <= 0.5))
+    throw CommandError("--foot-radius: must be within [0, 0.5] m");
+  if (radii.empty()) throw CommandError(o.dir + ": the map holds no safety layer");
+  const double r = o.foot_radius_given ? o.foot_radius : radii.front();
+  // Only radii whose layer the map holds, as the service answers: another radius would be a
+  // distance transform over the whole grid, computed here and nowhere else.
+  std::string list;
+  bool known = false;
+  for (double held : radii) {
+    known = known || std::abs(held - r) < 1e-9;
+    list += (list.empty() ? "" : ", ") + std::to_string(held);
+  }
+  if (!known)
+    throw CommandError("--foot-radius: " + std::to_string(r) + " has no safety layer in " + o.dir +
+                       " (available: " + list + "); map again with --foot-radius to add one");
   // Check every point before printing anything: no partial output on a bad query.
   std::vector<Eigen::Vector2d> points;
   const Eigen::Vector2d lo = map->min_corner(), hi = map->max_corner();
@@ -68,7 +83,10 @@ void add_query_command(CLI::App& app) {
   cmd->add_option("--at", o->at, "Query point X,Y (repeat for several)")->required();
   cmd->add_option("--foot-radius", o->foot_radius,
                   "Foot radius for safe/margin (m); default: the map's first radius");
-  cmd->callback([o] { run_query(*o); });
+  cmd->callback([o, cmd] {
+    o->foot_radius_given = cmd->count("--foot-radius") > 0;
+    run_query(*o);
+  });
 }
 
 }  // namespace terrastride::service

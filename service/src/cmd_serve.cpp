@@ -1,4 +1,5 @@
 // `terrastride serve`: the socket service (docs/protocol.md).
+#include <cstdlib>
 #include <fstream>
 #include <iostream>
 #include <memory>
@@ -21,6 +22,9 @@ struct ServeOptions {
   double drain_seconds = 5.0;
   std::string robot = "hyq";
   bool debug_ops = false;
+  std::vector<std::string> terrain_roots;
+  double plan_memory_mb = 4096;
+  bool plans_in_process = false;
 };
 
 std::string read_token(const std::string& path) {
@@ -69,6 +73,25 @@ void add_serve_command(CLI::App& app) {
       ->check(CLI::Range(0.0, 3600.0));
   cmd->add_option("--robot", o->robot, "Robot name or file")->capture_default_str();
   cmd->add_flag("--debug-ops", o->debug_ops, "Enable test operations (debug.sleep)");
+  cmd->add_option("--terrain-root", o->terrain_roots,
+                  "Folder whose terrain directories (terrastride map outputs) clients may name in "
+                  "map.update's terrain_dir and plan's terrain, repeatable; without it the server "
+                  "opens no path a client names")
+      ->check(CLI::ExistingDirectory);
+  cmd->add_option("--plan-memory-mb", o->plan_memory_mb,
+                  "Memory a plan process may use beyond the server's, MiB (0 = unlimited)")
+      ->capture_default_str()
+      ->check([](const std::string& text) -> std::string {
+        // Below 256 MiB a plan cannot even map OpenBLAS's buffer (128 MiB), and OpenBLAS retries
+        // a failed allocation forever instead of failing.
+        const double mb = std::atof(text.c_str());
+        return mb == 0.0 || (mb >= 256.0 && mb <= 1048576.0)
+                   ? ""
+                   : "must be 0 (unlimited) or within [256, 1048576] MiB";
+      });
+  cmd->add_flag("--plans-in-process", o->plans_in_process,
+                "Solve plans in the worker threads, one at a time (default: each plan in its own "
+                "child process, so plans run at once)");
   cmd->callback([o] {
     ServerOptions so;
     so.listen = o->listen.empty() ? std::vector<std::string>{"tcp://127.0.0.1:7700"} : o->listen;
@@ -81,7 +104,13 @@ void add_serve_command(CLI::App& app) {
     OperationRegistry registry;
     std::shared_ptr<Backend> backend;
     try {
-      backend = make_backend({o->robot, o->debug_ops}, registry);
+      BackendOptions bo;
+      bo.robot = o->robot;
+      bo.debug_ops = o->debug_ops;
+      bo.terrain_roots = o->terrain_roots;
+      bo.plan_memory_bytes = static_cast<std::size_t>(o->plan_memory_mb * 1048576.0);
+      bo.plan_in_child_process = !o->plans_in_process;
+      backend = make_backend(bo, registry);
     } catch (const robot::RobotFileError& e) {
       throw CommandError(std::string("--robot: ") + e.what());
     }

@@ -2,6 +2,7 @@
 // queries, plans and checks. Each operation calls the real terrain/planner/collision APIs; one
 // whose backing module is not built in answers `unavailable` instead of inventing data.
 #include <algorithm>
+#include <cctype>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -17,6 +18,8 @@
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/robot/robot_model.hpp"
+#include "child_process.hpp"
+#include "terrastride/planner/request_limits.hpp"
 #include "terrastride/service/server.hpp"
 #include "terrastride/terrain/height_field.hpp"
 #include "terrastride/terrain/height_grid.hpp"
@@ -58,6 +61,7 @@ class Backend {
  public:
   explicit Backend(const BackendOptions& options) : options_(options) {
     robot_ = robot::load_robot(robot::resolve_robot_path(options.robot));
+    plan_limits_.memory_bytes = options.plan_memory_bytes;
   }
 
   std::shared_ptr<const MapSnapshot> map() const { return std::atomic_load(&map_); }
@@ -104,8 +108,8 @@ class Backend {
   OpResult map_query(OpContext& ctx) {
     const json& h = ctx.request.header;
     const double foot_radius = protocol::get_number(h, "foot_radius", robot_.foot_radius);
-    if (foot_radius < 0 || foot_radius > 1)
-      throw ProtocolError(pc::kBadRequest, "\"foot_radius\" must be within [0, 1] m");
+    if (!(foot_radius >= 0) || foot_radius > 0.5)  // as `terrastride query --foot-radius`
+      throw ProtocolError(pc::kBadRequest, "\"foot_radius\" must be within [0, 0.5] m");
     std::vector<double> xy;
     if (const auto* a = ctx.request.find("points")) {
       const auto f = protocol::read_floats(*a, 2, /*require_finite=*/true);
@@ -155,6 +159,17 @@ class Backend {
                             "\"foot_radius\" " + std::to_string(foot_radius) +
                                 " has no safety layer in this map (available: " + list +
                                 "); send map.update with \"foot_radii\" to add one");
+      // Outside a scanned map nothing is known: refused, as `terrastride query` refuses it
+      // (an analytic scene is defined everywhere and answers).
+      const Eigen::Vector2d lo = grid_map->min_corner(), hi = grid_map->max_corner();
+      for (std::size_t i = 0; i + 1 < xy.size(); i += 2)
+        if (xy[i] < lo.x() || xy[i] > hi.x() || xy[i + 1] < lo.y() || xy[i + 1] > hi.y()) {
+          std::ostringstream os;
+          os << "points[" << i / 2 << "] (" << xy[i] << ", " << xy[i + 1]
+             << ") is outside the map (x in [" << lo.x() << ", " << hi.x() << "], y in ["
+             << lo.y() << ", " << hi.y() << "])";
+          throw ProtocolError(pc::kBadRequest, os.str());
+        }
     }
     // The reply is written as text directly: building a JSON tree of N objects costs more than
     // the terrain queries themselves.
@@ -228,7 +243,7 @@ class Backend {
       const auto t0 = std::chrono::steady_clock::now();
       std::unique_ptr<terrain::TerrainMap> tm;
       try {
-        tm = terrain::load_terrain_dir(dir);
+        tm = terrain::load_terrain_dir(terrain_dir_path(dir, "terrain_dir"));
       } catch (const perception::InputError& e) {
         throw ProtocolError(pc::kBadRequest, std::string("\"terrain_dir\": ") + e.what());
       }
@@ -250,6 +265,55 @@ class Backend {
     OpResult r;
     r.result = {{"generation", gen}, {"source", next->source}, {"stats", next->stats}};
     return r;
+  }
+
+  // A name of a file in the data folder (letters, digits, '_', '-'): never a path.
+  static bool is_plain_name(const std::string& name) {
+    return !name.empty() && name.size() <= 64 &&
+           std::all_of(name.begin(), name.end(), [](char c) {
+             return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-';
+           });
+  }
+
+  // A request's gait: a name from the data folder. The server reads no gait file a client names
+  // ("/etc/shadow" would otherwise be opened, and the error would tell whether it exists).
+  static std::string gait_name(const json& h) {
+    const std::string gait = protocol::get_string(h, "gait", std::string("crawl"));
+    std::string names;
+    for (const auto& n : planner::gait_names()) names += (names.empty() ? "" : ", ") + n;
+    if (!is_plain_name(gait))
+      throw ProtocolError(pc::kBadRequest, "\"gait\": a gait name (" + names +
+                                               "); the server reads no gait files");
+    return gait;
+  }
+
+  // A terrain directory a client names: only inside one of the server's --terrain-root folders
+  // (after resolving symlinks and ".."), and named relative to it or absolutely.
+  std::string terrain_dir_path(const std::string& requested, const std::string& field) const {
+    namespace fs = std::filesystem;
+    const auto& roots = options_.terrain_roots;
+    if (roots.empty())
+      throw ProtocolError(pc::kBadRequest,
+                          "\"" + field + "\": '" + requested +
+                              "': this server reads no terrain directories (start it with "
+                              "--terrain-root DIR to allow those under DIR); use a scene name or "
+                              "send the points with map.update");
+    std::error_code ec;
+    for (const auto& root : roots) {
+      const fs::path base = fs::weakly_canonical(root, ec);
+      if (ec) continue;
+      const fs::path p = fs::path(requested).is_absolute() ? fs::path(requested) : base / requested;
+      const fs::path real = fs::weakly_canonical(p, ec);
+      if (ec) continue;
+      const auto rel = real.lexically_relative(base);
+      if (rel.empty() || *rel.begin() == "..") continue;
+      if (!fs::is_directory(real, ec)) continue;
+      return real.string();
+    }
+    // One message whether or not the path exists: the reply reveals nothing outside the roots.
+    throw ProtocolError(pc::kBadRequest, "\"" + field + "\": '" + requested +
+                                             "' is not a terrain directory under the server's "
+                                             "terrain roots");
   }
 
   // Extra safety-layer radii to precompute ("foot_radii": [r, ...]); the robot's is always there.
@@ -296,16 +360,16 @@ class Backend {
     if (resolution < 0.002 || resolution > 1)
       throw ProtocolError(pc::kBadRequest, "\"resolution\" must be within [0.002, 1] m");
     const std::vector<double> radii = radii_from(h);
-    perception::CloudFilterOptions fo;
-    fo.voxel_size = static_cast<float>(protocol::get_number(h, "voxel", 0.0));
-    if (fo.voxel_size < 0 || fo.voxel_size > 1)
+    // The same cleaning as `terrastride map` unless the request says otherwise.
+    perception::CloudFilterOptions fo = perception::default_map_cleaning();
+    fo.voxel_size = static_cast<float>(protocol::get_number(h, "voxel", fo.voxel_size));
+    if (!(fo.voxel_size >= 0) || fo.voxel_size > 1)
       throw ProtocolError(pc::kBadRequest, "\"voxel\" must be within [0, 1] m (0 = off)");
-    const double outliers = protocol::get_number(h, "outlier_neighbours", 0.0);
-    if (outliers < 0 || outliers > 200 || outliers != std::floor(outliers))
+    const double outliers = protocol::get_number(h, "outlier_neighbours", fo.outlier_neighbours);
+    if (!(outliers >= 0) || outliers > 200 || outliers != std::floor(outliers))
       throw ProtocolError(pc::kBadRequest, "\"outlier_neighbours\" must be an integer in [0, 200]");
     fo.outlier_neighbours = static_cast<int>(outliers);
-    // As `terrastride map`: outliers judged per 1 cm cell (about 3x faster on dense scans).
-    const double outlier_cell = protocol::get_number(h, "outlier_cell", 0.01);
+    const double outlier_cell = protocol::get_number(h, "outlier_cell", fo.outlier_voxel);
     if (!(outlier_cell >= 0) || outlier_cell > 0.1)
       throw ProtocolError(pc::kBadRequest,
                           "\"outlier_cell\" must be within [0, 0.1] m (0 = per point)");
@@ -368,23 +432,27 @@ class Backend {
     const json& h = ctx.request.header;
     const std::string spec = protocol::get_string(h, "terrain", std::string("current"));
     planner::PlannerOptions po;
-    po.gait = protocol::get_string(h, "gait", std::string("crawl"));
+    po.gait = gait_name(h);
     const double cycles = protocol::get_number(h, "cycles", 3.0);
-    if (cycles < 1 || cycles > 50 || cycles != std::floor(cycles))
-      throw ProtocolError(pc::kBadRequest, "\"cycles\" must be an integer in [1, 50]");
-    po.cycles = static_cast<int>(cycles);
+    if (cycles != std::floor(cycles))
+      throw ProtocolError(pc::kBadRequest, "\"cycles\": must be an integer within [1, 50]");
+    po.cycles = static_cast<int>(std::clamp(cycles, -1.0, 1000.0));  // the limits check names it
+    // Left out: the gait's duration. An explicit 0 is a mistake, not a request for the default.
     po.duration = protocol::get_number(h, "duration", 0.0);
-    if (po.duration < 0 || po.duration > 120)
-      throw ProtocolError(pc::kBadRequest, "\"duration\" must be within (0, 120] s");
+    if (h.contains("duration") && !h["duration"].is_null() && !(po.duration > 0))
+      throw ProtocolError(pc::kBadRequest,
+                          "\"duration\": must be > 0 s (leave it out for the gait's default)");
     const std::string samples_encoding = protocol::get_string(h, "samples", std::string("json"));
     if (samples_encoding != "json" && samples_encoding != "attachment")
       throw ProtocolError(pc::kBadRequest, "\"samples\" must be \"json\" or \"attachment\"");
     const double sample_dt = protocol::get_number(h, "sample_dt", 0.01);
-    if (!(sample_dt > 0) || sample_dt > 1)
-      throw ProtocolError(pc::kBadRequest, "\"sample_dt\" must be within (0, 1] s");
     po.optimize_timing = protocol::get_bool(h, "optimize_timing", false);
     po.max_time = protocol::get_number(h, "max_time", 0.0);
-    if (po.max_time < 0) throw ProtocolError(pc::kBadRequest, "\"max_time\" must be >= 0");
+    try {
+      planner::check_plan_request(po, sample_dt);  // the limits `terrastride plan` has too
+    } catch (const planner::RequestError& e) {
+      throw ProtocolError(pc::kBadRequest, "\"" + e.field() + "\": " + e.problem());
+    }
     // A re-plan (as `terrastride plan --init --start-time --start-state`): "init" is the plan
     // being continued, and its gait, contact schedule and (unless "goal" is given) goal are kept.
     planner::Trajectory previous;
@@ -406,8 +474,11 @@ class Backend {
                                                  "', this server plans for '" + robot_.name + "'");
       // The same horizon limit as "duration": the problem is built before the solve can be
       // stopped, so a longer one would hold a worker past any deadline.
-      if (previous.duration > 120)
-        throw ProtocolError(pc::kBadRequest, "init.duration: must be within (0, 120] s");
+      try {
+        planner::check_plan_horizon(previous.duration, "init.duration");
+      } catch (const planner::RequestError& e) {
+        throw ProtocolError(pc::kBadRequest, e.what());
+      }
       std::vector<std::string> feet;
       for (const auto& leg : robot_.legs) feet.push_back(leg.name);
       if (previous.feet != feet)
@@ -499,14 +570,7 @@ class Backend {
           plan_field = raster->smooth.get();
           check_field = raster->scene.get();
         } else {
-          if (!std::filesystem::is_directory(spec)) {
-            std::string list;
-            for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
-            throw ProtocolError(pc::kBadRequest, "\"terrain\" '" + spec +
-                                                     "' is neither \"current\", a scene name (" +
-                                                     list + ") nor a terrain directory");
-          }
-          smooth = terrain::load_terrain_dir(spec);
+          smooth = terrain::load_terrain_dir(terrain_dir_path(spec, "terrain"));
           plan_field = check_field = smooth.get();
         }
       }
@@ -524,39 +588,48 @@ class Backend {
       if (left <= 0) ctx.check_stop();
       po.max_time = po.max_time > 0 ? std::min(po.max_time, left) : left;
     }
-    planner::PlanOutcome out;
-    try {
-      out = planner::plan_motion(robot_, *plan_field, *check_field, po, sample_dt, warm);
-    } catch (const planner::GaitError& e) {
-      throw ProtocolError(pc::kBadRequest, std::string("\"gait\": ") + e.what());
-    } catch (const std::invalid_argument& e) {
-      throw ProtocolError(pc::kBadRequest, e.what());
-    }
-    ctx.check_stop();
-    const double violation = out.solve.max_violation;
-    if (!out.success && violation > 1e-3)
-      throw ProtocolError(
-          pc::kFailed,
-          "plan: " +
-              (out.message.empty() ? "status " + out.trajectory.solver.status : out.message) +
-              " (max violation " + std::to_string(violation) + ")");
-    out.trajectory.extra["terrain"] = spec;
-    if (warm.previous) out.trajectory.extra["start_time"] = warm.shift;
-    OpResult r;
-    if (samples_encoding == "attachment") {
-      // The samples as one float32 table (see docs/protocol.md): building, printing and parsing a
-      // JSON tree of a thousand samples costs tens of milliseconds; the table costs a copy.
-      std::vector<planner::TrajectorySample> samples = std::move(out.trajectory.samples);
-      out.trajectory.samples.clear();
-      r.result = planner::plan_to_json(out.trajectory);
-      r.attachments.push_back(samples_table(samples, out.trajectory.feet, &r.result));
-    } else {
-      r.result = planner::plan_to_json(out.trajectory);
-    }
-    r.result["success"] = out.success;
-    r.result["max_violation"] = violation;
-    if (!out.message.empty()) r.result["message"] = out.message;
-    return r;
+    // The solve, the samples and the reply run in a child process (child_process.hpp): Debian's
+    // MUMPS is not re-entrant, so two plans in one process crash it; as processes they run at
+    // once, their memory goes back when they end, and cancel/deadline/shutdown kill them at once.
+    auto work = [&]() -> OpResult {
+      planner::PlanOutcome out;
+      try {
+        out = planner::plan_motion(robot_, *plan_field, *check_field, po, sample_dt, warm);
+      } catch (const planner::GaitError& e) {
+        throw ProtocolError(pc::kBadRequest, std::string("\"gait\": ") + e.what());
+      } catch (const planner::RequestError& e) {
+        throw ProtocolError(pc::kBadRequest, "\"" + e.field() + "\": " + e.problem());
+      } catch (const std::invalid_argument& e) {
+        throw ProtocolError(pc::kBadRequest, e.what());
+      }
+      ctx.check_stop();
+      const double violation = out.solve.max_violation;
+      if (!out.success && violation > 1e-3)
+        throw ProtocolError(
+            pc::kFailed,
+            "plan: " +
+                (out.message.empty() ? "status " + out.trajectory.solver.status : out.message) +
+                " (max violation " + std::to_string(violation) + ")");
+      out.trajectory.extra["terrain"] = spec;
+      if (warm.previous) out.trajectory.extra["start_time"] = warm.shift;
+      OpResult r;
+      if (samples_encoding == "attachment") {
+        // The samples as one float32 table (see docs/protocol.md): building, printing and parsing
+        // a JSON tree of a thousand samples costs tens of milliseconds; the table costs a copy.
+        std::vector<planner::TrajectorySample> samples = std::move(out.trajectory.samples);
+        out.trajectory.samples.clear();
+        r.result = planner::plan_to_json(out.trajectory);
+        r.attachments.push_back(samples_table(samples, out.trajectory.feet, &r.result));
+      } else {
+        r.result = planner::plan_to_json(out.trajectory);
+      }
+      r.result["success"] = out.success;
+      r.result["max_violation"] = violation;
+      if (!out.message.empty()) r.result["message"] = out.message;
+      return r;
+    };
+    if (!options_.plan_in_child_process) return work();
+    return run_in_child_process(ctx, work, plan_limits_, &plan_processes_);
   }
 
   // `terrastride check` over the socket: the post-hoc checks of a plan.json object against the
@@ -575,6 +648,11 @@ class Backend {
     }
     robot::RobotModel model = robot_;
     if (!traj.robot.empty() && traj.robot != robot_.name) {
+      // A robot name from the data folder, never a path a client names (see gait_name).
+      if (!is_plain_name(traj.robot))
+        throw ProtocolError(pc::kBadRequest,
+                            "plan.robot: a robot name (e.g. " + robot_.name +
+                                "); the server reads no robot files a client names");
       try {
         model = robot::load_robot(robot::resolve_robot_path(traj.robot));
       } catch (const robot::RobotFileError& e) {
@@ -704,6 +782,15 @@ class Backend {
 
   const BackendOptions& options() const { return options_; }
 
+  json plan_processes_json() const {
+    return {{"isolated", options_.plan_in_child_process},
+            {"memory_limit_bytes", plan_limits_.memory_bytes},
+            {"started", plan_processes_.started.load()},
+            {"running", plan_processes_.running.load()},
+            {"stopped", plan_processes_.stopped.load()},
+            {"died", plan_processes_.died.load()}};
+  }
+
  private:
   BackendOptions options_;
   robot::RobotModel robot_;
@@ -717,6 +804,8 @@ class Backend {
   std::vector<perception::PointCloud> clouds_;
   std::size_t cloud_points_ = 0;
   std::shared_ptr<const terrain::HeightField> pending_field_;
+  ChildProcessLimits plan_limits_;
+  ChildProcessStats plan_processes_;
 };
 
 std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRegistry& registry) {
@@ -741,7 +830,7 @@ std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRe
 }
 
 json backend_status(const Backend& backend) {
-  return {{"map", backend.map_json()}};
+  return {{"map", backend.map_json()}, {"plan_processes", backend.plan_processes_json()}};
 }
 
 json backend_hello(const Backend& backend) {

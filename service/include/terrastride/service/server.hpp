@@ -125,6 +125,15 @@ class Server {
 struct BackendOptions {
   std::string robot = "hyq";
   bool debug_ops = false;
+  // Each plan runs in a forked child process (Debian's MUMPS is not re-entrant; processes run at
+  // once). Off: plans run in the worker thread, one solve at a time per process.
+  bool plan_in_child_process = true;
+  // Address space a plan process may add to the server's (0 = unlimited).
+  std::size_t plan_memory_bytes = std::size_t{4} << 30;
+  // Directories whose terrain directories (`terrastride map` outputs) clients may name in
+  // map.update's "terrain_dir" and plan's "terrain"; empty: clients name none (the server opens
+  // no path a client gives, so its errors reveal nothing of the file system).
+  std::vector<std::string> terrain_roots;
 };
 class Backend;
 std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRegistry& registry);
