@@ -239,4 +239,33 @@ TEST_F(ServerFaults, ClientsCannotNameFilesOutsideTheDataFolders) {
   fs::remove_all(root);
 }
 
+// Every operation refuses fields it does not read (a misspelt option used to be ignored), and
+// the socket takes the constraint sets' settings as the CLI's --feasibility does.
+TEST_F(ServerFaults, MisspeltFieldsAreRefusedAndFeasibilitySettingsAreRead) {
+  start();
+  Client c = Client::connect(address_, 60.0);
+  json req = flat_plan();
+  req["optimise_timing"] = true;
+  p::Message m = c.call(req);
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("optimize_timing"), std::string::npos) << error_message(m);
+  for (const json& bad : {json{{"op", "map.query"}, {"points", {{1, 0}}}, {"radius", 0.02}},
+                          json{{"op", "map.update"}, {"scene", "flat"}, {"resolutoin", 0.02}},
+                          json{{"op", "map.clear"}, {"all", true}},
+                          json{{"op", "check"}, {"plan", json::object()}, {"terain", "flat"}}})
+    EXPECT_EQ(error_code(c.call(bad)), "bad_request") << bad.dump();
+  req = flat_plan("all");
+  req["feasibility"] = {{"no_such_setting", 1.0}};
+  m = c.call(req);
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("no_such_setting"), std::string::npos) << error_message(m);
+  req["feasibility"] = {{"foot_margin", "wide"}};
+  EXPECT_EQ(error_code(c.call(req)), "bad_request");
+  req = flat_plan("foot");
+  req["feasibility"] = {{"foot_margin", 0.01}};
+  const json r = c.call_ok(req);
+  EXPECT_EQ(r["solver"]["status"], "optimal");
+  EXPECT_EQ(r["feasibility_settings"]["foot_margin"], 0.01) << r.dump().substr(0, 400);
+}
+
 }  // namespace

@@ -15,6 +15,7 @@
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/filters.hpp"
 #include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/robot/robot_model.hpp"
@@ -537,6 +538,25 @@ class Backend {
     } else {
       throw ProtocolError(pc::kBadRequest, "\"constraints\" must be a string or an array");
     }
+    // The constraint sets' settings, as `terrastride plan --feasibility NAME=VALUE`:
+    // {"NAME": value, ...}, validated before the solve.
+    const auto fz = h.find("feasibility");
+    if (fz != h.end() && !fz->is_null()) {
+      if (!fz->is_object())
+        throw ProtocolError(pc::kBadRequest,
+                            "\"feasibility\" must be an object {\"NAME\": number, ...}");
+      for (const auto& [name, value] : fz->items()) {
+        if (!value.is_number() || !std::isfinite(value.get<double>()))
+          throw ProtocolError(pc::kBadRequest,
+                              "\"feasibility\": " + name + " must be a finite number");
+        po.feasibility_settings.emplace_back(name, value.get<double>());
+      }
+      try {
+        planner::feasibility_options(po.feasibility_settings);
+      } catch (const std::invalid_argument& e) {
+        throw ProtocolError(pc::kBadRequest, std::string("\"feasibility\": ") + e.what());
+      }
+    }
     const auto available = planner::constraint_set_names();
     if (po.constraints.empty()) throw ProtocolError(pc::kBadRequest, "\"constraints\" is empty");
     for (const auto& name : po.constraints)
@@ -811,21 +831,29 @@ class Backend {
 std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRegistry& registry) {
   auto b = std::make_shared<Backend>(options);
   Backend* p = b.get();
+  // Each operation lists the request fields it reads: any other key is refused by name (a
+  // misspelt "optimise_timing" would otherwise plan with the default silently).
+  using Fields = std::vector<std::string>;
   registry.add({"map.query", OpKind::kInline,
                 "height, gradient, safety margin for a batch of (x, y) points",
-                [p](OpContext& c) { return p->map_query(c); }});
+                [p](OpContext& c) { return p->map_query(c); }, Fields{"points", "foot_radius"}});
   registry.add({"map.update", OpKind::kWorker,
                 "replace or extend the terrain map (scene, terrain dir or point cloud)",
-                [p](OpContext& c) { return p->map_update(c); }});
+                [p](OpContext& c) { return p->map_update(c); },
+                Fields{"mode", "scene", "terrain_dir", "origin", "resolution", "voxel",
+                       "outlier_neighbours", "outlier_cell", "foot_radii"}});
   registry.add({"map.clear", OpKind::kWorker, "drop the terrain map",
-                [p](OpContext& c) { return p->map_clear(c); }});
+                [p](OpContext& c) { return p->map_clear(c); }, Fields{}});
   registry.add({"plan", OpKind::kWorker, "plan a motion (as `terrastride plan`)",
-                [p](OpContext& c) { return p->plan(c); }});
+                [p](OpContext& c) { return p->plan(c); },
+                Fields{"terrain", "gait", "cycles", "duration", "goal", "constraints",
+                       "feasibility", "sample_dt", "samples", "optimize_timing", "max_time", "init",
+                       "start_time", "start_state"}});
   registry.add({"check", OpKind::kWorker, "post-hoc checks of a plan (as `terrastride check`)",
-                [p](OpContext& c) { return p->check(c); }});
+                [p](OpContext& c) { return p->check(c); }, Fields{"plan", "terrain"}});
   if (options.debug_ops)
     registry.add({"debug.sleep", OpKind::kWorker, "test op: hold a worker for ms milliseconds",
-                  [p](OpContext& c) { return p->debug_sleep(c); }});
+                  [p](OpContext& c) { return p->debug_sleep(c); }, Fields{"ms"}});
   return b;
 }
 
