@@ -3,11 +3,14 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <set>
 #include <sstream>
 
+#include "plan_request.hpp"
 #include "terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
@@ -30,8 +33,8 @@ struct PlanCliOptions {
   std::string gait = "crawl";
   int cycles = 3;
   double duration = 0.0;
-  bool duration_given = false;
   std::string goal;
+  std::string start;
   std::string constraints = "baseline";
   std::vector<std::string> feasibility;  // NAME=VALUE settings of the constraint sets
   double sample_dt = 0.01;
@@ -43,6 +46,8 @@ struct PlanCliOptions {
   bool verbose = false;
   bool json = false;
   std::string out;
+  std::set<std::string> flags;  // the flags on the command line
+  bool given(const std::string& flag) const { return flags.count(flag) > 0; }
 };
 
 std::vector<std::string> split_list(const std::string& s) {
@@ -54,13 +59,67 @@ std::vector<std::string> split_list(const std::string& s) {
   return out;
 }
 
-// A plan request's field as this command names it: "sample_dt" -> "--sample-dt",
-// "init.duration" -> "--init: duration".
-std::string cli_field(const std::string& field) {
+// A plan request's field as this command names it: "sample_dt" -> "--sample-dt"; "init" and
+// "start_state" (and their sub-fields) by the flag and the file they came from.
+std::string cli_field(const std::string& field, const PlanCliOptions& o) {
   const auto dot = field.find('.');
-  std::string flag = "--" + field.substr(0, dot);
+  const std::string head = field.substr(0, dot);
+  const std::string rest = dot == std::string::npos ? "" : ": " + field.substr(dot + 1);
+  if (head == "init") return "--init " + o.init + rest;
+  if (head == "start_state") return "--start-state " + o.start_state + rest;
+  std::string flag = "--" + head;
   std::replace(flag.begin(), flag.end(), '_', '-');
-  return dot == std::string::npos ? flag : flag + ": " + field.substr(dot + 1);
+  return flag + rest;
+}
+
+nlohmann::json numbers(const Eigen::VectorXd& v) {
+  return std::vector<double>(v.data(), v.data() + v.size());
+}
+
+// A JSON file named on the command line ("PATH: cannot open WHAT", "PATH: not valid JSON: ...").
+nlohmann::json read_json_file(const std::string& path, const char* what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(path + ": cannot open " + what);
+  try {
+    return nlohmann::json::parse(in);
+  } catch (const nlohmann::json::exception& e) {  // parse errors, and numbers beyond double
+    throw std::runtime_error(path + ": not valid JSON: " + e.what());
+  }
+}
+
+// The reader's messages name other fields as the socket does ("init"); here they are flags.
+std::string cli_text(std::string problem) {
+  for (const char* field : {"init", "start_state", "start_time", "goal", "duration", "gait"}) {
+    std::string flag = std::string("--") + field;
+    std::replace(flag.begin(), flag.end(), '_', '-');
+    const std::string quoted = std::string("\"") + field + "\"";
+    for (auto at = problem.find(quoted); at != std::string::npos; at = problem.find(quoted))
+      problem.replace(at, quoted.size(), flag);
+  }
+  return problem;
+}
+
+// --feasibility NAME=VALUE[,NAME=VALUE] (repeatable) as the request's {"NAME": value}.
+nlohmann::json feasibility_fields(const std::vector<std::string>& items) {
+  nlohmann::json settings = nlohmann::json::object();
+  for (const auto& item : items)
+    for (const auto& setting : split_list(item)) {
+      const auto eq = setting.find('=');
+      if (eq == std::string::npos || eq == 0)
+        throw CommandError("--feasibility: '" + setting + "' is not NAME=VALUE");
+      const std::string name = setting.substr(0, eq), text = setting.substr(eq + 1);
+      double value = 0.0;
+      std::size_t used = 0;
+      try {
+        value = std::stod(text, &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used == 0 || used != text.size())
+        throw CommandError("--feasibility: " + name + " = '" + text + "' is not a number");
+      settings[name] = value;
+    }
+  return settings;
 }
 
 // The post-hoc checks (DESIGN.md; the same as `terrastride check` at its default resolution):
@@ -91,107 +150,49 @@ void run_plan(const PlanCliOptions& o) {
   } catch (const robot::RobotFileError& e) {
     throw CommandError(std::string("--robot: ") + e.what());
   }
-  // "Leave it out for the gait's default": an explicit 0 is a mistake, not a request.
-  if (o.duration_given && !(o.duration > 0.0))
-    throw CommandError("--duration: must be > 0 s (leave it out for the gait's default)");
-  planner::PlannerOptions po;
-  po.gait = o.gait;
-  po.cycles = o.cycles;
-  po.duration = o.duration;
-  po.optimize_timing = o.optimize_timing;
-  po.max_time = o.max_time;
-  po.verbose = o.verbose;
+  // The flags given become the request's fields, read by the socket's reader (plan_request.hpp):
+  // one set of checks, limits and defaults. Flags left out are left out, so a re-plan keeps
+  // what --init was planned with.
+  nlohmann::json fields = {{"terrain", o.terrain}};
+  if (o.given("--gait")) fields["gait"] = o.gait;
+  if (o.given("--cycles")) fields["cycles"] = o.cycles;
+  if (o.given("--duration")) fields["duration"] = o.duration;
+  if (o.given("--goal")) fields["goal"] = numbers(parse_numbers(o.goal, 3, "--goal"));
+  if (o.given("--start")) fields["start"] = numbers(parse_numbers(o.start, 3, "--start"));
+  if (o.given("--constraints")) fields["constraints"] = o.constraints;
+  if (o.given("--sample-dt")) fields["sample_dt"] = o.sample_dt;
+  if (o.given("--max-time")) fields["max_time"] = o.max_time;
+  if (o.given("--optimize-timing")) fields["optimize_timing"] = o.optimize_timing;
+  if (!o.feasibility.empty()) fields["feasibility"] = feasibility_fields(o.feasibility);
+  // --init and --start-state name files; their contents are the request's "init" and
+  // "start_state", and errors in them name the flag and the file.
   try {
-    planner::check_plan_request(po, o.sample_dt);  // the limits the socket's plan has too
-  } catch (const planner::RequestError& e) {
-    throw CommandError(cli_field(e.field()) + ": " + e.problem());
+    if (!o.init.empty()) fields["init"] = read_json_file(o.init, "plan file");
+  } catch (const std::runtime_error& e) {
+    throw CommandError(std::string("--init: ") + e.what());
   }
+  if (o.given("--start-time")) fields["start_time"] = o.start_time;
+  try {
+    // Without --init the reader refuses --start-state before the file matters.
+    if (!o.start_state.empty())
+      fields["start_state"] = o.init.empty() ? nlohmann::json::object()
+                                             : read_json_file(o.start_state, "start-state file");
+  } catch (const std::runtime_error& e) {
+    throw CommandError(std::string("--start-state: ") + e.what());
+  }
+  PlanRequest req;
+  try {
+    req = read_plan_request(fields, model);
+  } catch (const RequestFieldError& e) {
+    throw CommandError(cli_field(e.field(), o) + ": " + cli_text(e.problem()));
+  }
+  planner::PlannerOptions& po = req.options;
+  po.verbose = o.verbose;
+  const planner::WarmStart warm = req.warm_start();
   const TerrainSource terrains =
       load_terrain_source(o.terrain, /*smooth_scene=*/true,
                           "point clouds are not planned on directly; run 'terrastride map " +
                               o.terrain + " --out DIR' and pass --terrain DIR");
-
-  po.constraints = split_list(o.constraints);
-  if (po.constraints.empty()) throw CommandError("--constraints: empty list");
-  const auto available = planner::constraint_set_names();
-  for (const auto& c : po.constraints)
-    if (std::find(available.begin(), available.end(), c) == available.end()) {
-      std::string list;
-      for (const auto& n : available) list += (list.empty() ? "" : ", ") + n;
-      throw CommandError("--constraints: '" + c +
-                         "' is not available in this build (available: " + list + ")");
-    }
-
-  for (const auto& item : o.feasibility)
-    for (const auto& setting : split_list(item)) {
-      const auto eq = setting.find('=');
-      if (eq == std::string::npos || eq == 0)
-        throw CommandError("--feasibility: '" + setting + "' is not NAME=VALUE");
-      const std::string name = setting.substr(0, eq), text = setting.substr(eq + 1);
-      double value = 0.0;
-      std::size_t used = 0;
-      try {
-        value = std::stod(text, &used);
-      } catch (const std::exception&) {
-        used = 0;
-      }
-      if (used == 0 || used != text.size())
-        throw CommandError("--feasibility: " + name + " = '" + text + "' is not a number");
-      po.feasibility_settings.emplace_back(name, value);
-    }
-  try {
-    planner::feasibility_options(po.feasibility_settings);  // validated before the solve
-  } catch (const std::invalid_argument& e) {
-    throw CommandError(std::string("--feasibility: ") + e.what());
-  }
-
-  planner::Trajectory previous;
-  planner::SrbdProblem::StartState measured;
-  planner::WarmStart warm;
-  if (!o.init.empty()) {
-    try {
-      previous = planner::read_plan_file(o.init);
-    } catch (const std::exception& e) {
-      throw CommandError(std::string("--init: ") + e.what());
-    }
-    if (previous.robot != model.name)
-      throw CommandError("--init " + o.init + ": plan is for robot '" + previous.robot +
-                         "', not '" + model.name + "'");
-    try {
-      planner::timeline_of(previous);  // the contact schedule the re-plan continues
-    } catch (const std::invalid_argument& e) {
-      throw CommandError("--init " + o.init + ": " + e.what());
-    }
-    if (!(o.start_time >= 0.0 && o.start_time < previous.duration))
-      throw CommandError("--start-time: must be in [0, " + std::to_string(previous.duration) +
-                         ") for " + o.init);
-    warm.previous = &previous;
-    warm.shift = o.start_time;
-    if (!o.start_state.empty()) {
-      try {
-        measured = planner::read_start_state_file(o.start_state, previous, o.start_time);
-      } catch (const planner::PlanFileError& e) {
-        throw CommandError(std::string("--start-state: ") + e.what());
-      }
-      warm.start = &measured;
-    }
-    po.gait = previous.gait;
-    po.has_goal = true;
-    po.goal = planner::goal_of(previous);
-  } else if (o.start_time != 0.0) {
-    throw CommandError("--start-time: needs --init");
-  } else if (!o.start_state.empty()) {
-    throw CommandError("--start-state: needs --init (the plan it continues; fields left out of " +
-                       o.start_state + " are that plan's state at --start-time)");
-  }
-  if (!o.goal.empty()) {
-    const Eigen::VectorXd g = parse_numbers(o.goal, 3, "--goal");
-    po.goal = g;
-    po.has_goal = true;
-  } else if (!warm.previous) {
-    po.goal = Eigen::Vector3d(1.0, 0.0, 0.0);  // DESIGN.md scenarios: 1 m ahead
-    po.has_goal = true;
-  }
 
   // --out is checked before the solve (a probe file in its folder), so a missing or read-only
   // folder, or a directory or socket at the path, fails in milliseconds instead of after it.
@@ -207,11 +208,12 @@ void run_plan(const PlanCliOptions& o) {
 
   planner::PlanOutcome out;
   try {
-    out = planner::plan_motion(model, *terrains.smooth(), *terrains.exact(), po, o.sample_dt, warm);
+    out = planner::plan_motion(model, *terrains.smooth(), *terrains.exact(), po, req.sample_dt,
+                               warm);
   } catch (const planner::GaitError& e) {
     throw CommandError(std::string("--gait: ") + e.what());
   } catch (const planner::RequestError& e) {
-    throw CommandError(cli_field(e.field()) + ": " + e.problem());
+    throw CommandError(cli_field(e.field(), o) + ": " + e.problem());
   } catch (const std::invalid_argument& e) {
     throw CommandError(e.what());
   }
@@ -277,7 +279,11 @@ void add_plan_command(CLI::App& app) {
   cmd->add_option("--gait", o->gait, "gait name (data/gaits) or gait file")->capture_default_str();
   cmd->add_option("--cycles", o->cycles, "number of gait cycles")->capture_default_str();
   cmd->add_option("--duration", o->duration, "total duration in s (default: the gait's)");
-  cmd->add_option("--goal", o->goal, "goal X,Y,YAW of the base (default 1,0,0)");
+  cmd->add_option("--goal", o->goal,
+                  "goal X,Y,YAW of the base (default 1,0,0; a re-plan: --init's goal)");
+  cmd->add_option("--start", o->start,
+                  "start X,Y,YAW of the base, the nominal stance placed on the terrain there "
+                  "(default 0,0,0)");
   cmd->add_option("--constraints", o->constraints,
                   "constraint sets, comma separated: baseline, foot (foot radius), shin (shin "
                   "collision, the paper's fixed-angle model), shin_ik (shin collision on the leg's "
@@ -312,7 +318,8 @@ void add_plan_command(CLI::App& app) {
                   "standard output and the summary on standard error)")
       ->required();
   cmd->callback([o, cmd]() {
-    o->duration_given = cmd->count("--duration") > 0;
+    for (const CLI::Option* opt : cmd->get_options())
+      if (opt->count() > 0) o->flags.insert(opt->get_name());
     run_plan(*o);
   });
 }

@@ -186,7 +186,7 @@ TEST_F(CliReplan, BadStartStatesAreNamedAndWriteNothing) {
   expect_refused(" --init " + stretched_path.string() + " --start-time 0.1",
                  {"--init " + stretched_path.string(), "events must run from 0 to the duration"});
   const fs::path state = dir_ / "bad_state.json";
-  expect_refused(" --start-state " + state.string(), {"--start-state: needs --init"});
+  expect_refused(" --start-state " + state.string(), {"--start-state", "needs --init"});
   for (const auto& [text, says] : std::vector<std::pair<std::string, std::string>>{
            {"{\"base\": {\"position\": [0, 0.5", "not valid JSON"},
            {R"({"base": {"position": [0, 0.5]}})", "base.position: must be an array of 3 numbers"},
@@ -202,4 +202,41 @@ TEST_F(CliReplan, BadStartStatesAreNamedAndWriteNothing) {
     expect_refused(init + " --start-state " + state.string(),
                    {"--start-state", state.string(), says});
   }
+}
+
+// A re-plan keeps the request it continues (constraint sets, their settings) unless the flags
+// say otherwise, and refuses a gait other than the one whose contact schedule it continues
+// (an `all` plan re-planned without --constraints used to drop to `baseline` silently).
+TEST(CliReplanKeepsTheRequest, ConstraintSetsSettingsAndGait) {
+  const fs::path dir =
+      fs::path(::testing::TempDir()) / ("terrastride_keep_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string first = (dir / "first.json").string();
+  CliResult r = run("plan --terrain flat --duration 2.4 --constraints foot --feasibility "
+                    "foot_margin=0.01 --start 0.05,0.02,0.03 --out " + first);
+  ASSERT_EQ(r.code, 0) << r.out;
+  const json p0 = read_json(first);
+  EXPECT_NEAR(p0["samples"][0]["base"]["position"][0].get<double>(), 0.05, 1e-9);
+  EXPECT_NEAR(p0["samples"][0]["base"]["euler_zyx"][0].get<double>(), 0.03, 1e-9);
+  const std::string next = (dir / "next.json").string();
+  r = run("plan --terrain flat --init " + first + " --start-time 0.2 --out " + next);
+  ASSERT_EQ(r.code, 0) << r.out;
+  json p1 = read_json(next);
+  EXPECT_EQ(p1["constraints"], json::array({"foot"}));
+  EXPECT_EQ(p1["feasibility_settings"]["foot_margin"], 0.01);
+  EXPECT_EQ(p1["gait"], "crawl");
+  r = run("plan --terrain flat --init " + first + " --start-time 0.2 --constraints baseline --out " +
+          next);
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_EQ(read_json(next)["constraints"], json::array({"baseline"}));
+  fs::remove(next);
+  r = run("plan --terrain flat --init " + first + " --start-time 0.2 --gait trot --out " + next);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.out.find("--gait: 'trot' differs from init's gait 'crawl'"), std::string::npos)
+      << r.out;
+  r = run("plan --terrain flat --init " + first + " --start 1,0,0 --out " + next);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.out.find("--start"), std::string::npos) << r.out;
+  EXPECT_FALSE(fs::exists(next));
+  fs::remove_all(dir);
 }

@@ -20,6 +20,7 @@
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "child_process.hpp"
+#include "plan_request.hpp"
 #include "terrastride/planner/request_limits.hpp"
 #include "terrastride/service/server.hpp"
 #include "terrastride/terrain/height_field.hpp"
@@ -431,141 +432,19 @@ class Backend {
   // name or a terrain dir. A deadline becomes the solver's wall-clock budget.
   OpResult plan(OpContext& ctx) {
     const json& h = ctx.request.header;
-    const std::string spec = protocol::get_string(h, "terrain", std::string("current"));
-    planner::PlannerOptions po;
-    po.gait = gait_name(h);
-    const double cycles = protocol::get_number(h, "cycles", 3.0);
-    if (cycles != std::floor(cycles))
-      throw ProtocolError(pc::kBadRequest, "\"cycles\": must be an integer within [1, 50]");
-    po.cycles = static_cast<int>(std::clamp(cycles, -1.0, 1000.0));  // the limits check names it
-    // Left out: the gait's duration. An explicit 0 is a mistake, not a request for the default.
-    po.duration = protocol::get_number(h, "duration", 0.0);
-    if (h.contains("duration") && !h["duration"].is_null() && !(po.duration > 0))
-      throw ProtocolError(pc::kBadRequest,
-                          "\"duration\": must be > 0 s (leave it out for the gait's default)");
-    const std::string samples_encoding = protocol::get_string(h, "samples", std::string("json"));
-    if (samples_encoding != "json" && samples_encoding != "attachment")
-      throw ProtocolError(pc::kBadRequest, "\"samples\" must be \"json\" or \"attachment\"");
-    const double sample_dt = protocol::get_number(h, "sample_dt", 0.01);
-    po.optimize_timing = protocol::get_bool(h, "optimize_timing", false);
-    po.max_time = protocol::get_number(h, "max_time", 0.0);
+    gait_name(h);  // a name from the data folder: the server reads no gait file a client names
+    // The same reader and limits as `terrastride plan` (plan_request.hpp).
+    PlanRequest req;
     try {
-      planner::check_plan_request(po, sample_dt);  // the limits `terrastride plan` has too
-    } catch (const planner::RequestError& e) {
-      throw ProtocolError(pc::kBadRequest, "\"" + e.field() + "\": " + e.problem());
+      req = read_plan_request(h, robot_);
+    } catch (const RequestFieldError& e) {
+      throw ProtocolError(pc::kBadRequest, e.what());
     }
-    // A re-plan (as `terrastride plan --init --start-time --start-state`): "init" is the plan
-    // being continued, and its gait, contact schedule and (unless "goal" is given) goal are kept.
-    planner::Trajectory previous;
-    planner::SrbdProblem::StartState measured;
-    planner::WarmStart warm;
-    const auto init = h.find("init");
-    if (init != h.end() && !init->is_null()) {
-      if (!init->is_object())
-        throw ProtocolError(pc::kBadRequest,
-                            "\"init\" must be a plan.json object (a previous plan result with "
-                            "JSON samples)");
-      try {
-        previous = planner::plan_from_json(*init, "init");
-      } catch (const planner::PlanFileError& e) {
-        throw ProtocolError(pc::kBadRequest, e.what());
-      }
-      if (previous.robot != robot_.name)
-        throw ProtocolError(pc::kBadRequest, "init.robot: plan is for robot '" + previous.robot +
-                                                 "', this server plans for '" + robot_.name + "'");
-      // The same horizon limit as "duration": the problem is built before the solve can be
-      // stopped, so a longer one would hold a worker past any deadline.
-      try {
-        planner::check_plan_horizon(previous.duration, "init.duration");
-      } catch (const planner::RequestError& e) {
-        throw ProtocolError(pc::kBadRequest, e.what());
-      }
-      std::vector<std::string> feet;
-      for (const auto& leg : robot_.legs) feet.push_back(leg.name);
-      if (previous.feet != feet)
-        throw ProtocolError(pc::kBadRequest,
-                            "init.feet: the plan's feet differ from robot " + robot_.name + "'s");
-      try {
-        planner::timeline_of(previous);  // the contact schedule the re-plan continues
-      } catch (const std::invalid_argument& e) {
-        throw ProtocolError(pc::kBadRequest, std::string("init: ") + e.what());
-      }
-      warm.previous = &previous;
-      warm.shift = protocol::get_number(h, "start_time", 0.0);
-      if (!(warm.shift >= 0.0 && warm.shift < previous.duration))
-        throw ProtocolError(pc::kBadRequest, "\"start_time\" must be within [0, " +
-                                                 std::to_string(previous.duration) +
-                                                 ") s, the duration of \"init\"");
-      const auto state = h.find("start_state");
-      if (state != h.end() && !state->is_null()) {
-        try {
-          measured = planner::start_state_from_json(*state, "start_state", previous, warm.shift);
-        } catch (const planner::PlanFileError& e) {
-          throw ProtocolError(pc::kBadRequest, e.what());
-        }
-        warm.start = &measured;
-      }
-      po.gait = previous.gait;
-    } else {
-      for (const char* key : {"start_time", "start_state"})
-        if (h.contains(key) && !h[key].is_null())
-          throw ProtocolError(pc::kBadRequest, std::string("\"") + key +
-                                                   "\" needs \"init\" (the plan it continues)");
-    }
-    po.has_goal = true;
-    if (h.contains("goal")) {
-      po.goal = protocol::get_vector(h, "goal", 3);
-    } else if (warm.previous) {
-      po.goal = planner::goal_of(previous);
-    } else {
-      po.goal = Eigen::Vector3d(1.0, 0.0, 0.0);
-    }
-    const auto c = h.find("constraints");
-    po.constraints.clear();
-    if (c == h.end() || c->is_null()) {
-      po.constraints = {"baseline"};
-    } else if (c->is_string()) {
-      std::stringstream ss(c->get<std::string>());
-      std::string item;
-      while (std::getline(ss, item, ','))
-        if (!item.empty()) po.constraints.push_back(item);
-    } else if (c->is_array()) {
-      for (const json& e : *c) {
-        if (!e.is_string())
-          throw ProtocolError(pc::kBadRequest, "\"constraints\" entries must be strings");
-        po.constraints.push_back(e.get<std::string>());
-      }
-    } else {
-      throw ProtocolError(pc::kBadRequest, "\"constraints\" must be a string or an array");
-    }
-    // The constraint sets' settings, as `terrastride plan --feasibility NAME=VALUE`:
-    // {"NAME": value, ...}, validated before the solve.
-    const auto fz = h.find("feasibility");
-    if (fz != h.end() && !fz->is_null()) {
-      if (!fz->is_object())
-        throw ProtocolError(pc::kBadRequest,
-                            "\"feasibility\" must be an object {\"NAME\": number, ...}");
-      for (const auto& [name, value] : fz->items()) {
-        if (!value.is_number() || !std::isfinite(value.get<double>()))
-          throw ProtocolError(pc::kBadRequest,
-                              "\"feasibility\": " + name + " must be a finite number");
-        po.feasibility_settings.emplace_back(name, value.get<double>());
-      }
-      try {
-        planner::feasibility_options(po.feasibility_settings);
-      } catch (const std::invalid_argument& e) {
-        throw ProtocolError(pc::kBadRequest, std::string("\"feasibility\": ") + e.what());
-      }
-    }
-    const auto available = planner::constraint_set_names();
-    if (po.constraints.empty()) throw ProtocolError(pc::kBadRequest, "\"constraints\" is empty");
-    for (const auto& name : po.constraints)
-      if (std::find(available.begin(), available.end(), name) == available.end()) {
-        std::string list;
-        for (const auto& n : available) list += (list.empty() ? "" : ", ") + n;
-        throw ProtocolError(pc::kBadRequest, "\"constraints\": '" + name +
-                                                 "' is not available (available: " + list + ")");
-      }
+    const std::string& spec = req.terrain;
+    planner::PlannerOptions& po = req.options;
+    const double sample_dt = req.sample_dt;
+    const std::string& samples_encoding = req.samples;
+    const planner::WarmStart warm = req.warm_start();
     // Terrains: the optimiser needs a C2 field; exact scenes are checked as they are.
     std::shared_ptr<const MapSnapshot> snapshot;  // keeps the published map alive while planning
     std::shared_ptr<const SceneRaster> raster;
@@ -618,7 +497,7 @@ class Backend {
       } catch (const planner::GaitError& e) {
         throw ProtocolError(pc::kBadRequest, std::string("\"gait\": ") + e.what());
       } catch (const planner::RequestError& e) {
-        throw ProtocolError(pc::kBadRequest, "\"" + e.field() + "\": " + e.problem());
+        throw ProtocolError(pc::kBadRequest, e.what());
       } catch (const std::invalid_argument& e) {
         throw ProtocolError(pc::kBadRequest, e.what());
       }

@@ -1,0 +1,240 @@
+#include "plan_request.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/plan_io.hpp"
+#include "terrastride/planner/request_limits.hpp"
+
+namespace terrastride::service {
+
+using nlohmann::json;
+
+namespace {
+
+const json* find(const json& fields, const char* name) {
+  const auto it = fields.find(name);
+  return it == fields.end() || it->is_null() ? nullptr : &*it;
+}
+
+double number(const json& fields, const char* name, double fallback) {
+  const json* v = find(fields, name);
+  if (!v) return fallback;
+  if (!v->is_number()) throw RequestFieldError(name, "must be a number");
+  const double d = v->get<double>();
+  if (!std::isfinite(d)) throw RequestFieldError(name, "must be a finite number");
+  return d;
+}
+
+std::string text(const json& fields, const char* name, const std::string& fallback) {
+  const json* v = find(fields, name);
+  if (!v) return fallback;
+  if (!v->is_string()) throw RequestFieldError(name, "must be a string");
+  return v->get<std::string>();
+}
+
+bool flag(const json& fields, const char* name, bool fallback) {
+  const json* v = find(fields, name);
+  if (!v) return fallback;
+  if (!v->is_boolean()) throw RequestFieldError(name, "must be true or false");
+  return v->get<bool>();
+}
+
+Eigen::Vector3d triple(const json& fields, const char* name, const char* meaning) {
+  const json* v = find(fields, name);
+  if (!v->is_array() || v->size() != 3 ||
+      !std::all_of(v->begin(), v->end(), [](const json& e) { return e.is_number(); }))
+    throw RequestFieldError(name, std::string("must be [") + meaning + "] (three numbers)");
+  Eigen::Vector3d out;
+  for (int i = 0; i < 3; ++i) out[i] = (*v)[i].get<double>();
+  if (!out.allFinite()) throw RequestFieldError(name, "must be three finite numbers");
+  return out;
+}
+
+std::string joined(const std::vector<std::string>& names) {
+  std::string list;
+  for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
+  return list;
+}
+
+// "a,b" or ["a", "b"].
+std::vector<std::string> constraint_sets(const json& v) {
+  std::vector<std::string> sets;
+  if (v.is_string()) {
+    std::stringstream ss(v.get<std::string>());
+    std::string item;
+    while (std::getline(ss, item, ','))
+      if (!item.empty()) sets.push_back(item);
+  } else if (v.is_array()) {
+    for (const json& e : v) {
+      if (!e.is_string()) throw RequestFieldError("constraints", "entries must be strings");
+      sets.push_back(e.get<std::string>());
+    }
+  } else {
+    throw RequestFieldError("constraints", "must be a comma-separated string or an array");
+  }
+  if (sets.empty()) throw RequestFieldError("constraints", "is empty");
+  const auto available = planner::constraint_set_names();
+  for (const auto& name : sets)
+    if (std::find(available.begin(), available.end(), name) == available.end())
+      throw RequestFieldError(
+          "constraints", "'" + name + "' is not available (available: " + joined(available) + ")");
+  return sets;
+}
+
+std::vector<std::pair<std::string, double>> feasibility_settings(const json& v) {
+  if (!v.is_object())
+    throw RequestFieldError("feasibility", "must be an object {\"NAME\": number, ...}");
+  std::vector<std::pair<std::string, double>> settings;
+  for (const auto& [name, value] : v.items()) {
+    if (!value.is_number() || !std::isfinite(value.get<double>()))
+      throw RequestFieldError("feasibility", name + " = " + value.dump() + " is not a number");
+    settings.emplace_back(name, value.get<double>());
+  }
+  try {
+    planner::feasibility_options(settings);
+  } catch (const std::invalid_argument& e) {
+    throw RequestFieldError("feasibility", e.what());
+  }
+  return settings;
+}
+
+// A PlanFileError from plan_from_json(..., "init") reads "init: PROBLEM"; the field is "init".
+RequestFieldError file_error(const char* field, const std::string& message) {
+  const std::string prefix = std::string(field) + ": ";
+  return RequestFieldError(field,
+                           message.rfind(prefix, 0) == 0 ? message.substr(prefix.size()) : message);
+}
+
+// The previous plan a re-plan continues: for this robot, with its feet, a timeline that spans
+// it, and no longer than a plan may be.
+void read_init(const json& fields, const robot::RobotModel& robot, PlanRequest* r) {
+  const json* init = find(fields, "init");
+  if (!init) {
+    for (const char* key : {"start_time", "start_state"})
+      if (find(fields, key)) throw RequestFieldError(key, "needs \"init\" (the plan it continues)");
+    return;
+  }
+  if (!init->is_object())
+    throw RequestFieldError("init",
+                            "must be a plan.json object (a previous plan with JSON samples)");
+  try {
+    r->previous = planner::plan_from_json(*init, "init");
+  } catch (const planner::PlanFileError& e) {
+    throw file_error("init", e.what());
+  }
+  if (r->previous.robot != robot.name)
+    throw RequestFieldError(
+        "init", "plan is for robot '" + r->previous.robot + "', not '" + robot.name + "'");
+  std::vector<std::string> feet;
+  for (const auto& leg : robot.legs) feet.push_back(leg.name);
+  if (r->previous.feet != feet)
+    throw RequestFieldError("init", "the plan's feet (" + joined(r->previous.feet) +
+                                        ") differ from robot " + robot.name + "'s (" +
+                                        joined(feet) + ")");
+  try {
+    planner::check_plan_horizon(r->previous.duration, "init.duration");
+  } catch (const planner::RequestError& e) {
+    throw RequestFieldError(e.field(), e.problem());
+  }
+  try {
+    planner::timeline_of(r->previous);  // the contact schedule the re-plan continues
+  } catch (const std::invalid_argument& e) {
+    throw RequestFieldError("init", e.what());
+  }
+  r->replan = true;
+  r->start_time = number(fields, "start_time", 0.0);
+  if (!(r->start_time >= 0.0 && r->start_time < r->previous.duration)) {
+    std::ostringstream m;
+    m << "must be within [0, " << r->previous.duration << ") s, the duration of the plan it "
+      << "continues";
+    throw RequestFieldError("start_time", m.str());
+  }
+  if (const json* state = find(fields, "start_state")) {
+    try {
+      r->start_state =
+          planner::start_state_from_json(*state, "start_state", r->previous, r->start_time);
+    } catch (const planner::PlanFileError& e) {
+      throw file_error("start_state", e.what());
+    }
+    r->has_start_state = true;
+  }
+}
+
+}  // namespace
+
+planner::WarmStart PlanRequest::warm_start() const {
+  planner::WarmStart w;
+  if (!replan) return w;
+  w.previous = &previous;
+  w.shift = start_time;
+  if (has_start_state) w.start = &start_state;
+  return w;
+}
+
+PlanRequest read_plan_request(const json& fields, const robot::RobotModel& robot) {
+  if (!fields.is_object()) throw RequestFieldError("request", "must be a JSON object");
+  PlanRequest r;
+  planner::PlannerOptions& po = r.options;
+  r.terrain = text(fields, "terrain", r.terrain);
+  if (r.terrain.empty()) throw RequestFieldError("terrain", "is empty");
+  read_init(fields, robot, &r);
+  const json& extra = r.previous.extra;
+
+  // The gait: a re-plan continues init's contact schedule, so another gait cannot apply.
+  po.gait = text(fields, "gait", r.replan ? r.previous.gait : "crawl");
+  if (r.replan && po.gait != r.previous.gait)
+    throw RequestFieldError("gait", "'" + po.gait + "' differs from init's gait '" +
+                                        r.previous.gait +
+                                        "': a re-plan continues the contact schedule of the plan "
+                                        "it starts from (plan anew for another gait)");
+  const double cycles = number(fields, "cycles", r.replan ? extra.value("cycles", 3.0) : 3.0);
+  if (cycles != std::floor(cycles))
+    throw RequestFieldError("cycles", "must be an integer within [1, 50]");
+  po.cycles = static_cast<int>(std::clamp(cycles, -1.0, 1e6));  // the limits below name it
+  // Left out: the gait's duration. An explicit 0 is a mistake, not a request for the default.
+  if (find(fields, "duration")) {
+    po.duration = number(fields, "duration", 0.0);
+    if (!(po.duration > 0.0))
+      throw RequestFieldError("duration", "must be > 0 s (leave it out for the gait's default)");
+  }
+  po.has_goal = true;
+  if (find(fields, "goal"))
+    po.goal = triple(fields, "goal", "x, y, yaw");
+  else
+    po.goal = r.replan ? planner::goal_of(r.previous) : Eigen::Vector3d(1.0, 0.0, 0.0);
+  if (find(fields, "start")) {
+    if (r.replan)
+      throw RequestFieldError("start",
+                              "a re-plan starts from init at start_time (give "
+                              "start_state for a measured pose)");
+    po.start = triple(fields, "start", "x, y, yaw");
+  }
+  if (const json* c = find(fields, "constraints"))
+    po.constraints = constraint_sets(*c);
+  else if (r.replan && extra.contains("constraints"))
+    po.constraints = constraint_sets(extra["constraints"]);  // what init was planned with
+  else
+    po.constraints = {"baseline"};
+  if (const json* f = find(fields, "feasibility"))
+    po.feasibility_settings = feasibility_settings(*f);
+  else if (r.replan && extra.contains("feasibility_settings"))
+    po.feasibility_settings = feasibility_settings(extra["feasibility_settings"]);
+  po.optimize_timing =
+      flag(fields, "optimize_timing", r.replan ? extra.value("optimize_timing", false) : false);
+  po.max_time = number(fields, "max_time", 0.0);
+  r.sample_dt = number(fields, "sample_dt", r.sample_dt);
+  r.samples = text(fields, "samples", r.samples);
+  if (r.samples != "json" && r.samples != "attachment")
+    throw RequestFieldError("samples", "must be \"json\" or \"attachment\"");
+  try {
+    planner::check_plan_request(po, r.sample_dt);
+  } catch (const planner::RequestError& e) {
+    throw RequestFieldError(e.field(), e.problem());
+  }
+  return r;
+}
+
+}  // namespace terrastride::service

@@ -1,0 +1,60 @@
+// One plan request, read and validated in one place for `terrastride plan` and the socket's
+// `plan`: the socket's JSON fields are the request; the CLI turns the flags it was given into the
+// same fields. So both check the same things, with the same limits and defaults, and name the
+// same field when something is wrong (docs/protocol.md, "plan").
+#pragma once
+
+#include <nlohmann/json.hpp>
+#include <stdexcept>
+#include <string>
+
+#include "terrastride/planner/planner.hpp"
+#include "terrastride/robot/robot_model.hpp"
+
+namespace terrastride::service {
+
+// A field that is malformed or out of range. field(): as the socket names it ("sample_dt",
+// "goal", "init", "start_state"); problem(): what is wrong. what() is "field: problem".
+class RequestFieldError : public std::runtime_error {
+ public:
+  RequestFieldError(std::string field, std::string problem)
+      : std::runtime_error(field + ": " + problem),
+        field_(std::move(field)),
+        problem_(std::move(problem)) {}
+  const std::string& field() const { return field_; }
+  const std::string& problem() const { return problem_; }
+
+ private:
+  std::string field_;
+  std::string problem_;
+};
+
+struct PlanRequest {
+  std::string terrain = "current";  // a scene name, a terrain directory, or the socket's "current"
+  planner::PlannerOptions options;  // gait, cycles, duration, goal, start, sets, settings, timing
+  double sample_dt = 0.01;
+  std::string samples = "json";  // the socket's sample encoding: "json" or "attachment"
+  // A re-plan ("init"): the plan it continues, the time on it to start from, and optionally the
+  // robot's measured state there.
+  bool replan = false;
+  planner::Trajectory previous;
+  double start_time = 0.0;
+  bool has_start_state = false;
+  planner::SrbdProblem::StartState start_state;
+
+  // The planner's warm start, pointing into this request (which must outlive the plan).
+  planner::WarmStart warm_start() const;
+};
+
+// Reads the fields of a plan request (docs/protocol.md, "plan"): terrain, gait, cycles,
+// duration, goal, start, constraints, feasibility, sample_dt, samples, max_time,
+// optimize_timing, init, start_time, start_state. Every field is checked before anything is
+// loaded or solved: types, the planner's request limits (request_limits.hpp), constraint-set and
+// feasibility names, init's robot, feet, timeline and horizon, the start state. A field left out
+// takes the default; a re-plan keeps init's gait, goal, constraint sets, feasibility settings and
+// timing choice unless the request gives them, and refuses a gait other than init's (its contact
+// schedule is what the re-plan continues). Unknown fields are the caller's to refuse (the socket
+// lists each operation's fields; the CLI has flags). Throws RequestFieldError.
+PlanRequest read_plan_request(const nlohmann::json& fields, const robot::RobotModel& robot);
+
+}  // namespace terrastride::service
