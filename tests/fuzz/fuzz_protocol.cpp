@@ -1,6 +1,7 @@
 // libFuzzer target for the wire protocol: stream splitting, frame bodies, attachment layout, the
-// request envelope and typed field access — everything the server runs on untrusted bytes before
-// an operation sees them. Build: tests/fuzz/run.sh (Debian clang with libclang-rt-14-dev).
+// request envelope (deadline range, unique attachment names, known fields) and typed field
+// access — everything the server runs on untrusted bytes before an operation sees them. Build:
+// tests/fuzz/run.sh (Debian clang with libclang-rt-14-dev).
 #include <cstddef>
 #include <cstdint>
 #include <string>
@@ -22,7 +23,10 @@ void exercise_body(std::string_view body) {
   try {
     nlohmann::json id;
     const p::Request r = p::parse_envelope(m.header, &id);
-    (void)r;
+    if (r.deadline_ms && !(*r.deadline_ms >= 0 && *r.deadline_ms < p::kNoDeadlineFromMs))
+      __builtin_trap();  // the server turns it into a time point: it must stay in range
+    p::check_attachment_names(m);
+    p::check_fields(m.header, r.op, {"token", "target", "ms", "points", "origin"});
     (void)p::get_number(m.header, "ms", 0.0);
     (void)p::get_string(m.header, "scene", std::string());
     (void)p::get_bool(m.header, "flag", false);

@@ -38,6 +38,16 @@ std::string code_of(const std::function<void()>& f) {
   return "";
 }
 
+// "code: message" of the ProtocolError `f` throws, "" when it does not throw.
+std::string message_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const p::ProtocolError& e) {
+    return e.code() + ": " + e.what();
+  }
+  return "";
+}
+
 }  // namespace
 
 TEST(Protocol, RoundTripWithAttachments) {
@@ -162,19 +172,26 @@ TEST(Protocol, Envelope) {
   EXPECT_EQ(code({{"v", 1}, {"id", 1}, {"op", "x"}, {"deadline_ms", -1}}), "bad_request");
   EXPECT_EQ(code({{"v", 1}, {"id", 1}, {"op", "x"}, {"deadline_ms", "5"}}), "bad_request");
   EXPECT_EQ(code({{"v", 1}, {"id", std::string(300, 'x')}, {"op", "x"}}), "bad_request");
+  // Huge deadlines mean none (1e13 ms used to overflow the clock); negative or NaN are refused
+  // naming the field.
+  for (double d : {1e10, 1e13, 1e300, std::numeric_limits<double>::infinity()})
+    EXPECT_FALSE(
+        p::parse_envelope(json{{"v", 1}, {"id", 1}, {"op", "x"}, {"deadline_ms", d}}).deadline_ms)
+        << d;
+  EXPECT_DOUBLE_EQ(
+      *p::parse_envelope(json{{"v", 1}, {"id", 1}, {"op", "x"}, {"deadline_ms", 9.9e9}})
+           .deadline_ms,
+      9.9e9);
+  for (double d : {-1.0, -1e300, std::numeric_limits<double>::quiet_NaN()}) {
+    const std::string m = message_of([&] {
+      p::parse_envelope(json{{"v", 1}, {"id", 1}, {"op", "x"}, {"deadline_ms", d}});
+    });
+    EXPECT_EQ(m.rfind("bad_request: \"deadline_ms\"", 0), 0u) << d << ": " << m;
+  }
   // The id is salvaged for the error reply when it is usable.
   EXPECT_EQ(p::salvage_id(json{{"id", 5}, {"v", "bad"}}), 5);
   EXPECT_TRUE(p::salvage_id(json{{"id", {1, 2}}}).is_null());
   EXPECT_TRUE(p::salvage_id(json::array()).is_null());
-}
-
-std::string message_of(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const p::ProtocolError& e) {
-    return e.code() + ": " + e.what();
-  }
-  return "";
 }
 
 TEST(Protocol, UnknownFieldsAreRefusedWithASuggestion) {
@@ -209,6 +226,20 @@ TEST(Protocol, UnknownFieldsAreRefusedWithASuggestion) {
   EXPECT_EQ(p::edit_distance("gati", "gait", 2), 1u);  // transposition
   EXPECT_EQ(p::edit_distance("terrain", "t", 2), 3u);  // beyond the limit: limit + 1
   EXPECT_EQ(p::edit_distance("", "", 2), 0u);
+}
+
+TEST(Protocol, DuplicateAttachmentNamesAreRefused) {
+  p::Message m;
+  m.attachments = {p::make_float_attachment("points", {1, 2}, {0, 0}),
+                   p::make_float_attachment("origin", {3}, {0, 0, 0}),
+                   p::make_float_attachment("points", {1, 2}, {1, 1})};
+  // The layout is valid (it decodes); the names are not.
+  const p::Message d = p::decode_body(body_of(p::encode_frame(m)));
+  EXPECT_EQ(message_of([&] { p::check_attachment_names(d); }),
+            "bad_request: attachments[2]: duplicate name \"points\" (also attachments[0]); names "
+            "must be unique");
+  m.attachments.pop_back();
+  EXPECT_EQ(message_of([&] { p::check_attachment_names(m); }), "");
 }
 
 TEST(Protocol, TypedFieldsNameTheField) {

@@ -283,13 +283,30 @@ Request parse_envelope(const json& header, json* id_out) {
   r.op = op->get<std::string>();
   const auto dl = header.find("deadline_ms");
   if (dl != header.end() && !dl->is_null()) {
-    if (!dl->is_number()) fail(code::kBadRequest, "\"deadline_ms\" must be a number");
+    if (!dl->is_number())
+      fail(code::kBadRequest, "\"deadline_ms\" must be a number of milliseconds >= 0");
     const double d = dl->get<double>();
-    if (!std::isfinite(d) || d < 0)
-      fail(code::kBadRequest, "\"deadline_ms\" must be a finite number >= 0");
-    r.deadline_ms = d;
+    if (std::isnan(d) || d < 0)
+      fail(code::kBadRequest,
+           "\"deadline_ms\" must be a number of milliseconds >= 0, got " + dl->dump());
+    // Huge budgets (1e13, 1e300) mean "no deadline" rather than a time point past the clock's
+    // range, which would wrap into the past and expire at once.
+    if (d < kNoDeadlineFromMs) r.deadline_ms = d;
   }
   return r;
+}
+
+void check_attachment_names(const Message& message) {
+  const auto& a = message.attachments;
+  for (std::size_t i = 1; i < a.size(); ++i)
+    for (std::size_t j = 0; j < i; ++j)
+      if (a[i].name == a[j].name) {
+        const std::string shown =
+            a[i].name.size() > 64 ? a[i].name.substr(0, 64) + "..." : a[i].name;
+        fail(code::kBadRequest, "attachments[" + std::to_string(i) + "]: duplicate name \"" +
+                                    shown + "\" (also attachments[" + std::to_string(j) +
+                                    "]); names must be unique");
+      }
 }
 
 std::size_t edit_distance(std::string_view a, std::string_view b, std::size_t limit) {

@@ -23,6 +23,9 @@ constexpr std::size_t kPrefixBytes = 4;
 constexpr std::uint32_t kDefaultMaxFrameBytes = 64u << 20;  // 64 MiB: a 5 M-point cloud
 constexpr std::size_t kMaxHeaderBytes = 4u << 20;           // JSON header cap inside a frame
 constexpr std::size_t kMaxAttachments = 16;
+// A deadline_ms at or above this (about 116 days) means no deadline: the time point it names would
+// overflow the clock, and no request runs that long.
+constexpr double kNoDeadlineFromMs = 1e10;
 
 // Error codes carried by error replies ({"code", "message"}).
 namespace code {
@@ -41,6 +44,8 @@ inline constexpr const char* kUnavailable = "unavailable";  // backing module no
 inline constexpr const char* kNoMap = "no_map";
 inline constexpr const char* kFailed = "failed";      // the operation ran and failed (solver, I/O)
 inline constexpr const char* kInternal = "internal";  // a bug; the message says what
+// A frame that did not complete in time, or an idle connection (the connection is closed).
+inline constexpr const char* kTimeout = "timeout";
 }  // namespace code
 
 // A protocol-level failure with its reply code.
@@ -108,13 +113,18 @@ class FrameReader {
 struct Request {
   nlohmann::json id;  // integer or string, echoed in the reply
   std::string op;
-  std::optional<double> deadline_ms;  // relative to arrival, >= 0
+  // Relative to arrival, in [0, kNoDeadlineFromMs); nullopt when absent, null or beyond that.
+  std::optional<double> deadline_ms;
 };
 
 // Reads {v, id, op, deadline_ms?} from a decoded header. Throws ProtocolError(bad_request or
 // unsupported_version). `id_out` receives the id as soon as it is known to be valid so error
 // replies can carry it.
 Request parse_envelope(const nlohmann::json& header, nlohmann::json* id_out = nullptr);
+
+// Throws ProtocolError(bad_request) naming an attachment name used twice in one message
+// (Message::find would silently see only the first).
+void check_attachment_names(const Message& message);
 
 // Header keys every request may carry besides its operation's own fields.
 inline constexpr const char* kEnvelopeKeys[] = {"v", "id", "op", "deadline_ms", "attachments"};
