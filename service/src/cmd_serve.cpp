@@ -33,7 +33,13 @@ std::string read_token(const std::string& path) {
   std::stringstream ss;
   ss << in.rdbuf();
   std::string token = ss.str();
-  while (!token.empty() && std::isspace(static_cast<unsigned char>(token.back()))) token.pop_back();
+  // Surrounding whitespace (an editor's newline, indentation) is not part of the secret, and must
+  // not count toward its length.
+  auto space = [](char c) { return std::isspace(static_cast<unsigned char>(c)) != 0; };
+  while (!token.empty() && space(token.back())) token.pop_back();
+  std::size_t lead = 0;
+  while (lead < token.size() && space(token[lead])) ++lead;
+  token.erase(0, lead);
   if (token.empty()) throw CommandError("--token-file: '" + path + "' is empty");
   if (token.size() < 16)
     throw CommandError("--token-file: the token in '" + path +

@@ -657,6 +657,36 @@ TEST(ServerAuth, TokenIsRequiredAndChecked) {
   std::filesystem::remove(token_file);
 }
 
+// Surrounding whitespace in the token file is not part of the token, and does not count toward
+// its 16 characters.
+TEST(ServerAuth, TokenFileWhitespaceIsIgnored) {
+  const std::string token_file = temp_path("token-ws");
+  { std::ofstream(token_file) << "\n  \tcorrect-horse-battery-staple-0123456789  \n"; }
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--token-file", token_file});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  {
+    Client c = Client::connect(server.tcp());
+    EXPECT_EQ(
+        c.call_ok({{"op", "hello"},
+                   {"token",
+                    "correct-horse-battery-staple-0123456789"}})["capabilities"]["token_required"],
+        true);
+  }
+  {
+    Client c = Client::connect(server.tcp());
+    EXPECT_EQ(error_code(c.call(
+                  {{"op", "hello"}, {"token", "  \tcorrect-horse-battery-staple-0123456789"}})),
+              "unauthorized");
+  }
+  EXPECT_EQ(server.stop(SIGTERM), 0);
+  // 14 characters after 4 spaces: too short.
+  { std::ofstream(token_file) << "    fourteen-chars\n"; }
+  ServerProcess short_token({"--listen", "tcp://127.0.0.1:0", "--token-file", token_file}, 0);
+  EXPECT_NE(short_token.wait_exit(), 0);
+  EXPECT_NE(short_token.output.find("shorter than 16"), std::string::npos) << short_token.output;
+  std::filesystem::remove(token_file);
+}
+
 TEST(ServerAuth, NonLoopbackNeedsAToken) {
   ServerProcess server({"--listen", "tcp://0.0.0.0:0"}, 0);
   EXPECT_NE(server.wait_exit(), 0);
