@@ -2,6 +2,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <memory>
 #include <sstream>
 
@@ -20,6 +21,11 @@ struct ServeOptions {
   int queue = 8;
   int max_connections = 512;
   double drain_seconds = 5.0;
+  double frame_timeout_s = 10.0;
+  double min_receive_rate = 128.0 * 1024;
+  double idle_timeout_s = 300.0;
+  std::uint32_t max_frame_bytes_before_hello = 64u << 10;
+  std::size_t max_buffered_bytes = default_max_buffered_bytes();
   std::string robot = "hyq";
   bool debug_ops = false;
   std::vector<std::string> terrain_roots;
@@ -77,6 +83,31 @@ void add_serve_command(CLI::App& app) {
                   "On SIGINT/SIGTERM: time running jobs get to finish before they are cancelled")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 3600.0));
+  cmd->add_option("--frame-timeout", o->frame_timeout_s,
+                  "Seconds a started frame may take, plus its received bytes at "
+                  "--min-receive-rate; also the time a token server waits for hello, and for a "
+                  "client to take its replies. 0 = off")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 86400.0));
+  cmd->add_option("--min-receive-rate", o->min_receive_rate,
+                  "Bytes per second a large frame (or reply) must move at to keep extending "
+                  "--frame-timeout")
+      ->capture_default_str()
+      ->check(CLI::Range(1.0, 1e12));
+  cmd->add_option("--idle-timeout", o->idle_timeout_s,
+                  "Seconds a connection with nothing in flight stays open. 0 = off")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1e7));
+  cmd->add_option("--max-frame-bytes-before-hello", o->max_frame_bytes_before_hello,
+                  "Largest frame accepted before hello on a token server")
+      ->capture_default_str()
+      ->check(CLI::Range(64u, 0xffffffffu));
+  cmd->add_option("--max-buffered-bytes", o->max_buffered_bytes,
+                  "Request bytes the server buffers across all connections (large frames "
+                  "arriving, queued worker requests); a frame beyond it gets busy and its "
+                  "connection is closed. Default: 1 GiB or a quarter of the memory if less")
+      ->capture_default_str()
+      ->check(CLI::Range(std::size_t{1} << 16, std::numeric_limits<std::size_t>::max()));
   cmd->add_option("--robot", o->robot, "Robot name or file")->capture_default_str();
   cmd->add_flag("--debug-ops", o->debug_ops, "Enable test operations (debug.sleep)");
   cmd->add_option("--terrain-root", o->terrain_roots,
@@ -107,6 +138,11 @@ void add_serve_command(CLI::App& app) {
     so.queue = o->queue;
     so.max_connections = o->max_connections;
     so.drain_seconds = o->drain_seconds;
+    so.frame_timeout_s = o->frame_timeout_s;
+    so.min_receive_rate = o->min_receive_rate;
+    so.idle_timeout_s = o->idle_timeout_s;
+    so.max_frame_bytes_before_hello = o->max_frame_bytes_before_hello;
+    so.max_buffered_bytes = o->max_buffered_bytes;
     OperationRegistry registry;
     std::shared_ptr<Backend> backend;
     try {

@@ -601,6 +601,52 @@ TEST_F(ServerTest, HostileInputLeavesOthersServed) {
   EXPECT_TRUE(server_->running());
 }
 
+// Half-sent large frames (the 64 MiB cap announced, a quarter of it sent) used to pin their
+// memory forever: now each is answered `timeout` and closed after the frame timeout, and the
+// memory goes back to the system, while other clients are served throughout.
+TEST(ServerLimits, HalfSentFramesAreClosedAndTheirMemoryReleased) {
+  ServerProcess server(
+      {"--listen", "tcp://127.0.0.1:0", "--frame-timeout", "1", "--min-receive-rate", "100000000"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  Client good = Client::connect(server.tcp());
+  good.call_ok({{"op", "map.update"}, {"scene", "pallet_10"}});
+  const long rss0 = server.rss_kb();
+  constexpr int kClients = 8;
+  constexpr std::size_t kSent = 16u << 20;
+  std::vector<Client> stalled;
+  for (int i = 0; i < kClients; ++i) {
+    stalled.push_back(Client::connect(server.tcp()));
+    stalled.back().set_timeout(20);
+    std::string f(4, '\0');
+    p::write_u32be(64u << 20, reinterpret_cast<unsigned char*>(&f[0]));
+    stalled.back().send_raw(f + std::string(kSent - 4, 'x'));
+  }
+  json st;
+  for (int i = 0; i < 2000; ++i) {
+    st = good.call_ok({{"op", "status"}});
+    if (st["memory"]["buffered_request_bytes"].get<std::size_t>() >= kClients * kSent) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  const long rss_held = server.rss_kb();
+  expect_healthy(server.tcp());
+  for (auto& c : stalled) {
+    const p::Message m = c.receive();
+    EXPECT_EQ(error_code(m), "timeout") << m.header.dump();
+    EXPECT_NE(error_message(m).find("of 67108868 bytes received"), std::string::npos)
+        << error_message(m);
+    EXPECT_THROW(c.receive(), ClientError);
+  }
+  st = good.call_ok({{"op", "status"}});
+  EXPECT_EQ(st["memory"]["buffered_request_bytes"], 0);
+  EXPECT_EQ(st["connections"]["frame_timeouts"], kClients);
+  const long rss1 = server.rss_kb();
+  // Sizes in kB: at least 100 MiB were held (128 MiB received), and given back.
+  EXPECT_GT(rss_held - rss0, 100 * 1024) << rss0 << " -> " << rss_held;
+  EXPECT_LT(rss1 - rss0, 32 * 1024) << rss0 << " -> " << rss_held << " -> " << rss1;
+  expect_healthy(server.tcp());
+  EXPECT_EQ(server.stop(SIGTERM), 0);
+}
+
 TEST_F(ServerTest, SlowReaderDoesNotBlockOthers) {
   // A client that pipelines many queries and never reads its replies.
   Client slow = Client::connect(address_);

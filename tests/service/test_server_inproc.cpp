@@ -1,7 +1,10 @@
 // The server in-process (so the sanitizer build covers the transport): operations, pipelining,
-// cancel, busy, deadlines, malformed and oversized frames, and a graceful shutdown with replies.
+// cancel, busy, deadlines, malformed and oversized frames, the limits against clients that hold
+// memory or connections (frame and idle timeouts, the connection limit, the pre-hello frame cap,
+// the request-byte budget), and a graceful shutdown with replies.
 #include <gtest/gtest.h>
 
+#include <functional>
 #include <thread>
 
 #include "terrastride/service/client.hpp"
@@ -18,7 +21,7 @@ std::string code_of(const p::Message& m) {
 }
 
 struct InProcessServer {
-  InProcessServer(int workers, int queue) {
+  InProcessServer(int workers, int queue, const std::function<void(ServerOptions&)>& tweak = {}) {
     ServerOptions so;
     so.listen = {"tcp://127.0.0.1:0"};
     so.workers = workers;
@@ -26,8 +29,11 @@ struct InProcessServer {
     so.max_frame_bytes = 1 << 20;
     so.handle_signals = false;
     so.drain_seconds = 0.2;
+    if (tweak) tweak(so);
     OperationRegistry reg;
-    backend = make_backend({"hyq", /*debug_ops=*/true}, reg);
+    BackendOptions bo;
+    bo.debug_ops = true;
+    backend = make_backend(bo, reg);
     auto b = backend;
     server = std::make_unique<Server>(
         so, std::move(reg), [b] { return backend_status(*b); }, [b] { return backend_hello(*b); });
@@ -43,6 +49,47 @@ struct InProcessServer {
   std::string address;
   std::thread thread;
 };
+
+// A frame prefix announcing `body_bytes`, followed by `have` bytes of it (a half-sent frame).
+std::string half_frame(std::uint32_t body_bytes, std::size_t have) {
+  std::string f(4, '\0');
+  p::write_u32be(body_bytes, reinterpret_cast<unsigned char*>(&f[0]));
+  return f + std::string(have, ' ');
+}
+
+// A frame with this header text (valid JSON or not) and raw tail bytes.
+std::string raw_frame(const std::string& header_text, const std::string& tail = "") {
+  std::string b(8, '\0');
+  p::write_u32be(static_cast<std::uint32_t>(4 + header_text.size() + tail.size()),
+                 reinterpret_cast<unsigned char*>(&b[0]));
+  p::write_u32be(static_cast<std::uint32_t>(header_text.size()),
+                 reinterpret_cast<unsigned char*>(&b[4]));
+  return b + header_text + tail;
+}
+
+// The reply a closing server sends, then the end of the stream: a clean close (FIN after the
+// reply), not a reset.
+void expect_error_then_close(Client& c, const std::string& code, const std::string& says = "") {
+  p::Message m;
+  try {
+    m = c.receive();
+  } catch (const ClientError& e) {
+    ADD_FAILURE() << "expected a " << code << " reply, got: " << e.what();
+    return;
+  }
+  EXPECT_EQ(code_of(m), code) << m.header.dump();
+  EXPECT_TRUE(m.header["id"].is_null()) << m.header.dump();
+  if (!says.empty()) {
+    EXPECT_NE(m.header["error"].value("message", "").find(says), std::string::npos)
+        << m.header.dump();
+  }
+  try {
+    c.receive();
+    ADD_FAILURE() << "connection still open";
+  } catch (const ClientError& e) {
+    EXPECT_STREQ(e.what(), "connection closed by the server");
+  }
+}
 
 TEST(ServerInProcess, OperationsPipeliningAndErrors) {
   InProcessServer s(2, 2);
@@ -146,6 +193,219 @@ TEST(ServerInProcess, ShutdownAnswersRunningWork) {
   std::thread stopper([&] { s.reset(); });  // shutdown: 0.2 s drain, then cancelled with a reply
   EXPECT_EQ(code_of(c.wait_for(1)), "shutting_down");
   stopper.join();
+}
+
+// A frame that stops half-way is answered `timeout` and closed once its allowance (frame timeout
+// plus its received bytes at the minimum rate) is over; its buffer is given back, and others are
+// served meanwhile.
+TEST(ServerInProcess, HalfSentFrameIsClosedAfterTheFrameTimeout) {
+  InProcessServer s(1, 1, [](ServerOptions& o) {
+    o.frame_timeout_s = 0.3;
+    o.min_receive_rate = 100e6;
+  });
+  Client other = Client::connect(s.address);
+  Client slow = Client::connect(s.address);
+  slow.set_timeout(10);
+  slow.send_raw(half_frame(900000, 300000));  // beyond the 64 KiB connection buffer
+  for (int i = 0; i < 500; ++i) {
+    if (other.call_ok({{"op", "status"}})["memory"]["buffered_request_bytes"] >= 300004) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  EXPECT_EQ(other.call_ok({{"op", "status"}})["memory"]["buffered_request_bytes"], 300004);
+  // A small frame that stalls inside its header is cut off as well.
+  Client header = Client::connect(s.address);
+  header.set_timeout(10);
+  header.send_raw(half_frame(200, 10));
+  expect_error_then_close(slow, "timeout", "300004 of 900004 bytes received");
+  expect_error_then_close(header, "timeout", "14 of 204 bytes received");
+  const json st = other.call_ok({{"op", "status"}});
+  EXPECT_EQ(st["memory"]["buffered_request_bytes"], 0);
+  EXPECT_EQ(st["connections"]["frame_timeouts"], 2);
+  // A complete request with a pause shorter than the timeout is not affected.
+  const std::string f = p::encode_frame(p::Message{{{"v", 1}, {"id", 1}, {"op", "status"}}, {}});
+  other.send_raw(f.substr(0, 5));
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  other.send_raw(f.substr(5));
+  EXPECT_EQ(code_of(other.receive()), "");
+}
+
+// A connection with nothing in flight is closed after the idle timeout (with a `timeout` reply);
+// one with a job running is not idle.
+TEST(ServerInProcess, IdleConnectionIsClosed) {
+  InProcessServer s(1, 1, [](ServerOptions& o) { o.idle_timeout_s = 0.3; });
+  Client idle = Client::connect(s.address);
+  idle.set_timeout(10);
+  idle.call_ok({{"op", "hello"}});
+  Client working = Client::connect(s.address);
+  working.send({{"op", "debug.sleep"}, {"id", 1}, {"ms", 600}});
+  expect_error_then_close(idle, "timeout", "idle");
+  EXPECT_EQ(code_of(working.wait_for(1)), "");  // 0.6 s running: not idle meanwhile
+  EXPECT_EQ(working.call_ok({{"op", "status"}})["connections"]["idle_timeouts"], 1);
+}
+
+// At the connection limit a new client is told `busy` (id null) and the connection is closed
+// cleanly, not reset; once the idle ones time out it gets in.
+TEST(ServerInProcess, ConnectionLimitAnswersBusy) {
+  InProcessServer s(1, 1, [](ServerOptions& o) {
+    o.max_connections = 3;
+    o.idle_timeout_s = 0.5;
+  });
+  std::vector<Client> idle;
+  for (int i = 0; i < 3; ++i) idle.push_back(Client::connect(s.address));
+  for (auto& c : idle) c.call_ok({{"op", "status"}});  // adopted, and fresh against the timeout
+  Client late = Client::connect(s.address);
+  late.set_timeout(10);
+  // Requests the server never reads: its close must still not be a reset (a reset can destroy
+  // the reply before the client reads it, and fails the client's next send).
+  late.send({{"op", "hello"}});
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  late.send({{"op", "status"}});
+  expect_error_then_close(late, "busy", "connection limit of 3");
+  for (auto& c : idle) {
+    c.set_timeout(10);
+    expect_error_then_close(c, "timeout", "idle");
+  }
+  Client again = Client::connect(s.address);
+  EXPECT_EQ(again.call_ok({{"op", "hello"}})["protocol"], 1);
+  const json st = again.call_ok({{"op", "status"}});
+  EXPECT_EQ(st["connections"]["rejected"], 1);
+  EXPECT_EQ(st["connections"]["open"], 1);
+}
+
+// Before hello on a token server frames are capped small; after it the normal cap applies. Any
+// refusal before hello (here unsupported_version) ends the connection like unauthorized does.
+TEST(ServerInProcess, TokenServerCapsFramesBeforeHello) {
+  const std::string token = "0123456789abcdef-token";
+  InProcessServer s(1, 1, [&](ServerOptions& o) {
+    o.token = token;
+    o.max_frame_bytes_before_hello = 64 << 10;
+  });
+  {
+    Client c = Client::connect(s.address);
+    c.set_timeout(10);
+    c.send_raw(half_frame(100000, 0));
+    expect_error_then_close(c, "frame_too_large", "before hello");
+  }
+  {
+    Client c = Client::connect(s.address);
+    c.set_timeout(10);
+    c.send_raw(
+        p::encode_frame(p::Message{{{"v", 2}, {"id", 1}, {"op", "hello"}, {"token", token}}, {}}));
+    const p::Message m = c.receive();
+    EXPECT_EQ(code_of(m), "unsupported_version");
+    EXPECT_THROW(c.receive(), ClientError);  // closed
+  }
+  {
+    Client c = Client::connect(s.address);
+    c.set_timeout(10);
+    c.send_raw(raw_frame("{oops"));  // intact framing, not JSON
+    EXPECT_EQ(code_of(c.receive()), "bad_json");
+    EXPECT_THROW(c.receive(), ClientError);
+  }
+  Client c = Client::connect(s.address);
+  c.call_ok({{"op", "hello"}, {"token", token}});
+  c.call_ok({{"op", "map.update"}, {"scene", "flat"}});
+  std::vector<float> xy(2 * 9000, 0.5f);  // 72 kB: above the pre-hello cap
+  EXPECT_EQ(c.call_ok({{"op", "map.query"}},
+                      {p::make_float_attachment("points", {9000, 2}, xy)})["results"]
+                .size(),
+            9000u);
+}
+
+// The request-byte budget across connections: a large frame that does not fit in what is left
+// gets `busy` and its connection is closed; once the bytes are consumed, it fits again.
+TEST(ServerInProcess, BufferedBytesBudget) {
+  InProcessServer s(1, 1, [](ServerOptions& o) {
+    o.max_buffered_bytes = 1 << 20;
+    o.frame_timeout_s = 30;
+  });
+  Client monitor = Client::connect(s.address);
+  // A: a debug.sleep request carrying 700 kB of padding, sent all but its last byte.
+  std::vector<float> pad(175000, 1.0f);
+  const std::string full =
+      p::encode_frame(p::Message{{{"v", 1}, {"id", 1}, {"op", "debug.sleep"}, {"ms", 0}},
+                                 {p::make_float_attachment("pad", {175000}, pad)}});
+  Client a = Client::connect(s.address);
+  a.send_raw(full.substr(0, full.size() - 1));
+  for (int i = 0; i < 500; ++i) {
+    if (monitor.call_ok({{"op", "status"}})["memory"]["buffered_request_bytes"] >= 700000) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  // B: 600 kB more would exceed the 1 MiB budget.
+  Client b = Client::connect(s.address);
+  b.set_timeout(10);
+  b.send_raw(half_frame(600000, 1000));
+  expect_error_then_close(b, "busy", "--max-buffered-bytes");
+  // A finishes and is served; then the same large frame fits.
+  a.send_raw(full.substr(full.size() - 1));
+  EXPECT_EQ(code_of(a.receive()), "");
+  for (int i = 0; i < 500; ++i) {
+    if (monitor.call_ok({{"op", "status"}})["memory"]["buffered_request_bytes"] == 0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  Client c = Client::connect(s.address);
+  c.send_raw(full);
+  EXPECT_EQ(code_of(c.receive()), "");
+  const json st = monitor.call_ok({{"op", "status"}});
+  EXPECT_EQ(st["memory"]["refused_frames"], 1);
+  EXPECT_EQ(st["memory"]["max_buffered_bytes"], 1 << 20);
+}
+
+// Huge deadlines mean "no deadline" (1e13 ms used to overflow the clock and expire at once);
+// negative ones are refused naming the field.
+TEST(ServerInProcess, HugeDeadlinesDoNotExpire) {
+  InProcessServer s(1, 1);
+  Client c = Client::connect(s.address);
+  c.call_ok({{"op", "map.update"}, {"scene", "flat"}});
+  for (double d : {1e10, 1e13, 1e300}) {
+    EXPECT_EQ(code_of(c.call({{"op", "debug.sleep"}, {"ms", 20}, {"deadline_ms", d}})), "") << d;
+    EXPECT_EQ(code_of(c.call({{"op", "map.query"}, {"points", {{0, 0}}}, {"deadline_ms", d}})), "")
+        << d;
+  }
+  const p::Message m = c.call({{"op", "status"}, {"deadline_ms", -1}});
+  EXPECT_EQ(code_of(m), "bad_request");
+  EXPECT_NE(m.header["error"]["message"].get<std::string>().find("deadline_ms"), std::string::npos);
+}
+
+TEST(ServerInProcess, DuplicateAttachmentNamesAreRefused) {
+  InProcessServer s(1, 1);
+  Client c = Client::connect(s.address);
+  c.call_ok({{"op", "map.update"}, {"scene", "flat"}});
+  const p::Message m = c.call({{"op", "map.query"}, {"id", 9}},
+                              {p::make_float_attachment("points", {1, 2}, {0, 0}),
+                               p::make_float_attachment("points", {1, 2}, {5, 5})});
+  EXPECT_EQ(code_of(m), "bad_request");
+  EXPECT_EQ(m.header["id"], 9);
+  EXPECT_NE(m.header["error"]["message"].get<std::string>().find("duplicate name \"points\""),
+            std::string::npos)
+      << m.header.dump();
+  EXPECT_EQ(c.call_ok({{"op", "map.query"}},
+                      {p::make_float_attachment("points", {1, 2}, {0, 0})})["results"]
+                .size(),
+            1u);
+}
+
+// While draining, status still answers and shows it; other requests are refused.
+TEST(ServerInProcess, StatusWhileDrainingShowsDraining) {
+  auto s = std::make_unique<InProcessServer>(1, 1, [](ServerOptions& o) { o.drain_seconds = 5; });
+  Client c = Client::connect(s->address);
+  c.send({{"op", "debug.sleep"}, {"id", 1}, {"ms", 800}});
+  // Running, not queued (queued work is answered shutting_down at once).
+  for (int i = 0; i < 500 && c.call_ok({{"op", "status"}})["queue"]["running"] != 1; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  s->server->shutdown();
+  json st;
+  for (int i = 0; i < 500; ++i) {
+    const p::Message m = c.call({{"op", "status"}});
+    ASSERT_EQ(code_of(m), "") << m.header.dump();
+    st = m.header["result"];
+    if (st["draining"] == true) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  EXPECT_EQ(st["draining"], true);
+  EXPECT_EQ(code_of(c.call({{"op", "map.query"}, {"points", {{0, 0}}}})), "shutting_down");
+  EXPECT_EQ(code_of(c.wait_for(1)), "");  // the running job drains
+  s.reset();
 }
 
 }  // namespace

@@ -3,16 +3,19 @@
 // encoded replies back through asio::post.
 #include "terrastride/service/server.hpp"
 
+#include <sys/mman.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <asio.hpp>
 #include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <condition_variable>
+#include <cstdio>
 #include <cstring>
 #include <deque>
 #include <mutex>
@@ -91,6 +94,83 @@ namespace {
 
 struct Connection;
 
+// The server-wide count of buffered request bytes (ServerOptions::max_buffered_bytes). Shared with
+// jobs, which give their bytes back on worker threads, possibly after the server is gone.
+struct ByteBudget {
+  explicit ByteBudget(std::size_t l) : limit(l) {}
+  const std::size_t limit;
+  std::atomic<std::size_t> used{0};
+  std::atomic<std::uint64_t> refused{0};
+  bool fits(std::size_t more) const { return used.load() + more <= limit; }
+};
+
+// Bytes counted against a ByteBudget until released (or destroyed).
+class BudgetHold {
+ public:
+  BudgetHold() = default;
+  BudgetHold(BudgetHold&& o) noexcept { *this = std::move(o); }
+  BudgetHold& operator=(BudgetHold&& o) noexcept {
+    if (this != &o) {
+      release();
+      budget_ = std::move(o.budget_);
+      bytes_ = o.bytes_;
+      o.bytes_ = 0;
+    }
+    return *this;
+  }
+  ~BudgetHold() { release(); }
+  void add(const std::shared_ptr<ByteBudget>& budget, std::size_t n) {
+    budget_ = budget;
+    bytes_ += n;
+    budget_->used += n;
+  }
+  void release() {
+    if (budget_ && bytes_ > 0) budget_->used -= bytes_;
+    bytes_ = 0;
+  }
+
+ private:
+  std::shared_ptr<ByteBudget> budget_;
+  std::size_t bytes_ = 0;
+};
+
+// A frame too large for a connection's fixed buffer, received into its own anonymous mapping:
+// pages are committed only as bytes arrive, and munmap returns them to the system at once (a
+// malloc'ed block of this size could stay in the heap after it is freed).
+class FrameBuffer {
+ public:
+  FrameBuffer() = default;
+  FrameBuffer(FrameBuffer&& o) noexcept { *this = std::move(o); }
+  FrameBuffer& operator=(FrameBuffer&& o) noexcept {
+    if (this != &o) {
+      reset();
+      std::swap(data_, o.data_);
+      std::swap(size_, o.size_);
+    }
+    return *this;
+  }
+  ~FrameBuffer() { reset(); }
+  bool allocate(std::size_t n) {
+    reset();
+    void* p = ::mmap(nullptr, n, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    if (p == MAP_FAILED) return false;
+    data_ = static_cast<char*>(p);
+    size_ = n;
+    return true;
+  }
+  void reset() {
+    if (data_) ::munmap(data_, size_);
+    data_ = nullptr;
+    size_ = 0;
+  }
+  char* data() const { return data_; }
+  std::size_t size() const { return size_; }
+
+ private:
+  char* data_ = nullptr;
+  std::size_t size_ = 0;
+};
+
 // A long operation travelling through the worker pool. `replied` and `conn` are I/O-thread state.
 struct Job {
   std::uint64_t seq = 0;
@@ -98,6 +178,7 @@ struct Job {
   std::string key;  // id.dump(): the connection's in-flight map key
   const Operation* op = nullptr;
   Message request;
+  BudgetHold request_bytes;  // the request's attachments, until the worker frees them
   std::shared_ptr<CancellationToken> token = std::make_shared<CancellationToken>();
   std::weak_ptr<Connection> conn;
   bool replied = false;
@@ -195,7 +276,8 @@ struct Counters {
   std::atomic<std::uint64_t> connections_total{0}, connections_open{0}, connections_rejected{0},
       requests{0}, replies_ok{0}, replies_error{0}, malformed_frames{0}, busy{0}, bytes_in{0},
       bytes_out{0}, slow_client_drops{0}, disconnects_mid_request{0}, cancelled{0},
-      deadline_exceeded{0}, auth_failures{0};
+      deadline_exceeded{0}, auth_failures{0}, frame_timeouts{0}, idle_timeouts{0},
+      write_timeouts{0};
   std::mutex mu;
   std::map<std::string, std::uint64_t> errors_by_code;
   std::map<std::string, std::uint64_t> ops;
@@ -224,6 +306,12 @@ struct Server::Impl {
   std::unique_ptr<asio::signal_set> signals;
   std::unique_ptr<asio::steady_timer> drain_timer;
   std::atomic<bool> stopped{false};
+  std::shared_ptr<ByteBudget> budget;
+  // Connections counted against max_connections (not the ones closing or refused).
+  int active_connections = 0;
+  // Connections that sent their last reply and wait briefly for the peer's end (see linger()).
+  int lingering = 0;
+  std::unique_ptr<asio::steady_timer> sweep_timer;
 
   void accept_tcp(asio::ip::tcp::acceptor& acc);
   void accept_unix(asio::local::stream_protocol::acceptor& acc);
@@ -231,6 +319,8 @@ struct Server::Impl {
   void run_job(std::shared_ptr<Job> job);  // worker thread
   void begin_shutdown();
   void drain_tick();
+  void sweep();  // timeouts: slow frames, stalled writes, idle connections, lingering closes
+  double sweep_period_s() const;
   json status_json();
   void count_error(const std::string& code) {
     counters.replies_error++;
@@ -245,6 +335,8 @@ struct Connection : std::enable_shared_from_this<Connection> {
   Connection(Server::Impl& s, asio::generic::stream_protocol::socket sock, std::uint64_t id)
       : server(s), socket(std::move(sock)), cid(id) {
     authenticated = !server.options.token.has_value();
+    asio::error_code ignored;
+    socket.non_blocking(true, ignored);  // reads happen once readable (see read_more)
   }
 
   Server::Impl& server;
@@ -253,16 +345,32 @@ struct Connection : std::enable_shared_from_this<Connection> {
   bool authenticated;
   bool closed = false;
   bool close_after_flush = false;
+  bool counted = false;  // counted in active_connections / connections_open
   // Input buffer: bytes [in_start, in_end) are received and not yet consumed. Reads go into the
-  // free tail, so several pipelined frames arrive with one system call.
-  static constexpr std::size_t kInitialBuffer = 64u << 10;
-  static constexpr std::size_t kGrowStep = 1u << 20;
-  std::string inbuf = std::string(kInitialBuffer, '\0');
+  // free tail, so several pipelined frames arrive with one system call. Its size is fixed: a
+  // frame that does not fit is received into `large` instead.
+  static constexpr std::size_t kBufferBytes = 64u << 10;
+  static constexpr std::size_t kReadChunk = 1u << 20;  // largest read into `large`
+  std::string inbuf = std::string(kBufferBytes, '\0');
   std::size_t in_start = 0, in_end = 0;
+  FrameBuffer large;
+  std::size_t large_have = 0;  // bytes of `large` received (prefix included)
+  BudgetHold large_bytes;      // large_have, counted against max_buffered_bytes
   std::deque<std::string> out;
   std::vector<std::string> writing;  // buffers of the write in progress
   std::size_t out_bytes = 0;
   std::unordered_map<std::string, std::shared_ptr<Job>> inflight;
+
+  // Timeouts (checked by Server::Impl::sweep). A frame counts from its first byte; its allowance
+  // grows with the bytes received, so a large frame arriving steadily is never cut off.
+  Clock::time_point last_active = Clock::now();
+  bool frame_started = false;
+  Clock::time_point frame_start;
+  Clock::time_point write_start;
+  std::size_t write_bytes = 0;
+  bool lingering = false;
+  Clock::time_point linger_until;
+  static constexpr double kLingerSeconds = 1.0;
 
   // Backpressure: a client whose replies pile up unsent is not read from until they drain, so it
   // slows only itself (its own sends block in TCP).
@@ -270,86 +378,167 @@ struct Connection : std::enable_shared_from_this<Connection> {
   bool read_paused = false;
   bool read_pending = false;
 
-  void start() { read_more(0); }
+  void start() { read_more(); }
 
-  // Makes room for `need` contiguous bytes from in_start, growing by at most kGrowStep beyond the
-  // bytes already received, so memory follows what a client sends, not what it announces.
-  void make_room(std::size_t need) {
-    if (in_start > 0 && (in_end == inbuf.size() || in_start + need > inbuf.size())) {
-      std::memmove(&inbuf[0], &inbuf[in_start], in_end - in_start);
-      in_end -= in_start;
-      in_start = 0;
-    }
-    if (in_end == inbuf.size() && inbuf.size() < need)
-      inbuf.resize(std::min(need, inbuf.size() + kGrowStep));
-  }
+  bool partial_frame() const { return large.data() != nullptr || in_end > in_start; }
 
-  void read_more(std::size_t need) {
-    if (closed || close_after_flush || read_pending) return;
-    make_room(std::max<std::size_t>(need, 1));
-    if (in_end == inbuf.size()) make_room(in_end - in_start + 1);
+  // Waits until the socket is readable, then reads into whatever buffer is current at that time.
+  // No buffer is handed to a pending operation, so the large-frame buffer can be freed at any
+  // moment (a timeout, a refusal) without waiting for the peer to send or close.
+  void read_more() {
+    if (closed || read_pending || (close_after_flush && !lingering)) return;
     read_pending = true;
     auto self = shared_from_this();
-    socket.async_read_some(asio::buffer(&inbuf[in_end], inbuf.size() - in_end),
-                           [self](const asio::error_code& ec, std::size_t n) {
-                             self->read_pending = false;
-                             self->server.counters.bytes_in += n;
-                             if (ec) {
-                               if (self->in_end > self->in_start)
-                                 self->server.counters.disconnects_mid_request++;
-                               return self->close();
-                             }
-                             self->in_end += n;
-                             self->process_frames();
-                           });
+    socket.async_wait(asio::socket_base::wait_read,
+                      [self](const asio::error_code& ec) { self->on_readable(ec); });
+  }
+
+  void on_readable(asio::error_code ec) {
+    read_pending = false;
+    if (closed) return;
+    char* dst;
+    std::size_t room;
+    if (lingering || close_after_flush) {  // the peer's last bytes, read only to be discarded
+      dst = &inbuf[0];
+      room = inbuf.size();
+    } else if (large.data()) {
+      dst = large.data() + large_have;
+      room = std::min(large.size() - large_have, kReadChunk);
+    } else {
+      if (in_end == inbuf.size() && in_start > 0) {
+        std::memmove(&inbuf[0], &inbuf[in_start], in_end - in_start);
+        in_end -= in_start;
+        in_start = 0;
+      }
+      dst = &inbuf[in_end];
+      room = inbuf.size() - in_end;
+    }
+    std::size_t n = 0;
+    if (!ec) n = socket.read_some(asio::buffer(dst, room), ec);
+    if (ec == asio::error::would_block || ec == asio::error::try_again) return read_more();
+    server.counters.bytes_in += n;
+    if (ec) {
+      if (!lingering && !close_after_flush && partial_frame())
+        server.counters.disconnects_mid_request++;
+      return close();
+    }
+    if (lingering || close_after_flush) return read_more();
+    last_active = Clock::now();
+    if (large.data()) {
+      large_have += n;
+      large_bytes.add(server.budget, n);
+      if (server.budget->used.load() > server.budget->limit) return refuse_for_budget(large.size());
+    } else {
+      in_end += n;
+    }
+    process_frames();
+  }
+
+  void free_large() {
+    large.reset();
+    large_have = 0;
+    large_bytes.release();
+  }
+
+  // The cap on a frame's body: smaller until a token server has seen hello.
+  std::uint32_t frame_cap() const {
+    return authenticated ? server.options.max_frame_bytes
+                         : std::min(server.options.max_frame_bytes,
+                                    server.options.max_frame_bytes_before_hello);
   }
 
   // Dispatches every complete frame in the buffer, then reads on (unless paused or closing).
   void process_frames() {
-    std::size_t need = 0;
     while (!closed && !close_after_flush) {
       if (out_bytes > kPauseReadBytes) {
         read_paused = true;
         return;
       }
-      const std::size_t avail = in_end - in_start;
-      if (avail < 4) {
-        need = 4;
-        break;
+      if (large.data()) {
+        if (large_have < large.size()) break;
+        // Moved out first: whatever dispatch does (even closing), the body stays valid.
+        FrameBuffer frame = std::move(large);
+        BudgetHold held = std::move(large_bytes);
+        large_have = 0;
+        frame_started = false;
+        dispatch(std::string_view(frame.data() + 4, frame.size() - 4));
+        continue;
       }
+      const std::size_t avail = in_end - in_start;
+      if (avail < 4) break;
       const std::uint32_t len =
           protocol::read_u32be(reinterpret_cast<const unsigned char*>(&inbuf[in_start]));
+      const std::uint32_t cap = frame_cap();
       try {
-        protocol::check_body_length(len, server.options.max_frame_bytes);
+        protocol::check_body_length(len, cap);
       } catch (const ProtocolError& e) {
         // The stream cannot be resynchronised: reply, then close once the reply is out.
         server.counters.malformed_frames++;
-        send_error(nullptr, e.code(), e.what());
-        close_after_flush = true;
-        if (out.empty() && writing.empty()) close();
+        std::string message = e.what();
+        if (len > cap && cap < server.options.max_frame_bytes)
+          message = "frame of " + std::to_string(len) + " bytes exceeds the limit of " +
+                    std::to_string(cap) +
+                    " bytes before hello (--max-frame-bytes-before-hello); authenticate first";
+        send_error(nullptr, e.code(), message);
+        finish_and_close();
         return;
       }
-      if (avail < 4 + std::size_t(len)) {
-        need = 4 + std::size_t(len);
-        break;
+      const std::size_t total = 4 + std::size_t(len);
+      if (avail >= total) {
+        const std::string_view body(&inbuf[in_start + 4], len);
+        in_start += total;
+        frame_started = false;
+        dispatch(body);
+        continue;
       }
-      const std::string_view body(&inbuf[in_start + 4], len);
-      in_start += 4 + len;
-      dispatch(body);
+      if (total > inbuf.size() && !start_large(total)) return;
+      break;
     }
     if (closed || close_after_flush) return;
-    if (in_start == in_end) {
-      in_start = in_end = 0;
-      if (inbuf.size() > kInitialBuffer) {  // give back the room a large frame needed
-        inbuf.resize(kInitialBuffer);
-        inbuf.shrink_to_fit();
-      }
+    if (in_start == in_end) in_start = in_end = 0;
+    if (!partial_frame()) {
+      frame_started = false;
+    } else if (!frame_started) {
+      frame_started = true;
+      frame_start = Clock::now();
     }
-    read_more(need);
+    read_more();
+  }
+
+  // Moves the partial frame at in_start into its own buffer of `total` bytes. False (after a
+  // `busy` reply) when the frame cannot fit in what the request-byte budget has left.
+  bool start_large(std::size_t total) {
+    const std::size_t have = in_end - in_start;
+    if (!server.budget->fits(total)) {
+      refuse_for_budget(total);
+      return false;
+    }
+    if (!large.allocate(total)) {
+      send_error(nullptr, pc::kBusy,
+                 "cannot allocate " + std::to_string(total) + " bytes for a frame; retry later");
+      finish_and_close();
+      return false;
+    }
+    std::memcpy(large.data(), &inbuf[in_start], have);
+    large_have = have;
+    large_bytes.add(server.budget, have);
+    in_start = in_end = 0;
+    return true;
+  }
+
+  void refuse_for_budget(std::size_t frame_bytes) {
+    server.budget->refused++;
+    server.counters.busy++;
+    send_error(nullptr, pc::kBusy,
+               "frame of " + std::to_string(frame_bytes) + " bytes refused: the server holds " +
+                   std::to_string(server.budget->used.load()) +
+                   " bytes of requests and its budget is " + std::to_string(server.budget->limit) +
+                   " (--max-buffered-bytes); connection closed, retry later");
+    finish_and_close();
   }
 
   void send(std::string frame) {
-    if (closed) return;
+    if (closed || lingering) return;
     server.counters.bytes_out += frame.size();
     out_bytes += frame.size();
     if (out_bytes > server.options.max_write_queue_bytes) {
@@ -358,6 +547,7 @@ struct Connection : std::enable_shared_from_this<Connection> {
       close();
       return;
     }
+    last_active = Clock::now();
     out.push_back(std::move(frame));
     if (writing.empty()) do_write();
   }
@@ -379,7 +569,7 @@ struct Connection : std::enable_shared_from_this<Connection> {
   void do_write() {
     if (closed) return;
     if (out.empty()) {
-      if (close_after_flush) close();
+      if (close_after_flush) linger();
       return;
     }
     std::vector<asio::const_buffer> bufs;
@@ -387,27 +577,61 @@ struct Connection : std::enable_shared_from_this<Connection> {
       writing.push_back(std::move(out.front()));
       out.pop_front();
     }
-    for (const auto& w : writing) bufs.emplace_back(asio::buffer(w));
+    write_bytes = 0;
+    for (const auto& w : writing) {
+      bufs.emplace_back(asio::buffer(w));
+      write_bytes += w.size();
+    }
+    write_start = Clock::now();
     auto self = shared_from_this();
     asio::async_write(socket, bufs, [self](const asio::error_code& ec, std::size_t) {
       for (const auto& w : self->writing) self->out_bytes -= w.size();
       self->writing.clear();
       if (ec) return self->close();
+      self->last_active = Clock::now();
       if (self->read_paused && self->out_bytes <= kPauseReadBytes / 2) {
         self->read_paused = false;
+        // The frame clock stopped while the server did not read.
+        if (self->frame_started) self->frame_start = Clock::now();
         self->process_frames();
       }
       self->do_write();
     });
   }
 
-  void close() {
-    if (closed) return;
-    closed = true;
+  // After the last reply (an error that ends the connection): stop reading requests, close once
+  // it is written.
+  void finish_and_close() {
+    close_after_flush = true;
+    free_large();
+    abandon_jobs();
+    if (out.empty() && writing.empty()) linger();
+  }
+
+  // Half-closes (FIN after the last reply) and reads until the peer closes or kLingerSeconds
+  // pass: closing with unread input would send a reset, which can destroy the reply in flight.
+  void linger() {
+    if (closed || lingering) return;
+    uncount();
+    if (server.lingering >= std::max(64, server.options.max_connections)) return close();
+    lingering = true;
+    server.lingering++;
     asio::error_code ignored;
-    socket.shutdown(asio::socket_base::shutdown_both, ignored);
-    socket.close(ignored);
-    // Nobody is left to read these replies: stop the work.
+    socket.shutdown(asio::socket_base::shutdown_send, ignored);
+    linger_until = Clock::now() + std::chrono::milliseconds(static_cast<int>(kLingerSeconds * 1e3));
+    in_start = in_end = 0;
+    read_more();
+  }
+
+  void uncount() {
+    if (!counted) return;
+    counted = false;
+    server.active_connections--;
+    server.counters.connections_open--;
+  }
+
+  // Nobody is left to read these replies: stop the work.
+  void abandon_jobs() {
     for (auto& [key, job] : inflight) {
       job->replied = true;
       job->token->cancel(CancellationToken::Reason::kCancelled);
@@ -415,8 +639,78 @@ struct Connection : std::enable_shared_from_this<Connection> {
       server.pool->try_remove(job);
     }
     inflight.clear();
-    server.counters.connections_open--;
+  }
+
+  void close() {
+    if (closed) return;
+    closed = true;
+    uncount();
+    if (lingering) server.lingering--;
+    asio::error_code ignored;
+    socket.shutdown(asio::socket_base::shutdown_both, ignored);
+    socket.close(ignored);
+    free_large();
+    abandon_jobs();
     server.connections.erase(shared_from_this());
+  }
+
+  // Called by the sweep: closes a connection whose frame, write or silence outlasted its limit.
+  void check_timeouts(Clock::time_point now) {
+    if (closed) return;
+    const auto since = [&](Clock::time_point t) {
+      return std::chrono::duration<double>(now - t).count();
+    };
+    if (lingering) {
+      if (now >= linger_until) close();
+      return;
+    }
+    const ServerOptions& o = server.options;
+    if (o.frame_timeout_s <= 0 && o.idle_timeout_s <= 0) return;
+    if (o.frame_timeout_s > 0 && !writing.empty() &&
+        since(write_start) > o.frame_timeout_s + double(write_bytes) / o.min_receive_rate) {
+      // The client does not take its replies: nothing more can reach it, so no error reply.
+      server.counters.write_timeouts++;
+      return close();
+    }
+    if (close_after_flush) return;
+    if (o.frame_timeout_s > 0 && frame_started && !read_paused) {
+      const std::size_t have = large.data() ? large_have : in_end - in_start;
+      const double allowed = o.frame_timeout_s + double(have) / o.min_receive_rate;
+      if (since(frame_start) > allowed) {
+        server.counters.frame_timeouts++;
+        char text[64];
+        std::snprintf(text, sizeof(text), "%.3g s", allowed);
+        const std::size_t announced =
+            large.data() ? large.size()
+            : have >= 4  ? 4 + std::size_t(protocol::read_u32be(
+                                   reinterpret_cast<const unsigned char*>(&inbuf[in_start])))
+                         : 0;
+        send_error(nullptr, pc::kTimeout,
+                   "frame incomplete after " + std::string(text) + ": " + std::to_string(have) +
+                       (announced ? " of " + std::to_string(announced) : std::string()) +
+                       " bytes received (a frame must arrive within --frame-timeout plus its "
+                       "bytes at --min-receive-rate); connection closed");
+        return finish_and_close();
+      }
+    }
+    const bool busy = frame_started || !inflight.empty() || !out.empty() || !writing.empty();
+    if (busy) return;
+    // Before hello on a token server, silence is bounded by the frame timeout too.
+    double limit = o.idle_timeout_s;
+    const bool waiting_for_hello = !authenticated && o.frame_timeout_s > 0;
+    if (waiting_for_hello)
+      limit = limit > 0 ? std::min(limit, o.frame_timeout_s) : o.frame_timeout_s;
+    if (limit > 0 && since(last_active) > limit) {
+      server.counters.idle_timeouts++;
+      char text[64];
+      std::snprintf(text, sizeof(text), "%.3g s", limit);
+      send_error(nullptr, pc::kTimeout,
+                 waiting_for_hello ? "no hello within " + std::string(text) +
+                                         " (--frame-timeout); connection closed"
+                                   : "connection idle for " + std::string(text) +
+                                         " (--idle-timeout); connection closed");
+      finish_and_close();
+    }
   }
 
   void finish_job(const std::shared_ptr<Job>& job, std::string frame, bool ok,
@@ -456,9 +750,13 @@ void Connection::dispatch(std::string_view body) {
     m = protocol::decode_body(body);
     id = protocol::salvage_id(m.header);
     req = protocol::parse_envelope(m.header, &id);
+    protocol::check_attachment_names(m);
   } catch (const ProtocolError& e) {
     server.counters.malformed_frames++;
     send_error(id, e.code(), e.what());
+    // Before hello on a token server every refusal ends the connection, as `unauthorized` does:
+    // a peer without the token gets no second try on the same connection.
+    if (!authenticated) finish_and_close();
     return;
   }
   {
@@ -480,12 +778,13 @@ void Connection::dispatch(std::string_view body) {
       send_error(id, pc::kUnauthorized,
                  req.op == "hello" ? "wrong or missing token"
                                    : "authenticate first: send hello with \"token\"");
-      close_after_flush = true;
+      finish_and_close();
       return;
     }
     authenticated = true;
   }
-  if (server.draining) {
+  // While draining, status still answers (it is how a client sees "draining": true).
+  if (server.draining && req.op != "status") {
     send_error(id, pc::kShuttingDown, "server is shutting down; request '" + req.op + "' refused");
     return;
   }
@@ -556,7 +855,11 @@ void Connection::dispatch(std::string_view body) {
                     {"cancel", true},
                     {"workers", server.pool->workers()},
                     {"queue", server.pool->capacity()},
-                    {"token_required", server.options.token.has_value()}}}};
+                    {"token_required", server.options.token.has_value()},
+                    {"max_connections", server.options.max_connections},
+                    {"frame_timeout_s", server.options.frame_timeout_s},
+                    {"min_receive_rate", server.options.min_receive_rate},
+                    {"idle_timeout_s", server.options.idle_timeout_s}}}};
       r.result["ops"] = {"hello", "status", "cancel"};
       for (const auto& n : server.registry.names()) r.result["ops"].push_back(n);
       if (server.hello_extra) r.result.update(server.hello_extra());
@@ -602,6 +905,11 @@ void Connection::dispatch(std::string_view body) {
   }
   job->op = op;
   job->request = std::move(m);
+  // The attachments stay in memory until a worker runs the job: count them as buffered request
+  // bytes (already received, so counted rather than refused; the next large frame sees them).
+  std::size_t request_bytes = 0;
+  for (const auto& a : job->request.attachments) request_bytes += a.data.size();
+  job->request_bytes.add(server.budget, request_bytes);
   job->conn = weak_from_this();
   if (req.deadline_ms) {
     const auto deadline =
@@ -679,6 +987,7 @@ void Server::Impl::run_job(std::shared_ptr<Job> job) {
         protocol::make_error(job->id, code, job->op->name + ": " + e.what()));
   }
   job->request = Message{};  // free the attachments now
+  job->request_bytes.release();
   asio::post(io, [job, frame = std::move(frame), ok, code]() mutable {
     auto c = job->conn.lock();
     if (job->deadline_timer) job->deadline_timer->cancel();
@@ -690,20 +999,31 @@ void Server::Impl::run_job(std::shared_ptr<Job> job) {
 void Server::Impl::adopt(asio::generic::stream_protocol::socket sock, bool tcp) {
   counters.connections_total++;
   if (draining) return;
-  if (static_cast<int>(connections.size()) >= options.max_connections) {
+  auto c = std::make_shared<Connection>(*this, std::move(sock), next_conn_id++);
+  if (active_connections >= options.max_connections) {
     counters.connections_rejected++;
-    // Best effort: tell the client why, then close.
-    const std::string frame = protocol::encode_frame(protocol::make_error(
-        nullptr, pc::kBusy,
-        "connection limit of " + std::to_string(options.max_connections) + " reached"));
-    asio::error_code ec;
-    sock.non_blocking(true, ec);
-    asio::write(sock, asio::buffer(frame), ec);
-    sock.close(ec);
+    const std::string message = "connection limit of " + std::to_string(options.max_connections) +
+                                " reached (--max-connections); retry later";
+    if (lingering >= std::max(64, options.max_connections)) {
+      // Too many closes in progress already: a best-effort reply, then close at once.
+      const std::string frame =
+          protocol::encode_frame(protocol::make_error(nullptr, pc::kBusy, message));
+      asio::error_code ec;
+      c->socket.non_blocking(true, ec);
+      asio::write(c->socket, asio::buffer(frame), ec);
+      c->socket.close(ec);
+      return;
+    }
+    // Told why (`busy`, id null), then closed gracefully, so the client reads the reply instead
+    // of a reset; it never counts against the limit.
+    connections.insert(c);
+    c->send_error(nullptr, pc::kBusy, message);
+    c->finish_and_close();
     return;
   }
+  active_connections++;
   counters.connections_open++;
-  auto c = std::make_shared<Connection>(*this, std::move(sock), next_conn_id++);
+  c->counted = true;
   connections.insert(c);
   c->start();
 }
@@ -740,6 +1060,27 @@ void Server::Impl::accept_unix(asio::local::stream_protocol::acceptor& acc) {
       });
 }
 
+namespace {
+
+// Resident memory of this process from /proc (Linux), -1 elsewhere.
+long resident_bytes() {
+  std::FILE* f = std::fopen("/proc/self/statm", "r");
+  if (!f) return -1;
+  long pages_total = 0, pages_resident = -1;
+  if (std::fscanf(f, "%ld %ld", &pages_total, &pages_resident) != 2) pages_resident = -1;
+  std::fclose(f);
+  return pages_resident < 0 ? -1 : pages_resident * ::sysconf(_SC_PAGESIZE);
+}
+
+}  // namespace
+
+std::size_t default_max_buffered_bytes() {
+  const std::size_t gib = std::size_t{1} << 30;
+  const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGESIZE);
+  if (pages <= 0 || page <= 0) return gib;
+  return std::min(gib, static_cast<std::size_t>(pages) * static_cast<std::size_t>(page) / 4);
+}
+
 json Server::Impl::status_json() {
   json errors = json::object();
   json ops = json::object();
@@ -756,7 +1097,10 @@ json Server::Impl::status_json() {
               {"total", counters.connections_total.load()},
               {"rejected", counters.connections_rejected.load()},
               {"slow_client_drops", counters.slow_client_drops.load()},
-              {"disconnects_mid_request", counters.disconnects_mid_request.load()}}},
+              {"disconnects_mid_request", counters.disconnects_mid_request.load()},
+              {"frame_timeouts", counters.frame_timeouts.load()},
+              {"idle_timeouts", counters.idle_timeouts.load()},
+              {"write_timeouts", counters.write_timeouts.load()}}},
             {"requests",
              {{"total", counters.requests.load()},
               {"ok", counters.replies_ok.load()},
@@ -773,9 +1117,33 @@ json Server::Impl::status_json() {
              {{"length", pool ? pool->queued() : std::size_t{0}},
               {"capacity", pool ? pool->capacity() : std::size_t{0}},
               {"running", pool ? pool->running() : std::size_t{0}},
-              {"workers", pool ? pool->workers() : std::size_t{0}}}}};
+              {"workers", pool ? pool->workers() : std::size_t{0}}}},
+            {"memory",
+             {{"buffered_request_bytes", budget->used.load()},
+              {"max_buffered_bytes", budget->limit},
+              {"refused_frames", budget->refused.load()}}}};
+  if (const long rss = resident_bytes(); rss >= 0) s["memory"]["rss_bytes"] = rss;
   if (status_extra) s.update(status_extra());
   return s;
+}
+
+double Server::Impl::sweep_period_s() const {
+  // A quarter of the shortest limit, so a limit is enforced within 25 % of its value.
+  double shortest = Connection::kLingerSeconds;
+  if (options.frame_timeout_s > 0) shortest = std::min(shortest, options.frame_timeout_s);
+  if (options.idle_timeout_s > 0) shortest = std::min(shortest, options.idle_timeout_s);
+  return std::clamp(shortest / 4, 0.005, 1.0);
+}
+
+void Server::Impl::sweep() {
+  const auto now = Clock::now();
+  const auto conns = connections;  // check_timeouts may close (erase) connections
+  for (const auto& c : conns) c->check_timeouts(now);
+  sweep_timer->expires_after(
+      std::chrono::microseconds(static_cast<long long>(sweep_period_s() * 1e6)));
+  sweep_timer->async_wait([this](const asio::error_code& ec) {
+    if (!ec) sweep();
+  });
 }
 
 void Server::Impl::begin_shutdown() {
@@ -836,6 +1204,7 @@ Server::Server(ServerOptions options, OperationRegistry operations,
   impl_->registry = std::move(operations);
   impl_->status_extra = std::move(status_extra);
   impl_->hello_extra = std::move(hello_extra);
+  impl_->budget = std::make_shared<ByteBudget>(impl_->options.max_buffered_bytes);
   Impl* impl = impl_.get();
   impl_->pool = std::make_unique<WorkerPool>(impl_->options.workers, impl_->options.queue,
                                              [impl](std::shared_ptr<Job> j) { impl->run_job(j); });
@@ -924,6 +1293,8 @@ void Server::run() {
       if (!ec) im.begin_shutdown();
     });
   }
+  im.sweep_timer = std::make_unique<asio::steady_timer>(im.io);
+  im.sweep();
   if (im.stopped) im.begin_shutdown();
   im.io.run();
   im.pool->stop();

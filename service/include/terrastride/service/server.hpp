@@ -71,6 +71,9 @@ class OperationRegistry {
   std::map<std::string, Operation> ops_;
 };
 
+// min(1 GiB, a quarter of the physical memory): the default request-buffer budget.
+std::size_t default_max_buffered_bytes();
+
 struct ServerOptions {
   std::vector<std::string> listen{"tcp://127.0.0.1:0"};  // tcp://HOST:PORT or unix:PATH
   std::optional<std::string> token;  // shared secret; required for non-loopback TCP addresses
@@ -82,6 +85,25 @@ struct ServerOptions {
   std::size_t max_write_queue_bytes = 256u << 20;  // unsent replies before a client is dropped
   double drain_seconds = 5.0;  // on SIGINT/SIGTERM: time running jobs get before cancellation
   bool handle_signals = true;
+
+  // Limits that keep clients from holding memory or connection slots without using them
+  // (docs/protocol.md, "Limits"). A frame that has started must be complete within
+  // frame_timeout_s plus the time its received bytes take at min_receive_rate (bytes/s), or the
+  // connection gets a `timeout` error and is closed; replies the client does not take within the
+  // same allowance close it too. On token servers, hello must arrive within frame_timeout_s of
+  // connecting. 0 = off.
+  double frame_timeout_s = 10.0;
+  double min_receive_rate = 128.0 * 1024;  // 1 Mbit/s
+  // A connection with nothing in flight (no partial frame, no worker job, no unsent reply) is
+  // closed after this long. 0 = off.
+  double idle_timeout_s = 300.0;
+  // Largest frame before a successful hello on a token server: an unauthenticated peer cannot
+  // make the server buffer more than this per connection.
+  std::uint32_t max_frame_bytes_before_hello = 64u << 10;
+  // Request bytes held across all connections: frames larger than a connection's 64 KiB buffer
+  // while they arrive, and the decoded requests of queued and running worker jobs. A frame that
+  // would exceed it gets `busy` (id null) and its connection is closed.
+  std::size_t max_buffered_bytes = default_max_buffered_bytes();
 };
 
 // Parsed listen address.
