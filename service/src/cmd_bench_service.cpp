@@ -1,14 +1,20 @@
 // `terrastride bench-service`: load tool for the socket service. Measures map.query throughput and
 // latency with many concurrent clients, the overhead a worker operation (plan) adds beyond its own
-// compute time, and survival of malformed frames and abrupt disconnects while well-behaved clients
-// keep getting exact answers.
+// compute time, and, in hostile mode, what attacks on the transport do (malformed frames, abrupt
+// disconnects, slowloris, half-sent frames, idle sockets at the connection limit, oversized
+// length claims, the request-byte budget, deadline overflow, duplicate attachments, unknown
+// fields) to the server's memory and to well-behaved clients querying meanwhile.
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <fstream>
+#include <functional>
 #include <iomanip>
 #include <iostream>
+#include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <random>
 #include <thread>
 
@@ -37,6 +43,16 @@ struct BenchOptions {
   bool json = false;
   bool json_points = false;
   double rate = 0;  // requests per second per client; 0 = back to back (saturation)
+  // Hostile mode.
+  int slowloris = 32;      // connections per slow-frame case
+  double max_wait_s = 15;  // longest wait for the server to close a hostile connection
+  int server_pid = 0;      // for the RSS of a server given with --connect
+  // The in-process server's limits (hostile mode), short so the cases finish in seconds.
+  double server_frame_timeout_s = 2;
+  double server_idle_timeout_s = 3;
+  double server_min_receive_rate = 1 << 20;
+  int server_max_connections = 128;
+  std::size_t server_max_buffered_bytes = std::size_t{256} << 20;
 };
 
 double ms_since(Clock::time_point t) {
@@ -200,87 +216,496 @@ json bench_overhead(const BenchOptions& o, const std::string& samples) {
   return j;
 }
 
-// Hostile traffic while `clients` well-behaved clients query; nothing may be lost for them.
-json bench_hostile(const BenchOptions& o, const json& extent) {
-  std::atomic<bool> keep_going{true};
-  BenchOptions good = o;
-  QueryRun background;
-  std::thread bg([&] { background = run_queries(good, 4, 0, extent, &keep_going); });
-  const auto t0 = Clock::now();
-  // Malformed frames with intact framing: every one must get an error reply.
-  std::uint64_t malformed_replies = 0;
-  const int per_conn = 1000;
-  for (int sent = 0; sent < o.malformed; sent += per_conn) {
-    Client c = connect(o);
-    const int n = std::min(per_conn, o.malformed - sent);
-    std::string burst;
-    for (int i = 0; i < n; ++i) {
-      std::string header;
-      switch (i % 5) {
-        case 0:
-          header = "{not json";
-          break;
-        case 1:
-          header = "[1,2,3]";
-          break;
-        case 2:
-          header = R"({"v":1,"id":1,"op":7})";
-          break;
-        case 3:
-          header = R"({"v":1,"id":2,"op":"no.such.op"})";
-          break;
-        default:
-          header = R"({"v":1,"id":3,"op":"map.query","points":[[1,"x"]]})";
-          break;
+// ---- hostile mode ----
+
+// Well-behaved clients querying throughout the hostile cases; their latencies are kept with the
+// time they were measured, so each case reports what a good client saw while it ran.
+class Bystanders {
+ public:
+  Bystanders(const BenchOptions& o, const json& extent, int clients) : o_(o) {
+    for (int t = 0; t < clients; ++t) threads_.emplace_back([this, extent, t] { loop(extent, t); });
+  }
+  ~Bystanders() { stop(); }
+  void stop() {
+    stop_ = true;
+    for (auto& t : threads_)
+      if (t.joinable()) t.join();
+  }
+  // Latency figures for samples taken within [t0, t1], plus failures in that window.
+  json window(Clock::time_point t0, Clock::time_point t1) {
+    std::vector<double> v;
+    std::uint64_t failures = 0;
+    std::lock_guard<std::mutex> lock(mu_);
+    for (const auto& [t, ms] : samples_)
+      if (t >= t0 && t <= t1) {
+        if (ms < 0)
+          failures++;
+        else
+          v.push_back(ms);
       }
-      std::string f(8, '\0');
-      protocol::write_u32be(static_cast<std::uint32_t>(4 + header.size()),
-                            reinterpret_cast<unsigned char*>(&f[0]));
-      protocol::write_u32be(static_cast<std::uint32_t>(header.size()),
-                            reinterpret_cast<unsigned char*>(&f[4]));
-      burst += f + header;
-    }
-    std::thread w([&] { c.send_raw(burst); });
-    for (int i = 0; i < n; ++i)
-      if (!c.receive().header.value("ok", true)) malformed_replies++;
-    w.join();
+    json j = latency_json(v);
+    j["failures"] = failures;
+    return j;
   }
-  const double malformed_s = std::chrono::duration<double>(Clock::now() - t0).count();
-  // Abrupt disconnects: mid-prefix, mid-body, after a full request, with a job in flight.
-  const auto t1 = Clock::now();
-  int disconnects = 0;
-  for (int i = 0; i < o.disconnects; ++i) {
+
+ private:
+  void loop(const json& extent, int t) {
+    std::mt19937 rng(99 + t);
+    const double x0 = extent[0][0], y0 = extent[0][1], x1 = extent[1][0], y1 = extent[1][1];
+    std::uniform_real_distribution<double> ux(x0, x1), uy(y0, y1);
+    std::optional<Client> c;
+    while (!stop_) {
+      const auto start = Clock::now();
+      double ms = -1;
+      try {
+        if (!c) c.emplace(connect(o_));
+        std::vector<float> xy;
+        for (int k = 0; k < o_.points; ++k)
+          xy.insert(xy.end(), {static_cast<float>(ux(rng)), static_cast<float>(uy(rng))});
+        const auto reply =
+            c->call({{"op", "map.query"}},
+                    {protocol::make_float_attachment("points", {std::uint64_t(o_.points), 2}, xy)});
+        if (reply.header.value("ok", false) &&
+            reply.header["result"]["results"].size() == static_cast<std::size_t>(o_.points))
+          ms = ms_since(start);
+      } catch (const std::exception&) {
+        c.reset();  // reconnect next time
+      }
+      {
+        std::lock_guard<std::mutex> lock(mu_);
+        samples_.emplace_back(Clock::now(), ms);
+      }
+      // Paced (not saturating): the figure is the latency a control loop would see.
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+  }
+
+  const BenchOptions& o_;
+  std::atomic<bool> stop_{false};
+  std::vector<std::thread> threads_;
+  std::mutex mu_;
+  std::vector<std::pair<Clock::time_point, double>> samples_;
+};
+
+// What the server says about itself (a fresh connection, so an idle timeout cannot have closed
+// it); null when it cannot be reached (e.g. while every connection slot is taken).
+json server_status(const BenchOptions& o) {
+  try {
+    Client c = connect(o);
+    c.set_timeout(5);
+    return c.call_ok({{"op", "status"}});
+  } catch (const std::exception&) {
+    return nullptr;
+  }
+}
+
+// Resident memory of the server in kB: /proc/PID/status with --server-pid, else the status op's
+// memory.rss_bytes (servers from before that field: -1).
+long server_rss_kb(const BenchOptions& o) {
+  if (o.server_pid > 0) {
+    std::ifstream in("/proc/" + std::to_string(o.server_pid) + "/status");
+    std::string line;
+    while (std::getline(in, line))
+      if (line.rfind("VmRSS:", 0) == 0) return std::stol(line.substr(6));
+    return -1;
+  }
+  const json st = server_status(o);
+  if (st.is_object() && st.contains("memory") && st["memory"].contains("rss_bytes"))
+    return st["memory"]["rss_bytes"].get<long>() / 1024;
+  return -1;
+}
+
+std::string frame_prefix(std::uint32_t body_length) {
+  std::string f(4, '\0');
+  protocol::write_u32be(body_length, reinterpret_cast<unsigned char*>(&f[0]));
+  return f;
+}
+
+std::string raw_frame(const std::string& header) {
+  std::string f = frame_prefix(static_cast<std::uint32_t>(4 + header.size())) + "    ";
+  protocol::write_u32be(static_cast<std::uint32_t>(header.size()),
+                        reinterpret_cast<unsigned char*>(&f[4]));
+  return f + header;
+}
+
+// One hostile connection's fate: the error replies it got, and whether the server closed it
+// cleanly (FIN), reset it, or left it open.
+struct Fate {
+  std::map<std::string, int> errors;
+  int ok = 0, closed = 0, reset = 0, open = 0;
+  void add(const Fate& f) {
+    for (const auto& [k, v] : f.errors) errors[k] += v;
+    ok += f.ok, closed += f.closed, reset += f.reset, open += f.open;
+  }
+  json to_json() const {
+    json e = json::object();
+    for (const auto& [k, v] : errors) e[k] = v;
+    return {{"error_replies", e},
+            {"ok_replies", ok},
+            {"closed_by_server", closed},
+            {"reset", reset},
+            {"still_open", open}};
+  }
+};
+
+// Reads replies until the server closes the connection or `wait_s` pass.
+Fate await_fate(Client& c, double wait_s) {
+  Fate f;
+  c.set_timeout(wait_s);
+  for (;;) {
+    try {
+      const auto m = c.receive();
+      if (m.header.value("ok", false))
+        f.ok++;
+      else
+        f.errors[m.header["error"].value("code", "?")]++;
+    } catch (const ClientError& e) {
+      const std::string what = e.what();
+      if (what.find("timed out") != std::string::npos)
+        f.open++;
+      else if (what.find("closed by the server") != std::string::npos)
+        f.closed++;
+      else
+        f.reset++;
+      return f;
+    }
+  }
+}
+
+// await_fate for every connection, all within one shared wait.
+Fate await_fates(std::vector<Client>& cs, double wait_s) {
+  Fate f;
+  const auto until = Clock::now() + std::chrono::duration_cast<Clock::duration>(
+                                        std::chrono::duration<double>(wait_s));
+  for (auto& c : cs)
+    f.add(
+        await_fate(c, std::max(0.05, std::chrono::duration<double>(until - Clock::now()).count())));
+  return f;
+}
+
+// The server's limits as it reports them in hello (older servers: the documented defaults).
+struct Limits {
+  double frame_timeout_s = 10, idle_timeout_s = 300;
+  int max_connections = 512;
+  std::uint64_t max_frame_bytes = 64u << 20;
+};
+
+json bench_hostile(const BenchOptions& o, const json& extent) {
+  Limits lim;
+  {
     Client c = Client::connect(o.connect);
-    const std::string f = protocol::encode_frame(
-        {{{"v", 1}, {"id", 1}, {"op", "map.query"}, {"points", {{0.0, 0.0}}}}, {}});
-    switch (i % 3) {
-      case 0:
-        c.send_raw(f.substr(0, 2));
-        break;
-      case 1:
-        c.send_raw(f.substr(0, f.size() - 3));
-        break;
-      default:
-        c.send_raw(f);
-        break;
-    }
-    c.close();
-    disconnects++;
+    json hello = {{"op", "hello"}};
+    if (!o.token.empty()) hello["token"] = o.token;
+    const json caps = c.call_ok(hello)["capabilities"];
+    lim.frame_timeout_s = caps.value("frame_timeout_s", lim.frame_timeout_s);
+    lim.idle_timeout_s = caps.value("idle_timeout_s", lim.idle_timeout_s);
+    lim.max_connections = caps.value("max_connections", lim.max_connections);
+    lim.max_frame_bytes = caps.value("max_frame_bytes", lim.max_frame_bytes);
   }
-  const double disconnect_s = std::chrono::duration<double>(Clock::now() - t1).count();
-  keep_going = false;
-  bg.join();
-  json st = connect(o).call_ok({{"op", "status"}});
-  return {{"malformed_sent", o.malformed},
-          {"malformed_error_replies", malformed_replies},
-          {"malformed_s", malformed_s},
-          {"disconnects", disconnects},
-          {"disconnect_s", disconnect_s},
-          {"background_queries", background.latencies_ms.size()},
-          {"background_failures", background.failures},
-          {"background_latency", latency_json(background.latencies_ms)},
-          {"server_connections_open", st["connections"]["open"]},
-          {"server_malformed_frames", st["requests"]["malformed_frames"]}};
+  // How long a case waits for the server to close its hostile connections: the limit plus
+  // slack, capped so that a server without the limit shows up as "still_open" in bounded time.
+  const double settle_s = std::min(lim.frame_timeout_s, o.max_wait_s) + 2.0;
+  Bystanders bystanders(o, extent, 4);
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  json cases = json::array();
+
+  auto run_case = [&](const std::string& name, const std::string& what,
+                      const std::function<json()>& attack) {
+    const long rss_before = server_rss_kb(o);
+    const auto t0 = Clock::now();
+    json r;
+    try {
+      r = attack();
+    } catch (const std::exception& e) {
+      r = {{"bench_error", e.what()}};
+    }
+    const auto t1 = Clock::now();
+    const json st = server_status(o);
+    r["name"] = name;
+    r["attack"] = what;
+    r["seconds"] = std::chrono::duration<double>(t1 - t0).count();
+    r["survived"] = st.is_object();
+    r["rss_before_kb"] = rss_before;
+    r["rss_after_kb"] = server_rss_kb(o);
+    r["bystanders"] = bystanders.window(t0, t1);
+    cases.push_back(r);
+    std::cerr << "bench-service: hostile case " << name << " done\n";
+  };
+
+  run_case("malformed", std::to_string(o.malformed) + " malformed frames, 1000 per connection",
+           [&] {
+             Fate fate;
+             const int per_conn = 1000;
+             for (int sent = 0; sent < o.malformed; sent += per_conn) {
+               Client c = connect(o);
+               const int n = std::min(per_conn, o.malformed - sent);
+               std::string burst;
+               for (int i = 0; i < n; ++i) {
+                 static const char* headers[] = {
+                     "{not json", "[1,2,3]", R"({"v":1,"id":1,"op":7})",
+                     R"({"v":1,"id":2,"op":"no.such.op"})",
+                     R"({"v":1,"id":3,"op":"map.query","points":[[1,"x"]]})"};
+                 burst += raw_frame(headers[i % 5]);
+               }
+               std::thread w([&] { c.send_raw(burst); });
+               for (int i = 0; i < n; ++i) {
+                 const auto m = c.receive();
+                 if (m.header.value("ok", false))
+                   fate.ok++;
+                 else
+                   fate.errors[m.header["error"].value("code", "?")]++;
+               }
+               w.join();
+             }
+             return fate.to_json();
+           });
+
+  run_case("disconnects",
+           std::to_string(o.disconnects) +
+               " abrupt disconnects: mid-prefix, mid-body, after a whole request",
+           [&] {
+             const std::string f = protocol::encode_frame(
+                 {{{"v", 1}, {"id", 1}, {"op", "map.query"}, {"points", {{0.0, 0.0}}}}, {}});
+             for (int i = 0; i < o.disconnects; ++i) {
+               Client c = Client::connect(o.connect);
+               c.send_raw(i % 3 == 0 ? f.substr(0, 2) : i % 3 == 1 ? f.substr(0, f.size() - 3) : f);
+             }
+             return json{{"connections", o.disconnects}};
+           });
+
+  run_case("slow_headers",
+           std::to_string(o.slowloris) +
+               " connections sending a small request one byte every 200 ms (slowloris)",
+           [&] {
+             std::vector<Client> cs;
+             for (int i = 0; i < o.slowloris; ++i) cs.push_back(Client::connect(o.connect));
+             const std::string f = raw_frame(R"({"v":1,"id":1,"op":"hello","padding":")" +
+                                             std::string(200, 'x') + "\"}");
+             // Each connection gets one byte per round until the server answers or closes it.
+             std::vector<bool> done(cs.size(), false);
+             Fate fate;
+             const auto until = Clock::now() + std::chrono::duration<double>(settle_s);
+             for (std::size_t k = 0; k < f.size() && Clock::now() < until; ++k) {
+               for (std::size_t i = 0; i < cs.size(); ++i) {
+                 if (done[i]) continue;
+                 cs[i].set_timeout(0);
+                 try {
+                   const auto m = cs[i].receive();  // the server spoke: the case is decided
+                   if (m.header.value("ok", false))
+                     fate.ok++;
+                   else
+                     fate.errors[m.header["error"].value("code", "?")]++;
+                   fate.add(await_fate(cs[i], 1.0));
+                   done[i] = true;
+                   continue;
+                 } catch (const ClientError& e) {
+                   if (std::string(e.what()).find("timed out") == std::string::npos) {
+                     fate.reset++;
+                     done[i] = true;
+                     continue;
+                   }
+                 }
+                 try {
+                   cs[i].send_raw(f.substr(k, 1));
+                 } catch (const ClientError&) {
+                   fate.reset++;
+                   done[i] = true;
+                 }
+               }
+               std::this_thread::sleep_for(std::chrono::milliseconds(200));
+             }
+             std::vector<Client> rest;
+             for (std::size_t i = 0; i < cs.size(); ++i)
+               if (!done[i]) rest.push_back(std::move(cs[i]));
+             fate.add(await_fates(rest, 0.5));
+             return fate.to_json();
+           });
+
+  run_case("half_sent_frames",
+           std::to_string(o.slowloris) + " connections announcing " +
+               std::to_string(lim.max_frame_bytes) + "-byte frames, sending 4 MiB, then stalling",
+           [&] {
+             std::vector<Client> cs;
+             long peak = -1;
+             for (int i = 0; i < o.slowloris; ++i) {
+               cs.push_back(connect(o));  // after hello: the full frame cap applies
+               cs.back().send_raw(frame_prefix(static_cast<std::uint32_t>(lim.max_frame_bytes)) +
+                                  std::string((4u << 20) - 4, 'x'));
+             }
+             std::this_thread::sleep_for(std::chrono::milliseconds(300));
+             peak = server_rss_kb(o);
+             // Allowance: frame timeout + 4 MiB at the minimum rate (the server's business); the
+             // bench waits up to --max-wait.
+             json j = await_fates(cs, o.max_wait_s + 2.0).to_json();
+             j["rss_while_held_kb"] = peak;
+             return j;
+           });
+
+  run_case("buffer_budget",
+           std::to_string(o.slowloris) +
+               " connections announcing maximal frames and sending 16 MiB at once; closed by the "
+               "bench after 1 s",
+           [&] {
+             std::vector<Client> cs;
+             for (int i = 0; i < o.slowloris; ++i) {
+               cs.push_back(connect(o));
+               try {
+                 cs.back().set_timeout(2);
+                 cs.back().send_raw(frame_prefix(static_cast<std::uint32_t>(lim.max_frame_bytes)) +
+                                    std::string((16u << 20) - 4, 'x'));
+               } catch (const ClientError&) {
+               }
+             }
+             std::this_thread::sleep_for(std::chrono::seconds(1));
+             const long peak = server_rss_kb(o);
+             const Fate fate = await_fates(cs, 0.5);
+             cs.clear();  // the bench lets go: what the server held goes back
+             std::this_thread::sleep_for(std::chrono::milliseconds(500));
+             json j = fate.to_json();
+             j["rss_while_held_kb"] = peak;
+             return j;
+           });
+
+  run_case("idle_sockets",
+           "idle connections up to the connection limit, then a new client; then wait for the "
+           "idle timeout",
+           [&] {
+             std::vector<Client> idle;
+             json j;
+             bool refused = false;
+             // Fill every slot: each idle client asks one status (so it is adopted) and then
+             // stays silent; the first one refused marks the limit.
+             for (int i = 0; i < lim.max_connections + 1 && !refused; ++i) {
+               Client c = Client::connect(o.connect);
+               c.set_timeout(5);
+               json hello = {{"op", "hello"}};
+               if (!o.token.empty()) hello["token"] = o.token;
+               try {
+                 c.send(hello);
+                 const auto m = c.receive();  // the refusal carries id null: not wait_for
+                 if (!m.header.value("ok", false)) {
+                   refused = true;
+                   j["refused_after"] = i;
+                   j["refusal"] = error_text(m);
+                 } else {
+                   idle.push_back(std::move(c));
+                 }
+               } catch (const ClientError& e) {
+                 refused = true;
+                 j["refused_after"] = i;
+                 j["refusal"] = std::string("no reply: ") + e.what();
+               }
+             }
+             j["idle_connections"] = idle.size();
+             // A new client, waiting (up to the idle timeout, capped) for a slot.
+             const auto t0 = Clock::now();
+             double got_in_s = -1;
+             const double wait = std::min(lim.idle_timeout_s, o.max_wait_s) + 3.0;
+             while (ms_since(t0) < wait * 1000) {
+               try {
+                 Client c = connect(o);
+                 c.call_ok({{"op", "status"}});
+                 got_in_s = ms_since(t0) / 1000;
+                 break;
+               } catch (const std::exception&) {
+                 std::this_thread::sleep_for(std::chrono::milliseconds(100));
+               }
+             }
+             j["new_client_got_in_after_s"] = got_in_s;
+             j["idle_fates"] = await_fates(idle, 1.0).to_json();
+             return j;
+           });
+
+  run_case(
+      "oversized_claims",
+      "length prefixes of 1 MiB, the frame cap and 4 GiB-1 before hello (token servers), "
+      "and of 4 GiB-1 and the cap (nothing sent after) after hello",
+      [&] {
+        std::vector<Client> before, after;
+        for (std::uint32_t claim :
+             {1u << 20, static_cast<std::uint32_t>(lim.max_frame_bytes), 0xffffffffu}) {
+          before.push_back(Client::connect(o.connect));
+          before.back().send_raw(frame_prefix(claim) + "{\"v\":1");
+        }
+        for (std::uint32_t claim : {0xffffffffu, static_cast<std::uint32_t>(lim.max_frame_bytes)}) {
+          after.push_back(connect(o));
+          after.back().send_raw(frame_prefix(claim) + "{\"v\":1");
+        }
+        const json b = await_fates(before, settle_s).to_json();
+        return json{{"before_hello", b}, {"after_hello", await_fates(after, settle_s).to_json()}};
+      });
+
+  run_case("deadline_overflow",
+           "status, map.query and debug.sleep with deadline_ms 1e13, 1e15 and 1e300 (should run "
+           "as if without a deadline)",
+           [&] {
+             Fate fate;
+             Client c = connect(o);
+             for (double d : {1e13, 1e15, 1e300})
+               for (const json& req :
+                    {json{{"op", "status"}}, json{{"op", "map.query"}, {"points", {{0.0, 0.0}}}},
+                     json{{"op", "debug.sleep"}, {"ms", 1}}}) {
+                 json r = req;
+                 r["deadline_ms"] = d;
+                 const auto m = c.call(r);
+                 if (m.header.value("ok", false))
+                   fate.ok++;
+                 else
+                   fate.errors[m.header["error"].value("code", "?")]++;
+               }
+             return fate.to_json();
+           });
+
+  run_case("duplicate_attachments",
+           "map.query carrying two attachments named points (should be bad_request)", [&] {
+             Fate fate;
+             Client c = connect(o);
+             for (int i = 0; i < 10; ++i) {
+               const auto m = c.call({{"op", "map.query"}},
+                                     {protocol::make_float_attachment("points", {1, 2}, {0, 0}),
+                                      protocol::make_float_attachment("points", {1, 2}, {1, 1})});
+               if (m.header.value("ok", false))
+                 fate.ok++;
+               else
+                 fate.errors[m.header["error"].value("code", "?")]++;
+             }
+             return fate.to_json();
+           });
+
+  run_case("unknown_fields",
+           "status with \"verbose\", cancel with \"targte\", hello with \"tokn\" (should be "
+           "bad_request with a suggestion)",
+           [&] {
+             Fate fate;
+             Client c = connect(o);
+             json messages = json::array();
+             for (const json& req :
+                  {json{{"op", "status"}, {"verbose", true}}, json{{"op", "cancel"}, {"targte", 1}},
+                   json{{"op", "hello"}, {"tokn", "x"}}}) {
+               const auto m = c.call(req);
+               if (m.header.value("ok", false)) {
+                 fate.ok++;
+               } else {
+                 fate.errors[m.header["error"].value("code", "?")]++;
+                 messages.push_back(m.header["error"].value("message", ""));
+               }
+             }
+             json j = fate.to_json();
+             j["messages"] = messages;
+             return j;
+           });
+
+  bystanders.stop();
+  const json st = server_status(o);
+  return {{"server_limits",
+           {{"frame_timeout_s", lim.frame_timeout_s},
+            {"idle_timeout_s", lim.idle_timeout_s},
+            {"max_connections", lim.max_connections},
+            {"max_frame_bytes", lim.max_frame_bytes}}},
+          {"cases", cases},
+          {"server_status_after", st.is_object() ? json{{"connections", st["connections"]},
+                                                        {"memory", st.value("memory", json())}}
+                                                 : json()}};
 }
 
 void print_latency(const std::string& label, const json& j) {
@@ -297,7 +722,8 @@ void add_bench_service_command(CLI::App& app) {
   CLI::App* cmd = app.add_subcommand(
       "bench-service",
       "Load-test the socket service: map.query throughput and p50/p99 latency with many clients, "
-      "plan overhead, malformed frames and abrupt disconnects");
+      "plan overhead, and (--mode hostile) attacks on the transport with the server's memory and "
+      "well-behaved clients' latency meanwhile");
   cmd->add_option("--connect", o->connect,
                   "Server address (tcp://HOST:PORT or unix:PATH); default: start one in-process "
                   "on an ephemeral loopback port");
@@ -327,6 +753,31 @@ void add_bench_service_command(CLI::App& app) {
   cmd->add_option("--disconnects", o->disconnects, "Abrupt disconnects")
       ->capture_default_str()
       ->check(CLI::Range(0, 1000000));
+  cmd->add_option("--slowloris", o->slowloris, "Hostile connections per slow-frame case")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 10000));
+  cmd->add_option("--max-wait", o->max_wait_s,
+                  "Hostile mode: longest wait (s) for the server to close a hostile connection")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 3600.0));
+  cmd->add_option("--server-pid", o->server_pid,
+                  "PID of the server given with --connect, for its resident memory "
+                  "(/proc/PID/status); default: the status op's memory.rss_bytes");
+  cmd->add_option("--server-frame-timeout", o->server_frame_timeout_s,
+                  "Hostile mode, in-process server: --frame-timeout")
+      ->capture_default_str();
+  cmd->add_option("--server-idle-timeout", o->server_idle_timeout_s,
+                  "Hostile mode, in-process server: --idle-timeout")
+      ->capture_default_str();
+  cmd->add_option("--server-min-receive-rate", o->server_min_receive_rate,
+                  "Hostile mode, in-process server: --min-receive-rate")
+      ->capture_default_str();
+  cmd->add_option("--server-max-connections", o->server_max_connections,
+                  "Hostile mode, in-process server: --max-connections")
+      ->capture_default_str();
+  cmd->add_option("--server-max-buffered-bytes", o->server_max_buffered_bytes,
+                  "Hostile mode, in-process server: --max-buffered-bytes")
+      ->capture_default_str();
   cmd->add_option("--workers", o->workers, "Workers of the in-process server")
       ->capture_default_str()
       ->check(CLI::Range(1, 64));
@@ -345,6 +796,16 @@ void add_bench_service_command(CLI::App& app) {
       so.workers = o->workers;
       so.queue = 64;
       so.handle_signals = false;
+      if (o->mode == "hostile" || o->mode == "all") {
+        // Short limits so each case ends in seconds, and a token so the cases before hello run.
+        so.frame_timeout_s = o->server_frame_timeout_s;
+        so.idle_timeout_s = o->server_idle_timeout_s;
+        so.min_receive_rate = o->server_min_receive_rate;
+        so.max_connections = std::max(o->server_max_connections, o->clients + 16);
+        so.max_buffered_bytes = o->server_max_buffered_bytes;
+        if (o->token.empty()) o->token = "bench-service-hostile-token";
+        so.token = o->token;
+      }
       OperationRegistry reg;
       BackendOptions bo;
       bo.debug_ops = true;
@@ -408,13 +869,28 @@ void add_bench_service_command(CLI::App& app) {
     }
     if (out.contains("hostile")) {
       const json& h = out["hostile"];
-      std::cout << std::setprecision(2) << "hostile: " << h["malformed_sent"]
-                << " malformed frames -> " << h["malformed_error_replies"] << " error replies in "
-                << h["malformed_s"].get<double>() << " s; " << h["disconnects"]
-                << " abrupt disconnects in " << h["disconnect_s"].get<double>() << " s\n"
-                << "  well-behaved clients meanwhile: " << h["background_queries"]
-                << " queries, failures " << h["background_failures"] << "\n";
-      print_latency("  their latency: ", h["background_latency"]);
+      std::cout << "hostile (server limits " << h["server_limits"].dump() << "):\n";
+      for (const json& c : h["cases"]) {
+        std::cout << std::fixed << std::setprecision(1) << "  " << c["name"].get<std::string>()
+                  << " (" << c["seconds"].get<double>() << " s): " << c["attack"].get<std::string>()
+                  << "\n    survived " << (c["survived"].get<bool>() ? "yes" : "NO")
+                  << ", server RSS " << c["rss_before_kb"].get<long>() / 1024 << " -> "
+                  << c["rss_after_kb"].get<long>() / 1024 << " MiB";
+        if (c.contains("rss_while_held_kb"))
+          std::cout << " (" << c["rss_while_held_kb"].get<long>() / 1024 << " MiB while held)";
+        json rest = c;
+        for (const char* k : {"name", "attack", "seconds", "survived", "rss_before_kb",
+                              "rss_after_kb", "rss_while_held_kb", "bystanders"})
+          rest.erase(k);
+        std::cout << "\n    " << rest.dump() << "\n";
+        const json& b = c["bystanders"];
+        std::cout << std::setprecision(2) << "    well-behaved clients: ";
+        if (b.contains("p50_ms"))
+          std::cout << b["count"] << " queries, p50 " << b["p50_ms"].get<double>() << " ms, p99 "
+                    << b["p99_ms"].get<double>() << " ms, max " << b["max_ms"].get<double>()
+                    << " ms, ";
+        std::cout << "failures " << b["failures"] << "\n";
+      }
     }
   });
 }
