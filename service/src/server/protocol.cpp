@@ -340,7 +340,9 @@ void check_fields(const json& header, const std::string& op,
       if (key == e) return true;
     return std::find(accepted.begin(), accepted.end(), key) != accepted.end();
   };
-  for (const auto& [key, value] : header.items()) {
+  for (const auto& item : header.items()) {
+    // A named reference, not a structured binding: lambdas may not capture those in C++17.
+    const std::string& key = item.key();
     if (known(key)) continue;
     // Hostile keys can be megabytes long: show at most 64 bytes of them.
     const std::string shown = key.size() > 64 ? key.substr(0, 64) + "..." : key;
