@@ -50,6 +50,11 @@ struct PlanCliOptions {
   bool given(const std::string& flag) const { return flags.count(flag) > 0; }
 };
 
+// Exit codes (docs/design.md, "Command line"): 3 when the solver did not reach an optimal plan,
+// 4 when it did but a post-hoc check fails (torques, leg capsules, footholds): never 0 for a plan
+// that fails a check.
+constexpr int kExitChecksFailed = 4;
+
 std::vector<std::string> split_list(const std::string& s) {
   std::vector<std::string> out;
   std::stringstream ss(s);
@@ -122,27 +127,6 @@ nlohmann::json feasibility_fields(const std::vector<std::string>& items) {
   return settings;
 }
 
-// The post-hoc checks (DESIGN.md; the same as `terrastride check` at its default resolution):
-// joint torques, leg capsules (a scene voxelised, a map's octomap.bt when it has one) and
-// footholds, added to plan.json "checks"; their failures and terrain under "post_hoc".
-void run_post_hoc_checks(const robot::RobotModel& model, const TerrainSource& terrains,
-                         planner::Trajectory* traj) {
-  if (traj->samples.empty()) return;
-  constexpr double kVoxel = 0.01;  // `terrastride check --resolution` default
-  try {
-    const collision::CheckTerrain view =
-        check_terrain_for(terrains, model, *traj, kVoxel, /*require_octomap=*/false);
-    const collision::CheckReport rep = collision::run_checks(model, *traj, view);
-    for (const auto& [k, v] : rep.keys()) traj->checks[k] = v;
-    traj->extra["post_hoc"] = {
-        {"terrain", view.description}, {"failures", rep.failures()}, {"wall_s", rep.wall_s}};
-  } catch (const collision::TrajectoryError& e) {
-    // A plan the checks cannot interpret (e.g. non-finite numbers from a failed solve): the
-    // keys stay absent (never faked) and the reason is recorded.
-    traj->extra["post_hoc"] = {{"error", e.what()}};
-  }
-}
-
 void run_plan(const PlanCliOptions& o) {
   robot::RobotModel model;
   try {
@@ -193,6 +177,12 @@ void run_plan(const PlanCliOptions& o) {
       load_terrain_source(o.terrain, /*smooth_scene=*/true,
                           "point clouds are not planned on directly; run 'terrastride map " +
                               o.terrain + " --out DIR' and pass --terrain DIR");
+  nlohmann::json stance_corrections;
+  try {
+    stance_corrections = settle_stance_feet(&req, *terrains.smooth());
+  } catch (const RequestFieldError& e) {
+    throw CommandError(cli_field(e.field(), o) + ": " + cli_text(e.problem()));
+  }
 
   // --out is checked before the solve (a probe file in its folder), so a missing or read-only
   // folder, or a directory or socket at the path, fails in milliseconds instead of after it.
@@ -218,11 +208,24 @@ void run_plan(const PlanCliOptions& o) {
     throw CommandError(e.what());
   }
   out.trajectory.extra["terrain"] = o.terrain;
-  run_post_hoc_checks(model, terrains, &out.trajectory);
+  // The post-hoc checks (as `terrastride check` at its default resolution) judge every plan: a
+  // plan that fails one is not a usable plan, whatever the solver says.
+  std::vector<std::string> failures;
+  try {
+    failures = add_post_hoc_checks(
+        model,
+        check_terrain_for(terrains, model, out.trajectory, kPostHocVoxel,
+                          /*require_octomap=*/false),
+        &out.trajectory);
+  } catch (const collision::TrajectoryError& e) {
+    failures = {std::string("the post-hoc checks could not read the plan: ") + e.what()};
+  }
   if (warm.previous) {
     out.trajectory.extra["init"] = o.init;
     out.trajectory.extra["start_time"] = o.start_time;
     if (warm.start) out.trajectory.extra["start_state"] = o.start_state;
+    if (!stance_corrections.empty())
+      out.trajectory.extra["start_state_corrections"] = stance_corrections;
   }
   const double violation = out.solve.max_violation;
   // A non-optimal plan is still written when it nearly satisfies every constraint (useful as a
@@ -246,6 +249,8 @@ void run_plan(const PlanCliOptions& o) {
                             {"n_constraints", out.trajectory.solver.n_constraints},
                             {"max_violation", violation},
                             {"checks", out.trajectory.checks},
+                            {"checks_passed", failures.empty()},
+                            {"failures", failures},
                             {"written", useful ? o.out : ""}};
   if (o.json) {
     summary_out << summary.dump() << "\n";
@@ -255,6 +260,7 @@ void run_plan(const PlanCliOptions& o) {
                 << out.trajectory.solver.wall_s << " s (" << out.trajectory.solver.n_variables
                 << " variables, " << out.trajectory.solver.n_constraints << " constraints)\n";
     for (const auto& [k, v] : out.trajectory.checks) summary_out << "  " << k << " = " << v << "\n";
+    for (const auto& f : failures) summary_out << "  FAILED: " << f << "\n";
     if (useful) summary_out << "wrote " << o.out << "\n";
   }
   if (out.trajectory.solver.status != "optimal") {
@@ -262,6 +268,13 @@ void run_plan(const PlanCliOptions& o) {
     msg += useful ? "; the plan was written to " + o.out + " for inspection"
                   : "; no plan written (the goal may be unreachable with this gait and duration)";
     throw CommandError(msg, 3);
+  }
+  if (!failures.empty()) {
+    std::string msg = "the solver's plan fails " + std::to_string(failures.size()) +
+                      " post-hoc check" + (failures.size() > 1 ? "s" : "") + ": ";
+    for (std::size_t i = 0; i < failures.size(); ++i) msg += (i ? "; " : "") + failures[i];
+    throw CommandError(msg + "; the plan was written to " + o.out + " for inspection",
+                       kExitChecksFailed);
   }
 }
 

@@ -237,4 +237,36 @@ PlanRequest read_plan_request(const json& fields, const robot::RobotModel& robot
   return r;
 }
 
+nlohmann::json settle_stance_feet(PlanRequest* request, const terrain::HeightField& terrain) {
+  json corrections = json::array();
+  if (!request->replan || !request->has_start_state) return corrections;
+  const planner::PhaseTimeline timeline = planner::timeline_of(request->previous);
+  int interval = 0;
+  while (interval + 1 < timeline.num_intervals() &&
+         timeline.events[interval + 1] <= request->start_time)
+    ++interval;
+  auto& feet = request->start_state.foot_position;
+  for (std::size_t f = 0; f < feet.size() && f < timeline.contact.size(); ++f) {
+    if (!timeline.contact[f][interval]) continue;  // a swinging foot may be anywhere above
+    Eigen::Vector3d& p = feet[f];
+    const double ground = terrain.sample(p.x(), p.y()).height;
+    const double off = p.z() - ground;
+    if (std::abs(off) <= 1e-9) continue;
+    if (std::abs(off) > kStanceTolerance) {
+      std::ostringstream m;
+      m << "feet." << request->previous.feet[f] << ": in stance at start_time "
+        << request->start_time << " s but " << std::abs(off) * 1e3 << " mm "
+        << (off > 0 ? "above" : "below") << " the terrain (foot z " << p.z() << " m, terrain "
+        << ground << " m at x " << p.x() << ", y " << p.y() << "); a stance foot must be within "
+        << kStanceTolerance * 1e3 << " mm of the ground the plan uses (is the state estimate or "
+        << "the map off?)";
+      throw RequestFieldError("start_state", m.str());
+    }
+    corrections.push_back(
+        {{"foot", request->previous.feet[f]}, {"measured_z", p.z()}, {"terrain_z", ground}});
+    p.z() = ground;
+  }
+  return corrections;
+}
+
 }  // namespace terrastride::service

@@ -10,6 +10,7 @@
 
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/robot/robot_model.hpp"
+#include "terrastride/terrain/height_field.hpp"
 
 namespace terrastride::service {
 
@@ -56,5 +57,14 @@ struct PlanRequest {
 // schedule is what the re-plan continues). Unknown fields are the caller's to refuse (the socket
 // lists each operation's fields; the CLI has flags). Throws RequestFieldError.
 PlanRequest read_plan_request(const nlohmann::json& fields, const robot::RobotModel& robot);
+
+// A measured start state's stance feet must stand on the terrain the plan uses: a stance foot
+// the planner is handed 2 cm above the ground floats there (carrying its share of the weight),
+// and 2 cm below, the solve cannot start. Within kStanceTolerance a stance foot is placed on the
+// terrain and the correction is returned ([{"foot", "measured_z", "terrain_z"}], recorded in
+// plan.json as "start_state_corrections"); farther off, RequestFieldError("start_state", ...)
+// names the foot, its height and the terrain's. No-op without a measured state.
+constexpr double kStanceTolerance = 0.01;  // m: a legged robot's state estimate is this good
+nlohmann::json settle_stance_feet(PlanRequest* request, const terrain::HeightField& terrain);
 
 }  // namespace terrastride::service

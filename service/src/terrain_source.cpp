@@ -42,8 +42,8 @@ TerrainSource load_terrain_source(const std::string& spec, bool smooth_scene,
 
 collision::CheckTerrain check_terrain_for(const TerrainSource& source,
                                           const robot::RobotModel& model,
-                                          const planner::Trajectory& trajectory,
-                                          double resolution, bool require_octomap) {
+                                          const planner::Trajectory& trajectory, double resolution,
+                                          bool require_octomap) {
   namespace fs = std::filesystem;
   collision::CheckTerrain view;
   view.field = source.exact();
@@ -63,26 +63,54 @@ collision::CheckTerrain check_terrain_for(const TerrainSource& source,
         throw CommandError(std::string("--terrain: ") + e.what());
       }
       view.description = "map " + source.spec + " (scan OctoMap at " +
-                          std::to_string(view.octree->getResolution()) + " m)";
+                         std::to_string(view.octree->getResolution()) + " m)";
       return view;
     }
-    // The scene has no scan: voxelise its exact boxes where the legs go, so the very same FCL
-    // check runs on it.
-    Eigen::Vector2d lo, hi;
-    collision::trajectory_extent(model, trajectory, 0.1, &lo, &hi);
-    collision::VoxeliseOptions vo;
-    vo.resolution = resolution;
-    view.octree = collision::voxelise_scene(*source.scene, lo, hi, vo);
-    std::ostringstream d;
-    d << "scene " << source.spec << " (exact; voxelised at " << resolution
-      << " m for the leg check)";
-    view.description = d.str();
+    view = scene_check_terrain(*source.scene, source.spec, model, trajectory, resolution);
   } catch (const perception::InputError& e) {
     throw CommandError(std::string("--terrain ") + source.spec + ": " + e.what());
   } catch (const std::invalid_argument& e) {
     throw CommandError(std::string("--terrain ") + source.spec + ": " + e.what());
   }
   return view;
+}
+
+collision::CheckTerrain scene_check_terrain(const terrain::Scene& scene, const std::string& name,
+                                            const robot::RobotModel& model,
+                                            const planner::Trajectory& trajectory,
+                                            double resolution) {
+  // The scene has no scan: voxelise its exact boxes where the legs go, so the very same FCL
+  // check runs on it.
+  collision::CheckTerrain view;
+  view.field = &scene;
+  Eigen::Vector2d lo, hi;
+  collision::trajectory_extent(model, trajectory, 0.1, &lo, &hi);
+  collision::VoxeliseOptions vo;
+  vo.resolution = resolution;
+  view.octree = collision::voxelise_scene(scene, lo, hi, vo);
+  std::ostringstream d;
+  d << "scene " << name << " (exact; voxelised at " << resolution << " m for the leg check)";
+  view.description = d.str();
+  return view;
+}
+
+std::vector<std::string> add_post_hoc_checks(const robot::RobotModel& model,
+                                             const collision::CheckTerrain& view,
+                                             planner::Trajectory* traj) {
+  if (traj->samples.empty()) return {};
+  try {
+    const collision::CheckReport rep = collision::run_checks(model, *traj, view);
+    for (const auto& [k, v] : rep.keys()) traj->checks[k] = v;
+    const std::vector<std::string> failures = rep.failures();
+    traj->extra["post_hoc"] = {
+        {"terrain", view.description}, {"failures", failures}, {"wall_s", rep.wall_s}};
+    return failures;
+  } catch (const collision::TrajectoryError& e) {
+    // A plan the checks cannot interpret (e.g. non-finite numbers from a failed solve): the
+    // keys stay absent (never faked), and that is itself a failure.
+    traj->extra["post_hoc"] = {{"error", e.what()}};
+    return {std::string("the post-hoc checks could not read the plan: ") + e.what()};
+  }
 }
 
 }  // namespace terrastride::service

@@ -5,6 +5,7 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/planner/trajectory.hpp"
@@ -36,7 +37,26 @@ TerrainSource load_terrain_source(const std::string& spec, bool smooth_scene,
 // or the scene voxelised at `resolution` over the trajectory's extent.
 collision::CheckTerrain check_terrain_for(const TerrainSource& source,
                                           const robot::RobotModel& model,
-                                          const planner::Trajectory& trajectory,
-                                          double resolution, bool require_octomap);
+                                          const planner::Trajectory& trajectory, double resolution,
+                                          bool require_octomap);
+
+// An exact scene's view for the post-hoc checks: the scene itself for footholds, and its boxes
+// voxelised at `resolution` over the trajectory's extent for the leg capsules.
+collision::CheckTerrain scene_check_terrain(const terrain::Scene& scene, const std::string& name,
+                                            const robot::RobotModel& model,
+                                            const planner::Trajectory& trajectory,
+                                            double resolution);
+
+// The post-hoc checks of a plan (docs/design.md: joint torques, leg capsules where `view` has an
+// occupancy map, footholds), as `terrastride plan` and the socket's plan run them after every
+// solve: their figures join traj->checks, and {"terrain", "failures", "wall_s"} (or {"error"}
+// for a plan the checks cannot read) becomes traj->extra["post_hoc"]. Returns the failures
+// (one sentence each; empty when every check passed).
+std::vector<std::string> add_post_hoc_checks(const robot::RobotModel& model,
+                                             const collision::CheckTerrain& view,
+                                             planner::Trajectory* traj);
+
+// The voxel size of the post-hoc leg check on an exact scene (`terrastride check --resolution`).
+constexpr double kPostHocVoxel = 0.01;
 
 }  // namespace terrastride::service

@@ -35,7 +35,9 @@ TorqueFigures plan_and_check(const std::string& args, const std::string& name) {
   const fs::path out = fs::temp_directory_path() /
                        ("terrastride_torque_" + std::to_string(::getpid()) + "_" + name + ".json");
   const auto r = run_terrastride("plan " + args + " --json --out " + out.string());
-  EXPECT_EQ(r.code, 0) << name << ": " << r.all();
+  // 0: solved and every post-hoc check passed; 4: solved, and a check fails (these experiments
+  // include plans made to fail them, e.g. baseline torques).
+  EXPECT_TRUE(r.code == 0 || r.code == 4) << name << ": " << r.all();
   std::ifstream in(out);
   const auto plan = nlohmann::json::parse(in, nullptr, false);
   fs::remove(out);

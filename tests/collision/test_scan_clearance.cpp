@@ -52,7 +52,8 @@ class ScanClearance : public ::testing::Test {
     const fs::path out = dir_ / ("plan_" + constraints + ".json");
     const auto r = run_terrastride("plan --terrain " + terrain + " --constraints " + constraints +
                                    " --max-time 60 --json --out " + shell_quote(out.string()));
-    EXPECT_EQ(r.code, 0) << constraints << ": " << r.all();
+    // 4: solved, but a post-hoc check fails (the baseline plans here are meant to).
+    EXPECT_TRUE(r.code == 0 || r.code == 4) << constraints << ": " << r.all();
     return out;
   }
 

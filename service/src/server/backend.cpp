@@ -21,6 +21,7 @@
 #include "terrastride/robot/robot_model.hpp"
 #include "child_process.hpp"
 #include "plan_request.hpp"
+#include "terrain_source.hpp"
 #include "terrastride/planner/request_limits.hpp"
 #include "terrastride/service/server.hpp"
 #include "terrastride/terrain/height_field.hpp"
@@ -476,6 +477,12 @@ class Backend {
     } catch (const perception::InputError& e) {
       throw ProtocolError(pc::kBadRequest, "\"terrain\" " + spec + ": " + e.what());
     }
+    json stance_corrections;
+    try {
+      stance_corrections = settle_stance_feet(&req, *plan_field);
+    } catch (const RequestFieldError& e) {
+      throw ProtocolError(pc::kBadRequest, e.what());
+    }
     ctx.check_stop();
     // Cancel, deadline and shutdown stop the solve within one Ipopt iteration (the planner polls
     // the token); the deadline also caps Ipopt's own wall-clock budget.
@@ -511,6 +518,19 @@ class Backend {
                 " (max violation " + std::to_string(violation) + ")");
       out.trajectory.extra["terrain"] = spec;
       if (warm.previous) out.trajectory.extra["start_time"] = warm.shift;
+      if (!stance_corrections.empty())
+        out.trajectory.extra["start_state_corrections"] = stance_corrections;
+      // The post-hoc checks `terrastride plan` runs, on what this server has: an exact scene
+      // voxelised for the leg capsules; a scanned map without them (the server keeps no OctoMap).
+      collision::CheckTerrain view;
+      if (raster) {
+        view = scene_check_terrain(*raster->scene, spec, robot_, out.trajectory, kPostHocVoxel);
+      } else {
+        view.field = check_field;
+        view.description = spec + " (no OctoMap in the server: leg capsules not checked)";
+      }
+      const std::vector<std::string> failures =
+          add_post_hoc_checks(robot_, view, &out.trajectory);
       OpResult r;
       if (samples_encoding == "attachment") {
         // The samples as one float32 table (see docs/protocol.md): building, printing and parsing
@@ -522,7 +542,9 @@ class Backend {
       } else {
         r.result = planner::plan_to_json(out.trajectory);
       }
-      r.result["success"] = out.success;
+      // Success means a usable plan: solved, and every post-hoc check passed.
+      r.result["success"] = out.success && failures.empty();
+      r.result["checks_passed"] = failures.empty();
       r.result["max_violation"] = violation;
       if (!out.message.empty()) r.result["message"] = out.message;
       return r;
