@@ -58,7 +58,7 @@ std::vector<std::string> constraint_set_names() {
 SrbdProblem::~SrbdProblem() = default;
 
 SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightField& terrain,
-                         const PhaseTimeline& timeline, const PlannerOptions& options,
+                         const PhaseTimeline& timeline, const ProblemOptions& options,
                          const StartState* start_state)
     : robot_(robot), terrain_(terrain), timeline_(timeline), options_(options) {
   if (timeline_.feet.size() != robot_.legs.size())

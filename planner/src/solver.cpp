@@ -26,7 +26,7 @@ using Ipopt::Number;
 
 class SrbdTnlp : public Ipopt::TNLP {
  public:
-  SrbdTnlp(const SrbdProblem& p, const PlannerOptions& options)
+  SrbdTnlp(const SrbdProblem& p, const SolverOptions& options)
       : p_(p),
         max_wall_(options.max_time),
         should_stop_(options.should_stop),
@@ -192,7 +192,7 @@ void reset_solver_mutex_in_child() { new (&solver_mutex()) std::timed_mutex; }
 
 // Takes the solver lock, polling `should_stop` while another solve holds it so that a cancelled
 // or expired request does not wait for someone else's solve. Returns an unlocked lock if stopped.
-std::unique_lock<std::timed_mutex> acquire_solver(const PlannerOptions& options) {
+std::unique_lock<std::timed_mutex> acquire_solver(const SolverOptions& options) {
   static std::once_flag atfork_once;
   std::call_once(atfork_once, [] { pthread_atfork(nullptr, nullptr, &reset_solver_mutex_in_child); });
   std::unique_lock<std::timed_mutex> lock(solver_mutex(), std::defer_lock);
@@ -203,7 +203,7 @@ std::unique_lock<std::timed_mutex> acquire_solver(const PlannerOptions& options)
 
 }  // namespace
 
-SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
+SolveResult solve(const SrbdProblem& problem, const SolverOptions& options,
                   const std::vector<std::pair<std::string, std::string>>& extra_options) {
   const auto lock = acquire_solver(options);
   if (!lock.owns_lock()) {

@@ -9,7 +9,7 @@
 namespace terrastride::planner {
 
 struct SolveResult {
-  // optimal, acceptable, infeasible, time_limit, stalled (see PlannerOptions::stall_iterations),
+  // optimal, acceptable, infeasible, time_limit, stalled (see SolverOptions::stall_iterations),
   // max_iterations, diverging, error, ...
   std::string status;
   bool success = false;  // optimal or acceptable
@@ -27,7 +27,7 @@ struct SolveResult {
 // Honours options.max_time on this call (Ipopt's max_cpu_time plus a wall-clock check in the
 // intermediate callback, so also repeated solves in one process each get the full budget).
 // `extra_options` are Ipopt name=value strings (tests use them, e.g. for the derivative checker).
-SolveResult solve(const SrbdProblem& problem, const PlannerOptions& options,
+SolveResult solve(const SrbdProblem& problem, const SolverOptions& options,
                   const std::vector<std::pair<std::string, std::string>>& extra_options = {});
 
 }  // namespace terrastride::planner
