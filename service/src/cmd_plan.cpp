@@ -179,6 +179,7 @@ void run_plan(const PlanCliOptions& o) {
                               o.terrain + " --out DIR' and pass --terrain DIR");
   nlohmann::json stance_corrections;
   try {
+    check_stances_on_terrain(req, model, *terrains.exact());
     stance_corrections = settle_stance_feet(&req, *terrains.smooth());
   } catch (const RequestFieldError& e) {
     throw CommandError(cli_field(e.field(), o) + ": " + cli_text(e.problem()));

@@ -7,6 +7,7 @@
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/request_limits.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
 
 namespace terrastride::service {
 
@@ -267,6 +268,45 @@ nlohmann::json settle_stance_feet(PlanRequest* request, const terrain::HeightFie
     p.z() = ground;
   }
   return corrections;
+}
+
+void check_stances_on_terrain(const PlanRequest& request, const robot::RobotModel& robot,
+                              const terrain::HeightField& terrain) {
+  if (request.replan) return;
+  const auto* grid = dynamic_cast<const terrain::TerrainMap*>(&terrain);
+  const Eigen::Vector2d lo = terrain.min_corner(), hi = terrain.max_corner();
+  auto check = [&](const char* field, const Eigen::Vector3d& pose, bool need_safe) {
+    for (const auto& leg : robot.legs) {
+      const Eigen::Vector3d foot =
+          robot::nominal_foot_world(leg, Eigen::Vector3d(pose.x(), pose.y(), 0.0), pose.z());
+      const double x = foot.x(), y = foot.y();
+      std::ostringstream where;
+      where << "the nominal " << leg.name << " foot at (" << x << ", " << y << ")";
+      std::string problem;
+      if (x < lo.x() || x > hi.x() || y < lo.y() || y > hi.y()) {
+        std::ostringstream m;
+        m << " is outside the map (x in [" << lo.x() << ", " << hi.x() << "], y in [" << lo.y()
+          << ", " << hi.y() << "])";
+        problem = m.str();
+      } else if (!terrain.observed(x, y)) {
+        problem = " is on ground the scan did not observe";
+      } else if (need_safe) {
+        const bool safe = grid ? grid->safe(x, y, robot.foot_radius)
+                               : terrain.safety_margin(x, y, robot.foot_radius).margin > 0.0;
+        if (!safe)
+          problem = " is not a safe foothold for the " + std::to_string(robot.foot_radius) +
+                    " m foot (an edge, a step or a slope)";
+      }
+      if (!problem.empty()) {
+        std::ostringstream m;
+        m << "[" << pose.x() << ", " << pose.y() << ", " << pose.z() << "]: " << where.str()
+          << problem << "; choose a " << field << " on the mapped ground";
+        throw RequestFieldError(field, m.str());
+      }
+    }
+  };
+  check("start", request.options.start, /*need_safe=*/true);
+  check("goal", request.options.goal, /*need_safe=*/false);
 }
 
 }  // namespace terrastride::service

@@ -67,4 +67,13 @@ PlanRequest read_plan_request(const nlohmann::json& fields, const robot::RobotMo
 constexpr double kStanceTolerance = 0.01;  // m: a legged robot's state estimate is this good
 nlohmann::json settle_stance_feet(PlanRequest* request, const terrain::HeightField& terrain);
 
+// A fresh plan's start and goal stances on the terrain it is planned on: the robot's nominal feet
+// at `start` (where the plan puts them) must lie on the map, observed and safe for the foot; at
+// `goal` (where the planner may still move them) on the map and observed. Throws
+// RequestFieldError("start" or "goal") naming the foot and the place, before any solve (a start
+// off the recorded floor used to plan "optimal" with 16 of 16 footholds unsafe). No-op for
+// re-plans (their start is the robot's state, and the goal init's).
+void check_stances_on_terrain(const PlanRequest& request, const robot::RobotModel& robot,
+                              const terrain::HeightField& terrain);
+
 }  // namespace terrastride::service

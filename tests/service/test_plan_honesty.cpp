@@ -107,4 +107,24 @@ TEST_F(PlanHonesty, MeasuredStanceFeetOffTheGroundAreRefusedOrSettled) {
   }
 }
 
+// A start or goal whose stance is off the map, or a start foot on an edge, is refused before any
+// solve, naming the foot and the place (the robot used to start at (0, 0) whatever the map, and
+// plan "optimal" with every foothold unsafe).
+TEST_F(PlanHonesty, StartsAndGoalsOffTheMapOrOnAnEdgeAreRefused) {
+  const fs::path out = dir_ / "never.json";
+  for (const auto& [args, says] : std::vector<std::pair<std::string, std::string>>{
+           {"--terrain flat --start 3,0,0", "--start: [3, 0, 0]: the nominal LF foot at"},
+           {"--terrain flat --goal 5,0,0", "--goal: [5, 0, 0]: the nominal LF foot at"},
+           {"--terrain pallet_15 --start 0.24,0,0", "is not a safe foothold"}}) {
+    const auto r = run_terrastride("plan " + args + " --out " + out.string());
+    EXPECT_EQ(r.code, 1) << args << ": " << r.all();
+    EXPECT_NE(r.all().find(says), std::string::npos) << args << ": " << r.all();
+    EXPECT_EQ(r.all().find("Ipopt"), std::string::npos) << r.all();
+    EXPECT_FALSE(fs::exists(out)) << args;
+  }
+  // Beside the edge the same start plans (and exits by its checks' verdict).
+  expect_honest("--terrain pallet_15 --start 0.1,0.05,0.1 --constraints all --max-time 30",
+                dir_ / "beside.json");
+}
+
 }  // namespace

@@ -479,6 +479,7 @@ class Backend {
     }
     json stance_corrections;
     try {
+      check_stances_on_terrain(req, robot_, *check_field);
       stance_corrections = settle_stance_feet(&req, *plan_field);
     } catch (const RequestFieldError& e) {
       throw ProtocolError(pc::kBadRequest, e.what());
