@@ -1,0 +1,824 @@
+// Plan execution in MuJoCo (collision/include/terrastride/collision/simulation.hpp).
+#include "terrastride/collision/simulation.hpp"
+
+#include <mujoco/mujoco.h>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
+#include <Eigen/LU>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <memory>
+#include <sstream>
+
+#include "terrastride/robot/leg_kinematics.hpp"
+
+namespace terrastride::collision {
+namespace {
+
+using Eigen::Matrix3d;
+using Eigen::Vector3d;
+
+constexpr double kGravity = 9.81;
+
+Matrix3d skew(const Vector3d& v) {
+  Matrix3d s;
+  s << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  return s;
+}
+
+Matrix3d rotation_zyx(const Vector3d& e) {
+  return (Eigen::AngleAxisd(e[0], Vector3d::UnitZ()) * Eigen::AngleAxisd(e[1], Vector3d::UnitY()) *
+          Eigen::AngleAxisd(e[2], Vector3d::UnitX()))
+      .toRotationMatrix();
+}
+
+Vector3d euler_zyx_of(const Matrix3d& r) {
+  // R = Rz(yaw) Ry(pitch) Rx(roll): r20 = -sin(pitch).
+  const double pitch = std::asin(std::clamp(-r(2, 0), -1.0, 1.0));
+  const double yaw = std::atan2(r(1, 0), r(0, 0));
+  const double roll = std::atan2(r(2, 1), r(2, 2));
+  return {yaw, pitch, roll};
+}
+
+// Rotation vector of a rotation matrix (axis times angle).
+Vector3d rotation_vector(const Matrix3d& r) {
+  const Eigen::AngleAxisd aa(r);
+  return aa.axis() * aa.angle();
+}
+
+// A leg link's inertia about the base origin (base frame) at joint angles q.
+struct LinkPose {
+  Vector3d com;
+  Matrix3d rotation;
+};
+
+std::array<LinkPose, 3> link_poses(const robot::LegModel& leg, const Vector3d& q) {
+  // The chain of leg_kinematics.cpp: HAA about -side x, HFE and KFE about the rotated y.
+  const Matrix3d r0 = Eigen::AngleAxisd(-leg.side * q[0], Vector3d::UnitX()).toRotationMatrix();
+  const Matrix3d r1 = r0 * Eigen::AngleAxisd(q[1], Vector3d::UnitY()).toRotationMatrix();
+  const Matrix3d r2 = r1 * Eigen::AngleAxisd(q[2], Vector3d::UnitY()).toRotationMatrix();
+  const Vector3d o0 = leg.haa_origin;
+  const Vector3d o1 = o0 + r0 * Vector3d(0, 0, -leg.l0);
+  const Vector3d o2 = o1 + r1 * Vector3d(0, 0, -leg.l1);
+  return {LinkPose{o0 + r0 * leg.links[0].com, r0}, LinkPose{o1 + r1 * leg.links[1].com, r1},
+          LinkPose{o2 + r2 * leg.links[2].com, r2}};
+}
+
+// Joint angles that put each foot sphere's centre (nominal foot + r z) in place.
+std::vector<Vector3d> nominal_joint_angles(const robot::RobotModel& model) {
+  std::vector<Vector3d> q;
+  for (const auto& leg : model.legs) {
+    const auto ik =
+        robot::inverse_kinematics(leg, leg.nominal_foot + Vector3d(0, 0, model.foot_radius));
+    if (ik.status == robot::IkStatus::unreachable)
+      throw SimulationError(model.source_file + ": nominal stance: " + ik.message);
+    q.push_back(ik.q);
+  }
+  return q;
+}
+
+std::string fmt(double v) {
+  std::ostringstream s;
+  s.precision(17);
+  s << v;
+  return s.str();
+}
+std::string fmt(const Vector3d& v) {
+  return fmt(v.x()) + " " + fmt(v.y()) + " " + fmt(v.z());
+}
+std::string full_inertia(const Matrix3d& i) {
+  return fmt(i(0, 0)) + " " + fmt(i(1, 1)) + " " + fmt(i(2, 2)) + " " + fmt(i(0, 1)) + " " +
+         fmt(i(0, 2)) + " " + fmt(i(1, 2));
+}
+
+// MuJoCo wants a strictly positive-definite inertia satisfying the triangle inequality: the rod
+// links of the robot file have a near-zero axial inertia, kept as given but floored.
+Matrix3d floor_inertia(const Matrix3d& i) {
+  Matrix3d out = i;
+  for (int k = 0; k < 3; ++k) out(k, k) = std::max(out(k, k), 1e-6);
+  return out;
+}
+
+// Geom classes: the terrain collides with the robot; robot parts do not collide with each other
+// (the planner does not model self-collision; the post-hoc checks do not either).
+const char* kRobotGeom = "contype=\"1\" conaffinity=\"0\"";
+const char* kTerrainGeom = "contype=\"0\" conaffinity=\"1\"";
+
+// Trunk collision box (m, half sizes): HyQ's torso between the hips, not in the robot file.
+const Vector3d kTrunkHalfSize(0.42, 0.14, 0.075);
+
+std::string robot_body(const robot::RobotModel& model, double mass_scale, const Vector3d& pos,
+                       const Eigen::Quaterniond& quat) {
+  const TrunkInertia trunk = trunk_inertia(model);
+  std::ostringstream x;
+  x << "<body name=\"trunk\" pos=\"" << fmt(pos) << "\" quat=\"" << fmt(quat.w()) << " "
+    << fmt(quat.x()) << " " << fmt(quat.y()) << " " << fmt(quat.z()) << "\">\n"
+    << "<freejoint name=\"root\"/>\n"
+    << "<inertial pos=\"" << fmt(trunk.com) << "\" mass=\"" << fmt(trunk.mass * mass_scale)
+    << "\" fullinertia=\"" << full_inertia(trunk.inertia * mass_scale) << "\"/>\n"
+    << "<geom name=\"trunk\" type=\"box\" size=\"" << fmt(kTrunkHalfSize) << "\" " << kRobotGeom
+    << "/>\n"
+    << "<site name=\"base\" pos=\"0 0 0\"/>\n";
+  for (const auto& leg : model.legs) {
+    const std::string n = leg.name;
+    const double r_foot = model.foot_radius;
+    // The shin capsule stops short of the foot sphere's centre by the foot radius plus its own:
+    // its end cap then stays above the sphere's lowest point for any shin pitch, so a shin contact
+    // is a real contact of the lower leg, not the foot.
+    const double shin_end = leg.l2 - (r_foot + leg.shin_radius);
+    x << "<body name=\"" << n << "_hip\" pos=\"" << fmt(leg.haa_origin) << "\">\n"
+      << "<joint name=\"" << n << "_HAA\" type=\"hinge\" axis=\"" << -leg.side << " 0 0\" range=\""
+      << fmt(leg.q_min[0]) << " " << fmt(leg.q_max[0]) << "\"/>\n"
+      << "<inertial pos=\"" << fmt(leg.links[0].com) << "\" mass=\"" << fmt(leg.links[0].mass)
+      << "\" fullinertia=\"" << full_inertia(floor_inertia(leg.links[0].inertia)) << "\"/>\n"
+      << "<body name=\"" << n << "_upper\" pos=\"0 0 " << fmt(-leg.l0) << "\">\n"
+      << "<joint name=\"" << n << "_HFE\" type=\"hinge\" axis=\"0 1 0\" range=\""
+      << fmt(leg.q_min[1]) << " " << fmt(leg.q_max[1]) << "\"/>\n"
+      << "<inertial pos=\"" << fmt(leg.links[1].com) << "\" mass=\"" << fmt(leg.links[1].mass)
+      << "\" fullinertia=\"" << full_inertia(floor_inertia(leg.links[1].inertia)) << "\"/>\n"
+      << "<geom name=\"" << n << "_thigh\" type=\"capsule\" fromto=\"0 0 0 0 0 " << fmt(-leg.l1)
+      << "\" size=\"" << fmt(leg.thigh_radius) << "\" " << kRobotGeom << "/>\n"
+      << "<body name=\"" << n << "_lower\" pos=\"0 0 " << fmt(-leg.l1) << "\">\n"
+      << "<joint name=\"" << n << "_KFE\" type=\"hinge\" axis=\"0 1 0\" range=\""
+      << fmt(leg.q_min[2]) << " " << fmt(leg.q_max[2]) << "\"/>\n"
+      << "<inertial pos=\"" << fmt(leg.links[2].com) << "\" mass=\"" << fmt(leg.links[2].mass)
+      << "\" fullinertia=\"" << full_inertia(floor_inertia(leg.links[2].inertia)) << "\"/>\n"
+      << "<geom name=\"" << n << "_shin\" type=\"capsule\" fromto=\"0 0 0 0 0 " << fmt(-shin_end)
+      << "\" size=\"" << fmt(leg.shin_radius) << "\" " << kRobotGeom << "/>\n"
+      << "<geom name=\"" << n << "_foot\" type=\"sphere\" pos=\"0 0 " << fmt(-leg.l2)
+      << "\" size=\"" << fmt(r_foot) << "\" " << kRobotGeom << "/>\n"
+      << "<site name=\"" << n << "_foot\" pos=\"0 0 " << fmt(-leg.l2) << "\"/>\n"
+      << "</body>\n</body>\n</body>\n";
+  }
+  x << "</body>\n";
+  return x.str();
+}
+
+std::string actuators(const robot::RobotModel& model) {
+  std::ostringstream x;
+  x << "<actuator>\n";
+  static const char* kJoints[3] = {"HAA", "HFE", "KFE"};
+  for (const auto& leg : model.legs)
+    for (int j = 0; j < 3; ++j)
+      x << "<motor name=\"" << leg.name << "_" << kJoints[j] << "\" joint=\"" << leg.name << "_"
+        << kJoints[j] << "\" gear=\"1\" ctrllimited=\"true\" ctrlrange=\""
+        << fmt(-leg.torque_limit[j]) << " " << fmt(leg.torque_limit[j]) << "\"/>\n";
+  x << "</actuator>\n";
+  return x.str();
+}
+
+std::string full_mjcf(const robot::RobotModel& model, const terrain::Scene* scene,
+                      const SimulationOptions& o, const Vector3d& pos,
+                      const Eigen::Quaterniond& quat) {
+  std::ostringstream x;
+  // Elliptic cones with a high impratio: the default pyramid lets a loaded foot creep several
+  // millimetres per stance, which the slip check would blame on the plan.
+  x << "<mujoco model=\"" << model.name << "\">\n"
+    << "<compiler angle=\"radian\" autolimits=\"true\"/>\n"
+    << "<option timestep=\"" << fmt(o.dt) << "\" gravity=\"0 0 " << fmt(-kGravity)
+    << "\" cone=\"elliptic\" impratio=\"100\"/>\n"
+    << "<default><geom solref=\"0.005 1\" friction=\"" << fmt(o.friction)
+    << " 0.005 0.0001\" condim=\"3\"/></default>\n"
+    << "<worldbody>\n";
+  if (scene) {
+    x << "<geom name=\"ground\" type=\"plane\" size=\"0 0 1\" pos=\"0 0 " << fmt(scene->ground_z())
+      << "\" " << kTerrainGeom << "/>\n";
+    int k = 0;
+    for (const auto& b : scene->boxes()) {
+      const Vector3d c = 0.5 * (b.lo + b.hi), h = 0.5 * (b.hi - b.lo);
+      x << "<geom name=\"box" << k++ << "\" type=\"box\" pos=\"" << fmt(c) << "\" size=\"" << fmt(h)
+        << "\" " << kTerrainGeom << "/>\n";
+    }
+  }
+  x << robot_body(model, o.mass_scale, pos, quat) << "</worldbody>\n"
+    << actuators(model) << "</mujoco>\n";
+  return x.str();
+}
+
+// The generated model, loaded through MuJoCo's virtual file system (2.2.2 has no
+// mj_addBufferVFS: an empty VFS file is made and the text copied into it).
+struct Model {
+  mjModel* m = nullptr;
+  mjData* d = nullptr;
+  ~Model() {
+    if (d) mj_deleteData(d);
+    if (m) mj_deleteModel(m);
+  }
+};
+
+std::unique_ptr<Model> load_model(const std::string& xml) {
+  auto vfs = std::make_unique<mjVFS>();  // ~2 MB: not on the stack
+  mj_defaultVFS(vfs.get());
+  const char* name = "terrastride_model.xml";
+  if (mj_makeEmptyFileVFS(vfs.get(), name, static_cast<int>(xml.size())) != 0)
+    throw SimulationError("MuJoCo: cannot create the in-memory model file");
+  const int idx = mj_findFileVFS(vfs.get(), name);
+  std::memcpy(vfs->filedata[idx], xml.data(), xml.size());
+  char error[1000] = "";
+  auto model = std::make_unique<Model>();
+  model->m = mj_loadXML(name, vfs.get(), error, sizeof(error));
+  mj_deleteVFS(vfs.get());
+  if (!model->m) throw SimulationError(std::string("MuJoCo refused the generated model: ") + error);
+  model->d = mj_makeData(model->m);
+  return model;
+}
+
+// The plan at any time: cubic Hermite on positions (with the sampled velocities), linear on the
+// rest; contact from the plan's phases when it has them (exact switch times), else the samples.
+class PlanView {
+ public:
+  PlanView(const planner::Trajectory& plan, int n_feet) : plan_(plan), n_feet_(n_feet) {
+    if (plan.samples.size() < 2) throw SimulationError("plan: fewer than two samples");
+    for (const auto& s : plan.samples)
+      if (static_cast<int>(s.feet.size()) != n_feet)
+        throw SimulationError("plan: samples do not have one entry per robot foot");
+    phases_.resize(n_feet);
+    if (plan.extra.contains("phases") && plan.extra["phases"].is_object()) {
+      for (int f = 0; f < n_feet; ++f) {
+        const std::string name = plan.feet[f];
+        if (!plan.extra["phases"].contains(name)) continue;
+        for (const auto& p : plan.extra["phases"][name])
+          phases_[f].push_back({p.at("start").get<double>(), p.at("end").get<double>(),
+                                p.at("contact").get<bool>()});
+      }
+    }
+    for (int f = 0; f < n_feet; ++f)
+      if (phases_[f].empty()) phases_[f] = phases_from_samples(f);
+  }
+
+  struct Phase {
+    double start, end;
+    bool contact;
+  };
+  const std::vector<Phase>& phases(int f) const { return phases_[f]; }
+  double t_end() const { return plan_.samples.back().t; }
+
+  bool contact(int f, double t) const {
+    for (const auto& p : phases_[f])
+      if (t >= p.start && t < p.end) return p.contact;
+    return phases_[f].back().contact;
+  }
+
+  struct State {
+    Vector3d base_pos, base_vel, base_acc, euler, omega;
+    std::vector<Vector3d> foot, foot_vel, foot_acc, force;
+  };
+
+  State at(double t) const {
+    const auto& s = plan_.samples;
+    t = std::clamp(t, s.front().t, s.back().t);
+    size_t k =
+        std::upper_bound(s.begin(), s.end(), t,
+                         [](double v, const planner::TrajectorySample& a) { return v < a.t; }) -
+        s.begin();
+    k = std::clamp<size_t>(k, 1, s.size() - 1) - 1;
+    const auto& a = s[k];
+    const auto& b = s[k + 1];
+    const double h = b.t - a.t;
+    const double u = (t - a.t) / h;
+    State st;
+    hermite(a.base.position, a.base.linear_velocity, b.base.position, b.base.linear_velocity, h, u,
+            &st.base_pos, &st.base_vel, &st.base_acc);
+    st.euler = lerp(a.base.euler_zyx, b.base.euler_zyx, u);
+    st.omega = lerp(a.base.angular_velocity, b.base.angular_velocity, u);
+    for (int f = 0; f < n_feet_; ++f) {
+      Vector3d p, v, acc;
+      hermite(a.feet[f].position, a.feet[f].velocity, b.feet[f].position, b.feet[f].velocity, h, u,
+              &p, &v, &acc);
+      st.foot.push_back(p);
+      st.foot_vel.push_back(v);
+      st.foot_acc.push_back(acc);
+      st.force.push_back(lerp(a.feet[f].force, b.feet[f].force, u));
+    }
+    return st;
+  }
+
+ private:
+  static Vector3d lerp(const Vector3d& a, const Vector3d& b, double u) { return a + u * (b - a); }
+
+  static void hermite(const Vector3d& p0, const Vector3d& v0, const Vector3d& p1,
+                      const Vector3d& v1, double h, double u, Vector3d* p, Vector3d* v,
+                      Vector3d* acc) {
+    const double u2 = u * u, u3 = u2 * u;
+    *p = (2 * u3 - 3 * u2 + 1) * p0 + (u3 - 2 * u2 + u) * h * v0 + (-2 * u3 + 3 * u2) * p1 +
+         (u3 - u2) * h * v1;
+    *v = ((6 * u2 - 6 * u) * p0 + (3 * u2 - 4 * u + 1) * h * v0 + (-6 * u2 + 6 * u) * p1 +
+          (3 * u2 - 2 * u) * h * v1) /
+         h;
+    *acc = ((12 * u - 6) * p0 + (6 * u - 4) * h * v0 + (-12 * u + 6) * p1 + (6 * u - 2) * h * v1) /
+           (h * h);
+  }
+
+  std::vector<Phase> phases_from_samples(int f) const {
+    std::vector<Phase> out;
+    const auto& s = plan_.samples;
+    for (size_t k = 0; k < s.size(); ++k) {
+      const bool c = s[k].feet[f].contact;
+      const double t0 = k == 0 ? s[0].t : 0.5 * (s[k - 1].t + s[k].t);
+      if (out.empty() || out.back().contact != c) {
+        if (!out.empty()) out.back().end = t0;
+        out.push_back({t0, s.back().t, c});
+      }
+    }
+    return out;
+  }
+
+  const planner::Trajectory& plan_;
+  int n_feet_;
+  std::vector<std::vector<Phase>> phases_;
+};
+
+// Spreads a trunk wrench (force, moment about the base) over the stance feet: the least-norm
+// forces that produce it.
+std::vector<Vector3d> spread_wrench(const Eigen::Matrix<double, 6, 1>& w,
+                                    const std::vector<Vector3d>& lever) {
+  const int n = static_cast<int>(lever.size());
+  std::vector<Vector3d> out(n, Vector3d::Zero());
+  if (n == 0) return out;
+  Eigen::MatrixXd g(6, 3 * n);
+  for (int i = 0; i < n; ++i) {
+    g.block<3, 3>(0, 3 * i) = Matrix3d::Identity();
+    g.block<3, 3>(3, 3 * i) = skew(lever[i]);
+  }
+  const Eigen::MatrixXd ggt = g * g.transpose() + 1e-6 * Eigen::MatrixXd::Identity(6, 6);
+  const Eigen::VectorXd f = g.transpose() * ggt.ldlt().solve(w);
+  for (int i = 0; i < n; ++i) out[i] = f.segment<3>(3 * i);
+  return out;
+}
+
+// Projects a foot force into the cone |f_t| <= mu f_n about the normal n, with f_n >= 0.
+Vector3d into_cone(const Vector3d& f, const Vector3d& n, double mu) {
+  double fn = f.dot(n);
+  if (fn <= 0) return Vector3d::Zero();
+  Vector3d ft = f - fn * n;
+  const double t = ft.norm();
+  if (t > mu * fn) ft *= mu * fn / t;
+  return fn * n + ft;
+}
+
+Vector3d terrain_normal(const terrain::HeightField& field, const Vector3d& p) {
+  const auto s = field.sample(p.x(), p.y());
+  return Vector3d(-s.gradient.x(), -s.gradient.y(), 1.0).normalized();
+}
+
+}  // namespace
+
+TrunkInertia trunk_inertia(const robot::RobotModel& model) {
+  const std::vector<Vector3d> q = nominal_joint_angles(model);
+  double leg_mass = 0.0;
+  Vector3d leg_moment = Vector3d::Zero();
+  Matrix3d leg_inertia = Matrix3d::Zero();  // about the base origin
+  for (size_t i = 0; i < model.legs.size(); ++i) {
+    const auto& leg = model.legs[i];
+    const auto poses = link_poses(leg, q[i]);
+    for (int k = 0; k < 3; ++k) {
+      const auto& link = leg.links[k];
+      const Vector3d c = poses[k].com;
+      leg_mass += link.mass;
+      leg_moment += link.mass * c;
+      leg_inertia += poses[k].rotation * link.inertia * poses[k].rotation.transpose() +
+                     link.mass * (c.squaredNorm() * Matrix3d::Identity() - c * c.transpose());
+    }
+  }
+  TrunkInertia t;
+  t.mass = model.mass - leg_mass;
+  if (t.mass <= 0)
+    throw SimulationError(model.source_file + ": the legs' links weigh more than the body mass");
+  t.com = -leg_moment / t.mass;
+  t.inertia = model.inertia - leg_inertia -
+              t.mass * (t.com.squaredNorm() * Matrix3d::Identity() - t.com * t.com.transpose());
+  const Eigen::SelfAdjointEigenSolver<Matrix3d> eig(t.inertia);
+  if (eig.eigenvalues().minCoeff() <= 0)
+    throw SimulationError(model.source_file +
+                          ": the body inertia minus the legs' share is not positive definite");
+  return t;
+}
+
+std::string robot_mjcf(const robot::RobotModel& model, double mass_scale) {
+  SimulationOptions o;
+  o.mass_scale = mass_scale;
+  return full_mjcf(model, nullptr, o, Vector3d::Zero(), Eigen::Quaterniond::Identity());
+}
+
+std::vector<std::vector<Vector3d>> mujoco_foot_positions(
+    const robot::RobotModel& model, const std::vector<std::vector<Vector3d>>& q) {
+  auto sim = load_model(robot_mjcf(model));
+  std::vector<std::vector<Vector3d>> out;
+  for (const auto& config : q) {
+    if (config.size() != model.legs.size())
+      throw SimulationError("one joint vector per leg expected");
+    for (size_t i = 0; i < config.size(); ++i)
+      for (int j = 0; j < 3; ++j) sim->d->qpos[7 + 3 * i + j] = config[i][j];
+    mj_kinematics(sim->m, sim->d);
+    std::vector<Vector3d> feet;
+    for (const auto& leg : model.legs) {
+      const int id = mj_name2id(sim->m, mjOBJ_SITE, (leg.name + "_foot").c_str());
+      feet.emplace_back(sim->d->site_xpos[3 * id], sim->d->site_xpos[3 * id + 1],
+                        sim->d->site_xpos[3 * id + 2]);
+    }
+    out.push_back(feet);
+  }
+  return out;
+}
+
+Vector3d mujoco_com(const robot::RobotModel& model, const std::vector<Vector3d>& q) {
+  auto sim = load_model(robot_mjcf(model));
+  for (size_t i = 0; i < q.size() && i < model.legs.size(); ++i)
+    for (int j = 0; j < 3; ++j) sim->d->qpos[7 + 3 * i + j] = q[i][j];
+  mj_forward(sim->m, sim->d);
+  const int trunk = mj_name2id(sim->m, mjOBJ_BODY, "trunk");
+  return Vector3d(sim->d->subtree_com[3 * trunk], sim->d->subtree_com[3 * trunk + 1],
+                  sim->d->subtree_com[3 * trunk + 2]);
+}
+
+std::vector<Vector3d> nominal_stance(const robot::RobotModel& model) {
+  return nominal_joint_angles(model);
+}
+
+SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
+                               const terrain::Scene& scene, const SimulationOptions& o) {
+  if (!(o.dt >= 1e-4 && o.dt <= 0.01)) throw SimulationError("dt: must be in [0.0001, 0.01] s");
+  if (!(o.mass_scale > 0.1 && o.mass_scale < 10))
+    throw SimulationError("mass scale: must be in (0.1, 10)");
+  if (!(o.friction > 0 && o.friction < 5)) throw SimulationError("friction: must be in (0, 5)");
+  const int n_legs = static_cast<int>(model.legs.size());
+  if (plan.feet.size() != model.legs.size())
+    throw SimulationError("plan: " + std::to_string(plan.feet.size()) + " feet, robot '" +
+                          model.name + "' has " + std::to_string(n_legs) + " legs");
+  for (int i = 0; i < n_legs; ++i)
+    if (plan.feet[i] != model.legs[i].name)
+      throw SimulationError("plan: foot " + std::to_string(i) + " is '" + plan.feet[i] +
+                            "', the robot's leg is '" + model.legs[i].name + "'");
+  const PlanView view(plan, n_legs);
+  const double r_foot = model.foot_radius;
+  const double mu = o.friction;
+  const ControllerOptions& c = o.controller;
+
+  // Initial state: the plan's first sample, legs by IK of its feet.
+  const auto s0 = view.at(plan.samples.front().t);
+  const Matrix3d rot0 = rotation_zyx(s0.euler);
+  const Eigen::Quaterniond quat0(rot0);
+  SimulationReport rep;
+  rep.thresholds = o.thresholds;
+  rep.dt = o.dt;
+  rep.model_xml = full_mjcf(model, &scene, o, s0.base_pos, quat0);
+  auto sim = load_model(rep.model_xml);
+  mjModel* m = sim->m;
+  mjData* d = sim->d;
+  const int nv = m->nv;
+  std::vector<mjtNum> jacp(3 * nv), full_m(nv * nv);
+
+  std::vector<int> foot_site(n_legs), foot_geom(n_legs), shin_geom(n_legs), thigh_geom(n_legs);
+  for (int i = 0; i < n_legs; ++i) {
+    const std::string n = model.legs[i].name;
+    foot_site[i] = mj_name2id(m, mjOBJ_SITE, (n + "_foot").c_str());
+    foot_geom[i] = mj_name2id(m, mjOBJ_GEOM, (n + "_foot").c_str());
+    shin_geom[i] = mj_name2id(m, mjOBJ_GEOM, (n + "_shin").c_str());
+    thigh_geom[i] = mj_name2id(m, mjOBJ_GEOM, (n + "_thigh").c_str());
+  }
+  const int trunk_geom = mj_name2id(m, mjOBJ_GEOM, "trunk");
+  const int trunk_body = mj_name2id(m, mjOBJ_BODY, "trunk");
+
+  auto sphere_target = [&](const Vector3d& foot) {
+    return Vector3d(foot + r_foot * terrain_normal(scene, foot));
+  };
+  auto ik_in = [&](int i, const Vector3d& p_base, const Matrix3d& rot, const Vector3d& foot,
+                   const Vector3d& fallback) {
+    const auto ik =
+        robot::inverse_kinematics(model.legs[i], rot.transpose() * (sphere_target(foot) - p_base));
+    return ik.status == robot::IkStatus::unreachable ? fallback : Vector3d(ik.q);
+  };
+
+  for (int k = 0; k < 3; ++k) d->qpos[k] = s0.base_pos[k];
+  d->qpos[3] = quat0.w();
+  d->qpos[4] = quat0.x();
+  d->qpos[5] = quat0.y();
+  d->qpos[6] = quat0.z();
+  const Vector3d omega0_local = rot0.transpose() * s0.omega;
+  for (int k = 0; k < 3; ++k) {
+    d->qvel[k] = s0.base_vel[k];
+    d->qvel[3 + k] = omega0_local[k];
+  }
+  std::vector<Vector3d> q_prev(n_legs);
+  for (int i = 0; i < n_legs; ++i) {
+    const auto ik = robot::inverse_kinematics(
+        model.legs[i], rot0.transpose() * (sphere_target(s0.foot[i]) - s0.base_pos));
+    if (ik.status == robot::IkStatus::unreachable)
+      throw SimulationError("plan: first sample: " + ik.message);
+    q_prev[i] = ik.q;
+    for (int j = 0; j < 3; ++j) d->qpos[7 + 3 * i + j] = ik.q[j];
+  }
+  mj_forward(m, d);
+
+  rep.torque_max.assign(n_legs, Vector3d::Zero());
+  rep.saturated_time.assign(n_legs, Vector3d::Zero());
+  rep.shin_impulse.assign(n_legs, 0.0);
+  rep.thigh_impulse.assign(n_legs, 0.0);
+
+  // Stances as executed.
+  std::vector<std::vector<int>> stance_index(n_legs);
+  for (int f = 0; f < n_legs; ++f)
+    for (const auto& p : view.phases(f)) {
+      if (!p.contact) continue;
+      stance_index[f].push_back(static_cast<int>(rep.stances.size()));
+      StanceReport s;
+      s.foot = f;
+      s.t_start = p.start;
+      s.t_end = p.end;
+      rep.stances.push_back(s);
+    }
+  std::vector<Vector3d> touchdown_point(rep.stances.size(), Vector3d::Zero());
+  auto stance_at = [&](int f, double t) {
+    for (int idx : stance_index[f])
+      if (t >= rep.stances[idx].t_start && t < rep.stances[idx].t_end) return idx;
+    return -1;
+  };
+
+  const double t0 = plan.samples.front().t;
+  const double t_end = view.t_end();
+  const int n_steps = static_cast<int>(std::ceil((t_end - t0) / o.dt - 1e-9));
+  double sq_err_sum = 0.0, saturated_s = 0.0;
+  double next_record = t0;
+  const auto wall0 = std::chrono::steady_clock::now();
+  std::vector<Vector3d> tau_applied(n_legs, Vector3d::Zero());
+
+  for (int step = 0; step <= n_steps; ++step) {
+    const double t = d->time + t0;
+    const auto ps = view.at(t);
+    const Vector3d p(d->qpos[0], d->qpos[1], d->qpos[2]);
+    const Matrix3d rot =
+        Eigen::Quaterniond(d->qpos[3], d->qpos[4], d->qpos[5], d->qpos[6]).toRotationMatrix();
+    const Vector3d v(d->qvel[0], d->qvel[1], d->qvel[2]);
+    const Vector3d omega = rot * Vector3d(d->qvel[3], d->qvel[4], d->qvel[5]);
+    const Matrix3d rot_plan = rotation_zyx(ps.euler);
+
+    // Contacts: per foot force (terrain on foot), shin/thigh/trunk normal force.
+    std::vector<Vector3d> foot_force(n_legs, Vector3d::Zero());
+    std::vector<bool> foot_contact(n_legs, false);
+    std::vector<double> shin_f(n_legs, 0.0), thigh_f(n_legs, 0.0);
+    double trunk_f = 0.0;
+    for (int k = 0; k < d->ncon; ++k) {
+      const mjContact& con = d->contact[k];
+      mjtNum res[6];
+      mj_contactForce(m, d, k, res);
+      Eigen::Map<const Eigen::Matrix<mjtNum, 3, 3, Eigen::RowMajor>> frame(con.frame);
+      // Force on geom2 (the normal points from geom1 to geom2); robot geoms take their side.
+      const Vector3d f2 = frame.transpose() * Vector3d(res[0], res[1], res[2]);
+      for (int i = 0; i < n_legs; ++i) {
+        if (con.geom1 == foot_geom[i] || con.geom2 == foot_geom[i]) {
+          foot_force[i] += con.geom2 == foot_geom[i] ? f2 : Vector3d(-f2);
+          foot_contact[i] = true;
+        }
+        if (con.geom1 == shin_geom[i] || con.geom2 == shin_geom[i]) shin_f[i] += std::abs(res[0]);
+        if (con.geom1 == thigh_geom[i] || con.geom2 == thigh_geom[i])
+          thigh_f[i] += std::abs(res[0]);
+      }
+      if (con.geom1 == trunk_geom || con.geom2 == trunk_geom) trunk_f += std::abs(res[0]);
+    }
+
+    // Tracking errors.
+    const double pos_err = (p - ps.base_pos).norm();
+    const double tilt = Eigen::AngleAxisd(rot_plan.transpose() * rot).angle();
+    const double drop = ps.base_pos.z() - p.z();
+    sq_err_sum += pos_err * pos_err;
+    if (pos_err > rep.position_max) {
+      rep.position_max = pos_err;
+      rep.position_max_t = t;
+    }
+    rep.tilt_max = std::max(rep.tilt_max, tilt);
+    rep.height_drop_max = std::max(rep.height_drop_max, drop);
+    double body_impulse = rep.trunk_impulse;
+    for (int i = 0; i < n_legs; ++i) body_impulse = std::max(body_impulse, rep.thigh_impulse[i]);
+    if (!rep.fell && (drop > o.thresholds.fall_height_m || tilt > o.thresholds.fall_tilt_rad ||
+                      body_impulse > o.thresholds.body_contact_impulse_Ns)) {
+      rep.fell = true;
+      rep.fall_t = t;
+      std::ostringstream why;
+      why.precision(3);
+      if (drop > o.thresholds.fall_height_m)
+        why << "fall at t = " << t << " s: trunk " << drop << " m below the plan (limit "
+            << o.thresholds.fall_height_m << ")";
+      else if (tilt > o.thresholds.fall_tilt_rad)
+        why << "fall at t = " << t << " s: orientation error " << tilt * 180 / M_PI
+            << " deg (limit " << o.thresholds.fall_tilt_rad * 180 / M_PI << ")";
+      else
+        why << "fall at t = " << t << " s: trunk or thigh on the terrain (contact impulse "
+            << body_impulse << " N s)";
+      rep.reasons.push_back(why.str());
+    }
+
+    // Stance bookkeeping: touchdown error and slip of the sphere's contact point.
+    for (int i = 0; i < n_legs; ++i) {
+      const int idx = stance_at(i, t);
+      if (idx < 0 || !foot_contact[i]) continue;
+      const Vector3d centre(d->site_xpos[3 * foot_site[i]], d->site_xpos[3 * foot_site[i] + 1],
+                            d->site_xpos[3 * foot_site[i] + 2]);
+      const Vector3d contact_pt = centre - r_foot * terrain_normal(scene, centre);
+      StanceReport& s = rep.stances[idx];
+      if (!s.touched_down) {
+        s.touched_down = true;
+        s.touchdown_t = t;
+        const Vector3d planned = view.at(0.5 * (s.t_start + s.t_end)).foot[i];
+        s.touchdown_error = (contact_pt - planned).norm();
+        touchdown_point[idx] = contact_pt;
+      } else {
+        s.centre_drift =
+            std::max(s.centre_drift, (contact_pt - touchdown_point[idx]).head<2>().norm());
+      }
+      // Sliding: the velocity of the lower leg's material point at the contact, tangential part.
+      const Vector3d n = terrain_normal(scene, centre);
+      mj_jac(m, d, jacp.data(), nullptr, contact_pt.data(), m->site_bodyid[foot_site[i]]);
+      Vector3d vel = Vector3d::Zero();
+      for (int r = 0; r < 3; ++r)
+        for (int k = 0; k < nv; ++k) vel[r] += jacp[r * nv + k] * d->qvel[k];
+      s.slip += (vel - vel.dot(n) * n).norm() * o.dt;
+    }
+
+    // Record.
+    if (o.record_dt > 0 && t >= next_record - 1e-9) {
+      next_record += o.record_dt;
+      SimulationSample smp;
+      smp.t = t;
+      smp.base_position = p;
+      smp.base_euler_zyx = euler_zyx_of(rot);
+      smp.planned_position = ps.base_pos;
+      smp.planned_euler_zyx = ps.euler;
+      smp.joint_torque = tau_applied;
+      smp.foot_contact = foot_contact;
+      smp.foot_force = foot_force;
+      for (int i = 0; i < n_legs; ++i) {
+        smp.planned_contact.push_back(view.contact(i, t));
+        const Vector3d centre(d->site_xpos[3 * foot_site[i]], d->site_xpos[3 * foot_site[i] + 1],
+                              d->site_xpos[3 * foot_site[i] + 2]);
+        smp.foot_position.push_back(centre - r_foot * terrain_normal(scene, centre));
+      }
+      smp.shin_force = shin_f;
+      smp.thigh_force = thigh_f;
+      smp.trunk_force = trunk_f;
+      rep.samples.push_back(std::move(smp));
+    }
+    if (step == n_steps || rep.fell) break;
+
+    // Trunk PD wrench, spread over the planned stance feet within the friction cone.
+    std::vector<int> stance;
+    std::vector<Vector3d> lever;
+    for (int i = 0; i < n_legs; ++i)
+      if (view.contact(i, t)) {
+        stance.push_back(i);
+        lever.push_back(Vector3d(d->site_xpos[3 * foot_site[i]], d->site_xpos[3 * foot_site[i] + 1],
+                                 d->site_xpos[3 * foot_site[i] + 2]) -
+                        p);
+      }
+    std::vector<Vector3d> delta(stance.size(), Vector3d::Zero());
+    if (c.trunk_wrench) {
+      Eigen::Matrix<double, 6, 1> w;
+      w.head<3>() = c.kp_position * (ps.base_pos - p) + c.kd_position * (ps.base_vel - v);
+      w.tail<3>() = c.kp_orientation * rotation_vector(rot_plan * rot.transpose()) +
+                    c.kd_orientation * (ps.omega - omega);
+      if (!c.planned_forces) {
+        // Without the plan's forces the wrench carries the weight.
+        double mass = 0;
+        for (int b = 1; b < m->nbody; ++b) mass += m->body_mass[b];
+        w.head<3>() += mass * (ps.base_acc + Vector3d(0, 0, kGravity));
+      }
+      delta = spread_wrench(w, lever);
+    }
+
+    // The plan a moment before and after, for the swing feed-forward's joint rates.
+    constexpr double h = 0.004;
+    const auto pm = view.at(t - h), pp = view.at(t + h);
+    mj_fullM(m, full_m.data(), d->qM);
+    bool saturated = false;
+    for (int i = 0; i < n_legs; ++i) {
+      const int dof = 6 + 3 * i;
+      const auto& leg = model.legs[i];
+      mj_jacSite(m, d, jacp.data(), nullptr, foot_site[i]);
+      Matrix3d jac;
+      for (int r = 0; r < 3; ++r)
+        for (int k = 0; k < 3; ++k) jac(r, k) = jacp[r * nv + dof + k];
+      Matrix3d mass;
+      for (int r = 0; r < 3; ++r)
+        for (int k = 0; k < 3; ++k) mass(r, k) = full_m[(dof + r) * nv + dof + k];
+      Vector3d q, qd, bias;
+      for (int j = 0; j < 3; ++j) {
+        q[j] = d->qpos[7 + 3 * i + j];
+        qd[j] = d->qvel[dof + j];
+        bias[j] = d->qfrc_bias[dof + j];
+      }
+      // Desired joints: IK of the planned foot relative to the measured base; their rates from
+      // the planned motion (finite differences of the IK along the planned base).
+      const Vector3d q_des = ik_in(i, p, rot, ps.foot[i], q_prev[i]);
+      q_prev[i] = q_des;
+      const Vector3d q0 = ik_in(i, ps.base_pos, rot_plan, ps.foot[i], q);
+      const Vector3d qm = ik_in(i, pm.base_pos, rotation_zyx(pm.euler), pm.foot[i], q0);
+      const Vector3d qp = ik_in(i, pp.base_pos, rotation_zyx(pp.euler), pp.foot[i], q0);
+      const Vector3d qd_des = (qp - qm) / (2 * h);
+      const Vector3d qdd_des = (qp - 2 * q0 + qm) / (h * h);
+      const bool in_stance = view.contact(i, t);
+      Vector3d tau = bias;
+      if (in_stance) {
+        Vector3d f = c.planned_forces ? ps.force[i] : Vector3d::Zero();
+        const auto it = std::find(stance.begin(), stance.end(), i);
+        f += delta[it - stance.begin()];
+        f = into_cone(f, terrain_normal(scene, ps.foot[i]), c.cone_margin * mu);
+        tau -= jac.transpose() * f;
+        tau += c.kp_stance * (q_des - q) + c.kd_stance * (qd_des - qd);
+      } else {
+        if (c.swing_feedforward) tau += mass * qdd_des;
+        tau += c.kp_swing * (q_des - q) + c.kd_swing * (qd_des - qd);
+      }
+      for (int j = 0; j < 3; ++j) {
+        const double lim = leg.torque_limit[j];
+        if (std::abs(tau[j]) > lim) {
+          saturated = true;
+          rep.saturated_time[i][j] += o.dt;
+          tau[j] = std::clamp(tau[j], -lim, lim);
+        }
+        rep.torque_max[i][j] = std::max(rep.torque_max[i][j], std::abs(tau[j]));
+        d->ctrl[3 * i + j] = tau[j];
+      }
+      tau_applied[i] = tau;
+    }
+    if (saturated) saturated_s += o.dt;
+
+    // Pushes on the trunk.
+    for (int k = 0; k < 6; ++k) d->xfrc_applied[6 * trunk_body + k] = 0;
+    for (const auto& push : o.pushes)
+      if (t >= push.t && t < push.t + push.duration)
+        for (int k = 0; k < 3; ++k) d->xfrc_applied[6 * trunk_body + k] += push.force[k];
+
+    mj_step(m, d);
+    ++rep.steps;
+    // Impulses of the step just taken (contact forces of the new state times dt).
+    for (int k = 0; k < d->ncon; ++k) {
+      const mjContact& con = d->contact[k];
+      mjtNum res[6];
+      mj_contactForce(m, d, k, res);
+      const double impulse = std::abs(res[0]) * o.dt;
+      for (int i = 0; i < n_legs; ++i) {
+        if (con.geom1 == shin_geom[i] || con.geom2 == shin_geom[i]) rep.shin_impulse[i] += impulse;
+        if (con.geom1 == thigh_geom[i] || con.geom2 == thigh_geom[i])
+          rep.thigh_impulse[i] += impulse;
+      }
+      if (con.geom1 == trunk_geom || con.geom2 == trunk_geom) rep.trunk_impulse += impulse;
+    }
+  }
+  rep.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  rep.duration = d->time;
+  rep.realtime_factor = rep.wall_s > 0 ? rep.duration / rep.wall_s : 0.0;
+  const int n_eval = rep.steps + 1;
+  rep.position_rms = std::sqrt(sq_err_sum / n_eval);
+  rep.saturation_fraction = rep.duration > 0 ? saturated_s / rep.duration : 0.0;
+  for (const auto& s : rep.stances) {
+    if (rep.fell && s.t_start > rep.fall_t) continue;
+    if (!s.touched_down) {
+      if (s.t_end - s.t_start > 0.05 && s.t_start < t0 + rep.duration) ++rep.missed_touchdowns;
+      continue;
+    }
+    rep.slip_max = std::max(rep.slip_max, s.slip);
+    rep.centre_drift_max = std::max(rep.centre_drift_max, s.centre_drift);
+    rep.touchdown_error_max = std::max(rep.touchdown_error_max, s.touchdown_error);
+  }
+  for (double x : rep.shin_impulse) rep.shin_impulse_max = std::max(rep.shin_impulse_max, x);
+
+  // Verdict.
+  const auto& th = o.thresholds;
+  std::ostringstream w;
+  w.precision(3);
+  auto warn = [&](bool bad, const std::string& what) {
+    if (bad) rep.reasons.push_back(what);
+  };
+  auto str = [](double v, int prec = 3) {
+    std::ostringstream s;
+    s.precision(prec);
+    s << v;
+    return s.str();
+  };
+  warn(rep.position_rms > th.position_rms_m, "base position error RMS " + str(rep.position_rms) +
+                                                 " m (limit " + str(th.position_rms_m) + ")");
+  warn(rep.position_max > th.position_max_m, "base position error max " + str(rep.position_max) +
+                                                 " m at t = " + str(rep.position_max_t) +
+                                                 " s (limit " + str(th.position_max_m) + ")");
+  warn(rep.saturation_fraction > th.saturation_fraction,
+       "torque saturated " + str(100 * rep.saturation_fraction) + " % of the time (limit " +
+           str(100 * th.saturation_fraction) + " %)");
+  warn(rep.slip_max > th.slip_m,
+       "foot slip " + str(rep.slip_max) + " m in a stance (limit " + str(th.slip_m) + ")");
+  warn(rep.touchdown_error_max > th.touchdown_error_m,
+       "touchdown error " + str(rep.touchdown_error_max) + " m (limit " +
+           str(th.touchdown_error_m) + ")");
+  warn(rep.missed_touchdowns > 0,
+       std::to_string(rep.missed_touchdowns) + " planned stance(s) never touched the terrain");
+  warn(rep.shin_impulse_max >= th.shin_impulse_Ns, "shin contact impulse " +
+                                                       str(rep.shin_impulse_max) + " N s (limit " +
+                                                       str(th.shin_impulse_Ns) + ")");
+  rep.verdict = rep.fell ? "fail" : (rep.reasons.empty() ? "pass" : "warn");
+  return rep;
+}
+
+}  // namespace terrastride::collision
