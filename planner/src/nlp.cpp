@@ -67,7 +67,7 @@ SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightFi
                                 std::to_string(robot_.legs.size()) + " legs");
   if (timeline_.num_intervals() < 1) throw std::invalid_argument("empty phase timeline");
   if (!(options_.segment_dt > 0.0)) throw std::invalid_argument("segment_dt must be > 0");
-  build_layout(start_state);
+  layout_ = make_layout(static_cast<int>(robot_.legs.size()), timeline_, options_, &variables_);
   build_initial_guess(start_state);
   build_baseline();
   std::vector<std::string> sets;  // "all" expanded, implied sets added, each set once
@@ -98,26 +98,10 @@ SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightFi
   }
 }
 
-std::vector<double> Layout::segment_points(int s, int n, bool with_end) const {
-  std::vector<double> sigmas;
-  const double c = s == 0 ? first_segment_cropped : 0.0;
-  for (int q = 0; q <= n; ++q) {
-    if (q == n && !with_end) break;
-    const double old_sigma = static_cast<double>(q) / n;
-    if (c == 0.0) {
-      sigmas.push_back(old_sigma);
-    } else if (q == 0) {
-      sigmas.push_back(0.0);  // the new start
-    } else if (old_sigma > c + 1e-9) {
-      sigmas.push_back(q == n ? 1.0 : (old_sigma - c) / (1.0 - c));
-    }
-  }
-  return sigmas;
-}
-
 int SrbdProblem::num_free_variables() const {
   int n = 0;
-  for (std::size_t i = 0; i < lb_.size(); ++i) n += lb_[i] < ub_[i];
+  for (std::size_t i = 0; i < variables_.lower.size(); ++i)
+    n += variables_.lower[i] < variables_.upper[i];
   return n;
 }
 
@@ -130,125 +114,16 @@ void SrbdProblem::add_piece(std::unique_ptr<Piece> piece) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Variables
-
-void SrbdProblem::build_layout(const StartState* start) {
-  layout_ = std::make_unique<Layout>();
-  Layout& L = *layout_;
-  const int nf = static_cast<int>(robot_.legs.size());
-  auto add = [&](int n, double lo, double hi) {
-    const int first = static_cast<int>(lb_.size());
-    for (int i = 0; i < n; ++i) {
-      lb_.push_back(lo);
-      ub_.push_back(hi);
-    }
-    return first;
-  };
-  // Intervals and their segments.
-  const int ni = timeline_.num_intervals();
-  for (int j = 0; j < ni; ++j) {
-    const double d = timeline_.events[j + 1] - timeline_.events[j];
-    const int n = std::max(1, static_cast<int>(std::ceil(d / options_.segment_dt - 1e-6)));
-    L.interval_nominal.push_back(d);
-    double lo = d, hi = d;
-    if (options_.optimize_timing) {
-      lo = std::min(d, std::max(options_.min_interval, options_.interval_min_scale * d));
-      hi = options_.interval_max_scale * d;
-    }
-    L.interval_var.push_back(add(1, lo, hi));
-    const double elapsed = j == 0 ? timeline_.first_interval_elapsed : 0.0;
-    if (elapsed > 0.0) {
-      // The tail of a longer interval (a cropped timeline): knots where that interval had them,
-      // a first segment up to the next one (merged into the following segment when shorter than
-      // a tenth of a segment, which would only make the problem stiff).
-      const double full = d + elapsed;
-      const int n_full =
-          std::max(1, static_cast<int>(std::ceil(full / options_.segment_dt - 1e-6)));
-      const double len = full / n_full;
-      std::vector<double> bounds{0.0};
-      for (int k = 1; k <= n_full; ++k) {
-        const double b = k * len - elapsed;
-        if (b <= 0.1 * len || b >= d - 1e-9) continue;
-        bounds.push_back(b);
-      }
-      bounds.push_back(d);
-      // The previous segment the start falls in: [k0 len, (k0 + 1) len] of the full interval.
-      const int k0 = static_cast<int>(std::floor(elapsed / len + 1e-9));
-      const double first_end = (k0 + 1) * len - elapsed;
-      if (bounds.size() > 1 && std::abs(bounds[1] - first_end) < 1e-9)
-        L.first_segment_cropped = elapsed / len - k0;
-      for (std::size_t k = 0; k + 1 < bounds.size(); ++k) {
-        L.seg_interval.push_back(j);
-        L.seg_fraction.push_back((bounds[k + 1] - bounds[k]) / d);
-      }
-      continue;
-    }
-    for (int k = 0; k < n; ++k) {
-      L.seg_interval.push_back(j);
-      L.seg_fraction.push_back(1.0 / n);
-    }
-  }
-  const int S = L.num_segments = static_cast<int>(L.seg_interval.size());
-  L.nominal_knot_time.assign(S + 1, 0.0);
-  for (int s = 0; s < S; ++s)
-    L.nominal_knot_time[s + 1] =
-        L.nominal_knot_time[s] + L.interval_nominal[L.seg_interval[s]] * L.seg_fraction[s];
-  // Base knots.
-  for (int k = 0; k <= S; ++k) L.base.push_back(add(12, -kInf, kInf));
-  // Contact per segment.
-  L.contact.assign(nf, std::vector<bool>(S));
-  for (int f = 0; f < nf; ++f)
-    for (int s = 0; s < S; ++s) L.contact[f][s] = timeline_.contact[f][L.seg_interval[s]];
-  // Feet.
-  L.foot_pos.assign(nf, std::vector<int>(S + 1, -1));
-  L.foot_vel.assign(nf, std::vector<int>(S + 1, -1));
-  L.force.assign(nf, std::vector<std::array<int, 2>>(S, {-1, -1}));
-  for (int f = 0; f < nf; ++f) {
-    for (int k = 0; k <= S; ++k) {
-      const int left = k > 0 ? L.contact[f][k - 1] : -1;   // -1 none, 0 swing, 1 stance
-      const int right = k < S ? L.contact[f][k] : -1;
-      if (right == 1) {
-        if (left == 1) {
-          L.foot_pos[f][k] = L.foot_pos[f][k - 1];
-        } else {
-          L.foot_pos[f][k] = add(3, -kInf, kInf);
-          L.stances.push_back({f, k, k, L.foot_pos[f][k], k == 0});
-        }
-      } else if (left == 1) {
-        L.foot_pos[f][k] = L.foot_pos[f][k - 1];
-      } else {
-        L.foot_pos[f][k] = add(3, -kInf, kInf);
-        L.foot_vel[f][k] = add(3, -kInf, kInf);
-      }
-      // Forces: one value per knot, shared by the stance segments on both sides of it.
-      if (left == 1 || right == 1) {
-        const int fv = add(3, -kInf, kInf);
-        if (left == 1) L.force[f][k - 1][1] = fv;
-        if (right == 1) L.force[f][k][0] = fv;
-      }
-      if (right == 1 && left == 1)
-        for (auto& st : L.stances)
-          if (st.foot == f && st.pos_var == L.foot_pos[f][k]) st.last_seg = k;
-    }
-    // Swings.
-    for (int s = 0; s < S; ++s)
-      if (!L.contact[f][s]) {
-        if (s > 0 && !L.contact[f][s - 1])
-          L.swings.back().last_seg = s;
-        else
-          L.swings.push_back({f, s, s});
-      }
-  }
-  (void)start;
-}
+// Initial guess
 
 void SrbdProblem::build_initial_guess(const StartState* start) {
-  Layout& L = *layout_;
+  Layout& L = layout_;
   const int S = L.num_segments;
   const int nf = static_cast<int>(robot_.legs.size());
   const double T = timeline_.duration();
-  x0_.assign(lb_.size(), 0.0);
-  for (std::size_t j = 0; j < L.interval_var.size(); ++j) x0_[L.interval_var[j]] = L.interval_nominal[j];
+  variables_.initial.assign(variables_.lower.size(), 0.0);
+  for (std::size_t j = 0; j < L.interval_var.size(); ++j)
+    variables_.initial[L.interval_var[j]] = L.interval_nominal[j];
 
   // Start and goal poses. The base height follows the terrain under the nominal feet.
   auto base_height = [&](double x, double y, double yaw) {
@@ -348,15 +223,15 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
     const double zb = k == 0 ? p_start.z() : smoothed_height(t);
     const double zd = inner ? (smoothed_height(t + kDt) - smoothed_height(t - kDt)) / (2 * kDt) : 0.0;
     for (int d = 0; d < 3; ++d) {
-      x0_[b + d] = d == 2 ? zb : p[d];
-      x0_[b + 3 + d] = d == 2 ? zd : rate * (p_goal[d] - p_start[d]);
-      x0_[b + 6 + d] = e[d];
-      x0_[b + 9 + d] = rate * (e_goal[d] - e_start[d]);
+      variables_.initial[b + d] = d == 2 ? zb : p[d];
+      variables_.initial[b + 3 + d] = d == 2 ? zd : rate * (p_goal[d] - p_start[d]);
+      variables_.initial[b + 6 + d] = e[d];
+      variables_.initial[b + 9 + d] = rate * (e_goal[d] - e_start[d]);
     }
   }
   // Start state and goal as bounds; fixed degrees of freedom held at their start value.
   auto fix = [&](int i, double v) {
-    lb_[i] = ub_[i] = x0_[i] = v;
+    variables_.lower[i] = variables_.upper[i] = variables_.initial[i] = v;
   };
   {
     const int b = L.base[0];
@@ -401,9 +276,12 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
     const int k1 = std::min(k + 1, S);
     const double t0 = L.nominal_knot_time[k], t1 = L.nominal_knot_time[k1];
     const double u = t1 > t0 ? std::clamp((t - t0) / (t1 - t0), 0.0, 1.0) : 0.0;
-    *pos = (1 - u) * Eigen::Vector3d(x0_[L.base[k]], x0_[L.base[k] + 1], x0_[L.base[k] + 2]) +
-           u * Eigen::Vector3d(x0_[L.base[k1]], x0_[L.base[k1] + 1], x0_[L.base[k1] + 2]);
-    *yaw = (1 - u) * x0_[L.base[k] + 6] + u * x0_[L.base[k1] + 6];
+    *pos =
+        (1 - u) * Eigen::Vector3d(variables_.initial[L.base[k]], variables_.initial[L.base[k] + 1],
+                                  variables_.initial[L.base[k] + 2]) +
+        u * Eigen::Vector3d(variables_.initial[L.base[k1]], variables_.initial[L.base[k1] + 1],
+                            variables_.initial[L.base[k1] + 2]);
+    *yaw = (1 - u) * variables_.initial[L.base[k] + 6] + u * variables_.initial[L.base[k1] + 6];
   };
   for (const auto& st : L.stances) {
     Eigen::Vector3d p;
@@ -447,7 +325,7 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
           }
       }
       p.z() = terrain_.height(p.x(), p.y());
-      for (int d = 0; d < 3; ++d) x0_[st.pos_var + d] = p[d];
+      for (int d = 0; d < 3; ++d) variables_.initial[st.pos_var + d] = p[d];
     }
   }
   // Swing knots: straight line between the footholds, lifted by the clearance.
@@ -461,12 +339,14 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
                  : nominal_foot_world(robot_.legs[f], p_start, e_start[0]);
       if (!start) pa.z() = terrain_.height(pa.x(), pa.y());
     } else {
-      pa = Eigen::Vector3d(x0_[L.foot_pos[f][k0]], x0_[L.foot_pos[f][k0] + 1],
-                           x0_[L.foot_pos[f][k0] + 2]);
+      pa = Eigen::Vector3d(variables_.initial[L.foot_pos[f][k0]],
+                           variables_.initial[L.foot_pos[f][k0] + 1],
+                           variables_.initial[L.foot_pos[f][k0] + 2]);
     }
     if (L.foot_vel[f][k1] < 0) {
-      pb = Eigen::Vector3d(x0_[L.foot_pos[f][k1]], x0_[L.foot_pos[f][k1] + 1],
-                           x0_[L.foot_pos[f][k1] + 2]);
+      pb = Eigen::Vector3d(variables_.initial[L.foot_pos[f][k1]],
+                           variables_.initial[L.foot_pos[f][k1] + 1],
+                           variables_.initial[L.foot_pos[f][k1] + 2]);
     } else {
       Eigen::Vector3d b;
       double yaw;
@@ -498,8 +378,8 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
       }
       if (k == S) v.setZero();
       for (int d = 0; d < 3; ++d) {
-        x0_[L.foot_pos[f][k] + d] = p[d];
-        x0_[L.foot_vel[f][k] + d] = v[d];
+        variables_.initial[L.foot_pos[f][k] + d] = p[d];
+        variables_.initial[L.foot_vel[f][k] + d] = v[d];
       }
     }
   }
@@ -511,14 +391,17 @@ void SrbdProblem::build_initial_guess(const StartState* start) {
 // the weight shared equally (a small regularised least-squares problem per knot), then held in
 // the friction pyramid. Ipopt then starts near dynamic balance instead of 1-2 m g away from it.
 void SrbdProblem::guess_forces() {
-  const Layout& L = *layout_;
+  const Layout& L = layout_;
   const int S = L.num_segments;
   const int nf = static_cast<int>(robot_.legs.size());
   const double mg = robot_.mass * kGravity, mu = options_.friction;
   const double fmax = options_.max_normal_force_factor * mg;
   const bool rot_free =
       robot_.base_dof_free[3] || robot_.base_dof_free[4] || robot_.base_dof_free[5];
-  auto v3 = [&](int i) { return Eigen::Vector3d(x0_[i], x0_[i + 1], x0_[i + 2]); };
+  auto v3 = [&](int i) {
+    return Eigen::Vector3d(variables_.initial[i], variables_.initial[i + 1],
+                           variables_.initial[i + 2]);
+  };
   // Angular rows are divided by this lever arm so that they weigh like the force rows.
   constexpr double kLever = 0.3;  // m
   constexpr double kRegularisation = 1e-3;
@@ -542,7 +425,7 @@ void SrbdProblem::guess_forces() {
       const int s = side == 0 ? k - 1 : k;  // the segment ending (0) or starting (1) at knot k
       if (s < 0 || s >= S) continue;
       const double sigma = side == 0 ? 1.0 : 0.0;
-      const double h = x0_[L.interval_var[L.seg_interval[s]]] * L.seg_fraction[s];
+      const double h = variables_.initial[L.interval_var[L.seg_interval[s]]] * L.seg_fraction[s];
       const int b0 = L.base[s], b1 = L.base[s + 1];
       Eigen::Vector3d r, acc, e, ed, edd, w, wd;
       hermite<double>(sigma, h, v3(b0), v3(b0 + 3), v3(b1), v3(b1 + 3), &r, nullptr, &acc);
@@ -577,7 +460,7 @@ void SrbdProblem::guess_forces() {
       fi.z() = std::clamp(fi.z(), 0.0, fmax);
       const double tangential = fi.head<2>().norm(), limit = mu * fi.z() / std::sqrt(2.0);
       if (tangential > limit) fi.head<2>() *= limit / tangential;
-      for (int d = 0; d < 3; ++d) x0_[vars[i] + d] = fi[d];
+      for (int d = 0; d < 3; ++d) variables_.initial[vars[i] + d] = fi[d];
     }
   }
 }
@@ -586,7 +469,7 @@ void SrbdProblem::guess_forces() {
 // Baseline constraints
 
 void SrbdProblem::build_baseline() {
-  const Layout& L = *layout_;
+  const Layout& L = layout_;
   const int S = L.num_segments;
   const int nf = static_cast<int>(robot_.legs.size());
   const double m = robot_.mass, mg = m * kGravity;
@@ -879,7 +762,8 @@ double SrbdProblem::max_violation(const std::vector<double>& x, const std::vecto
   const auto lo = row_lower(), hi = row_upper();
   double v = 0.0;
   for (int i = 0; i < num_rows_; ++i) v = std::max({v, lo[i] - g[i], g[i] - hi[i]});
-  for (std::size_t i = 0; i < x.size(); ++i) v = std::max({v, lb_[i] - x[i], x[i] - ub_[i]});
+  for (std::size_t i = 0; i < x.size(); ++i)
+    v = std::max({v, variables_.lower[i] - x[i], x[i] - variables_.upper[i]});
   return v;
 }
 
@@ -899,18 +783,18 @@ std::map<std::string, double> SrbdProblem::violation_by_kind(const std::vector<d
 
 double SrbdProblem::duration(const std::vector<double>& x) const {
   double T = 0.0;
-  for (int v : layout_->interval_var) T += x[v];
+  for (int v : layout_.interval_var) T += x[v];
   return T;
 }
 
 std::vector<double> SrbdProblem::event_times(const std::vector<double>& x) const {
   std::vector<double> ev{0.0};
-  for (int v : layout_->interval_var) ev.push_back(ev.back() + x[v]);
+  for (int v : layout_.interval_var) ev.push_back(ev.back() + x[v]);
   return ev;
 }
 
 SrbdProblem::State SrbdProblem::evaluate(const std::vector<double>& x, double t) const {
-  const Layout& L = *layout_;
+  const Layout& L = layout_;
   const int S = L.num_segments;
   // Locate the segment (right-continuous: a knot belongs to the segment it starts).
   double t0 = 0.0;

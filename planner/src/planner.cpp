@@ -216,7 +216,7 @@ PhaseTimeline timeline_of(const Trajectory& plan) {
 }
 
 void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
-  const Layout& L = *layout_;
+  const Layout& L = layout_;
   const int S = L.num_segments;
   // The previous plan at knot k, from its samples in the segment to the left of the knot (to the
   // right for the first): with aligned knots (PhaseTimeline::first_interval_elapsed) that
@@ -233,7 +233,8 @@ void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
     const Eigen::Vector3d rates = euler_rates(s);
     for (int d = 0; d < 3; ++d) {
       auto set = [&](int i, double v) {
-        if (lb_[i] < ub_[i]) x0_[i] = std::clamp(v, lb_[i], ub_[i]);
+        if (variables_.lower[i] < variables_.upper[i])
+          variables_.initial[i] = std::clamp(v, variables_.lower[i], variables_.upper[i]);
       };
       set(b + d, s.base.position[d]);
       set(b + 3 + d, s.base.linear_velocity[d]);
@@ -245,10 +246,10 @@ void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
   for (int f = 0; f < nf; ++f)
     for (int k = 0; k <= S; ++k) {
       const int pv = L.foot_pos[f][k], vv = L.foot_vel[f][k];
-      if (pv >= 0 && lb_[pv] < ub_[pv])
-        for (int d = 0; d < 3; ++d) x0_[pv + d] = knot[k].feet[f].position[d];
-      if (vv >= 0 && lb_[vv] < ub_[vv])
-        for (int d = 0; d < 3; ++d) x0_[vv + d] = knot[k].feet[f].velocity[d];
+      if (pv >= 0 && variables_.lower[pv] < variables_.upper[pv])
+        for (int d = 0; d < 3; ++d) variables_.initial[pv + d] = knot[k].feet[f].position[d];
+      if (vv >= 0 && variables_.lower[vv] < variables_.upper[vv])
+        for (int d = 0; d < 3; ++d) variables_.initial[vv + d] = knot[k].feet[f].velocity[d];
     }
   for (int f = 0; f < nf; ++f)
     for (int s = 0; s < S; ++s)
@@ -258,7 +259,7 @@ void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
         const auto smp =
             segment_state(prev, kt[s + side] + shift, kt[s] + shift, kt[s + 1] + shift);
         if (!smp.feet[f].contact) continue;
-        for (int d = 0; d < 3; ++d) x0_[fv + d] = smp.feet[f].force[d];
+        for (int d = 0; d < 3; ++d) variables_.initial[fv + d] = smp.feet[f].force[d];
       }
 }
 

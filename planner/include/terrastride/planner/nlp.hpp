@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "terrastride/planner/gait.hpp"
+#include "terrastride/planner/layout.hpp"
 #include "terrastride/planner/options.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/height_field.hpp"
@@ -60,39 +61,6 @@ using ConstraintSetBuilder = std::function<void(SrbdProblem&)>;
 void register_constraint_set(const std::string& name, ConstraintSetBuilder builder);
 std::vector<std::string> constraint_set_names();
 
-// Where each quantity lives in the variable vector (indices; -1 = identically zero).
-struct Layout {
-  int num_segments = 0;
-  std::vector<int> seg_interval;         // interval of each segment
-  std::vector<double> seg_fraction;      // 1 / (segments in its interval)
-  std::vector<int> interval_var;         // duration variable of each interval
-  std::vector<double> interval_nominal;  // s
-  std::vector<int> base;  // per knot: first of 12 = position(3) velocity(3) euler(3) euler rate(3)
-  std::vector<std::vector<int>> foot_pos, foot_vel;    // [foot][knot]; foot_vel -1 = zero
-  std::vector<std::vector<std::array<int, 2>>> force;  // [foot][segment][start/end]; -1 = zero
-  std::vector<std::vector<bool>> contact;              // [foot][segment]
-  struct Stance {
-    int foot, first_seg, last_seg;  // segments [first_seg, last_seg]
-    int pos_var;
-    bool fixed;  // initial stance: position given
-  };
-  std::vector<Stance> stances;
-  struct Swing {
-    int foot, first_seg, last_seg;
-  };
-  std::vector<Swing> swings;
-  std::vector<double> nominal_knot_time;
-  // A re-plan's timeline starts inside an interval of the previous plan (first_interval_elapsed);
-  // its first segment is then the tail of one of the previous plan's segments, of which this
-  // fraction had elapsed (0 when it is not: a plan from rest, or a tail merged with the next).
-  double first_segment_cropped = 0.0;
-  // The constraint points of segment s for n points per segment: fractions q / n, q = 0 .. n - 1
-  // (and n when with_end). In a cropped first segment the points stay where the previous plan had
-  // them (the previous solution, exact there, then needs no iteration to re-verify), plus the
-  // segment's new start.
-  std::vector<double> segment_points(int s, int n, bool with_end) const;
-};
-
 class SrbdProblem {
  public:
   // Builds variables, bounds, initial guess and pieces. `timeline` is the contact schedule;
@@ -107,18 +75,18 @@ class SrbdProblem {
               const StartState* start_state = nullptr);
   ~SrbdProblem();
 
-  int num_variables() const { return static_cast<int>(lb_.size()); }
+  int num_variables() const { return variables_.size(); }
   int num_free_variables() const;
   int num_constraints() const { return num_rows_; }
   const std::vector<std::unique_ptr<Piece>>& pieces() const { return pieces_; }
-  const std::vector<double>& lower() const { return lb_; }
-  const std::vector<double>& upper() const { return ub_; }
-  std::vector<double>& initial_guess() { return x0_; }
+  const std::vector<double>& lower() const { return variables_.lower; }
+  const std::vector<double>& upper() const { return variables_.upper; }
+  std::vector<double>& initial_guess() { return variables_.initial; }
   const robot::RobotModel& robot() const { return robot_; }
   const terrain::HeightField& terrain() const { return terrain_; }
   const PhaseTimeline& timeline() const { return timeline_; }
   const ProblemOptions& options() const { return options_; }
-  const Layout& layout() const { return *layout_; }
+  const Layout& layout() const { return layout_; }
 
   void add_piece(std::unique_ptr<Piece> piece);
 
@@ -151,7 +119,6 @@ class SrbdProblem {
   void warm_start_from(const struct Trajectory& previous, double shift);
 
  private:
-  void build_layout(const StartState* start);
   void build_initial_guess(const StartState* start);
   void guess_forces();
   void build_baseline();
@@ -160,8 +127,8 @@ class SrbdProblem {
   const terrain::HeightField& terrain_;
   PhaseTimeline timeline_;
   ProblemOptions options_;
-  std::unique_ptr<Layout> layout_;
-  std::vector<double> lb_, ub_, x0_;
+  Layout layout_;
+  Variables variables_;
   std::vector<std::unique_ptr<Piece>> pieces_;
   std::vector<int> row_offset_, nz_offset_;
   int num_rows_ = 0, nnz_ = 0;
