@@ -1,0 +1,156 @@
+// The map stage of the pipeline as library calls: cloud files -> cleaned clouds -> OctoMap and
+// height grid -> smoothed field and foothold-safety layers, and the folder `terrastride map --out
+// DIR` writes (DIR/terrain.json, DIR/octomap.bt, DIR/layers/*.npy). `terrastride map`, the demo,
+// the report from clouds and the socket's map.update build their maps with this one call.
+#pragma once
+
+#include <octomap/OcTree.h>
+
+#include <Eigen/Core>
+#include <chrono>
+#include <cstddef>
+#include <functional>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/filters.hpp"
+#include "terrastride/perception/octomap_fusion.hpp"
+#include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/terrain/height_grid.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
+
+namespace terrastride::terrain {
+
+// A cloud file read for a map, as terrain.json lists it under "inputs".
+struct CloudFile {
+  std::string path;       // as given
+  size_t points = 0;      // points in the file, finite or not
+  size_t non_finite = 0;  // of those, dropped because a coordinate was not finite
+};
+
+// Where a map's clouds came from, for terrain.json ("inputs", "statistics", "timings").
+struct MapSources {
+  std::vector<CloudFile> files;  // one per cloud given to build_terrain_map, in order
+  double read_s = 0.0;
+  // terrain.json's total_s counts from here (the start of reading).
+  std::chrono::steady_clock::time_point started = std::chrono::steady_clock::now();
+};
+
+struct MapInput {
+  std::vector<perception::PointCloud> clouds;
+  MapSources sources;
+};
+
+// Reads cloud files (PCD, PLY, XYZ, NPY) in the order given. `origin`, when given, is every
+// cloud's sensor origin (it overrides a PCD's VIEWPOINT). `before_file(k)`, when set, is called
+// before file k is read (progress). Throws perception::InputError naming the file.
+MapInput read_map_clouds(const std::vector<std::string>& paths,
+                         const std::optional<Eigen::Vector3d>& origin,
+                         const std::function<void(size_t)>& before_file = {});
+
+// The stages of build_terrain_map: cleaning, then the height grid and the safety layers; the
+// OctoMap is built beside both.
+enum class MapStage { kClean, kGrid, kOctoMap };
+
+// A stage of build_terrain_map refused its options or its data (the message names the problem):
+// stage() tells the caller which of its options to name.
+class MapBuildError : public perception::InputError {
+ public:
+  MapBuildError(MapStage stage, const std::string& message)
+      : perception::InputError(message), stage_(stage) {}
+  MapStage stage() const { return stage_; }
+
+ private:
+  MapStage stage_;
+};
+
+// The OctoMap `terrastride map` builds: 5 cm voxels, rays not cut. Ray casting cost grows with
+// range / voxel size; 2 cm was measured against 5 cm (2026-11-22, 2 cores under load): 10-15x the
+// OctoMap time on every shipped scan (0.05-0.1 s -> 0.6-1.3 s for data/scans, 0.2 -> 1.7 s for
+// 1 M points), ~10x the octomap.bt size, and 4.6 s / 0.4 GB -> 17-26 s / 1.8 GB for
+// ../shared/scans/octomap/scan.xyz; so 5 cm stays the default and finer voxels are an option for
+// small scans. Far rays are kept: the height grid cannot tell which far returns matter, so
+// dropping them (max_range) stays the caller's choice.
+perception::OctoMapOptions default_map_octomap();
+
+struct MapBuild;
+
+struct MapBuildOptions {
+  // Applied to each cloud on its own (outlier statistics are per cloud); nullopt: the clouds are
+  // fused as given.
+  std::optional<perception::CloudFilterOptions> cleaning = perception::default_map_cleaning();
+  HeightGridOptions grid;
+  std::vector<double> foot_radii{0.02, 0.05, 0.10};  // safety layers computed up front
+  SafetyOptions safety;
+  // nullopt: no OctoMap (a map kept in memory for queries and plans needs none).
+  std::optional<perception::OctoMapOptions> octomap = default_map_octomap();
+  // Clouds an earlier build cleaned (its `clouds`), fused first and not cleaned again, e.g. a
+  // map that grows by one cloud at a time. Not owned; must outlive the call.
+  const std::vector<perception::PointCloud>* cleaned_before = nullptr;
+  // Called on the calling thread as kClean and kGrid begin, with the build so far (at kGrid:
+  // `kept` and `points_kept` are known). It may throw to abandon the build (a cancelled request,
+  // a point budget): the OctoMap thread is stopped and joined, and the exception propagates.
+  std::function<void(MapStage, const MapBuild&)> on_stage;
+};
+
+struct MapBuild {
+  std::unique_ptr<TerrainMap> map;
+  std::unique_ptr<octomap::OcTree> octree;  // null without MapBuildOptions::octomap
+  std::optional<perception::OctoMapOptions> octomap_options;  // what built `octree`
+  // What the grid was built from: the cleaned_before clouds, then the new ones cleaned.
+  std::vector<perception::PointCloud> clouds;
+  std::vector<size_t> kept;  // per new cloud: points left after cleaning
+  size_t points_kept = 0;    // the sum of `kept`
+  struct Timings {
+    double clean_s = 0.0;
+    double grid_s = 0.0;
+    double safety_s = 0.0;
+    double octomap_s = 0.0;  // the OctoMap's own work, not its waits for cleaned clouds
+  } timings;
+};
+
+// Cleans every cloud, builds the OctoMap, the height grid, the smoothed field and the safety
+// layers. The clouds are cleaned in parallel (one per core; every result lands in its own slot,
+// hence the same map as in order); the OctoMap's thread inserts cloud k, in input order, as soon
+// as it is cleaned, so a core left without a cloud to clean works on the OctoMap meanwhile, while
+// this thread builds the grid and the layers. Rays go to one point per OctoMap voxel (a voxel-grid
+// filtered copy): ray casting is the expensive part, and the occupied voxels are the same.
+// Throws MapBuildError: kClean for cleaning options the filter refuses or when no point is left,
+// kGrid for the grid and safety options (resolution, radii), kOctoMap for the OctoMap's options
+// or a cloud outside its addressable cube. The first failing stage in that order is reported.
+MapBuild build_terrain_map(std::vector<perception::PointCloud> clouds,
+                           const MapBuildOptions& options = {});
+
+// What `terrastride map --out` writes, for perception::AtomicOutputDir: outputs of versions
+// before the marker file are recognised by their names (every version wrote all three of
+// terrain.json, octomap.bt and layers/, so a folder that merely holds a terrain.json is not taken
+// for one).
+perception::OutputDirKind map_output_kind();
+
+// terrain.json for a build: the grid, layers, safety and statistics blocks of
+// write_terrain_layers, the OctoMap (when there is one), the inputs and the timings.
+nlohmann::json terrain_json(const MapBuild& build, const MapSources& sources);
+
+// Writes the map folder `terrastride map` writes (terrain.json, octomap.bt when the build has an
+// OctoMap, layers/*.npy) into a temporary folder beside `dir`, then renames it into place with
+// its .terrastride-output marker (perception::AtomicOutputDir; an existing `dir` is replaced only
+// when it is an earlier output). Returns terrain.json's document. Throws perception::InputError
+// naming the path.
+nlohmann::json write_terrain_dir(const MapBuild& build, const MapSources& sources,
+                                 const std::string& dir);
+
+// The figures `terrastride map --json` prints for a written map folder `dir` whose terrain.json
+// is `terrain`.
+nlohmann::json map_summary(const MapBuild& build, const nlohmann::json& terrain,
+                           const std::string& dir);
+
+// The OctoMap as octomap.bt holds it and every reader of a map folder sees it: each voxel
+// occupied or free at the clamping thresholds (the build's log-odds are not saved). Checks run on
+// this judge a map in memory exactly as they judge its folder.
+std::shared_ptr<octomap::OcTree> octree_as_saved(const octomap::OcTree& tree);
+
+}  // namespace terrastride::terrain

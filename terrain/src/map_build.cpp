@@ -1,0 +1,361 @@
+#include "terrastride/terrain/map_build.hpp"
+
+#include <stdlib.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <cmath>
+#include <condition_variable>
+#include <cstring>
+#include <exception>
+#include <filesystem>
+#include <mutex>
+#include <sstream>
+#include <thread>
+
+#include "terrastride/perception/cloud_io.hpp"
+
+namespace terrastride::terrain {
+namespace {
+
+using nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+// Runs body(k) for k in [0, n) on up to one thread per core. Each k must write only its own
+// results. When calls fail, the exception of the lowest k is rethrown (the same error as a loop).
+template <class Body>
+void parallel_for(size_t n, const Body& body) {
+  const size_t workers = std::min<size_t>(n, std::max(1u, std::thread::hardware_concurrency()));
+  std::vector<std::exception_ptr> errors(n);
+  std::atomic<size_t> next{0};
+  const auto work = [&] {
+    for (size_t k; (k = next.fetch_add(1)) < n;) {
+      try {
+        body(k);
+      } catch (...) {
+        errors[k] = std::current_exception();
+      }
+    }
+  };
+  std::vector<std::thread> threads;
+  for (size_t w = 1; w < workers; ++w) threads.emplace_back(work);
+  work();
+  for (auto& th : threads) th.join();
+  for (const auto& e : errors)
+    if (e) std::rethrow_exception(e);
+}
+
+// The OctoMap of a build, on its own thread: the clouds cleaned before first, then each new cloud
+// as soon as the cleaning marks it ready (in input order, as perception::build_octomap inserts).
+class OctoMapThread {
+ public:
+  OctoMapThread(const perception::OctoMapOptions& options,
+                const std::vector<perception::PointCloud>& before,
+                const std::vector<perception::PointCloud>& clouds)
+      : ready_(clouds.size(), 0) {
+    thread_ = std::thread([this, options, &before, &clouds] { run(options, before, clouds); });
+  }
+  ~OctoMapThread() { stop(); }
+
+  void mark_cleaned(size_t k) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      ready_[k] = 1;
+    }
+    ready_cv_.notify_all();
+  }
+  // The build failed or was abandoned: the thread ends after the insertion under way, if any.
+  void stop() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stopped_ = true;
+    }
+    ready_cv_.notify_all();
+    if (thread_.joinable()) thread_.join();
+  }
+  // Joins the thread; rethrows its failure, else hands over the tree.
+  std::unique_ptr<octomap::OcTree> finish(double* seconds) {
+    if (thread_.joinable()) thread_.join();
+    *seconds = seconds_;
+    if (error_) std::rethrow_exception(error_);
+    return std::move(tree_);
+  }
+
+ private:
+  void run(const perception::OctoMapOptions& options,
+           const std::vector<perception::PointCloud>& before,
+           const std::vector<perception::PointCloud>& clouds) {
+    auto t0 = Clock::now();  // seconds_ counts the work, not the waits for cleaned clouds
+    try {
+      auto tree = perception::build_octomap({}, options);  // validates the options
+      perception::CloudFilterOptions one_per_voxel;
+      one_per_voxel.voxel_size = static_cast<float>(options.resolution);
+      const auto insert = [&](const perception::PointCloud& cloud) {
+        perception::insert_into_octomap(*tree, perception::filter_cloud(cloud, one_per_voxel),
+                                        options.max_range, options.discretize);
+      };
+      for (const auto& cloud : before) {
+        if (stopped()) return;
+        insert(cloud);
+      }
+      for (size_t k = 0; k < clouds.size(); ++k) {
+        {
+          seconds_ += seconds_since(t0);
+          std::unique_lock<std::mutex> lock(mutex_);
+          ready_cv_.wait(lock, [&] { return ready_[k] || stopped_; });
+          if (stopped_) return;  // the build failed or was abandoned: its error is reported
+          t0 = Clock::now();
+        }
+        insert(clouds[k]);
+      }
+      tree_ = std::move(tree);
+    } catch (const perception::InputError& e) {
+      error_ = std::make_exception_ptr(MapBuildError(MapStage::kOctoMap, e.what()));
+    } catch (...) {
+      error_ = std::current_exception();
+    }
+    seconds_ += seconds_since(t0);
+  }
+
+  bool stopped() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return stopped_;
+  }
+
+  std::mutex mutex_;
+  std::condition_variable ready_cv_;
+  std::vector<char> ready_;
+  bool stopped_ = false;
+  std::unique_ptr<octomap::OcTree> tree_;
+  std::exception_ptr error_;
+  double seconds_ = 0.0;
+  std::thread thread_;  // last: starts after every member it uses exists
+};
+
+// The layers' block of terrain.json for a map kept in memory (a report from clouds), which must
+// read as its folder's would. write_terrain_layers is the one description of the layers, and it
+// describes them as it writes them: until terrain_map.hpp offers the description alone, the layers
+// are written into a scratch folder that is removed at once (never read back).
+json layers_json(const TerrainMap& map) {
+  namespace fs = std::filesystem;
+  std::string scratch = (fs::temp_directory_path() / "terrastride-layers-XXXXXX").string();
+  if (!mkdtemp(scratch.data()))
+    throw perception::InputError(scratch +
+                                 ": cannot create a scratch folder: " + std::strerror(errno));
+  struct Remove {
+    std::string dir;
+    ~Remove() {
+      std::error_code ec;
+      fs::remove_all(dir, ec);
+    }
+  } remove{scratch};
+  return write_terrain_layers(map, scratch);
+}
+
+// Adds what terrain.json holds beyond the layers: the OctoMap, the inputs, the point counts and
+// the timings (without write_s and total_s, which the writer adds).
+void add_build_json(json& meta, const MapBuild& build, const MapSources& sources) {
+  if (sources.files.size() != build.kept.size())
+    throw std::invalid_argument("terrain.json: " + std::to_string(sources.files.size()) +
+                                " cloud files for " + std::to_string(build.kept.size()) +
+                                " clouds");
+  if (build.octree) {
+    meta["octomap"] = {{"file", "octomap.bt"},
+                       {"resolution", build.octomap_options->resolution},
+                       {"leaf_nodes", build.octree->getNumLeafNodes()}};
+    if (build.octomap_options->max_range > 0)
+      meta["octomap"]["max_range"] = build.octomap_options->max_range;
+  }
+  const size_t first_new = build.clouds.size() - build.kept.size();
+  json inputs = json::array();
+  size_t points_in = 0, non_finite = 0;
+  for (size_t k = 0; k < sources.files.size(); ++k) {
+    const CloudFile& f = sources.files[k];
+    json in{{"path", f.path}, {"points", f.points}, {"non_finite", f.non_finite}};
+    const auto& origin = build.clouds[first_new + k].sensor_origin;
+    if (origin) in["origin"] = {origin->x(), origin->y(), origin->z()};
+    in["kept"] = build.kept[k];
+    inputs.push_back(in);
+    points_in += f.points;
+    non_finite += f.non_finite;
+  }
+  meta["inputs"] = inputs;
+  meta["statistics"]["points_in"] = points_in;
+  meta["statistics"]["non_finite"] = non_finite;
+  meta["statistics"]["points_kept"] = build.points_kept;
+  meta["statistics"]["noise_sigma"] = build.map->grid().noise_sigma;
+  meta["timings"] = {{"read_s", sources.read_s},
+                     {"filter_s", build.timings.clean_s},
+                     {"grid_s", build.timings.grid_s},
+                     {"safety_s", build.timings.safety_s},
+                     {"octomap_s", build.timings.octomap_s}};
+}
+
+}  // namespace
+
+MapInput read_map_clouds(const std::vector<std::string>& paths,
+                         const std::optional<Eigen::Vector3d>& origin,
+                         const std::function<void(size_t)>& before_file) {
+  MapInput input;
+  const auto t0 = Clock::now();
+  input.sources.started = t0;
+  for (size_t k = 0; k < paths.size(); ++k) {
+    if (before_file) before_file(k);
+    perception::ReadStats stats;
+    input.clouds.push_back(perception::read_cloud(paths[k], origin, &stats));
+    input.sources.files.push_back({paths[k], stats.points_in_file, stats.non_finite});
+  }
+  input.sources.read_s = seconds_since(t0);
+  return input;
+}
+
+perception::OctoMapOptions default_map_octomap() {
+  perception::OctoMapOptions o;
+  o.resolution = 0.05;
+  o.max_range = -1.0;
+  return o;
+}
+
+MapBuild build_terrain_map(std::vector<perception::PointCloud> clouds,
+                           const MapBuildOptions& options) {
+  MapBuild build;
+  build.octomap_options = options.octomap;
+  const std::vector<perception::PointCloud> none;
+  const std::vector<perception::PointCloud>& before =
+      options.cleaned_before ? *options.cleaned_before : none;
+
+  if (options.on_stage) options.on_stage(MapStage::kClean, build);
+  auto t = Clock::now();
+  std::optional<OctoMapThread> octomap;
+  if (options.octomap) octomap.emplace(*options.octomap, before, clouds);
+  try {
+    parallel_for(clouds.size(), [&](size_t k) {
+      if (options.cleaning) {
+        try {
+          clouds[k] = perception::filter_cloud(clouds[k], *options.cleaning);
+        } catch (const perception::InputError& e) {
+          throw MapBuildError(MapStage::kClean, e.what());
+        }
+      }
+      if (octomap) octomap->mark_cleaned(k);
+    });
+  } catch (...) {
+    if (octomap) octomap->stop();  // it must not wait for clouds that will not come
+    throw;
+  }
+  size_t points = 0;
+  for (const auto& c : before) points += c.points.size();
+  for (const auto& c : clouds) {
+    build.kept.push_back(c.points.size());
+    build.points_kept += c.points.size();
+  }
+  points += build.points_kept;
+  build.timings.clean_s = seconds_since(t);
+  if (points == 0) {
+    if (octomap) octomap->stop();
+    throw MapBuildError(MapStage::kClean, "no points left after cleaning the input clouds");
+  }
+
+  // The grid reads the clouds while the OctoMap's thread does: they move into the build only
+  // after it ends.
+  std::vector<perception::PointCloud> fused;
+  if (!before.empty()) {
+    fused = before;
+    fused.insert(fused.end(), clouds.begin(), clouds.end());
+  }
+  const std::vector<perception::PointCloud>& grid_input = before.empty() ? clouds : fused;
+  std::exception_ptr map_error;
+  try {
+    if (options.on_stage) options.on_stage(MapStage::kGrid, build);
+    t = Clock::now();
+    try {
+      HeightGrid grid = build_height_grid(grid_input, options.grid);
+      build.timings.grid_s = seconds_since(t);
+      t = Clock::now();
+      build.map = std::make_unique<TerrainMap>(std::move(grid), options.foot_radii, options.safety);
+      build.timings.safety_s = seconds_since(t);
+    } catch (const perception::InputError& e) {
+      throw MapBuildError(MapStage::kGrid, e.what());
+    }
+  } catch (...) {
+    map_error = std::current_exception();
+    if (octomap) octomap->stop();
+  }
+  if (octomap) {
+    std::unique_ptr<octomap::OcTree> tree;
+    std::exception_ptr octomap_error;
+    try {
+      tree = octomap->finish(&build.timings.octomap_s);
+    } catch (...) {
+      octomap_error = std::current_exception();
+    }
+    if (map_error) std::rethrow_exception(map_error);
+    if (octomap_error) std::rethrow_exception(octomap_error);
+    build.octree = std::move(tree);
+  } else if (map_error) {
+    std::rethrow_exception(map_error);
+  }
+  build.clouds = before.empty() ? std::move(clouds) : std::move(fused);
+  return build;
+}
+
+perception::OutputDirKind map_output_kind() {
+  return {"map",
+          {"terrain.json", "octomap.bt", "layers/"},
+          {"terrain.json", "octomap.bt", "layers/", "layers/*.npy"},
+          {}};
+}
+
+json terrain_json(const MapBuild& build, const MapSources& sources) {
+  json meta = layers_json(*build.map);
+  add_build_json(meta, build, sources);
+  meta["timings"]["total_s"] = seconds_since(sources.started);
+  return meta;
+}
+
+json write_terrain_dir(const MapBuild& build, const MapSources& sources, const std::string& dir) {
+  const auto t = Clock::now();
+  perception::AtomicOutputDir out(dir, map_output_kind());
+  json meta = write_terrain_layers(*build.map, out.path());
+  if (build.octree) perception::write_octomap(*build.octree, out.path() + "/octomap.bt");
+  add_build_json(meta, build, sources);
+  meta["timings"]["write_s"] = seconds_since(t);
+  meta["timings"]["total_s"] = seconds_since(sources.started);
+  perception::write_file_atomically(out.path() + "/terrain.json", meta.dump(2) + "\n");
+  out.commit();
+  return meta;
+}
+
+json map_summary(const MapBuild& build, const json& terrain, const std::string& dir) {
+  const HeightGrid& g = build.map->grid();
+  json safe = json::array();
+  for (const auto& r : terrain["safety"]["radii"])
+    safe.push_back({{"radius", r["radius"]}, {"safe_fraction", r["safe_fraction"]}});
+  return {{"out", dir},
+          {"points_in", terrain["statistics"]["points_in"]},
+          {"points_kept", build.points_kept},
+          {"cells", g.geometry.size()},
+          {"grid", {g.geometry.nx, g.geometry.ny}},
+          {"resolution", g.geometry.resolution},
+          {"observed_cells", g.observed_cells},
+          {"noise_sigma", g.noise_sigma},
+          {"safe", safe},
+          {"timings", terrain["timings"]}};
+}
+
+std::shared_ptr<octomap::OcTree> octree_as_saved(const octomap::OcTree& tree) {
+  // The node bits of octomap.bt (perception::write_octomap writes the same from the root), read
+  // as collision::read_octomap reads the file.
+  std::stringstream bits(std::ios::in | std::ios::out | std::ios::binary);
+  if (tree.getRoot()) tree.writeBinaryNode(bits, tree.getRoot());
+  auto saved = std::make_shared<octomap::OcTree>(tree.getResolution());
+  if (tree.getRoot()) saved->readBinaryData(bits);
+  return saved;
+}
+
+}  // namespace terrastride::terrain
