@@ -1,5 +1,6 @@
 #include "terrastride/terrain/height_grid.hpp"
 
+#include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -166,16 +167,42 @@ bool process_cell(const Entry* e, size_t n, const HeightGridOptions& o, HeightGr
   return !overhang && s + 1 < static_cast<int>(nc);
 }
 
-// A sparse cluster above the support is promoted when a neighbouring cell's support lies at its
-// height: the surface (a grating tread seen by few rays here) continues into this cell and the
-// denser returns below are see-through. Overhangs (seen beneath) are never promoted.
+// A sparse cluster above the support is promoted when the surface it belongs to continues into a
+// neighbouring cell: that cell's support lies at its height, or two neighbours hold a cluster of at
+// least min_support_points points at its height too (a grating tread seen by few rays in every
+// cell, the floor beneath it by many). Overhangs (seen beneath) are never promoted. A cell whose
+// upper cluster of min_support_points or more is not promoted is uncertain: something was seen
+// above the support and nothing says it is an overhang, so the lower surface is not ground a foot
+// can reach (it would step onto or through the upper one). It becomes unobserved; a lone return
+// above the support (a flying pixel) does not count.
 void promote_sparse_surfaces(const std::vector<Entry>& entries, const std::vector<uint32_t>& start,
                              const std::vector<uint8_t>& candidate, const HeightGridOptions& o,
-                             HeightGrid& grid) {
+                             HeightGrid& grid, std::vector<uint8_t>& sample) {
   const GridGeometry& g = grid.geometry;
   const std::vector<float> elevation = grid.elevation;  // decisions use first-pass values only
   const std::vector<uint8_t> observed = grid.observed;
+  const size_t min_upper = static_cast<size_t>(std::max(o.min_support_points, 2));
   Range clusters[kMaxClusters];
+  // First pass: the medians of every candidate's upper clusters that are substantial enough to be
+  // a surface (min_upper points) and not an overhang, as compressed rows per cell.
+  std::vector<uint32_t> upper_start(g.size() + 1, 0);
+  std::vector<float> upper;
+  for (size_t k = 0; k < g.size(); ++k) {
+    upper_start[k] = static_cast<uint32_t>(upper.size());
+    if (!candidate[k]) continue;
+    const Entry* e = entries.data() + start[k];
+    const size_t n = start[k + 1] - start[k];
+    const size_t nc = find_clusters(e, n, o.cluster_gap, clusters, kMaxClusters);
+    for (size_t c = 0; c < nc; ++c) {
+      const Range& r = clusters[c];
+      const float median = e[r.b + r.size() / 2].z;
+      if (median <= elevation[k] + o.cluster_gap || r.size() < min_upper) continue;
+      if (seen_beneath(e, r, o.overhang_vote)) continue;
+      upper.push_back(median);
+    }
+  }
+  upper_start[g.size()] = static_cast<uint32_t>(upper.size());
+  const float half_gap = static_cast<float>(0.5 * o.cluster_gap);
   for (int i = 0; i < g.nx; ++i) {
     for (int j = 0; j < g.ny; ++j) {
       const size_t k = g.index(i, j);
@@ -183,23 +210,37 @@ void promote_sparse_surfaces(const std::vector<Entry>& entries, const std::vecto
       const Entry* e = entries.data() + start[k];
       const size_t n = start[k + 1] - start[k];
       const size_t nc = find_clusters(e, n, o.cluster_gap, clusters, kMaxClusters);
-      for (int c = static_cast<int>(nc) - 1; c >= 0; --c) {
+      bool promoted = false;
+      for (int c = static_cast<int>(nc) - 1; c >= 0 && !promoted; --c) {
         const Range& r = clusters[c];
         const float median = e[r.b + r.size() / 2].z;
         if (median <= elevation[k] + o.cluster_gap) break;  // reached the current support
         bool matched = false;
+        int upper_matches = 0;
         for (int di = -1; di <= 1 && !matched; ++di)
           for (int dj = -1; dj <= 1 && !matched; ++dj) {
             const int a = i + di, b = j + dj;
             if ((!di && !dj) || a < 0 || b < 0 || a >= g.nx || b >= g.ny) continue;
             const size_t nb = g.index(a, b);
-            matched = observed[nb] && std::abs(elevation[nb] - median) <= 0.5 * o.cluster_gap;
+            matched = observed[nb] && std::abs(elevation[nb] - median) <= half_gap;
+            for (uint32_t u = upper_start[nb]; u < upper_start[nb + 1]; ++u)
+              if (std::abs(upper[u] - median) <= half_gap) {
+                ++upper_matches;
+                break;
+              }
           }
+        matched |= upper_matches >= 2 && r.size() >= min_upper;
         if (matched && !seen_beneath(e, r, o.overhang_vote)) {
           write_stats(e, r, grid, k);
+          sample[k] = 1;
           ++grid.see_through_cells;
-          break;
+          promoted = true;
         }
+      }
+      if (!promoted && upper_start[k + 1] > upper_start[k]) {
+        grid.observed[k] = 0;
+        sample[k] = 0;
+        ++grid.uncertain_cells;
       }
     }
   }
@@ -209,38 +250,268 @@ void promote_sparse_surfaces(const std::vector<Entry>& entries, const std::vecto
 // through (grating holes, gaps between deck boards): a grey-level closing (max then min filter over
 // a (2K+1)^2 window) bridges them. Those cells did not observe the surface, so they become
 // unobserved (hence unsafe) and fill_holes gives them the bridged height. Steps and wide trenches
-// are untouched: a closing only removes valleys narrower than its window.
+// are untouched: a closing only removes valleys narrower than its window. Two closings: one
+// ignoring unobserved cells (a pit with the surface seen around it), one taking unobserved cells
+// and cells beyond the grid as high, since what was not seen may be the surface continuing (a
+// grating's opening between a tread and the edge of the data).
 void close_narrow_pits(HeightGrid& grid, int K, double depth) {
   if (K <= 0) return;
   const GridGeometry& g = grid.geometry;
   constexpr float inf = std::numeric_limits<float>::infinity();
-  std::vector<float> a(g.size()), b(g.size());
-  for (size_t k = 0; k < g.size(); ++k) a[k] = grid.observed[k] ? grid.elevation[k] : -inf;
-  // Separable running max / min; cells outside the grid are ignored.
-  auto filter = [&](std::vector<float>& src, std::vector<float>& dst, bool take_max) {
+  std::vector<float> b(g.size());
+  // Separable running max / min; `outside` is the value of cells beyond the grid in the max.
+  auto filter = [&](std::vector<float>& src, bool take_max, float outside) {
     for (int i = 0; i < g.nx; ++i)
       for (int j = 0; j < g.ny; ++j) {
-        float v = take_max ? -inf : inf;
+        float v = take_max ? (j - K < 0 || j + K >= g.ny ? outside : -inf) : inf;
         for (int d = std::max(0, j - K); d <= std::min(g.ny - 1, j + K); ++d)
           v = take_max ? std::max(v, src[g.index(i, d)]) : std::min(v, src[g.index(i, d)]);
-        dst[g.index(i, j)] = v;
+        b[g.index(i, j)] = v;
       }
     for (int i = 0; i < g.nx; ++i)
       for (int j = 0; j < g.ny; ++j) {
-        float v = take_max ? -inf : inf;
+        float v = take_max ? (i - K < 0 || i + K >= g.nx ? outside : -inf) : inf;
         for (int d = std::max(0, i - K); d <= std::min(g.nx - 1, i + K); ++d)
-          v = take_max ? std::max(v, dst[g.index(d, j)]) : std::min(v, dst[g.index(d, j)]);
+          v = take_max ? std::max(v, b[g.index(d, j)]) : std::min(v, b[g.index(d, j)]);
         src[g.index(i, j)] = v;
       }
   };
-  filter(a, b, true);
-  filter(a, b, false);  // a = closing
+  auto closing = [&](float unobserved) {
+    std::vector<float> a(g.size());
+    for (size_t k = 0; k < g.size(); ++k) a[k] = grid.observed[k] ? grid.elevation[k] : unobserved;
+    filter(a, true, unobserved);
+    filter(a, false, unobserved);
+    return a;
+  };
+  const std::vector<float> seen = closing(-inf), unseen_high = closing(inf);
   for (size_t k = 0; k < g.size(); ++k) {
-    if (grid.observed[k] && std::isfinite(a[k]) && a[k] - grid.elevation[k] > depth) {
+    if (!grid.observed[k]) continue;
+    const float z = grid.elevation[k];
+    const bool pit = (std::isfinite(seen[k]) && seen[k] - z > depth) ||
+                     (std::isfinite(unseen_high[k]) && unseen_high[k] - z > depth);
+    if (pit) {
       grid.observed[k] = 0;
       --grid.observed_cells;
       ++grid.bridged_cells;
     }
+  }
+}
+
+// ---- Sensor noise and point spacing ----------------------------------------------------------
+// Bins of a few cells: enough points for a plane fit (the median occupied bin holds at least
+// kBinPoints), no larger than kMaxBinSize (or two cells). The per-bin sample is capped at
+// kBinSample points (every m-th of each cell's sorted heights): the MAD of 48 points is within
+// about 15 % of sigma, and the median over hundreds of bins removes most of that.
+constexpr size_t kBinPoints = 12;
+constexpr double kMaxBinSize = 0.32;
+constexpr size_t kBinSample = 48;
+constexpr size_t kMinClusterPoints = 6;  // a bin's surface needs this many points for a figure
+constexpr size_t kMinNoiseBins = 10;     // and the grid this many such bins
+constexpr double kMaxGroundSlope = 1.0;  // steeper bin surfaces (walls) are not read as noise
+constexpr double kMaxGapRadius = 0.1;    // sampling gaps are never bridged beyond 10 cm
+
+struct BinPoint {
+  float z, u, v;
+};
+
+size_t median_of(std::vector<size_t> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+double median_of(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+std::string metres(double v, int precision) {
+  std::ostringstream os;
+  os.setf(std::ios::fixed);
+  os.precision(precision);
+  os << v;
+  return os.str();
+}
+
+// One pass over the bins with a given cluster gap: per bin, the largest cluster of the sampled
+// heights, a least-squares plane z = a + b u + c v over it (u, v: cell centres in the bin, m) and
+// the MAD of the residuals, scaled to a standard deviation (and for the three fitted parameters).
+struct BinFigures {
+  std::vector<double> sigma;    // accepted bins
+  std::vector<double> spacing;  // accepted bins: bin side / sqrt(points of the surface)
+  size_t rejected = 0;
+};
+
+BinFigures bin_noise(const std::vector<Entry>& entries, const std::vector<uint32_t>& start,
+                     const GridGeometry& g, int k, double gap) {
+  BinFigures f;
+  std::vector<BinPoint> pts;
+  std::vector<double> res;
+  const double bin = k * g.resolution;
+  const int bx = (g.nx + k - 1) / k, by = (g.ny + k - 1) / k;
+  for (int a = 0; a < bx; ++a)
+    for (int b = 0; b < by; ++b) {
+      const int i0 = a * k, j0 = b * k, i1 = std::min(g.nx, i0 + k), j1 = std::min(g.ny, j0 + k);
+      size_t total = 0;
+      for (int i = i0; i < i1; ++i)
+        for (int j = j0; j < j1; ++j) {
+          const size_t c = g.index(i, j);
+          total += start[c + 1] - start[c];
+        }
+      if (total < kMinClusterPoints) continue;
+      const size_t stride = (total + kBinSample - 1) / kBinSample;
+      pts.clear();
+      for (int i = i0; i < i1; ++i)
+        for (int j = j0; j < j1; ++j) {
+          const size_t c = g.index(i, j);
+          const float u = static_cast<float>((i - i0 - 0.5 * (k - 1)) * g.resolution);
+          const float v = static_cast<float>((j - j0 - 0.5 * (k - 1)) * g.resolution);
+          for (uint32_t p = start[c] + static_cast<uint32_t>(stride / 2); p < start[c + 1];
+               p += static_cast<uint32_t>(stride))
+            pts.push_back({entries[p].z, u, v});
+        }
+      std::sort(pts.begin(), pts.end(),
+                [](const BinPoint& x, const BinPoint& y) { return x.z < y.z; });
+      // Largest cluster (the higher one on ties).
+      size_t best_b = 0, best_e = 0, begin = 0;
+      for (size_t p = 1; p <= pts.size(); ++p)
+        if (p == pts.size() || pts[p].z - pts[p - 1].z > gap) {
+          if (p - begin >= best_e - best_b) {
+            best_b = begin;
+            best_e = p;
+          }
+          begin = p;
+        }
+      const size_t n = best_e - best_b;
+      if (n < kMinClusterPoints) continue;
+      // Normal equations; a tiny ridge keeps a direction without spread (all points in one cell
+      // row) solvable, with zero slope along it.
+      Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+      Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
+      for (size_t p = best_b; p < best_e; ++p) {
+        const Eigen::Vector3d x(1.0, pts[p].u, pts[p].v);
+        A += x * x.transpose();
+        rhs += x * double(pts[p].z);
+      }
+      A(1, 1) += 1e-9 * n * bin * bin;
+      A(2, 2) += 1e-9 * n * bin * bin;
+      const Eigen::LDLT<Eigen::Matrix3d> ldlt(A);
+      const Eigen::Vector3d coef = ldlt.solve(rhs);
+      if (!coef.allFinite()) continue;
+      res.clear();
+      for (size_t p = best_b; p < best_e; ++p)
+        res.push_back(pts[p].z - (coef(0) + coef(1) * pts[p].u + coef(2) * pts[p].v));
+      const double med = median_of(res);
+      for (auto& r : res) r = std::abs(r - med);
+      const double sigma = 1.4826 * median_of(res) * std::sqrt(double(n) / (n - 3.0));
+      // Steep beyond what the noise explains (three standard errors of the fitted slope, from the
+      // inverse normal matrix): a wall or another vertical surface, not ground with noise. On a
+      // 4 cm bin of the real noisy floor (sigma 2.6 cm) the slope's standard error is about 0.5.
+      const Eigen::Matrix3d cov = ldlt.solve(Eigen::Matrix3d::Identity());
+      const double slope = std::hypot(coef(1), coef(2));
+      const double slope_se = sigma * std::sqrt(std::max(0.0, cov(1, 1) + cov(2, 2)));
+      if (slope - 3.0 * slope_se > kMaxGroundSlope) {
+        ++f.rejected;
+        continue;
+      }
+      f.sigma.push_back(sigma);
+      f.spacing.push_back(bin / std::sqrt(double(n) * stride));
+    }
+  return f;
+}
+
+NoiseEstimate estimate_noise(const std::vector<Entry>& entries, const std::vector<uint32_t>& start,
+                             const GridGeometry& g, double base_gap) {
+  NoiseEstimate est;
+  // Bin size: the median occupied bin must hold kBinPoints (a 2 cm cell of a 4 cm spaced cloud
+  // holds one point or none).
+  const double max_bin = std::max(2.0 * g.resolution, kMaxBinSize);
+  int k = 2;
+  size_t median_count = 0;
+  for (;;) {
+    std::vector<size_t> counts;
+    const int bx = (g.nx + k - 1) / k, by = (g.ny + k - 1) / k;
+    std::vector<size_t> per_bin(static_cast<size_t>(bx) * by, 0);
+    for (int i = 0; i < g.nx; ++i)
+      for (int j = 0; j < g.ny; ++j) {
+        const size_t c = g.index(i, j);
+        per_bin[static_cast<size_t>(i / k) * by + j / k] += start[c + 1] - start[c];
+      }
+    for (size_t n : per_bin)
+      if (n) counts.push_back(n);
+    median_count = median_of(counts);
+    if (median_count >= kBinPoints || 2 * k * g.resolution > max_bin + 1e-9) break;
+    k *= 2;
+  }
+  est.bin_size = k * g.resolution;
+  // The largest cluster must not split a noisy surface: the gap starts at the option and grows to
+  // 4 sigma of the figure it gives (the same rule as the grid's cluster gap), at most 3 rounds.
+  double gap = base_gap;
+  BinFigures f;
+  for (int round = 0; round < 3; ++round) {
+    f = bin_noise(entries, start, g, k, gap);
+    const double sigma = f.sigma.size() >= kMinNoiseBins ? median_of(f.sigma) : 0.0;
+    if (!(4.0 * sigma > 1.05 * gap)) break;
+    gap = 4.0 * sigma;
+  }
+  est.bins = f.sigma.size();
+  est.rejected_bins = f.rejected;
+  if (!f.spacing.empty()) {
+    est.point_spacing = median_of(f.spacing);
+  } else if (median_count > 0) {
+    est.point_spacing = est.bin_size / std::sqrt(double(median_count));
+  }
+  if (f.sigma.size() >= kMinNoiseBins) {
+    est.estimated = true;
+    est.sigma = median_of(f.sigma);
+    return est;
+  }
+  std::ostringstream note;
+  note << "sensor noise not estimated: " << f.sigma.size() << " bins of " << metres(est.bin_size, 2)
+       << " m hold " << kMinClusterPoints << " or more points of one ground-like surface ("
+       << kMinNoiseBins << " needed)";
+  if (f.rejected > 0)
+    note << "; " << f.rejected
+         << " more hold steep or vertical surfaces (walls), not read as noise";
+  if (median_count < kBinPoints)
+    note << "; the cloud is sparse (a median of " << median_count << " points per occupied "
+         << metres(est.bin_size, 2) << " m bin)";
+  note << ". The safety tests get no noise allowance and the surface is smoothed at the foot scale "
+          "only.";
+  est.note = note.str();
+  return est;
+}
+
+// The Gaussian length of the smoothed surface (HeightGridOptions). For a Gaussian-weighted mean of
+// points of density rho = 1 / spacing^2 with noise s_p each, each slope component has standard
+// deviation s_p / (L^2 sqrt(8 pi rho)) (the gradient of the weights, summed in quadrature); cell
+// medians of n points average like n points of sigma sqrt(pi / 2). |grad| of a flat noisy surface
+// then has a Rayleigh distribution whose 95th percentile is 2.448 times that deviation.
+double smoothing_length(const NoiseEstimate& noise, const HeightGridOptions& o) {
+  double length = 0.5 * std::max(0.0, o.foot_radius);
+  if (noise.estimated && noise.sigma > 0 && noise.point_spacing > 0 && o.noise_slope_p95 > 0) {
+    const double per_component = o.noise_slope_p95 / 2.448;
+    const double point_sigma = 1.2533 * noise.sigma;
+    const double l2 =
+        point_sigma * noise.point_spacing / (per_component * std::sqrt(8.0 * 3.14159265358979));
+    length = std::max(length, std::sqrt(l2));
+  }
+  return std::min(length, std::max(0.0, o.max_smoothing_length));
+}
+
+void add_notes(HeightGrid& grid) {
+  const double res = grid.geometry.resolution;
+  if (!grid.noise.estimated) grid.notes.push_back(grid.noise.note);
+  const double spacing = grid.noise.point_spacing;
+  if (spacing > 0.75 * res) {
+    std::ostringstream n;
+    n << "sparse cloud: its points are about " << metres(100 * spacing, 1) << " cm apart, "
+      << metres(res * res / (spacing * spacing), 2) << " per " << res
+      << " m cell; cells without points of their own are interpolated between points up to "
+      << metres(100 * grid.gap_radius, 1) << " cm away (observed = 2); --resolution "
+      << metres(std::ceil(2.0 * spacing * 100) / 100, 2) << " or coarser measures every cell";
+    grid.notes.push_back(n.str());
   }
 }
 
@@ -344,10 +615,7 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
   cell.clear();
   cell.shrink_to_fit();
 
-  // Pass 3: sort every cell and estimate the sensor noise: the median over cells of the
-  // within-cell MAD, scaled to a standard deviation. Most cells hold one surface, so this is the
-  // noise of a single surface; the cluster gap grows to 4 sigma so noise never splits a surface.
-  std::vector<float> mads;
+  // Pass 3: sort every cell, then estimate the sensor noise (and the point spacing) from them.
   for (size_t k = 0; k < ncell; ++k) {
     const size_t n = start[k + 1] - start[k];
     grid.count[k] = static_cast<uint32_t>(n);
@@ -363,20 +631,11 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
     } else {
       std::sort(e, e + n, [](const Entry& a, const Entry& b) { return a.z < b.z; });
     }
-    if (n >= 5) {
-      const float med = e[n / 2].z;
-      float dev[16];
-      const size_t m = std::min<size_t>(n, 16);  // a sample is enough for the median deviation
-      for (size_t i = 0; i < m; ++i) dev[i] = std::abs(e[i * n / m].z - med);
-      std::nth_element(dev, dev + m / 2, dev + m);
-      mads.push_back(dev[m / 2]);
-    }
   }
-  if (!mads.empty()) {
-    std::nth_element(mads.begin(), mads.begin() + mads.size() / 2, mads.end());
-    grid.noise_sigma = 1.4826 * mads[mads.size() / 2];
-  }
+  grid.noise = estimate_noise(entries, start, g, o.cluster_gap);
+  grid.noise_sigma = grid.noise.sigma;
   HeightGridOptions eff = o;
+  // The gap grows to 4 sigma so noise never splits a surface.
   eff.cluster_gap = std::max(o.cluster_gap, 4.0 * grid.noise_sigma);
   grid.cluster_gap = eff.cluster_gap;
   // Pass 4: per-cell support surface.
@@ -385,11 +644,25 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
     const size_t n = start[k + 1] - start[k];
     if (n == 0) continue;
     candidate[k] = process_cell(entries.data() + start[k], n, eff, grid, k) ? 1 : 0;
-    grid.observed_cells += grid.observed[k];
   }
-  promote_sparse_surfaces(entries, start, candidate, eff, grid);
+  // Surface samples: every cell with a support cluster, unless it turns out to be uncertain (a
+  // lower surface under an upper one) or a bridged pit.
+  std::vector<uint8_t> sample(ncell, 0);
+  for (size_t k = 0; k < ncell; ++k) sample[k] = grid.support[k] > 0;
+  promote_sparse_surfaces(entries, start, candidate, eff, grid, sample);
+  for (size_t k = 0; k < ncell; ++k) grid.observed_cells += grid.observed[k] == 1;
+  const std::vector<uint8_t> before_bridging = grid.observed;
   close_narrow_pits(grid, o.bridge_cells, eff.cluster_gap);
+  for (size_t k = 0; k < ncell; ++k)
+    if (before_bridging[k] && !grid.observed[k]) sample[k] = 0;
+  // Sampling gaps at the scale of the point spacing (1.5 cells for dense clouds, as before).
+  const double spacing = grid.noise.point_spacing;
+  grid.gap_radius = std::max(1.5 * g.resolution, std::min(2.5 * spacing, kMaxGapRadius));
+  fill_sampling_gaps(grid, sample, grid.gap_radius);
   fill_holes(grid, o.min_cell_points);
+  grid.smoothing_length = smoothing_length(grid.noise, o);
+  smooth_surface(grid, grid.smoothing_length);
+  add_notes(grid);
   return grid;
 }
 
@@ -399,6 +672,124 @@ HeightGrid build_height_grid(const std::vector<perception::PointCloud>& clouds,
   for (const auto& c : clouds)
     batches.push_back({c.points.data(), c.points.size(), c.sensor_origin});
   return build_height_grid(batches, options);
+}
+
+void fill_sampling_gaps(HeightGrid& grid, const std::vector<uint8_t>& sample, double radius) {
+  const GridGeometry& g = grid.geometry;
+  const double gap = grid.cluster_gap > 0 ? grid.cluster_gap : 0.05;
+  const double reach = radius / g.resolution;
+  const int R = static_cast<int>(std::floor(reach + 1e-9));
+  if (R < 1 || sample.size() != g.size()) return;
+  struct Tap {
+    int di, dj;
+    uint8_t sector_bit;
+  };
+  std::vector<Tap> taps;
+  for (int di = -R; di <= R; ++di)
+    for (int dj = -R; dj <= R; ++dj) {
+      if ((!di && !dj) || di * di + dj * dj > reach * reach + 1e-9) continue;
+      // One cell: eight sectors centred on the neighbour directions, so all eight neighbours are
+      // needed (the rule fill_holes applies). Wider disks: four quadrants, as a sparse cloud's
+      // points are scattered (in a disk of 2.5 spacings a quadrant holds 4.9 points on average,
+      // and is empty in under 1 % of cases).
+      const double angle = std::atan2(double(dj), double(di));
+      const int sector = R == 1 ? (static_cast<int>(std::lround(angle / (M_PI / 4))) + 8) % 8
+                                : (static_cast<int>(std::floor(angle / (M_PI / 2))) + 4) % 4;
+      taps.push_back({di, dj, static_cast<uint8_t>(1u << sector)});
+    }
+  const auto is_source = [&](size_t k) { return sample[k] != 0; };
+  struct Fill {
+    size_t k;
+    float z, var;
+  };
+  std::vector<Fill> fills;
+  for (int i = 0; i < g.nx; ++i)
+    for (int j = 0; j < g.ny; ++j) {
+      const size_t k = g.index(i, j);
+      // Candidates: no points, or no cluster of min_cell_points (lone returns, kept as its sample);
+      // cells whose points were judged not to be ground (uncertain, bridged) stay holes.
+      if (grid.observed[k] || (grid.count[k] > 0 && !sample[k])) continue;
+      float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+      if (sample[k]) lo = hi = grid.elevation[k];
+      unsigned sectors = 0;
+      double sum = 0, weight = 0, var = 0;
+      for (const Tap& t : taps) {
+        const int a = i + t.di, b = j + t.dj;
+        if (a < 0 || b < 0 || a >= g.nx || b >= g.ny) continue;
+        const size_t n = g.index(a, b);
+        if (!is_source(n)) continue;
+        sectors |= t.sector_bit;
+        lo = std::min(lo, grid.elevation[n]);
+        hi = std::max(hi, grid.elevation[n]);
+        const double w = std::max<uint32_t>(grid.support[n], 1);
+        sum += w * grid.elevation[n];
+        var += w * grid.variance[n];
+        weight += w;
+      }
+      if (sectors == (R == 1 ? 0xffu : 0x0fu) && hi - lo <= gap)
+        fills.push_back({k, static_cast<float>(sum / weight), static_cast<float>(var / weight)});
+    }
+  for (const Fill& f : fills) {
+    grid.elevation[f.k] = grid.min[f.k] = grid.max[f.k] = f.z;
+    grid.variance[f.k] = f.var;
+    grid.observed[f.k] = 2;
+    ++grid.interpolated_cells;
+  }
+}
+
+void smooth_surface(HeightGrid& grid, double length) {
+  const GridGeometry& g = grid.geometry;
+  grid.surface = grid.elevation;
+  const double reach = 2.5 * length / g.resolution;  // the Gaussian is cut at 2.5 sigma
+  const int R = static_cast<int>(std::floor(reach + 1e-9));
+  if (!(length > 0) || R < 1) return;
+  // Long kernels on fine grids are sampled (every step-th cell, each standing for step^2 cells),
+  // so the cost stays within 17 x 17 taps a cell.
+  const int step = (R + 7) / 8;
+  struct Tap {
+    int di, dj;
+    double w;
+  };
+  std::vector<Tap> taps;
+  const double inv2l2 = g.resolution * g.resolution / (2.0 * length * length);
+  for (int di = -R / step * step; di <= R; di += step)
+    for (int dj = -R / step * step; dj <= R; dj += step) {
+      const double d2 = double(di) * di + double(dj) * dj;
+      if (d2 > reach * reach + 1e-9) continue;
+      taps.push_back({di, dj, std::exp(-d2 * inv2l2) * step * step});
+    }
+  // Per cell: its weight as a source (measured: its support; interpolated: one point's worth) and
+  // the variance of its height, (pi / 2) sigma^2 / weight for a median.
+  const double point_var = 1.5708 * grid.noise_sigma * grid.noise_sigma;
+  constexpr double kFloor2 = 1e-6;  // (1 mm)^2: heights closer than this are always one surface
+  std::vector<float> weight(g.size(), 0.0f), var(g.size());
+  for (size_t k = 0; k < g.size(); ++k) {
+    if (grid.observed[k] == 1)
+      weight[k] = static_cast<float>(std::max<uint32_t>(grid.support[k], 1));
+    if (grid.observed[k] == 2) weight[k] = 1.0f;
+    var[k] = static_cast<float>(point_var / std::max(1.0f, weight[k]));
+  }
+  for (int i = 0; i < g.nx; ++i)
+    for (int j = 0; j < g.ny; ++j) {
+      const size_t k = g.index(i, j);
+      const double z = grid.elevation[k];
+      const double vk = var[k];
+      double sw = 0, swz = 0;
+      for (const Tap& t : taps) {
+        const int a = i + t.di, b = j + t.dj;
+        if (a < 0 || b < 0 || a >= g.nx || b >= g.ny) continue;
+        const size_t n = g.index(a, b);
+        if (weight[n] == 0.0f) continue;
+        const double dz = grid.elevation[n] - z;
+        // Three standard errors of the difference: beyond that the two cells lie on different
+        // surfaces (a step), which must stay sharp.
+        if (dz * dz > 9.0 * (vk + var[n]) + kFloor2) continue;
+        const double w = t.w * weight[n];
+        sw += w;
+        swz += w * dz;
+      }
+      if (sw > 0) grid.surface[k] = static_cast<float>(z + swz / sw);
+    }
 }
 
 void fill_holes(HeightGrid& grid, int min_points) {

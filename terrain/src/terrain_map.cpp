@@ -393,6 +393,7 @@ struct RowData {
   std::vector<double> pz, pz2, pjz;
   std::vector<int> pun;
   std::vector<float> rmin, rmax;  // (W + 1) x ny, half-width major
+  std::vector<double> psz, pjsz;  // prefix sums of the smoothed surface and j times it (scanned)
 };
 
 void fill_row(const HeightGrid& grid, int i, int W, RowData& r) {
@@ -452,6 +453,19 @@ void fill_row(const HeightGrid& grid, int i, int W, RowData& r) {
     }
     for (int j = b; j < ny; ++j) edge(j);
   }
+  if (grid.surface.size() == g.size()) {
+    r.psz.resize(ny + 1);
+    r.pjsz.resize(ny + 1);
+    double s = 0, js = 0;
+    r.psz[0] = r.pjsz[0] = 0;
+    for (int j = 0; j < ny; ++j) {
+      const double z = grid.surface[row + j];
+      s += z;
+      js += j * z;
+      r.psz[j + 1] = s;
+      r.pjsz[j + 1] = js;
+    }
+  }
 }
 
 // One radius: the disk's rows and the thresholds.
@@ -460,7 +474,33 @@ struct DiskSpec {
   std::vector<int> w;  // half-width of disk row di = -R..R (index di + R)
   FitLimits fit{};
   double max_step = 0;
+  bool field_slope = false;    // slope tests on the smoothed field (scanned grids)
+  double max_field_slope = 0;  // tan
 };
+
+// The slope of the planner's field (the B-spline approximant of grid.surface, borders clamped as
+// BSplineField pads them) at every cell centre: there the basis is (1, 4, 1) / 6 and its
+// derivative (-1, 0, 1) / 2 along each axis. (Equal to BSplineField's up to rounding.)
+std::vector<float> centre_slopes(const HeightGrid& grid) {
+  const GridGeometry& g = grid.geometry;
+  const std::vector<float>& c = grid.surface;
+  std::vector<float> slope(g.size());
+  const auto at = [&](int i, int j) {
+    return double(c[g.index(std::clamp(i, 0, g.nx - 1), std::clamp(j, 0, g.ny - 1))]);
+  };
+  const double inv = 1.0 / (12.0 * g.resolution);  // (1, 4, 1) / 6 times 1 / (2 res)
+  for (int i = 0; i < g.nx; ++i)
+    for (int j = 0; j < g.ny; ++j) {
+      double gx = 0, gy = 0;
+      for (int b = -1; b <= 1; ++b) {
+        const double w = b == 0 ? 4.0 : 1.0;
+        gx += w * (at(i + 1, j + b) - at(i - 1, j + b));
+        gy += w * (at(i + b, j + 1) - at(i + b, j - 1));
+      }
+      slope[g.index(i, j)] = static_cast<float>(std::hypot(gx * inv, gy * inv));
+    }
+  return slope;
+}
 
 DiskSpec disk_spec(const HeightGrid& grid, double radius, double mean_support,
                    const SafetyOptions& o) {
@@ -493,7 +533,16 @@ DiskSpec disk_spec(const HeightGrid& grid, double radius, double mean_support,
   // over sqrt(sum of squared offsets). Allow slope_noise_factor of those.
   const double sigma_median = 1.2533 * sigma / std::sqrt(mean_support);
   const double slope_noise = sxx > 0 ? sigma_median / std::sqrt(sxx) : 0.0;  // per cell
-  const double max_slope_eff = max_slope_cells + o.slope_noise_factor * slope_noise;
+  double max_slope_eff = max_slope_cells + o.slope_noise_factor * slope_noise;
+  if (grid.surface.size() == grid.geometry.size()) {
+    // Scanned grids: the slope that counts is the one the planner sees, that of the smoothed
+    // field: the plane fitted to it over the foot disk (the foot's contact plane) and its gradient
+    // at the cell centre, both without a noise allowance (the smoothing took the noise out, and
+    // what is left the planner sees too). The raw elevations' plane fit still judges roughness.
+    max_slope_eff = std::numeric_limits<double>::infinity();
+    d.field_slope = true;
+    d.max_field_slope = o.max_slope;
+  }
   d.fit = FitLimits{sxx, syy, ncells, max_rss_n, max_slope_eff};
   return d;
 }
@@ -506,7 +555,9 @@ struct SafetyScratch {
   std::vector<double> jd;
   std::vector<int32_t> ok_a;
   std::vector<double> ok_b, rss, slope2;
-  std::vector<double> dist2;  // squared distance to the nearest cell of the other kind
+  std::vector<double> ssz, ssdiz, ssdjz;  // disk sums of the smoothed surface
+  const float* centre_slope = nullptr;    // the field's slope at every cell centre
+  std::vector<double> dist2;              // squared distance to the nearest cell of the other kind
   EdtScratch edt;
 };
 
@@ -560,6 +611,30 @@ void mask_row(const HeightGrid& grid, int i, const DiskSpec& d, const Rows& rows
   // early-exit chain, evaluated for every cell.
   test_step(UN, LO, HI, d.max_step, n, sc.ok_a.data());
   test_fit(SZ, SZ2, SDIZ, SDJZ, d.fit, n, sc.rss.data(), sc.slope2.data(), sc.ok_b.data());
+  if (d.field_slope) {
+    double* __restrict S = sc.ssz.data() + j0;
+    double* __restrict SDI = sc.ssdiz.data() + j0;
+    double* __restrict SDJ = sc.ssdjz.data() + j0;
+    std::fill(S, S + n, 0.0);
+    std::fill(SDI, SDI + n, 0.0);
+    std::fill(SDJ, SDJ + n, 0.0);
+    for (int di = -R; di <= R; ++di) {
+      const int wi = d.w[di + R];
+      const RowData& r = rows(i + di);
+      const int a = j0 - wi, b = j0 + wi + 1;
+      accumulate_disk_row(r.psz.data() + a, r.psz.data() + b, r.pjsz.data() + a, r.pjsz.data() + b,
+                          sc.jd.data() + j0, di, n, S, SDI, SDJ);
+    }
+    const double sxx = d.fit.sxx, syy = d.fit.syy;
+    const double max_plane2 =
+        (d.max_field_slope * g.resolution) * (d.max_field_slope * g.resolution);
+    const float* centre = sc.centre_slope + g.index(i, j0);
+    for (int t = 0; t < n; ++t) {
+      const double a = sxx > 0 ? SDI[t] / sxx : 0.0;  // per cell
+      const double b = syy > 0 ? SDJ[t] / syy : 0.0;
+      if (!(a * a + b * b <= max_plane2) || !(centre[t] <= d.max_field_slope)) sc.ok_a[t] = 0;
+    }
+  }
   uint8_t* out = layer.safe.data() + g.index(i, j0);
   size_t count = 0;
   for (int t = 0; t < n; ++t) {
@@ -624,7 +699,13 @@ inline std::vector<SafetyLayer> safety_layers(const HeightGrid& grid,
   sc.hi.resize(ny);
   sc.ok_a.resize(ny);
   for (int j = 0; j < ny; ++j) sc.jd[j] = j;  // j as a double (exact), loaded, not converted
-  int filled = 0;                             // rows [0, filled) have been computed
+  std::vector<float> slope;
+  if (grid.surface.size() == g.size()) {
+    slope = centre_slopes(grid);
+    sc.centre_slope = slope.data();
+    for (auto* v : {&sc.ssz, &sc.ssdiz, &sc.ssdjz}) v->resize(ny);
+  }
+  int filled = 0;  // rows [0, filled) have been computed
   for (int i = 0; i < nx; ++i) {
     for (; filled < nx && filled <= i + W; ++filled)
       fill_row(grid, filled, W, rows[filled % rows.size()]);
@@ -634,7 +715,12 @@ inline std::vector<SafetyLayer> safety_layers(const HeightGrid& grid,
       mask_row(grid, i, disks[l], row_at, sc, layers[l]);
     }
   }
-  for (auto& l : layers) fill_margin(g, sc, l);
+  size_t observed = 0;
+  for (size_t k = 0; k < g.size(); ++k) observed += grid.observed[k] != 0;
+  for (auto& l : layers) {
+    fill_margin(g, sc, l);
+    l.observed_cells = observed;
+  }
   return layers;
 }
 
@@ -678,7 +764,10 @@ SafetyLayer compute_safety(const HeightGrid& grid, double radius, const SafetyOp
 
 // ---------------------------------------------------------------------------------------------
 TerrainMap::TerrainMap(HeightGrid grid, const std::vector<double>& radii, SafetyOptions options)
-    : grid_(std::move(grid)), options_(options), height_(grid_.geometry, grid_.elevation) {
+    : grid_(std::move(grid)),
+      options_(options),
+      height_(grid_.geometry,
+              grid_.surface.size() == grid_.geometry.size() ? grid_.surface : grid_.elevation) {
   if (!(options_.max_step > 0) || !(options_.max_rms > 0) || !(options_.max_slope > 0))
     throw InputError("safety options: max_step, max_rms and max_slope must be positive");
   std::vector<double> todo;
@@ -790,6 +879,8 @@ nlohmann::json write_terrain_layers(const TerrainMap& map, const std::string& di
   put_f("count", std::vector<float>(g.count.begin(), g.count.end()));
   put_f("support", std::vector<float>(g.support.begin(), g.support.end()));
   put_u8("observed", g.observed);
+  const bool scanned = g.surface.size() == geo.size();
+  if (scanned) put_f("surface", g.surface);
   nlohmann::json safety = nlohmann::json::array();
   for (double r : map.radii()) {
     const SafetyLayer& l = map.layer(r);
@@ -797,41 +888,60 @@ nlohmann::json write_terrain_layers(const TerrainMap& map, const std::string& di
     put_f("margin_" + radius_tag(r), l.margin);
     safety.push_back({{"radius", r},
                       {"safe_cells", l.safe_cells},
-                      {"safe_fraction", double(l.safe_cells) / geo.size()},
+                      {"observed_cells", l.observed_cells},
+                      {"safe_fraction", l.safe_fraction()},
                       {"safe", "layers/safe_" + radius_tag(r) + ".npy"},
                       {"margin", "layers/margin_" + radius_tag(r) + ".npy"}});
   }
   const SafetyOptions& o = map.safety_options();
-  return {{"format", "terrastride-terrain"},
-          {"version", 1},
-          {"grid",
-           {{"origin", {geo.origin.x(), geo.origin.y()}},
-            {"resolution", geo.resolution},
-            {"nx", geo.nx},
-            {"ny", geo.ny},
-            {"noise_sigma", g.noise_sigma},
-            {"cluster_gap", g.cluster_gap},
-            {"layout",
-             "layers are nx x ny arrays; element [i][j] is the cell whose min corner is "
-             "origin + resolution * (i, j)"}}},
-          {"layers", files},
-          {"safety",
-           {{"max_step", o.max_step},
-            {"step_noise_factor", o.step_noise_factor},
-            {"rms_noise_factor", o.rms_noise_factor},
-            {"slope_noise_factor", o.slope_noise_factor},
-            {"max_rms", o.max_rms},
-            {"max_slope", o.max_slope},
-            {"radii", safety}}},
-          {"statistics",
-           {{"points_in_grid", g.points_in_grid},
-            {"cells", geo.size()},
-            {"observed_cells", g.observed_cells},
-            {"filled_cells", g.filled_cells},
-            {"bridged_cells", g.bridged_cells},
-            {"interpolated_cells", g.interpolated_cells},
-            {"see_through_cells", g.see_through_cells},
-            {"overhang_cells", g.overhang_cells}}}};
+  nlohmann::json grid = {{"origin", {geo.origin.x(), geo.origin.y()}},
+                         {"resolution", geo.resolution},
+                         {"nx", geo.nx},
+                         {"ny", geo.ny},
+                         {"noise_sigma", g.noise_sigma},
+                         {"cluster_gap", g.cluster_gap},
+                         {"layout",
+                          "layers are nx x ny arrays; element [i][j] is the cell whose min corner "
+                          "is origin + resolution * (i, j)"}};
+  if (scanned) {
+    grid["noise"] = {{"estimated", g.noise.estimated}, {"sigma", g.noise.sigma},
+                     {"bins", g.noise.bins},           {"rejected_bins", g.noise.rejected_bins},
+                     {"bin_size", g.noise.bin_size},   {"point_spacing", g.noise.point_spacing}};
+    if (!g.noise.note.empty()) grid["noise"]["note"] = g.noise.note;
+    grid["smoothing_length"] = g.smoothing_length;
+    grid["gap_radius"] = g.gap_radius;
+    grid["field"] =
+        "the planner's height field is the C2 B-spline approximant of layers/surface (the support "
+        "elevation smoothed over smoothing_length, steps kept)";
+  }
+  nlohmann::json meta = {
+      {"format", "terrastride-terrain"},
+      {"version", 1},
+      {"grid", grid},
+      {"layers", files},
+      {"safety",
+       {{"max_step", o.max_step},
+        {"step_noise_factor", o.step_noise_factor},
+        {"rms_noise_factor", o.rms_noise_factor},
+        {"slope_noise_factor", o.slope_noise_factor},
+        {"max_rms", o.max_rms},
+        {"max_slope", o.max_slope},
+        {"safe_fraction_definition",
+         "safe cells / observed cells (measured or interpolated); hole-filled, bridged and "
+         "uncertain cells are not observed"},
+        {"radii", safety}}},
+      {"statistics",
+       {{"points_in_grid", g.points_in_grid},
+        {"cells", geo.size()},
+        {"observed_cells", g.observed_cells},
+        {"filled_cells", g.filled_cells},
+        {"bridged_cells", g.bridged_cells},
+        {"interpolated_cells", g.interpolated_cells},
+        {"see_through_cells", g.see_through_cells},
+        {"uncertain_cells", g.uncertain_cells},
+        {"overhang_cells", g.overhang_cells}}}};
+  if (!g.notes.empty()) meta["notes"] = g.notes;
+  return meta;
 }
 
 std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
@@ -849,6 +959,7 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
   HeightGrid grid;
   std::vector<double> radii;
   SafetyOptions opts;
+  bool has_surface = false;  // maps of earlier versions have none: the field is the elevation
   try {
     if (meta.at("format").get<std::string>() != "terrastride-terrain")
       throw InputError(meta_path.string() + ": not a terrastride terrain (format field)");
@@ -861,6 +972,20 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
     geo.ny = gj.at("ny").get<int>();
     grid.noise_sigma = gj.value("noise_sigma", 0.0);
     grid.cluster_gap = gj.value("cluster_gap", 0.0);
+    grid.smoothing_length = gj.value("smoothing_length", 0.0);
+    grid.gap_radius = gj.value("gap_radius", 0.0);
+    if (gj.contains("noise")) {
+      const auto& nj = gj.at("noise");
+      grid.noise.estimated = nj.value("estimated", false);
+      grid.noise.sigma = nj.value("sigma", 0.0);
+      grid.noise.bins = nj.value("bins", size_t{0});
+      grid.noise.rejected_bins = nj.value("rejected_bins", size_t{0});
+      grid.noise.bin_size = nj.value("bin_size", 0.0);
+      grid.noise.point_spacing = nj.value("point_spacing", 0.0);
+      grid.noise.note = nj.value("note", std::string());
+    }
+    if (meta.contains("notes")) grid.notes = meta.at("notes").get<std::vector<std::string>>();
+    has_surface = meta.contains("layers") && meta.at("layers").contains("surface");
     if (!(geo.resolution > 0) || geo.nx <= 0 || geo.ny <= 0 || !geo.origin.allFinite())
       throw InputError(meta_path.string() + ": invalid grid metadata");
     const auto& sj = meta.at("safety");
@@ -898,6 +1023,7 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
   load("count", grid.count);
   load("support", grid.support);
   load("observed", grid.observed);
+  if (has_surface) load("surface", grid.surface);
   for (size_t k = 0; k < geo.size(); ++k) {
     if (grid.observed[k] > 2)
       throw InputError(dir + "/layers/observed.npy: values must be 0, 1 or 2");

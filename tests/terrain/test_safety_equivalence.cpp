@@ -1,7 +1,8 @@
 // The optimised foothold-safety computation (compute_safety) gives bit-identical masks and margins
 // to the straightforward one it replaced, kept here verbatim as the reference: per-cell disk sums
 // from row prefix sums with an early exit, and two full Felzenszwalb-Huttenlocher distance
-// transforms (both passes) per radius.
+// transforms (both passes) per radius. Scanned grids (with a smoothed surface) take their slope
+// tests from the surface; the reference does that per cell too.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -198,7 +199,43 @@ SafetyLayer safety_for_radius(const HeightGrid& grid, const SafetyPrecompute& pr
   // over sqrt(sum of squared offsets). Allow slope_noise_factor of those.
   const double sigma_median = 1.2533 * sigma / std::sqrt(pre.mean_support);
   const double slope_noise = sxx > 0 ? sigma_median / std::sqrt(sxx) : 0.0;  // per cell
-  const double max_slope_eff = max_slope_cells + o.slope_noise_factor * slope_noise;
+  double max_slope_eff = max_slope_cells + o.slope_noise_factor * slope_noise;
+  // Scanned grids (a smoothed surface): the slope tests are on the surface instead, its plane fit
+  // over the disk and the B-spline approximant's gradient at the cell centre, both <= max_slope.
+  const bool scanned = grid.surface.size() == g.size();
+  std::vector<double> psz, pjsz;
+  std::vector<float> centre;
+  if (scanned) {
+    max_slope_eff = std::numeric_limits<double>::infinity();
+    psz.resize(nx * ps);
+    pjsz.resize(nx * ps);
+    for (int i = 0; i < nx; ++i) {
+      double a = 0, c = 0;
+      psz[i * ps] = pjsz[i * ps] = 0;
+      for (int j = 0; j < ny; ++j) {
+        const double z = grid.surface[g.index(i, j)];
+        a += z;
+        c += j * z;
+        psz[i * ps + j + 1] = a;
+        pjsz[i * ps + j + 1] = c;
+      }
+    }
+    centre.resize(g.size());
+    const auto at = [&](int i, int j) {
+      return double(grid.surface[g.index(std::clamp(i, 0, nx - 1), std::clamp(j, 0, ny - 1))]);
+    };
+    const double inv = 1.0 / (12.0 * res);
+    for (int i = 0; i < nx; ++i)
+      for (int j = 0; j < ny; ++j) {
+        double gx = 0, gy = 0;
+        for (int b = -1; b <= 1; ++b) {
+          const double wb = b == 0 ? 4.0 : 1.0;
+          gx += wb * (at(i + 1, j + b) - at(i - 1, j + b));
+          gy += wb * (at(i + b, j + 1) - at(i + b, j - 1));
+        }
+        centre[g.index(i, j)] = static_cast<float>(std::hypot(gx * inv, gy * inv));
+      }
+  }
   for (int i = 0; i < nx; ++i) {
     if (i - R < 0 || i + R >= nx) continue;  // disk leaves the grid: not fully observed
     for (int j = 0; j < ny; ++j) {
@@ -230,6 +267,21 @@ SafetyLayer safety_for_radius(const HeightGrid& grid, const SafetyPrecompute& pr
       const double rss = sz2 - ncells * mean * mean - a * sdiz - b * sdjz;
       if (!(rss <= max_rss_n * ncells)) continue;
       if (!(a * a + b * b <= max_slope_eff * max_slope_eff)) continue;
+      if (scanned) {
+        double ssdiz = 0, ssdjz = 0;
+        for (int di = -R; di <= R; ++di) {
+          const int wi = w[di + R];
+          const size_t row = static_cast<size_t>(i + di) * ps;
+          const int lo_j = j - wi, hi_j = j + wi + 1;
+          const double z = psz[row + hi_j] - psz[row + lo_j];
+          ssdiz += di * z;
+          ssdjz += (pjsz[row + hi_j] - pjsz[row + lo_j]) - j * z;
+        }
+        const double sa = sxx > 0 ? ssdiz / sxx : 0.0, sb = syy > 0 ? ssdjz / syy : 0.0;
+        const double max_plane = o.max_slope * res;
+        if (!(sa * sa + sb * sb <= max_plane * max_plane)) continue;
+        if (!(centre[g.index(i, j)] <= o.max_slope)) continue;
+      }
       layer.safe[g.index(i, j)] = 1;
       ++layer.safe_cells;
     }
@@ -352,12 +404,24 @@ TEST(SafetyEquivalence, RandomGridsAllSizes) {
         grid.max[k] = z + 0.004f * u(rng);
         grid.observed[k] = u(rng) < 0.01f ? 0 : (u(rng) < 0.1f ? 2 : 1);
       }
-    const auto want = reference::reference_safety(grid, kRadii, SafetyOptions{});
-    const auto got = compute_safety(grid, kRadii);
-    for (size_t l = 0; l < want.size(); ++l) {
-      EXPECT_EQ(got[l].safe, want[l].safe);
-      EXPECT_EQ(0, std::memcmp(got[l].margin.data(), want[l].margin.data(),
-                               want[l].margin.size() * sizeof(float)));
+    // As a rasterised grid (no surface), then as a scanned one (a smoothed surface beside the
+    // raw elevation, with slopes around the 0.6 limit).
+    for (bool scanned : {false, true}) {
+      SCOPED_TRACE(scanned ? "with a surface" : "elevation only");
+      if (scanned) {
+        grid.surface.resize(n);
+        for (int i = 0; i < s[0]; ++i)
+          for (int j = 0; j < s[1]; ++j)
+            grid.surface[grid.geometry.index(i, j)] =
+                0.012f * (i % 7) + 0.003f * u(rng) + (i > s[0] / 2 ? 0.08f : 0.0f);
+      }
+      const auto want = reference::reference_safety(grid, kRadii, SafetyOptions{});
+      const auto got = compute_safety(grid, kRadii);
+      for (size_t l = 0; l < want.size(); ++l) {
+        EXPECT_EQ(got[l].safe, want[l].safe);
+        EXPECT_EQ(0, std::memcmp(got[l].margin.data(), want[l].margin.data(),
+                                 want[l].margin.size() * sizeof(float)));
+      }
     }
   }
 }

@@ -12,12 +12,20 @@
 // beneath it: when most rays that reached a lower cluster entered the cell's column below that
 // cluster (they came from the side, under a table top) it is an overhang and the next lower
 // substantial cluster is the support. That second test needs the sensor origin; clouds without one
-// get the see-through interpretation only.
+// get the see-through interpretation only. A sparse cluster above the support that neither a
+// neighbour corroborates (promotion) nor the sensor saw beneath (overhang) makes the cell
+// uncertain: something stands above the lower surface there (a grating tread seen by few rays), so
+// the lower surface is not offered as ground and the cell is unobserved.
+//
+// Scanned grids also carry `surface`, the support smoothed at a length set by the estimated sensor
+// noise, the point spacing and the foot radius (see smooth_surface in height_grid.cpp); the
+// planner's field interpolates it. Rasterised scenes leave it empty (the field is the elevation).
 #pragma once
 
 #include <Eigen/Core>
 #include <cstdint>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "terrastride/perception/point_cloud.hpp"
@@ -57,6 +65,30 @@ struct HeightGridOptions {
   std::optional<Eigen::Vector2d> lo, hi;
   size_t max_cells =
       25'000'000;  // refuse grids larger than this (absurd resolution for the extent)
+  // The smoothed surface (HeightGrid::surface). Its Gaussian length is the larger of foot_radius /
+  // 2 (a Gaussian with the second moment of the foot's contact disk: detail below it is not felt by
+  // the foot) and the length that brings the 95th percentile of the noise slope on a flat surface
+  // down to noise_slope_p95, capped at max_smoothing_length.
+  double foot_radius = 0.02;          // m (HyQ's foot)
+  double noise_slope_p95 = 0.1;       // tan; a sixth of the default friction-cone slope 0.6
+  double max_smoothing_length = 0.1;  // m
+};
+
+// The sensor noise estimate (HeightGrid::noise). Heights are binned in squares of bin_size (two
+// cells, or more when the cloud is too sparse: the median occupied bin must hold 12 points, up to
+// 0.32 m); per bin, the largest cluster of heights (one surface) gets a least-squares plane and
+// the MAD of its residuals; sigma is the median over the bins whose plane is ground-like (not
+// steeper than 1 by more than three standard errors of its slope): walls and other vertical
+// surfaces are not read as noise, nor are slopes, steps or see-through returns. Fewer than 10
+// bins with 6 points of one surface: not estimated, and `note` says why.
+struct NoiseEstimate {
+  bool estimated = false;
+  double sigma = 0.0;          // m (standard deviation of one point's height); 0 when not estimated
+  size_t bins = 0;             // bins the figure is the median of
+  size_t rejected_bins = 0;    // bins with enough points whose surface was not ground-like
+  double bin_size = 0.0;       // m
+  double point_spacing = 0.0;  // m, typical distance between neighbouring points on a surface
+  std::string note;            // when not estimated: why (and what to do)
 };
 
 struct HeightGrid {
@@ -69,15 +101,28 @@ struct HeightGrid {
   std::vector<uint32_t> count;    // all points that fell in the cell
   std::vector<uint32_t> support;  // points in the support cluster
   std::vector<uint8_t> observed;  // 1 = measured, 2 = sampling gap interpolated, 0 = unobserved
-  // Sensor noise (standard deviation of a single surface's heights, m), estimated from the median
-  // within-cell spread; the safety criteria allow for it. 0 for rasterised scenes.
+  // The smoothed support surface the planner's field interpolates (scanned grids; empty for
+  // rasterised scenes): per cell, a Gaussian-weighted mean of the observed cells around it on the
+  // same surface (cells whose heights differ by more than 3 standard errors are not averaged, so
+  // steps stay sharp); a cell with no such cell within reach keeps its elevation.
+  std::vector<float> surface;
+  double smoothing_length = 0.0;  // m, the Gaussian's standard deviation; 0 = no smoothing
+  // Sensor noise (standard deviation of a single surface's heights, m; noise.sigma); the safety
+  // criteria allow for it. 0 for rasterised scenes and when it could not be estimated.
   double noise_sigma = 0.0;
+  NoiseEstimate noise;
   double cluster_gap = 0.0;  // the gap actually used: max(option, 4 noise_sigma)
+  // Cells without (enough) points of their own count as sampling gaps (observed = 2) when measured
+  // cells of one surface surround them within this radius: 1.5 cells, or 2.5 point spacings (at
+  // most 10 cm) for sparse clouds (a 4 cm spaced cloud leaves most 2 cm cells empty).
+  double gap_radius = 0.0;
+  std::vector<std::string> notes;  // what a user should know about this grid (sparse cloud, ...)
   // Statistics.
   size_t points_in = 0;
   size_t points_in_grid = 0;
   size_t observed_cells = 0;
   size_t see_through_cells = 0;   // cells where lower returns were ignored as see-through
+  size_t uncertain_cells = 0;     // lower surface under an uncorroborated upper one: unobserved
   size_t overhang_cells = 0;      // cells where an upper surface was ignored as overhang
   size_t bridged_cells = 0;       // narrow see-through pits bridged (then filled, unobserved)
   size_t interpolated_cells = 0;  // single-cell sampling gaps (observed = 2)
@@ -99,6 +144,22 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches,
                              const HeightGridOptions& options = {});
 HeightGrid build_height_grid(const std::vector<perception::PointCloud>& clouds,
                              const HeightGridOptions& options = {});
+
+// Sampling-gap interpolation at the scale of the point spacing (HeightGrid::gap_radius). `sample`
+// flags cells whose support is a surface sample (it may be a lone point: a sparse cloud's surface
+// is made of them, and a flying pixel is not corroborated by its neighbours). An unobserved cell
+// without points, or whose support is a sample too small to count (lone returns), is interpolated
+// (observed = 2, elevation = the support-weighted mean) when sample cells surround it within
+// `radius` (all eight neighbours for a one-cell radius, all four quadrants for wider ones) and all
+// of them, with its own sample, span at most cluster_gap. Unobserved cells with points that are
+// not samples (uncertain, bridged) stay holes.
+void fill_sampling_gaps(HeightGrid& grid, const std::vector<uint8_t>& sample, double radius);
+
+// Computes grid.surface (see HeightGrid::surface) for the Gaussian standard deviation `length`
+// (0: surface = elevation). Sources are the observed cells, weighted by their support (measured) or
+// as one point (interpolated); a cell is averaged with those whose height differs from its own by
+// at most 3 standard errors of the difference (grid.noise_sigma, medians of `support` points).
+void smooth_surface(HeightGrid& grid, double length);
 
 // Conservative hole filling. A cell without (enough) points whose eight neighbours measured one
 // surface is a sampling gap: it is interpolated (mean of the neighbours) and flagged observed = 2.

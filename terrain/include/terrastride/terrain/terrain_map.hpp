@@ -50,6 +50,10 @@ class BSplineField {
 // lowest cell min) in that disk is at most max_step, a plane fitted to the disk's elevations has an
 // RMS residual of at most max_rms, and that plane's slope is at most max_slope (tan of the angle;
 // the friction coefficient is the limit for a foot that must not slip without tangential help).
+// On scanned grids (grid.surface set) the slope test is on the field the planner sees instead: the
+// plane fitted to the smoothed surface over the disk (the foot's contact plane) and the field's
+// gradient at the cell centre are both at most max_slope, without a noise allowance (the smoothing
+// took the noise out), so a safe foothold is one the planner can stand on.
 // Step and RMS limits grow with the grid's estimated sensor noise sigma: max_step +
 // step_noise_factor sigma and max_rms + rms_noise_factor sigma (a disk's extreme raw points lie
 // about 3 sigma either side of the surface), so a noisy plane is not called rough; the slope limit
@@ -68,7 +72,17 @@ struct SafetyLayer {
   std::vector<uint8_t> safe;  // per cell, 1 = safe
   std::vector<float> margin;  // signed distance (m) to the nearest unsafe cell, negative inside
   size_t safe_cells = 0;
+  size_t observed_cells = 0;  // cells with grid.observed != 0 (measured or interpolated)
   BSplineField margin_field;  // C2 interpolation of `margin` (built by TerrainMap, not here)
+
+  // THE safe fraction of a map (terrain.json safety.radii[].safe_fraction, `map`, the report):
+  // safe cells over observed cells (measured or interpolated). Unobserved cells (hole-filled,
+  // bridged, uncertain, outside the scan) are left out of the denominator: they say nothing about
+  // the ground, and their number depends on the grid's bounding box. Every safe cell is observed,
+  // so the figure is in [0, 1]; 0 when nothing was observed.
+  double safe_fraction() const {
+    return observed_cells ? double(safe_cells) / double(observed_cells) : 0.0;
+  }
 };
 
 // Computes the mask and the margin: Euclidean distance transform (Felzenszwalb-Huttenlocher) from
