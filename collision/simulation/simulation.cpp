@@ -11,6 +11,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <ctime>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -361,6 +362,13 @@ Vector3d into_cone(const Vector3d& f, const Vector3d& n, double mu) {
   return fn * n + ft;
 }
 
+// CPU time of this thread: the speed figure that a loaded machine does not distort.
+double thread_cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec + 1e-9 * ts.tv_nsec;
+}
+
 Vector3d terrain_normal(const terrain::HeightField& field, const Vector3d& p) {
   const auto s = field.sample(p.x(), p.y());
   return Vector3d(-s.gradient.x(), -s.gradient.y(), 1.0).normalized();
@@ -487,10 +495,11 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
   auto sphere_target = [&](const Vector3d& foot) {
     return Vector3d(foot + r_foot * terrain_normal(scene, foot));
   };
+  // IK of the sphere centre over the planned foot point `foot` on a terrain of normal `n`.
   auto ik_in = [&](int i, const Vector3d& p_base, const Matrix3d& rot, const Vector3d& foot,
-                   const Vector3d& fallback) {
+                   const Vector3d& n, const Vector3d& fallback) {
     const auto ik =
-        robot::inverse_kinematics(model.legs[i], rot.transpose() * (sphere_target(foot) - p_base));
+        robot::inverse_kinematics(model.legs[i], rot.transpose() * (foot + r_foot * n - p_base));
     return ik.status == robot::IkStatus::unreachable ? fallback : Vector3d(ik.q);
   };
 
@@ -545,6 +554,7 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
   double sq_err_sum = 0.0, saturated_s = 0.0;
   double next_record = t0;
   const auto wall0 = std::chrono::steady_clock::now();
+  const double cpu0 = thread_cpu_seconds();
   std::vector<Vector3d> tau_applied(n_legs, Vector3d::Zero());
 
   for (int step = 0; step <= n_steps; ++step) {
@@ -692,6 +702,7 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
     // The plan a moment before and after, for the swing feed-forward's joint rates.
     constexpr double h = 0.004;
     const auto pm = view.at(t - h), pp = view.at(t + h);
+    const Matrix3d rot_m = rotation_zyx(pm.euler), rot_p = rotation_zyx(pp.euler);
     mj_fullM(m, full_m.data(), d->qM);
     bool saturated = false;
     for (int i = 0; i < n_legs; ++i) {
@@ -712,11 +723,12 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
       }
       // Desired joints: IK of the planned foot relative to the measured base; their rates from
       // the planned motion (finite differences of the IK along the planned base).
-      const Vector3d q_des = ik_in(i, p, rot, ps.foot[i], q_prev[i]);
+      const Vector3d n = terrain_normal(scene, ps.foot[i]);
+      const Vector3d q_des = ik_in(i, p, rot, ps.foot[i], n, q_prev[i]);
       q_prev[i] = q_des;
-      const Vector3d q0 = ik_in(i, ps.base_pos, rot_plan, ps.foot[i], q);
-      const Vector3d qm = ik_in(i, pm.base_pos, rotation_zyx(pm.euler), pm.foot[i], q0);
-      const Vector3d qp = ik_in(i, pp.base_pos, rotation_zyx(pp.euler), pp.foot[i], q0);
+      const Vector3d q0 = ik_in(i, ps.base_pos, rot_plan, ps.foot[i], n, q);
+      const Vector3d qm = ik_in(i, pm.base_pos, rot_m, pm.foot[i], n, q0);
+      const Vector3d qp = ik_in(i, pp.base_pos, rot_p, pp.foot[i], n, q0);
       const Vector3d qd_des = (qp - qm) / (2 * h);
       const Vector3d qdd_des = (qp - 2 * q0 + qm) / (h * h);
       const bool in_stance = view.contact(i, t);
@@ -725,7 +737,7 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
         Vector3d f = c.planned_forces ? ps.force[i] : Vector3d::Zero();
         const auto it = std::find(stance.begin(), stance.end(), i);
         f += delta[it - stance.begin()];
-        f = into_cone(f, terrain_normal(scene, ps.foot[i]), c.cone_margin * mu);
+        f = into_cone(f, n, c.cone_margin * mu);
         tau -= jac.transpose() * f;
         tau += c.kp_stance * (q_des - q) + c.kd_stance * (qd_des - qd);
       } else {
@@ -752,7 +764,10 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
       if (t >= push.t && t < push.t + push.duration)
         for (int k = 0; k < 3; ++k) d->xfrc_applied[6 * trunk_body + k] += push.force[k];
 
+    const auto step0 = std::chrono::steady_clock::now();
     mj_step(m, d);
+    rep.physics_wall_s +=
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - step0).count();
     ++rep.steps;
     // Impulses of the step just taken (contact forces of the new state times dt).
     for (int k = 0; k < d->ncon; ++k) {
@@ -769,6 +784,7 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
     }
   }
   rep.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  rep.cpu_s = thread_cpu_seconds() - cpu0;
   rep.duration = d->time;
   rep.realtime_factor = rep.wall_s > 0 ? rep.duration / rep.wall_s : 0.0;
   const int n_eval = rep.steps + 1;

@@ -70,6 +70,8 @@ json summary_json(const collision::SimulationReport& r, const robot::RobotModel&
           {"steps", r.steps},
           {"wall_s", r.wall_s},
           {"realtime_factor", r.realtime_factor},
+          {"physics_wall_s", r.physics_wall_s},
+          {"cpu_s", r.cpu_s},
           {"position_error_rms_m", r.position_rms},
           {"position_error_max_m", r.position_max},
           {"position_error_max_t", r.position_max_t},
@@ -125,7 +127,8 @@ void print_human(const collision::SimulationReport& r, const robot::RobotModel& 
   std::cout << "plan      " << plan << "\nterrain   " << terrain << "\n";
   std::cout << "simulated " << r.duration << " s in " << r.steps << " steps of " << r.dt << " s, "
             << std::setprecision(3) << r.wall_s << " s wall (" << std::setprecision(1)
-            << r.realtime_factor << "x real time)\n"
+            << r.realtime_factor << "x real time; " << r.duration / std::max(r.cpu_s, 1e-9)
+            << "x per CPU second)\n"
             << std::setprecision(4);
   std::cout << "base      position error RMS " << r.position_rms << " m, max " << r.position_max
             << " m (t = " << r.position_max_t << " s); orientation error max "

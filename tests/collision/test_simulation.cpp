@@ -125,7 +125,9 @@ void print(const std::string& what, const collision::SimulationReport& r) {
             << r.position_max << " m, saturation " << 100 * r.saturation_fraction << " %, slip max "
             << r.slip_max << " m, centre drift max " << r.centre_drift_max
             << " m, touchdown error max " << r.touchdown_error_max << " m, shin impulse max "
-            << r.shin_impulse_max << " N s, " << r.realtime_factor << "x real time\n";
+            << r.shin_impulse_max << " N s, " << r.realtime_factor << "x real time ("
+            << 100 * r.physics_wall_s / r.wall_s << " % in mj_step; " << r.duration / r.cpu_s
+            << "x per CPU second)\n";
   for (const auto& why : r.reasons) std::cout << "  - " << why << "\n";
 }
 

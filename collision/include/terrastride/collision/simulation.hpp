@@ -115,6 +115,8 @@ struct SimulationReport {
   double duration = 0.0;  // simulated (s)
   double wall_s = 0.0;
   double realtime_factor = 0.0;  // simulated seconds per wall second
+  double cpu_s = 0.0;            // CPU time of the run (a loaded machine inflates wall_s)
+  double physics_wall_s = 0.0;   // of wall_s, in mj_step (the rest: controller and bookkeeping)
   int steps = 0;
 
   // Tracking.
