@@ -12,6 +12,8 @@
 #include <cmath>
 #include <cstring>
 #include <ctime>
+#include <functional>
+#include <limits>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -173,7 +175,90 @@ std::string actuators(const robot::RobotModel& model) {
   return x.str();
 }
 
-std::string full_mjcf(const robot::RobotModel& model, const terrain::Scene* scene,
+// The terrain as MJCF: `asset` (inside <asset>) and `geoms` (world geoms), plus what to do with
+// the loaded model (a heightfield's data is written after loading).
+struct TerrainMjcf {
+  std::string asset;
+  std::string geoms;
+  std::function<void(mjModel*)> after_load;
+  int filled_cells = 0;
+  std::string description;
+};
+
+TerrainMjcf scene_mjcf(const terrain::Scene& scene) {
+  TerrainMjcf t;
+  std::ostringstream x;
+  x << "<geom name=\"ground\" type=\"plane\" size=\"0 0 1\" pos=\"0 0 " << fmt(scene.ground_z())
+    << "\" " << kTerrainGeom << "/>\n";
+  int k = 0;
+  for (const auto& b : scene.boxes()) {
+    const Vector3d c = 0.5 * (b.lo + b.hi), h = 0.5 * (b.hi - b.lo);
+    x << "<geom name=\"box" << k++ << "\" type=\"box\" pos=\"" << fmt(c) << "\" size=\"" << fmt(h)
+      << "\" " << kTerrainGeom << "/>\n";
+  }
+  t.geoms = x.str();
+  t.description =
+      "scene " + scene.name() + " (" + std::to_string(scene.boxes().size()) + " boxes on a plane)";
+  return t;
+}
+
+// A scanned map's elevation as a MuJoCo heightfield over a plane at its lowest height. MuJoCo's
+// heightfield vertices span [-rx, rx] x [-ry, ry] around the geom, rows along y, heights
+// normalised to [0, 1] times the size's elevation: the grid (x-major, cell centres) is
+// transposed into rows and its vertices put on the cell centres. Non-finite elevations take the
+// highest elevation of the map (conservative: more clearance needed, never a hole to step in);
+// cells the map filled itself (observed 0) are counted with them.
+TerrainMjcf map_mjcf(const terrain::TerrainMap& map) {
+  const auto& g = map.grid();
+  const auto& geo = g.geometry;
+  if (geo.nx < 2 || geo.ny < 2)
+    throw SimulationError("terrain map: a heightfield needs at least 2 x 2 cells");
+  float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+  for (float e : g.elevation)
+    if (std::isfinite(e)) {
+      lo = std::min(lo, e);
+      hi = std::max(hi, e);
+    }
+  if (!std::isfinite(lo)) throw SimulationError("terrain map: no finite elevation");
+  auto heights = std::make_shared<std::vector<float>>(geo.size());
+  TerrainMjcf t;
+  for (int i = 0; i < geo.nx; ++i)
+    for (int j = 0; j < geo.ny; ++j) {
+      const size_t cell = static_cast<size_t>(i) * geo.ny + j;
+      float e = g.elevation[cell];
+      const bool unobserved = !g.observed.empty() && g.observed[cell] == 0;
+      if (!std::isfinite(e)) e = hi;
+      if (!std::isfinite(g.elevation[cell]) || unobserved) ++t.filled_cells;
+      (*heights)[static_cast<size_t>(j) * geo.nx + i] = e;  // row j (y), column i (x)
+    }
+  const double range = std::max(double(hi - lo), 1e-3);
+  const double rx = 0.5 * geo.resolution * (geo.nx - 1), ry = 0.5 * geo.resolution * (geo.ny - 1);
+  const Eigen::Vector2d centre =
+      geo.origin + 0.5 * geo.resolution * Eigen::Vector2d(geo.nx, geo.ny);
+  std::ostringstream a, x;
+  a << "<hfield name=\"terrain\" nrow=\"" << geo.ny << "\" ncol=\"" << geo.nx << "\" size=\""
+    << fmt(rx) << " " << fmt(ry) << " " << fmt(range) << " 0.1\"/>\n";
+  x << "<geom name=\"ground\" type=\"plane\" size=\"0 0 1\" pos=\"0 0 " << fmt(lo - 1e-3) << "\" "
+    << kTerrainGeom << "/>\n"
+    << "<geom name=\"map\" type=\"hfield\" hfield=\"terrain\" pos=\"" << fmt(centre.x()) << " "
+    << fmt(centre.y()) << " " << fmt(lo) << "\" " << kTerrainGeom << "/>\n";
+  t.asset = a.str();
+  t.geoms = x.str();
+  const float base = lo;
+  t.after_load = [heights, base, range](mjModel* m) {
+    const int adr = m->hfield_adr[0];
+    const size_t n = heights->size();
+    for (size_t k = 0; k < n; ++k)
+      m->hfield_data[adr + k] = static_cast<float>(((*heights)[k] - base) / range);
+  };
+  std::ostringstream d;
+  d << map.describe() << " as a " << geo.nx << " x " << geo.ny << " heightfield ("
+    << geo.resolution << " m cells, " << t.filled_cells << " filled cells)";
+  t.description = d.str();
+  return t;
+}
+
+std::string full_mjcf(const robot::RobotModel& model, const TerrainMjcf* terrain,
                       const SimulationOptions& o, const Vector3d& pos,
                       const Eigen::Quaterniond& quat) {
   std::ostringstream x;
@@ -184,18 +269,10 @@ std::string full_mjcf(const robot::RobotModel& model, const terrain::Scene* scen
     << "<option timestep=\"" << fmt(o.dt) << "\" gravity=\"0 0 " << fmt(-kGravity)
     << "\" cone=\"elliptic\" impratio=\"100\"/>\n"
     << "<default><geom solref=\"0.005 1\" friction=\"" << fmt(o.friction)
-    << " 0.005 0.0001\" condim=\"3\"/></default>\n"
-    << "<worldbody>\n";
-  if (scene) {
-    x << "<geom name=\"ground\" type=\"plane\" size=\"0 0 1\" pos=\"0 0 " << fmt(scene->ground_z())
-      << "\" " << kTerrainGeom << "/>\n";
-    int k = 0;
-    for (const auto& b : scene->boxes()) {
-      const Vector3d c = 0.5 * (b.lo + b.hi), h = 0.5 * (b.hi - b.lo);
-      x << "<geom name=\"box" << k++ << "\" type=\"box\" pos=\"" << fmt(c) << "\" size=\"" << fmt(h)
-        << "\" " << kTerrainGeom << "/>\n";
-    }
-  }
+    << " 0.005 0.0001\" condim=\"3\"/></default>\n";
+  if (terrain && !terrain->asset.empty()) x << "<asset>\n" << terrain->asset << "</asset>\n";
+  x << "<worldbody>\n";
+  if (terrain) x << terrain->geoms;
   x << robot_body(model, o.mass_scale, pos, quat) << "</worldbody>\n"
     << actuators(model) << "</mujoco>\n";
   return x.str();
@@ -448,8 +525,11 @@ std::vector<Vector3d> nominal_stance(const robot::RobotModel& model) {
   return nominal_joint_angles(model);
 }
 
-SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
-                               const terrain::Scene& scene, const SimulationOptions& o) {
+namespace {
+
+SimulationReport simulate(const robot::RobotModel& model, const planner::Trajectory& plan,
+                          const terrain::HeightField& scene, const TerrainMjcf& terrain,
+                          const SimulationOptions& o) {
   if (!(o.dt >= 1e-4 && o.dt <= 0.01)) throw SimulationError("dt: must be in [0.0001, 0.01] s");
   if (!(o.mass_scale > 0.1 && o.mass_scale < 10))
     throw SimulationError("mass scale: must be in (0.1, 10)");
@@ -474,8 +554,14 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
   SimulationReport rep;
   rep.thresholds = o.thresholds;
   rep.dt = o.dt;
-  rep.model_xml = full_mjcf(model, &scene, o, s0.base_pos, quat0);
+  rep.model_xml = full_mjcf(model, &terrain, o, s0.base_pos, quat0);
+  rep.terrain = terrain.description;
+  rep.filled_cells = terrain.filled_cells;
   auto sim = load_model(rep.model_xml);
+  if (terrain.after_load) {
+    terrain.after_load(sim->m);
+    mj_forward(sim->m, sim->d);
+  }
   mjModel* m = sim->m;
   mjData* d = sim->d;
   const int nv = m->nv;
@@ -835,6 +921,18 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
                                                        str(th.shin_impulse_Ns) + ")");
   rep.verdict = rep.fell ? "fail" : (rep.reasons.empty() ? "pass" : "warn");
   return rep;
+}
+
+}  // namespace
+
+SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
+                               const terrain::Scene& scene, const SimulationOptions& options) {
+  return simulate(model, plan, scene, scene_mjcf(scene), options);
+}
+
+SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
+                               const terrain::TerrainMap& map, const SimulationOptions& options) {
+  return simulate(model, plan, map, map_mjcf(map), options);
 }
 
 }  // namespace terrastride::collision

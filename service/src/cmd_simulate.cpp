@@ -15,6 +15,7 @@
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
 
 namespace terrastride::service {
 namespace {
@@ -64,6 +65,7 @@ json summary_json(const collision::SimulationReport& r, const robot::RobotModel&
           {"verdict", r.verdict},
           {"reasons", r.reasons},
           {"fell", r.fell},
+          {"heightfield_filled_cells", r.filled_cells},
           {"fall_t", r.fell ? json(r.fall_t) : json()},
           {"dt", r.dt},
           {"duration", r.duration},
@@ -188,23 +190,28 @@ void run_simulate(const SimulateCliOptions& o) {
     throw CommandError(o.plan + ": robot: '" + traj.robot + "' cannot be loaded: " + e.what());
   }
   const auto names = terrain::scene_names();
-  if (std::find(names.begin(), names.end(), o.terrain) == names.end()) {
-    if (std::filesystem::is_directory(o.terrain))
-      throw CommandError("--terrain " + o.terrain +
-                         ": scanned maps are not simulated yet (a heightfield of the elevation is "
-                         "a later step of issue #16); pass a scene name");
+  const bool is_scene = std::find(names.begin(), names.end(), o.terrain) != names.end();
+  if (!is_scene && !std::filesystem::is_directory(o.terrain))
     throw CommandError("--terrain " + o.terrain +
-                       ": not a scene name (valid: flat, pallet_10, "
-                       "pallet_15, eur_pallet, stairs, gap)");
-  }
-  const auto scene = terrain::make_scene(o.terrain);
+                       ": neither a terrain directory from 'terrastride map' nor a scene name "
+                       "(flat, pallet_10, pallet_15, eur_pallet, stairs, gap)");
   collision::SimulationReport rep;
   try {
-    rep = collision::simulate_plan(model, traj, *scene, sim);
+    if (is_scene) {
+      rep = collision::simulate_plan(model, traj, *terrain::make_scene(o.terrain), sim);
+    } else {
+      std::unique_ptr<terrain::TerrainMap> map;
+      try {
+        map = terrain::load_terrain_dir(o.terrain);
+      } catch (const perception::InputError& e) {
+        throw CommandError("--terrain " + o.terrain + ": " + e.what());
+      }
+      rep = collision::simulate_plan(model, traj, *map, sim);
+    }
   } catch (const collision::SimulationError& e) {
     throw CommandError(o.plan + ": " + e.what());
   }
-  const json summary = summary_json(rep, model, o.plan, "scene " + o.terrain);
+  const json summary = summary_json(rep, model, o.plan, rep.terrain);
   if (!o.out.empty()) {
     json full = summary;
     full["samples"] = samples_json(rep, model);
@@ -217,7 +224,7 @@ void run_simulate(const SimulateCliOptions& o) {
   if (o.json) {
     std::cout << summary.dump() << "\n";
   } else {
-    print_human(rep, model, o.plan, "scene " + o.terrain);
+    print_human(rep, model, o.plan, rep.terrain);
   }
   std::cout.flush();
   if (rep.verdict == "fail")
@@ -232,8 +239,9 @@ void add_simulate_command(CLI::App& app) {
   auto opts = std::make_shared<SimulateCliOptions>();
   CLI::App* cmd = app.add_subcommand(
       "simulate",
-      "Executes a plan in MuJoCo (model generated from the robot file, terrain from the exact "
-      "scene) with a tracking controller (leg gravity/Coriolis, planned forces, a trunk PD wrench "
+      "Executes a plan in MuJoCo (model generated from the robot file; terrain: a scene's exact "
+      "boxes or a map's elevation as a heightfield) with a tracking controller (leg "
+      "gravity/Coriolis, planned forces, a trunk PD wrench "
       "over the stance feet, swing feed-forward, joint PD), as an independent judge.\n"
       "Verdict: fail on a fall (trunk 15 cm below the plan, 30 deg orientation error, trunk or "
       "thigh on the terrain); pass when base error RMS <= 2 cm and max <= 6 cm, torques saturated "
@@ -244,7 +252,9 @@ void add_simulate_command(CLI::App& app) {
       ->required()
       ->check(CLI::ExistingFile);
   cmd->add_option("--terrain", opts->terrain,
-                  "Scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap)")
+                  "Terrain directory from 'terrastride map' (its elevation becomes a heightfield) "
+                  "or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap: exact "
+                  "boxes)")
       ->required();
   cmd->add_option("--dt", opts->dt, "Simulation time step (s)")->capture_default_str();
   cmd->add_option("--push", opts->pushes,

@@ -15,6 +15,7 @@
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
 
 namespace terrastride {
 namespace {
@@ -203,6 +204,24 @@ TEST(Simulation, Pallet15BaselineHitsTheShinAndAllConstraintsPass) {
   print("pallet_15 --constraints all", all);
   EXPECT_EQ(all.verdict, "pass");
   EXPECT_LT(all.shin_impulse_max, 5.0);
+}
+
+// A map's elevation as a heightfield: the flat scene and the 15 cm pallet rasterised on the
+// planner's 2 cm grid (as a scanned map would be) carry the same plans as the exact boxes.
+TEST(Simulation, HeightfieldOfAMapCarriesThePlans) {
+  const auto model = hyq();
+  const auto flat = terrain::TerrainMap::from_scene(*terrain::make_scene("flat"), 0.02, {0.02});
+  const auto crawl = collision::simulate_plan(model, flat_crawl(), *flat, {});
+  print("flat crawl on a heightfield", crawl);
+  std::cout << "  " << crawl.terrain << "\n";
+  EXPECT_EQ(crawl.verdict, "pass");
+  EXPECT_EQ(crawl.filled_cells, 0);
+  const auto pallet =
+      terrain::TerrainMap::from_scene(*terrain::make_scene("pallet_15"), 0.02, {0.02});
+  const auto all = collision::simulate_plan(
+      model, plan_with_cli("--terrain pallet_15 --constraints all"), *pallet, {});
+  print("pallet_15 --constraints all on a heightfield", all);
+  EXPECT_NE(all.verdict, "fail");
 }
 
 }  // namespace

@@ -17,6 +17,7 @@
 #include "terrastride/planner/trajectory.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
 
 namespace terrastride::collision {
 
@@ -111,6 +112,8 @@ struct StanceReport {
 
 struct SimulationReport {
   std::string model_xml;  // the generated MJCF (for inspection)
+  std::string terrain;    // what the robot walked on
+  int filled_cells = 0;   // heightfield cells the map had hole-filled or had no elevation for
   double dt = 0.0;
   double duration = 0.0;  // simulated (s)
   double wall_s = 0.0;
@@ -171,5 +174,10 @@ std::vector<Eigen::Vector3d> nominal_stance(const robot::RobotModel& model);
 // Runs the plan on `scene` (boxes with exact edges). Throws SimulationError naming the problem.
 SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
                                const terrain::Scene& scene, const SimulationOptions& options);
+
+// Runs the plan on a scanned map: its elevation as a heightfield (vertices on the cell centres)
+// over a plane at its lowest height; foot normals from the map's smooth field.
+SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
+                               const terrain::TerrainMap& map, const SimulationOptions& options);
 
 }  // namespace terrastride::collision
