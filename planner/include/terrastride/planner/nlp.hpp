@@ -119,8 +119,6 @@ class SrbdProblem {
   void warm_start_from(const struct Trajectory& previous, double shift);
 
  private:
-  void build_initial_guess(const StartState* start);
-  void guess_forces();
   void build_baseline();
 
   const robot::RobotModel& robot_;
