@@ -252,8 +252,8 @@ TerrainMjcf map_mjcf(const terrain::TerrainMap& map) {
       m->hfield_data[adr + k] = static_cast<float>(((*heights)[k] - base) / range);
   };
   std::ostringstream d;
-  d << map.describe() << " as a " << geo.nx << " x " << geo.ny << " heightfield ("
-    << geo.resolution << " m cells, " << t.filled_cells << " filled cells)";
+  d << map.describe() << " as a " << geo.nx << " x " << geo.ny << " heightfield (" << geo.resolution
+    << " m cells, " << t.filled_cells << " filled cells)";
   t.description = d.str();
   return t;
 }
@@ -320,9 +320,13 @@ class PlanView {
       for (int f = 0; f < n_feet; ++f) {
         const std::string name = plan.feet[f];
         if (!plan.extra["phases"].contains(name)) continue;
-        for (const auto& p : plan.extra["phases"][name])
-          phases_[f].push_back({p.at("start").get<double>(), p.at("end").get<double>(),
-                                p.at("contact").get<bool>()});
+        try {
+          for (const auto& p : plan.extra["phases"][name])
+            phases_[f].push_back({p.at("start").get<double>(), p.at("end").get<double>(),
+                                  p.at("contact").get<bool>()});
+        } catch (const nlohmann::json::exception& e) {
+          throw SimulationError("plan: phases: " + name + ": " + e.what());
+        }
       }
     }
     for (int f = 0; f < n_feet; ++f)
@@ -362,7 +366,11 @@ class PlanView {
     State st;
     hermite(a.base.position, a.base.linear_velocity, b.base.position, b.base.linear_velocity, h, u,
             &st.base_pos, &st.base_vel, &st.base_acc);
-    st.euler = lerp(a.base.euler_zyx, b.base.euler_zyx, u);
+    // Euler angles across the +-pi seam: b's taken within pi of a's before interpolating.
+    Vector3d eb = b.base.euler_zyx;
+    for (int k = 0; k < 3; ++k)
+      eb[k] -= 2 * M_PI * std::round((eb[k] - a.base.euler_zyx[k]) / (2 * M_PI));
+    st.euler = lerp(a.base.euler_zyx, eb, u);
     st.omega = lerp(a.base.angular_velocity, b.base.angular_velocity, u);
     for (int f = 0; f < n_feet_; ++f) {
       Vector3d p, v, acc;
@@ -542,6 +550,11 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
     if (plan.feet[i] != model.legs[i].name)
       throw SimulationError("plan: foot " + std::to_string(i) + " is '" + plan.feet[i] +
                             "', the robot's leg is '" + model.legs[i].name + "'");
+  for (bool free : model.base_dof_free)
+    if (!free)
+      throw SimulationError("robot '" + model.name +
+                            "': its base moves on restricted degrees of freedom (a slider); only "
+                            "free-floating robots are simulated");
   const PlanView view(plan, n_legs);
   const double r_foot = model.foot_radius;
   const double mu = o.friction;
