@@ -1,8 +1,8 @@
 // `terrastride demo`: the whole pipeline on the shipped pallet scan, into out/demo/:
-//   scan (data/scans) -> map (`terrastride map`) -> plan (`terrastride plan`, every constraint set
-//   this build has) -> post-hoc checks (collision module) -> report (HTML + JSON).
-// Each stage runs the same code as its command; a stage whose module is not built in is named and
-// the demo stops with a non-zero exit rather than pretending.
+//   scan (data/scans) -> map (terrain::build_terrain_map, written as `terrastride map` writes it)
+//   -> plan (the request `terrastride plan` makes, every constraint set this build has) ->
+//   post-hoc checks (collision module) -> report (HTML + JSON).
+// Each stage calls the libraries its command calls; no command runs another.
 #include <unistd.h>
 
 #include <algorithm>
@@ -14,14 +14,20 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "plan_request.hpp"
 #include "report/report.hpp"
 #include "report/terrain_input.hpp"
+#include "terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/plan_io.hpp"
+#include "terrastride/planner/planner.hpp"
+#include "terrastride/planner/request_limits.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/cli.hpp"
+#include "terrastride/terrain/map_build.hpp"
 
 namespace terrastride::service {
 namespace {
@@ -50,7 +56,8 @@ std::string fixed(double v, int precision) {
   return os.str();
 }
 
-// Progress lines: "[2/5] map     ... done in 0.41 s: <detail>" (overwritten in place on a terminal).
+// Progress lines: "[2/5] map     ... done in 0.41 s: <detail>" (overwritten in place on a
+// terminal).
 class Progress {
  public:
   Progress(int stages, bool quiet) : stages_(stages), quiet_(quiet), tty_(isatty(STDOUT_FILENO)) {}
@@ -88,20 +95,6 @@ class Progress {
   Clock::time_point t0_;
   json timings_ = json::object();
 };
-
-// Runs a subcommand with its standard output captured (kept in the stage's log file).
-std::string run_captured(const std::string& name, const std::vector<std::string>& args) {
-  std::ostringstream captured;
-  std::streambuf* old = std::cout.rdbuf(captured.rdbuf());
-  try {
-    report::run_subcommand(name, args);
-  } catch (...) {
-    std::cout.rdbuf(old);
-    throw;
-  }
-  std::cout.rdbuf(old);
-  return captured.str();
-}
 
 std::string join(const std::vector<std::string>& v, const std::string& sep) {
   std::string out;
@@ -147,6 +140,100 @@ perception::OutputDirKind demo_output_kind() {
           {}};
 }
 
+// The map stage's results: the map and its OctoMap (as octomap.bt holds it, what the checks of
+// `plan --terrain DIR` read), terrain.json and the figures `map --json` prints.
+struct DemoMap {
+  std::shared_ptr<const terrain::TerrainMap> map;
+  std::shared_ptr<const octomap::OcTree> octree;
+  json terrain;
+  json summary;
+};
+
+// 2. map: the scan mapped with `terrastride map`'s defaults, written into `terrain_dir`.
+DemoMap map_scan(const std::vector<std::string>& scan, const fs::path& terrain_dir) {
+  terrain::MapInput input = terrain::read_map_clouds(scan, std::nullopt);
+  terrain::MapBuild build = terrain::build_terrain_map(std::move(input.clouds));
+  DemoMap out;
+  out.terrain = terrain::write_terrain_dir(build, input.sources, terrain_dir.string());
+  out.summary = terrain::map_summary(build, out.terrain, terrain_dir.string());
+  out.octree = terrain::octree_as_saved(*build.octree);
+  out.map = std::move(build.map);
+  return out;
+}
+
+// A plan request's field as the demo's flag ("max_time" -> "--max-time").
+std::string flag_of(std::string field) {
+  std::replace(field.begin(), field.end(), '_', '-');
+  return "--" + field;
+}
+
+struct DemoPlan {
+  planner::Trajectory trajectory;  // with the post-hoc checks' figures
+  std::string problem;             // why it is not a usable plan; empty when it is
+};
+
+// 3. plan: the request `terrastride plan --terrain TERRAIN_DIR --constraints C --max-time T`
+// makes, read, checked and solved as it does on that folder's map, its post-hoc checks added,
+// written to `plan_path` when it nearly satisfies its constraints (`plan`'s rule). A plan that
+// is not usable (not optimal, or failing a check) is returned with the reason, which names
+// `final_plan_path`; a plan not worth writing is a CommandError.
+DemoPlan plan_on_map(const robot::RobotModel& model, const DemoMap& map,
+                     const std::string& terrain_dir, const std::string& constraints,
+                     double max_time, const fs::path& plan_path,
+                     const std::string& final_plan_path) {
+  const json fields = {
+      {"terrain", terrain_dir}, {"constraints", constraints}, {"max_time", max_time}};
+  PlanRequest request;
+  try {
+    request = read_plan_request(fields, model);
+    check_stances_on_terrain(request, model, *map.map);
+  } catch (const RequestFieldError& e) {
+    throw CommandError(flag_of(e.field()) + ": " + e.problem());
+  }
+  planner::PlanOutcome out;
+  try {
+    out = planner::plan_motion(model, *map.map, *map.map, request.options, request.sample_dt,
+                               request.warm_start());
+  } catch (const planner::RequestError& e) {
+    throw CommandError(flag_of(e.field()) + ": " + e.problem());
+  } catch (const planner::GaitError& e) {
+    throw CommandError(std::string("--gait: ") + e.what());
+  } catch (const std::invalid_argument& e) {
+    throw CommandError(e.what());
+  }
+  out.trajectory.extra["terrain"] = terrain_dir;
+  // The checks `plan` runs on a map folder: footholds on the map, leg capsules on its OctoMap.
+  collision::CheckTerrain view;
+  view.field = map.map.get();
+  view.octree = map.octree;
+  view.description = "map " + terrain_dir + " (scan OctoMap at " +
+                     std::to_string(map.octree->getResolution()) + " m)";
+  const std::vector<std::string> failures = add_post_hoc_checks(model, view, &out.trajectory);
+
+  // `plan` writes a plan that is not optimal too when it nearly satisfies every constraint.
+  const bool written = out.success || out.solve.max_violation <= 1e-3;
+  DemoPlan plan;
+  const std::string& status = out.trajectory.solver.status;
+  if (status != "optimal") {
+    plan.problem = out.message.empty() ? "status " + status : out.message;
+    if (!written)
+      throw CommandError(plan.problem +
+                             "; no plan written (the goal may be unreachable with this gait and "
+                             "duration)",
+                         3);
+    plan.problem += "; the plan was written to " + final_plan_path + " for inspection";
+  } else if (!failures.empty()) {
+    plan.problem = "the solver's plan fails " + std::to_string(failures.size()) +
+                   " post-hoc check" + (failures.size() > 1 ? "s" : "") + ": ";
+    for (size_t i = 0; i < failures.size(); ++i) plan.problem += (i ? "; " : "") + failures[i];
+    plan.problem += "; the plan was written to " + final_plan_path + " for inspection";
+  }
+  perception::write_file_atomically(plan_path.string(),
+                                    planner::plan_to_json(out.trajectory).dump(1) + "\n");
+  plan.trajectory = std::move(out.trajectory);
+  return plan;
+}
+
 void run_demo(const DemoOptions& o) {
   const auto t_all = Clock::now();
   const std::clock_t cpu0 = std::clock();
@@ -165,8 +252,9 @@ void run_demo(const DemoOptions& o) {
   const std::vector<std::string> scan = o.scan.empty() ? find_pallet_scan() : o.scan;
   if (scan.empty()) {
     progress.fail();
-    throw CommandError("stage 'scan' unavailable: no pallet scan (data/scans/pallet*.pcd) is shipped in " +
-                       (fs::path(robot::data_dir()) / "scans").string());
+    throw CommandError(
+        "stage 'scan' unavailable: no pallet scan (data/scans/pallet*.pcd) is shipped in " +
+        (fs::path(robot::data_dir()) / "scans").string());
   }
   for (const auto& f : scan)
     if (!fs::exists(f)) {
@@ -184,33 +272,17 @@ void run_demo(const DemoOptions& o) {
 
   // 2. map
   progress.start("map", "height grid, OctoMap, safety masks");
-  for (const char* stage : {"map", "plan"})
-    if (!report::has_subcommand(stage)) {
-      progress.fail();
-      throw CommandError(std::string("stage '") + stage + "' unavailable: `terrastride " + stage +
-                         "` is not built into this binary yet");
-    }
   const fs::path terrain_dir = work / "terrain";
-  std::string log;
+  DemoMap map;
   try {
-    std::vector<std::string> args = scan;
-    args.insert(args.end(), {"--out", terrain_dir.string(), "--json"});
-    log = run_captured("map", args);
-  } catch (...) {
+    map = map_scan(scan, terrain_dir);
+  } catch (const perception::InputError& e) {
     progress.fail();
-    throw;
+    throw CommandError(std::string("stage 'map': ") + e.what());
   }
-  std::string map_detail;
-  try {
-    const json m = json::parse(log.substr(0, log.find('\n')));
-    summary["stages"]["map"] = m;
-    if (m.contains("points_kept"))
-      map_detail += std::to_string(m["points_kept"].get<long>()) + " points kept, ";
-    if (m.contains("cells")) map_detail += std::to_string(m["cells"].get<long>()) + " cells";
-  } catch (const std::exception&) {
-    summary["stages"]["map"] = log;
-  }
-  progress.done(map_detail);
+  summary["stages"]["map"] = map.summary;
+  progress.done(std::to_string(map.summary["points_kept"].get<long>()) + " points kept, " +
+                std::to_string(map.summary["cells"].get<long>()) + " cells");
 
   // 3. plan, with every constraint set this build has.
   const std::vector<std::string> available = planner::constraint_set_names();
@@ -220,33 +292,21 @@ void run_demo(const DemoOptions& o) {
                       ? "all"
                       : join(available, ",");
   progress.start("plan", "crawl 1 m over the pallet, constraints: " + constraints);
-  const fs::path plan_path = work / "plan.json";
-  bool plan_optimal = true;
-  std::string plan_message;
+  // The plan's robot: `terrastride plan`'s default.
+  robot::RobotModel model;
+  DemoPlan plan;
   try {
-    log = run_captured("plan", {"--terrain", terrain_dir.string(), "--constraints", constraints,
-                                "--max-time", fixed(o.max_time, 1), "--json", "--out",
-                                plan_path.string()});
+    model = robot::load_robot(robot::resolve_robot_path("hyq"));
+    plan = plan_on_map(model, map, terrain_dir.string(), constraints, o.max_time,
+                       work / "plan.json", (final_dir / "plan.json").string());
   } catch (const CommandError& e) {
-    // A non-optimal plan that nearly satisfies its constraints is still written: report it (the
-    // report shows the solver status in red) and exit non-zero at the end.
-    if (!fs::exists(plan_path)) {
-      progress.fail();
-      throw CommandError(std::string("stage 'plan' failed: ") + e.what(), e.exit_code());
-    }
-    plan_optimal = false;
-    plan_message = e.what();
-    // Name the final folder, not the temporary one the stages write into.
-    for (size_t at; (at = plan_message.find(work.string())) != std::string::npos;)
-      plan_message.replace(at, work.string().size(), final_dir.string());
-  }
-  planner::Trajectory traj;
-  try {
-    traj = planner::read_plan_file(plan_path.string());
+    progress.fail();
+    throw CommandError(std::string("stage 'plan' failed: ") + e.what(), e.exit_code());
   } catch (const std::exception& e) {
     progress.fail();
-    throw CommandError(std::string("stage 'plan': ") + e.what());
+    throw CommandError(std::string("stage 'plan' failed: ") + e.what());
   }
+  const planner::Trajectory& traj = plan.trajectory;
   summary["stages"]["plan"] = {{"constraints", constraints},
                                {"status", traj.solver.status},
                                {"iterations", traj.solver.iterations},
@@ -256,16 +316,9 @@ void run_demo(const DemoOptions& o) {
 
   // 4. post-hoc checks on the scan's own terrain: torques, FCL capsules vs the OctoMap, footholds.
   progress.start("checks", "joint torques, shin capsules vs OctoMap, footholds");
-  robot::RobotModel model;
-  try {
-    model = robot::load_robot(robot::resolve_robot_path(traj.robot));
-  } catch (const std::exception& e) {
-    progress.fail();
-    throw CommandError(std::string("stage 'checks': ") + e.what());
-  }
   report::TerrainInputOptions topts;
   topts.foot_radius = model.foot_radius;
-  report::TerrainView view = report::load_terrain_view({terrain_dir.string()}, topts);
+  report::TerrainView view = report::map_view(map.map, map.octree, map.terrain, topts);
   view.source = (final_dir / "terrain").string();
   collision::CheckTerrain ct;
   ct.field = view.field.get();
@@ -288,8 +341,8 @@ void run_demo(const DemoOptions& o) {
                     " (" + fixed(keys.at("shin_contacts_uncertain"), 0) +
                     " voxel contacts within the map's uncertainty)";
   if (keys.count("shin_min_distance_m"))
-    check_detail += ", shin min " + fixed(keys.at("shin_min_distance_m") * 1000, 1) +
-                    " mm to the voxels";
+    check_detail +=
+        ", shin min " + fixed(keys.at("shin_min_distance_m") * 1000, 1) + " mm to the voxels";
   if (keys.count("unsafe_footholds"))
     check_detail += ", unsafe footholds " + fixed(keys.at("unsafe_footholds"), 0);
   progress.done(check_detail);
@@ -323,22 +376,24 @@ void run_demo(const DemoOptions& o) {
   if (o.json_output) {
     std::cout << summary.dump() << "\n";
   } else {
-    std::cout << "\nterrain: safe fraction " << fixed(rep["terrain"]["safe_fraction"].get<double>() * 100, 1)
+    std::cout << "\nterrain: safe fraction "
+              << fixed(rep["terrain"]["safe_fraction"].get<double>() * 100, 1)
               << " % of observed cells for the " << fixed(model.foot_radius * 1000, 0)
               << " mm foot\n";
-    std::cout << "plan:    " << traj.solver.status << ", " << traj.samples.size() << " samples over "
-              << fixed(traj.duration, 1) << " s\n";
+    std::cout << "plan:    " << traj.solver.status << ", " << traj.samples.size()
+              << " samples over " << fixed(traj.duration, 1) << " s\n";
     if (rep["problems"].empty()) {
       std::cout << "checks:  no problems found\n";
     } else {
       std::cout << "checks:  " << rep["problems"].size() << " problems:\n";
-      for (const json& p : rep["problems"]) std::cout << "  - " << p["text"].get<std::string>() << "\n";
+      for (const json& p : rep["problems"])
+        std::cout << "  - " << p["text"].get<std::string>() << "\n";
     }
-    std::cout << "total " << fixed(total, 1) << " s (" << fixed(cpu, 1) << " s CPU)\nreport: "
-              << html.string() << "\n";
+    std::cout << "total " << fixed(total, 1) << " s (" << fixed(cpu, 1)
+              << " s CPU)\nreport: " << html.string() << "\n";
   }
-  if (!plan_optimal)
-    throw CommandError("the plan is not optimal (" + plan_message + "); the report shows it", 3);
+  if (!plan.problem.empty())
+    throw CommandError("the plan is not optimal (" + plan.problem + "); the report shows it", 3);
 }
 
 }  // namespace
@@ -350,8 +405,9 @@ void add_demo_command(CLI::App& app) {
       "The whole pipeline on the shipped pallet scan: map -> plan -> checks -> report, into "
       "out/demo/");
   cmd->add_option("--out", o->out, "Output folder")->capture_default_str();
-  cmd->add_option("--scan", o->scan,
-                  "Other cloud files instead of the shipped pallet scan (data/scans/pallet_10*.pcd)");
+  cmd->add_option(
+      "--scan", o->scan,
+      "Other cloud files instead of the shipped pallet scan (data/scans/pallet_10*.pcd)");
   cmd->add_option("--constraints", o->constraints,
                   "Planner constraint sets (default: all that this build has)");
   cmd->add_option("--max-time", o->max_time, "Time limit of the solve (s)")->capture_default_str();

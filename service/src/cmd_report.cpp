@@ -55,13 +55,15 @@ double robot_foot_radius(const std::string& name) {
 
 bool is_scan_file(const fs::path& p) {
   std::string ext = p.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   return ext == ".pcd" || ext == ".ply" || ext == ".xyz" || ext == ".npy";
 }
 
 void check_out_html(const std::string& out) {
   if (fs::path(out).extension() != ".html")
-    throw CommandError("--out " + out + ": the report is an .html file (report.json is written beside it)");
+    throw CommandError("--out " + out +
+                       ": the report is an .html file (report.json is written beside it)");
   const fs::path parent = fs::absolute(out).parent_path();
   if (!fs::is_directory(parent))
     throw CommandError("--out " + out + ": folder " + parent.string() + " does not exist");
@@ -100,7 +102,8 @@ perception::OutputDirKind batch_output_kind() {
 json summary_json(const json& report, const std::string& html, const std::string& json_path) {
   json plans = json::array();
   for (const json& p : report["plans"]) {
-    json s{{"name", p["name"]}, {"solver_status", p["solver"]["status"]},
+    json s{{"name", p["name"]},
+           {"solver_status", p["solver"]["status"]},
            {"footholds", p["footholds"].size()}};
     for (const auto& [k, v] : p["checks"].items()) s[k] = v;
     plans.push_back(s);
@@ -120,26 +123,27 @@ void print_summary(const json& s, bool as_json) {
     std::cout << s.dump() << "\n";
     return;
   }
-  std::cout << "safe fraction " << s["safe_fraction"] << " of observed cells ("
-            << s["cells"] << " cells)\n";
+  std::cout << "safe fraction " << s["safe_fraction"] << " of observed cells (" << s["cells"]
+            << " cells)\n";
   for (const json& p : s["problems"])
     std::cout << "PROBLEM " << p["plan"].get<std::string>() << ": " << p["text"].get<std::string>()
               << "\n";
-  std::cout << (s["ok"].get<bool>() ? "no problems found" : std::to_string(s["problems"].size()) +
-                                                               " problems found")
-            << "\nreport: " << s["html"].get<std::string>() << "\ndata:   " << s["json"].get<std::string>()
-            << "\n";
+  std::cout << (s["ok"].get<bool>() ? "no problems found"
+                                    : std::to_string(s["problems"].size()) + " problems found")
+            << "\nreport: " << s["html"].get<std::string>()
+            << "\ndata:   " << s["json"].get<std::string>() << "\n";
 }
 
 }  // namespace
 
 namespace report {
 
-// Shared by `report` and `demo`: reads the plans, builds the terrain view (scenes are voxelised over
+// Reads the plans, builds the terrain view (scenes are voxelised over
 // the plans' extent for the leg-capsule check), writes OUT.html and OUT.json; returns the report.
 json make_report_file(const std::vector<std::string>& terrain_inputs,
-                      const std::vector<std::string>& plan_paths, TerrainInputOptions terrain_options,
-                      ReportOptions options, const std::string& out_html) {
+                      const std::vector<std::string>& plan_paths,
+                      TerrainInputOptions terrain_options, ReportOptions options,
+                      const std::string& out_html) {
   std::vector<PlanInput> plans;
   for (const std::string& path : plan_paths) {
     PlanInput p;
@@ -161,8 +165,8 @@ json make_report_file(const std::vector<std::string>& terrain_inputs,
   for (const PlanInput& p : plans) {
     robot::RobotModel model;
     try {
-      model = robot::load_robot(robot::resolve_robot_path(p.trajectory.robot.empty() ? options.robot
-                                                                                     : p.trajectory.robot));
+      model = robot::load_robot(robot::resolve_robot_path(
+          p.trajectory.robot.empty() ? options.robot : p.trajectory.robot));
     } catch (const std::exception& e) {
       throw CommandError(p.path + ": " + e.what());
     }
@@ -198,14 +202,15 @@ void add_report_command(CLI::App& app) {
   cmd->add_option("--batch", o->batch,
                   "A folder of scans (and/or map folders): one report each plus index.html ranking "
                   "them by safe fraction; --out is then the output folder");
-  cmd->add_option("--out", o->out, "report.html (report.json beside it), or the batch output folder")
+  cmd->add_option("--out", o->out,
+                  "report.html (report.json beside it), or the batch output folder")
       ->required();
   cmd->add_option("--foot-radius", o->radii,
                   "Foot radii for the safety masks, e.g. 0.02,0.05 (default: the map's, or "
                   "0.02,0.04,0.06; the robot's is always added)");
   cmd->add_option("--resolution", o->resolution, "Grid cell for scenes and clouds (m)")
       ->capture_default_str();
-  cmd->add_option("--origin", o->origin, "Sensor origin X,Y,Z of the clouds (passed to map)");
+  cmd->add_option("--origin", o->origin, "Sensor origin X,Y,Z of the clouds (as map's --origin)");
   cmd->add_option("--robot", o->robot, "Robot for terrain-only reports (foot radius)")
       ->capture_default_str();
   cmd->add_option("--title", o->title, "Title of the page");
@@ -214,15 +219,13 @@ void add_report_command(CLI::App& app) {
     if (o->terrain.empty() == o->batch.empty())
       throw CommandError("give either --terrain (one report) or --batch DIR (a folder of scans)");
     if (!(o->resolution >= 0.002 && o->resolution <= 1.0))
-      throw CommandError("--resolution " + std::to_string(o->resolution) + ": outside [0.002, 1] m");
+      throw CommandError("--resolution " + std::to_string(o->resolution) +
+                         ": outside [0.002, 1] m");
     report::TerrainInputOptions topts;
     topts.radii = parse_radii(o->radii);
     topts.resolution = o->resolution;
     topts.foot_radius = robot_foot_radius(o->robot);
-    if (!o->origin.empty()) {
-      parse_numbers(o->origin, 3, "--origin");
-      topts.map_args = {"--origin", o->origin};
-    }
+    if (!o->origin.empty()) topts.origin = Eigen::Vector3d(parse_numbers(o->origin, 3, "--origin"));
     report::ReportOptions ropts;
     ropts.robot = o->robot;
     if (!o->title.empty()) ropts.title = o->title;
@@ -258,7 +261,8 @@ void add_report_command(CLI::App& app) {
       else if (entry.is_directory() && report::is_terrain_dir(p.string()))
         groups[name].push_back(p.string());
     }
-    std::vector<std::pair<std::string, std::vector<std::string>>> scans(groups.begin(), groups.end());
+    std::vector<std::pair<std::string, std::vector<std::string>>> scans(groups.begin(),
+                                                                        groups.end());
     for (auto& [name, files] : scans) std::sort(files.begin(), files.end());
     if (scans.empty())
       throw CommandError("--batch " + o->batch +

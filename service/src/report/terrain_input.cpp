@@ -5,39 +5,19 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-#include <iostream>
-#include <sstream>
 #include <limits>
-#include <map>
-#include <random>
 
 #include "terrastride/collision/octree_terrain.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/service/cli.hpp"
+#include "terrastride/terrain/map_build.hpp"
 #include "terrastride/terrain/scenes.hpp"
-#include "terrastride/terrain/terrain_map.hpp"
-
-namespace terrastride::service {
-// The subcommands built into this binary (generated from service/src/cmd_*.cpp).
-#define TERRASTRIDE_COMMAND(name) void add_##name##_command(CLI::App& app);
-#include "terrastride_commands.inc"
-#undef TERRASTRIDE_COMMAND
-}  // namespace terrastride::service
 
 namespace terrastride::service::report {
 namespace {
 
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
-
-const std::map<std::string, void (*)(CLI::App&)>& command_registry() {
-  static const std::map<std::string, void (*)(CLI::App&)> registry = {
-#define TERRASTRIDE_COMMAND(name) {#name, &add_##name##_command},
-#include "terrastride_commands.inc"
-#undef TERRASTRIDE_COMMAND
-  };
-  return registry;
-}
 
 void fill_from_map(TerrainView& view, std::shared_ptr<const terrain::TerrainMap> map,
                    const std::vector<double>& radii) {
@@ -60,29 +40,6 @@ void fill_from_map(TerrainView& view, std::shared_ptr<const terrain::TerrainMap>
 }
 
 }  // namespace
-
-bool has_subcommand(const std::string& name) { return command_registry().count(name) > 0; }
-
-void run_subcommand(const std::string& name, const std::vector<std::string>& args) {
-  const auto it = command_registry().find(name);
-  if (it == command_registry().end())
-    throw CommandError("the '" + name + "' stage is not available: `terrastride " + name +
-                       "` is not built into this binary yet");
-  CLI::App app;
-  app.name("terrastride");
-  app.require_subcommand(1, 1);
-  it->second(app);
-  // CLI11 takes the arguments in reverse order, without the program name.
-  std::vector<std::string> reversed(args.rbegin(), args.rend());
-  reversed.push_back(name);
-  try {
-    app.parse(reversed);
-  } catch (const CLI::ParseError& e) {
-    std::string line = "terrastride " + name;
-    for (const auto& a : args) line += " " + a;
-    throw CommandError("`" + line + "`: " + e.what());
-  }
-}
 
 bool is_terrain_dir(const std::string& path) {
   std::error_code ec;
@@ -126,8 +83,10 @@ TerrainView load_terrain_view(const std::vector<std::string>& inputs,
     view.ny = std::max(1, static_cast<int>(std::ceil(size.y() / options.resolution - 1e-9)));
     rasterize_field(view, *scene, safety_radii(options.radii, {}, options.foot_radius));
     view.field = scene;
-    view.info = {{"scene", scene->name()}, {"description", scene->describe()},
-                 {"note", "exact analytic terrain: heights and safety margins are exact, sharp edges"}};
+    view.info = {
+        {"scene", scene->name()},
+        {"description", scene->describe()},
+        {"note", "exact analytic terrain: heights and safety margins are exact, sharp edges"}};
     if (options.voxelise_scene && (options.voxel_hi - options.voxel_lo).minCoeff() > 0) {
       view.octree = collision::voxelise_scene(*scene, options.voxel_lo, options.voxel_hi);
       view.info["octomap"] = "voxelised from the scene's boxes (no scan)";
@@ -139,68 +98,70 @@ TerrainView load_terrain_view(const std::vector<std::string>& inputs,
     } catch (const std::exception& e) {
       throw CommandError(std::string("--terrain ") + inputs[0] + ": " + e.what());
     }
-    view.kind = "map";
-    view.source = inputs[0];
-    fill_from_map(view, map, safety_radii(options.radii, map->radii(), options.foot_radius));
+    nlohmann::json info;
     std::ifstream meta{(fs::path(inputs[0]) / "terrain.json").string()};
     try {
-      view.info = nlohmann::json::parse(meta);
+      info = nlohmann::json::parse(meta);
     } catch (const std::exception&) {
-      view.info = nlohmann::json::object();
+      info = nlohmann::json::object();
     }
+    std::shared_ptr<const octomap::OcTree> octree;
     const fs::path bt = fs::path(inputs[0]) / "octomap.bt";
     if (fs::exists(bt)) {
       try {
-        view.octree = collision::read_octomap(bt.string());
+        octree = collision::read_octomap(bt.string());
       } catch (const std::exception& e) {
         throw CommandError(std::string("--terrain ") + inputs[0] + ": " + e.what());
       }
     }
+    view = map_view(std::move(map), std::move(octree), std::move(info), options);
+    view.source = inputs[0];
   } else {
-    // Point clouds: map them with the same code path as `terrastride map`, into a temporary folder.
+    // Point clouds.
     for (const auto& in : inputs) {
       std::error_code ec;
       if (fs::is_directory(in, ec))
         throw CommandError("--terrain " + in +
                            ": a folder without terrain.json (not written by `terrastride map`)");
       if (!fs::exists(in, ec))
-        throw CommandError("--terrain " + in + ": no such file, folder or scene (scenes: flat, "
+        throw CommandError("--terrain " + in +
+                           ": no such file, folder or scene (scenes: flat, "
                            "pallet_10, pallet_15, eur_pallet, stairs, gap)");
     }
-    std::mt19937_64 rng(std::random_device{}());
-    const fs::path tmp = fs::temp_directory_path() /
-                         ("terrastride-report-map-" + std::to_string(rng() % 1000000007ULL));
-    struct Cleanup {
-      fs::path p;
-      ~Cleanup() {
-        std::error_code ec;
-        fs::remove_all(p, ec);
-      }
-    } cleanup{tmp};
-    std::vector<std::string> args = inputs;
-    args.insert(args.end(), options.map_args.begin(), options.map_args.end());
-    args.push_back("--resolution");
-    args.push_back(std::to_string(options.resolution));
-    args.push_back("--out");
-    args.push_back(tmp.string());
-    // The map command's own summary is not part of the report's output.
-    std::ostringstream captured;
-    std::streambuf* old = std::cout.rdbuf(captured.rdbuf());
+    // Mapped in memory as `terrastride map` maps them (its defaults, this report's --resolution
+    // and --origin); the page describes the map as that folder's terrain.json would.
+    terrain::MapInput input;
+    terrain::MapBuild build;
     try {
-      run_subcommand("map", args);
-    } catch (...) {
-      std::cout.rdbuf(old);
-      throw;
+      input = terrain::read_map_clouds(inputs, options.origin);
+      terrain::MapBuildOptions map_options;
+      map_options.grid.resolution = options.resolution;
+      build = terrain::build_terrain_map(std::move(input.clouds), map_options);
+    } catch (const terrain::MapBuildError& e) {
+      if (e.stage() == terrain::MapStage::kGrid)
+        throw CommandError("--resolution/--foot-radius: " + std::string(e.what()));
+      throw CommandError(e.what());
+    } catch (const perception::InputError& e) {
+      throw CommandError(e.what());
     }
-    std::cout.rdbuf(old);
-    TerrainInputOptions sub = options;
-    TerrainView mapped = load_terrain_view({tmp.string()}, sub);
-    mapped.kind = "clouds";
-    mapped.source.clear();
-    for (const auto& in : inputs) mapped.source += (mapped.source.empty() ? "" : ", ") + in;
-    view = std::move(mapped);
+    nlohmann::json info = terrain::terrain_json(build, input.sources);
+    view = map_view(std::move(build.map), terrain::octree_as_saved(*build.octree), std::move(info),
+                    options);
+    view.kind = "clouds";
+    for (const auto& in : inputs) view.source += (view.source.empty() ? "" : ", ") + in;
   }
   view.build_s = std::chrono::duration<double>(Clock::now() - t0).count();
+  return view;
+}
+
+TerrainView map_view(std::shared_ptr<const terrain::TerrainMap> map,
+                     std::shared_ptr<const octomap::OcTree> octree, nlohmann::json info,
+                     const TerrainInputOptions& options) {
+  TerrainView view;
+  view.kind = "map";
+  fill_from_map(view, map, safety_radii(options.radii, map->radii(), options.foot_radius));
+  view.octree = std::move(octree);
+  view.info = std::move(info);
   return view;
 }
 
