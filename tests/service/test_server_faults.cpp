@@ -68,7 +68,9 @@ class ServerFaults : public ::testing::Test {
     Client::connect(address_).call_ok({{"op", "map.update"}, {"scene", "pallet_10"}});
   }
   void TearDown() override {
-    if (server_) EXPECT_EQ(server_->stop(SIGTERM), 0) << server_->output;
+    if (server_) {
+      EXPECT_EQ(server_->stop(SIGTERM), 0) << server_->output;
+    }
   }
   std::unique_ptr<ServerProcess> server_;
   std::string address_;
