@@ -308,7 +308,11 @@ constexpr size_t kBinSample = 48;
 constexpr size_t kMinClusterPoints = 6;  // a bin's surface needs this many points for a figure
 constexpr size_t kMinNoiseBins = 10;     // and the grid this many such bins
 constexpr double kMaxGroundSlope = 1.0;  // steeper bin surfaces (walls) are not read as noise
-constexpr double kMaxGapRadius = 0.1;    // sampling gaps are never bridged beyond 10 cm
+// Nor are bins whose surface spreads more than this about its plane: no range sensor a legged robot
+// steps by is that noisy, but a wall seen within one column of cells is (a 1 m wall spreads by
+// about 0.3 m), and its plane fit cannot tell, having no horizontal extent across the wall.
+constexpr double kMaxNoise = 0.1;
+constexpr double kMaxGapRadius = 0.1;  // sampling gaps are never bridged beyond 10 cm
 
 struct BinPoint {
   float z, u, v;
@@ -411,7 +415,7 @@ BinFigures bin_noise(const std::vector<Entry>& entries, const std::vector<uint32
       const Eigen::Matrix3d cov = ldlt.solve(Eigen::Matrix3d::Identity());
       const double slope = std::hypot(coef(1), coef(2));
       const double slope_se = sigma * std::sqrt(std::max(0.0, cov(1, 1) + cov(2, 2)));
-      if (slope - 3.0 * slope_se > kMaxGroundSlope) {
+      if (slope - 3.0 * slope_se > kMaxGroundSlope || sigma > kMaxNoise) {
         ++f.rejected;
         continue;
       }
@@ -475,7 +479,8 @@ NoiseEstimate estimate_noise(const std::vector<Entry>& entries, const std::vecto
     note << "; " << f.rejected
          << " more hold steep or vertical surfaces (walls), not read as noise";
   if (median_count < kBinPoints)
-    note << "; the cloud is sparse (a median of " << median_count << " points per occupied "
+    note << "; the cloud is sparse (a median of " << median_count
+         << (median_count == 1 ? " point" : " points") << " per occupied "
          << metres(est.bin_size, 2) << " m bin)";
   note << ". The safety tests get no noise allowance and the surface is smoothed at the foot scale "
           "only.";

@@ -78,9 +78,9 @@ struct HeightGridOptions {
 // cells, or more when the cloud is too sparse: the median occupied bin must hold 12 points, up to
 // 0.32 m); per bin, the largest cluster of heights (one surface) gets a least-squares plane and
 // the MAD of its residuals; sigma is the median over the bins whose plane is ground-like (not
-// steeper than 1 by more than three standard errors of its slope): walls and other vertical
-// surfaces are not read as noise, nor are slopes, steps or see-through returns. Fewer than 10
-// bins with 6 points of one surface: not estimated, and `note` says why.
+// steeper than 1 by more than three standard errors of its slope, and spread by at most 0.1 m):
+// walls and other vertical surfaces are not read as noise, nor are slopes, steps or see-through
+// returns. Fewer than 10 bins with 6 points of one surface: not estimated, and `note` says why.
 struct NoiseEstimate {
   bool estimated = false;
   double sigma = 0.0;          // m (standard deviation of one point's height); 0 when not estimated
