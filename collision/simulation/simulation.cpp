@@ -625,6 +625,8 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
 
   rep.torque_max.assign(n_legs, Vector3d::Zero());
   rep.saturated_time.assign(n_legs, Vector3d::Zero());
+  rep.joint_limit_time.assign(n_legs, Vector3d::Zero());
+  rep.joint_limit_impulse.assign(n_legs, Vector3d::Zero());
   rep.shin_impulse.assign(n_legs, 0.0);
   rep.thigh_impulse.assign(n_legs, 0.0);
 
@@ -856,6 +858,15 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
       tau_applied[i] = tau;
     }
     if (saturated) saturated_s += o.dt;
+    // End stops: MuJoCo's joint-limit constraints (joint k of the model is leg k/3 - 1's, the
+    // free joint being 0); their torque times dt is the stop's impulse.
+    for (int k = 0; k < d->nefc; ++k) {
+      if (d->efc_type[k] != mjCNSTR_LIMIT_JOINT || d->efc_force[k] == 0) continue;
+      const int jnt = d->efc_id[k] - 1;
+      if (jnt < 0 || jnt >= 3 * n_legs) continue;
+      rep.joint_limit_time[jnt / 3][jnt % 3] += o.dt;
+      rep.joint_limit_impulse[jnt / 3][jnt % 3] += std::abs(d->efc_force[k]) * o.dt;
+    }
 
     // Pushes on the trunk.
     for (int k = 0; k < 6; ++k) d->xfrc_applied[6 * trunk_body + k] = 0;
@@ -900,6 +911,15 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
     rep.touchdown_error_max = std::max(rep.touchdown_error_max, s.touchdown_error);
   }
   for (double x : rep.shin_impulse) rep.shin_impulse_max = std::max(rep.shin_impulse_max, x);
+  std::string limit_joint;
+  static const char* kJoints[3] = {"HAA", "HFE", "KFE"};
+  for (int i = 0; i < n_legs; ++i)
+    for (int j = 0; j < 3; ++j)
+      if (rep.joint_limit_impulse[i][j] > rep.joint_limit_impulse_max) {
+        rep.joint_limit_impulse_max = rep.joint_limit_impulse[i][j];
+        rep.joint_limit_max_s = rep.joint_limit_time[i][j];
+        limit_joint = model.legs[i].name + " " + kJoints[j];
+      }
 
   // Verdict.
   const auto& th = o.thresholds;
@@ -932,6 +952,10 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
   warn(rep.shin_impulse_max >= th.shin_impulse_Ns, "shin contact impulse " +
                                                        str(rep.shin_impulse_max) + " N s (limit " +
                                                        str(th.shin_impulse_Ns) + ")");
+  warn(rep.joint_limit_impulse_max > th.joint_limit_impulse_Nms,
+       limit_joint + " pressed against its range's end stop: " + str(rep.joint_limit_impulse_max) +
+           " N m s over " + str(rep.joint_limit_max_s) + " s (limit " +
+           str(th.joint_limit_impulse_Nms) + " N m s)");
   rep.verdict = rep.fell ? "fail" : (rep.reasons.empty() ? "pass" : "warn");
   return rep;
 }

@@ -48,6 +48,8 @@ json summary_json(const collision::SimulationReport& r, const robot::RobotModel&
     legs.push_back({{"leg", model.legs[i].name},
                     {"torque_max_Nm", vec(r.torque_max[i])},
                     {"saturated_s", vec(r.saturated_time[i])},
+                    {"joint_limit_s", vec(r.joint_limit_time[i])},
+                    {"joint_limit_impulse_Nms", vec(r.joint_limit_impulse[i])},
                     {"shin_impulse_Ns", r.shin_impulse[i]},
                     {"thigh_impulse_Ns", r.thigh_impulse[i]}});
   json stances = json::array();
@@ -80,6 +82,8 @@ json summary_json(const collision::SimulationReport& r, const robot::RobotModel&
           {"tilt_error_max_rad", r.tilt_max},
           {"height_drop_max_m", r.height_drop_max},
           {"saturation_fraction", r.saturation_fraction},
+          {"joint_limit_impulse_max_Nms", r.joint_limit_impulse_max},
+          {"joint_limit_max_s", r.joint_limit_max_s},
           {"slip_max_m", r.slip_max},
           {"centre_drift_max_m", r.centre_drift_max},
           {"touchdown_error_max_m", r.touchdown_error_max},
@@ -97,7 +101,8 @@ json summary_json(const collision::SimulationReport& r, const robot::RobotModel&
             {"saturation_fraction", th.saturation_fraction},
             {"slip_m", th.slip_m},
             {"touchdown_error_m", th.touchdown_error_m},
-            {"shin_impulse_Ns", th.shin_impulse_Ns}}}};
+            {"shin_impulse_Ns", th.shin_impulse_Ns},
+            {"joint_limit_impulse_Nms", th.joint_limit_impulse_Nms}}}};
 }
 
 json samples_json(const collision::SimulationReport& r, const robot::RobotModel& model) {
@@ -135,7 +140,9 @@ void print_human(const collision::SimulationReport& r, const robot::RobotModel& 
   std::cout << "base      position error RMS " << r.position_rms << " m, max " << r.position_max
             << " m (t = " << r.position_max_t << " s); orientation error max "
             << r.tilt_max * 180 / M_PI << " deg\n";
-  std::cout << "torques   saturated " << 100 * r.saturation_fraction << " % of the time\n";
+  std::cout << "torques   saturated " << 100 * r.saturation_fraction
+            << " % of the time; largest end-stop impulse " << r.joint_limit_impulse_max
+            << " N m s\n";
   std::cout << "feet      slip max " << r.slip_max << " m (sphere centre drift max "
             << r.centre_drift_max << " m), touchdown error max " << r.touchdown_error_max << " m, "
             << r.missed_touchdowns << " missed touchdowns\n";
@@ -246,7 +253,7 @@ void add_simulate_command(CLI::App& app) {
       "Verdict: fail on a fall (trunk 15 cm below the plan, 30 deg orientation error, trunk or "
       "thigh on the terrain); pass when base error RMS <= 2 cm and max <= 6 cm, torques saturated "
       "<= 1 % of the time, slip <= 1 cm per stance, touchdown error <= 3 cm, shin contact impulse "
-      "< 5 N s; warn otherwise.\n"
+      "< 5 N s, end-stop impulse of every joint <= 1 N m s; warn otherwise.\n"
       "Exit codes: 0 pass or warn; 3 fail; 1 bad input; 2 usage.");
   cmd->add_option("plan", opts->plan, "plan.json written by 'terrastride plan'")
       ->required()

@@ -51,6 +51,9 @@ struct SimulationThresholds {
   double slip_m = 0.01;               // per stance, horizontal
   double touchdown_error_m = 0.03;    // contact point at touchdown vs the planned foothold
   double shin_impulse_Ns = 5.0;       // per leg over the whole plan
+  // Impulse of any joint's end stop (N m s): MuJoCo enforces the ranges, so a plan that needs a
+  // joint beyond its range shows here (not in the list; added for that reason).
+  double joint_limit_impulse_Nms = 1.0;
 };
 
 // Controller terms, all on by default; switches exist to measure what each term buys.
@@ -130,6 +133,10 @@ struct SimulationReport {
   double saturation_fraction = 0.0;             // of the time with any joint clamped
   std::vector<Eigen::Vector3d> torque_max;      // per leg, largest |tau| applied
   std::vector<Eigen::Vector3d> saturated_time;  // per leg and joint (s)
+  // Per leg and joint, time with the range's end stop pushing (s) and its impulse (N m s); the
+  // joint with the largest impulse: its impulse and time.
+  std::vector<Eigen::Vector3d> joint_limit_time, joint_limit_impulse;
+  double joint_limit_impulse_max = 0.0, joint_limit_max_s = 0.0;
   // Contacts.
   std::vector<StanceReport> stances;
   double slip_max = 0.0, touchdown_error_max = 0.0, centre_drift_max = 0.0;
