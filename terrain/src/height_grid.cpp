@@ -305,6 +305,7 @@ void close_narrow_pits(HeightGrid& grid, int K, double depth) {
 constexpr size_t kBinPoints = 12;
 constexpr double kMaxBinSize = 0.32;
 constexpr size_t kBinSample = 48;
+constexpr size_t kMaxNoiseBins = 3000;   // bins visited at most (evenly spread over the grid)
 constexpr size_t kMinClusterPoints = 6;  // a bin's surface needs this many points for a figure
 constexpr size_t kMinNoiseBins = 10;     // and the grid this many such bins
 constexpr double kMaxGroundSlope = 1.0;  // steeper bin surfaces (walls) are not read as noise
@@ -354,8 +355,13 @@ BinFigures bin_noise(const std::vector<Entry>& entries, const std::vector<uint32
   std::vector<double> res;
   const double bin = k * g.resolution;
   const int bx = (g.nx + k - 1) / k, by = (g.ny + k - 1) / k;
+  // A median over a few thousand bins is as good as over all: large grids use every m-th bin
+  // (the 1 M-point benchmark's 7500 bins took 29 ms, a third of the grid's time).
+  const size_t every = std::max<size_t>(1, static_cast<size_t>(bx) * by / kMaxNoiseBins);
+  size_t visited = 0;
   for (int a = 0; a < bx; ++a)
     for (int b = 0; b < by; ++b) {
+      if (visited++ % every) continue;
       const int i0 = a * k, j0 = b * k, i1 = std::min(g.nx, i0 + k), j1 = std::min(g.ny, j0 + k);
       size_t total = 0;
       for (int i = i0; i < i1; ++i)
@@ -412,10 +418,14 @@ BinFigures bin_noise(const std::vector<Entry>& entries, const std::vector<uint32
       // Steep beyond what the noise explains (three standard errors of the fitted slope, from the
       // inverse normal matrix): a wall or another vertical surface, not ground with noise. On a
       // 4 cm bin of the real noisy floor (sigma 2.6 cm) the slope's standard error is about 0.5.
-      const Eigen::Matrix3d cov = ldlt.solve(Eigen::Matrix3d::Identity());
       const double slope = std::hypot(coef(1), coef(2));
-      const double slope_se = sigma * std::sqrt(std::max(0.0, cov(1, 1) + cov(2, 2)));
-      if (slope - 3.0 * slope_se > kMaxGroundSlope || sigma > kMaxNoise) {
+      bool steep = false;
+      if (slope > kMaxGroundSlope) {
+        const Eigen::Matrix3d cov = ldlt.solve(Eigen::Matrix3d::Identity());
+        steep =
+            slope - 3.0 * sigma * std::sqrt(std::max(0.0, cov(1, 1) + cov(2, 2))) > kMaxGroundSlope;
+      }
+      if (steep || sigma > kMaxNoise) {
         ++f.rejected;
         continue;
       }

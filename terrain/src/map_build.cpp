@@ -336,16 +336,24 @@ json map_summary(const MapBuild& build, const json& terrain, const std::string& 
   json safe = json::array();
   for (const auto& r : terrain["safety"]["radii"])
     safe.push_back({{"radius", r["radius"]}, {"safe_fraction", r["safe_fraction"]}});
-  return {{"out", dir},
-          {"points_in", terrain["statistics"]["points_in"]},
-          {"points_kept", build.points_kept},
-          {"cells", g.geometry.size()},
-          {"grid", {g.geometry.nx, g.geometry.ny}},
-          {"resolution", g.geometry.resolution},
-          {"observed_cells", g.observed_cells},
-          {"noise_sigma", g.noise_sigma},
-          {"safe", safe},
-          {"timings", terrain["timings"]}};
+  json summary = {{"out", dir},
+                  {"points_in", terrain["statistics"]["points_in"]},
+                  {"points_kept", build.points_kept},
+                  {"cells", g.geometry.size()},
+                  {"grid", {g.geometry.nx, g.geometry.ny}},
+                  {"resolution", g.geometry.resolution},
+                  {"observed_cells", g.observed_cells},
+                  {"interpolated_cells", g.interpolated_cells},
+                  {"noise_sigma", g.noise_sigma},
+                  {"noise_estimated", g.noise.estimated},
+                  {"smoothing_length", g.smoothing_length},
+                  // safe[].safe_fraction is SafetyLayer::safe_fraction(): safe cells over observed
+                  // (measured or interpolated) cells.
+                  {"safe_fraction_of", "observed_cells + interpolated_cells"},
+                  {"safe", safe},
+                  {"timings", terrain["timings"]}};
+  if (!g.notes.empty()) summary["notes"] = g.notes;  // the noise note first when there is one
+  return summary;
 }
 
 std::shared_ptr<octomap::OcTree> octree_as_saved(const octomap::OcTree& tree) {
