@@ -31,14 +31,14 @@ struct TerrainView {
   double resolution = 0.02;
   int nx = 0;
   int ny = 0;
-  std::vector<float> height;       // NaN where nothing is known at all
-  std::vector<uint8_t> observed;   // 1 = measured (always 1 for a scene)
-  std::vector<double> radii;       // foot radii of the safety layers
+  std::vector<float> height;               // NaN where nothing is known at all
+  std::vector<uint8_t> observed;           // 1 = measured (always 1 for a scene)
+  std::vector<double> radii;               // foot radii of the safety layers
   std::vector<std::vector<float>> margin;  // per radius: signed safety margin (m), k-indexed
   // The terrain as the planner and the checks see it (heights and margins at any point); footholds
   // and profiles are queried here rather than on the coarser display grid.
   std::shared_ptr<const terrain::HeightField> field;
-  std::shared_ptr<const octomap::OcTree> octree;  // null when the terrain has none (scenes)
+  std::shared_ptr<const octomap::OcTree> octree;   // null when the terrain has none (scenes)
   nlohmann::json info = nlohmann::json::object();  // terrain.json or the scene's description
   double build_s = 0.0;                            // time spent making this view
 
@@ -63,8 +63,8 @@ struct PlanInput {
 
 struct ReportOptions {
   std::string title = "terrastride foothold-safety report";
-  std::vector<double> radii;      // safety layers; empty: the terrain's own or {0.02, 0.04, 0.06}
-  std::string robot = "hyq";      // for terrain-only reports (foot radius) and plans without one
+  std::vector<double> radii;  // safety layers; empty: the terrain's own or {0.02, 0.04, 0.06}
+  std::string robot = "hyq";  // for terrain-only reports (foot radius) and plans without one
   size_t max_display_cells = 160'000;  // larger grids are shown decimated (noted in the page)
 };
 

@@ -67,6 +67,26 @@ std::vector<double> safety_radii(const std::vector<double>& requested,
   return out;
 }
 
+void rasterize_field(TerrainView& view, const terrain::HeightField& field,
+                     const std::vector<double>& radii) {
+  const size_t cells = static_cast<size_t>(view.nx) * view.ny;
+  view.height.assign(cells, std::numeric_limits<float>::quiet_NaN());
+  view.observed.assign(cells, 0);
+  view.radii = radii;
+  view.margin.assign(radii.size(),
+                     std::vector<float>(cells, std::numeric_limits<float>::quiet_NaN()));
+  for (int i = 0; i < view.nx; ++i) {
+    for (int j = 0; j < view.ny; ++j) {
+      const Eigen::Vector2d c = view.center(i, j);
+      const size_t k = view.index(i, j);
+      view.height[k] = static_cast<float>(field.height(c.x(), c.y()));
+      view.observed[k] = field.observed(c.x(), c.y()) ? 1 : 0;
+      for (size_t r = 0; r < radii.size(); ++r)
+        view.margin[r][k] = static_cast<float>(field.safety_margin(c.x(), c.y(), radii[r]).margin);
+    }
+  }
+}
+
 TerrainView load_terrain_view(const std::vector<std::string>& inputs,
                               const TerrainInputOptions& options) {
   if (inputs.empty()) throw CommandError("--terrain: no terrain given");
