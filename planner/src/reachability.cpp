@@ -197,7 +197,7 @@ std::optional<RestingStance> end_stance(const SrbdProblem& problem) {
 namespace {
 
 // Where the base's orientation at a pose comes from, for messages: the terrain heights under the
-// nominal feet (with the base's yaw only), which the goal's pitch and roll follow (nlp.cpp).
+// nominal feet (with the base's yaw only), which the goal's pitch and roll follow (initialization/base_guess.cpp).
 std::string nominal_terrain_text(const robot::RobotModel& robot,
                                  const terrain::HeightField& terrain, const Eigen::Vector2d& xy,
                                  double yaw) {

@@ -17,7 +17,7 @@
 
 namespace terrastride::planner::testing {
 
-// Pieces per kind ("swing_acceleration" -> 24, ...).
+// Pieces per kind ("swing" -> 24, ...).
 inline std::map<std::string, int> count_kinds(const SrbdProblem& p) {
   std::map<std::string, int> c;
   for (const auto& piece : p.pieces()) ++c[piece->kind];

@@ -14,7 +14,7 @@
 #include "terrastride/planner/polytope_model.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
-#include "../../planner/src/feasibility_common.hpp"
+#include "../../planner/src/constraints/feasibility_common.hpp"
 #include "piece_derivatives.hpp"
 #include "test_robots.hpp"
 #include "test_terrains.hpp"
@@ -58,11 +58,11 @@ TEST(FeasibilityDerivatives, HyqPiecesMatchFiniteDifferences) {
   const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
   SrbdProblem p(r, terrain, tl, o);
   const auto kinds = count_kinds(p);
-  ASSERT_GT(kinds.count("foot_radius"), 0u);
+  ASSERT_GT(kinds.count("foot"), 0u);
   ASSERT_GT(kinds.count("shin"), 0u);
-  ASSERT_GT(kinds.count("force_polytope"), 0u);
+  ASSERT_GT(kinds.count("polytope"), 0u);
   for (unsigned seed : {1u, 2u, 3u})
-    EXPECT_GT(check_pieces(p, {"foot_radius", "shin", "force_polytope"}, seed, 0.02), 0);
+    EXPECT_GT(check_pieces(p, {"foot", "shin", "polytope"}, seed, 0.02), 0);
 }
 
 TEST(FeasibilityDerivatives, ShinKinematicPiecesMatchFiniteDifferences) {
@@ -89,7 +89,7 @@ TEST(FeasibilityValues, ShinKinematicKneeIsTheIkKnee) {
   FeasibilityOptions fo;
   fo.shin_clearance = 0.0;  // rows are plain heights above the flat ground
   fo.shin_softmin = 0.0;    // one row per point
-  build_shin_kinematic_set(p, fo);
+  build_shin_ik_set(p, fo);
   std::vector<double> x = p.initial_guess();
   std::mt19937 rng(3);
   std::normal_distribution<double> noise(0.0, 0.01);
@@ -134,8 +134,8 @@ TEST(FeasibilityValues, MergedShinKinematicRowIsTheSoftMinimum) {
   SrbdProblem points(r, terrain, tl, o), merged(r, terrain, tl, o);
   FeasibilityOptions fp, fm;
   fp.shin_softmin = 0.0;
-  build_shin_kinematic_set(points, fp);
-  build_shin_kinematic_set(merged, fm);
+  build_shin_ik_set(points, fp);
+  build_shin_ik_set(merged, fm);
   ASSERT_GT(fm.shin_softmin, 0.0);
   std::vector<double> x = points.initial_guess();
   std::mt19937 rng(7);
@@ -183,9 +183,9 @@ TEST(FeasibilityDerivatives, PiecesHaveNonzeroJacobians) {
     piece->eval_jacobian(xl.data(), g.data(), J.data());
     for (double v : J) largest[piece->kind] = std::max(largest[piece->kind], std::abs(v));
   }
-  EXPECT_GT(largest["foot_radius"], 0.1);
+  EXPECT_GT(largest["foot"], 0.1);
   EXPECT_GT(largest["shin"], 0.1);
-  EXPECT_GT(largest["force_polytope"], 1e-3);
+  EXPECT_GT(largest["polytope"], 1e-3);
 }
 
 TEST(FeasibilityDerivatives, MonopedPolytopePiecesMatchFiniteDifferences) {
@@ -197,8 +197,8 @@ TEST(FeasibilityDerivatives, MonopedPolytopePiecesMatchFiniteDifferences) {
   o.constraints = {"all", "shin"};
   const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("hop")), feet_of(r), 1, 0.0);
   SrbdProblem p(r, terrain, tl, o);
-  EXPECT_GT(check_pieces(p, {"foot_radius", "shin", "force_polytope"}, 5u, 0.01), 0);
-  EXPECT_GT(count_kinds(p)["force_polytope"], 0);
+  EXPECT_GT(check_pieces(p, {"foot", "shin", "polytope"}, 5u, 0.01), 0);
+  EXPECT_GT(count_kinds(p)["polytope"], 0);
 }
 
 // Values: each piece against the paper's formula evaluated here from the problem's own
@@ -274,9 +274,9 @@ TEST(FeasibilityValues, PiecesEvaluateThePapersFormulas) {
       poly_max = std::max(poly_max, polys.legs[st.foot].constraint(pb, fb).maxCoeff() / mg);
     }
   }
-  EXPECT_NEAR(piece_min["foot_radius"], foot_min, 1e-12);
+  EXPECT_NEAR(piece_min["foot"], foot_min, 1e-12);
   EXPECT_NEAR(piece_min["shin"], shin_min, 1e-7);
-  EXPECT_NEAR(piece_max["force_polytope"], poly_max, 1e-7);
+  EXPECT_NEAR(piece_max["polytope"], poly_max, 1e-7);
   EXPECT_LT(foot_min, 0.0);  // the test terrain has unsafe spots under the guess: not vacuous
 }
 
@@ -298,19 +298,19 @@ TEST_P(FeasibilityVariants, PiecesMatchFiniteDifferences) {
   fo.shin_softmin = t_soft;
   fo.polytope_softmax = t_soft;
   build_shin_set(p, fo);
-  build_shin_kinematic_set(p, fo);
+  build_shin_ik_set(p, fo);
   build_polytope_set(p, fo);
   for (const auto& piece : p.pieces()) {
     if (piece->kind == "shin") {
       EXPECT_EQ(piece->rows(), t_soft > 0 ? 1 : fo.shin_points);
     } else if (piece->kind == "shin_ik") {
       EXPECT_EQ(piece->rows(), t_soft > 0 ? 1 : 2 * fo.shin_points - 1);
-    } else if (piece->kind == "force_polytope") {
+    } else if (piece->kind == "polytope") {
       EXPECT_EQ(piece->rows(), t_soft > 0 ? 1 : 6);
     }
   }
   for (unsigned seed : {1u, 2u, 3u})
-    EXPECT_GT(check_pieces(p, {"shin", "shin_ik", "force_polytope"}, seed, 0.02), 0);
+    EXPECT_GT(check_pieces(p, {"shin", "shin_ik", "polytope"}, seed, 0.02), 0);
 }
 
 TEST(FeasibilityValues, SoftMinIsAConservativeBound) {
@@ -365,7 +365,7 @@ TEST(FeasibilityValues, MergedRowsBoundThePointRows) {
     if (piece->kind == "shin") pp.push_back(piece.get());
   for (const auto& piece : merged.pieces()) {
     if (piece->kind == "shin") mp.push_back(piece.get());
-    if (piece->kind == "force_polytope") poly.push_back(piece.get());
+    if (piece->kind == "polytope") poly.push_back(piece.get());
   }
   // Per stance segment: shin_yaw_points pieces (one more in the stance's last segment).
   const Layout& L = points.layout();
@@ -451,7 +451,7 @@ TEST(FeasibilityValues, DefaultsAddPointsInsideSegments) {
   for (const auto& st : knots.layout().stances) stance_segments += st.last_seg - st.first_seg + 1;
   auto kinds = count_kinds(knots), kinds2 = count_kinds(dflt);
   EXPECT_EQ(kinds2["shin"] - kinds["shin"], stance_segments);
-  EXPECT_EQ(kinds2["force_polytope"] - kinds["force_polytope"], stance_segments);
+  EXPECT_EQ(kinds2["polytope"] - kinds["polytope"], stance_segments);
 }
 
 TEST(FeasibilityRegistry, AllExpandsAndNamesAreListed) {

@@ -40,11 +40,11 @@ TEST(SwingSetDerivatives, PiecesMatchFiniteDifferences) {
     o.optimize_timing = timing;
     o.constraints = {"swing"};
     SrbdProblem p(r, terrain, crawl(r), o);
-    ASSERT_GT(count_kinds(p)["swing_acceleration"], 0);
+    ASSERT_GT(count_kinds(p)["swing"], 0);
     for (unsigned seed : {1u, 2u})
       EXPECT_GT(testing::check_piece_derivatives(
                     p, seed, 0.02,
-                    [](const Piece& piece) { return piece.kind == "swing_acceleration"; }),
+                    [](const Piece& piece) { return piece.kind == "swing"; }),
                 0)
           << "timing " << timing;
   }
@@ -114,10 +114,10 @@ TEST(SwingSetRegistry, PolytopeImpliesSwing) {
   all.constraints = {"all"};
   const SrbdProblem pp(r, flat, crawl(r), poly), pb(r, flat, crawl(r), both),
       p0(r, flat, crawl(r), base), pa(r, flat, crawl(r), all);
-  EXPECT_GT(count_kinds(pp)["swing_acceleration"], 0);
+  EXPECT_GT(count_kinds(pp)["swing"], 0);
   EXPECT_EQ(count_kinds(pp), count_kinds(pb));  // added once
-  EXPECT_EQ(count_kinds(p0).count("swing_acceleration"), 0u);
-  EXPECT_EQ(count_kinds(pa)["swing_acceleration"], count_kinds(pp)["swing_acceleration"]);
+  EXPECT_EQ(count_kinds(p0).count("swing"), 0u);
+  EXPECT_EQ(count_kinds(pa)["swing"], count_kinds(pp)["swing"]);
   const auto names = constraint_set_names();
   EXPECT_NE(std::find(names.begin(), names.end(), "swing"), names.end());
 }
@@ -130,10 +130,10 @@ TEST(JointLimitSetDerivatives, PiecesMatchFiniteDifferences) {
   o.goal = Eigen::Vector3d(0.4, 0.05, 0.3);  // a turn: yaw enters the base-frame foot position
   o.constraints = {"joints"};
   SrbdProblem p(r, terrain, crawl(r), o);
-  ASSERT_GT(count_kinds(p)["joint_limits"], 0);
+  ASSERT_GT(count_kinds(p)["joints"], 0);
   for (unsigned seed : {1u, 2u, 3u})
     EXPECT_GT(testing::check_piece_derivatives(
-                  p, seed, 0.02, [](const Piece& piece) { return piece.kind == "joint_limits"; }),
+                  p, seed, 0.02, [](const Piece& piece) { return piece.kind == "joints"; }),
               0);
 }
 
@@ -149,7 +149,7 @@ TEST(JointLimitSetValues, RowsAreTheIkAnglesWithinTheRangeLessTheMargin) {
   const std::size_t before = p.pieces().size();
   FeasibilityOptions fo;
   fo.joint_margin = 0.05;
-  build_joint_limit_set(p, fo);
+  build_joints_set(p, fo);
   const Layout& L = p.layout();
   const int nf = static_cast<int>(r.legs.size());
   int swing_segments = 0;
@@ -194,7 +194,7 @@ TEST(JointLimitSetValues, RowsAreTheIkAnglesWithinTheRangeLessTheMargin) {
     for (int s = 0; s < L.num_segments; ++s) {
       if (L.contact[f][s]) continue;
       const Piece& piece = *p.pieces()[piece_index++];
-      ASSERT_EQ(piece.kind, "joint_limits");
+      ASSERT_EQ(piece.kind, "joints");
       const double t_mid = 0.5 * (L.nominal_knot_time[s] + L.nominal_knot_time[s + 1]);
       const auto st = p.evaluate(x, t_mid);
       const Eigen::Vector3d e = st.euler;
@@ -213,7 +213,7 @@ TEST(JointLimitSetValues, RowsAreTheIkAnglesWithinTheRangeLessTheMargin) {
   EXPECT_GT(swing_segments, 0);
   FeasibilityOptions bad;
   bad.joint_margin = 2.0;  // more than half of every range
-  EXPECT_THROW(build_joint_limit_set(p, bad), std::invalid_argument);
+  EXPECT_THROW(build_joints_set(p, bad), std::invalid_argument);
 }
 
 // NAME=VALUE settings reach the sets: a tighter swing bound scales the rows, a joint margin
@@ -231,7 +231,7 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
   pb.eval_constraints(pb.initial_guess().data(), gb.data());
   int row = 0, swing_rows = 0;
   for (const auto& piece : pa.pieces()) {
-    if (piece->kind == "swing_acceleration") {
+    if (piece->kind == "swing") {
       for (int k = 0; k < piece->rows(); ++k, ++swing_rows)
         EXPECT_NEAR(gb[row + k], 2.0 * ga[row + k], 1e-12);  // a / 50 against a / 100
     }
@@ -242,7 +242,7 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
   EXPECT_EQ(fo.swing_acceleration, 50.0);
   EXPECT_EQ(fo.joint_margin, 0.1);
   for (std::size_t i = 0; i < pb.pieces().size(); ++i)
-    if (pb.pieces()[i]->kind == "joint_limits") {
+    if (pb.pieces()[i]->kind == "joints") {
       EXPECT_DOUBLE_EQ(pb.pieces()[i]->lb[1], r.legs[0].q_min[1] + 0.1);
       break;
     }

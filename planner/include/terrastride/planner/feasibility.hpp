@@ -9,15 +9,14 @@
 //  - "swing"    (beyond the paper) each component of a swing foot's acceleration within
 //               +-swing_acceleration: the torque a swing leg needs to accelerate itself.
 // "polytope" implies "swing": the joint-torque limits hold for stance legs (polytopes) and swing
-// legs (acceleration) alike, as the post-hoc torque check judges them (tau = M q'' + c + g - J^T f).
-// By default the shin and polytope rows of one stance segment are folded into one row each, a
+// legs (acceleration) alike, as the post-hoc torque check judges them (tau = M q'' + c + g - J^T
+// f). By default the shin and polytope rows of one stance segment are folded into one row each, a
 // conservative smooth minimum/maximum (fewer rows: a cheaper KKT factorisation; see the options).
 // "all" means foot, shin_ik and polytope (so swing too): the paper's fixed-angle shin model lets
 // HyQ's real shin capsule into a pallet edge (pallet_10: 63 colliding samples, -57 mm), the IK
 // shin does not (0 on both pallets) at the same cost; "shin" stays for the paper's comparison.
-// Each set is built by one function (its own
-// source file); nlp.cpp gets them from builtin_constraint_sets() (constraint_sets.cpp), so they
-// are available whenever the planner library is linked (no static initialisers).
+// Each set is built by one function in its own file, planner/src/constraints/SET.cpp, whose pieces
+// are of kind SET, and is registered under SET (constraints.hpp).
 #pragma once
 
 #include <map>
@@ -61,7 +60,7 @@ struct FeasibilityOptions {
   // 0: one row per point. Measured (issue #5, pallet_15 "all" on a loaded 2-core machine): rows
   // 21,744 -> 9,968 with polytope_softmax, solve 28 s user / 57 iterations -> 3.6 s / 22.
   double shin_softmin = 0.002;
-  // polytope: points per stance segment besides its two force knots (see polytope_set.cpp).
+  // polytope: points per stance segment besides its two force knots (see constraints/polytope.cpp).
   int polytope_inner_points = 1;
   // polytope: > 0 folds each stance segment's facet rows (6 at each force knot and inner point)
   // into ONE row, their soft maximum at this scale (body weights; >= the true maximum, so the row
@@ -80,13 +79,13 @@ struct FeasibilityOptions {
 void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 // "shin_ik" (in "all"; beyond the paper): the shin inequality on the leg's real shin, foot to
-// the knee from inverse kinematics at the base pose (see shin_set.cpp).
-void build_shin_kinematic_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+// the knee from inverse kinematics at the base pose (see constraints/shin_ik.cpp).
+void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 // "joints" (in "all"; beyond the paper): joint angles from IK within the joint ranges at every
-// knot of the base spline (see joint_limit_set.cpp).
-void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+// knot of the base spline (see constraints/joints.cpp).
+void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 
 // FeasibilityOptions from the defaults and NAME=VALUE settings (PlannerOptions::
 // feasibility_settings, `terrastride plan --feasibility`); names are the fields' names. Throws
@@ -94,15 +93,5 @@ void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& optio
 FeasibilityOptions feasibility_options(const std::vector<std::pair<std::string, double>>& settings);
 // The names feasibility_options() accepts.
 std::vector<std::string> feasibility_option_names();
-
-// {"foot", "shin", "shin_ik", "polytope", "swing", "joints"}, each built with
-// feasibility_options(problem.options().feasibility_settings) (the registry's initial content;
-// constraint_sets.cpp).
-std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets();
-
-// What "all" expands to, in order.
-inline const char* const kAllFeasibilitySets[] = {"foot", "shin_ik", "polytope", "joints"};
-// {set, the set it implies}: the second is added whenever the first is asked for.
-inline const std::pair<const char*, const char*> kImpliedFeasibilitySets[] = {{"polytope", "swing"}};
 
 }  // namespace terrastride::planner

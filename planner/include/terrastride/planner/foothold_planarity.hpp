@@ -1,5 +1,5 @@
 // How far the terrain around a foothold departs from its tangent plane: the measure the
-// `foothold_planarity` constraint bounds (nlp.cpp), the initial guess uses to move footholds off
+// `foothold_planarity` constraint bounds (constraints/foothold_planarity.cpp), the initial guess uses to move footholds off
 // step edges, and the end-stance reachability check (reachability.hpp) uses to find ground a foot
 // can stand on. One definition, so that the three agree.
 #pragma once

@@ -13,7 +13,7 @@
 // makes it hold along the whole stance. The remaining nonlinear constraints (angular dynamics,
 // range of motion, swing clearance) are imposed at several points per segment (angular dynamics
 // within a small band between the segment ends, see angular_band), and swing clearance
-// conservatively (terrain probed around the foot, see SwingClearance in nlp.cpp).
+// conservatively (terrain probed around the foot, see constraints/swing_clearance.cpp).
 // With optimised timing the interval durations become variables, every segment scaling with its
 // interval, so the alignment above is kept.
 #pragma once
@@ -27,6 +27,7 @@
 #include <utility>
 #include <vector>
 
+#include "terrastride/planner/constraints.hpp"
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/layout.hpp"
 #include "terrastride/planner/options.hpp"
@@ -52,14 +53,6 @@ class Piece {
   virtual void eval(const double* x_local, double* g) const = 0;
   virtual void eval_jacobian(const double* x_local, double* g, double* jac) const = 0;
 };
-
-class SrbdProblem;
-
-// Constraint sets by name (`--constraints`). "baseline" is this formulation; other sets (foot
-// radius, shin, force polytopes) register themselves and append pieces to the problem.
-using ConstraintSetBuilder = std::function<void(SrbdProblem&)>;
-void register_constraint_set(const std::string& name, ConstraintSetBuilder builder);
-std::vector<std::string> constraint_set_names();
 
 class SrbdProblem {
  public:
@@ -119,7 +112,6 @@ class SrbdProblem {
   void warm_start_from(const struct Trajectory& previous, double shift);
 
  private:
-  void build_baseline();
 
   const robot::RobotModel& robot_;
   const terrain::HeightField& terrain_;
@@ -130,8 +122,6 @@ class SrbdProblem {
   std::vector<std::unique_ptr<Piece>> pieces_;
   std::vector<int> row_offset_, nz_offset_;
   int num_rows_ = 0, nnz_ = 0;
-
-  friend void build_baseline_set(SrbdProblem&);
 };
 
 }  // namespace terrastride::planner

@@ -77,7 +77,7 @@ class LocalVars {
 };
 
 // A piece of kind `kind` over the variables in `lv`, rows bounded by [lb, ub], from a generic
-// callable f(const T* x_local, T* g). Constraint sets outside nlp.cpp build their pieces with it.
+// callable f(const T* x_local, T* g). Every constraint family (constraints/) builds its pieces with it.
 template <class F>
 std::unique_ptr<Piece> make_piece(std::string kind, const LocalVars& lv, std::vector<double> lb,
                                   std::vector<double> ub, F f) {

@@ -4,7 +4,7 @@
 // the base at the goal: x, y and yaw as asked, pitch and roll as the problem fixes them (from the
 // terrain under the nominal feet), height free. That foothold must lie in the leg's
 // range-of-motion box around the nominal foot (base frame), on the terrain, where the terrain is
-// planar within `foothold_planarity` over `clearance_probe` (the constraints of nlp.cpp). The
+// planar within `foothold_planarity` over `clearance_probe` (the baseline constraints, constraints/). The
 // check samples each foot's box on a grid and looks for such points; a goal none of whose
 // footholds exists, or whose feet need incompatible base heights, is rejected in milliseconds
 // instead of after seconds of iterations that end "infeasible" (gap scene, 1 m goal: 73).

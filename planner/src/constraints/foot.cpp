@@ -6,6 +6,7 @@
 // initial stances are given, not optimised, and get no row.
 #include "feasibility_common.hpp"
 #include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/nlp.hpp"
 
 namespace terrastride::planner {
 
@@ -17,10 +18,10 @@ void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options) {
     if (st.fixed) continue;
     LocalVars lv;
     const int ix = lv.add(st.pos_var), iy = lv.add(st.pos_var + 1);  // z does not enter
-    problem.add_piece(make_piece("foot_radius", lv, {options.foot_margin}, {kInf},
-                                 [=](const auto* x, auto* g) {
-                                   g[0] = feasibility::safety_margin(*field, x[ix], x[iy], r);
-                                 }));
+    problem.add_piece(
+        make_piece("foot", lv, {options.foot_margin}, {kInf}, [=](const auto* x, auto* g) {
+          g[0] = feasibility::safety_margin(*field, x[ix], x[iy], r);
+        }));
   }
 }
 

@@ -8,8 +8,9 @@
 // units of the bound (a / a_max in [-1, 1]).
 #include <stdexcept>
 
+#include "spline_variables.hpp"
 #include "terrastride/planner/feasibility.hpp"
-#include "terrastride/planner/piece_math.hpp"
+#include "terrastride/planner/nlp.hpp"
 
 namespace terrastride::planner {
 
@@ -22,12 +23,10 @@ void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options) {
     for (int s = sw.first_seg; s <= sw.last_seg; ++s) {
       LocalVars lv;
       // sigma strictly inside the segment: all four Hermite knots and the duration enter.
-      const HermiteLocal foot = add_hermite(lv, L.foot_pos[sw.foot][s], L.foot_vel[sw.foot][s],
-                                            L.foot_pos[sw.foot][s + 1],
-                                            L.foot_vel[sw.foot][s + 1], 0.5, false);
-      const int dur = lv.add(L.interval_var[L.seg_interval[s]]);
+      const HermiteLocal foot = add_foot_position(lv, L, sw.foot, s, 0.5, false);
+      const int dur = add_segment_duration(lv, L, s);
       const double frac = L.seg_fraction[s];
-      problem.add_piece(make_piece("swing_acceleration", lv, std::vector<double>(6, -1.0),
+      problem.add_piece(make_piece("swing", lv, std::vector<double>(6, -1.0),
                                    std::vector<double>(6, 1.0), [=](const auto* x, auto* g) {
                                      using T = std::decay_t<decltype(*g)>;
                                      const T h = x[dur] * frac;

@@ -1,5 +1,5 @@
-// Shared helpers of the feasibility constraint sets (foot_radius_set.cpp, shin_set.cpp,
-// polytope_set.cpp, joint_limit_set.cpp): AD overloads of the terrain/model queries they use.
+// Shared helpers of the feasibility constraint sets (foot.cpp, shin.cpp, shin_ik.cpp, polytope.cpp,
+// joints.cpp): AD overloads of the terrain/model queries they use.
 #pragma once
 
 #include <algorithm>
@@ -9,6 +9,8 @@
 #include "terrastride/robot/robot_model.hpp"
 
 namespace terrastride::planner::feasibility {
+
+constexpr int kMaxShinValues = 64;  // values one shin piece may fold into its soft minimum
 
 inline void accumulate(AdVector* d, double a, const AdVector& da) {
   if (!da.size() || a == 0.0) return;
@@ -27,8 +29,8 @@ inline Ad safety_margin(const terrain::HeightField& f, const Ad& x, const Ad& y,
   return Ad(s.margin, chain2(s.gradient.x(), x.derivatives(), s.gradient.y(), y.derivatives()));
 }
 
-// Joint angles (HAA, HFE, KFE) of `leg` for the foot at pb in the base frame (DESIGN.md, Robot: IK),
-// for any scalar type. A foot beyond reach (the range-of-motion box allows a little) gets the
+// Joint angles (HAA, HFE, KFE) of `leg` for the foot at pb in the base frame (DESIGN.md, Robot:
+// IK), for any scalar type. A foot beyond reach (the range-of-motion box allows a little) gets the
 // stretched knee's angles.
 template <class T>
 Vec3<T> leg_joint_angles(const robot::LegModel& leg, const Vec3<T>& pb) {

@@ -26,7 +26,9 @@
 #include <vector>
 
 #include "feasibility_common.hpp"
+#include "spline_variables.hpp"
 #include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/polytope_model.hpp"
 
 namespace terrastride::planner {
@@ -80,32 +82,27 @@ void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options)
   // the segment's duration and both force knots.
   auto add = [&](int f, int s, double sigma) {
     LocalVars lv;
-    const HermiteLocal rp = add_hermite(lv, L.base[s], L.base[s] + 3, L.base[s + 1],
-                                        L.base[s + 1] + 3, sigma, true);
-    const HermiteLocal ep = add_hermite(lv, L.base[s] + 6, L.base[s] + 9, L.base[s + 1] + 6,
-                                        L.base[s + 1] + 9, sigma, true);
+    const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
+    const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
     const auto pf = lv.add3(L.foot_pos[f][s]);
     const auto f0 = sigma < 1.0 ? lv.add3(L.force[f][s][0]) : std::array<int, 3>{-1, -1, -1};
     const auto f1 = sigma > 0.0 ? lv.add3(L.force[f][s][1]) : std::array<int, 3>{-1, -1, -1};
-    const int dur = rp.needs_duration || ep.needs_duration
-                        ? lv.add(L.interval_var[L.seg_interval[s]])
-                        : -1;
+    const int dur = rp.needs_duration || ep.needs_duration ? add_segment_duration(lv, L, s) : -1;
     const double frac = L.seg_fraction[s];
     const LegPolytopeModel* leg = &model->legs[f];
-    problem.add_piece(make_piece(
-        "force_polytope", lv, lo, hi, [=, keep = model](const auto* x, auto* g) {
-          using T = std::decay_t<decltype(*g)>;
-          (void)keep;
-          const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);
-          Vec3<T> r, e;
-          hermite<T>(sigma, h, x, rp, &r, nullptr, nullptr);
-          hermite<T>(sigma, h, x, ep, &e, nullptr, nullptr);
-          const Eigen::Matrix<T, 3, 3> Rt = rotation_zyx<T>(e).transpose();
-          const Vec3<T> force = (1.0 - sigma) * gather3(x, f0) + sigma * gather3(x, f1);
-          const Vec3<T> pb = Rt * (gather3(x, pf) - r);
-          const Vec3<T> fb = Rt * force;
-          feasibility::polytope_rows(*leg, pb, fb, scale, g);
-        }));
+    problem.add_piece(make_piece("polytope", lv, lo, hi, [=, keep = model](const auto* x, auto* g) {
+      using T = std::decay_t<decltype(*g)>;
+      (void)keep;
+      const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);
+      Vec3<T> r, e;
+      hermite<T>(sigma, h, x, rp, &r, nullptr, nullptr);
+      hermite<T>(sigma, h, x, ep, &e, nullptr, nullptr);
+      const Eigen::Matrix<T, 3, 3> Rt = rotation_zyx<T>(e).transpose();
+      const Vec3<T> force = (1.0 - sigma) * gather3(x, f0) + sigma * gather3(x, f1);
+      const Vec3<T> pb = Rt * (gather3(x, pf) - r);
+      const Vec3<T> fb = Rt * force;
+      feasibility::polytope_rows(*leg, pb, fb, scale, g);
+    }));
   };
 
   // Merged (polytope_softmax > 0): one piece and ONE row per stance segment, the soft maximum of
@@ -120,19 +117,17 @@ void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options)
     if (n_values > kMaxPolytopeValues)
       throw std::invalid_argument("polytope: too many points per segment");
     LocalVars lv;
-    const HermiteLocal rp = add_hermite(lv, L.base[s], L.base[s] + 3, L.base[s + 1],
-                                        L.base[s + 1] + 3, 0.5, false);
-    const HermiteLocal ep = add_hermite(lv, L.base[s] + 6, L.base[s] + 9, L.base[s + 1] + 6,
-                                        L.base[s + 1] + 9, 0.5, false);
+    const HermiteLocal rp = add_base_position(lv, L, s, 0.5, false);
+    const HermiteLocal ep = add_base_euler(lv, L, s, 0.5, false);
     const auto pf = lv.add3(L.foot_pos[f][s]);
     const auto f0 = lv.add3(L.force[f][s][0]);
     const auto f1 = lv.add3(L.force[f][s][1]);
-    const int dur = lv.add(L.interval_var[L.seg_interval[s]]);
+    const int dur = add_segment_duration(lv, L, s);
     const double frac = L.seg_fraction[s];
     const double t_soft = options.polytope_softmax;
     const LegPolytopeModel* leg = &model->legs[f];
-    problem.add_piece(make_piece(
-        "force_polytope", lv, {-kInf}, {0.0}, [=, keep = model](const auto* x, auto* g) {
+    problem.add_piece(
+        make_piece("polytope", lv, {-kInf}, {0.0}, [=, keep = model](const auto* x, auto* g) {
           using T = std::decay_t<decltype(*g)>;
           (void)keep;
           const T h = x[dur] * frac;

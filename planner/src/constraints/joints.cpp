@@ -8,13 +8,16 @@
 // (stance); swing segments get a row at their middle too. The post-hoc check measures the result
 // densely.
 // Each knot row depends on the knot's base position and orientation and the foot position only.
-// In "all" since the balanced initial guess (nlp.cpp): pallet_15 "all" 10 -> 13 iterations, the
-// demo 23 -> 18, and no plan sample outside a joint range (44-67 before on the pallets).
+// In "all" since the balanced initial guess (initialization/force_guess.cpp): pallet_15 "all" 10 ->
+// 13 iterations, the demo 23 -> 18, and no plan sample outside a joint range (44-67 before on the
+// pallets).
 #include <algorithm>
 #include <cmath>
 
 #include "feasibility_common.hpp"
+#include "spline_variables.hpp"
 #include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/nlp.hpp"
 
 namespace terrastride::planner {
 
@@ -32,7 +35,7 @@ void joint_angle_rows(const robot::LegModel& leg, const Vec3<T>& base, const Vec
 
 }  // namespace
 
-void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& options) {
+void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   const Layout& L = problem.layout();
   const int S = L.num_segments;
   const double margin = options.joint_margin;
@@ -57,7 +60,7 @@ void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& optio
       const auto p = lv.add3(L.foot_pos[f][k]);
       const auto r = lv.add3(L.base[k]);
       const auto e = lv.add3(L.base[k] + 6);
-      problem.add_piece(make_piece("joint_limits", lv, lo[f], hi[f], [=](const auto* x, auto* g) {
+      problem.add_piece(make_piece("joints", lv, lo[f], hi[f], [=](const auto* x, auto* g) {
         joint_angle_rows(leg, gather3(x, r), gather3(x, e), gather3(x, p), g);
       }));
     }
@@ -71,15 +74,12 @@ void build_joint_limit_set(SrbdProblem& problem, const FeasibilityOptions& optio
       if (L.contact[f][s]) continue;
       constexpr double sigma = 0.5;
       LocalVars lv;
-      const HermiteLocal rp = add_hermite(lv, L.base[s], L.base[s] + 3, L.base[s + 1],
-                                          L.base[s + 1] + 3, sigma, true);
-      const HermiteLocal ep = add_hermite(lv, L.base[s] + 6, L.base[s] + 9, L.base[s + 1] + 6,
-                                          L.base[s + 1] + 9, sigma, true);
-      const HermiteLocal fp = add_hermite(lv, L.foot_pos[f][s], L.foot_vel[f][s],
-                                          L.foot_pos[f][s + 1], L.foot_vel[f][s + 1], sigma, true);
-      const int dur = lv.add(L.interval_var[L.seg_interval[s]]);
+      const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
+      const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
+      const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, true);
+      const int dur = add_segment_duration(lv, L, s);
       const double frac = L.seg_fraction[s];
-      problem.add_piece(make_piece("joint_limits", lv, lo[f], hi[f], [=](const auto* x, auto* g) {
+      problem.add_piece(make_piece("joints", lv, lo[f], hi[f], [=](const auto* x, auto* g) {
         using T = std::decay_t<decltype(*g)>;
         const T h = x[dur] * frac;
         Vec3<T> base, euler, foot;

@@ -1,0 +1,47 @@
+// "range_of_motion" (baseline; TOWR's kinematic model): each foot within the box +-range_of_motion
+// around its nominal position, in the base frame, at `rom_points` points of each segment (twice as
+// many for a swinging foot, which moves fast). Rows in m.
+#include <algorithm>
+#include <vector>
+
+#include "spline_variables.hpp"
+#include "terrastride/planner/constraints.hpp"
+#include "terrastride/planner/nlp.hpp"
+
+namespace terrastride::planner {
+
+void add_range_of_motion(SrbdProblem& problem, int s) {
+  const Layout& L = problem.layout();
+  const robot::RobotModel& robot = problem.robot();
+  const ProblemOptions& options = problem.options();
+  const int S = L.num_segments;
+  const int nf = static_cast<int>(robot.legs.size());
+  const double frac = L.seg_fraction[s];
+  for (int f = 0; f < nf; ++f) {
+    const int nr = std::max(1, options.rom_points) * (L.contact[f][s] ? 1 : 2);
+    // The segment's end only in the last segment: the next segment's start covers it.
+    for (const double sigma : L.segment_points(s, nr, s == S - 1)) {
+      LocalVars lv;
+      const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
+      const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
+      const HermiteLocal fpl = add_foot_position(lv, L, f, s, sigma, true);
+      const int dur = rp.needs_duration || ep.needs_duration || fpl.needs_duration
+                          ? add_segment_duration(lv, L, s)
+                          : -1;
+      const Eigen::Vector3d nom = robot.legs[f].nominal_foot, box = robot.legs[f].range_of_motion;
+      std::vector<double> lo{-box.x(), -box.y(), -box.z()}, hi{box.x(), box.y(), box.z()};
+      problem.add_piece(make_piece("range_of_motion", lv, lo, hi, [=](const auto* x, auto* g) {
+        using T = std::decay_t<decltype(*g)>;
+        const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);
+        Vec3<T> r, e, p;
+        hermite<T>(sigma, h, x, rp, &r, nullptr, nullptr);
+        hermite<T>(sigma, h, x, ep, &e, nullptr, nullptr);
+        hermite<T>(sigma, h, x, fpl, &p, nullptr, nullptr);
+        const Vec3<T> pb_ = rotation_zyx<T>(e).transpose() * (p - r);
+        for (int i = 0; i < 3; ++i) g[i] = pb_[i] - nom[i];
+      }));
+    }
+  }
+}
+
+}  // namespace terrastride::planner
