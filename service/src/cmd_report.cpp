@@ -10,11 +10,9 @@
 #include <nlohmann/json.hpp>
 
 #include "report/report.hpp"
+#include "report/report_file.hpp"
 #include "report/terrain_input.hpp"
-#include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
-#include "terrastride/planner/plan_io.hpp"
-#include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/cli.hpp"
 
 namespace terrastride::service {
@@ -43,14 +41,6 @@ std::vector<double> parse_radii(const std::string& text) {
   const Eigen::VectorXd v = parse_numbers(text, n, "--foot-radius");
   for (int i = 0; i < n; ++i) radii.push_back(v[i]);
   return radii;
-}
-
-double robot_foot_radius(const std::string& name) {
-  try {
-    return robot::load_robot(robot::resolve_robot_path(name)).foot_radius;
-  } catch (const std::exception& e) {
-    throw CommandError("--robot " + name + ": " + e.what());
-  }
 }
 
 bool is_scan_file(const fs::path& p) {
@@ -134,60 +124,132 @@ void print_summary(const json& s, bool as_json) {
             << "\ndata:   " << s["json"].get<std::string>() << "\n";
 }
 
-}  // namespace
-
-namespace report {
-
-// Reads the plans, builds the terrain view (scenes are voxelised over
-// the plans' extent for the leg-capsule check), writes OUT.html and OUT.json; returns the report.
-json make_report_file(const std::vector<std::string>& terrain_inputs,
-                      const std::vector<std::string>& plan_paths,
-                      TerrainInputOptions terrain_options, ReportOptions options,
-                      const std::string& out_html) {
-  std::vector<PlanInput> plans;
-  for (const std::string& path : plan_paths) {
-    PlanInput p;
-    p.path = path;
-    p.name = fs::path(path).filename().string();
-    try {
-      p.trajectory = planner::read_plan_file(path);
-    } catch (const std::exception& e) {
-      throw CommandError(std::string("--plan ") + e.what());
-    }
-    plans.push_back(std::move(p));
-  }
-  if (!plans.empty() && !plans.front().trajectory.robot.empty()) {
-    options.robot = plans.front().trajectory.robot;
-    terrain_options.foot_radius = robot_foot_radius(options.robot);
-  }
-  // Region the leg-capsule check needs for an analytic scene: where the plans' legs go.
-  bool first = true;
-  for (const PlanInput& p : plans) {
-    robot::RobotModel model;
-    try {
-      model = robot::load_robot(robot::resolve_robot_path(
-          p.trajectory.robot.empty() ? options.robot : p.trajectory.robot));
-    } catch (const std::exception& e) {
-      throw CommandError(p.path + ": " + e.what());
-    }
-    Eigen::Vector2d lo, hi;
-    try {
-      collision::trajectory_extent(model, p.trajectory, 0.3, &lo, &hi);
-    } catch (const std::exception& e) {
-      throw CommandError(p.path + ": " + e.what());
-    }
-    terrain_options.voxel_lo = first ? lo : terrain_options.voxel_lo.cwiseMin(lo);
-    terrain_options.voxel_hi = first ? hi : terrain_options.voxel_hi.cwiseMax(hi);
-    first = false;
-  }
-  terrain_options.voxelise_scene = !plans.empty();
-  const TerrainView view = load_terrain_view(terrain_inputs, terrain_options);
-  json rep = build_report(view, plans, options);
-  write_report(rep, out_html);
-  return rep;
+// One report: OUT.html and OUT.json for --terrain and its --plan files.
+void run_single(const ReportCommandOptions& o, const report::TerrainInputOptions& topts,
+                const report::ReportOptions& ropts) {
+  check_out_html(o.out);
+  const json rep = report::make_report_file(o.terrain, o.plans, topts, ropts, o.out);
+  const std::string json_path = fs::path(o.out).replace_extension(".json").string();
+  print_summary(summary_json(rep, o.out, json_path), o.json_output);
 }
 
-}  // namespace report
+// Batch mode: one report per scan of the --batch folder, and the index ranking them.
+void run_batch(const ReportCommandOptions& o, const report::TerrainInputOptions& topts,
+               report::ReportOptions ropts) {
+  if (!o.plans.empty()) throw CommandError("--plan cannot be combined with --batch");
+  if (!fs::is_directory(o.batch)) throw CommandError("--batch " + o.batch + ": not a folder");
+  // Before mapping every scan: refuse an --out folder holding anything but an earlier report
+  // (e.g. --out equal to --batch, the scans themselves), and an unwritable one.
+  try {
+    perception::check_output_dir(o.out, batch_output_kind());
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--out: ") + e.what());
+  }
+  // One scan per name: files NAME.ext, NAME.1.ext, NAME.2.ext ... (one per sensor pose, as the
+  // scan simulator writes them) are mapped together; map folders are scans of their own.
+  std::map<std::string, std::vector<std::string>> groups;
+  for (const auto& entry : fs::directory_iterator(o.batch)) {
+    const fs::path p = entry.path();
+    const std::string name = p.filename().string();
+    if (entry.is_regular_file() && is_scan_file(p))
+      groups[name.substr(0, name.find('.'))].push_back(p.string());
+    else if (entry.is_directory() && report::is_terrain_dir(p.string()))
+      groups[name].push_back(p.string());
+  }
+  std::vector<std::pair<std::string, std::vector<std::string>>> scans(groups.begin(), groups.end());
+  for (auto& [name, files] : scans) std::sort(files.begin(), files.end());
+  if (scans.empty())
+    throw CommandError("--batch " + o.batch +
+                       ": no scans (.pcd, .ply, .xyz, .npy) or terrain folders in it");
+  perception::AtomicOutputDir out_dir(o.out, batch_output_kind());
+  json rows = json::array();
+  std::vector<std::string> failed;
+  for (size_t i = 0; i < scans.size(); ++i) {
+    const std::string& stem = scans[i].first;
+    const std::vector<std::string>& files = scans[i].second;
+    std::cerr << "[" << i + 1 << "/" << scans.size() << "] " << stem << "\n";
+    const std::string html_name = stem + ".html";
+    json files_json = json::array();
+    for (const auto& f : files) files_json.push_back(f);
+    json row_json{{"scan", stem}, {"files", files_json}, {"html", html_name}};
+    try {
+      ropts.title = "terrastride foothold-safety report: " + stem;
+      const json rep = report::make_report_file(files, {}, topts, ropts,
+                                                (fs::path(out_dir.path()) / html_name).string());
+      const json& t = rep["terrain"];
+      row_json["safe_fraction"] = t["safe_fraction"];
+      row_json["observed_fraction"] = t["observed_fraction"];
+      row_json["cells"] = t["cells"];
+      row_json["height_min_m"] = t["height_min_m"];
+      row_json["height_max_m"] = t["height_max_m"];
+      row_json["problems"] = rep["problems"].size();
+    } catch (const std::exception& e) {
+      row_json["error"] = e.what();
+      failed.push_back(stem + ": " + e.what());
+    }
+    rows.push_back(row_json);
+  }
+  // Rank: best safe fraction first; failed scans last.
+  std::stable_sort(rows.begin(), rows.end(), [](const json& a, const json& b) {
+    const double fa = a.contains("error") ? -1.0 : a["safe_fraction"].get<double>();
+    const double fb = b.contains("error") ? -1.0 : b["safe_fraction"].get<double>();
+    return fa > fb;
+  });
+  json index{{"source", o.batch},
+             {"foot_radius_m", topts.foot_radius},
+             {"generated_utc", report::utc_now()},
+             {"reports", rows}};
+  perception::write_file_atomically((fs::path(out_dir.path()) / "index.json").string(),
+                                    index.dump(1) + "\n");
+  perception::write_file_atomically((fs::path(out_dir.path()) / "index.html").string(),
+                                    report::render_index_html(index));
+  out_dir.commit();
+  if (o.json_output) {
+    std::cout << index.dump() << "\n";
+  } else {
+    for (size_t i = 0; i < rows.size(); ++i) {
+      const json& r = rows[i];
+      if (r.contains("error"))
+        std::cout << "  -  " << r["scan"].get<std::string>() << ": failed\n";
+      else
+        std::cout << "  " << i + 1 << ". " << r["scan"].get<std::string>() << "  safe "
+                  << r["safe_fraction"] << ", problems " << r["problems"] << "\n";
+    }
+    std::cout << "index: " << (fs::path(o.out) / "index.html").string() << "\n";
+  }
+  if (failed.size() == scans.size())
+    throw CommandError("--batch " + o.batch + ": every scan failed; first: " + failed.front());
+  if (!failed.empty()) {
+    std::string msg = std::to_string(failed.size()) + " of " + std::to_string(scans.size()) +
+                      " scans failed (the others are in " + o.out + "):";
+    for (const auto& f : failed) msg += "\n  " + f;
+    throw CommandError(msg);
+  }
+}
+
+void run_report(const ReportCommandOptions& o) {
+  if (o.terrain.empty() == o.batch.empty())
+    throw CommandError("give either --terrain (one report) or --batch DIR (a folder of scans)");
+  if (!(o.resolution >= 0.002 && o.resolution <= 1.0))
+    throw CommandError("--resolution " + std::to_string(o.resolution) + ": outside [0.002, 1] m");
+  report::TerrainInputOptions topts;
+  topts.radii = parse_radii(o.radii);
+  topts.resolution = o.resolution;
+  topts.foot_radius = report::robot_foot_radius(o.robot);
+  if (!o.origin.empty()) topts.origin = Eigen::Vector3d(parse_numbers(o.origin, 3, "--origin"));
+  report::ReportOptions ropts;
+  ropts.robot = o.robot;
+  if (!o.title.empty()) ropts.title = o.title;
+  // Fail early (before any mapping) when the page's assets are missing.
+  (void)report::render_index_html(json{{"reports", json::array()}});
+
+  if (o.batch.empty())
+    run_single(o, topts, ropts);
+  else
+    run_batch(o, topts, ropts);
+}
+
+}  // namespace
 
 void add_report_command(CLI::App& app) {
   auto o = std::make_shared<ReportCommandOptions>();
@@ -215,123 +277,7 @@ void add_report_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--title", o->title, "Title of the page");
   cmd->add_flag("--json", o->json_output, "Print the summary as one JSON object");
-  cmd->callback([o] {
-    if (o->terrain.empty() == o->batch.empty())
-      throw CommandError("give either --terrain (one report) or --batch DIR (a folder of scans)");
-    if (!(o->resolution >= 0.002 && o->resolution <= 1.0))
-      throw CommandError("--resolution " + std::to_string(o->resolution) +
-                         ": outside [0.002, 1] m");
-    report::TerrainInputOptions topts;
-    topts.radii = parse_radii(o->radii);
-    topts.resolution = o->resolution;
-    topts.foot_radius = robot_foot_radius(o->robot);
-    if (!o->origin.empty()) topts.origin = Eigen::Vector3d(parse_numbers(o->origin, 3, "--origin"));
-    report::ReportOptions ropts;
-    ropts.robot = o->robot;
-    if (!o->title.empty()) ropts.title = o->title;
-    // Fail early (before any mapping) when the page's assets are missing.
-    (void)report::render_index_html(json{{"reports", json::array()}});
-
-    if (o->batch.empty()) {
-      check_out_html(o->out);
-      const json rep = report::make_report_file(o->terrain, o->plans, topts, ropts, o->out);
-      const std::string json_path = fs::path(o->out).replace_extension(".json").string();
-      print_summary(summary_json(rep, o->out, json_path), o->json_output);
-      return;
-    }
-
-    // Batch mode.
-    if (!o->plans.empty()) throw CommandError("--plan cannot be combined with --batch");
-    if (!fs::is_directory(o->batch)) throw CommandError("--batch " + o->batch + ": not a folder");
-    // Before mapping every scan: refuse an --out folder holding anything but an earlier report
-    // (e.g. --out equal to --batch, the scans themselves), and an unwritable one.
-    try {
-      perception::check_output_dir(o->out, batch_output_kind());
-    } catch (const perception::InputError& e) {
-      throw CommandError(std::string("--out: ") + e.what());
-    }
-    // One scan per name: files NAME.ext, NAME.1.ext, NAME.2.ext ... (one per sensor pose, as the
-    // scan simulator writes them) are mapped together; map folders are scans of their own.
-    std::map<std::string, std::vector<std::string>> groups;
-    for (const auto& entry : fs::directory_iterator(o->batch)) {
-      const fs::path p = entry.path();
-      const std::string name = p.filename().string();
-      if (entry.is_regular_file() && is_scan_file(p))
-        groups[name.substr(0, name.find('.'))].push_back(p.string());
-      else if (entry.is_directory() && report::is_terrain_dir(p.string()))
-        groups[name].push_back(p.string());
-    }
-    std::vector<std::pair<std::string, std::vector<std::string>>> scans(groups.begin(),
-                                                                        groups.end());
-    for (auto& [name, files] : scans) std::sort(files.begin(), files.end());
-    if (scans.empty())
-      throw CommandError("--batch " + o->batch +
-                         ": no scans (.pcd, .ply, .xyz, .npy) or terrain folders in it");
-    perception::AtomicOutputDir out_dir(o->out, batch_output_kind());
-    json rows = json::array();
-    std::vector<std::string> failed;
-    for (size_t i = 0; i < scans.size(); ++i) {
-      const std::string& stem = scans[i].first;
-      const std::vector<std::string>& files = scans[i].second;
-      std::cerr << "[" << i + 1 << "/" << scans.size() << "] " << stem << "\n";
-      const std::string html_name = stem + ".html";
-      json files_json = json::array();
-      for (const auto& f : files) files_json.push_back(f);
-      json row_json{{"scan", stem}, {"files", files_json}, {"html", html_name}};
-      try {
-        ropts.title = "terrastride foothold-safety report: " + stem;
-        const json rep = report::make_report_file(files, {}, topts, ropts,
-                                                  (fs::path(out_dir.path()) / html_name).string());
-        const json& t = rep["terrain"];
-        row_json["safe_fraction"] = t["safe_fraction"];
-        row_json["observed_fraction"] = t["observed_fraction"];
-        row_json["cells"] = t["cells"];
-        row_json["height_min_m"] = t["height_min_m"];
-        row_json["height_max_m"] = t["height_max_m"];
-        row_json["problems"] = rep["problems"].size();
-      } catch (const std::exception& e) {
-        row_json["error"] = e.what();
-        failed.push_back(stem + ": " + e.what());
-      }
-      rows.push_back(row_json);
-    }
-    // Rank: best safe fraction first; failed scans last.
-    std::stable_sort(rows.begin(), rows.end(), [](const json& a, const json& b) {
-      const double fa = a.contains("error") ? -1.0 : a["safe_fraction"].get<double>();
-      const double fb = b.contains("error") ? -1.0 : b["safe_fraction"].get<double>();
-      return fa > fb;
-    });
-    json index{{"source", o->batch},
-               {"foot_radius_m", topts.foot_radius},
-               {"generated_utc", report::utc_now()},
-               {"reports", rows}};
-    perception::write_file_atomically((fs::path(out_dir.path()) / "index.json").string(),
-                                      index.dump(1) + "\n");
-    perception::write_file_atomically((fs::path(out_dir.path()) / "index.html").string(),
-                                      report::render_index_html(index));
-    out_dir.commit();
-    if (o->json_output) {
-      std::cout << index.dump() << "\n";
-    } else {
-      for (size_t i = 0; i < rows.size(); ++i) {
-        const json& r = rows[i];
-        if (r.contains("error"))
-          std::cout << "  -  " << r["scan"].get<std::string>() << ": failed\n";
-        else
-          std::cout << "  " << i + 1 << ". " << r["scan"].get<std::string>() << "  safe "
-                    << r["safe_fraction"] << ", problems " << r["problems"] << "\n";
-      }
-      std::cout << "index: " << (fs::path(o->out) / "index.html").string() << "\n";
-    }
-    if (failed.size() == scans.size())
-      throw CommandError("--batch " + o->batch + ": every scan failed; first: " + failed.front());
-    if (!failed.empty()) {
-      std::string msg = std::to_string(failed.size()) + " of " + std::to_string(scans.size()) +
-                        " scans failed (the others are in " + o->out + "):";
-      for (const auto& f : failed) msg += "\n  " + f;
-      throw CommandError(msg);
-    }
-  });
+  cmd->callback([o] { run_report(*o); });
 }
 
 }  // namespace terrastride::service

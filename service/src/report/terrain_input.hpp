@@ -47,11 +47,4 @@ TerrainView map_view(std::shared_ptr<const terrain::TerrainMap> map,
 std::vector<double> safety_radii(const std::vector<double>& requested,
                                  const std::vector<double>& terrain_radii, double foot_radius);
 
-// Reads the plans, builds the terrain view (a scene is voxelised over the plans' extent for the
-// leg-capsule check), writes OUT.html and OUT.json; returns the report (cmd_report.cpp).
-nlohmann::json make_report_file(const std::vector<std::string>& terrain_inputs,
-                                const std::vector<std::string>& plan_paths,
-                                TerrainInputOptions terrain_options, ReportOptions options,
-                                const std::string& out_html);
-
 }  // namespace terrastride::service::report
