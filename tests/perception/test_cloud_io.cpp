@@ -34,6 +34,7 @@ Bounds bounds(const PointCloud& c) {
 }
 
 TEST(ReadCloud, RealBinaryPcdWithViewpoint) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   ReadStats stats;
   const PointCloud c =
       read_cloud(scan("anybotics_samples/grid_map_pcl_input_cloud.pcd"), std::nullopt, &stats);
@@ -53,6 +54,7 @@ TEST(ReadCloud, RealBinaryPcdWithViewpoint) {
 }
 
 TEST(ReadCloud, RealBinaryPlyWithExtraFields) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   const PointCloud c = read_cloud(scan("anybotics_samples/elevation_mapping_maze.ply"));
   EXPECT_EQ(c.points.size(), 25809u);
   EXPECT_FALSE(c.sensor_origin.has_value());
@@ -66,6 +68,7 @@ TEST(ReadCloud, RealBinaryPlyWithExtraFields) {
 }
 
 TEST(ReadCloud, RealXyzText) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   const PointCloud c = read_cloud(scan("octomap/scan.xyz"));
   EXPECT_EQ(c.points.size(), 88206u);
   EXPECT_FALSE(c.sensor_origin.has_value());
@@ -81,6 +84,7 @@ TEST(ReadCloud, RealXyzText) {
 }
 
 TEST(ReadCloud, RealNpyFloat32) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   const struct {
     const char* file;
     size_t points;
@@ -98,6 +102,7 @@ TEST(ReadCloud, RealNpyFloat32) {
 }
 
 TEST(ReadCloud, OriginArgumentOverridesFile) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   const Eigen::Vector3d o(1, 2, 3);
   const PointCloud pcd = read_cloud(scan("anybotics_samples/grid_map_pcl_input_cloud.pcd"), o);
   ASSERT_TRUE(pcd.sensor_origin);
@@ -132,6 +137,7 @@ TEST(WritePcd, RoundTripWithoutOriginKeepsNone) {
 }
 
 TEST(WritePcd, RoundTripOfRealScan) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   ScratchDir dir;
   const PointCloud c =
       read_cloud(scan("terrain_understanding_mit/curb_w_grass.npy"), Eigen::Vector3d(0, 0, 0.1));
@@ -339,6 +345,7 @@ TEST(ReadCloudErrors, NpyWrongDtypeShapeOrder) {
 }
 
 TEST(ReadCloudErrors, NonFiniteOriginArgument) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   expect_input_error(
       [] {
         read_cloud(scan("octomap/scan.xyz"),

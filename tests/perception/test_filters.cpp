@@ -41,6 +41,7 @@ TEST(FilterCloud, OffPassesThroughAndDropsNaN) {
 }
 
 TEST(FilterCloud, CropBoundsHold) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   const PointCloud c = read_cloud(scan("octomap/scan.xyz"));
   CloudFilterOptions o;
   o.crop_min = Eigen::Vector3f(0, -5, -1);
@@ -64,6 +65,7 @@ TEST(FilterCloud, CropBoundsHold) {
 }
 
 TEST(FilterCloud, OneSidedCrop) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   const PointCloud c = read_cloud(scan("terrain_understanding_mit/grid_water.npy"));
   CloudFilterOptions o;
   o.crop_min = Eigen::Vector3f(-1e3f, -1e3f, -1.0f);  // drop see-through returns below z = -1
@@ -73,6 +75,7 @@ TEST(FilterCloud, OneSidedCrop) {
 }
 
 TEST(FilterCloud, VoxelGridLeavesAtMostOnePointPerVoxel) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   const PointCloud c = read_cloud(scan("anybotics_samples/grid_map_pcl_input_cloud.pcd"));
   CloudFilterOptions o;
   o.voxel_size = 0.05f;
@@ -95,6 +98,7 @@ TEST(FilterCloud, VoxelGridLeavesAtMostOnePointPerVoxel) {
 }
 
 TEST(FilterCloud, OutlierRemovalDropsFarOutliersKeepsTreads) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   const PointCloud c = read_cloud(scan("terrain_understanding_mit/grid_stairs.npy"));
   // README: 11 far outliers near z = -2.4; treads at -0.75, -0.56, -0.39, -0.19, -0.02.
   ASSERT_EQ(count_if_z(c, -3.0f, -2.0f), 11u);
@@ -119,6 +123,7 @@ TEST(FilterCloud, OutlierRemovalDropsFarOutliersKeepsTreads) {
 // The same outliers and treads when the removal judges 1 cm cells by their centroids (the map
 // command's default): whole cells are kept or dropped, and the kept points are the input's own.
 TEST(FilterCloud, OutlierRemovalByVoxelDropsFarOutliersKeepsTreads) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   const PointCloud c = read_cloud(scan("terrain_understanding_mit/grid_stairs.npy"));
   ASSERT_EQ(count_if_z(c, -3.0f, -2.0f), 11u);
   CloudFilterOptions o;
@@ -152,6 +157,7 @@ TEST(FilterCloud, OutlierRemovalByVoxelDropsFarOutliersKeepsTreads) {
 }
 
 TEST(FilterCloud, StagesChainInOrder) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   const PointCloud c = read_cloud(scan("terrain_understanding_mit/curb_w_grass.npy"));
   CloudFilterOptions o;
   o.crop_max = Eigen::Vector3f(0.0f, 1.0f, 1.0f);

@@ -106,6 +106,7 @@ TEST(OctoMap, SeveralCloudsFuseAndLaterFreeEvidenceClearsStaleHits) {
 }
 
 TEST(OctoMap, RealScanFromOrigin) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   PointCloud c = read_cloud(scan("octomap/scan.xyz"), Eigen::Vector3d::Zero());
   OctoMapOptions o;
   o.resolution = 0.2;
@@ -130,6 +131,7 @@ TEST(OctoMap, WriteBinaryRoundTrip) {
 // write_octomap writes exactly the bytes of OctoMap's own writeBinaryConst, without the
 // "Writing N nodes to output stream... done." the Debian library prints to stderr.
 TEST(OctoMap, WriteBinaryMatchesOctoMapBytesAndIsQuiet) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
   ScratchDir dir;
   PointCloud c = read_cloud(scan("octomap/scan.xyz"), Eigen::Vector3d::Zero());
   OctoMapOptions o;

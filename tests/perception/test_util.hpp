@@ -12,6 +12,13 @@
 
 namespace terrastride::perception::test {
 
+// Tests on the real scans skip, with a message, where ../shared is absent (a user's clone).
+#define TERRASTRIDE_REQUIRE_SHARED_SCANS()                                            \
+  if (!std::filesystem::is_directory(std::string(TERRASTRIDE_SHARED_DIR) + "/scans")) \
+  GTEST_SKIP() << "no " << TERRASTRIDE_SHARED_DIR                                     \
+               << "/scans (the shared scans folder is not "                           \
+                  "beside this clone)"
+
 inline std::string scan(const std::string& relative) {
   return std::string(TERRASTRIDE_SHARED_DIR) + "/scans/" + relative;
 }

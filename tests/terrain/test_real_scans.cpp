@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <string>
 #include <vector>
 
@@ -13,6 +14,13 @@ using namespace terrastride;
 using terrain::TerrainMap;
 
 namespace {
+
+// These tests skip, with a message, where ../shared is absent (a user's clone).
+#define REQUIRE_SHARED_SCANS()                                                        \
+  if (!std::filesystem::is_directory(std::string(TERRASTRIDE_SHARED_DIR) + "/scans")) \
+  GTEST_SKIP() << "no " << TERRASTRIDE_SHARED_DIR                                     \
+               << "/scans (the shared scans folder is not "                           \
+                  "beside this clone)"
 
 std::string scan(const std::string& rel) {
   return std::string(TERRASTRIDE_SHARED_DIR) + "/scans/" + rel;
@@ -31,6 +39,7 @@ double median(std::vector<double> v) {
 }  // namespace
 
 TEST(RealScans, NoisyFlatPlaneIsSafeAwayFromItsBorder) {
+  REQUIRE_SHARED_SCANS();
   const TerrainMap m = map_of("anybotics_samples/grid_map_pcl_input_cloud.pcd", {0.02, 0.05});
   const auto& g = m.grid().geometry;
   EXPECT_GT(m.grid().noise_sigma, 0.01);  // this sample is a noisy plane (sigma about 2 cm)
@@ -54,6 +63,7 @@ TEST(RealScans, NoisyFlatPlaneIsSafeAwayFromItsBorder) {
 }
 
 TEST(RealScans, CurbEdgeUnsafeBothLevelsSafeRiseMeasured) {
+  REQUIRE_SHARED_SCANS();
   const double r = 0.02;
   const TerrainMap m = map_of("terrain_understanding_mit/curb_w_grass.npy", {r});
   const auto& grid = m.grid();
@@ -111,6 +121,7 @@ TEST(RealScans, CurbEdgeUnsafeBothLevelsSafeRiseMeasured) {
 }
 
 TEST(RealScans, GratedStairsGiveTreadsNotUnderGratingReturns) {
+  REQUIRE_SHARED_SCANS();
   const TerrainMap m = map_of("terrain_understanding_mit/grid_stairs.npy", {0.02});
   const auto& grid = m.grid();
   const auto& g = grid.geometry;
