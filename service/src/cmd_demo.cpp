@@ -10,6 +10,7 @@
 #include <ctime>
 #include <filesystem>
 #include <iostream>
+#include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -234,6 +235,42 @@ DemoPlan plan_on_map(const robot::RobotModel& model, const DemoMap& map,
   return plan;
 }
 
+// The checks' figures on the demo's progress line.
+std::string check_detail(const std::map<std::string, double>& keys) {
+  std::string check_detail;
+  if (keys.count("torque_ratio_max"))
+    check_detail += "torque ratio " + fixed(keys.at("torque_ratio_max"), 3);
+  if (keys.count("shin_collisions_certain"))
+    check_detail += ", shin certain collisions " + fixed(keys.at("shin_collisions_certain"), 0) +
+                    " (" + fixed(keys.at("shin_contacts_uncertain"), 0) +
+                    " voxel contacts within the map's uncertainty)";
+  if (keys.count("shin_min_distance_m"))
+    check_detail +=
+        ", shin min " + fixed(keys.at("shin_min_distance_m") * 1000, 1) + " mm to the voxels";
+  if (keys.count("unsafe_footholds"))
+    check_detail += ", unsafe footholds " + fixed(keys.at("unsafe_footholds"), 0);
+  return check_detail;
+}
+
+// The demo's summary for people: the terrain's safe fraction, the plan, its problems.
+void print_text_summary(const json& rep, const planner::Trajectory& traj, double foot_radius,
+                        double total, double cpu, const fs::path& html) {
+  std::cout << "\nterrain: safe fraction "
+            << fixed(rep["terrain"]["safe_fraction"].get<double>() * 100, 1)
+            << " % of observed cells for the " << fixed(foot_radius * 1000, 0) << " mm foot\n";
+  std::cout << "plan:    " << traj.solver.status << ", " << traj.samples.size() << " samples over "
+            << fixed(traj.duration, 1) << " s\n";
+  if (rep["problems"].empty()) {
+    std::cout << "checks:  no problems found\n";
+  } else {
+    std::cout << "checks:  " << rep["problems"].size() << " problems:\n";
+    for (const json& p : rep["problems"])
+      std::cout << "  - " << p["text"].get<std::string>() << "\n";
+  }
+  std::cout << "total " << fixed(total, 1) << " s (" << fixed(cpu, 1)
+            << " s CPU)\nreport: " << html.string() << "\n";
+}
+
 void run_demo(const DemoOptions& o) {
   const auto t_all = Clock::now();
   const std::clock_t cpu0 = std::clock();
@@ -333,19 +370,7 @@ void run_demo(const DemoOptions& o) {
   }
   const auto keys = checks->keys();
   summary["stages"]["checks"] = keys;
-  std::string check_detail;
-  if (keys.count("torque_ratio_max"))
-    check_detail += "torque ratio " + fixed(keys.at("torque_ratio_max"), 3);
-  if (keys.count("shin_collisions_certain"))
-    check_detail += ", shin certain collisions " + fixed(keys.at("shin_collisions_certain"), 0) +
-                    " (" + fixed(keys.at("shin_contacts_uncertain"), 0) +
-                    " voxel contacts within the map's uncertainty)";
-  if (keys.count("shin_min_distance_m"))
-    check_detail +=
-        ", shin min " + fixed(keys.at("shin_min_distance_m") * 1000, 1) + " mm to the voxels";
-  if (keys.count("unsafe_footholds"))
-    check_detail += ", unsafe footholds " + fixed(keys.at("unsafe_footholds"), 0);
-  progress.done(check_detail);
+  progress.done(check_detail(keys));
 
   // 5. report
   progress.start("report", "self-contained HTML + JSON");
@@ -376,21 +401,7 @@ void run_demo(const DemoOptions& o) {
   if (o.json_output) {
     std::cout << summary.dump() << "\n";
   } else {
-    std::cout << "\nterrain: safe fraction "
-              << fixed(rep["terrain"]["safe_fraction"].get<double>() * 100, 1)
-              << " % of observed cells for the " << fixed(model.foot_radius * 1000, 0)
-              << " mm foot\n";
-    std::cout << "plan:    " << traj.solver.status << ", " << traj.samples.size()
-              << " samples over " << fixed(traj.duration, 1) << " s\n";
-    if (rep["problems"].empty()) {
-      std::cout << "checks:  no problems found\n";
-    } else {
-      std::cout << "checks:  " << rep["problems"].size() << " problems:\n";
-      for (const json& p : rep["problems"])
-        std::cout << "  - " << p["text"].get<std::string>() << "\n";
-    }
-    std::cout << "total " << fixed(total, 1) << " s (" << fixed(cpu, 1)
-              << " s CPU)\nreport: " << html.string() << "\n";
+    print_text_summary(rep, traj, model.foot_radius, total, cpu, html);
   }
   if (!plan.problem.empty())
     throw CommandError("the plan is not optimal (" + plan.problem + "); the report shows it", 3);

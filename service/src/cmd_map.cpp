@@ -65,8 +65,8 @@ std::string fmt(double v, int precision = 3) {
   return os.str();
 }
 
-void run_map(const MapOptions& o) {
-  // Validate every option before reading anything.
+// Checks every flag before anything is read; returns --origin when it is given.
+std::optional<Eigen::Vector3d> check_flags(const MapOptions& o) {
   if (o.clouds.empty()) throw CommandError("no input clouds given");
   if (!std::isfinite(o.resolution) || o.resolution < 0.002 || o.resolution > 1.0)
     throw CommandError("--resolution: " + std::to_string(o.resolution) +
@@ -104,7 +104,49 @@ void run_map(const MapOptions& o) {
   } catch (const perception::InputError& e) {
     throw CommandError("--out: " + std::string(e.what()));
   }
+  return origin;
+}
 
+// The flags as the map build's options (terrain::MapBuildOptions' defaults are the flags').
+terrain::MapBuildOptions map_build_options(const MapOptions& o) {
+  terrain::MapBuildOptions options;
+  options.cleaning->voxel_size = static_cast<float>(o.voxel);
+  options.cleaning->outlier_neighbours = o.outlier_k;
+  options.cleaning->outlier_stddev = o.outlier_stddev;
+  options.cleaning->outlier_voxel = static_cast<float>(o.outlier_voxel);
+  options.grid.resolution = o.resolution;
+  options.foot_radii = o.foot_radii;
+  options.safety.max_step = o.max_step;
+  options.safety.max_slope = o.max_slope;
+  options.octomap->resolution = o.octomap_resolution;
+  options.octomap->max_range = o.octomap_max_range > 0 ? o.octomap_max_range : -1.0;
+  return options;
+}
+
+void print_summary(const MapOptions& o, const terrain::MapBuild& build, const json& terrain,
+                   const json& summary) {
+  const auto& g = build.map->grid();
+  const json& timings = terrain["timings"];
+  const json& statistics = terrain["statistics"];
+  std::cout << "terrain map written to " << o.out << "\n"
+            << "  points: " << statistics["points_in"].get<size_t>() << " in, "
+            << statistics["non_finite"].get<size_t>() << " non-finite, " << build.points_kept
+            << " kept after cleaning\n"
+            << "  grid: " << g.geometry.nx << " x " << g.geometry.ny << " cells of "
+            << g.geometry.resolution << " m, " << g.observed_cells << " observed, "
+            << g.filled_cells << " filled, sensor noise " << fmt(g.noise_sigma * 1000, 1)
+            << " mm\n";
+  for (const auto& s : summary["safe"])
+    std::cout << "  safe for foot radius " << s["radius"].get<double>()
+              << " m: " << fmt(100.0 * s["safe_fraction"].get<double>(), 1) << " % of cells\n";
+  std::cout << "  time: read " << fmt(timings["read_s"]) << " s, clean " << fmt(timings["filter_s"])
+            << " s, grid " << fmt(timings["grid_s"]) << " s, safety " << fmt(timings["safety_s"])
+            << " s, OctoMap " << fmt(timings["octomap_s"]) << " s, write "
+            << fmt(timings["write_s"]) << " s, total " << fmt(timings["total_s"]) << " s\n";
+}
+
+void run_map(const MapOptions& o) {
+  const std::optional<Eigen::Vector3d> origin = check_flags(o);
   size_t file_bytes = 0;
   for (const auto& c : o.clouds) {
     std::error_code ec;
@@ -123,19 +165,9 @@ void run_map(const MapOptions& o) {
     throw CommandError(e.what());
   }
 
-  terrain::MapBuildOptions mo;
-  mo.cleaning->voxel_size = static_cast<float>(o.voxel);
-  mo.cleaning->outlier_neighbours = o.outlier_k;
-  mo.cleaning->outlier_stddev = o.outlier_stddev;
-  mo.cleaning->outlier_voxel = static_cast<float>(o.outlier_voxel);
-  mo.grid.resolution = o.resolution;
-  mo.foot_radii = o.foot_radii;
-  mo.safety.max_step = o.max_step;
-  mo.safety.max_slope = o.max_slope;
-  mo.octomap->resolution = o.octomap_resolution;
-  mo.octomap->max_range = o.octomap_max_range > 0 ? o.octomap_max_range : -1.0;
+  terrain::MapBuildOptions options = map_build_options(o);
   const size_t n_clouds = input.clouds.size();
-  mo.on_stage = [&](terrain::MapStage stage, const terrain::MapBuild&) {
+  options.on_stage = [&](terrain::MapStage stage, const terrain::MapBuild&) {
     if (stage == terrain::MapStage::kClean)
       progress.stage("cleaning " + std::to_string(n_clouds) + " cloud(s) and building the OctoMap");
     else
@@ -143,7 +175,7 @@ void run_map(const MapOptions& o) {
   };
   terrain::MapBuild build;
   try {
-    build = terrain::build_terrain_map(std::move(input.clouds), mo);
+    build = terrain::build_terrain_map(std::move(input.clouds), options);
   } catch (const terrain::MapBuildError& e) {
     if (e.stage() == terrain::MapStage::kGrid)
       throw CommandError("--resolution/--foot-radius: " + std::string(e.what()));
@@ -164,24 +196,7 @@ void run_map(const MapOptions& o) {
     std::cout << summary.dump() << "\n";
     return;
   }
-  const auto& g = build.map->grid();
-  const json& timings = meta["timings"];
-  const json& statistics = meta["statistics"];
-  std::cout << "terrain map written to " << o.out << "\n"
-            << "  points: " << statistics["points_in"].get<size_t>() << " in, "
-            << statistics["non_finite"].get<size_t>() << " non-finite, " << build.points_kept
-            << " kept after cleaning\n"
-            << "  grid: " << g.geometry.nx << " x " << g.geometry.ny << " cells of "
-            << g.geometry.resolution << " m, " << g.observed_cells << " observed, "
-            << g.filled_cells << " filled, sensor noise " << fmt(g.noise_sigma * 1000, 1)
-            << " mm\n";
-  for (const auto& s : summary["safe"])
-    std::cout << "  safe for foot radius " << s["radius"].get<double>()
-              << " m: " << fmt(100.0 * s["safe_fraction"].get<double>(), 1) << " % of cells\n";
-  std::cout << "  time: read " << fmt(timings["read_s"]) << " s, clean " << fmt(timings["filter_s"])
-            << " s, grid " << fmt(timings["grid_s"]) << " s, safety " << fmt(timings["safety_s"])
-            << " s, OctoMap " << fmt(timings["octomap_s"]) << " s, write "
-            << fmt(timings["write_s"]) << " s, total " << fmt(timings["total_s"]) << " s\n";
+  print_summary(o, build, meta, summary);
 }
 
 }  // namespace
