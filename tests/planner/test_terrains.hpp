@@ -1,4 +1,5 @@
-// Small analytic terrains for the planner tests: flat ground and a C2 (tanh) step.
+// Small analytic terrains for the planner tests: flat ground, a C2 (tanh) step, and the step with a
+// safety margin that varies smoothly.
 #pragma once
 
 #include <cmath>
@@ -53,6 +54,20 @@ class TanhStep : public terrain::HeightField {
 
  private:
   double H_, x0_, w_, r_;
+};
+
+// The tanh step with a safety margin that varies smoothly in x and y (so the foot set's gradient
+// chain is exercised): m = 0.03 + 0.05 sin(4x) cos(3y) - r.
+class MarginStep : public TanhStep {
+ public:
+  using TanhStep::TanhStep;
+  terrain::MarginSample safety_margin(double x, double y, double r) const override {
+    terrain::MarginSample m;
+    m.margin = 0.03 + 0.05 * std::sin(4 * x) * std::cos(3 * y) - r;
+    m.gradient = Eigen::Vector2d(0.2 * std::cos(4 * x) * std::cos(3 * y),
+                                 -0.15 * std::sin(4 * x) * std::sin(3 * y));
+    return m;
+  }
 };
 
 }  // namespace terrastride::planner::testing

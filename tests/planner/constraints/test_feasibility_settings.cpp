@@ -1,0 +1,54 @@
+// FeasibilityOptions from NAME=VALUE settings (constraints/feasibility_settings.cpp).
+#include <cmath>
+
+#include "family_test.hpp"
+
+namespace terrastride::planner {
+namespace {
+
+using namespace testing;
+
+// NAME=VALUE settings reach the sets: a tighter swing bound scales the rows, a joint margin
+// moves the bounds; bad settings are refused naming themselves.
+TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
+  const auto r = hyq();
+  FlatField flat;
+  PlannerOptions a, b;
+  a.constraints = b.constraints = {"swing", "joints"};
+  b.feasibility_settings = {{"swing_acceleration", 50.0}, {"joint_margin", 0.1}};
+  SrbdProblem pa(r, flat, crawl_timeline(r), a), pb(r, flat, crawl_timeline(r), b);
+  ASSERT_EQ(pa.num_constraints(), pb.num_constraints());
+  std::vector<double> ga(pa.num_constraints()), gb(pb.num_constraints());
+  pa.eval_constraints(pa.initial_guess().data(), ga.data());
+  pb.eval_constraints(pb.initial_guess().data(), gb.data());
+  int row = 0, swing_rows = 0;
+  for (const auto& piece : pa.pieces()) {
+    if (piece->kind == "swing") {
+      for (int k = 0; k < piece->rows(); ++k, ++swing_rows)
+        EXPECT_NEAR(gb[row + k], 2.0 * ga[row + k], 1e-12);  // a / 50 against a / 100
+    }
+    row += piece->rows();
+  }
+  EXPECT_GT(swing_rows, 0);
+  const FeasibilityOptions fo = feasibility_options(b.feasibility_settings);
+  EXPECT_EQ(fo.swing_acceleration, 50.0);
+  EXPECT_EQ(fo.joint_margin, 0.1);
+  for (std::size_t i = 0; i < pb.pieces().size(); ++i)
+    if (pb.pieces()[i]->kind == "joints") {
+      EXPECT_DOUBLE_EQ(pb.pieces()[i]->lb[1], r.legs[0].q_min[1] + 0.1);
+      break;
+    }
+  for (const auto& bad : std::vector<std::pair<std::string, double>>{
+           {"nope", 1.0}, {"shin_points", 0.0}, {"swing_acceleration", std::nan("")}}) {
+    try {
+      feasibility_options({bad});
+      ADD_FAILURE() << bad.first;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(bad.first), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_EQ(feasibility_option_names().size(), 11u);
+}
+
+}  // namespace
+}  // namespace terrastride::planner
