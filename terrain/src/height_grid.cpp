@@ -251,14 +251,15 @@ void promote_sparse_surfaces(const std::vector<Entry>& entries, const std::vecto
 // a (2K+1)^2 window) bridges them. Those cells did not observe the surface, so they become
 // unobserved (hence unsafe) and fill_holes gives them the bridged height. Steps and wide trenches
 // are untouched: a closing only removes valleys narrower than its window. Two closings: one
-// ignoring unobserved cells (a pit with the surface seen around it), one taking unobserved cells
-// and cells beyond the grid as high, since what was not seen may be the surface continuing (a
-// grating's opening between a tread and the edge of the data).
-void close_narrow_pits(HeightGrid& grid, int K, double depth) {
-  if (K <= 0) return;
+// ignoring unobserved cells (a pit with the surface seen around it), then one taking unobserved
+// cells and cells beyond the grid as high, since what was not seen may be the surface continuing
+// (a grating's opening between a tread and the edge of the data).
+std::vector<uint8_t> close_narrow_pits(HeightGrid& grid, int K, double depth) {
+  std::vector<uint8_t> bridged(grid.geometry.size(), 0);
+  if (K <= 0) return bridged;
   const GridGeometry& g = grid.geometry;
   constexpr float inf = std::numeric_limits<float>::infinity();
-  std::vector<float> b(g.size());
+  std::vector<float> tmp(g.size());
   // Separable running max / min; `outside` is the value of cells beyond the grid in the max.
   auto filter = [&](std::vector<float>& src, bool take_max, float outside) {
     for (int i = 0; i < g.nx; ++i)
@@ -266,13 +267,13 @@ void close_narrow_pits(HeightGrid& grid, int K, double depth) {
         float v = take_max ? (j - K < 0 || j + K >= g.ny ? outside : -inf) : inf;
         for (int d = std::max(0, j - K); d <= std::min(g.ny - 1, j + K); ++d)
           v = take_max ? std::max(v, src[g.index(i, d)]) : std::min(v, src[g.index(i, d)]);
-        b[g.index(i, j)] = v;
+        tmp[g.index(i, j)] = v;
       }
     for (int i = 0; i < g.nx; ++i)
       for (int j = 0; j < g.ny; ++j) {
         float v = take_max ? (i - K < 0 || i + K >= g.nx ? outside : -inf) : inf;
         for (int d = std::max(0, i - K); d <= std::min(g.nx - 1, i + K); ++d)
-          v = take_max ? std::max(v, b[g.index(d, j)]) : std::min(v, b[g.index(d, j)]);
+          v = take_max ? std::max(v, tmp[g.index(d, j)]) : std::min(v, tmp[g.index(d, j)]);
         src[g.index(i, j)] = v;
       }
   };
@@ -283,18 +284,58 @@ void close_narrow_pits(HeightGrid& grid, int K, double depth) {
     filter(a, false, unobserved);
     return a;
   };
-  const std::vector<float> seen = closing(-inf), unseen_high = closing(inf);
-  for (size_t k = 0; k < g.size(); ++k) {
-    if (!grid.observed[k]) continue;
-    const float z = grid.elevation[k];
-    const bool pit = (std::isfinite(seen[k]) && seen[k] - z > depth) ||
-                     (std::isfinite(unseen_high[k]) && unseen_high[k] - z > depth);
-    if (pit) {
-      grid.observed[k] = 0;
-      --grid.observed_cells;
-      ++grid.bridged_cells;
-    }
-  }
+  // A bridged cell takes the height of the lowest surface seen (or bridged) above it within 2 K
+  // cells (the tread around the opening, not a bracket sticking up from it), at most the
+  // closing's.
+  const auto lowest_above = [&](const std::vector<float>& height, const std::vector<uint8_t>& seen,
+                                int i, int j) {
+    const float z = height[g.index(i, j)];
+    float lowest = inf;
+    for (int u = std::max(0, i - 2 * K); u <= std::min(g.nx - 1, i + 2 * K); ++u)
+      for (int v = std::max(0, j - 2 * K); v <= std::min(g.ny - 1, j + 2 * K); ++v) {
+        const size_t n = g.index(u, v);
+        if ((seen[n] || bridged[n]) && height[n] - z > depth) lowest = std::min(lowest, height[n]);
+      }
+    return lowest;
+  };
+  // Decisions and heights of each pass come from the heights and observations before it.
+  auto bridge_pass = [&](const std::vector<float>& closed, const std::vector<float>* above,
+                         double min_depth) {
+    const std::vector<float> height = grid.elevation;
+    const std::vector<uint8_t> seen = grid.observed;
+    for (int i = 0; i < g.nx; ++i)
+      for (int j = 0; j < g.ny; ++j) {
+        const size_t k = g.index(i, j);
+        const float z = height[k];
+        if (!seen[k] || !(closed[k] - z > min_depth)) continue;
+        if (above && !((*above)[k] - z > min_depth)) continue;
+        grid.observed[k] = 0;
+        grid.elevation[k] = grid.min[k] = grid.max[k] =
+            std::min(closed[k], lowest_above(height, seen, i, j));
+        grid.variance[k] = 0.0f;
+        bridged[k] = 1;
+        --grid.observed_cells;
+        ++grid.bridged_cells;
+      }
+  };
+  std::vector<float> seen_closing = closing(-inf);
+  for (auto& c : seen_closing)
+    if (!std::isfinite(c)) c = -inf;  // no surface seen around: not a pit
+  bridge_pass(seen_closing, nullptr, depth);
+  // The second closing runs after the first has bridged its pits, which then count as unseen (a
+  // grating's open riser bridged first leaves the patch of floor beside it enclosed). A pit there
+  // also needs a surface seen above it within 2 K cells (a max filter applied twice), so a patch
+  // among unseen cells alone, as a sparse cloud leaves them, is not one.
+  const std::vector<float> unseen_high = closing(inf);
+  std::vector<float> above(g.size());
+  for (size_t k = 0; k < g.size(); ++k) above[k] = grid.observed[k] ? grid.elevation[k] : -inf;
+  filter(above, true, -inf);
+  filter(above, true, -inf);
+  // Guessing that unseen space holds the surface is only safe for clearly deeper pits: three
+  // cluster gaps (15 cm by default; the floor under the grated stairs lies 45 cm below the treads,
+  // while a bracket standing 9 cm on a tread must not make the tread beside it a pit).
+  bridge_pass(unseen_high, &above, 3.0 * depth);
+  return bridged;
 }
 
 // ---- Sensor noise and point spacing ----------------------------------------------------------
@@ -666,15 +707,14 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
   for (size_t k = 0; k < ncell; ++k) sample[k] = grid.support[k] > 0;
   promote_sparse_surfaces(entries, start, candidate, eff, grid, sample);
   for (size_t k = 0; k < ncell; ++k) grid.observed_cells += grid.observed[k] == 1;
-  const std::vector<uint8_t> before_bridging = grid.observed;
-  close_narrow_pits(grid, o.bridge_cells, eff.cluster_gap);
+  const std::vector<uint8_t> bridged = close_narrow_pits(grid, o.bridge_cells, eff.cluster_gap);
   for (size_t k = 0; k < ncell; ++k)
-    if (before_bridging[k] && !grid.observed[k]) sample[k] = 0;
+    if (bridged[k]) sample[k] = 0;
   // Sampling gaps at the scale of the point spacing (1.5 cells for dense clouds, as before).
   const double spacing = grid.noise.point_spacing;
   grid.gap_radius = std::max(1.5 * g.resolution, std::min(2.5 * spacing, kMaxGapRadius));
   fill_sampling_gaps(grid, sample, grid.gap_radius);
-  fill_holes(grid, o.min_cell_points);
+  fill_holes_around(grid, o.min_cell_points, bridged);
   grid.smoothing_length = smoothing_length(grid.noise, o);
   smooth_surface(grid, grid.smoothing_length);
   add_notes(grid);
@@ -784,11 +824,45 @@ void smooth_surface(HeightGrid& grid, double length) {
     if (grid.observed[k] == 2) weight[k] = 1.0f;
     var[k] = static_cast<float>(point_var / std::max(1.0f, weight[k]));
   }
+  // The support-weighted median of the observed cells in each cell's 3 x 3 neighbourhood: a second
+  // reference, robust to the cell's own noise. A noisy cell beside a step (a 2 cm cell of the real
+  // floor holds 6 points, its median is off by 1.2 cm typically and 3 cm at times) would otherwise
+  // take in the other side of a 10 cm step; a box corner, where the neighbourhood's median lies on
+  // the other side, keeps its own height.
+  struct Near {
+    float z, w;
+  };
+  std::vector<float> median(g.size()), median_var(g.size());
+  std::vector<uint8_t> has_median(g.size(), 0);
+  for (int i = 0; i < g.nx; ++i)
+    for (int j = 0; j < g.ny; ++j) {
+      Near near[9];
+      int n = 0;
+      float total = 0;
+      for (int a = std::max(0, i - 1); a <= std::min(g.nx - 1, i + 1); ++a)
+        for (int b = std::max(0, j - 1); b <= std::min(g.ny - 1, j + 1); ++b) {
+          const size_t c = g.index(a, b);
+          if (weight[c] == 0.0f) continue;
+          near[n++] = {grid.elevation[c], weight[c]};
+          total += weight[c];
+        }
+      if (n == 0) continue;
+      std::sort(near, near + n, [](const Near& x, const Near& y) { return x.z < y.z; });
+      float below = 0;
+      int m = 0;
+      while (m + 1 < n && below + near[m].w < 0.5f * total) below += near[m++].w;
+      const size_t k = g.index(i, j);
+      median[k] = near[m].z;
+      median_var[k] = static_cast<float>(point_var / total);
+      has_median[k] = 1;
+    }
   for (int i = 0; i < g.nx; ++i)
     for (int j = 0; j < g.ny; ++j) {
       const size_t k = g.index(i, j);
       const double z = grid.elevation[k];
       const double vk = var[k];
+      const double zm = median[k], vm = median_var[k];
+      const bool use_median = has_median[k];
       double sw = 0, swz = 0;
       for (const Tap& t : taps) {
         const int a = i + t.di, b = j + t.dj;
@@ -796,9 +870,13 @@ void smooth_surface(HeightGrid& grid, double length) {
         const size_t n = g.index(a, b);
         if (weight[n] == 0.0f) continue;
         const double dz = grid.elevation[n] - z;
-        // Three standard errors of the difference: beyond that the two cells lie on different
-        // surfaces (a step), which must stay sharp.
+        // Three standard errors of the difference, from the cell and from its neighbourhood's
+        // median: beyond that the two lie on different surfaces (a step), which must stay sharp.
         if (dz * dz > 9.0 * (vk + var[n]) + kFloor2) continue;
+        if (use_median) {
+          const double dm = grid.elevation[n] - zm;
+          if (dm * dm > 9.0 * (vm + var[n]) + kFloor2) continue;
+        }
         const double w = t.w * weight[n];
         sw += w;
         swz += w * dz;
@@ -808,6 +886,10 @@ void smooth_surface(HeightGrid& grid, double length) {
 }
 
 void fill_holes(HeightGrid& grid, int min_points) {
+  fill_holes_around(grid, min_points, std::vector<uint8_t>(grid.geometry.size(), 0));
+}
+
+void fill_holes_around(HeightGrid& grid, int min_points, const std::vector<uint8_t>& keep) {
   const GridGeometry& g = grid.geometry;
   // Sampling gaps: a cell without any point whose eight neighbours all measured one surface
   // (spread within the cluster gap) lies on that surface; interpolate it and count it observed
@@ -848,6 +930,7 @@ void fill_holes(HeightGrid& grid, int min_points) {
     ++grid.interpolated_cells;
   }
   std::vector<uint8_t> known(grid.observed);
+  for (size_t k = 0; k < g.size(); ++k) known[k] |= keep[k];
   std::vector<size_t> frontier, next;
   auto has_known_neighbour = [&](int i, int j) {
     for (int di = -1; di <= 1; ++di)

@@ -168,6 +168,9 @@ void smooth_surface(HeightGrid& grid, double length);
 // and shins; the cell stays flagged unobserved, hence unsafe). Cells with fewer than `min_points`
 // points count as holes for the sampling-gap rule.
 void fill_holes(HeightGrid& grid, int min_points = 2);
+// The same, leaving the cells flagged in `keep` (unobserved, with a height already set: bridged
+// openings) as they are and growing the fill from them too.
+void fill_holes_around(HeightGrid& grid, int min_points, const std::vector<uint8_t>& keep);
 
 class Scene;
 // Rasterises an analytic scene into the same grid: elevation = exact height at the cell centre,
