@@ -309,12 +309,16 @@ std::vector<uint8_t> close_narrow_pits(HeightGrid& grid, int K, double depth) {
         const float z = height[k];
         if (!seen[k] || !(closed[k] - z > min_depth)) continue;
         if (above && !((*above)[k] - z > min_depth)) continue;
+        if (seen[k] == 2) {
+          --grid.interpolated_cells;
+        } else {
+          --grid.observed_cells;
+        }
         grid.observed[k] = 0;
         grid.elevation[k] = grid.min[k] = grid.max[k] =
             std::min(closed[k], lowest_above(height, seen, i, j));
         grid.variance[k] = 0.0f;
         bridged[k] = 1;
-        --grid.observed_cells;
         ++grid.bridged_cells;
       }
   };
@@ -707,13 +711,14 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
   for (size_t k = 0; k < ncell; ++k) sample[k] = grid.support[k] > 0;
   promote_sparse_surfaces(entries, start, candidate, eff, grid, sample);
   for (size_t k = 0; k < ncell; ++k) grid.observed_cells += grid.observed[k] == 1;
-  const std::vector<uint8_t> bridged = close_narrow_pits(grid, o.bridge_cells, eff.cluster_gap);
-  for (size_t k = 0; k < ncell; ++k)
-    if (bridged[k]) sample[k] = 0;
-  // Sampling gaps at the scale of the point spacing (1.5 cells for dense clouds, as before).
+  // Sampling gaps at the scale of the point spacing (1.5 cells for dense clouds, as before), then
+  // the see-through openings: in that order, a sparse cloud's surface is whole before the pits
+  // are looked for (the other way round, the maze's floor within 8 cm of its walls, islands of
+  // single points among unseen cells, read as pits of the wall tops: 470 cells).
   const double spacing = grid.noise.point_spacing;
   grid.gap_radius = std::max(1.5 * g.resolution, std::min(2.5 * spacing, kMaxGapRadius));
   fill_sampling_gaps(grid, sample, grid.gap_radius);
+  const std::vector<uint8_t> bridged = close_narrow_pits(grid, o.bridge_cells, eff.cluster_gap);
   fill_holes_around(grid, o.min_cell_points, bridged);
   grid.smoothing_length = smoothing_length(grid.noise, o);
   smooth_surface(grid, grid.smoothing_length);
