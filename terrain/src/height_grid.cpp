@@ -249,7 +249,8 @@ void promote_sparse_surfaces(const std::vector<Entry>& entries, const std::vecto
 // Narrow pits (at most 2 K cells wide) more than cluster_gap deep are openings of a surface seen
 // through (grating holes, gaps between deck boards): a grey-level closing (max then min filter over
 // a (2K+1)^2 window) bridges them. Those cells did not observe the surface, so they become
-// unobserved (hence unsafe) and fill_holes gives them the bridged height. Steps and wide trenches
+// unobserved (hence unsafe) and take the bridged height, which the hole filling keeps and grows
+// from (the returned flags). Steps and wide trenches
 // are untouched: a closing only removes valleys narrower than its window. Two closings: one
 // ignoring unobserved cells (a pit with the surface seen around it), then one taking unobserved
 // cells and cells beyond the grid as high, since what was not seen may be the surface continuing
