@@ -133,12 +133,18 @@ void print_summary(const MapOptions& o, const terrain::MapBuild& build, const js
             << statistics["non_finite"].get<size_t>() << " non-finite, " << build.points_kept
             << " kept after cleaning\n"
             << "  grid: " << g.geometry.nx << " x " << g.geometry.ny << " cells of "
-            << g.geometry.resolution << " m, " << g.observed_cells << " observed, "
-            << g.filled_cells << " filled, sensor noise " << fmt(g.noise_sigma * 1000, 1)
-            << " mm\n";
+            << g.geometry.resolution << " m, " << g.observed_cells << " observed ("
+            << g.interpolated_cells << " of them interpolated), " << g.filled_cells
+            << " filled, sensor noise "
+            << (g.noise.estimated ? fmt(g.noise.sigma * 1000, 1) + " mm" : "not estimated")
+            << ", smoothed over " << fmt(g.smoothing_length * 1000, 1) << " mm\n";
+  // The safe fraction as terrain.json and the report define it: safe cells of observed cells.
   for (const auto& s : summary["safe"])
     std::cout << "  safe for foot radius " << s["radius"].get<double>()
-              << " m: " << fmt(100.0 * s["safe_fraction"].get<double>(), 1) << " % of cells\n";
+              << " m: " << fmt(100.0 * s["safe_fraction"].get<double>(), 1)
+              << " % of observed cells\n";
+  if (summary.contains("notes"))
+    for (const auto& note : summary["notes"]) std::cout << "  note: " << note.get<std::string>() << "\n";
   std::cout << "  time: read " << fmt(timings["read_s"]) << " s, clean " << fmt(timings["filter_s"])
             << " s, grid " << fmt(timings["grid_s"]) << " s, safety " << fmt(timings["safety_s"])
             << " s, OctoMap " << fmt(timings["octomap_s"]) << " s, write "
