@@ -135,11 +135,7 @@ void read_init(const json& fields, const robot::RobotModel& robot, PlanRequest* 
     throw RequestFieldError("init", "the plan's feet (" + joined(r->previous.feet) +
                                         ") differ from robot " + robot.name + "'s (" +
                                         joined(feet) + ")");
-  try {
-    planner::check_plan_horizon(r->previous.duration, "init.duration");
-  } catch (const planner::RequestError& e) {
-    throw RequestFieldError(e.field(), e.problem());
-  }
+  planner::check_plan_horizon(r->previous.duration, "init.duration");
   try {
     planner::timeline_of(r->previous);  // the contact schedule the re-plan continues
   } catch (const std::invalid_argument& e) {
@@ -230,11 +226,7 @@ PlanRequest read_plan_request(const json& fields, const robot::RobotModel& robot
   r.samples = text(fields, "samples", r.samples);
   if (r.samples != "json" && r.samples != "attachment")
     throw RequestFieldError("samples", "must be \"json\" or \"attachment\"");
-  try {
-    planner::check_plan_request(po, r.sample_dt);
-  } catch (const planner::RequestError& e) {
-    throw RequestFieldError(e.field(), e.problem());
-  }
+  planner::check_plan_request(po, r.sample_dt);
   return r;
 }
 

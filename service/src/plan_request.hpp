@@ -9,26 +9,15 @@
 #include <string>
 
 #include "terrastride/planner/planner.hpp"
+#include "terrastride/planner/request_limits.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/height_field.hpp"
 
 namespace terrastride::service {
 
-// A field that is malformed or out of range. field(): as the socket names it ("sample_dt",
-// "goal", "init", "start_state"); problem(): what is wrong. what() is "field: problem".
-class RequestFieldError : public std::runtime_error {
- public:
-  RequestFieldError(std::string field, std::string problem)
-      : std::runtime_error(field + ": " + problem),
-        field_(std::move(field)),
-        problem_(std::move(problem)) {}
-  const std::string& field() const { return field_; }
-  const std::string& problem() const { return problem_; }
-
- private:
-  std::string field_;
-  std::string problem_;
-};
+// A field that is malformed or out of range: the planner's RequestError (field() as the socket
+// names it: "sample_dt", "goal", "init", "start_state"; problem(); what() "field: problem").
+using RequestFieldError = planner::RequestError;
 
 struct PlanRequest {
   std::string terrain = "current";  // a scene name, a terrain directory, or the socket's "current"
