@@ -17,13 +17,6 @@ void require_finite(const Eigen::Vector3d& v, const std::string& field) {
 
 }  // namespace
 
-Eigen::Matrix3d rotation_zyx(const Eigen::Vector3d& e) {
-  return (Eigen::AngleAxisd(e[0], Eigen::Vector3d::UnitZ()) *
-          Eigen::AngleAxisd(e[1], Eigen::Vector3d::UnitY()) *
-          Eigen::AngleAxisd(e[2], Eigen::Vector3d::UnitX()))
-      .toRotationMatrix();
-}
-
 namespace detail {
 
 // Shared validation: every check reads the same fields, so they are checked once, here.

@@ -232,8 +232,8 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
   auto exclusion_for = [&](const robot::LegModel& leg) {
     return options.shin_exclusion >= 0
                ? options.shin_exclusion
-               : 2 * model.foot_radius + leg.shin_radius +
-                     std::max(options.exclusion_margin, octree.getResolution());
+               : robot::shin_exclusion(model, leg,
+                                       std::max(options.exclusion_margin, octree.getResolution()));
   };
   for (const auto& leg : model.legs)
     rep.shin_exclusion = std::max(rep.shin_exclusion, exclusion_for(leg));

@@ -1,5 +1,7 @@
 #include "terrastride/robot/leg_kinematics.hpp"
 
+#include "terrastride/robot/geometry.hpp"
+
 #include <Eigen/Geometry>
 #include <Eigen/LU>
 #include <algorithm>
@@ -50,7 +52,7 @@ Vector3 hfe_position(const LegModel& leg, const Vector3& q) {
   return chain_frames(leg, q).origin[1];
 }
 Vector3 knee_position(const LegModel& leg, const Vector3& q) {
-  return chain_frames(leg, q).origin[2];
+  return knee_in_base<double>(leg, q);  // the knee the planner's shin_ik set uses
 }
 
 Matrix3 foot_jacobian(const LegModel& leg, const Vector3& q) {
@@ -66,13 +68,10 @@ IkResult inverse_kinematics(const LegModel& leg, const Vector3& foot_in_base) {
     res.message = "leg " + leg.name + ": foot position is not finite";
     return res;
   }
-  const Vector3 v = foot_in_base - leg.haa_origin;
-  const double gamma = std::atan2(v.y(), -v.z());
-  const double q_haa = -leg.side * gamma;
-  const double r = std::hypot(v.y(), v.z());
-  const double x = v.x();
-  const double z = -(r - leg.l0);
-  const double cos_knee = (x * x + z * z - leg.l1 * leg.l1 - leg.l2 * leg.l2) / (2 * leg.l1 * leg.l2);
+  // The planner's IK equations (geometry.hpp). The planner's rows clamp a foot beyond reach to the
+  // stretched knee; here it is reported.
+  const LegPlane<double> plane = leg_plane<double>(leg, foot_in_base);
+  const double x = plane.x, z = plane.z, cos_knee = plane.cos_knee;
   // A hair of slack absorbs round-off at full extension; anything beyond is out of reach.
   constexpr double kSlack = 1e-12;
   if (cos_knee > 1 + kSlack || cos_knee < -1 - kSlack) {
@@ -84,10 +83,7 @@ IkResult inverse_kinematics(const LegModel& leg, const Vector3& foot_in_base) {
                   std::to_string(leg.l1 + leg.l2) + " m)";
     return res;
   }
-  const double q_kfe = leg.knee_sign * std::acos(std::clamp(cos_knee, -1.0, 1.0));
-  const double q_hfe =
-      std::atan2(-x, -z) - std::atan2(leg.l2 * std::sin(q_kfe), leg.l1 + leg.l2 * std::cos(q_kfe));
-  res.q = Vector3(q_haa, q_hfe, q_kfe);
+  res.q = leg_angles<double>(leg, plane, std::clamp(cos_knee, -1.0, 1.0));
   static const char* kJointNames[3] = {"HAA", "HFE", "KFE"};
   for (int i = 0; i < 3; ++i) {
     if (res.q[i] < leg.q_min[i] - 1e-9 || res.q[i] > leg.q_max[i] + 1e-9) {

@@ -6,16 +6,9 @@
 #include <cstdio>
 #include <cstdlib>
 
-namespace terrastride::planner {
+#include "terrastride/robot/geometry.hpp"
 
-namespace {
-Eigen::Matrix3d rotation_zyx(const Eigen::Vector3d& e) {
-  return (Eigen::AngleAxisd(e[0], Eigen::Vector3d::UnitZ()) *
-          Eigen::AngleAxisd(e[1], Eigen::Vector3d::UnitY()) *
-          Eigen::AngleAxisd(e[2], Eigen::Vector3d::UnitX()))
-      .toRotationMatrix();
-}
-}  // namespace
+namespace terrastride::planner {
 
 std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
                                            const terrain::HeightField& terrain,
@@ -39,7 +32,7 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
     rl.z() += robot.mass * g;
     for (int d = 0; d < 3; ++d)
       if (robot.base_dof_free[d]) lin = std::max(lin, std::abs(rl[d]));
-    const Eigen::Matrix3d R = rotation_zyx(b.euler_zyx);
+    const Eigen::Matrix3d R = robot::rotation_zyx(b.euler_zyx);
     if (rot_free) {
       const Eigen::Matrix3d Iw = R * robot.inertia * R.transpose();
       const Eigen::Vector3d w = b.angular_velocity;

@@ -1,5 +1,6 @@
 // Shared helpers of the feasibility constraint sets (foot.cpp, shin.cpp, shin_ik.cpp, polytope.cpp,
-// joints.cpp): AD overloads of the terrain/model queries they use.
+// joints.cpp): AD overloads of the terrain/model queries they use. (The leg's IK is the
+// robot's, robot/geometry.hpp.)
 #pragma once
 
 #include <algorithm>
@@ -27,28 +28,6 @@ inline double safety_margin(const terrain::HeightField& f, double x, double y, d
 inline Ad safety_margin(const terrain::HeightField& f, const Ad& x, const Ad& y, double r) {
   const terrain::MarginSample s = f.safety_margin(x.value(), y.value(), r);
   return Ad(s.margin, chain2(s.gradient.x(), x.derivatives(), s.gradient.y(), y.derivatives()));
-}
-
-// Joint angles (HAA, HFE, KFE) of `leg` for the foot at pb in the base frame (DESIGN.md, Robot:
-// IK), for any scalar type. A foot beyond reach (the range-of-motion box allows a little) gets the
-// stretched knee's angles.
-template <class T>
-Vec3<T> leg_joint_angles(const robot::LegModel& leg, const Vec3<T>& pb) {
-  using std::acos;
-  using std::atan2;
-  using std::cos;
-  using std::sin;
-  using std::sqrt;
-  const Vec3<T> v = pb - leg.haa_origin.cast<T>();
-  const T gamma = atan2(v[1], -v[2]);
-  const T rho = sqrt(v[1] * v[1] + v[2] * v[2]);
-  const T X = v[0], Z = -(rho - leg.l0);
-  T c = (X * X + Z * Z - leg.l1 * leg.l1 - leg.l2 * leg.l2) / (2.0 * leg.l1 * leg.l2);
-  if (value_of(c) > 1.0 - 1e-6) c = T(1.0 - 1e-6);
-  if (value_of(c) < -1.0 + 1e-6) c = T(-1.0 + 1e-6);
-  const T qK = static_cast<double>(leg.knee_sign) * acos(c);
-  const T qH = atan2(-X, -Z) - atan2(leg.l2 * sin(qK), leg.l1 + leg.l2 * cos(qK));
-  return Vec3<T>(-static_cast<double>(leg.side) * gamma, qH, qK);
 }
 
 // Smooth conservative minimum of v[0..n-1] at scale t > 0 (log-sum-exp):

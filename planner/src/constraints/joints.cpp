@@ -29,7 +29,7 @@ template <class T>
 void joint_angle_rows(const robot::LegModel& leg, const Vec3<T>& base, const Vec3<T>& euler,
                       const Vec3<T>& foot, T* g) {
   const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(euler);
-  const Vec3<T> q = feasibility::leg_joint_angles<T>(leg, R.transpose() * (foot - base));
+  const Vec3<T> q = robot::leg_joint_angles<T>(leg, R.transpose() * (foot - base));
   for (int j = 0; j < 3; ++j) g[j] = q[j];
 }
 

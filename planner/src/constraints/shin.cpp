@@ -51,7 +51,7 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options) {
             : leg.shin_radius / std::max(0.2, std::abs(cb));  // beta near 90 deg: no blow-up
     const double exclusion = options.shin_exclusion >= 0.0
                                  ? options.shin_exclusion
-                                 : 2.0 * problem.robot().foot_radius + leg.shin_radius + 0.01;
+                                 : robot::shin_exclusion(problem.robot(), leg);
     const double k_min = std::clamp(exclusion / s, 0.0, 1.0);
     // One piece over the points at fractions `sigmas` of segment seg: nk rows per fraction, or
     // (shin_softmin > 0) one row, their soft minimum.

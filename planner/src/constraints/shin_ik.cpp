@@ -25,22 +25,6 @@
 
 namespace terrastride::planner {
 
-namespace {
-
-template <class T>
-Vec3<T> knee_in_base(const robot::LegModel& leg, const Vec3<T>& pb) {
-  using std::cos;
-  using std::sin;
-  const Vec3<T> q = feasibility::leg_joint_angles<T>(leg, pb);
-  const T gamma = -static_cast<double>(leg.side) * q[0];
-  const T ky = T(0.0), kz = -leg.l0 - leg.l1 * cos(q[1]), kx = -leg.l1 * sin(q[1]);
-  const T cg = cos(gamma), sg = sin(gamma);
-  return Vec3<T>(leg.haa_origin.x() + kx, leg.haa_origin.y() + cg * ky - sg * kz,
-                 leg.haa_origin.z() + sg * ky + cg * kz);
-}
-
-}  // namespace
-
 void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   const Layout& L = problem.layout();
   const terrain::HeightField* field = &problem.terrain();
@@ -52,7 +36,7 @@ void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options) 
     const robot::LegModel leg = problem.robot().legs[f];
     const double exclusion = options.shin_exclusion >= 0.0
                                  ? options.shin_exclusion
-                                 : 2.0 * problem.robot().foot_radius + leg.shin_radius + 0.01;
+                                 : robot::shin_exclusion(problem.robot(), leg);
     const double radius = options.shin_clearance >= 0.0 ? -1.0 : leg.shin_radius;
     const double fixed_clearance = options.shin_clearance;
     // shin_softmin > 0: the 2 nk - 1 values folded into one row (their soft minimum).
@@ -70,7 +54,9 @@ void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options) 
         using std::sqrt;
         const Vec3<T> foot = gather3(x, p), base = gather3(x, r);
         const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(gather3(x, e));
-        const Vec3<T> knee = base + R * knee_in_base<T>(leg, R.transpose() * (foot - base));
+        const Vec3<T> knee =
+            base + R * robot::knee_in_base<T>(
+                           leg, robot::leg_joint_angles<T>(leg, R.transpose() * (foot - base)));
         const Vec3<T> d = knee - foot;
         const T len = sqrt(d.squaredNorm());
         const T horiz = sqrt(d[0] * d[0] + d[1] * d[1] + 1e-12);

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "terrastride/planner/trajectory.hpp"
+#include "terrastride/robot/geometry.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/height_field.hpp"
@@ -112,12 +113,13 @@ struct ClearanceOptions {
   // capsule's axis stops `shin_exclusion` short of the foot point: the foot sphere (2 r from the
   // contact point to its top), the shin's own radius (its end cap) and a quantisation margin, the
   // larger of `exclusion_margin` and the octree's voxel size (a scanned surface voxel may stand up
-  // to one voxel above the true surface). What remains is the part of the leg the paper's shin
-  // constraint protects (knee and the points between knee and foot). Negative = use
-  // 2 foot_radius + shin_radius + max(exclusion_margin, voxel size). Coarse maps (5 cm voxels)
-  // exclude more of the shin and still read stance shins as touching: map with 1-2 cm voxels.
+  // to one voxel above the true surface); robot::shin_exclusion, as the planner's shin sets. What
+  // remains is the part of the leg the paper's shin constraint protects (knee and the points
+  // between knee and foot). Negative = use 2 foot_radius + shin_radius + max(exclusion_margin,
+  // voxel size). Coarse maps (5 cm voxels) exclude more of the shin and still read stance shins as
+  // touching: map with 1-2 cm voxels.
   double shin_exclusion = -1.0;
-  double exclusion_margin = 0.01;
+  double exclusion_margin = robot::kShinExclusionMargin;
   // Distances beyond this are not resolved (reported as the cutoff). It bounds FCL's search, whose
   // cost grows with the number of voxels within that distance; 10 cm is well past where a
   // clearance matters for collision, so a thigh high above flat ground simply reads 0.1.
@@ -272,7 +274,8 @@ CheckReport run_checks(const robot::RobotModel& model, const planner::Trajectory
 void trajectory_extent(const robot::RobotModel& model, const planner::Trajectory& trajectory,
                        double margin, Eigen::Vector2d* lo, Eigen::Vector2d* hi);
 
-// Base orientation from ZYX Euler angles (yaw, pitch, roll): R = Rz(yaw) Ry(pitch) Rx(roll).
-Eigen::Matrix3d rotation_zyx(const Eigen::Vector3d& euler_zyx);
+// Base orientation from ZYX Euler angles (yaw, pitch, roll): R = Rz(yaw) Ry(pitch) Rx(roll), the
+// planner's (robot/geometry.hpp).
+using robot::rotation_zyx;
 
 }  // namespace terrastride::collision

@@ -41,7 +41,7 @@ struct FeasibilityOptions {
   // edge by 0.3 mm; 20 points, by 13 mm (merged rows: the row count is the same).
   // shin_exclusion (m along the shin from the foot): the foot sphere and the shin's end cap,
   // which stand on the ground by design (the post-hoc capsule check leaves out the same part:
-  // 2 r_foot + r_shin + 1 cm). Negative = that value.
+  // 2 r_foot + r_shin + 1 cm, robot::shin_exclusion). Negative = that value.
   int shin_points = 20;
   double shin_exclusion = -1.0;
   // shin: required vertical gap (m) of each point above the terrain under it. Negative = the

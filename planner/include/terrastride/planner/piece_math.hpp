@@ -15,6 +15,7 @@
 #include <utility>
 
 #include "terrastride/planner/nlp.hpp"
+#include "terrastride/robot/geometry.hpp"
 #include "terrastride/terrain/height_field.hpp"
 
 namespace terrastride::planner {
@@ -154,18 +155,8 @@ void hermite(double s, const T& h, const T* x, const HermiteLocal& l, Vec3<T>* p
   hermite<T>(s, h, gather3(x, l.p0), gather3(x, l.v0), gather3(x, l.p1), gather3(x, l.v1), p, v, a);
 }
 
-// R = Rz(yaw) Ry(pitch) Rx(roll), euler = (yaw, pitch, roll).
-template <class T>
-Eigen::Matrix<T, 3, 3> rotation_zyx(const Vec3<T>& e) {
-  using std::cos;
-  using std::sin;
-  const T cy = cos(e[0]), sy = sin(e[0]), cp = cos(e[1]), sp = sin(e[1]), cr = cos(e[2]),
-          sr = sin(e[2]);
-  Eigen::Matrix<T, 3, 3> R;
-  R << cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr, sy * cp, sy * sp * sr + cy * cr,
-      sy * sp * cr - cy * sr, -sp, cp * sr, cp * cr;
-  return R;
-}
+// R = Rz(yaw) Ry(pitch) Rx(roll), euler = (yaw, pitch, roll): the robot's (robot/geometry.hpp).
+using robot::rotation_zyx;
 
 // World angular velocity and acceleration from ZYX Euler angles and their derivatives:
 // w = E(e) e', w' = E e'' + E' e'.

@@ -16,7 +16,8 @@ using Matrix3 = Eigen::Matrix3d;
 // Forward kinematics: foot centre position in the base frame.
 Vector3 foot_position(const LegModel& leg, const Vector3& q);
 
-// Positions of the HFE joint and of the knee (KFE joint) in the base frame.
+// Positions of the HFE joint and of the knee (KFE joint) in the base frame (the knee is the
+// planner's, geometry.hpp's knee_in_base).
 Vector3 hfe_position(const LegModel& leg, const Vector3& q);
 Vector3 knee_position(const LegModel& leg, const Vector3& q);
 
@@ -32,8 +33,9 @@ struct IkResult {
   bool ok() const { return status == IkStatus::ok; }
 };
 
-// Analytic inverse kinematics on the leg's knee branch. `check_limits` = false returns the
-// analytic solution even outside the joint range (status outside_joint_limits).
+// Analytic inverse kinematics on the leg's knee branch: the planner's (geometry.hpp), with a foot
+// out of reach reported as unreachable. A solution outside the joint range is returned with status
+// outside_joint_limits.
 IkResult inverse_kinematics(const LegModel& leg, const Vector3& foot_in_base);
 
 // Joint-space dynamics of the leg on a fixed base: tau = M(q) qdd + c(q, qd) + g(q) - J^T f,
