@@ -87,7 +87,7 @@ void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options = {
 // knot of the base spline (see constraints/joints.cpp).
 void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 
-// FeasibilityOptions from the defaults and NAME=VALUE settings (PlannerOptions::
+// FeasibilityOptions from the defaults and NAME=VALUE settings (ProblemOptions::
 // feasibility_settings, `terrastride plan --feasibility`); names are the fields' names. Throws
 // std::invalid_argument naming the setting when the name is unknown or the value out of range.
 FeasibilityOptions feasibility_options(const std::vector<std::pair<std::string, double>>& settings);
