@@ -115,6 +115,23 @@ LinkInertia read_link(const FieldReader& r) {
   return link;
 }
 
+// `trunk: {size: [x, y, z], center: [x, y, z]}` or `trunk: none`. Required: a robot file that
+// forgets its trunk must not be checked as if it had none.
+std::optional<TrunkBox> read_trunk(const FieldReader& top) {
+  const YAML::Node node = top.child("trunk");
+  if (node.IsScalar() && node.Scalar() == "none") return std::nullopt;
+  if (!node.IsMap())
+    top.fail("trunk", "must be a mapping {size: [x, y, z], center: [x, y, z]} or 'none'");
+  const FieldReader r = top.sub("trunk");
+  TrunkBox box;
+  box.size = r.vec3("size");
+  for (int i = 0; i < 3; ++i)
+    if (!(box.size[i] > 0))
+      r.fail("size", "edge lengths must be > 0 (got " + std::to_string(box.size[i]) + ")");
+  box.center = r.vec3("center");
+  return box;
+}
+
 }  // namespace
 
 const LegModel& RobotModel::leg(const std::string& leg_name) const {
@@ -162,6 +179,16 @@ RobotModel load_robot(const std::string& path) {
         dr.fail(kNames[i], "must be true or false");
       }
     }
+  }
+
+  robot.trunk = read_trunk(top);
+  if (robot.trunk) {
+    const double bottom = robot.trunk->center.z() - robot.trunk->half_size().z();
+    if (!(bottom > -robot.nominal_base_height))
+      top.fail("trunk", "its bottom (z = " + std::to_string(bottom) +
+                            " m in the base frame) is not above the ground of the nominal stance "
+                            "(z = -nominal_base_height = " +
+                            std::to_string(-robot.nominal_base_height) + " m)");
   }
 
   // Shared leg description; each leg may override any of these keys.

@@ -65,6 +65,9 @@ void add_robot_command(CLI::App& app) {
                              {"torque_limit", vec_json(leg.torque_limit)},
                              {"nominal_foot", vec_json(leg.nominal_foot)}});
     }
+    out["trunk"] = model.trunk ? json{{"size", vec_json(model.trunk->size)},
+                                      {"center", vec_json(model.trunk->center)}}
+                               : json(nullptr);
     std::cout << out.dump(2) << "\n";
   });
 

@@ -7,6 +7,7 @@
 #include <fstream>
 #include <random>
 
+#include "terrastride/robot/geometry.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 
@@ -302,10 +303,65 @@ TEST(RobotModel, FileErrorsNameFileAndField) {
   EXPECT_NE(load_error(inertia).find("not positive definite"), std::string::npos);
 }
 
+TEST(RobotModel, HyqTrunkIsTheBoundingBoxOfItsUrdfCollisionMesh) {
+  const RobotModel m = hyq();
+  ASSERT_TRUE(m.has_trunk());
+  // iit-DLSLab/hyq-description meshes/trunk/trunk.dae: x +-0.5, y +-0.2413, z +-0.09 shifted 1 cm up.
+  EXPECT_NEAR(m.trunk->size.x(), 1.0, 1e-12);
+  EXPECT_NEAR(m.trunk->size.y(), 0.4826, 1e-12);
+  EXPECT_NEAR(m.trunk->size.z(), 0.18, 1e-12);
+  EXPECT_NEAR(m.trunk->center.z(), 0.01, 1e-12);
+  // The box holds the HAA joints and sits well above the nominal feet.
+  for (const auto& leg : m.legs) {
+    const Eigen::Vector3d d = (leg.haa_origin - m.trunk->center).cwiseAbs();
+    EXPECT_TRUE((d.array() <= m.trunk->half_size().array()).all()) << leg.name;
+    EXPECT_GT(m.trunk->center.z() - m.trunk->half_size().z(), leg.nominal_foot.z() + 0.4);
+  }
+  // Corners: bit 0 x, bit 1 y, bit 2 z; the world corners follow the base pose.
+  const Eigen::Vector3d c7 = trunk_corner_in_base(*m.trunk, 7), c0 = trunk_corner_in_base(*m.trunk, 0);
+  EXPECT_TRUE(c7.isApprox(Eigen::Vector3d(0.5, 0.2413, 0.10), 1e-12));
+  EXPECT_TRUE(c0.isApprox(Eigen::Vector3d(-0.5, -0.2413, -0.08), 1e-12));
+  const Eigen::Vector3d base(1, 2, 0.58), yaw90(M_PI / 2, 0, 0);
+  const Eigen::Vector3d w = trunk_corner_world<double>(*m.trunk, 7, base, yaw90);
+  EXPECT_TRUE(w.isApprox(Eigen::Vector3d(1 - 0.2413, 2 + 0.5, 0.68), 1e-9)) << w.transpose();
+}
+
+TEST(RobotModel, TrunkFieldErrorsNameFileAndField) {
+  const std::string trunk_block =
+      "trunk:\n  size: [1.0, 0.4826, 0.18]    # m, full edge lengths along base x, y, z\n"
+      "  center: [0.0, 0.0, 0.01]     # m, base frame\n";
+  const std::string missing = write_temp("no_trunk", replaced(hyq_text(), trunk_block, ""));
+  const std::string e1 = load_error(missing);
+  EXPECT_NE(e1.find(missing), std::string::npos) << e1;
+  EXPECT_NE(e1.find("'trunk': missing"), std::string::npos) << e1;
+
+  const std::string no_size = write_temp(
+      "trunk_no_size", replaced(hyq_text(), "size: [1.0, 0.4826, 0.18]", "sise: [1.0, 0.4826, 0.18]"));
+  EXPECT_NE(load_error(no_size).find("'trunk.size': missing"), std::string::npos) << load_error(no_size);
+
+  const std::string flat = write_temp(
+      "trunk_flat", replaced(hyq_text(), "size: [1.0, 0.4826, 0.18]", "size: [1.0, 0.0, 0.18]"));
+  EXPECT_NE(load_error(flat).find("'trunk.size': edge lengths must be > 0"), std::string::npos)
+      << load_error(flat);
+
+  const std::string short_center = write_temp(
+      "trunk_center", replaced(hyq_text(), "center: [0.0, 0.0, 0.01]", "center: [0.0, 0.01]"));
+  EXPECT_NE(load_error(short_center).find("'trunk.center': must be a list of 3 numbers"),
+            std::string::npos) << load_error(short_center);
+
+  const std::string word = write_temp("trunk_word", replaced(hyq_text(), trunk_block, "trunk: box\n"));
+  EXPECT_NE(load_error(word).find("'trunk': must be a mapping"), std::string::npos) << load_error(word);
+
+  const std::string low = write_temp(
+      "trunk_low", replaced(hyq_text(), "center: [0.0, 0.0, 0.01]", "center: [0.0, 0.0, -0.55]"));
+  EXPECT_NE(load_error(low).find("'trunk': its bottom"), std::string::npos) << load_error(low);
+}
+
 TEST(RobotModel, MonopedLoadsWithSliderDof) {
   const RobotModel m = load_robot(std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/monoped.yaml");
   ASSERT_EQ(m.legs.size(), 1u);
   EXPECT_FALSE(m.base_dof_free[0]);
   EXPECT_TRUE(m.base_dof_free[2]);
   EXPECT_TRUE(inverse_kinematics(m.legs[0], m.legs[0].nominal_foot).ok());
+  EXPECT_FALSE(m.has_trunk());  // `trunk: none`: the slider carriage is not a body
 }

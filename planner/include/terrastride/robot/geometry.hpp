@@ -89,6 +89,29 @@ Vector3T<T> knee_in_base(const LegModel& leg, const Vector3T<T>& q) {
                      leg.haa_origin.z() + sg * ky + cg * kz);
 }
 
+// The trunk box's corner k (0..7) in the base frame: bit 0 of k picks +x (set) or -x, bit 1 +y or
+// -y, bit 2 +z or -z. Corners 0-3 are the bottom face.
+inline Eigen::Vector3d trunk_corner_in_base(const TrunkBox& box, int k) {
+  const Eigen::Vector3d h = box.half_size();
+  return box.center + Eigen::Vector3d((k & 1) ? h.x() : -h.x(), (k & 2) ? h.y() : -h.y(),
+                                      (k & 4) ? h.z() : -h.z());
+}
+
+// The trunk box's corner k in the world for the base at `base` with ZYX Euler angles `euler`
+// (yaw, pitch, roll), for any scalar type (the planner's trunk clearance rows differentiate it).
+template <class T>
+Vector3T<T> trunk_corner_world(const TrunkBox& box, int k, const Vector3T<T>& base,
+                               const Vector3T<T>& euler) {
+  return base + rotation_zyx<T>(euler) * trunk_corner_in_base(box, k).cast<T>();
+}
+
+// The trunk box's centre in the world (its axes are the base's: rotation_zyx(euler)).
+template <class T>
+Vector3T<T> trunk_center_world(const TrunkBox& box, const Vector3T<T>& base,
+                               const Vector3T<T>& euler) {
+  return base + rotation_zyx<T>(euler) * box.center.cast<T>();
+}
+
 // The shin's part next to the foot point that stands on the ground by design, and that the shin
 // models leave out (the planner's shin sets and the post-hoc capsule check): the foot sphere (2
 // foot radii from the contact point to its top), the shin's end cap (its radius) and `margin`.

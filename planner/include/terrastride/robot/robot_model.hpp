@@ -4,6 +4,7 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <optional>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -51,6 +52,15 @@ struct LegModel {
   bool is_front = true;      // front legs have knee_sign -1 on HyQ; kept for reporting only
 };
 
+// The trunk as one collision box, fixed to the base: full edge lengths along the base axes and
+// the box centre in the base frame (the box is not turned relative to the base). HyQ's comes
+// from its URDF's trunk collision mesh (data/robots/hyq.yaml says which numbers and where).
+struct TrunkBox {
+  Eigen::Vector3d size = Eigen::Vector3d::Zero();    // m, full lengths along base x, y, z
+  Eigen::Vector3d center = Eigen::Vector3d::Zero();  // m, base frame
+  Eigen::Vector3d half_size() const { return 0.5 * size; }
+};
+
 // The leg's nominal foot in the world for a base at `base` turned by `yaw` (no pitch or roll).
 inline Eigen::Vector3d nominal_foot_world(const LegModel& leg, const Eigen::Vector3d& base,
                                           double yaw) {
@@ -71,7 +81,11 @@ struct RobotModel {
   // only z for the monoped on its vertical slider.
   std::array<bool, 6> base_dof_free{{true, true, true, true, true, true}};  // x y z yaw pitch roll
   std::vector<LegModel> legs;
+  // The trunk box; absent only when the robot file says `trunk: none` (the monoped, whose slider
+  // carriage is not a body that can meet the terrain).
+  std::optional<TrunkBox> trunk;
 
+  bool has_trunk() const { return trunk.has_value(); }
   const LegModel& leg(const std::string& leg_name) const;
   int leg_index(const std::string& leg_name) const;  // -1 when absent
 };
