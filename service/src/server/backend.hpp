@@ -1,0 +1,121 @@
+// The state behind the socket service's terrain and planner operations, and the helpers they
+// share. Each operation lives in its own file under service/src/server/ops/ (one file per
+// operation, registered from its file name, as the CLI's cmd_*.cpp are); this header is all they
+// share.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "child_process.hpp"
+#include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/service/server.hpp"
+#include "terrastride/terrain/height_field.hpp"
+#include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
+
+namespace terrastride::service {
+
+// One published map: immutable once published; readers hold it for as long as they need it.
+struct MapSnapshot {
+  std::shared_ptr<const terrain::HeightField> field;
+  std::uint64_t generation = 0;
+  std::string source;  // "scene:pallet_10", "cloud", ...
+  double updated_unix = 0.0;
+  nlohmann::json stats = nlohmann::json::object();
+};
+
+// The clouds behind the current map: "add" rebuilds the map from every cloud since the last
+// replace. Guarded by Backend::update_mutex().
+struct CloudHistory {
+  std::vector<perception::PointCloud> clouds;
+  std::size_t points = 0;
+  void clear() {
+    clouds.clear();
+    points = 0;
+  }
+};
+
+// A scene and its C2 rasterisation, built once per scene name (Backend::scene_raster).
+struct SceneRaster {
+  std::shared_ptr<const terrain::Scene> scene;
+  std::unique_ptr<terrain::TerrainMap> smooth;
+};
+
+class Backend {
+ public:
+  explicit Backend(const BackendOptions& options);
+
+  const BackendOptions& options() const { return options_; }
+  const robot::RobotModel& robot() const { return robot_; }
+
+  // The published map (null when none); one snapshot serves a whole request.
+  std::shared_ptr<const MapSnapshot> map() const { return std::atomic_load(&map_); }
+  // Publishes `next` (nullptr clears) as the new generation; readers see the old or the new map.
+  std::uint64_t publish(std::shared_ptr<MapSnapshot> next);
+
+  // Map updates are serialised by this mutex (queries never take it); it guards clouds().
+  std::mutex& update_mutex() { return update_mu_; }
+  CloudHistory& clouds() { return clouds_; }
+
+  // Counters for `status` and `hello`.
+  void count_query(std::size_t points) {
+    queries_++;
+    points_queried_ += points;
+  }
+  void count_update() { updates_++; }
+
+  // Scenes are immutable and made from their name alone, so a scene and its C2 rasterisation
+  // (about 10 ms) are built once per name and shared by every plan on it.
+  std::shared_ptr<const SceneRaster> scene_raster(const std::string& name);
+
+  // A terrain directory a client names: only inside one of the server's --terrain-root folders
+  // (after resolving symlinks and ".."), and named relative to it or absolutely. `field` names the
+  // request field in errors.
+  std::string terrain_dir_path(const std::string& requested, const std::string& field) const;
+  // Extra safety-layer radii to precompute ("foot_radii": [r, ...]); the robot's is always there.
+  std::vector<double> radii_from(const nlohmann::json& header) const;
+
+  // Plans run in child processes under these limits (child_process.hpp), counted here.
+  const ChildProcessLimits& plan_limits() const { return plan_limits_; }
+  ChildProcessStats& plan_processes() { return plan_processes_; }
+
+  nlohmann::json map_json() const;
+  nlohmann::json robot_json() const;
+  nlohmann::json plan_processes_json() const;
+
+ private:
+  BackendOptions options_;
+  robot::RobotModel robot_;
+  std::shared_ptr<const MapSnapshot> map_;
+  std::atomic<std::uint64_t> generation_{0};
+  std::atomic<std::uint64_t> queries_{0}, points_queried_{0}, updates_{0};
+  std::mutex update_mu_;
+  CloudHistory clouds_;  // guarded by update_mu_
+  std::mutex raster_mu_;
+  std::map<std::string, std::shared_ptr<const SceneRaster>> rasters_;
+  ChildProcessLimits plan_limits_;
+  ChildProcessStats plan_processes_;
+};
+
+// Helpers shared by the operations.
+
+// A name of a file in the data folder (letters, digits, '_', '-'): never a path.
+bool is_plain_name(const std::string& name);
+// A request's gait: a name from the data folder. The server reads no gait file a client names
+// ("/etc/shadow" would otherwise be opened, and the error would tell whether it exists).
+std::string gait_name(const nlohmann::json& header);
+// map.update's and status's figures of a grid map.
+nlohmann::json grid_stats(const terrain::TerrainMap& map);
+double seconds_since(std::chrono::steady_clock::time_point t);
+
+}  // namespace terrastride::service

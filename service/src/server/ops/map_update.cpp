@@ -1,0 +1,174 @@
+// map.update: replace or extend the terrain map from a scene, a terrain directory or a point
+// cloud; the new map is published atomically (queries see the old map or the new one).
+#include <chrono>
+#include <cmath>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "server/backend.hpp"
+#include "terrastride/perception/filters.hpp"
+#include "terrastride/terrain/height_grid.hpp"
+
+namespace terrastride::service {
+
+namespace pc = protocol::code;
+using nlohmann::json;
+using protocol::ProtocolError;
+
+namespace {
+
+// Points kept for "add" updates (the map is rebuilt from every cloud since the last replace).
+constexpr std::size_t kMaxMapPoints = 20'000'000;
+
+struct FusedMap {
+  std::shared_ptr<const terrain::HeightField> field;
+  json stats;
+};
+
+// Filters the cloud, adds it to (or replaces) the clouds of the current map, rebuilds the height
+// grid and the safety layers. Caller holds the backend's update mutex.
+FusedMap fuse_cloud(Backend& backend, OpContext& ctx, const protocol::Attachment& att,
+                    const std::string& mode) {
+  const json& h = ctx.request.header;
+  const auto t0 = std::chrono::steady_clock::now();
+  perception::PointCloud cloud;
+  cloud.points = protocol::read_points(att);  // rejects NaN / infinity, wrong shapes
+  if (cloud.points.empty())
+    throw ProtocolError(pc::kBadRequest, "attachment 'points' holds no points");
+  if (h.contains("origin") && !h["origin"].is_null())
+    cloud.sensor_origin = protocol::get_vector(h, "origin", 3);
+  cloud.source = "map.update";
+  const double resolution = protocol::get_number(h, "resolution", 0.02);
+  if (resolution < 0.002 || resolution > 1)
+    throw ProtocolError(pc::kBadRequest, "\"resolution\" must be within [0.002, 1] m");
+  const std::vector<double> radii = backend.radii_from(h);
+  // The same cleaning as `terrastride map` unless the request says otherwise.
+  perception::CloudFilterOptions fo = perception::default_map_cleaning();
+  fo.voxel_size = static_cast<float>(protocol::get_number(h, "voxel", fo.voxel_size));
+  if (!(fo.voxel_size >= 0) || fo.voxel_size > 1)
+    throw ProtocolError(pc::kBadRequest, "\"voxel\" must be within [0, 1] m (0 = off)");
+  const double outliers = protocol::get_number(h, "outlier_neighbours", fo.outlier_neighbours);
+  if (!(outliers >= 0) || outliers > 200 || outliers != std::floor(outliers))
+    throw ProtocolError(pc::kBadRequest, "\"outlier_neighbours\" must be an integer in [0, 200]");
+  fo.outlier_neighbours = static_cast<int>(outliers);
+  const double outlier_cell = protocol::get_number(h, "outlier_cell", fo.outlier_voxel);
+  if (!(outlier_cell >= 0) || outlier_cell > 0.1)
+    throw ProtocolError(pc::kBadRequest,
+                        "\"outlier_cell\" must be within [0, 0.1] m (0 = per point)");
+  fo.outlier_voxel = static_cast<float>(outlier_cell);
+  try {
+    cloud = perception::filter_cloud(cloud, fo);
+  } catch (const perception::InputError& e) {
+    throw ProtocolError(pc::kBadRequest, std::string("cloud filter: ") + e.what());
+  }
+  ctx.check_stop();
+  CloudHistory& history = backend.clouds();
+  std::vector<perception::PointCloud> clouds;
+  std::size_t total = cloud.points.size();
+  if (mode == "add") {
+    clouds = history.clouds;
+    total += history.points;
+  }
+  if (total > kMaxMapPoints)
+    throw ProtocolError(pc::kBadRequest, "map would hold " + std::to_string(total) +
+                                             " points, above the limit of " +
+                                             std::to_string(kMaxMapPoints) +
+                                             "; send mode \"replace\" or a voxel size");
+  clouds.push_back(std::move(cloud));
+  terrain::HeightGridOptions go;
+  go.resolution = resolution;
+  std::unique_ptr<terrain::TerrainMap> tm;
+  try {
+    terrain::HeightGrid grid = terrain::build_height_grid(clouds, go);
+    ctx.check_stop();
+    tm = std::make_unique<terrain::TerrainMap>(std::move(grid), radii);
+  } catch (const perception::InputError& e) {
+    throw ProtocolError(pc::kBadRequest, std::string("height grid: ") + e.what());
+  }
+  ctx.check_stop();
+  // Commit the new cloud set only now that the map was built.
+  history.clouds = std::move(clouds);
+  history.points = total;
+  FusedMap fused;
+  fused.stats = grid_stats(*tm);
+  fused.stats["clouds"] = history.clouds.size();
+  fused.stats["points"] = history.points;
+  fused.stats["build_s"] = seconds_since(t0);
+  fused.field = std::move(tm);
+  return fused;
+}
+
+OpResult map_update(Backend& backend, OpContext& ctx) {
+  const json& h = ctx.request.header;
+  const std::string mode = protocol::get_string(h, "mode", std::string("add"));
+  if (mode != "add" && mode != "replace")
+    throw ProtocolError(pc::kBadRequest,
+                        "\"mode\" must be \"add\" or \"replace\", got '" + mode + "'");
+  const bool has_scene = h.contains("scene");
+  const bool has_dir = h.contains("terrain_dir");
+  const auto* points = ctx.request.find("points");
+  if (int(has_scene) + int(has_dir) + int(points != nullptr) != 1)
+    throw ProtocolError(pc::kBadRequest,
+                        "map.update needs exactly one source: \"scene\" (a scenario name), "
+                        "\"terrain_dir\" (a `terrastride map` output) or a float32 attachment "
+                        "\"points\" of shape [N, 3] with \"origin\"");
+  // Updates are serialised; queries never wait.
+  std::lock_guard<std::mutex> lock(backend.update_mutex());
+  ctx.check_stop();
+  auto next = std::make_shared<MapSnapshot>();
+  if (has_scene) {
+    const std::string name = protocol::get_string(h, "scene", std::nullopt);
+    std::unique_ptr<terrain::Scene> scene;
+    try {
+      scene = terrain::make_scene(name);
+    } catch (const perception::InputError& e) {
+      throw ProtocolError(pc::kBadRequest, std::string("\"scene\": ") + e.what());
+    }
+    backend.clouds().clear();
+    next->source = "scene:" + name;
+    next->stats = {{"kind", "analytic"}, {"edges", scene->edges().size()}};
+    next->field = std::move(scene);
+  } else if (has_dir) {
+    const std::string dir = protocol::get_string(h, "terrain_dir", std::nullopt);
+    const auto t0 = std::chrono::steady_clock::now();
+    std::unique_ptr<terrain::TerrainMap> tm;
+    try {
+      tm = terrain::load_terrain_dir(backend.terrain_dir_path(dir, "terrain_dir"));
+    } catch (const perception::InputError& e) {
+      throw ProtocolError(pc::kBadRequest, std::string("\"terrain_dir\": ") + e.what());
+    }
+    for (double r : backend.radii_from(h)) tm->layer(r);
+    backend.clouds().clear();
+    next->source = "terrain_dir:" + dir;
+    next->stats = grid_stats(*tm);
+    next->stats["load_s"] = seconds_since(t0);
+    next->field = std::move(tm);
+  } else {
+    FusedMap fused = fuse_cloud(backend, ctx, *points, mode);
+    next->stats = std::move(fused.stats);
+    next->source = "cloud";
+    next->field = std::move(fused.field);
+  }
+  ctx.check_stop();
+  const auto gen = backend.publish(next);
+  backend.count_update();
+  OpResult r;
+  r.result = {{"generation", gen}, {"source", next->source}, {"stats", next->stats}};
+  return r;
+}
+
+}  // namespace
+
+void add_map_update_operation(Backend& backend, OperationRegistry& registry) {
+  Backend* b = &backend;
+  registry.add({"map.update", OpKind::kWorker,
+                "replace or extend the terrain map (scene, terrain dir or point cloud)",
+                [b](OpContext& c) { return map_update(*b, c); },
+                std::vector<std::string>{"mode", "scene", "terrain_dir", "origin", "resolution",
+                                         "voxel", "outlier_neighbours", "outlier_cell",
+                                         "foot_radii"}});
+}
+
+}  // namespace terrastride::service
