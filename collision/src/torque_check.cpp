@@ -1,4 +1,4 @@
-// Joint torques along a trajectory: tau = M q̈ + c + g - J^T f (paper eq. 15), per leg and sample.
+// Joint torques along a trajectory: tau = M q̈ + c + g - J^T f (paper (21)), per leg and sample.
 #include <cmath>
 #include <limits>
 

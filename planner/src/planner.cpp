@@ -17,7 +17,7 @@ namespace terrastride::planner {
 
 namespace {
 
-constexpr double kDenseDt = 0.002;  // DESIGN.md: dense checks every 2 ms
+constexpr double kDenseDt = 0.002;  // docs/design.md §6.8: dense checks every 2 ms
 
 }  // namespace
 

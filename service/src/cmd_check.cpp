@@ -1,4 +1,4 @@
-// `terrastride check`: the post-hoc checks of a plan (DESIGN.md, Post-hoc checks) against a mapped
+// `terrastride check`: the post-hoc checks of a plan (docs/design.md §8) against a mapped
 // terrain directory or an exact scene.
 #include <algorithm>
 #include <cmath>

@@ -1,4 +1,4 @@
-// `terrastride scan-sim`: a simulated recorded scan of a DESIGN.md scene.
+// `terrastride scan-sim`: a simulated recorded scan of a scene of docs/design.md §11.
 //
 // The depth sensor rides on the robot as it approaches the start, so one scan is written per sensor
 // pose, each a PCD whose VIEWPOINT is that pose's sensor origin (so `map` carves free space from

@@ -1,5 +1,5 @@
 // `--terrain DIR|SCENE` for `terrastride plan` and `terrastride check`: a folder written by
-// `terrastride map`, or a scene name (DESIGN.md, Scenarios: the exact analytic terrain). One place
+// `terrastride map`, or a scene name (docs/design.md §11: the exact analytic terrain). One place
 // for both commands, so they read a terrain argument the same way.
 #pragma once
 

@@ -47,7 +47,8 @@ BENCHMARK(BM_ReadPlyBinary)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ReadNpyFloat32)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ReadXyzText)->Unit(benchmark::kMillisecond);
 
-// Args: resolution in mm, discretize (0/1). Ray casting from the origin, as DESIGN.md requires.
+// Args: resolution in mm, discretize (0/1). Ray casting from the origin, as docs/design.md §5.1
+// requires.
 void BM_OctoMapInsertScanXyz(benchmark::State& state) {
   const tp::PointCloud cloud = tp::read_cloud(scan("octomap/scan.xyz"), Eigen::Vector3d::Zero());
   tp::OctoMapOptions options;

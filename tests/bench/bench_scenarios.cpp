@@ -1,4 +1,4 @@
-// Scenario runner for the planner (DESIGN.md, Scenarios): one row per scenario with problem size,
+// Scenario runner for the planner (docs/design.md §11): one row per scenario with problem size,
 // iterations, wall time (median of --repeat runs), peak memory and the dense checks.
 //   bench_scenarios [--repeat 3] [--only NAME[,NAME...]] [--feasibility] [--json]
 // --feasibility (or --only naming them) adds the feasibility-variant rows SCENE/SETS (baseline,

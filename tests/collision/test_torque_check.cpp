@@ -1,4 +1,4 @@
-// Joint-torque check along a trajectory (paper eq. 15): loads, frames, q̇/q̈ and IK failures.
+// Joint-torque check along a trajectory (paper (21)): loads, frames, q̇/q̈ and IK failures.
 #include <gtest/gtest.h>
 
 #include <cmath>

@@ -84,7 +84,8 @@ TEST(FeasibilityPlan, PolytopesHoldTheTorqueLimitsOnTheFastFlatCrawl) {
   std::printf("polytope: polytope g max %.4f m g, static torque ratio %.3f\n", fp.g_max,
               fp.static_ratio);
   EXPECT_LE(fp.g_max, 0.005);        // between the constraint points too
-  EXPECT_LE(fp.static_ratio, 1.05);  // the fitted polytope is an approximation (DESIGN: ~1.06)
+  // The fitted polytope is an approximation (docs/design.md §8.2: ~1.06).
+  EXPECT_LE(fp.static_ratio, 1.05);
   // The swing feet's acceleration holds densely too, each component within the bound. The plan
   // is sampled every 2 ms; velocity is quadratic within a segment, so its central difference is
   // the exact acceleration there (and the mean of both sides at a knot).
@@ -144,7 +145,7 @@ TEST(FeasibilityPlan, FootRadiusKeepsFootholdsOffUnsafeGround) {
   EXPECT_GE(worst_margin(foot.trajectory), FeasibilityOptions{}.foot_margin - 1e-6);
 }
 
-// Paper, section IV-B: onto the 15 cm pallet in 11 s. The shin inequality (eq. 13-14) at every
+// Paper, section IV-B: onto the 15 cm pallet in 11 s. The shin inequality ((19)-(20)) at every
 // 2 ms stance sample and 30 points along the modelled shin (the constraint has 10), on the EXACT
 // scene (sharp edge; the planner sees its 2 cm B-spline), minus the clearance the set asks for
 // (FeasibilityOptions defaults). On the smoothed field the baseline happens to pass; on the real

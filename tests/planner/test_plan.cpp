@@ -202,9 +202,9 @@ TEST(Plan, WarmStartOnTheFastCrawlReverifiesThePreviousPlan) {
   EXPECT_EQ(b.trajectory.solver.iterations, 0);
 }
 
-// The gap scene with DESIGN.md's 1 m goal: the hind feet's nominal end footholds lie on the
-// planar floor of the 0.30 m trench, out of the legs' reach; the initial guess now moves them to
-// ground the leg can reach (before: infeasible after 73 iterations).
+// The gap scene with its 1 m goal (docs/design.md §11): the hind feet's nominal end footholds lie
+// on the planar floor of the 0.30 m trench, out of the legs' reach; the initial guess now moves
+// them to ground the leg can reach (before: infeasible after 73 iterations).
 TEST(Plan, GapSceneWithTheOneMetreGoalSolves) {
   const auto r = hyq();
   auto scene = terrain::make_scene("gap");

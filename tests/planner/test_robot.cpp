@@ -18,8 +18,8 @@ namespace {
 RobotModel hyq() { return load_robot(std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/hyq.yaml"); }
 
 // The leg's branch of IK covers configurations whose foot lies below the HFE joint in the leg's
-// plane (r > 0 in DESIGN.md's IK); folded configurations with the foot above it are reached
-// by a different HAA angle, outside the branch, and are skipped by the round trip.
+// plane (r > 0 in the IK of docs/design.md §4.2); folded configurations with the foot above it
+// are reached by a different HAA angle, outside the branch, and are skipped by the round trip.
 bool on_ik_branch(const LegModel& leg, const Vector3& q) {
   return leg.l0 + leg.l1 * std::cos(q[1]) + leg.l2 * std::cos(q[1] + q[2]) > 1e-3;
 }

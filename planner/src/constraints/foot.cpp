@@ -1,6 +1,6 @@
 // "foot": the foot radius (Bratta et al. 2020, III-B). The paper keeps a stance foothold where the
 // terrain is constant within the foot radius r; the terrain gives that as a signed margin (m to the
-// nearest unsafe cell for radius r, negative inside, with a gradient; see DESIGN.md, Terrain), so
+// nearest unsafe cell for radius r, negative inside, with a gradient; see docs/design.md §5.4), so
 // every free stance foothold gets one row  margin(p_x, p_y; r) >= foot_margin. A stance foot does
 // not move (one position variable per stance), so one row holds it for the whole stance. The
 // initial stances are given, not optimised, and get no row.

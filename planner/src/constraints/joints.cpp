@@ -2,7 +2,7 @@
 // baseline (TOWR's kinematic model) is a box around the nominal foot, and HyQ's joint ranges do not
 // contain all of it: a foot high and forward under the hip needs HFE beyond its range (measured on
 // the pallet plans: 100-300 samples up to 8 deg past HFE's limit). This set keeps the joint angles
-// from inverse kinematics of the foot in the base frame (DESIGN.md, Robot) within
+// from inverse kinematics of the foot in the base frame (docs/design.md §4.2) within
 // [q_min + margin, q_max - margin] at every knot of the base spline: during stances (the foot
 // stands, the base moves) and at the knots inside swings. Between knots the angles move little
 // (stance); swing segments get a row at their middle too. The post-hoc check measures the result

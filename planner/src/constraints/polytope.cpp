@@ -1,4 +1,4 @@
-// "polytope": force polytopes (Bratta et al. 2020, III-A; DESIGN.md, Force polytopes). The fitted
+// "polytope": force polytopes (Bratta et al. 2020, III-A; docs/design.md §7). The fitted
 // model gives, per leg, g_j(p_b, f_b) = n^j(p_b)^T f_b - d^j(p_b) <= 0 (6 facets, two per joint)
 // for the foot position p_b and the contact force f_b in the BASE frame:
 //   R = rotation_zyx(euler), p_b = R^T (p - r), f_b = R^T f.

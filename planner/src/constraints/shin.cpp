@@ -1,4 +1,4 @@
-// "shin": shin collision (Bratta et al. 2020, III-B, eq. 13-14; DESIGN.md, Planner). The lower
+// "shin": shin collision (Bratta et al. 2020, III-B, (19)-(20); docs/design.md §6.4). The lower
 // leg is modelled as a straight segment of length s from the foot p at a fixed angle beta to the
 // ground, in the vertical plane through the base's heading psi (yaw):
 //   point k in (0, 1]:  q_k = p + k s (cos(beta) cos(psi), cos(beta) sin(psi), sin(beta)),

@@ -1,5 +1,5 @@
 // "shin_ik" (beyond the paper): the same inequality on the leg's REAL shin, from the foot to the
-// knee that the leg's inverse kinematics puts there for the current base pose (DESIGN.md, IK):
+// knee that the leg's inverse kinematics puts there for the current base pose (design.md §4.2):
 //   p_b = R^T (p - r), v = p_b - p_HAA, gamma = atan2(v_y, -v_z), rho = hypot(v_y, v_z),
 //   X = v_x, Z = -(rho - l0), q_K = kappa acos((X^2 + Z^2 - l1^2 - l2^2) / (2 l1 l2)),
 //   q_H = atan2(-X, -Z) - atan2(l2 sin q_K, l1 + l2 cos q_K),

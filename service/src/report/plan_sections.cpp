@@ -14,7 +14,8 @@ namespace {
 
 using nlohmann::json;
 
-// Problem and check thresholds: the targets of DESIGN.md and issues 4-5 (plan.json "checks").
+// Problem and check thresholds: the targets of docs/design.md §12 and issues 4-5
+// (plan.json "checks").
 struct CheckLimit {
   const char* key;
   const char* label;

@@ -28,7 +28,7 @@ struct TerrainInputOptions {
 
 // True when `path` is a folder written by `terrastride map` (holds terrain.json).
 bool is_terrain_dir(const std::string& path);
-// True when the name is one of the DESIGN.md scenes.
+// True when the name is one of the scenes (docs/design.md §11).
 bool is_scene_name(const std::string& name);
 
 TerrainView load_terrain_view(const std::vector<std::string>& inputs,

@@ -1,5 +1,5 @@
-// Post-hoc checks of a planned motion against the real robot and the real terrain (DESIGN.md,
-// "Post-hoc checks"; paper sections III-B and IV): joint torques from the leg dynamics, leg
+// Post-hoc checks of a planned motion against the real robot and the real terrain (docs/design.md
+// §8; paper sections III-B and IV): joint torques from the leg dynamics, leg
 // capsules against the scan's OctoMap with FCL, and stance footholds against the foothold-safety
 // margin.
 //
@@ -72,7 +72,7 @@ struct TrajectoryKinematics {
 TrajectoryKinematics leg_kinematics(const robot::RobotModel& model,
                                     const planner::Trajectory& trajectory);
 
-// ---- Joint torques (paper eq. 15) ----
+// ---- Joint torques (paper (21)) ----
 
 struct TorqueOptions {
   Eigen::Vector3d gravity = Eigen::Vector3d(0, 0, -9.81);  // world frame, m/s²

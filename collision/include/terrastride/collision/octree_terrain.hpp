@@ -1,4 +1,4 @@
-// The occupancy map the post-hoc leg-collision check runs against (DESIGN.md, Post-hoc checks).
+// The occupancy map the post-hoc leg-collision check runs against (docs/design.md §8.3).
 //
 // A mapped terrain brings the OctoMap of its scan (DIR/octomap.bt): the check uses the voxels that
 // were actually observed, not the smoothed height field, so smoothing cannot hide a real edge. An

@@ -1,6 +1,6 @@
 // Dense checks of a plan: every constraint of the formulation evaluated along the whole
-// trajectory (DESIGN.md: every 2 ms), against the EXACT terrain rather than the smoothed one the
-// optimiser saw.
+// trajectory (docs/design.md §6.8: every 2 ms), against the EXACT terrain rather than the
+// smoothed one the optimiser saw.
 #pragma once
 
 #include <map>

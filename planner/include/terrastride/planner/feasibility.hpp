@@ -2,7 +2,7 @@
 // the SRBD problem on top of "baseline":
 //  - "foot"     foot radius (III-B): every free stance foothold keeps the terrain's signed
 //               foothold-safety margin for the robot's foot radius >= foot_margin;
-//  - "shin"     shin collision (III-B, eq. 13-14): p_z + k s sin(beta) - h(p_knee,k) >= clearance
+//  - "shin"     shin collision (III-B, (19)-(20)): p_z + k s sin(beta) - h(p_knee,k) >= clearance
 //               for points k along the modelled shin, over the whole stance;
 //  - "polytope" force polytopes (III-A): n^j(p_b)^T f_b <= d^j(p_b) in the base frame, at every
 //               force knot and at points inside each stance segment;

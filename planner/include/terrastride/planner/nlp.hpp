@@ -1,6 +1,6 @@
 // The SRBD trajectory optimisation problem as a set of variables and small constraint pieces.
 //
-// Parameterisation (see DESIGN.md, Planner). The contact schedule's switch times split the plan
+// Parameterisation (see docs/design.md §6.1). The contact schedule's switch times split the plan
 // into intervals; each interval is cut into equal segments of at most `segment_dt` (default
 // 0.1 s). EVERY polynomial piece has its knots on these segment boundaries:
 //  - base position and ZYX Euler angles: cubic Hermite splines (value and derivative per knot);

@@ -69,7 +69,7 @@ inline int locate(const std::vector<double>& knots, double x) {
   const int k = static_cast<int>(knots.size());
   if (k < 2) return 0;
   int i = 0;
-  // Paper eq. 10: l_1 <= l <= l_2 uses the first segment; a knot belongs to the lower segment.
+  // Paper (13): l_1 <= l <= l_2 uses the first segment; a knot belongs to the lower segment.
   while (i < k - 2 && x > knots[i + 1]) ++i;
   return i;
 }

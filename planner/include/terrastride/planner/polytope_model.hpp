@@ -12,7 +12,7 @@
 // Facet j: n^j = Rx(gamma) Ry(-alpha) n_loc(theta^j, phi^j), offset d^j, with theta, phi, d
 // interpolated linearly in l between reference polytopes at leg lengths l_1 < ... < l_K (and, in
 // our variant, also linearly in alpha between reference tilts: a tensor grid of references;
-// with one tilt reference this is exactly the paper's eq. 8-12). Outside the grid the end
+// with one tilt reference this is exactly the paper's (11)-(16)). Outside the grid the end
 // segments are extrapolated. n_loc is a unit vector in spherical angles about a per-facet pole
 // axis chosen away from the facet's normal, so the angles are never singular.
 #pragma once

@@ -2,7 +2,7 @@
 // same code gives values and automatic derivatives) and for the post-hoc checks (double): the base
 // orientation from ZYX Euler angles, a leg's inverse kinematics and knee, and the part of the shin
 // next to the foot that the shin models leave out. The checks thereby judge a plan with the
-// planner's own geometry. Leg geometry as in DESIGN.md (Robot) and robot_model.hpp (LegModel).
+// planner's own geometry. Leg geometry as in docs/design.md §4.2 and robot_model.hpp (LegModel).
 #pragma once
 
 #include <Eigen/Core>

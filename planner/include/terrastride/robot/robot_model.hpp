@@ -28,7 +28,7 @@ struct LinkInertia {
 
 enum class Joint { HAA = 0, HFE = 1, KFE = 2 };
 
-// One 3-DoF HAA-HFE-KFE leg.  Geometry follows DESIGN.md:
+// One 3-DoF HAA-HFE-KFE leg.  Geometry as in docs/design.md §4.2:
 //   v0 = (-L1 sin qH - L2 sin(qH+qK), 0, -L0 - L1 cos qH - L2 cos(qH+qK)),
 //   foot = p_HAA + Rx(-side * qA) v0,
 // side = +1 for a left leg, -1 for a right leg; knee_sign = -1 for a knee bending backward

@@ -25,7 +25,7 @@ class HeightField {
   // analytic scenes (sharp edges) report one-sided derivatives at discontinuities.
   virtual HeightSample sample(double x, double y) const = 0;
   double height(double x, double y) const { return sample(x, y).height; }
-  // Signed foothold-safety margin for a foot of radius `foot_radius` (see DESIGN.md, Terrain).
+  // Signed foothold-safety margin for a foot of radius `foot_radius` (see docs/design.md §5.4).
   virtual MarginSample safety_margin(double x, double y, double foot_radius) const = 0;
   // Whether (x, y) was observed (always true for analytic terrains).
   virtual bool observed(double x, double y) const { return true; }

@@ -1,5 +1,5 @@
-// The DESIGN.md scenarios as exact analytic terrains: axis-aligned boxes on a ground plane, placed
-// along +x ahead of a robot standing at x = 0 with its goal 1 m ahead.
+// The scenarios of docs/design.md §11 as exact analytic terrains: axis-aligned boxes on a ground
+// plane, placed along +x ahead of a robot standing at x = 0 with its goal 1 m ahead.
 //
 // A Scene is a HeightField with sharp edges: the height is exact, its gradient and Hessian are zero
 // on every flat part (one-sided at the discontinuities), and the safety margin is exact: the set of
@@ -48,7 +48,7 @@ class Scene : public HeightField {
   double ground_z() const { return ground_z_; }
   const std::vector<Box>& boxes() const { return boxes_; }
   const std::vector<EdgeSegment>& edges() const { return edges_; }
-  // Robot start (x, y of the base) and goal, as in DESIGN.md: start at the origin, goal 1 m ahead.
+  // Robot start (x, y of the base) and goal (docs/design.md §11): the origin, and 1 m ahead.
   Eigen::Vector2d start() const { return {0.0, 0.0}; }
   Eigen::Vector2d goal() const { return {1.0, 0.0}; }
 

@@ -45,7 +45,7 @@ class BSplineField {
   std::vector<double> coeffs_;
 };
 
-// Foothold-safety criteria (DESIGN.md, Terrain). A cell is safe for radius r when every cell whose
+// Foothold-safety criteria (docs/design.md §5.4). A cell is safe for radius r when every cell whose
 // centre lies within r + res/2 of its centre is observed, the raw step (highest cell max minus
 // lowest cell min) in that disk is at most max_step, a plane fitted to the disk's elevations has an
 // RMS residual of at most max_rms, and that plane's slope is at most max_slope (tan of the angle;
