@@ -1,5 +1,6 @@
 // Cloud readers for XYZ text and NPY (hand-parsed: both are tiny, well-specified formats), the
-// dispatch by extension, and the binary PCD writer. PCD/PLY reading is in pcl_io.cpp.
+// dispatch by extension, and the binary PCD writer. PCD/PLY reading is in pcl_io.cpp
+// (in the PCL module, pcl_module.hpp).
 #include "terrastride/perception/cloud_io.hpp"
 
 #include <algorithm>
@@ -14,6 +15,7 @@
 #include <string_view>
 
 #include "cloud_io_internal.hpp"
+#include "pcl_module.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/npy.hpp"
 
@@ -178,10 +180,18 @@ PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> or
   }
   check_readable_file(path);
   detail::RawCloud raw;
+#ifdef TERRASTRIDE_HAVE_PCL
+  // PCL's readers live in the PCL module, loaded here on first use (pcl_module.hpp).
+  if (ext == ".pcd") {
+    raw = detail::pcl_module().read_pcd(path);
+  } else if (ext == ".ply") {
+    raw = detail::pcl_module().read_ply(path);
+#else
   if (ext == ".pcd") {
     raw = detail::read_pcd_with_pcl(path);
   } else if (ext == ".ply") {
     raw = detail::read_ply_with_pcl(path);
+#endif
   } else if (ext == ".npy") {
     raw = read_npy_cloud(path);
   } else {
