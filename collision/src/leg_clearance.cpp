@@ -10,9 +10,14 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <exception>
 #include <limits>
 #include <memory>
+#include <mutex>
+#include <thread>
+#include <vector>
 
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/collision/octree_terrain.hpp"
@@ -210,6 +215,36 @@ LinkResult link_distances(const fcl::OcTree<double>& tree, SolidGeometry* solid,
   return r;
 }
 
+// Threads of the leg check: the machine's cores, at most 4 (a plan process runs alone on a
+// 2-core robot computer; more threads than tasks would idle).
+constexpr unsigned kClearanceThreads = 4;
+
+// Runs task(0) ... task(n - 1) on up to kClearanceThreads threads (this one included), each task
+// once, and rethrows the first exception a task threw.
+template <class Task>
+void run_in_parallel(size_t n, const Task& task) {
+  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+  const size_t threads = std::min<size_t>({n, cores, kClearanceThreads});
+  std::atomic<size_t> next{0};
+  std::exception_ptr error;
+  std::mutex error_mutex;
+  auto worker = [&] {
+    for (size_t t = next++; t < n; t = next++) {
+      try {
+        task(t);
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(error_mutex);
+        if (!error) error = std::current_exception();
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (size_t k = 1; k < threads; ++k) pool.emplace_back(worker);
+  worker();
+  for (auto& th : pool) th.join();
+  if (error) std::rethrow_exception(error);
+}
+
 }  // namespace
 
 ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planner::Trajectory& traj,
@@ -301,14 +336,22 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
     }
   };
 
+  // The capsule tracks of every leg first (cheap), then their distances, the FCL queries that are
+  // nearly all of the check's time, as independent tasks (one per leg and link) on up to
+  // kClearanceThreads threads: each task reads the shared trees and writes only its own result, so
+  // the figures are those of one thread, in the same order. Then the summaries, leg by leg.
+  std::vector<CapsuleTrack> shin_tracks(n_legs), thigh_tracks(n_legs);
+  std::vector<double> exclusions(n_legs);
   for (size_t i = 0; i < n_legs; ++i) {
     const auto& leg = model.legs[i];
     const double exclusion = exclusion_for(leg);
+    exclusions[i] = exclusion;
     if (!(exclusion < leg.l2))
       throw std::invalid_argument("shin exclusion " + std::to_string(exclusion) +
                                   " m leaves nothing of leg " + leg.name + "'s lower leg (" +
                                   std::to_string(leg.l2) + " m)");
-    CapsuleTrack shin_track, thigh_track;
+    CapsuleTrack& shin_track = shin_tracks[i];
+    CapsuleTrack& thigh_track = thigh_tracks[i];
     for (CapsuleTrack* t : {&shin_track, &thigh_track}) {
       t->a.assign(n, Eigen::Vector3d::Zero());
       t->b.assign(n, Eigen::Vector3d::Zero());
@@ -328,11 +371,32 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
       thigh_track.b[k] = knee;
       thigh_track.valid[k] = 1;
     }
+  }
+  struct LinkTask {
+    LinkResult result;
+    long queries = 0, certain_queries = 0;
+  };
+  std::vector<LinkTask> shin_tasks(n_legs), thigh_tasks(n_legs);
+  const size_t n_tasks = options.check_thigh ? 2 * n_legs : n_legs;
+  auto run_task = [&](size_t t) {
+    const size_t i = t % n_legs;
+    const auto& leg = model.legs[i];
+    LinkTask& task = t < n_legs ? shin_tasks[i] : thigh_tasks[i];
+    task.result = t < n_legs ? link_distances(tree, solid.get(), leg.shin_radius, shin_tracks[i],
+                                              leg.l2 - exclusions[i], options, &task.queries,
+                                              &task.certain_queries)
+                             : link_distances(tree, solid.get(), leg.thigh_radius,
+                                              thigh_tracks[i], leg.l1, options, &task.queries,
+                                              &task.certain_queries);
+  };
+  run_in_parallel(n_tasks, run_task);
+
+  for (size_t i = 0; i < n_legs; ++i) {
     LegClearanceSeries& series = rep.legs[i];
-    series.leg = leg.name;
-    LinkResult shin =
-        link_distances(tree, solid.get(), leg.shin_radius, shin_track, leg.l2 - exclusion, options,
-                       &rep.fcl_queries, &rep.certain_queries);
+    series.leg = model.legs[i].name;
+    LinkResult& shin = shin_tasks[i].result;
+    rep.fcl_queries += shin_tasks[i].queries;
+    rep.certain_queries += shin_tasks[i].certain_queries;
     summarise(shin,
               {&series.shin_min, &series.shin_min_sample, &series.shin_certain_min,
                &series.shin_collision_samples, &series.shin_certain_samples, &series.shin_verdict},
@@ -343,8 +407,9 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
     series.thigh_min = options.distance_cutoff;
     series.thigh_certain_min = options.distance_cutoff;
     if (options.check_thigh) {
-      LinkResult thigh = link_distances(tree, solid.get(), leg.thigh_radius, thigh_track, leg.l1,
-                                        options, &rep.fcl_queries, &rep.certain_queries);
+      LinkResult& thigh = thigh_tasks[i].result;
+      rep.fcl_queries += thigh_tasks[i].queries;
+      rep.certain_queries += thigh_tasks[i].certain_queries;
       summarise(
           thigh,
           {&series.thigh_min, &series.thigh_min_sample, &series.thigh_certain_min,
