@@ -156,6 +156,33 @@ TEST_F(MapBuildTest, FailuresNameTheirStageAndAbandonTheBuild) {
   EXPECT_THROW(terrain::build_terrain_map(input.clouds, cancelled), std::runtime_error);
 }
 
+// Points on cell boundaries (a 0.1 m lattice on a 2 cm grid) find the same cell in a map kept in
+// memory and in the same map read back from its folder: `terrastride query` on a folder and the
+// socket's map.update of the same cloud answer `observed` alike (issue #14).
+TEST_F(MapBuildTest, TheFolderAnswersLikeTheMapInMemoryOnCellBoundaries) {
+  const std::string cloud = std::string(TERRASTRIDE_TEST_DATA_DIR) + "/scans/pallet_10.pcd";
+  terrain::MapInput input = terrain::read_map_clouds({cloud}, std::nullopt);
+  const terrain::MapBuild build = terrain::build_terrain_map(input.clouds);
+  const std::string out = (dir_ / "map").string();
+  terrain::write_terrain_dir(build, input.sources, out);
+  const auto loaded = terrain::load_terrain_dir(out);
+  // As the socket builds it: no OctoMap, the robot's radius only.
+  terrain::MapBuildOptions socket;
+  socket.octomap.reset();
+  socket.foot_radii = {0.02};
+  const terrain::MapBuild in_memory = terrain::build_terrain_map(input.clouds, socket);
+  int points = 0;
+  for (int i = -5; i <= 13; ++i)
+    for (int j = -6; j <= 6; ++j) {
+      const double x = 0.1 * i, y = 0.1 * j;
+      ++points;
+      EXPECT_EQ(build.map->observed(x, y), loaded->observed(x, y)) << x << ", " << y;
+      EXPECT_EQ(in_memory.map->observed(x, y), loaded->observed(x, y)) << x << ", " << y;
+      EXPECT_EQ(build.map->safe(x, y, 0.02), loaded->safe(x, y, 0.02)) << x << ", " << y;
+    }
+  EXPECT_EQ(points, 247);
+}
+
 TEST_F(MapBuildTest, ReadingNamesTheFile) {
   try {
     terrain::read_map_clouds({(dir_ / "missing.pcd").string()}, std::nullopt);

@@ -9,7 +9,7 @@
 
 #include "server/backend.hpp"
 #include "terrastride/perception/filters.hpp"
-#include "terrastride/terrain/height_grid.hpp"
+#include "terrastride/terrain/map_build.hpp"
 
 namespace terrastride::service {
 
@@ -27,8 +27,9 @@ struct FusedMap {
   json stats;
 };
 
-// Filters the cloud, adds it to (or replaces) the clouds of the current map, rebuilds the height
-// grid and the safety layers. Caller holds the backend's update mutex.
+// Cleans the cloud and rebuilds the map from it, after the clouds of the current map for "add"
+// (terrain::build_terrain_map: cleaning, height grid, safety layers; no OctoMap, which the
+// server does not keep). Caller holds the backend's update mutex.
 FusedMap fuse_cloud(Backend& backend, OpContext& ctx, const protocol::Attachment& att,
                     const std::string& mode) {
   const json& h = ctx.request.header;
@@ -40,10 +41,11 @@ FusedMap fuse_cloud(Backend& backend, OpContext& ctx, const protocol::Attachment
   if (h.contains("origin") && !h["origin"].is_null())
     cloud.sensor_origin = protocol::get_vector(h, "origin", 3);
   cloud.source = "map.update";
-  const double resolution = protocol::get_number(h, "resolution", 0.02);
-  if (resolution < 0.002 || resolution > 1)
+  terrain::MapBuildOptions options;
+  options.grid.resolution = protocol::get_number(h, "resolution", 0.02);
+  if (options.grid.resolution < 0.002 || options.grid.resolution > 1)
     throw ProtocolError(pc::kBadRequest, "\"resolution\" must be within [0.002, 1] m");
-  const std::vector<double> radii = backend.radii_from(h);
+  options.foot_radii = backend.radii_from(h);
   // The same cleaning as `terrastride map` unless the request says otherwise.
   perception::CloudFilterOptions fo = perception::default_map_cleaning();
   fo.voxel_size = static_cast<float>(protocol::get_number(h, "voxel", fo.voxel_size));
@@ -58,45 +60,45 @@ FusedMap fuse_cloud(Backend& backend, OpContext& ctx, const protocol::Attachment
     throw ProtocolError(pc::kBadRequest,
                         "\"outlier_cell\" must be within [0, 0.1] m (0 = per point)");
   fo.outlier_voxel = static_cast<float>(outlier_cell);
-  try {
-    cloud = perception::filter_cloud(cloud, fo);
-  } catch (const perception::InputError& e) {
-    throw ProtocolError(pc::kBadRequest, std::string("cloud filter: ") + e.what());
-  }
-  ctx.check_stop();
+  options.cleaning = fo;
+  options.octomap.reset();
   CloudHistory& history = backend.clouds();
-  std::vector<perception::PointCloud> clouds;
-  std::size_t total = cloud.points.size();
-  if (mode == "add") {
-    clouds = history.clouds;
-    total += history.points;
-  }
-  if (total > kMaxMapPoints)
-    throw ProtocolError(pc::kBadRequest, "map would hold " + std::to_string(total) +
-                                             " points, above the limit of " +
-                                             std::to_string(kMaxMapPoints) +
-                                             "; send mode \"replace\" or a voxel size");
-  clouds.push_back(std::move(cloud));
-  terrain::HeightGridOptions go;
-  go.resolution = resolution;
-  std::unique_ptr<terrain::TerrainMap> tm;
-  try {
-    terrain::HeightGrid grid = terrain::build_height_grid(clouds, go);
+  const bool add = mode == "add";
+  if (add) options.cleaned_before = &history.clouds;
+  // Once the cloud is cleaned: a stop request, or a map above the point budget, ends the build
+  // before the grid.
+  std::size_t total = 0;
+  options.on_stage = [&](terrain::MapStage stage, const terrain::MapBuild& so_far) {
+    if (stage != terrain::MapStage::kGrid) return;
     ctx.check_stop();
-    tm = std::make_unique<terrain::TerrainMap>(std::move(grid), radii);
-  } catch (const perception::InputError& e) {
-    throw ProtocolError(pc::kBadRequest, std::string("height grid: ") + e.what());
+    total = so_far.points_kept + (add ? history.points : 0);
+    if (total > kMaxMapPoints)
+      throw ProtocolError(pc::kBadRequest, "map would hold " + std::to_string(total) +
+                                               " points, above the limit of " +
+                                               std::to_string(kMaxMapPoints) +
+                                               "; send mode \"replace\" or a voxel size");
+  };
+  std::vector<perception::PointCloud> clouds;
+  clouds.push_back(std::move(cloud));
+  terrain::MapBuild build;
+  try {
+    build = terrain::build_terrain_map(std::move(clouds), options);
+  } catch (const terrain::MapBuildError& e) {
+    throw ProtocolError(pc::kBadRequest,
+                        std::string(e.stage() == terrain::MapStage::kClean ? "cloud filter: "
+                                                                           : "height grid: ") +
+                            e.what());
   }
   ctx.check_stop();
   // Commit the new cloud set only now that the map was built.
-  history.clouds = std::move(clouds);
+  history.clouds = std::move(build.clouds);
   history.points = total;
   FusedMap fused;
-  fused.stats = grid_stats(*tm);
+  fused.stats = grid_stats(*build.map);
   fused.stats["clouds"] = history.clouds.size();
   fused.stats["points"] = history.points;
   fused.stats["build_s"] = seconds_since(t0);
-  fused.field = std::move(tm);
+  fused.field = std::move(build.map);
   return fused;
 }
 
