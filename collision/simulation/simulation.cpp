@@ -202,33 +202,40 @@ TerrainMjcf scene_mjcf(const terrain::Scene& scene) {
   return t;
 }
 
-// A scanned map's elevation as a MuJoCo heightfield over a plane at its lowest height. MuJoCo's
-// heightfield vertices span [-rx, rx] x [-ry, ry] around the geom, rows along y, heights
-// normalised to [0, 1] times the size's elevation: the grid (x-major, cell centres) is
-// transposed into rows and its vertices put on the cell centres. Non-finite elevations take the
-// highest elevation of the map (conservative: more clearance needed, never a hole to step in);
-// cells the map filled itself (observed 0) are counted with them.
+// A scanned map as a MuJoCo heightfield over a plane at its lowest height. The heights are the
+// surface the planner plans on: the smoothed `surface` layer (layers/surface.npy) when the map has
+// one (scanned maps; the planner's field is its B-spline approximant), else the elevation
+// (rasterised scenes, maps of earlier versions). Raw elevations would put the sensor noise the
+// planner never saw under the feet. MuJoCo's heightfield vertices span [-rx, rx] x [-ry, ry]
+// around the geom, rows along y, heights normalised to [0, 1] times the size's elevation: the
+// grid (x-major, cell centres) is transposed into rows and its vertices put on the cell centres.
+// Non-finite heights take the highest height of the map (conservative: more clearance needed,
+// never a hole to step in); cells the map filled itself (observed 0) are counted with them.
 TerrainMjcf map_mjcf(const terrain::TerrainMap& map) {
   const auto& g = map.grid();
   const auto& geo = g.geometry;
   if (geo.nx < 2 || geo.ny < 2)
     throw SimulationError("terrain map: a heightfield needs at least 2 x 2 cells");
+  const bool has_surface = g.surface.size() == geo.size();
+  const std::vector<float>& source = has_surface ? g.surface : g.elevation;
+  if (source.size() != geo.size())
+    throw SimulationError("terrain map: the height layer does not have one value per cell");
   float lo = std::numeric_limits<float>::infinity(), hi = -lo;
-  for (float e : g.elevation)
+  for (float e : source)
     if (std::isfinite(e)) {
       lo = std::min(lo, e);
       hi = std::max(hi, e);
     }
-  if (!std::isfinite(lo)) throw SimulationError("terrain map: no finite elevation");
+  if (!std::isfinite(lo)) throw SimulationError("terrain map: no finite height");
   auto heights = std::make_shared<std::vector<float>>(geo.size());
   TerrainMjcf t;
   for (int i = 0; i < geo.nx; ++i)
     for (int j = 0; j < geo.ny; ++j) {
       const size_t cell = static_cast<size_t>(i) * geo.ny + j;
-      float e = g.elevation[cell];
+      float e = source[cell];
       const bool unobserved = !g.observed.empty() && g.observed[cell] == 0;
       if (!std::isfinite(e)) e = hi;
-      if (!std::isfinite(g.elevation[cell]) || unobserved) ++t.filled_cells;
+      if (!std::isfinite(source[cell]) || unobserved) ++t.filled_cells;
       (*heights)[static_cast<size_t>(j) * geo.nx + i] = e;  // row j (y), column i (x)
     }
   const double range = std::max(double(hi - lo), 1e-3);
@@ -252,8 +259,9 @@ TerrainMjcf map_mjcf(const terrain::TerrainMap& map) {
       m->hfield_data[adr + k] = static_cast<float>(((*heights)[k] - base) / range);
   };
   std::ostringstream d;
-  d << map.describe() << " as a " << geo.nx << " x " << geo.ny << " heightfield (" << geo.resolution
-    << " m cells, " << t.filled_cells << " filled cells)";
+  d << map.describe() << ": its " << (has_surface ? "smoothed surface" : "elevation") << " as a "
+    << geo.nx << " x " << geo.ny << " heightfield (" << geo.resolution << " m cells, "
+    << t.filled_cells << " filled cells)";
   t.description = d.str();
   return t;
 }
@@ -970,6 +978,125 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
 SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
                                const terrain::TerrainMap& map, const SimulationOptions& options) {
   return simulate(model, plan, map, map_mjcf(map), options);
+}
+
+SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
+                               const terrain::HeightField& terrain,
+                               const SimulationOptions& options) {
+  if (const auto* scene = dynamic_cast<const terrain::Scene*>(&terrain))
+    return simulate_plan(model, plan, *scene, options);
+  if (const auto* map = dynamic_cast<const terrain::TerrainMap*>(&terrain))
+    return simulate_plan(model, plan, *map, options);
+  throw SimulationError("terrain " + terrain.describe() +
+                        ": only scenes and terrain maps can be simulated");
+}
+
+namespace {
+
+// The largest amount a in [0, ceiling] that `run_at(a)` survives (verdict not "fail"), given that
+// 0 does: doubling from `start` until a failure brackets it, then bisection to `tolerance`.
+MarginSide search_margin(const std::function<SimulationReport(double)>& run_at, double start,
+                         double ceiling, double tolerance) {
+  MarginSide side;
+  double lo = 0.0, hi = -1.0;
+  for (double a = std::min(start, ceiling);; a = std::min(2 * a, ceiling)) {
+    const SimulationReport r = run_at(a);
+    if (r.verdict == "fail") {
+      hi = a;
+      side.failure = r.reasons.empty() ? "fail" : r.reasons.front();
+      break;
+    }
+    lo = a;
+    if (a >= ceiling) break;
+  }
+  while (hi >= 0 && hi - lo > tolerance) {
+    const double mid = 0.5 * (lo + hi);
+    const SimulationReport r = run_at(mid);
+    if (r.verdict == "fail") {
+      hi = mid;
+      side.failure = r.reasons.empty() ? "fail" : r.reasons.front();
+    } else {
+      lo = mid;
+    }
+  }
+  side.survived = lo;
+  side.failed = hi;
+  return side;
+}
+
+}  // namespace
+
+MarginReport simulation_margin(const robot::RobotModel& model, const planner::Trajectory& plan,
+                               const terrain::HeightField& terrain,
+                               const SimulationOptions& options, const MarginOptions& margin) {
+  if (!(margin.push_time_fraction >= 0 && margin.push_time_fraction < 1))
+    throw SimulationError("margin: the push time fraction must be in [0, 1)");
+  if (!(margin.push_duration > 0 && margin.push_duration <= 2))
+    throw SimulationError("margin: the push duration must be in (0, 2] s");
+  if (!(margin.push_force_max > 0 && margin.push_force_max <= 1e5) ||
+      !(margin.push_tolerance > 0 && margin.push_tolerance < margin.push_force_max))
+    throw SimulationError("margin: the push ceiling must be in (0, 1e5] N, the tolerance below it");
+  if (!(margin.mass_scale_max > 1 && margin.mass_scale_min < 1 && margin.mass_scale_min > 0) ||
+      !(margin.mass_tolerance > 0 && margin.mass_tolerance < 1))
+    throw SimulationError("margin: mass scale limits must bracket 1, the tolerance in (0, 1)");
+  if (plan.samples.size() < 2) throw SimulationError("plan: fewer than two samples");
+  const auto wall0 = std::chrono::steady_clock::now();
+  MarginReport r;
+  r.options = margin;
+  SimulationOptions base = options;
+  base.record_dt = 0.0;
+  auto run = [&](const SimulationOptions& o) {
+    ++r.runs;
+    return simulate_plan(model, plan, terrain, o);
+  };
+  r.nominal_verdict = run(base).verdict;
+  const double t0 = plan.samples.front().t, t1 = plan.samples.back().t;
+  r.push_t = t0 + margin.push_time_fraction * (t1 - t0);
+  r.push_duration = margin.push_duration;
+  // The planned heading at the push: the nearest sample's yaw.
+  const auto nearest =
+      std::min_element(plan.samples.begin(), plan.samples.end(),
+                       [&](const planner::TrajectorySample& a, const planner::TrajectorySample& b) {
+                         return std::abs(a.t - r.push_t) < std::abs(b.t - r.push_t);
+                       });
+  const double yaw = nearest->base.euler_zyx[0];
+  r.left = Vector3d(-std::sin(yaw), std::cos(yaw), 0.0);
+  if (r.nominal_verdict != "fail") {
+    for (const double sign : {1.0, -1.0}) {
+      const MarginSide side = search_margin(
+          [&](double force) {
+            SimulationOptions o = base;
+            o.pushes.push_back({r.push_t, sign * force * r.left, margin.push_duration});
+            return run(o);
+          },
+          100.0, margin.push_force_max, margin.push_tolerance);
+      (sign > 0 ? r.push_left : r.push_right) = side;
+    }
+    r.push_margin_N = std::min(r.push_left.survived, r.push_right.survived);
+    r.push_margin_Ns = r.push_margin_N * margin.push_duration;
+    r.push_at_ceiling = r.push_left.failed < 0 && r.push_right.failed < 0;
+    if (margin.mass) {
+      r.mass_searched = true;
+      auto mass_side = [&](double sign, double ceiling) {
+        MarginSide side = search_margin(
+            [&](double error) {
+              SimulationOptions o = base;
+              o.mass_scale = base.mass_scale * (1.0 + sign * error);
+              return run(o);
+            },
+            0.1, ceiling, margin.mass_tolerance);
+        side.survived = 1.0 + sign * side.survived;
+        if (side.failed >= 0) side.failed = 1.0 + sign * side.failed;
+        return side;
+      };
+      r.mass_heavier = mass_side(1.0, margin.mass_scale_max - 1.0);
+      r.mass_lighter = mass_side(-1.0, 1.0 - margin.mass_scale_min);
+    }
+  } else {
+    r.mass_heavier.survived = r.mass_lighter.survived = 1.0;
+  }
+  r.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  return r;
 }
 
 }  // namespace terrastride::collision

@@ -9,6 +9,8 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "simulation_run.hpp"
+#include "terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/collision/octree_terrain.hpp"
 #include "terrastride/perception/atomic_output.hpp"
@@ -18,7 +20,6 @@
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
-#include "terrain_source.hpp"
 
 namespace terrastride::service {
 namespace {
@@ -34,6 +35,7 @@ struct CheckCliOptions {
   double resolution = 0.01;
   std::string series;
   bool json = false;
+  bool simulate = false;
 };
 
 json vec(const Eigen::Vector3d& v) {
@@ -305,13 +307,41 @@ void run_check(const CheckCliOptions& o) {
       throw CommandError(std::string("--series: ") + e.what());
     }
   }
+  auto failures = rep.failures();
+  // --simulate: the simulated execution on the exact terrain joins the checks (the verdict as
+  // `plan --simulate` records it); a "fail" is a failed check, a "warn" is reported only.
+  planner::Trajectory simulated = traj;
+  if (o.simulate) {
+    const auto sim =
+        add_simulation_check(model, *source.exact(), collision::SimulationOptions{}, &simulated);
+    failures.insert(failures.end(), sim.begin(), sim.end());
+  }
+  const json sim_summary =
+      o.simulate ? simulated.extra["post_hoc"].value("simulation", json()) : json();
   if (o.json) {
-    std::cout << summary_json(rep, o.plan, view.description).dump() << "\n";
+    json out = summary_json(rep, o.plan, view.description);
+    if (o.simulate) {
+      out["simulation"] = sim_summary;
+      for (const auto& [k, v] : simulated.checks)
+        if (k.rfind("sim_", 0) == 0) out["checks"][k] = v;
+      out["failures"] = failures;
+      out["passed"] = failures.empty();
+    }
+    std::cout << out.dump() << "\n";
   } else {
     print_human(rep, o.plan, view.description);
+    if (o.simulate) {
+      std::cout << "\nsimulated execution (MuJoCo, 'terrastride simulate' for the details): ";
+      if (sim_summary.contains("verdict")) {
+        std::cout << sim_summary["verdict"].get<std::string>() << "\n";
+        for (const auto& why : sim_summary["reasons"])
+          std::cout << "  - " << why.get<std::string>() << "\n";
+      } else {
+        std::cout << "not run: " << sim_summary.value("error", std::string("?")) << "\n";
+      }
+    }
   }
   std::cout.flush();
-  const auto failures = rep.failures();
   if (!failures.empty()) {
     std::string msg = std::to_string(failures.size()) + " check(s) failed: " + failures.front();
     if (failures.size() > 1) msg += " (and " + std::to_string(failures.size() - 1) + " more)";
@@ -329,8 +359,8 @@ void add_check_command(CLI::App& app) {
       "each foot), shin and thigh capsules against the terrain's OctoMap with FCL, and stance "
       "footholds against the foothold-safety margin.\n"
       "Exit codes: 0 all checks pass; 3 a check failed (torque above a limit, IK failure or joint "
-      "out of range, certain leg collision, unsafe foothold), named on stderr; 1 bad input; 2 "
-      "usage.\n"
+      "out of range, certain leg collision, unsafe foothold; with --simulate a 'fail' verdict), "
+      "named on stderr; 1 bad input; 2 usage.\n"
       "Leg capsules get a three-way verdict per sample: clear of the occupied voxels; touching "
       "voxels but clear of the solid the map is certain of (within the map's uncertainty: voxels "
       "reach up to one voxel above the surface, mixed pixels add some); or a certain collision. "
@@ -349,6 +379,9 @@ void add_check_command(CLI::App& app) {
   cmd->add_option("--series", opts->series,
                   "Also write the per-joint torque series and per-leg clearance series as JSON");
   cmd->add_flag("--json", opts->json, "Print the results as one JSON object");
+  cmd->add_flag("--simulate", opts->simulate,
+                "Also execute the plan in MuJoCo on the same terrain (as 'terrastride simulate'); "
+                "a 'fail' verdict is a failed check (exit 3), a 'warn' is reported only");
   cmd->callback([opts] { run_check(*opts); });
 }
 

@@ -1,7 +1,8 @@
 // `terrastride demo`: the whole pipeline on the shipped pallet scan, into out/demo/:
 //   scan (data/scans) -> map (terrain::build_terrain_map, written as `terrastride map` writes it)
 //   -> plan (the request `terrastride plan` makes, every constraint set this build has) ->
-//   post-hoc checks (collision module) -> report (HTML + JSON).
+//   post-hoc checks (collision module) -> simulated execution (MuJoCo, as `plan --simulate`)
+//   -> report (HTML + JSON).
 // Each stage calls the libraries its command calls; no command runs another.
 #include <unistd.h>
 
@@ -18,8 +19,10 @@
 #include "plan_request.hpp"
 #include "report/report.hpp"
 #include "report/terrain_input.hpp"
+#include "simulation_run.hpp"
 #include "terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
+#include "terrastride/collision/simulation.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/nlp.hpp"
@@ -260,6 +263,13 @@ void print_text_summary(const json& rep, const planner::Trajectory& traj, double
             << " % of observed cells for the " << fixed(foot_radius * 1000, 0) << " mm foot\n";
   std::cout << "plan:    " << traj.solver.status << ", " << traj.samples.size() << " samples over "
             << fixed(traj.duration, 1) << " s\n";
+  const json& post_hoc = traj.extra.value("post_hoc", json::object());
+  if (post_hoc.contains("simulation") && post_hoc["simulation"].contains("verdict")) {
+    const json& sim = post_hoc["simulation"];
+    std::cout << "simulated execution: " << sim["verdict"].get<std::string>() << " (base error RMS "
+              << fixed(sim["position_error_rms_m"].get<double>() * 1000, 1) << " mm, max "
+              << fixed(sim["position_error_max_m"].get<double>() * 1000, 1) << " mm)\n";
+  }
   if (rep["problems"].empty()) {
     std::cout << "checks:  no problems found\n";
   } else {
@@ -281,7 +291,7 @@ void run_demo(const DemoOptions& o) {
   } catch (const perception::InputError& e) {
     throw CommandError(std::string("--out: ") + e.what());
   }
-  Progress progress(5, o.json_output);
+  Progress progress(6, o.json_output);
   json summary{{"stages", json::object()}};
 
   // 1. scan
@@ -343,7 +353,7 @@ void run_demo(const DemoOptions& o) {
     progress.fail();
     throw CommandError(std::string("stage 'plan' failed: ") + e.what());
   }
-  const planner::Trajectory& traj = plan.trajectory;
+  planner::Trajectory& traj = plan.trajectory;
   summary["stages"]["plan"] = {{"constraints", constraints},
                                {"status", traj.solver.status},
                                {"iterations", traj.solver.iterations},
@@ -372,13 +382,43 @@ void run_demo(const DemoOptions& o) {
   summary["stages"]["checks"] = keys;
   progress.done(check_detail(keys));
 
-  // 5. report
+  // 5. simulate: the plan executed in MuJoCo on the map's planning surface (a heightfield), its
+  // verdict added to plan.json as `plan --simulate` adds it.
+  progress.start("simulate", "MuJoCo, the plan on the map's surface as a heightfield");
+  auto simulation = std::make_shared<collision::SimulationReport>();
+  std::vector<std::string> sim_failures;
+  try {
+    sim_failures = add_simulation_check(model, *map.map, collision::SimulationOptions{}, &traj,
+                                        simulation.get());
+    perception::write_file_atomically((work / "plan.json").string(),
+                                      planner::plan_to_json(traj).dump(1) + "\n");
+  } catch (const std::exception& e) {
+    progress.fail();
+    throw CommandError(std::string("stage 'simulate': ") + e.what());
+  }
+  // A "fail" is a post-hoc failure of the plan, as for `plan --simulate`.
+  for (const auto& f : sim_failures) plan.problem += (plan.problem.empty() ? "" : "; ") + f;
+  const json& sim_json = traj.extra["post_hoc"]["simulation"];
+  summary["stages"]["simulate"] = sim_json;
+  if (sim_json.contains("verdict")) {
+    std::string detail = sim_json["verdict"].get<std::string>() + ", base error RMS " +
+                         fixed(simulation->position_rms * 1000, 1) + " mm, " +
+                         fixed(simulation->realtime_factor, 0) + "x real time";
+    if (!simulation->reasons.empty()) detail += " (" + simulation->reasons.front() + ")";
+    progress.done(detail);
+  } else {
+    simulation.reset();
+    progress.done(sim_failures.empty() ? std::string() : sim_failures.front());
+  }
+
+  // 6. report
   progress.start("report", "self-contained HTML + JSON");
   report::PlanInput input;
   input.name = "plan.json";
   input.path = (final_dir / "plan.json").string();
   input.trajectory = traj;
   input.checks = checks;
+  input.simulation = simulation;
   report::ReportOptions ropts;
   ropts.title = "terrastride demo: " + fs::path(scan.front()).filename().string();
   ropts.robot = traj.robot;
@@ -413,8 +453,8 @@ void add_demo_command(CLI::App& app) {
   auto o = std::make_shared<DemoOptions>();
   CLI::App* cmd = app.add_subcommand(
       "demo",
-      "The whole pipeline on the shipped pallet scan: map -> plan -> checks -> report, into "
-      "out/demo/");
+      "The whole pipeline on the shipped pallet scan: map -> plan -> checks -> simulated "
+      "execution (MuJoCo) -> report, into out/demo/");
   cmd->add_option("--out", o->out, "Output folder")->capture_default_str();
   cmd->add_option(
       "--scan", o->scan,

@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "plan_request.hpp"
+#include "simulation_run.hpp"
 #include "terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
@@ -43,6 +44,7 @@ struct PlanCliOptions {
   double start_time = 0.0;
   std::string start_state;  // measured state to re-plan from (JSON file), with init
   bool optimize_timing = false;
+  bool simulate = false;
   bool verbose = false;
   bool json = false;
   std::string out;
@@ -51,8 +53,8 @@ struct PlanCliOptions {
 };
 
 // Exit codes (docs/design.md, "Command line"): 3 when the solver did not reach an optimal plan,
-// 4 when it did but a post-hoc check fails (torques, leg capsules, footholds): never 0 for a plan
-// that fails a check.
+// 4 when it did but a post-hoc check fails (torques, leg capsules, footholds, and with --simulate
+// a "fail" verdict of the simulated execution): never 0 for a plan that fails a check.
 constexpr int kExitChecksFailed = 4;
 
 std::vector<std::string> split_list(const std::string& s) {
@@ -232,6 +234,13 @@ void run_plan(const PlanCliOptions& o) {
   // A non-optimal plan is still written when it nearly satisfies every constraint (useful as a
   // warm start or for inspection); the exit code says it is not optimal either way.
   const bool useful = out.success || violation <= 1e-3;
+  // --simulate: MuJoCo executes the plan on the exact terrain (a scene's boxes, a map's planning
+  // surface); a "fail" verdict is a post-hoc failure (exit 4), a "warn" is reported only.
+  if (o.simulate && useful && !out.trajectory.samples.empty()) {
+    const auto sim = add_simulation_check(model, *terrains.exact(), collision::SimulationOptions{},
+                                          &out.trajectory);
+    failures.insert(failures.end(), sim.begin(), sim.end());
+  }
   if (useful) {
     // The same text as planner::write_plan_file, written by perception::write_file_atomically:
     // atomic for files (through symbolic links), written through for pipes and devices.
@@ -243,6 +252,9 @@ void run_plan(const PlanCliOptions& o) {
       throw CommandError(std::string("--out: ") + e.what());
     }
   }
+  const nlohmann::json post_hoc = out.trajectory.extra.value("post_hoc", nlohmann::json());
+  const nlohmann::json simulation =
+      post_hoc.is_object() ? post_hoc.value("simulation", nlohmann::json()) : nlohmann::json();
   nlohmann::json summary = {{"status", out.trajectory.solver.status},
                             {"iterations", out.trajectory.solver.iterations},
                             {"wall_s", out.trajectory.solver.wall_s},
@@ -252,6 +264,7 @@ void run_plan(const PlanCliOptions& o) {
                             {"checks", out.trajectory.checks},
                             {"checks_passed", failures.empty()},
                             {"failures", failures},
+                            {"simulation", simulation},
                             {"written", useful ? o.out : ""}};
   if (o.json) {
     summary_out << summary.dump() << "\n";
@@ -261,6 +274,11 @@ void run_plan(const PlanCliOptions& o) {
                 << out.trajectory.solver.wall_s << " s (" << out.trajectory.solver.n_variables
                 << " variables, " << out.trajectory.solver.n_constraints << " constraints)\n";
     for (const auto& [k, v] : out.trajectory.checks) summary_out << "  " << k << " = " << v << "\n";
+    if (simulation.contains("verdict")) {
+      summary_out << "  simulation: " << simulation["verdict"].get<std::string>();
+      for (const auto& why : simulation["reasons"]) summary_out << "; " << why.get<std::string>();
+      summary_out << "\n";
+    }
     for (const auto& f : failures) summary_out << "  FAILED: " << f << "\n";
     if (useful) summary_out << "wrote " << o.out << "\n";
   }
@@ -325,6 +343,10 @@ void add_plan_command(CLI::App& app) {
                   "\"angular_velocity\"}, \"feet\": {NAME: {\"position\", \"velocity\"}}} "
                   "(world frame); fields left out are the previous plan's at --start-time");
   cmd->add_flag("--optimize-timing", o->optimize_timing, "optimise the phase durations too");
+  cmd->add_flag("--simulate", o->simulate,
+                "also execute the plan in MuJoCo (as 'terrastride simulate' on the same terrain); "
+                "the verdict joins plan.json's checks (sim_*) and post_hoc.simulation; a 'fail' "
+                "is a post-hoc failure (exit 4), a 'warn' is reported only");
   cmd->add_flag("--verbose", o->verbose, "show Ipopt's output");
   cmd->add_flag("--json", o->json, "print the summary as one JSON object");
   cmd->add_option("--out", o->out,

@@ -32,6 +32,7 @@ struct ReportCommandOptions {
   std::string robot = "hyq";
   std::string title;
   bool json_output = false;
+  bool simulate = false;
 };
 
 std::vector<double> parse_radii(const std::string& text) {
@@ -96,6 +97,11 @@ json summary_json(const json& report, const std::string& html, const std::string
            {"solver_status", p["solver"]["status"]},
            {"footholds", p["footholds"].size()}};
     for (const auto& [k, v] : p["checks"].items()) s[k] = v;
+    const json& sim = p["simulation"];
+    if (sim.contains("verdict"))
+      s["simulation_verdict"] = sim["verdict"];
+    else if (sim.contains("recorded"))
+      s["simulation_verdict"] = sim["recorded"]["verdict"];
     plans.push_back(s);
   }
   return {{"html", html},
@@ -239,6 +245,7 @@ void run_report(const ReportCommandOptions& o) {
   if (!o.origin.empty()) topts.origin = Eigen::Vector3d(parse_numbers(o.origin, 3, "--origin"));
   report::ReportOptions ropts;
   ropts.robot = o.robot;
+  ropts.simulate = o.simulate;
   if (!o.title.empty()) ropts.title = o.title;
   // Fail early (before any mapping) when the page's assets are missing.
   (void)report::render_index_html(json{{"reports", json::array()}});
@@ -277,6 +284,10 @@ void add_report_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--title", o->title, "Title of the page");
   cmd->add_flag("--json", o->json_output, "Print the summary as one JSON object");
+  cmd->add_flag("--simulate", o->simulate,
+                "Execute every --plan in MuJoCo on the terrain (a scene's exact boxes, a map's "
+                "planning surface) and add the \"Simulated execution\" section: tracking error, "
+                "torques against the limits, contact events, verdict");
   cmd->callback([o] { run_report(*o); });
 }
 

@@ -1,5 +1,6 @@
 // `terrastride simulate`: executes a plan in MuJoCo with a tracking controller, as an independent
 // judge of the plan (issue #16; collision/include/terrastride/collision/simulation.hpp).
+#include <unistd.h>
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -7,7 +8,9 @@
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <sstream>
 
+#include "simulation_run.hpp"
 #include "terrastride/collision/simulation.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/point_cloud.hpp"
@@ -34,99 +37,10 @@ struct SimulateCliOptions {
   double friction = 0.5;
   std::string out;
   bool json = false;
+  bool margin = false;
+  double margin_push_time = 0.5;
+  double margin_push_duration = 0.2;
 };
-
-json vec(const Eigen::Vector3d& v) {
-  return json::array({v.x(), v.y(), v.z()});
-}
-
-json summary_json(const collision::SimulationReport& r, const robot::RobotModel& model,
-                  const std::string& plan, const std::string& terrain) {
-  const auto& th = r.thresholds;
-  json legs = json::array();
-  for (size_t i = 0; i < model.legs.size(); ++i)
-    legs.push_back({{"leg", model.legs[i].name},
-                    {"torque_max_Nm", vec(r.torque_max[i])},
-                    {"saturated_s", vec(r.saturated_time[i])},
-                    {"joint_limit_s", vec(r.joint_limit_time[i])},
-                    {"joint_limit_impulse_Nms", vec(r.joint_limit_impulse[i])},
-                    {"shin_impulse_Ns", r.shin_impulse[i]},
-                    {"thigh_impulse_Ns", r.thigh_impulse[i]}});
-  json stances = json::array();
-  for (const auto& s : r.stances)
-    stances.push_back({{"foot", model.legs[s.foot].name},
-                       {"t_start", s.t_start},
-                       {"t_end", s.t_end},
-                       {"touched_down", s.touched_down},
-                       {"touchdown_t", s.touched_down ? json(s.touchdown_t) : json()},
-                       {"touchdown_error_m", s.touchdown_error},
-                       {"slip_m", s.slip},
-                       {"centre_drift_m", s.centre_drift}});
-  return {{"plan", plan},
-          {"terrain", terrain},
-          {"verdict", r.verdict},
-          {"reasons", r.reasons},
-          {"fell", r.fell},
-          {"heightfield_filled_cells", r.filled_cells},
-          {"fall_t", r.fell ? json(r.fall_t) : json()},
-          {"dt", r.dt},
-          {"duration", r.duration},
-          {"steps", r.steps},
-          {"wall_s", r.wall_s},
-          {"realtime_factor", r.realtime_factor},
-          {"physics_wall_s", r.physics_wall_s},
-          {"cpu_s", r.cpu_s},
-          {"position_error_rms_m", r.position_rms},
-          {"position_error_max_m", r.position_max},
-          {"position_error_max_t", r.position_max_t},
-          {"tilt_error_max_rad", r.tilt_max},
-          {"height_drop_max_m", r.height_drop_max},
-          {"saturation_fraction", r.saturation_fraction},
-          {"joint_limit_impulse_max_Nms", r.joint_limit_impulse_max},
-          {"joint_limit_max_s", r.joint_limit_max_s},
-          {"slip_max_m", r.slip_max},
-          {"centre_drift_max_m", r.centre_drift_max},
-          {"touchdown_error_max_m", r.touchdown_error_max},
-          {"missed_touchdowns", r.missed_touchdowns},
-          {"shin_impulse_max_Ns", r.shin_impulse_max},
-          {"trunk_impulse_Ns", r.trunk_impulse},
-          {"legs", legs},
-          {"stances", stances},
-          {"thresholds",
-           {{"fall_height_m", th.fall_height_m},
-            {"fall_tilt_deg", th.fall_tilt_rad * 180.0 / M_PI},
-            {"body_contact_impulse_Ns", th.body_contact_impulse_Ns},
-            {"position_rms_m", th.position_rms_m},
-            {"position_max_m", th.position_max_m},
-            {"saturation_fraction", th.saturation_fraction},
-            {"slip_m", th.slip_m},
-            {"touchdown_error_m", th.touchdown_error_m},
-            {"shin_impulse_Ns", th.shin_impulse_Ns},
-            {"joint_limit_impulse_Nms", th.joint_limit_impulse_Nms}}}};
-}
-
-json samples_json(const collision::SimulationReport& r, const robot::RobotModel& model) {
-  json out = json::array();
-  for (const auto& s : r.samples) {
-    json feet = json::array();
-    for (size_t i = 0; i < model.legs.size(); ++i)
-      feet.push_back({{"contact", static_cast<bool>(s.foot_contact[i])},
-                      {"planned_contact", static_cast<bool>(s.planned_contact[i])},
-                      {"force", vec(s.foot_force[i])},
-                      {"position", vec(s.foot_position[i])},
-                      {"joint_torque", vec(s.joint_torque[i])},
-                      {"shin_force", s.shin_force[i]},
-                      {"thigh_force", s.thigh_force[i]}});
-    out.push_back(
-        {{"t", s.t},
-         {"base", {{"position", vec(s.base_position)}, {"euler_zyx", vec(s.base_euler_zyx)}}},
-         {"planned_base",
-          {{"position", vec(s.planned_position)}, {"euler_zyx", vec(s.planned_euler_zyx)}}},
-         {"feet", feet},
-         {"trunk_force", s.trunk_force}});
-  }
-  return out;
-}
 
 void print_human(const collision::SimulationReport& r, const robot::RobotModel& model,
                  const std::string& plan, const std::string& terrain) {
@@ -159,6 +73,38 @@ void print_human(const collision::SimulationReport& r, const robot::RobotModel& 
     std::cout << (r.verdict == "fail" ? "FAIL" : "WARN") << ":\n";
     for (const auto& why : r.reasons) std::cout << "  - " << why << "\n";
   }
+}
+
+void print_margin(const json& m) {
+  std::cout << std::setprecision(3) << std::defaultfloat;
+  std::cout << "\nrobustness margin (survives = verdict not 'fail'; " << m["runs"] << " runs in "
+            << m["wall_s"].get<double>() << " s)\n";
+  if (m["nominal_verdict"] == "fail") {
+    std::cout << "  none: the plan fails without any disturbance\n";
+    return;
+  }
+  const json& p = m["push"];
+  auto side = [](const json& s) {
+    std::ostringstream o;
+    o.precision(4);
+    o << s["survived"].get<double>();
+    if (s["failed"].is_null())
+      o << " (no failure up to the ceiling)";
+    else
+      o << " (fails at " << s["failed"].get<double>() << ": " << s.value("failure", "") << ")";
+    return o.str();
+  };
+  std::cout << "  lateral push of " << p["duration_s"].get<double>()
+            << " s at t = " << p["t"].get<double>()
+            << " s (perpendicular to the planned heading):\n"
+            << "    left  " << side(p["left"]) << " N\n"
+            << "    right " << side(p["right"]) << " N\n"
+            << "    margin " << p["margin_N"].get<double>() << " N ("
+            << p["margin_Ns"].get<double>() << " N s)"
+            << (p["at_ceiling"].get<bool>() ? ", at the search's ceiling" : "") << "\n";
+  if (m.contains("mass"))
+    std::cout << "  trunk mass scale: heavier " << side(m["mass"]["heavier"]) << "\n"
+              << "                    lighter " << side(m["mass"]["lighter"]) << "\n";
 }
 
 void run_simulate(const SimulateCliOptions& o) {
@@ -202,26 +148,49 @@ void run_simulate(const SimulateCliOptions& o) {
     throw CommandError("--terrain " + o.terrain +
                        ": neither a terrain directory from 'terrastride map' nor a scene name "
                        "(flat, pallet_10, pallet_15, eur_pallet, stairs, gap)");
+  std::unique_ptr<terrain::HeightField> terrain;
+  if (is_scene) {
+    terrain = terrain::make_scene(o.terrain);
+  } else {
+    try {
+      terrain = terrain::load_terrain_dir(o.terrain);
+    } catch (const perception::InputError& e) {
+      throw CommandError("--terrain " + o.terrain + ": " + e.what());
+    }
+  }
+  if (o.margin) {
+    if (!std::isfinite(o.margin_push_time) || o.margin_push_time < 0 || o.margin_push_time >= 1)
+      throw CommandError("--margin-push-time: must be in [0, 1)");
+    if (!std::isfinite(o.margin_push_duration) || o.margin_push_duration <= 0 ||
+        o.margin_push_duration > 2)
+      throw CommandError("--margin-push-duration: must be in (0, 2] s");
+  }
   collision::SimulationReport rep;
   try {
-    if (is_scene) {
-      rep = collision::simulate_plan(model, traj, *terrain::make_scene(o.terrain), sim);
-    } else {
-      std::unique_ptr<terrain::TerrainMap> map;
-      try {
-        map = terrain::load_terrain_dir(o.terrain);
-      } catch (const perception::InputError& e) {
-        throw CommandError("--terrain " + o.terrain + ": " + e.what());
-      }
-      rep = collision::simulate_plan(model, traj, *map, sim);
-    }
+    rep = collision::simulate_plan(model, traj, *terrain, sim);
   } catch (const collision::SimulationError& e) {
     throw CommandError(o.plan + ": " + e.what());
   }
-  const json summary = summary_json(rep, model, o.plan, rep.terrain);
+  json summary = simulation_summary_json(rep, model);
+  summary["plan"] = o.plan;
+  if (o.margin) {
+    // The margin's runs repeat the plan some 50 times (bisections on the verdict).
+    collision::MarginOptions mo;
+    mo.push_time_fraction = o.margin_push_time;
+    mo.push_duration = o.margin_push_duration;
+    const bool tty = isatty(STDERR_FILENO) && !o.json;
+    if (tty) std::cerr << "searching the robustness margin (about 50 runs) ..." << std::flush;
+    try {
+      summary["margin"] = margin_json(collision::simulation_margin(model, traj, *terrain, sim, mo));
+    } catch (const collision::SimulationError& e) {
+      if (tty) std::cerr << "\n";
+      throw CommandError("--margin: " + std::string(e.what()));
+    }
+    if (tty) std::cerr << "\r" << std::string(52, ' ') << "\r" << std::flush;
+  }
   if (!o.out.empty()) {
     json full = summary;
-    full["samples"] = samples_json(rep, model);
+    full["samples"] = simulation_samples_json(rep, model);
     try {
       perception::write_file_atomically(o.out, full.dump() + "\n");
     } catch (const perception::InputError& e) {
@@ -232,6 +201,7 @@ void run_simulate(const SimulateCliOptions& o) {
     std::cout << summary.dump() << "\n";
   } else {
     print_human(rep, model, o.plan, rep.terrain);
+    if (summary.contains("margin")) print_margin(summary["margin"]);
   }
   std::cout.flush();
   if (rep.verdict == "fail")
@@ -276,6 +246,16 @@ void add_simulate_command(CLI::App& app) {
                   "Write the summary and per-sample actual vs planned base, joint torques, foot "
                   "contacts and forces, shin/thigh/trunk contact forces (every 10 ms) as JSON");
   cmd->add_flag("--json", opts->json, "Print the summary as one JSON object");
+  cmd->add_flag("--margin", opts->margin,
+                "Also search the robustness margin: the largest lateral push (left and right) "
+                "and trunk mass error the plan survives (verdict not 'fail'), by bisection "
+                "(about 50 runs)");
+  cmd->add_option("--margin-push-time", opts->margin_push_time,
+                  "With --margin: the push starts at this fraction of the plan's duration")
+      ->capture_default_str();
+  cmd->add_option("--margin-push-duration", opts->margin_push_duration,
+                  "With --margin: the push lasts this long (s)")
+      ->capture_default_str();
   cmd->callback([opts] { run_simulate(*opts); });
 }
 

@@ -265,5 +265,70 @@ TEST(Simulation, HeightfieldOfAMapCarriesThePlans) {
   EXPECT_NE(all.verdict, "fail");
 }
 
+// A scanned map's heightfield is the surface the planner plans on (the smoothed `surface` layer),
+// not the raw elevation: here the elevation lies 4 cm above the surface everywhere (as sensor
+// noise or an overhang the smoothing took out would), and a stand planned on the surface holds.
+TEST(Simulation, HeightfieldIsTheMapsPlanningSurface) {
+  const auto model = hyq();
+  const auto flat = terrain::TerrainMap::from_scene(*terrain::make_scene("flat"), 0.02, {0.02});
+  terrain::HeightGrid grid = flat->grid();
+  grid.surface = grid.elevation;
+  for (float& e : grid.elevation) e += 0.04f;
+  const terrain::TerrainMap map(std::move(grid), {0.02});
+  const auto rep = collision::simulate_plan(model, stand_plan(model, 1.0), map, {});
+  print("stand 1 s on a map whose elevation is 4 cm above its surface", rep);
+  std::cout << "  " << rep.terrain << "\n";
+  EXPECT_NE(rep.terrain.find("smoothed surface"), std::string::npos) << rep.terrain;
+  EXPECT_EQ(rep.verdict, "pass");
+  EXPECT_LT(rep.position_max, 0.01);
+}
+
+// The same through the height-field overload the service uses: a scene runs on its boxes, a map
+// on its heightfield.
+TEST(Simulation, HeightFieldOverloadDispatchesByTerrainType) {
+  const auto model = hyq();
+  const auto scene = terrain::make_scene("flat");
+  const terrain::HeightField& as_field = *scene;
+  const auto rep = collision::simulate_plan(model, stand_plan(model, 0.5), as_field, {});
+  EXPECT_NE(rep.terrain.find("boxes"), std::string::npos) << rep.terrain;
+  const auto map = terrain::TerrainMap::from_scene(*scene, 0.02, {0.02});
+  const terrain::HeightField& map_field = *map;
+  const auto rep_map = collision::simulate_plan(model, stand_plan(model, 0.5), map_field, {});
+  EXPECT_NE(rep_map.terrain.find("heightfield"), std::string::npos) << rep_map.terrain;
+}
+
+// The robustness margin: a bisection on the verdict. The push it reports is survived and the
+// bracket's upper end fails (both sides), within the tolerance; a heavier trunk has a margin too.
+TEST(Simulation, MarginBracketsTheLargestSurvivedPush) {
+  const auto model = hyq();
+  const auto scene = terrain::make_scene("flat");
+  collision::MarginOptions mo;
+  mo.push_tolerance = 20.0;
+  mo.mass_tolerance = 0.05;
+  const auto m = collision::simulation_margin(model, flat_crawl(), *scene, {}, mo);
+  std::cout << "flat crawl margin: push left " << m.push_left.survived << " N (fails at "
+            << m.push_left.failed << " N: " << m.push_left.failure << "), right "
+            << m.push_right.survived << " N (fails at " << m.push_right.failed << " N), mass scale "
+            << m.mass_lighter.survived << " .. " << m.mass_heavier.survived << ", " << m.runs
+            << " runs in " << m.wall_s << " s\n";
+  EXPECT_EQ(m.nominal_verdict, "pass");
+  EXPECT_GT(m.push_margin_N, 0.0);
+  EXPECT_DOUBLE_EQ(m.push_margin_N, std::min(m.push_left.survived, m.push_right.survived));
+  EXPECT_NEAR(m.push_margin_Ns, m.push_margin_N * mo.push_duration, 1e-9);
+  for (const auto* side : {&m.push_left, &m.push_right}) {
+    ASSERT_GT(side->failed, 0.0);  // a 4 kN push for 0.2 s topples HyQ
+    EXPECT_LE(side->failed - side->survived, mo.push_tolerance + 1e-9);
+    // Re-run at both ends: the bracket is what the verdict says.
+    collision::SimulationOptions at;
+    at.pushes.push_back(
+        {m.push_t, side->survived * (side == &m.push_left ? 1 : -1) * m.left, mo.push_duration});
+    EXPECT_NE(collision::simulate_plan(model, flat_crawl(), *scene, at).verdict, "fail");
+    at.pushes.back().force = side->failed * (side == &m.push_left ? 1 : -1) * m.left;
+    EXPECT_EQ(collision::simulate_plan(model, flat_crawl(), *scene, at).verdict, "fail");
+  }
+  EXPECT_GT(m.mass_heavier.survived, 1.0);
+  EXPECT_LT(m.mass_lighter.survived, 1.0);
+}
+
 }  // namespace
 }  // namespace terrastride

@@ -8,6 +8,7 @@
 
 #include "report/sections.hpp"
 #include "terrastride/collision/checks.hpp"
+#include "terrastride/collision/simulation.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/cli.hpp"
 
@@ -18,7 +19,7 @@ using nlohmann::json;
 
 // One plan's part of the report: its sections in page order; its problems join `problems`.
 json plan_json(const PlanInput& input, const TerrainView& terrain, const robot::RobotModel& model,
-               json& problems) {
+               const ReportOptions& options, json& problems) {
   const planner::Trajectory& traj = input.trajectory;
   // Display stride: about 1500 points per curve are plenty for the page.
   const size_t stride = std::max<size_t>(1, traj.samples.size() / 1500);
@@ -33,11 +34,26 @@ json plan_json(const PlanInput& input, const TerrainView& terrain, const robot::
   const collision::CheckReport checks =
       input.checks ? *input.checks : collision::run_checks(model, traj, check_terrain);
 
+  // The simulated execution: the caller's (demo), or run here on the terrain when asked.
+  std::shared_ptr<const collision::SimulationReport> simulation = input.simulation;
+  std::string simulation_error;
+  if (!simulation && options.simulate) {
+    try {
+      if (!terrain.field) throw collision::SimulationError("the terrain has no height field");
+      simulation = std::make_shared<const collision::SimulationReport>(
+          collision::simulate_plan(model, traj, *terrain.field, collision::SimulationOptions{}));
+    } catch (const collision::SimulationError& e) {
+      simulation_error = e.what();
+    }
+  }
+
   json summary = json::array();
-  const PlanSections sections{input, terrain, model, checks, stride, summary, problems};
+  const PlanSections sections{input,    terrain,          model,           checks, stride, summary,
+                              problems, simulation.get(), simulation_error};
   out["footholds"] = footholds_section(sections);
   out["torque"] = torque_section(sections);
   out["clearance"] = clearance_section(sections);
+  out["simulation"] = simulation_section(sections);
   solver_rows(sections);
   dense_check_rows(sections);
   out["summary"] = summary;
@@ -100,7 +116,7 @@ json build_report(const TerrainView& terrain, const std::vector<PlanInput>& plan
       }
     }
     try {
-      plan_list.push_back(plan_json(p, terrain, plan_model, problems));
+      plan_list.push_back(plan_json(p, terrain, plan_model, options, problems));
     } catch (const collision::TrajectoryError& e) {
       throw CommandError(p.path + ": " + e.what());
     }

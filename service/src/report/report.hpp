@@ -17,7 +17,8 @@ class OcTree;
 }
 namespace terrastride::collision {
 struct CheckReport;
-}
+struct SimulationReport;
+}  // namespace terrastride::collision
 
 namespace terrastride::service::report {
 
@@ -59,6 +60,9 @@ struct PlanInput {
   // The post-hoc checks (collision module) when the caller has just run them on this terrain
   // (demo); null: the report runs them itself.
   std::shared_ptr<const collision::CheckReport> checks;
+  // The plan's execution in MuJoCo on this terrain (demo, `report --simulate`); null: the
+  // "Simulated execution" section shows the verdict plan.json recorded (`plan --simulate`), if any.
+  std::shared_ptr<const collision::SimulationReport> simulation;
 };
 
 struct ReportOptions {
@@ -66,6 +70,8 @@ struct ReportOptions {
   std::vector<double> radii;  // safety layers; empty: the terrain's own or {0.02, 0.04, 0.06}
   std::string robot = "hyq";  // for terrain-only reports (foot radius) and plans without one
   size_t max_display_cells = 160'000;  // larger grids are shown decimated (noted in the page)
+  // Run every plan without a simulation in MuJoCo on the terrain (`report --simulate`).
+  bool simulate = false;
 };
 
 // Everything the page shows, as numbers: terrain layers and statistics, per plan the path, feet,

@@ -1,6 +1,7 @@
 // The report's sections, one function each, which build_report (report.cpp) composes: the
 // terrain (terrain_section.cpp) and, per plan, its overview, path and feet, footholds, joint
-// torques, leg clearance, solver and dense-check rows and elevation profile (plan_sections.cpp).
+// torques, leg clearance, solver and dense-check rows and elevation profile (plan_sections.cpp),
+// and the simulated execution (simulation_section.cpp).
 // Internal to the report; the document's format is report.hpp's.
 #pragma once
 
@@ -67,6 +68,9 @@ struct PlanSections {
   size_t stride;                         // display stride of the time series
   nlohmann::json& summary;               // rows of the plan's summary table
   nlohmann::json& problems;              // the report's problems
+  // The plan's simulated execution on `terrain` (null: not simulated) or why it could not run.
+  const collision::SimulationReport* simulation = nullptr;
+  std::string simulation_error;
 };
 
 // The plan's name, file, robot, gait, timing, solver figures and the checks its file holds.
@@ -83,6 +87,10 @@ nlohmann::json clearance_section(const PlanSections& s);
 void solver_rows(const PlanSections& s);
 // The dense checks of the plan file against their limits.
 void dense_check_rows(const PlanSections& s);
+// "Simulated execution": the MuJoCo run's tracking error over time, joint torques against their
+// limits, contact events (feet planned vs actual, shin/thigh/trunk contacts) and the verdict
+// (simulation_section.cpp); a "fail" is a problem, a "warn" a note.
+nlohmann::json simulation_section(const PlanSections& s);
 // The elevation profile along the base path: ground, base, feet, and the shin points from IK.
 nlohmann::json profile_section(const planner::Trajectory& trajectory, const TerrainView& terrain,
                                const robot::RobotModel& model, size_t stride);

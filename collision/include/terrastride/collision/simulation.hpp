@@ -182,9 +182,62 @@ std::vector<Eigen::Vector3d> nominal_stance(const robot::RobotModel& model);
 SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
                                const terrain::Scene& scene, const SimulationOptions& options);
 
-// Runs the plan on a scanned map: its elevation as a heightfield (vertices on the cell centres)
-// over a plane at its lowest height; foot normals from the map's smooth field.
+// Runs the plan on a scanned map: the surface the planner plans on (the smoothed `surface`
+// layer when the map has one, else its elevation) as a heightfield (vertices on the cell
+// centres) over a plane at its lowest height; foot normals from the map's smooth field.
 SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
                                const terrain::TerrainMap& map, const SimulationOptions& options);
+
+// Either of the above by the terrain's type (a Scene or a TerrainMap, as the service's terrain
+// sources hold them); SimulationError for any other height field.
+SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
+                               const terrain::HeightField& terrain,
+                               const SimulationOptions& options);
+
+// Robustness margin (`terrastride simulate --margin`): the largest disturbance a plan survives,
+// so two plans can be compared by how much they take. Survives = the verdict is not "fail" (no
+// fall; warnings allowed), each search a bisection on that verdict (assumed monotone in the
+// disturbance: a larger push or mass error is never easier).
+// Push convention: a constant horizontal force on the trunk's origin, perpendicular to the
+// planned heading (yaw) at the push's start, of `push_duration` seconds starting at
+// `push_time_fraction` of the plan's duration; searched to the left and to the right, the margin
+// being the smaller. Mass error: the trunk's mass and inertia scaled by K (the controller still
+// uses the plan's forces): the largest K >= 1 (payload) and smallest K <= 1 it survives.
+struct MarginOptions {
+  double push_time_fraction = 0.5;
+  double push_duration = 0.2;      // s
+  double push_force_max = 4000.0;  // N, the search's ceiling (a margin there is "at least")
+  double push_tolerance = 10.0;    // N, bisection stops when the bracket is this narrow
+  bool mass = true;                // also search the mass error
+  double mass_scale_max = 3.0, mass_scale_min = 0.3;  // the search's limits
+  double mass_tolerance = 0.02;
+};
+
+struct MarginSide {
+  double survived = 0.0;  // largest disturbance survived (N, or mass scale)
+  double failed = -1.0;   // smallest that failed (< 0: none failed up to the search's limit)
+  std::string failure;    // the verdict's first reason at `failed`
+};
+
+struct MarginReport {
+  std::string nominal_verdict;               // without disturbance; "fail" leaves every margin at 0
+  double push_t = 0.0, push_duration = 0.0;  // s
+  Eigen::Vector3d left = Eigen::Vector3d::Zero();  // unit push direction to the left
+  MarginSide push_left, push_right;
+  double push_margin_N = 0.0;    // min of the two sides
+  double push_margin_Ns = 0.0;   // its impulse (force times duration)
+  bool push_at_ceiling = false;  // neither side failed up to push_force_max
+  bool mass_searched = false;
+  MarginSide mass_heavier, mass_lighter;  // survived/failed as mass scales
+  int runs = 0;
+  double wall_s = 0.0;
+  MarginOptions options;
+};
+
+// `options` are the simulation's (dt, friction, thresholds, controller; its pushes and mass
+// scale are the nominal state every search adds to). Throws SimulationError as simulate_plan.
+MarginReport simulation_margin(const robot::RobotModel& model, const planner::Trajectory& plan,
+                               const terrain::HeightField& terrain,
+                               const SimulationOptions& options, const MarginOptions& margin = {});
 
 }  // namespace terrastride::collision
