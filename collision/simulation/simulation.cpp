@@ -667,6 +667,8 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
   std::vector<Vector3d> tau_applied(n_legs, Vector3d::Zero());
 
   for (int step = 0; step <= n_steps; ++step) {
+    if (o.stop_requested && step % 50 == 0 && o.stop_requested())
+      throw SimulationCancelled("simulation stopped at t = " + std::to_string(d->time + t0) + " s");
     const double t = d->time + t0;
     const auto ps = view.at(t);
     const Vector3d p(d->qpos[0], d->qpos[1], d->qpos[2]);

@@ -10,6 +10,7 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <functional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -26,6 +27,12 @@ namespace terrastride::collision {
 class SimulationError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
+};
+
+// The caller's stop_requested() said stop (a cancelled or late service request).
+class SimulationCancelled : public SimulationError {
+ public:
+  using SimulationError::SimulationError;
 };
 
 // An external force on the trunk's origin (world frame) from `t` for `duration` seconds.
@@ -79,6 +86,9 @@ struct SimulationOptions {
   double record_dt = 0.01;  // per-sample output step (s); 0 = none
   SimulationThresholds thresholds;
   ControllerOptions controller;
+  // Polled every 50 steps; true stops the run with SimulationCancelled (the service's
+  // cancellation token; the module does not depend on the service).
+  std::function<bool()> stop_requested;
 };
 
 // One recorded sample.
