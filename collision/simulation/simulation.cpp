@@ -16,6 +16,7 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <sstream>
 
 #include "terrastride/robot/leg_kinematics.hpp"
@@ -112,9 +113,6 @@ Matrix3d floor_inertia(const Matrix3d& i) {
 const char* kRobotGeom = "contype=\"1\" conaffinity=\"0\"";
 const char* kTerrainGeom = "contype=\"0\" conaffinity=\"1\"";
 
-// Trunk collision box (m, half sizes): HyQ's torso between the hips, not in the robot file.
-const Vector3d kTrunkHalfSize(0.42, 0.14, 0.075);
-
 std::string robot_body(const robot::RobotModel& model, double mass_scale, const Vector3d& pos,
                        const Eigen::Quaterniond& quat) {
   const TrunkInertia trunk = trunk_inertia(model);
@@ -124,9 +122,11 @@ std::string robot_body(const robot::RobotModel& model, double mass_scale, const 
     << "<freejoint name=\"root\"/>\n"
     << "<inertial pos=\"" << fmt(trunk.com) << "\" mass=\"" << fmt(trunk.mass * mass_scale)
     << "\" fullinertia=\"" << full_inertia(trunk.inertia * mass_scale) << "\"/>\n"
-    << "<geom name=\"trunk\" type=\"box\" size=\"" << fmt(kTrunkHalfSize) << "\" " << kRobotGeom
-    << "/>\n"
     << "<site name=\"base\" pos=\"0 0 0\"/>\n";
+  // The trunk's collision box is the robot file's (`trunk: none`: no trunk geometry).
+  if (model.trunk)
+    x << "<geom name=\"trunk\" type=\"box\" pos=\"" << fmt(model.trunk->center) << "\" size=\""
+      << fmt(model.trunk->half_size()) << "\" " << kRobotGeom << "/>\n";
   for (const auto& leg : model.legs) {
     const std::string n = leg.name;
     const double r_foot = model.foot_radius;
@@ -307,7 +307,13 @@ std::unique_ptr<Model> load_model(const std::string& xml) {
   std::memcpy(vfs->filedata[idx], xml.data(), xml.size());
   char error[1000] = "";
   auto model = std::make_unique<Model>();
-  model->m = mj_loadXML(name, vfs.get(), error, sizeof(error));
+  {
+    // The XML parser and compiler of MuJoCo 2.2.2 are not documented as re-entrant; loading takes
+    // milliseconds, so concurrent simulations (the service's workers) load one at a time.
+    static std::mutex load_mutex;
+    const std::lock_guard<std::mutex> lock(load_mutex);
+    model->m = mj_loadXML(name, vfs.get(), error, sizeof(error));
+  }
   mj_deleteVFS(vfs.get());
   if (!model->m) throw SimulationError(std::string("MuJoCo refused the generated model: ") + error);
   model->d = mj_makeData(model->m);

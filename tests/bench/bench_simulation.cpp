@@ -88,9 +88,9 @@ double load1() {
 }
 
 void print_header() {
-  std::printf("%-7s %-22s %-34s %-7s %-5s %7s %7s %6s %6s %6s %7s %7s %6s %6s\n", "group", "plan",
-              "simulated on", "solver", "sim", "rms_mm", "max_mm", "sat_%", "slip", "td_mm",
-              "shin_Ns", "shin_s", "fall_t", "x_rt");
+  std::printf("%-7s %-22s %-34s %-7s %-5s %7s %7s %6s %6s %6s %7s %7s %7s %6s %6s\n", "group",
+              "plan", "simulated on", "solver", "sim", "rms_mm", "max_mm", "sat_%", "slip",
+              "td_mm", "shin_Ns", "shin_s", "shin_N", "fall_t", "x_rt");
 }
 
 void print_row(const Row& r) {
@@ -105,12 +105,16 @@ void print_row(const Row& r) {
       shin_s = std::max(shin_s, leg);
     }
   }
-  std::printf("%-7s %-22s %-34s %-7s %-5s %7.1f %7.1f %6.2f %6.1f %6.1f %7.2f %7.2f %6s %6.1f\n",
-              r.group.c_str(), r.plan.c_str(), r.terrain.substr(0, 34).c_str(),
-              r.status.substr(0, 7).c_str(), s.verdict.c_str(), 1000 * s.position_rms,
-              1000 * s.position_max, 100 * s.saturation_fraction, 1000 * s.slip_max,
-              1000 * s.touchdown_error_max, s.shin_impulse_max, shin_s,
-              s.fell ? std::to_string(s.fall_t).substr(0, 5).c_str() : "-", s.realtime_factor);
+  double shin_peak = 0.0;
+  for (const auto& smp : s.samples)
+    for (double f : smp.shin_force) shin_peak = std::max(shin_peak, f);
+  std::printf(
+      "%-7s %-22s %-34s %-7s %-5s %7.1f %7.1f %6.2f %6.1f %6.1f %7.2f %7.2f %7.0f %6s %6.1f\n",
+      r.group.c_str(), r.plan.c_str(), r.terrain.substr(0, 34).c_str(),
+      r.status.substr(0, 7).c_str(), s.verdict.c_str(), 1000 * s.position_rms,
+      1000 * s.position_max, 100 * s.saturation_fraction, 1000 * s.slip_max,
+      1000 * s.touchdown_error_max, s.shin_impulse_max, shin_s, shin_peak,
+      s.fell ? std::to_string(s.fall_t).substr(0, 5).c_str() : "-", s.realtime_factor);
   if (s.verdict != "pass")
     for (const auto& why : s.reasons) std::printf("          - %s\n", why.c_str());
 }

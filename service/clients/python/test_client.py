@@ -35,7 +35,8 @@ def main(address):
     with Client.connect(address) as c:
         hello = c.call("hello")
         assert hello["protocol"] == 1 and hello["robot"]["name"] == "hyq", hello
-        for op in ("map.update", "map.query", "map.clear", "plan", "check", "cancel", "status"):
+        for op in ("map.update", "map.query", "map.clear", "plan", "check", "simulate", "cancel",
+                   "status"):
             assert op in hello["ops"], op
 
         up = c.call("map.update", scene="pallet_10")
@@ -101,6 +102,14 @@ def main(address):
         for foot in result["feet"]:
             assert set(cols[foot + ".contact"]) <= {0.0, 1.0}
         assert abs(cols["base.position.x"][-1] - 0.3) < 1e-3, cols["base.position.x"][-1]
+
+        # The plan executed in MuJoCo on the exact flat scene: a verdict with its figures.
+        planned = c.call("plan", terrain="flat", duration=2.4, goal=[0.3, 0.0, 0.0])
+        sim = c.call("simulate", plan=planned, terrain="flat")
+        assert sim["verdict"] in ("pass", "warn", "fail") and not sim["fell"], sim
+        assert sim["position_error_rms_m"] < 0.02, sim["position_error_rms_m"]
+        e = expect_error("bad_request", lambda: c.call("simulate", plan=planned, dt=1.0))
+        assert "dt" in e.message, e.message
 
         c.call("map.clear")
         expect_error("no_map", lambda: c.call("map.query", points=[[0, 0]]))
