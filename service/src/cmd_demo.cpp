@@ -71,7 +71,7 @@ class Progress {
     name_ = name;
     if (quiet_) return;
     line_ = "[" + std::to_string(stage_) + "/" + std::to_string(stages_) + "] " + name;
-    line_.resize(std::max<size_t>(line_.size(), 14), ' ');
+    line_.resize(std::max<size_t>(line_.size() + 1, 14), ' ');
     line_ += what;
     std::cout << line_ << (tty_ ? " ..." : "") << std::flush;
   }
