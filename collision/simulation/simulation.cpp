@@ -274,6 +274,9 @@ std::string full_mjcf(const robot::RobotModel& model, const TerrainMjcf* terrain
   // millimetres per stance, which the slip check would blame on the plan.
   x << "<mujoco model=\"" << model.name << "\">\n"
     << "<compiler angle=\"radian\" autolimits=\"true\"/>\n"
+    // Contact and constraint buffers: MuJoCo 2.2.2's defaults (100 contacts) fill up on a scanned
+    // heightfield (a foot sphere or a shin meets several prisms) and contacts beyond are dropped.
+    << "<size nconmax=\"1000\" njmax=\"6000\"/>\n"
     << "<option timestep=\"" << fmt(o.dt) << "\" gravity=\"0 0 " << fmt(-kGravity)
     << "\" cone=\"elliptic\" impratio=\"100\"/>\n"
     << "<default><geom solref=\"0.005 1\" friction=\"" << fmt(o.friction)
