@@ -12,6 +12,7 @@
 #include "terrastride/planner/piece_math.hpp"
 #include "terrastride/planner/reachability.hpp"
 #include "terrastride/planner/request_limits.hpp"
+#include "terrastride/planner/violation_report.hpp"
 
 namespace terrastride::planner {
 
@@ -124,7 +125,13 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
       << " s); largest constraint violation " << out.solve.max_violation;
     if (out.solve.status == "stalled")
       m << ", no 1 % reduction of it in the last " << options.stall_iterations << " iterations";
+    // Which constraints stay violated, on which feet and when: what a user can change (the goal,
+    // the duration, the gait, a constraint set) depends on it.
+    const std::vector<FamilyViolation> left =
+        violated_families(problem, out.solve.x, options.tolerance);
+    if (!left.empty()) m << "; still violated: " << describe_violations(left);
     out.message = m.str();
+    out.trajectory.extra["failure"] = out.message;
   }
   return out;
 }

@@ -284,8 +284,8 @@ void run_plan(const PlanCliOptions& o) {
   }
   if (out.trajectory.solver.status != "optimal") {
     std::string msg = out.message.empty() ? "status " + out.trajectory.solver.status : out.message;
-    msg += useful ? "; the plan was written to " + o.out + " for inspection"
-                  : "; no plan written (the goal may be unreachable with this gait and duration)";
+    // The planner's message names the constraint families still violated, their feet and times.
+    msg += useful ? "; the plan was written to " + o.out + " for inspection" : "; no plan written";
     throw CommandError(msg, 3);
   }
   if (!failures.empty()) {
@@ -319,9 +319,10 @@ void add_plan_command(CLI::App& app) {
   cmd->add_option("--constraints", o->constraints,
                   "constraint sets, comma separated: baseline, foot (foot radius), shin (shin "
                   "collision, the paper's fixed-angle model), shin_ik (shin collision on the leg's "
-                  "IK shin), polytope (force polytopes in stance; implies swing), swing (swing "
+                  "IK shin), thigh (thigh collision where the terrain is tall), polytope (force "
+                  "polytopes in stance; implies swing), swing (swing "
                   "foot acceleration bound), joints (joint ranges from IK), all "
-                  "(= foot,shin_ik,polytope,joints)")
+                  "(= foot,shin_ik,thigh,polytope,joints)")
       ->capture_default_str();
   {
     std::string names;

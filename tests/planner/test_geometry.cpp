@@ -84,6 +84,9 @@ TEST(Geometry, KneeIsTheChainsKnee) {
       EXPECT_EQ(knee_position(leg, q), knee);
       EXPECT_NEAR((knee - hfe_position(leg, q)).norm(), leg.l1, 1e-12) << leg.name;
       EXPECT_NEAR((foot_position(leg, q) - knee).norm(), leg.l2, 1e-12) << leg.name;
+      // The planner's thigh (constraints/thigh.cpp) runs from the chain's HFE joint.
+      EXPECT_NEAR((hfe_in_base<double>(leg, q) - hfe_position(leg, q)).norm(), 0.0, 1e-12)
+          << leg.name;
     }
 }
 

@@ -11,7 +11,7 @@
 
 namespace terrastride::planner::feasibility {
 
-constexpr int kMaxShinValues = 64;  // values one shin piece may fold into its soft minimum
+constexpr int kMaxShinValues = 128;  // values one shin piece may fold into its soft minimum
 
 inline void accumulate(AdVector* d, double a, const AdVector& da) {
   if (!da.size() || a == 0.0) return;

@@ -20,6 +20,8 @@
 #include <vector>
 
 #include "feasibility_common.hpp"
+#include "leg_capsule_clearance.hpp"
+#include "spline_variables.hpp"
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/nlp.hpp"
 
@@ -27,66 +29,62 @@ namespace terrastride::planner {
 
 void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   const Layout& L = problem.layout();
+  const int S = L.num_segments;
   const terrain::HeightField* field = &problem.terrain();
   const int nk = std::max(2, options.shin_points);
-  if (2 * nk - 1 > feasibility::kMaxShinValues)
-    throw std::invalid_argument("shin_ik: too many shin points");
+  const double t_soft = options.shin_softmin;
   const int nf = static_cast<int>(problem.robot().legs.size());
+  const std::vector<std::vector<int>> points = feasibility::leg_clearance_points(problem, options);
   for (int f = 0; f < nf; ++f) {
     const robot::LegModel leg = problem.robot().legs[f];
     const double exclusion = options.shin_exclusion >= 0.0
                                  ? options.shin_exclusion
                                  : robot::shin_exclusion(problem.robot(), leg);
-    const double radius = options.shin_clearance >= 0.0 ? -1.0 : leg.shin_radius;
-    const double fixed_clearance = options.shin_clearance;
-    // shin_softmin > 0: the 2 nk - 1 values folded into one row (their soft minimum).
-    const double t_soft = options.shin_softmin;
-    const int rows = t_soft > 0.0 ? 1 : 2 * nk - 1;
-    std::vector<double> lo(rows, (radius >= 0.0 ? 0.0 : fixed_clearance) + options.shin_ik_margin),
+    // A fixed shin_clearance replaces the capsule's gap r / cos(inclination).
+    const double gap_radius = options.shin_clearance >= 0.0 ? 0.0 : leg.shin_radius;
+    const double probe = options.leg_probe_margin >= 0.0 ? leg.shin_radius + options.leg_probe_margin
+                                                         : 0.0;
+    const int n_values = feasibility::capsule_clearance_values(nk, probe > 0.0);
+    if (n_values > feasibility::kMaxShinValues || (t_soft <= 0.0 && n_values > 64))
+      throw std::invalid_argument("shin_ik: too many shin points (" + std::to_string(nk) +
+                                  " make " + std::to_string(n_values) + " values per piece)");
+    const int rows = t_soft > 0.0 ? 1 : n_values;
+    std::vector<double> lo(rows, std::max(0.0, options.shin_clearance) + options.shin_ik_margin),
         hi(rows, kInf);
-    for (int k = 0; k <= L.num_segments; ++k) {
-      LocalVars lv;
-      const auto p = lv.add3(L.foot_pos[f][k]);
-      const auto r = lv.add3(L.base[k]);
-      const auto e = lv.add3(L.base[k] + 6);
-      problem.add_piece(make_piece("shin_ik", lv, lo, hi, [=](const auto* x, auto* g) {
-        using T = std::decay_t<decltype(*g)>;
-        using std::sqrt;
-        const Vec3<T> foot = gather3(x, p), base = gather3(x, r);
-        const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(gather3(x, e));
-        const Vec3<T> knee =
-            base + R * robot::knee_in_base<T>(
-                           leg, robot::leg_joint_angles<T>(leg, R.transpose() * (foot - base)));
-        const Vec3<T> d = knee - foot;
-        const T len = sqrt(d.squaredNorm());
-        const T horiz = sqrt(d[0] * d[0] + d[1] * d[1] + 1e-12);
-        // Vertical gap for one capsule radius of perpendicular distance to an edge below the
-        // axis: r / cos(inclination), capped at 2 r (inclination 60 deg): steeper, the lowest
-        // points (just past the excluded foot end) could not clear flat ground by r / cos.
-        T gap = T(0.0);
-        if (radius >= 0.0) {
-          T cosi = horiz / len;
-          if (value_of(cosi) < 0.5) cosi = T(0.5);
-          gap = radius / cosi;
-        }
-        // Rows 0..nk-1: each point above the terrain under it. Rows nk..2nk-2: each point above
-        // the terrain under the NEXT point: the shin rises from foot to knee, so a step edge
-        // between two points is held by the lower one too (measured on pallet_10 without these
-        // rows: the edge slipped between points, capsule 2 cm into it).
-        const T t0 = exclusion / len;
-        Vec3<T> prev;
-        T values[feasibility::kMaxShinValues] = {};
-        T* out = t_soft > 0.0 ? values : g;
-        for (int j = 0; j < nk; ++j) {
-          const T t = t0 + (1.0 - t0) * (static_cast<double>(j) / (nk - 1));
-          const Vec3<T> q = foot + t * d;
-          const T h = terrain_height(*field, q[0], q[1]);
-          out[j] = q[2] - h - gap;
-          if (j > 0) out[nk + j - 1] = prev[2] - h - gap;
-          prev = q;
-        }
-        if (t_soft > 0.0) g[0] = feasibility::soft_min(values, 2 * nk - 1, t_soft);
-      }));
+    for (int s = 0; s < S; ++s) {
+      // Every knot (the segment's start; its end only in the last segment, the next segment's
+      // start covers it), and leg_clearance_points per segment where the terrain is tall.
+      for (const double sigma : L.segment_points(s, std::max(1, points[f][s]), s == S - 1)) {
+        LocalVars lv;
+        const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, true);
+        const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
+        const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
+        const int dur = fp.needs_duration || rp.needs_duration || ep.needs_duration
+                            ? add_segment_duration(lv, L, s)
+                            : -1;
+        const double frac = L.seg_fraction[s];
+        problem.add_piece(make_piece("shin_ik", lv, lo, hi, [=](const auto* x, auto* g) {
+          using T = std::decay_t<decltype(*g)>;
+          using std::cos;
+          using std::sin;
+          using std::sqrt;
+          const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);
+          Vec3<T> foot, base, euler;
+          hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
+          hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
+          hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
+          const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(euler);
+          const Vec3<T> knee =
+              base + R * robot::knee_in_base<T>(
+                             leg, robot::leg_joint_angles<T>(leg, R.transpose() * (foot - base)));
+          const T len = sqrt((knee - foot).squaredNorm());
+          T values[feasibility::kMaxShinValues] = {};
+          T* out = t_soft > 0.0 ? values : g;
+          feasibility::capsule_clearance<T>(*field, foot, knee, gap_radius, probe, exclusion / len,
+                                            nk, -sin(euler[0]), cos(euler[0]), out);
+          if (t_soft > 0.0) g[0] = feasibility::soft_min(values, n_values, t_soft);
+        }));
+      }
     }
   }
 }

@@ -47,7 +47,13 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
       EXPECT_NE(std::string(e.what()).find(bad.first), std::string::npos) << e.what();
     }
   }
-  EXPECT_EQ(feasibility_option_names().size(), 11u);
+  // The leg clearance families' settings (shin_ik, thigh).
+  const FeasibilityOptions leg = feasibility_options(
+      {{"leg_probe_margin", -1.0}, {"leg_clearance_points", 2.0}, {"thigh_points", 6.0}});
+  EXPECT_EQ(leg.leg_probe_margin, -1.0);
+  EXPECT_EQ(leg.leg_clearance_points, 2);
+  EXPECT_EQ(leg.thigh_points, 6);
+  EXPECT_EQ(feasibility_option_names().size(), 14u);
 }
 
 }  // namespace

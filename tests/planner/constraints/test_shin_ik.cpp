@@ -24,7 +24,8 @@ TEST(ShinIk, JacobianMatchesCentralDifferences) {
               0);
 }
 
-// Both variants: 2 nk - 1 rows per knot (shin_softmin 0), and one merged row per knot.
+// Both variants: 4 nk - 1 rows per point (shin_softmin 0: under each point, under the next, two
+// probes across), and one merged row per point.
 class ShinIkVariants : public ::testing::TestWithParam<double> {};
 INSTANTIATE_TEST_SUITE_P(SoftScale, ShinIkVariants, ::testing::Values(0.0, 0.003));
 TEST_P(ShinIkVariants, JacobianMatchesCentralDifferences) {
@@ -34,15 +35,21 @@ TEST_P(ShinIkVariants, JacobianMatchesCentralDifferences) {
   SrbdProblem p(r, terrain, crawl_timeline(r), turning_crawl_options());
   FeasibilityOptions fo;
   fo.shin_softmin = t_soft;
+  fo.shin_points = 10;  // 39 rows per piece unmerged (at most 64)
   const auto pieces = pieces_added_by(p, [&] { build_shin_ik_set(p, fo); });
   ASSERT_FALSE(pieces.empty());
-  for (const Piece* piece : pieces)
-    EXPECT_EQ(piece->rows(), t_soft > 0 ? 1 : 2 * fo.shin_points - 1);
+  int inside = 0;  // pieces inside a segment (the step is tall): the Hermite and duration paths
+  for (const Piece* piece : pieces) {
+    EXPECT_EQ(piece->rows(), t_soft > 0 ? 1 : 4 * fo.shin_points - 1);
+    inside += piece->vars.size() > 9;
+  }
+  EXPECT_GT(inside, 0);
   EXPECT_GT(check_kind_derivatives(p, "shin_ik"), 0);
 }
 
-// The knee is the robot's own IK knee: at every knot, the piece's middle row (point nk - 1, the
-// knee) is the height of robot::knee_position at the IK solution above the flat ground.
+// The knee is the robot's own IK knee: at every knot, the piece's row for point nk - 1 (the knee;
+// rows 2 j - 1 are the points j >= 1 without probes) is the height of robot::knee_position at the
+// IK solution above the flat ground.
 TEST(ShinIk, KneeIsTheIkKnee) {
   const auto r = hyq();
   FlatField flat;
@@ -50,6 +57,7 @@ TEST(ShinIk, KneeIsTheIkKnee) {
   FeasibilityOptions fo;
   fo.shin_clearance = 0.0;  // rows are plain heights above the flat ground
   fo.shin_softmin = 0.0;    // one row per point
+  fo.leg_probe_margin = -1.0;  // no probes: 2 nk - 1 rows
   const auto pieces = pieces_added_by(p, [&] { build_shin_ik_set(p, fo); });
   const std::vector<double> x = perturbed_guess(p, 3, 0.01);
   const Layout& L = p.layout();
@@ -69,19 +77,21 @@ TEST(ShinIk, KneeIsTheIkKnee) {
     if (ik.status == robot::IkStatus::unreachable) continue;
     const Eigen::Vector3d knee = base + R * robot::knee_position(r.legs[foot], ik.q);
     const auto g = rows_at(*piece, x);
-    EXPECT_NEAR(g[(g.size() - 1) / 2], knee.z(), 1e-9);  // row nk-1: the knee; flat ground z = 0
+    ASSERT_EQ(g.size(), 2u * fo.shin_points - 1);
+    EXPECT_NEAR(g[2 * fo.shin_points - 3], knee.z(), 1e-9);  // the knee; flat ground z = 0
     ++checked;
   }
   EXPECT_GT(checked, 10);
 }
 
-// Merged (the default): each knot's row is the soft minimum of its 2 nk - 1 point rows.
+// Merged (the default): each piece's row is the soft minimum of its 4 nk - 1 point rows.
 TEST(ShinIk, MergedRowIsTheSoftMinimumOfTheKnotsPointRows) {
   const auto r = hyq();
   MarginStep terrain(0.1, 0.5, 0.05, 0.01);
   SrbdProblem p(r, terrain, crawl_timeline(r), ProblemOptions{});
   FeasibilityOptions fp, fm;
   fp.shin_softmin = 0.0;
+  fp.shin_points = fm.shin_points = 10;  // 39 rows unmerged
   const auto pp = pieces_added_by(p, [&] { build_shin_ik_set(p, fp); });
   const auto mp = pieces_added_by(p, [&] { build_shin_ik_set(p, fm); });
   ASSERT_GT(fm.shin_softmin, 0.0);
@@ -97,6 +107,50 @@ TEST(ShinIk, MergedRowIsTheSoftMinimumOfTheKnotsPointRows) {
     for (double v : g) sum += std::exp(-(v - mn) / fm.shin_softmin);
     EXPECT_NEAR(merged, mn - fm.shin_softmin * std::log(sum), 1e-12);
     EXPECT_LE(merged, mn);
+  }
+}
+
+// A ridge beside the shin, not under it: the probes across the base's heading see it. A ridge
+// (0.3 m high, 4 cm wide) runs along x at y = foot's y + 4 cm, beside the LF shin of the nominal
+// stance (the shin lies in the leg's x-z plane): the row without probes holds, the row with
+// probes (shin radius + 2 cm = 4.5 cm across) does not.
+class Ridge : public terrain::HeightField {
+ public:
+  explicit Ridge(double y0) : y0_(y0) {}
+  terrain::HeightSample sample(double, double y) const override {
+    terrain::HeightSample s;
+    s.height = std::abs(y - y0_) < 0.02 ? 0.3 : 0.0;
+    return s;
+  }
+  terrain::MarginSample safety_margin(double, double, double) const override {
+    return {1e9, Eigen::Vector2d::Zero()};
+  }
+  Eigen::Vector2d min_corner() const override { return {-5, -5}; }
+  Eigen::Vector2d max_corner() const override { return {5, 5}; }
+  std::string describe() const override { return "ridge"; }
+
+ private:
+  double y0_;
+};
+
+TEST(ShinIk, ProbesSeeARidgeBesideTheShin) {
+  const auto r = hyq();
+  const double foot_y = r.legs[0].nominal_foot.y();
+  Ridge ridge(foot_y + 0.04);
+  ProblemOptions o;
+  for (const double margin : {-1.0, 0.02}) {
+    SrbdProblem p(r, ridge, crawl_timeline(r), o);
+    FeasibilityOptions fo;
+    fo.leg_probe_margin = margin;
+    const auto pieces = pieces_added_by(p, [&] { build_shin_ik_set(p, fo); });
+    const std::vector<double> x = p.initial_guess();
+    // The first piece: LF at the first knot, the nominal stance.
+    ASSERT_FALSE(pieces.empty());
+    const double row = rows_at(*pieces[0], x)[0];
+    if (margin < 0)
+      EXPECT_GT(row, pieces[0]->lb[0]) << "without probes the terrain under the shin is flat";
+    else
+      EXPECT_LT(row, pieces[0]->lb[0]) << "the probes read the ridge 4 cm beside the shin";
   }
 }
 

@@ -60,6 +60,17 @@ struct FeasibilityOptions {
   // 0: one row per point. Measured (issue #5, pallet_15 "all" on a loaded 2-core machine): rows
   // 21,744 -> 9,968 with polytope_softmax, solve 28 s user / 57 iterations -> 3.6 s / 22.
   double shin_softmin = 0.002;
+  // shin_ik, thigh: each point of a link's axis also reads the terrain this far (m) beyond the
+  // link's capsule radius to either side, across the base's heading (see
+  // constraints/leg_capsule_clearance.hpp; the planner's smoothed terrain reaches a step's full
+  // height within one 2 cm cell of its edge). Negative: the terrain under the axis only.
+  double leg_probe_margin = 0.02;
+  // shin_ik, thigh: constraint points per segment where the terrain near the leg is tall (the
+  // knots alone elsewhere for shin_ik, nothing for thigh). Measured on eur_pallet --goal 1.5,0,0
+  // with the knots only (0.1 s apart): a swinging LH shin went 33 mm into the pallet between two.
+  int leg_clearance_points = 3;
+  // thigh: points along the thigh, HFE joint to knee.
+  int thigh_points = 8;
   // polytope: points per stance segment besides its two force knots (see constraints/polytope.cpp).
   int polytope_inner_points = 1;
   // polytope: > 0 folds each stance segment's facet rows (6 at each force knot and inner point)
@@ -81,6 +92,9 @@ void build_shin_set(SrbdProblem& problem, const FeasibilityOptions& options = {}
 // "shin_ik" (in "all"; beyond the paper): the shin inequality on the leg's real shin, foot to
 // the knee from inverse kinematics at the base pose (see constraints/shin_ik.cpp).
 void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+// "thigh" (in "all"; beyond the paper): the same inequality on the thigh capsule, HFE joint to
+// knee, where the terrain near the leg is tall (see constraints/thigh.cpp).
+void build_thigh_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 // "joints" (in "all"; beyond the paper): joint angles from IK within the joint ranges at every

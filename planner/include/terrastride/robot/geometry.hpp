@@ -112,6 +112,17 @@ Vector3T<T> trunk_center_world(const TrunkBox& box, const Vector3T<T>& base,
   return base + rotation_zyx<T>(euler) * box.center.cast<T>();
 }
 
+// The HFE joint (the thigh's upper end) in the base frame at joint angles q: the HAA joint turns
+// the leg's plane about the base's x axis, and the HFE axis lies l0 down that plane.
+template <class T>
+Vector3T<T> hfe_in_base(const LegModel& leg, const Vector3T<T>& q) {
+  using std::cos;
+  using std::sin;
+  const T gamma = -static_cast<double>(leg.side) * q[0];
+  return Vector3T<T>(T(leg.haa_origin.x()), leg.haa_origin.y() + sin(gamma) * leg.l0,
+                     leg.haa_origin.z() - cos(gamma) * leg.l0);
+}
+
 // The shin's part next to the foot point that stands on the ground by design, and that the shin
 // models leave out (the planner's shin sets and the post-hoc capsule check): the foot sphere (2
 // foot radii from the contact point to its top), the shin's end cap (its radius) and `margin`.
