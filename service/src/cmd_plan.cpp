@@ -319,10 +319,11 @@ void add_plan_command(CLI::App& app) {
   cmd->add_option("--constraints", o->constraints,
                   "constraint sets, comma separated: baseline, foot (foot radius), shin (shin "
                   "collision, the paper's fixed-angle model), shin_ik (shin collision on the leg's "
-                  "IK shin), thigh (thigh collision where the terrain is tall), polytope (force "
+                  "IK shin), thigh (thigh collision where the terrain is tall), trunk (trunk box above "
+                  "tall terrain), polytope (force "
                   "polytopes in stance; implies swing), swing (swing "
                   "foot acceleration bound), joints (joint ranges from IK), all "
-                  "(= foot,shin_ik,thigh,polytope,joints)")
+                  "(= foot,shin_ik,thigh,trunk,polytope,joints)")
       ->capture_default_str();
   {
     std::string names;

@@ -49,6 +49,8 @@ const std::map<std::string, Setting>& settings_table() {
       {"thigh_points",
        {[](FeasibilityOptions& o, double v) { o.thigh_points = static_cast<int>(v); }, 2, 30, true,
         ""}},
+      {"trunk_margin",
+       {[](FeasibilityOptions& o, double v) { o.trunk_margin = v; }, 0.0, 0.3, false, "m"}},
       {"polytope_softmax",
        {[](FeasibilityOptions& o, double v) { o.polytope_softmax = v; }, 0.0, 0.1, false,
         "m g (0: a row per facet)"}},

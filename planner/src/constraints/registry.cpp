@@ -27,6 +27,7 @@ std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets() {
           {"shin", [=](SrbdProblem& p) { build_shin_set(p, options(p)); }},
           {"shin_ik", [=](SrbdProblem& p) { build_shin_ik_set(p, options(p)); }},
           {"thigh", [=](SrbdProblem& p) { build_thigh_set(p, options(p)); }},
+          {"trunk", [=](SrbdProblem& p) { build_trunk_set(p, options(p)); }},
           {"polytope", [=](SrbdProblem& p) { build_polytope_set(p, options(p)); }},
           {"swing", [=](SrbdProblem& p) { build_swing_set(p, options(p)); }},
           {"joints", [=](SrbdProblem& p) { build_joints_set(p, options(p)); }}};

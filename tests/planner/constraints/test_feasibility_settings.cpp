@@ -53,7 +53,8 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
   EXPECT_EQ(leg.leg_probe_margin, -1.0);
   EXPECT_EQ(leg.leg_clearance_points, 2);
   EXPECT_EQ(leg.thigh_points, 6);
-  EXPECT_EQ(feasibility_option_names().size(), 14u);
+  EXPECT_EQ(feasibility_options({{"trunk_margin", 0.05}}).trunk_margin, 0.05);
+  EXPECT_EQ(feasibility_option_names().size(), 15u);
 }
 
 }  // namespace

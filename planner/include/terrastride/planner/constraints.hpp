@@ -36,7 +36,8 @@ void register_constraint_set(const std::string& name, ConstraintSetBuilder build
 std::vector<std::string> constraint_set_names();
 
 // What "all" expands to, in order.
-inline const char* const kAllFeasibilitySets[] = {"foot", "shin_ik", "thigh", "polytope", "joints"};
+inline const char* const kAllFeasibilitySets[] = {"foot",     "shin_ik", "thigh",
+                                                  "trunk",    "polytope", "joints"};
 // {set, the set it implies}: the second is added whenever the first is asked for.
 inline const std::pair<const char*, const char*> kImpliedFeasibilitySets[] = {
     {"polytope", "swing"}};

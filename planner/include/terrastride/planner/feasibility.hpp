@@ -71,6 +71,9 @@ struct FeasibilityOptions {
   int leg_clearance_points = 3;
   // thigh: points along the thigh, HFE joint to knee.
   int thigh_points = 8;
+  // trunk: required height (m) of the trunk box's bottom face above the terrain where the terrain
+  // is tall (constraints/trunk.cpp); it covers the base's motion between knots.
+  double trunk_margin = 0.02;
   // polytope: points per stance segment besides its two force knots (see constraints/polytope.cpp).
   int polytope_inner_points = 1;
   // polytope: > 0 folds each stance segment's facet rows (6 at each force knot and inner point)
@@ -95,6 +98,9 @@ void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options =
 // "thigh" (in "all"; beyond the paper): the same inequality on the thigh capsule, HFE joint to
 // knee, where the terrain near the leg is tall (see constraints/thigh.cpp).
 void build_thigh_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+// "trunk" (in "all"; beyond the paper): the trunk box's bottom face above the terrain at the knots
+// where the terrain near it is tall (see constraints/trunk.cpp). No rows for a robot without one.
+void build_trunk_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 // "joints" (in "all"; beyond the paper): joint angles from IK within the joint ranges at every
