@@ -129,9 +129,12 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     // the duration, the gait, a constraint set) depends on it.
     const std::vector<FamilyViolation> left =
         violated_families(problem, out.solve.x, options.tolerance);
-    if (!left.empty()) m << "; still violated: " << describe_violations(left);
+    const std::string violated = left.empty() ? "" : "still violated: " + describe_violations(left);
+    if (!left.empty()) m << "; " << violated;
     out.message = m.str();
-    out.trajectory.extra["failure"] = out.message;
+    // plan.json keeps what is the plan's (no wall-clock figure): the status and what is violated.
+    out.trajectory.extra["failure"] =
+        "status '" + out.solve.status + "'" + (violated.empty() ? "" : "; " + violated);
   }
   return out;
 }
