@@ -291,7 +291,8 @@ void run_check(const CheckCliOptions& o) {
   }
   const TerrainSource source = load_terrain_source(
       o.terrain, /*smooth_scene=*/false,
-      "a file; pass a terrain directory from 'terrastride map' or a scene name");
+      "a file; pass a terrain directory from 'terrastride map', an OctoMap (.bt, .ot) or a scene "
+      "name");
   const collision::CheckTerrain view =
       check_terrain_for(source, model, traj, o.resolution, /*require_octomap=*/true);
   collision::CheckReport rep;
@@ -370,7 +371,7 @@ void add_check_command(CLI::App& app) {
       ->check(CLI::ExistingFile);
   cmd->add_option("--terrain", opts->terrain,
                   "Terrain directory from 'terrastride map' (uses its octomap.bt and safety "
-                  "margins) or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap: "
+                  "margins), an OctoMap file (.bt, .ot) or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap: "
                   "exact analytic terrain, voxelised for the leg check)")
       ->required();
   cmd->add_option("--resolution", opts->resolution,

@@ -4,6 +4,7 @@
 // reads the flags, names them in errors and prints the summary.
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <iomanip>
@@ -14,6 +15,7 @@
 #include <vector>
 
 #include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/map_build.hpp"
 
@@ -41,6 +43,7 @@ struct MapOptions {
   double max_slope = terrain::SafetyOptions{}.max_slope;
   std::string out;
   bool json = false;
+  bool resolution_given = false;  // an OctoMap's grid is at its voxel size unless --resolution
 };
 
 // Stage progress on stderr, only for a terminal and only for inputs large enough to wait for.
@@ -151,7 +154,58 @@ void print_summary(const MapOptions& o, const terrain::MapBuild& build, const js
             << fmt(timings["write_s"]) << " s, total " << fmt(timings["total_s"]) << " s\n";
 }
 
+// `map FILE.bt|FILE.ot`: the OctoMap's support surfaces (terrain::read_map_octomap) and the tree
+// itself as the map's octomap.bt.
+void run_map_octomap(const MapOptions& o) {
+  if (o.clouds.size() != 1)
+    throw CommandError("an OctoMap (" + o.clouds.front() +
+                       ") is a whole map: give it alone, not with other inputs");
+  if (!o.origin.empty())
+    throw CommandError("--origin: an OctoMap keeps no rays; the option applies to point clouds");
+  terrain::OctreeMapInput input;
+  try {
+    input = terrain::read_map_octomap(o.clouds.front());
+  } catch (const perception::InputError& e) {
+    throw CommandError(e.what());
+  }
+  terrain::MapBuildOptions options = map_build_options(o);
+  if (!o.resolution_given) options.grid.resolution = 0;  // the tree's voxel size
+  terrain::MapBuild build;
+  try {
+    build = terrain::build_terrain_map_from_octree(input, options);
+  } catch (const terrain::MapBuildError& e) {
+    if (e.stage() == terrain::MapStage::kGrid)
+      throw CommandError("--resolution/--foot-radius: " + std::string(e.what()));
+    throw CommandError(e.what());
+  }
+  json meta;
+  try {
+    meta = terrain::write_terrain_dir(build, input.sources, o.out);
+  } catch (const perception::InputError& e) {
+    throw CommandError("--out: " + std::string(e.what()));
+  }
+  json summary = terrain::map_summary(build, meta, o.out);
+  summary["octomap_input"] = {{"occupied_voxels", input.stats.occupied_voxels},
+                              {"columns", input.stats.columns},
+                              {"runs", input.stats.runs},
+                              {"seen_beneath", input.stats.seen_beneath}};
+  if (o.json) {
+    std::cout << summary.dump() << "\n";
+    return;
+  }
+  std::cout << "OctoMap " << o.clouds.front() << ": " << input.stats.occupied_voxels
+            << " occupied voxels in " << input.stats.columns << " columns, "
+            << input.stats.runs << " vertical runs, " << input.stats.seen_beneath
+            << " of them with free space beneath (not support)\n";
+  print_summary(o, build, meta, summary);
+}
+
 void run_map(const MapOptions& o) {
+  if (!o.clouds.empty() && std::any_of(o.clouds.begin(), o.clouds.end(), perception::is_octomap_file)) {
+    check_flags(o);
+    run_map_octomap(o);
+    return;
+  }
   const std::optional<Eigen::Vector3d> origin = check_flags(o);
   size_t file_bytes = 0;
   for (const auto& c : o.clouds) {
@@ -211,12 +265,13 @@ void add_map_command(CLI::App& app) {
   auto o = std::make_shared<MapOptions>();
   CLI::App* cmd = app.add_subcommand(
       "map",
-      "Build a terrain map from point clouds (PCD, PLY, XYZ, NPY): OctoMap, height grid, smoothed "
-      "field and foothold-safety layers in DIR");
+      "Build a terrain map from point clouds (PCD, PLY, XYZ, NPY) or an OctoMap (.bt, .ot): "
+      "OctoMap, height grid, smoothed field and foothold-safety layers in DIR");
   cmd->add_option("clouds", o->clouds, "Input clouds")->required();
   cmd->add_option("--origin", o->origin,
                   "Sensor origin X,Y,Z for all clouds (overrides a PCD VIEWPOINT)");
-  cmd->add_option("--resolution", o->resolution, "Height grid cell size (m)")
+  cmd->add_option("--resolution", o->resolution,
+                  "Height grid cell size (m); an OctoMap input's default is its voxel size")
       ->capture_default_str();
   cmd->add_option("--foot-radius", o->foot_radii,
                   "Foot radius for the safety layers (m); repeat or comma-separate for several")
@@ -244,7 +299,10 @@ void add_map_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--out", o->out, "Output directory")->required();
   cmd->add_flag("--json", o->json, "Print the summary as one JSON object");
-  cmd->callback([o] { run_map(*o); });
+  cmd->callback([o, cmd] {
+    o->resolution_given = cmd->count("--resolution") > 0;
+    run_map(*o);
+  });
 }
 
 }  // namespace terrastride::service

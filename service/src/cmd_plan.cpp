@@ -304,7 +304,7 @@ void add_plan_command(CLI::App& app) {
   CLI::App* cmd = app.add_subcommand(
       "plan", "Plan base motion, footholds, contact forces and timing (SRBD optimisation, Ipopt)");
   cmd->add_option("--terrain", o->terrain,
-                  "terrain directory (from 'terrastride map') or scene name (flat, pallet_10, "
+                  "terrain directory (from 'terrastride map'), OctoMap file (.bt, .ot) or scene name (flat, pallet_10, "
                   "pallet_15, eur_pallet, stairs, gap)")
       ->required();
   cmd->add_option("--robot", o->robot, "robot name or robot file")->capture_default_str();

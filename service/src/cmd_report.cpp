@@ -266,7 +266,7 @@ void add_report_command(CLI::App& app) {
       "file with every number it shows");
   cmd->add_option("--terrain", o->terrain,
                   "A folder written by `terrastride map`, point-cloud files (PCD, PLY, XYZ, NPY), "
-                  "or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap)");
+                  "an OctoMap (.bt, .ot) or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap)");
   cmd->add_option("--plan", o->plans, "plan.json files to show on the terrain (repeatable)");
   cmd->add_option("--batch", o->batch,
                   "A folder of scans (and/or map folders): one report each plus index.html ranking "

@@ -6,7 +6,9 @@
 #include <stdexcept>
 
 #include "terrastride/collision/octree_terrain.hpp"
+#include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/terrain/map_build.hpp"
 #include "terrastride/service/cli.hpp"
 
 namespace terrastride::service {
@@ -19,6 +21,16 @@ TerrainSource load_terrain_source(const std::string& spec, bool smooth_scene,
   try {
     if (fs::is_directory(spec)) {
       t.map = terrain::load_terrain_dir(spec);
+      return t;
+    }
+    if (perception::is_octomap_file(spec) && fs::exists(spec)) {
+      // Built in memory with `terrastride map`'s defaults for an OctoMap (its own resolution).
+      terrain::OctreeMapInput input = terrain::read_map_octomap(spec);
+      terrain::MapBuildOptions options;
+      options.grid.resolution = 0;
+      terrain::MapBuild build = terrain::build_terrain_map_from_octree(input, options);
+      t.map = std::move(build.map);
+      t.octree = std::shared_ptr<const octomap::OcTree>(std::move(build.octree));
       return t;
     }
     if (fs::exists(spec)) throw CommandError("--terrain " + spec + ": " + file_hint);
@@ -48,6 +60,12 @@ collision::CheckTerrain check_terrain_for(const TerrainSource& source,
   collision::CheckTerrain view;
   view.field = source.exact();
   try {
+    if (source.octree) {
+      view.octree = source.octree;
+      view.description = "OctoMap " + source.spec + " (" +
+                         std::to_string(source.octree->getResolution()) + " m voxels)";
+      return view;
+    }
     if (!source.scene) {
       const std::string bt = (fs::path(source.spec) / "octomap.bt").string();
       if (!fs::exists(bt)) {

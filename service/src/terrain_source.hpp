@@ -1,5 +1,6 @@
-// `--terrain DIR|SCENE` for `terrastride plan` and `terrastride check`: a folder written by
-// `terrastride map`, or a scene name (docs/design.md §11: the exact analytic terrain). One place
+// `--terrain DIR|FILE.bt|SCENE` for `terrastride plan` and `terrastride check`: a folder written
+// by `terrastride map`, an OctoMap file (mapped in memory as `terrastride map FILE.bt` maps it),
+// or a scene name (docs/design.md §11: the exact analytic terrain). One place
 // for both commands, so they read a terrain argument the same way.
 #pragma once
 
@@ -19,6 +20,9 @@ struct TerrainSource {
   std::string spec;
   std::unique_ptr<terrain::Scene> scene;     // SCENE: the exact terrain
   std::unique_ptr<terrain::TerrainMap> map;  // DIR: its map; SCENE: the 2 cm B-spline (if asked)
+  // FILE.bt|FILE.ot: the OctoMap itself (the map is built from it in memory); null otherwise (a
+  // DIR's octomap.bt is read by check_terrain_for).
+  std::shared_ptr<const octomap::OcTree> octree;
   // What the optimiser sees (C2): the map. What the checks use: the scene when there is one.
   const terrain::HeightField* smooth() const { return map.get(); }
   const terrain::HeightField* exact() const {

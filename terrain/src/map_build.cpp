@@ -304,6 +304,36 @@ MapBuild build_terrain_map(std::vector<perception::PointCloud> clouds,
   return build;
 }
 
+OctreeMapInput read_map_octomap(const std::string& path) {
+  OctreeMapInput input;
+  const auto t0 = Clock::now();
+  input.sources.started = t0;
+  input.tree = perception::read_octomap_file(path);
+  input.support = perception::octree_support_cloud(*input.tree, path, &input.stats);
+  input.sources.files.push_back({path, input.support.points.size(), 0});
+  input.sources.read_s = seconds_since(t0);
+  return input;
+}
+
+MapBuild build_terrain_map_from_octree(OctreeMapInput& input, MapBuildOptions options) {
+  if (!input.tree) throw std::invalid_argument("build_terrain_map_from_octree: no tree");
+  const double res = input.tree->getResolution();
+  if (!(options.grid.resolution > 0)) options.grid.resolution = res;
+  options.grid.min_cell_points = 1;
+  options.grid.min_support_points = 1;
+  options.cleaning.reset();
+  options.octomap.reset();
+  options.cleaned_before = nullptr;
+  std::vector<perception::PointCloud> clouds;
+  clouds.push_back(std::move(input.support));
+  MapBuild build = build_terrain_map(std::move(clouds), options);
+  perception::OctoMapOptions as_read;
+  as_read.resolution = res;
+  build.octomap_options = as_read;
+  build.octree = std::move(input.tree);
+  return build;
+}
+
 perception::OutputDirKind map_output_kind() {
   return {"map",
           {"terrain.json", "octomap.bt", "layers/"},

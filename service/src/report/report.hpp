@@ -27,7 +27,7 @@ namespace terrastride::service::report {
 // layout, x index major).
 struct TerrainView {
   std::string source;  // what it was built from (a folder, files, a scene name)
-  std::string kind;    // "map" (terrastride map folder), "clouds", "scene"
+  std::string kind;    // "map" (terrastride map folder), "clouds", "octomap" (a .bt/.ot file), "scene"
   Eigen::Vector2d origin = Eigen::Vector2d::Zero();
   double resolution = 0.02;
   int nx = 0;

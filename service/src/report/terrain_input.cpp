@@ -136,6 +136,27 @@ TerrainView load_terrain_view(const std::vector<std::string>& inputs,
     }
     view = map_view(std::move(map), std::move(octree), std::move(info), options);
     view.source = inputs[0];
+  } else if (inputs.size() == 1 && perception::is_octomap_file(inputs[0]) &&
+             fs::exists(inputs[0])) {
+    // An OctoMap, mapped in memory as `terrastride map X.bt` maps it (the grid at the tree's
+    // voxel size); its own tree is the view's occupancy map.
+    terrain::MapBuild build;
+    terrain::OctreeMapInput input;
+    try {
+      input = terrain::read_map_octomap(inputs[0]);
+      terrain::MapBuildOptions map_options;
+      map_options.grid.resolution = 0;
+      build = terrain::build_terrain_map_from_octree(input, map_options);
+    } catch (const terrain::MapBuildError& e) {
+      throw CommandError("--terrain " + inputs[0] + ": " + e.what());
+    } catch (const perception::InputError& e) {
+      throw CommandError("--terrain " + inputs[0] + ": " + e.what());
+    }
+    nlohmann::json info = terrain::terrain_json(build, input.sources);
+    view = map_view(std::move(build.map), terrain::octree_as_saved(*build.octree),
+                    std::move(info), options);
+    view.kind = "octomap";
+    view.source = inputs[0];
   } else {
     // Point clouds.
     for (const auto& in : inputs) {

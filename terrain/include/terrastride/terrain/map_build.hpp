@@ -19,6 +19,7 @@
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/filters.hpp"
 #include "terrastride/perception/octomap_fusion.hpp"
+#include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/terrain/height_grid.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
@@ -124,6 +125,30 @@ struct MapBuild {
 // or a cloud outside its addressable cube. The first failing stage in that order is reported.
 MapBuild build_terrain_map(std::vector<perception::PointCloud> clouds,
                            const MapBuildOptions& options = {});
+
+// An OctoMap file as a map's input (`terrastride map X.bt|X.ot`, `--terrain X.bt`): the tree as
+// read, and its support surfaces as the one cloud the height grid is built from
+// (perception::octree_support_cloud: the top voxel of every vertical run of occupied voxels that
+// has no known-free voxel beneath it).
+struct OctreeMapInput {
+  std::unique_ptr<octomap::OcTree> tree;
+  perception::PointCloud support;
+  perception::OctreeSupportStats stats;
+  MapSources sources;  // one "file": the OctoMap, with its support points
+};
+
+// Reads an OctoMap file (perception::read_octomap_file). Throws perception::InputError naming
+// the file (not an OctoMap, a tree type that is not occupancy, truncated, no occupied voxel).
+OctreeMapInput read_map_octomap(const std::string& path);
+
+// The map of an OctoMap: the height grid and safety layers from `input.support`, and the tree
+// itself as the build's OctoMap (unknown space stays unknown: nothing is re-inserted). Of
+// `options`, the grid, foot radii and safety are used; grid.resolution <= 0 means the tree's
+// resolution (one grid cell per voxel column, each voxel one sample: a cell needs one point).
+// The support points are not cleaned (they are already a fused occupancy map) and no OctoMap is
+// built. `input.tree` and `input.support` are moved from. Throws MapBuildError as
+// build_terrain_map does.
+MapBuild build_terrain_map_from_octree(OctreeMapInput& input, MapBuildOptions options);
 
 // What `terrastride map --out` writes, for perception::AtomicOutputDir: outputs of versions
 // before the marker file are recognised by their names (every version wrote all three of

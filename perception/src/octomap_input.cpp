@@ -1,0 +1,246 @@
+// OctoMap files as input. OctoMap's readers do the parsing; this file checks the header first
+// (their own failures are a message on stderr and a false or null return), names the tree type,
+// and turns occupied voxels into the support points a height grid is built from.
+#include "terrastride/perception/octomap_input.hpp"
+
+#include <octomap/ColorOcTree.h>
+#include <octomap/OcTreeStamped.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <unordered_map>
+#include <vector>
+
+namespace terrastride::perception {
+namespace {
+
+std::string lower_extension(const std::string& path) {
+  std::string ext = std::filesystem::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return ext;
+}
+
+std::string read_file(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) throw InputError(path + ": file not found");
+  if (std::filesystem::is_directory(path, ec))
+    throw InputError(path + ": is a directory, not an OctoMap file");
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path + ": cannot open file: " + std::strerror(errno));
+  std::ostringstream data;
+  data << in.rdbuf();
+  if (!in && !in.eof()) throw InputError(path + ": read error");
+  return data.str();
+}
+
+// The header's lines up to "data" (both formats: first line, '#' comments, then "key value"
+// lines). Returns the keys' values; throws when the first line is not `first_line`.
+struct Header {
+  std::string id;
+  double res = 0;
+  bool has_res = false;
+  size_t data_offset = 0;  // where the body begins
+};
+
+Header parse_header(const std::string& path, const std::string& bytes,
+                    const std::string& first_line, const std::string& format) {
+  Header h;
+  size_t pos = bytes.find('\n');
+  const std::string line0 = bytes.substr(0, pos == std::string::npos ? 0 : pos);
+  if (line0.rfind(first_line, 0) != 0)
+    throw InputError(path + ": not an OctoMap " + format + " file (the first line is not '" +
+                     first_line + "')");
+  size_t p = pos + 1;
+  while (p < bytes.size()) {
+    const size_t e = bytes.find('\n', p);
+    if (e == std::string::npos) break;
+    std::string line = bytes.substr(p, e - p);
+    p = e + 1;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream ls(line);
+    std::string key;
+    ls >> key;
+    if (key == "id") {
+      ls >> h.id;
+    } else if (key == "res") {
+      h.has_res = static_cast<bool>(ls >> h.res);
+    } else if (key == "data") {
+      h.data_offset = p;
+      return h;
+    }
+  }
+  throw InputError(path + ": OctoMap header without a 'data' line (truncated or not an OctoMap)");
+}
+
+bool is_occupancy_type(const std::string& id) {
+  return id == "OcTree" || id == "ColorOcTree" || id == "OcTreeStamped";
+}
+
+void check_type(const std::string& path, const std::string& id) {
+  if (id.empty()) throw InputError(path + ": OctoMap header without a tree type ('id' line)");
+  if (!is_occupancy_type(id))
+    throw InputError(path + ": an OctoMap of type " + id +
+                     ", not an occupancy tree (terrastride reads OcTree, ColorOcTree and "
+                     "OcTreeStamped)");
+}
+
+void check_resolution(const std::string& path, const Header& h) {
+  if (!h.has_res || !std::isfinite(h.res) || h.res < 0.001 || h.res > 10)
+    throw InputError(path + ": OctoMap resolution " + (h.has_res ? std::to_string(h.res) : "missing") +
+                     " is not within [0.001, 10] m");
+}
+
+// An occupancy tree of another node type as an OcTree, through OctoMap's binary stream (the
+// occupancy bits every .bt holds, pruned structure included): what octomap.bt keeps anyway.
+template <typename Tree>
+std::unique_ptr<octomap::OcTree> as_octree(const Tree& from) {
+  std::stringstream bits(std::ios::in | std::ios::out | std::ios::binary);
+  from.writeBinaryData(bits);
+  auto to = std::make_unique<octomap::OcTree>(from.getResolution());
+  to->readBinaryData(bits);
+  return to;
+}
+
+}  // namespace
+
+bool is_octomap_file(const std::string& path) {
+  const std::string ext = lower_extension(path);
+  return ext == ".bt" || ext == ".ot";
+}
+
+std::unique_ptr<octomap::OcTree> read_octomap_file(const std::string& path) {
+  const std::string ext = lower_extension(path);
+  if (ext != ".bt" && ext != ".ot")
+    throw InputError(path + ": not an OctoMap file name (expected .bt or .ot)");
+  const std::string bytes = read_file(path);
+  if (bytes.empty()) throw InputError(path + ": file is empty");
+  std::unique_ptr<octomap::OcTree> tree;
+  if (ext == ".bt") {
+    const Header h = parse_header(path, bytes, "# Octomap OcTree binary file", "binary (.bt)");
+    check_type(path, h.id);
+    check_resolution(path, h);
+    // The bit stream does not depend on the tree type: read it as an OcTree. Only the header's
+    // id is rewritten, so OctoMap does not warn about a type mismatch.
+    std::string as_octree = "# Octomap OcTree binary file\nid OcTree\n";
+    {
+      // The keys other than id (size, res) as the file gives them.
+      std::istringstream hs(bytes.substr(0, h.data_offset));
+      std::string line;
+      std::getline(hs, line);
+      while (std::getline(hs, line))
+        if (line.rfind("id ", 0) != 0 && line.rfind("data", 0) != 0 && !line.empty() &&
+            line[0] != '#')
+          as_octree += line + "\n";
+    }
+    as_octree += "data\n";
+    as_octree.append(bytes, h.data_offset, std::string::npos);
+    std::istringstream in(as_octree, std::ios::in | std::ios::binary);
+    tree = std::make_unique<octomap::OcTree>(h.res);
+    // A truncated body leaves the stream failed (OctoMap returns false, or reads fewer nodes than
+    // the header's size).
+    if (!tree->readBinary(in) || in.bad())
+      throw InputError(path + ": the OctoMap binary data is truncated or corrupt");
+  } else {
+    const Header h = parse_header(path, bytes, "# Octomap OcTree file", "(.ot)");
+    check_type(path, h.id);
+    check_resolution(path, h);
+    std::istringstream in(bytes, std::ios::in | std::ios::binary);
+    std::unique_ptr<octomap::AbstractOcTree> any(octomap::AbstractOcTree::read(in));
+    if (!any) throw InputError(path + ": the OctoMap data is truncated or corrupt");
+    if (auto* t = dynamic_cast<octomap::OcTree*>(any.get())) {
+      any.release();
+      tree.reset(t);
+    } else if (auto* c = dynamic_cast<octomap::ColorOcTree*>(any.get())) {
+      tree = as_octree(*c);
+    } else if (auto* s = dynamic_cast<octomap::OcTreeStamped*>(any.get())) {
+      tree = as_octree(*s);
+    } else {
+      throw InputError(path + ": an OctoMap of type " + any->getTreeType() +
+                       ", not an occupancy tree");
+    }
+  }
+  if (tree->size() == 0) throw InputError(path + ": the OctoMap is empty (no nodes)");
+  return tree;
+}
+
+PointCloud octree_support_cloud(const octomap::OcTree& tree, const std::string& source,
+                                OctreeSupportStats* stats, size_t max_voxels) {
+  OctreeSupportStats st;
+  const unsigned max_depth = tree.getTreeDepth();
+  // Columns keyed by (kx, ky); each holds the z keys of its occupied voxels.
+  std::unordered_map<uint32_t, std::vector<uint16_t>> columns;
+  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
+    if (!tree.isNodeOccupied(*it)) continue;
+    const unsigned depth = it.getDepth();
+    const octomap::OcTreeKey center = it.getKey();
+    // A leaf at depth d spans 2^(max_depth - d) voxels per axis; its key is that of its centre,
+    // so its voxels are the keys [c - half, c + half).
+    const unsigned span = 1u << (max_depth - depth);
+    const unsigned half = span / 2;
+    const size_t n = static_cast<size_t>(span) * span * span;
+    st.occupied_voxels += n;
+    if (st.occupied_voxels > max_voxels)
+      throw InputError(source + ": more than " + std::to_string(max_voxels) +
+                       " occupied voxels once coarse leaves are expanded");
+    for (unsigned dx = 0; dx < span; ++dx)
+      for (unsigned dy = 0; dy < span; ++dy) {
+        const uint32_t kx = center[0] - half + dx, ky = center[1] - half + dy;
+        auto& col = columns[(kx << 16) | (ky & 0xffffu)];
+        for (unsigned dz = 0; dz < span; ++dz)
+          col.push_back(static_cast<uint16_t>(center[2] - half + dz));
+      }
+  }
+  if (columns.empty())
+    throw InputError(source + ": the OctoMap has no occupied voxel (nothing to build a map from)");
+  st.columns = columns.size();
+  // In key order, so the cloud (and what is built from it) does not depend on hashing.
+  std::vector<std::pair<uint32_t, std::vector<uint16_t>>> ordered(
+      std::make_move_iterator(columns.begin()), std::make_move_iterator(columns.end()));
+  columns.clear();
+  std::sort(ordered.begin(), ordered.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  PointCloud cloud;
+  cloud.source = source;
+  for (auto& [xy, zs] : ordered) {
+    std::sort(zs.begin(), zs.end());
+    zs.erase(std::unique(zs.begin(), zs.end()), zs.end());
+    const uint16_t kx = static_cast<uint16_t>(xy >> 16), ky = static_cast<uint16_t>(xy & 0xffffu);
+    size_t r = 0;
+    while (r < zs.size()) {
+      size_t top = r;
+      while (top + 1 < zs.size() && zs[top + 1] == zs[top] + 1) ++top;
+      ++st.runs;
+      // Only a run with a lower run in its column can be an overhang: a lowest run with free space
+      // under it is a surface on a voxel boundary that a grazing ray passed under (or a ceiling
+      // over unseen ground, kept as a conservatively high surface).
+      bool seen_beneath = false;
+      if (r > 0) {
+        const octomap::OcTreeNode* below =
+            tree.search(octomap::OcTreeKey(kx, ky, static_cast<uint16_t>(zs[r] - 1)));
+        seen_beneath = below != nullptr && !tree.isNodeOccupied(below);
+      }
+      if (seen_beneath) {
+        ++st.seen_beneath;
+      } else {
+        const octomap::point3d c =
+            tree.keyToCoord(octomap::OcTreeKey(kx, ky, zs[top]));
+        cloud.points.emplace_back(c.x(), c.y(), c.z());
+      }
+      r = top + 1;
+    }
+  }
+  if (cloud.points.empty())
+    throw InputError(source + ": every occupied voxel of the OctoMap has free space beneath it "
+                              "(no support surface)");
+  if (stats) *stats = st;
+  return cloud;
+}
+
+}  // namespace terrastride::perception
