@@ -26,6 +26,9 @@ packages=(
   # is ~25 % slower there than OpenBLAS, which takes over libblas.so.3 by alternatives priority.
   libopenblas0-serial
   nlohmann-json3-dev libcli11-dev libasio-dev libyaml-cpp-dev
+  # Bags as map input (perception/src/bag): MCAP chunks (zstd, lz4, zlib's CRC-32), ROS 2 .db3
+  # (SQLite), ROS 1 .bag (rosbag_storage; its headers include pluginlib's).
+  libzstd-dev liblz4-dev zlib1g-dev libsqlite3-dev librosbag-storage-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   python3
   # The offline report inlines a plotting library installed with npm (service/report), and its

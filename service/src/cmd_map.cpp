@@ -15,7 +15,10 @@
 #include <vector>
 
 #include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/bag.hpp"
+#include "terrastride/perception/bag_clouds.hpp"
 #include "terrastride/perception/octomap_input.hpp"
+#include "terrastride/perception/tf_buffer.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/map_build.hpp"
 
@@ -44,6 +47,12 @@ struct MapOptions {
   std::string out;
   bool json = false;
   bool resolution_given = false;  // an OctoMap's grid is at its voxel size unless --resolution
+  // Bags (.mcap, .db3, .bag).
+  std::vector<std::string> topics;
+  std::string frame;
+  std::optional<double> start, end;
+  int every = 1;
+  bool list = false;
 };
 
 // Stage progress on stderr, only for a terminal and only for inputs large enough to wait for.
@@ -200,7 +209,123 @@ void run_map_octomap(const MapOptions& o) {
   print_summary(o, build, meta, summary);
 }
 
+std::string stamp_text(int64_t ns) { return perception::format_stamp(ns); }
+
+// `map RUN.mcap --list`: what the bag holds, to choose --topic and --frame.
+void list_bags(const MapOptions& o) {
+  json all = json::array();
+  for (const auto& path : o.clouds) {
+    perception::BagListing l;
+    try {
+      l = perception::list_bag(path);
+    } catch (const perception::InputError& e) {
+      throw CommandError(e.what());
+    }
+    json topics = json::array();
+    for (const auto& t : l.topics)
+      topics.push_back({{"topic", t.name},
+                        {"type", t.type},
+                        {"encoding", t.encoding},
+                        {"messages", t.messages},
+                        {"first_log_time", t.messages ? stamp_text(t.first_log_ns) : ""},
+                        {"last_log_time", t.messages ? stamp_text(t.last_log_ns) : ""},
+                        {"frames", std::vector<std::string>(t.frames.begin(), t.frames.end())}});
+    json entry = {{"path", path},     {"format", l.format}, {"topics", topics},
+                  {"tf", l.tf_links}, {"frames", l.frames}, {"damage", l.damage.problems}};
+    all.push_back(entry);
+    if (o.json) continue;
+    std::cout << path << " (" << l.format << ")\n";
+    for (const auto& t : l.topics) {
+      std::cout << "  " << t.name << "  " << t.type << "  " << t.messages << " messages";
+      if (t.messages)
+        std::cout << ", " << fmt(static_cast<double>(t.last_log_ns - t.first_log_ns) * 1e-9, 3)
+                  << " s from " << stamp_text(t.first_log_ns);
+      if (!t.frames.empty()) {
+        std::cout << ", frames";
+        for (const auto& f : t.frames) std::cout << " " << f;
+      }
+      std::cout << "\n";
+    }
+    std::cout << "  tf:" << (l.tf_links.empty() ? " none" : "") << "\n";
+    for (const auto& link : l.tf_links) std::cout << "    " << link << "\n";
+    for (const auto& d : l.damage.problems) std::cout << "  damaged: " << d << "\n";
+  }
+  if (o.json) std::cout << (all.size() == 1 ? all[0] : all).dump() << "\n";
+}
+
+// `map RUN.mcap --topic T --frame F`: the clouds of a recording, placed by its tf.
+terrain::MapInput read_bags(const MapOptions& o, Progress& progress, json* bag_json) {
+  if (!o.origin.empty())
+    throw CommandError("--origin: a bag's clouds take their origins from its tf (--frame)");
+  if (o.topics.empty())
+    throw CommandError("--topic: which PointCloud2 topic(s) to map? (`terrastride map " +
+                       o.clouds.front() + " --list` shows them)");
+  if (o.frame.empty())
+    throw CommandError("--frame: the fixed frame to map in (e.g. odom or map; `--list` shows the "
+                       "tf frames)");
+  if (o.every < 1) throw CommandError("--every: must be >= 1");
+  perception::BagCloudOptions options;
+  options.topics = o.topics;
+  options.fixed_frame = o.frame;
+  options.start = o.start;
+  options.end = o.end;
+  options.every = o.every;
+  terrain::BagMapInput in;
+  try {
+    in = terrain::read_map_bags(o.clouds, options, [&](size_t b, size_t clouds) {
+      if (clouds % 50 == 0)
+        progress.stage("reading " + o.clouds[b] + ": " + std::to_string(clouds) + " clouds");
+    });
+  } catch (const perception::InputError& e) {
+    throw CommandError(e.what());
+  }
+  *bag_json = json::array();
+  for (size_t b = 0; b < in.stats.size(); ++b) {
+    const auto& st = in.stats[b];
+    json topics = json::object();
+    for (const auto& [name, t] : st.topics)
+      topics[name] = {{"messages", t.messages},     {"used", t.used},
+                      {"outside_window", t.outside_window}, {"skipped_every", t.skipped_every},
+                      {"points_in", t.points_in},   {"non_finite", t.non_finite}};
+    bag_json->push_back({{"path", o.clouds[b]},
+                         {"format", st.format},
+                         {"frame", o.frame},
+                         {"topics", topics},
+                         {"transforms", st.transforms},
+                         {"static_transforms", st.static_transforms},
+                         {"skipped", st.damage.problems},
+                         {"skipped_bytes", st.damage.skipped_bytes}});
+  }
+  return std::move(in.input);
+}
+
+void print_bag_summary(const json& bags) {
+  for (const auto& b : bags) {
+    std::cout << b["path"].get<std::string>() << " (" << b["format"].get<std::string>()
+              << "), in frame " << b["frame"].get<std::string>() << ":\n";
+    for (const auto& [name, t] : b["topics"].items())
+      std::cout << "  " << name << ": " << t["used"].get<size_t>() << " of "
+                << t["messages"].get<size_t>() << " clouds used (" << t["outside_window"].get<size_t>()
+                << " outside the time window, " << t["skipped_every"].get<size_t>()
+                << " skipped by --every), " << t["points_in"].get<size_t>() << " points, "
+                << t["non_finite"].get<size_t>() << " non-finite dropped\n";
+    for (const auto& d : b["skipped"]) std::cout << "  skipped: " << d.get<std::string>() << "\n";
+  }
+}
+
 void run_map(const MapOptions& o) {
+  const bool any_bag = std::any_of(o.clouds.begin(), o.clouds.end(), perception::is_bag_file);
+  if (any_bag && !std::all_of(o.clouds.begin(), o.clouds.end(), perception::is_bag_file))
+    throw CommandError("bags (.mcap, .db3, .bag) cannot be mixed with cloud files or OctoMaps");
+  if (!any_bag && (o.list || !o.topics.empty() || !o.frame.empty() || o.start || o.end ||
+                   o.every != 1))
+    throw CommandError("--list, --topic, --frame, --start, --end and --every apply to bags "
+                       "(.mcap, .db3, .bag)");
+  if (o.list) {
+    if (o.clouds.empty()) throw CommandError("no input bag given");
+    list_bags(o);
+    return;
+  }
   if (!o.clouds.empty() && std::any_of(o.clouds.begin(), o.clouds.end(), perception::is_octomap_file)) {
     check_flags(o);
     run_map_octomap(o);
@@ -216,13 +341,18 @@ void run_map(const MapOptions& o) {
   Progress progress(isatty(STDERR_FILENO) && file_bytes > 8u * 1024 * 1024);
 
   terrain::MapInput input;
-  try {
-    input = terrain::read_map_clouds(o.clouds, origin, [&](size_t k) {
-      progress.stage("reading " + o.clouds[k] + " (" + std::to_string(k + 1) + "/" +
-                     std::to_string(o.clouds.size()) + ")");
-    });
-  } catch (const perception::InputError& e) {
-    throw CommandError(e.what());
+  json bags;
+  if (any_bag) {
+    input = read_bags(o, progress, &bags);
+  } else {
+    try {
+      input = terrain::read_map_clouds(o.clouds, origin, [&](size_t k) {
+        progress.stage("reading " + o.clouds[k] + " (" + std::to_string(k + 1) + "/" +
+                       std::to_string(o.clouds.size()) + ")");
+      });
+    } catch (const perception::InputError& e) {
+      throw CommandError(e.what());
+    }
   }
 
   terrain::MapBuildOptions options = map_build_options(o);
@@ -251,11 +381,13 @@ void run_map(const MapOptions& o) {
   }
   progress.done();
 
-  const json summary = terrain::map_summary(build, meta, o.out);
+  json summary = terrain::map_summary(build, meta, o.out);
+  if (any_bag) summary["bags"] = bags;
   if (o.json) {
     std::cout << summary.dump() << "\n";
     return;
   }
+  if (any_bag) print_bag_summary(bags);
   print_summary(o, build, meta, summary);
 }
 
@@ -265,9 +397,10 @@ void add_map_command(CLI::App& app) {
   auto o = std::make_shared<MapOptions>();
   CLI::App* cmd = app.add_subcommand(
       "map",
-      "Build a terrain map from point clouds (PCD, PLY, XYZ, NPY) or an OctoMap (.bt, .ot): "
+      "Build a terrain map from point clouds (PCD, PLY, XYZ, NPY), ROS bags (.mcap, .db3, .bag: "
+      "--topic, --frame) or an OctoMap (.bt, .ot): "
       "OctoMap, height grid, smoothed field and foothold-safety layers in DIR");
-  cmd->add_option("clouds", o->clouds, "Input clouds")->required();
+  cmd->add_option("clouds", o->clouds, "Input clouds, bags or an OctoMap")->required();
   cmd->add_option("--origin", o->origin,
                   "Sensor origin X,Y,Z for all clouds (overrides a PCD VIEWPOINT)");
   cmd->add_option("--resolution", o->resolution,
@@ -297,7 +430,22 @@ void add_map_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--max-slope", o->max_slope, "Largest slope (tan) of a safe foothold")
       ->capture_default_str();
-  cmd->add_option("--out", o->out, "Output directory")->required();
+  cmd->add_option("--out", o->out, "Output directory (required unless --list)");
+  cmd->add_option("--topic", o->topics,
+                  "Bags: a sensor_msgs/PointCloud2 topic to map; repeat for several")
+      ->delimiter(',');
+  cmd->add_option("--frame", o->frame,
+                  "Bags: the fixed frame the clouds are placed in (by /tf and /tf_static at each "
+                  "cloud's stamp, interpolated), e.g. odom or map");
+  cmd->add_option("--start", o->start,
+                  "Bags: first log time to use, s from the bag's first message (or since the "
+                  "epoch when >= 1e9)");
+  cmd->add_option("--end", o->end, "Bags: last log time to use (as --start)");
+  cmd->add_option("--every", o->every, "Bags: use every N-th cloud of each topic")
+      ->capture_default_str();
+  cmd->add_flag("--list", o->list,
+                "Bags: print the topics, types, message counts, cloud frames and tf links, and "
+                "map nothing");
   cmd->add_flag("--json", o->json, "Print the summary as one JSON object");
   cmd->callback([o, cmd] {
     o->resolution_given = cmd->count("--resolution") > 0;

@@ -304,6 +304,28 @@ MapBuild build_terrain_map(std::vector<perception::PointCloud> clouds,
   return build;
 }
 
+BagMapInput read_map_bags(const std::vector<std::string>& paths,
+                          const perception::BagCloudOptions& options,
+                          const std::function<void(size_t, size_t)>& progress) {
+  BagMapInput out;
+  const auto t0 = Clock::now();
+  out.input.sources.started = t0;
+  for (size_t b = 0; b < paths.size(); ++b) {
+    perception::BagCloudStats stats;
+    perception::read_bag_clouds(
+        paths[b], options,
+        [&](perception::PointCloud&& cloud, const perception::BagCloudInfo& info) {
+          out.input.sources.files.push_back({cloud.source, info.points_in, info.non_finite});
+          out.input.clouds.push_back(std::move(cloud));
+          if (progress) progress(b, out.input.clouds.size());
+        },
+        &stats);
+    out.stats.push_back(std::move(stats));
+  }
+  out.input.sources.read_s = seconds_since(t0);
+  return out;
+}
+
 OctreeMapInput read_map_octomap(const std::string& path) {
   OctreeMapInput input;
   const auto t0 = Clock::now();

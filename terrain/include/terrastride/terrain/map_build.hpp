@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/bag_clouds.hpp"
 #include "terrastride/perception/filters.hpp"
 #include "terrastride/perception/octomap_fusion.hpp"
 #include "terrastride/perception/octomap_input.hpp"
@@ -149,6 +150,19 @@ OctreeMapInput read_map_octomap(const std::string& path);
 // built. `input.tree` and `input.support` are moved from. Throws MapBuildError as
 // build_terrain_map does.
 MapBuild build_terrain_map_from_octree(OctreeMapInput& input, MapBuildOptions options);
+
+// A robot's recording as a map's input (`terrastride map RUN.mcap|RUN.db3|RUN.bag --topic T
+// --frame F`): the PointCloud2 messages of the topics, each placed in the fixed frame with its
+// sensor origin at its stamp (perception::read_bag_clouds), in file order. `sources.files` has one
+// entry per cloud ("PATH:TOPIC@STAMP"). Throws perception::InputError naming the file, topic and
+// time.
+struct BagMapInput {
+  MapInput input;
+  std::vector<perception::BagCloudStats> stats;  // per bag
+};
+BagMapInput read_map_bags(const std::vector<std::string>& paths,
+                          const perception::BagCloudOptions& options,
+                          const std::function<void(size_t bag, size_t clouds)>& progress = {});
 
 // What `terrastride map --out` writes, for perception::AtomicOutputDir: outputs of versions
 // before the marker file are recognised by their names (every version wrote all three of

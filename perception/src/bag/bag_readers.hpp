@@ -1,0 +1,15 @@
+// The three bag readers behind perception::open_bag.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "terrastride/perception/bag.hpp"
+
+namespace terrastride::perception::bag {
+
+std::unique_ptr<BagReader> open_mcap(const std::string& path);
+std::unique_ptr<BagReader> open_db3(const std::string& path);
+std::unique_ptr<BagReader> open_ros1(const std::string& path);
+
+}  // namespace terrastride::perception::bag

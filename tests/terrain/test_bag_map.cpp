@@ -1,0 +1,239 @@
+// Bags as map input (issue #19): the fixtures of tests/fixtures/bags (written by independent
+// writers: @mcap/core + @foxglove/rosmsg2-serialization, Python's sqlite3, Debian's
+// python3-rosbag; see tests/fixtures/bags/README.md) give the same map as the same clouds as
+// loose PCD files with their sensor origins; bad bags fail clearly or say what they skipped.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+#include <sstream>
+
+#include "perception/test_util.hpp"
+#include "terrastride/perception/bag.hpp"
+#include "terrastride/perception/bag_clouds.hpp"
+#include "terrastride/terrain/map_build.hpp"
+
+namespace terrastride {
+namespace {
+
+using perception::test::expect_input_error;
+using perception::test::ScratchDir;
+
+std::string fixture(const std::string& name) {
+  return std::string(TERRASTRIDE_SOURCE_DIR) + "/tests/fixtures/bags/" + name;
+}
+
+std::vector<std::string> pcd_files() {
+  std::ifstream list(fixture("pcd/list.txt"));
+  std::vector<std::string> files;
+  for (std::string line; std::getline(list, line);)
+    if (!line.empty()) files.push_back(fixture("pcd/" + line));
+  return files;
+}
+
+perception::BagCloudOptions both_lidars() {
+  perception::BagCloudOptions o;
+  o.topics = {"/points", "/points_rear"};
+  o.fixed_frame = "odom";
+  return o;
+}
+
+std::string read_bytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+class BagFixture : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(BagFixture, SameMapAsTheEquivalentPcdFiles) {
+  const std::vector<std::string> pcds = pcd_files();
+  ASSERT_EQ(pcds.size(), 18u);
+  terrain::MapInput loose = terrain::read_map_clouds(pcds, std::nullopt);
+  terrain::BagMapInput bag = terrain::read_map_bags({fixture(GetParam())}, both_lidars());
+  ASSERT_EQ(bag.input.clouds.size(), loose.clouds.size());
+  // Both in one order: /points (lidar_NN.pcd) by stamp, then /points_rear (lidar_rear_NN.pcd).
+  // Bags order messages of the same log time differently (rosbag by connection).
+  const auto by_source = [](std::vector<perception::PointCloud>& clouds) {
+    std::sort(clouds.begin(), clouds.end(),
+              [](const auto& a, const auto& b) { return a.source < b.source; });
+  };
+  by_source(bag.input.clouds);
+  by_source(loose.clouds);
+  const auto& st = bag.stats.at(0);
+  EXPECT_FALSE(st.damage.damaged());
+  EXPECT_EQ(st.topics.at("/points").used, 9u);
+  EXPECT_EQ(st.topics.at("/points").non_finite, 252u);  // the organised cloud's dropouts
+  EXPECT_EQ(st.topics.at("/points_rear").non_finite, 0u);
+  for (size_t k = 0; k < loose.clouds.size(); ++k) {
+    const auto& a = bag.input.clouds[k];
+    const auto& b = loose.clouds[k];
+    ASSERT_EQ(a.points.size(), b.points.size()) << k;
+    ASSERT_TRUE(a.sensor_origin && b.sensor_origin);
+    // The origin from the interpolated tf, the PCD's from the generator's exact pose.
+    EXPECT_LT((*a.sensor_origin - *b.sensor_origin).norm(), 1e-6) << k;
+    for (size_t i = 0; i < a.points.size(); ++i)
+      ASSERT_LT((a.points[i] - b.points[i]).norm(), 1e-5f) << "cloud " << k << " point " << i;
+  }
+  const terrain::MapBuild from_bag = terrain::build_terrain_map(std::move(bag.input.clouds));
+  const terrain::MapBuild from_pcd = terrain::build_terrain_map(std::move(loose.clouds));
+  const terrain::HeightGrid& g = from_bag.map->grid();
+  const terrain::HeightGrid& h = from_pcd.map->grid();
+  ASSERT_EQ(g.geometry.nx, h.geometry.nx);
+  ASSERT_EQ(g.geometry.ny, h.geometry.ny);
+  size_t observed_differs = 0;
+  double worst = 0;
+  for (size_t k = 0; k < g.geometry.size(); ++k) {
+    observed_differs += g.observed[k] != h.observed[k];
+    worst = std::max(worst, static_cast<double>(std::abs(g.elevation[k] - h.elevation[k])));
+  }
+  for (size_t k = 0; k < g.geometry.size(); ++k)
+    if (g.observed[k] != h.observed[k] || std::abs(g.elevation[k] - h.elevation[k]) > 1e-3) {
+      const int i = static_cast<int>(k / g.geometry.ny), j = static_cast<int>(k % g.geometry.ny);
+      ADD_FAILURE() << "cell " << g.geometry.center(i, j).transpose() << ": observed "
+                    << int(g.observed[k]) << " vs " << int(h.observed[k]) << ", elevation "
+                    << g.elevation[k] << " vs " << h.elevation[k] << ", count " << g.count[k]
+                    << " vs " << h.count[k] << ", support " << g.support[k] << " vs " << h.support[k];
+    }
+  EXPECT_EQ(observed_differs, 0u);
+  EXPECT_LE(worst, 1e-3);
+  EXPECT_EQ(from_bag.octree->getNumLeafNodes(), from_pcd.octree->getNumLeafNodes());
+}
+
+INSTANTIATE_TEST_SUITE_P(Formats, BagFixture,
+                         ::testing::Values("scan_zstd.mcap", "scan_lz4.mcap", "scan.db3",
+                                           "scan.bag"),
+                         [](const auto& info) {
+                           std::string n = info.param;
+                           for (char& c : n)
+                             if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
+                           return n;
+                         });
+
+TEST(BagInput, CloudWithoutTransformFailsNamingFramesAndTime) {
+  perception::BagCloudOptions o = both_lidars();
+  o.topics = {"/camera/points"};
+  for (const std::string name : {"scan_zstd.mcap", "scan.db3", "scan.bag"})
+    expect_input_error([&] { terrain::read_map_bags({fixture(name)}, o); },
+                       {name, "/camera/points", "'camera'", "'odom'", "1700000000.500000000"});
+  // A fixed frame no transform names.
+  o = both_lidars();
+  o.fixed_frame = "map";
+  expect_input_error([&] { terrain::read_map_bags({fixture("scan_lz4.mcap")}, o); },
+                     {"'lidar'", "'map'", "no /tf or /tf_static message names frame 'map'"});
+}
+
+TEST(BagInput, RefusesTopicsItCannotMap) {
+  perception::BagCloudOptions o = both_lidars();
+  o.topics = {"/velodyne_points"};
+  expect_input_error([&] { terrain::read_map_bags({fixture("scan_zstd.mcap")}, o); },
+                     {"no topic /velodyne_points", "/points", "/points_rear"});
+  o.topics = {"/tf"};
+  expect_input_error([&] { terrain::read_map_bags({fixture("scan.db3")}, o); },
+                     {"/tf", "tf2_msgs/TFMessage", "not sensor_msgs/PointCloud2"});
+  // A time window with no cloud in it.
+  o = both_lidars();
+  o.start = 5.0;
+  expect_input_error([&] { terrain::read_map_bags({fixture("scan.bag")}, o); },
+                     {"no cloud selected", "outside the time window"});
+}
+
+TEST(BagInput, WindowAndEverySelectClouds) {
+  perception::BagCloudOptions o = both_lidars();
+  o.topics = {"/points"};
+  o.start = 0.5;  // s after the first message (1700000000.001)
+  o.end = 1.3;
+  const auto a = terrain::read_map_bags({fixture("scan_zstd.mcap")}, o);
+  // Clouds logged at 0.014 + 0.2 k s: k = 3..6 lie in [0.501, 1.301].
+  EXPECT_EQ(a.stats[0].topics.at("/points").used, 4u);
+  EXPECT_EQ(a.stats[0].topics.at("/points").outside_window, 5u);
+  o = both_lidars();
+  o.every = 4;
+  const auto b = terrain::read_map_bags({fixture("scan_zstd.mcap")}, o);
+  EXPECT_EQ(b.stats[0].topics.at("/points").used, 3u);  // clouds 0, 4, 8
+  EXPECT_EQ(b.stats[0].topics.at("/points").skipped_every, 6u);
+}
+
+TEST(BagInput, TruncatedMcapMapsWhatIsCompleteAndSaysWhatWasSkipped) {
+  ScratchDir dir;
+  const std::string bytes = read_bytes(fixture("scan_zstd.mcap"));
+  const std::string cut = dir.file("cut.mcap");
+  std::ofstream(cut, std::ios::binary) << bytes.substr(0, bytes.size() * 6 / 10);
+  const auto in = terrain::read_map_bags({cut}, both_lidars());
+  const auto& st = in.stats.at(0);
+  ASSERT_TRUE(st.damage.damaged());
+  EXPECT_NE(st.damage.problems[0].find("truncated at byte"), std::string::npos)
+      << st.damage.problems[0];
+  EXPECT_GT(st.damage.skipped_bytes, 0u);
+  const size_t used = st.topics.at("/points").used + st.topics.at("/points_rear").used;
+  EXPECT_GT(used, 0u);
+  EXPECT_LT(used, 18u);
+  // What was read is exactly the complete file's first clouds.
+  const auto whole = terrain::read_map_bags({fixture("scan_zstd.mcap")}, both_lidars());
+  for (size_t k = 0; k < in.input.clouds.size(); ++k)
+    EXPECT_EQ(in.input.clouds[k].points, whole.input.clouds[k].points) << k;
+}
+
+TEST(BagInput, CorruptChunkIsSkippedAndNamed) {
+  ScratchDir dir;
+  std::string bytes = read_bytes(fixture("scan_lz4.mcap"));
+  // Scribble over the middle of the file: inside some chunk's compressed records.
+  for (size_t i = bytes.size() / 2; i < bytes.size() / 2 + 64; ++i) bytes[i] = '\x5a';
+  const std::string bad = dir.file("bad.mcap");
+  std::ofstream(bad, std::ios::binary) << bytes;
+  try {
+    const auto in = terrain::read_map_bags({bad}, both_lidars());
+    ASSERT_TRUE(in.stats[0].damage.damaged());
+    EXPECT_NE(in.stats[0].damage.problems[0].find("corrupt chunk at byte"), std::string::npos)
+        << in.stats[0].damage.problems[0];
+  } catch (const perception::InputError& e) {
+    // The scribble may also land in a record length: then the file's structure is broken, and
+    // the error says where.
+    EXPECT_NE(std::string(e.what()).find("bad.mcap"), std::string::npos) << e.what();
+  }
+}
+
+TEST(BagInput, NotABagAndBrokenBagsFailClearly) {
+  ScratchDir dir;
+  for (const std::string name : {"text.mcap", "text.db3", "text.bag"}) {
+    perception::test::write_text(dir.file(name), "these are not the bytes of a bag\n");
+    expect_input_error([&] { perception::open_bag(dir.file(name))->read({}, [](const auto&) {}); },
+                       {name});
+  }
+  expect_input_error([&] { perception::open_bag(dir.file("none.mcap")); }, {"none.mcap", "not found"});
+  // A ROS 1 bag cut in half has lost its index (at the end of the file).
+  const std::string bag = read_bytes(fixture("scan.bag"));
+  std::ofstream(dir.file("cut.bag"), std::ios::binary) << bag.substr(0, bag.size() / 2);
+  expect_input_error([&] { perception::open_bag(dir.file("cut.bag")); }, {"cut.bag", "reindex"});
+  // A .db3 cut in half: SQLite either refuses it or stops part-way, and says so.
+  const std::string db = read_bytes(fixture("scan.db3"));
+  std::ofstream(dir.file("cut.db3"), std::ios::binary) << db.substr(0, db.size() / 2);
+  try {
+    const auto in = terrain::read_map_bags({dir.file("cut.db3")}, both_lidars());
+    EXPECT_TRUE(in.stats[0].damage.damaged());
+  } catch (const perception::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("cut.db3"), std::string::npos) << e.what();
+  }
+}
+
+TEST(BagInput, ListsTopicsTypesCountsAndFrames) {
+  for (const std::string name : {"scan_zstd.mcap", "scan.db3", "scan.bag"}) {
+    const perception::BagListing l = perception::list_bag(fixture(name));
+    std::map<std::string, perception::BagListing::Topic> t;
+    for (const auto& x : l.topics) t[x.name] = x;
+    ASSERT_EQ(t.size(), 5u) << name;
+    EXPECT_EQ(t["/points"].type, "sensor_msgs/PointCloud2");
+    EXPECT_EQ(t["/points"].messages, 9u);
+    EXPECT_EQ(t["/points"].frames, std::set<std::string>{"lidar"});
+    EXPECT_EQ(t["/tf"].messages, 41u);
+    EXPECT_EQ(l.frames, (std::vector<std::string>{"base_link", "lidar", "lidar_rear", "odom"}));
+  }
+}
+
+}  // namespace
+}  // namespace terrastride
