@@ -1,4 +1,5 @@
-// ROS 1 bags (format 2.0) through Debian's librosbag_storage (rosbag::Bag and rosbag::View): the
+// ROS 1 bags (format 2.0) through Debian's librosbag_storage, built as the module
+// terrastride_rosbag.so (ros1_module.hpp) (rosbag::Bag and rosbag::View): the
 // library reads the index, the chunks (bz2/lz4) and the connection headers; this file hands the
 // raw serialised messages on. rosbag needs a bag's index (at its end): a bag cut by a crash
 // (unindexed) is refused with `rosbag reindex` as the remedy.
@@ -12,7 +13,7 @@
 #include <map>
 #include <set>
 
-#include "bag/bag_readers.hpp"
+#include "bag/ros1_module.hpp"
 
 namespace terrastride::perception::bag {
 namespace {
@@ -44,7 +45,7 @@ class Ros1Reader : public BagReader {
       if (topics_.count(c->topic)) continue;
       BagTopic t;
       t.name = c->topic;
-      t.type = normalise_type(c->datatype);
+      t.type = c->datatype;  // ROS 1 names types pkg/Msg already
       t.encoding = MessageEncoding::kRos1;
       t.encoding_name = "ros1";
       topics_[c->topic] = std::move(t);
@@ -94,8 +95,17 @@ class Ros1Reader : public BagReader {
 
 }  // namespace
 
-std::unique_ptr<BagReader> open_ros1(const std::string& path) {
+std::unique_ptr<BagReader> open_ros1_module(const std::string& path) {
   return std::make_unique<Ros1Reader>(path);
 }
 
 }  // namespace terrastride::perception::bag
+
+extern "C" __attribute__((visibility("default"))) const
+    terrastride::perception::bag::RosbagModule*
+    terrastride_rosbag_module() {
+  static const terrastride::perception::bag::RosbagModule module{
+      terrastride::perception::bag::kRosbagModuleVersion,
+      &terrastride::perception::bag::open_ros1_module};
+  return &module;
+}
