@@ -34,9 +34,9 @@ OpResult check(Backend& backend, OpContext& ctx) {
   if (!traj.robot.empty() && traj.robot != backend.robot().name) {
     // A robot name from the data folder, never a path a client names (see gait_name).
     if (!is_plain_name(traj.robot))
-      throw ProtocolError(pc::kBadRequest,
-                          "plan.robot: a robot name (e.g. " + backend.robot().name +
-                              "); the server reads no robot files a client names");
+      throw ProtocolError(pc::kBadRequest, "plan.robot: a robot name (e.g. " +
+                                               backend.robot().name +
+                                               "); the server reads no robot files a client names");
     try {
       model = robot::load_robot(robot::resolve_robot_path(traj.robot));
     } catch (const robot::RobotFileError& e) {

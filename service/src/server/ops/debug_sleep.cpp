@@ -14,7 +14,8 @@ namespace {
 
 OpResult debug_sleep(OpContext& ctx) {
   const double ms = protocol::get_number(ctx.request.header, "ms", std::nullopt);
-  if (ms < 0 || ms > 60000) throw ProtocolError(pc::kBadRequest, "\"ms\" must be within [0, 60000]");
+  if (ms < 0 || ms > 60000)
+    throw ProtocolError(pc::kBadRequest, "\"ms\" must be within [0, 60000]");
   const auto start = std::chrono::steady_clock::now();
   const auto end = start + std::chrono::microseconds(static_cast<long long>(ms * 1000));
   while (std::chrono::steady_clock::now() < end) {

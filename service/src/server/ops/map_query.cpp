@@ -78,8 +78,8 @@ OpResult map_query(Backend& backend, OpContext& ctx) {
       if (xy[i] < lo.x() || xy[i] > hi.x() || xy[i + 1] < lo.y() || xy[i + 1] > hi.y()) {
         std::ostringstream os;
         os << "points[" << i / 2 << "] (" << xy[i] << ", " << xy[i + 1]
-           << ") is outside the map (x in [" << lo.x() << ", " << hi.x() << "], y in ["
-           << lo.y() << ", " << hi.y() << "])";
+           << ") is outside the map (x in [" << lo.x() << ", " << hi.x() << "], y in [" << lo.y()
+           << ", " << hi.y() << "])";
         throw ProtocolError(pc::kBadRequest, os.str());
       }
   }

@@ -24,7 +24,7 @@ namespace {
 // Plan samples as a float32 attachment named "samples", one row per sample; the column names
 // go into result["samples"] = {"attachment", "columns", "rows"}.
 protocol::Attachment samples_table(const std::vector<planner::TrajectorySample>& samples,
-                                  const std::vector<std::string>& feet, json* result) {
+                                   const std::vector<std::string>& feet, json* result) {
   std::vector<std::string> columns{"t"};
   auto add3 = [&](const std::string& prefix) {
     for (const char* axis : {".x", ".y", ".z"}) columns.push_back(prefix + axis);
@@ -161,7 +161,8 @@ OpResult plan(Backend& backend, OpContext& ctx) {
     // voxelised for the leg capsules; a scanned map without them (the server keeps no OctoMap).
     collision::CheckTerrain view;
     if (raster) {
-      view = scene_check_terrain(*raster->scene, spec, backend.robot(), out.trajectory, kPostHocVoxel);
+      view =
+          scene_check_terrain(*raster->scene, spec, backend.robot(), out.trajectory, kPostHocVoxel);
     } else {
       view.field = check_field;
       view.description = spec + " (no OctoMap in the server: leg capsules not checked)";
@@ -190,19 +191,18 @@ OpResult plan(Backend& backend, OpContext& ctx) {
   return run_in_child_process(ctx, work, backend.plan_limits(), &backend.plan_processes());
 }
 
-
 }  // namespace
 
 void add_plan_operation(Backend& backend, OperationRegistry& registry) {
   Backend* b = &backend;
   // The request fields the reader takes (plan_request.hpp): any other key is refused by name (a
   // misspelt "optimise_timing" would otherwise plan with the default silently).
-  registry.add({"plan", OpKind::kWorker, "plan a motion (as `terrastride plan`)",
-                [b](OpContext& c) { return plan(*b, c); },
-                std::vector<std::string>{"terrain", "gait", "cycles", "duration", "goal",
-                                         "constraints", "feasibility", "sample_dt", "samples",
-                                         "optimize_timing", "max_time", "init", "start_time",
-                                         "start_state"}});
+  registry.add(
+      {"plan", OpKind::kWorker, "plan a motion (as `terrastride plan`)",
+       [b](OpContext& c) { return plan(*b, c); },
+       std::vector<std::string>{"terrain", "gait", "cycles", "duration", "goal", "constraints",
+                                "feasibility", "sample_dt", "samples", "optimize_timing",
+                                "max_time", "init", "start_time", "start_state"}});
 }
 
 }  // namespace terrastride::service

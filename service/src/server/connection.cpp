@@ -1,0 +1,575 @@
+#include "connection.hpp"
+
+#include <algorithm>
+#include <cstdio>
+#include <cstring>
+#include <functional>
+
+namespace terrastride::service {
+
+namespace pc = protocol::code;
+using nlohmann::json;
+using protocol::Message;
+using protocol::ProtocolError;
+
+void Connection::read_more() {
+  if (closed || read_pending || (close_after_flush && !lingering)) return;
+  read_pending = true;
+  auto self = shared_from_this();
+  socket.async_wait(asio::socket_base::wait_read,
+                    [self](const asio::error_code& ec) { self->on_readable(ec); });
+}
+
+void Connection::on_readable(asio::error_code ec) {
+  read_pending = false;
+  if (closed) return;
+  char* dst;
+  std::size_t room;
+  if (lingering || close_after_flush) {  // the peer's last bytes, read only to be discarded
+    dst = &inbuf[0];
+    room = inbuf.size();
+  } else if (large.data()) {
+    dst = large.data() + large_have;
+    room = std::min(large.size() - large_have, kReadChunk);
+  } else {
+    if (in_end == inbuf.size() && in_start > 0) {
+      std::memmove(&inbuf[0], &inbuf[in_start], in_end - in_start);
+      in_end -= in_start;
+      in_start = 0;
+    }
+    dst = &inbuf[in_end];
+    room = inbuf.size() - in_end;
+  }
+  std::size_t n = 0;
+  if (!ec) n = socket.read_some(asio::buffer(dst, room), ec);
+  if (ec == asio::error::would_block || ec == asio::error::try_again) return read_more();
+  server.counters.bytes_in += n;
+  if (ec) {
+    if (!lingering && !close_after_flush && partial_frame())
+      server.counters.disconnects_mid_request++;
+    return close();
+  }
+  if (lingering || close_after_flush) return read_more();
+  last_active = Clock::now();
+  if (large.data()) {
+    large_have += n;
+    large_bytes.add(server.budget, n);
+    if (server.budget->used.load() > server.budget->limit) return refuse_for_budget(large.size());
+  } else {
+    in_end += n;
+  }
+  process_frames();
+}
+
+void Connection::free_large() {
+  large.reset();
+  large_have = 0;
+  large_bytes.release();
+}
+
+std::uint32_t Connection::frame_cap() const {
+  return authenticated ? server.options.max_frame_bytes
+                       : std::min(server.options.max_frame_bytes,
+                                  server.options.max_frame_bytes_before_hello);
+}
+
+void Connection::process_frames() {
+  while (!closed && !close_after_flush) {
+    if (out_bytes > kPauseReadBytes) {
+      read_paused = true;
+      return;
+    }
+    if (large.data()) {
+      if (large_have < large.size()) break;
+      // Moved out first: whatever dispatch does (even closing), the body stays valid.
+      FrameBuffer frame = std::move(large);
+      BudgetHold held = std::move(large_bytes);
+      large_have = 0;
+      frame_started = false;
+      dispatch(std::string_view(frame.data() + 4, frame.size() - 4));
+      continue;
+    }
+    const std::size_t avail = in_end - in_start;
+    if (avail < 4) break;
+    const std::uint32_t len =
+        protocol::read_u32be(reinterpret_cast<const unsigned char*>(&inbuf[in_start]));
+    const std::uint32_t cap = frame_cap();
+    try {
+      protocol::check_body_length(len, cap);
+    } catch (const ProtocolError& e) {
+      // The stream cannot be resynchronised: reply, then close once the reply is out.
+      server.counters.malformed_frames++;
+      std::string message = e.what();
+      if (len > cap && cap < server.options.max_frame_bytes)
+        message = "frame of " + std::to_string(len) + " bytes exceeds the limit of " +
+                  std::to_string(cap) +
+                  " bytes before hello (--max-frame-bytes-before-hello); authenticate first";
+      send_error(nullptr, e.code(), message);
+      finish_and_close();
+      return;
+    }
+    const std::size_t total = 4 + std::size_t(len);
+    if (avail >= total) {
+      const std::string_view body(&inbuf[in_start + 4], len);
+      in_start += total;
+      frame_started = false;
+      dispatch(body);
+      continue;
+    }
+    if (total > inbuf.size() && !start_large(total)) return;
+    break;
+  }
+  if (closed || close_after_flush) return;
+  if (in_start == in_end) in_start = in_end = 0;
+  if (!partial_frame()) {
+    frame_started = false;
+  } else if (!frame_started) {
+    frame_started = true;
+    frame_start = Clock::now();
+  }
+  read_more();
+}
+
+bool Connection::start_large(std::size_t total) {
+  const std::size_t have = in_end - in_start;
+  if (!server.budget->fits(total)) {
+    refuse_for_budget(total);
+    return false;
+  }
+  if (!large.allocate(total)) {
+    send_error(nullptr, pc::kBusy,
+               "cannot allocate " + std::to_string(total) + " bytes for a frame; retry later");
+    finish_and_close();
+    return false;
+  }
+  std::memcpy(large.data(), &inbuf[in_start], have);
+  large_have = have;
+  large_bytes.add(server.budget, have);
+  in_start = in_end = 0;
+  return true;
+}
+
+void Connection::refuse_for_budget(std::size_t frame_bytes) {
+  server.budget->refused++;
+  server.counters.busy++;
+  send_error(nullptr, pc::kBusy,
+             "frame of " + std::to_string(frame_bytes) + " bytes refused: the server holds " +
+                 std::to_string(server.budget->used.load()) +
+                 " bytes of requests and its budget is " + std::to_string(server.budget->limit) +
+                 " (--max-buffered-bytes); connection closed, retry later");
+  finish_and_close();
+}
+
+void Connection::send(std::string frame) {
+  if (closed || lingering) return;
+  server.counters.bytes_out += frame.size();
+  out_bytes += frame.size();
+  if (out_bytes > server.options.max_write_queue_bytes) {
+    // A client that does not read its replies: drop it rather than grow without bound.
+    server.counters.slow_client_drops++;
+    close();
+    return;
+  }
+  last_active = Clock::now();
+  out.push_back(std::move(frame));
+  if (writing.empty()) do_write();
+}
+
+void Connection::send_message(const Message& m) {
+  try {
+    send(protocol::encode_frame(m));
+  } catch (const ProtocolError& e) {
+    send(protocol::encode_frame(
+        protocol::make_error(m.header.value("id", json()), pc::kInternal, e.what())));
+  }
+}
+
+void Connection::send_error(const json& id, const std::string& code, const std::string& message) {
+  server.count_error(code);
+  send(protocol::encode_frame(protocol::make_error(id, code, message)));
+}
+
+void Connection::do_write() {
+  if (closed) return;
+  if (out.empty()) {
+    if (close_after_flush) linger();
+    return;
+  }
+  std::vector<asio::const_buffer> bufs;
+  while (!out.empty() && writing.size() < 64) {
+    writing.push_back(std::move(out.front()));
+    out.pop_front();
+  }
+  write_bytes = 0;
+  for (const auto& w : writing) {
+    bufs.emplace_back(asio::buffer(w));
+    write_bytes += w.size();
+  }
+  write_start = Clock::now();
+  auto self = shared_from_this();
+  asio::async_write(socket, bufs, [self](const asio::error_code& ec, std::size_t) {
+    for (const auto& w : self->writing) self->out_bytes -= w.size();
+    self->writing.clear();
+    if (ec) return self->close();
+    self->last_active = Clock::now();
+    if (self->read_paused && self->out_bytes <= kPauseReadBytes / 2) {
+      self->read_paused = false;
+      // The frame clock stopped while the server did not read.
+      if (self->frame_started) self->frame_start = Clock::now();
+      self->process_frames();
+    }
+    self->do_write();
+  });
+}
+
+void Connection::finish_and_close() {
+  close_after_flush = true;
+  free_large();
+  abandon_jobs();
+  if (out.empty() && writing.empty()) linger();
+}
+
+void Connection::linger() {
+  if (closed || lingering) return;
+  uncount();
+  if (server.lingering >= std::max(64, server.options.max_connections)) return close();
+  lingering = true;
+  server.lingering++;
+  asio::error_code ignored;
+  socket.shutdown(asio::socket_base::shutdown_send, ignored);
+  linger_until = Clock::now() + std::chrono::milliseconds(static_cast<int>(kLingerSeconds * 1e3));
+  in_start = in_end = 0;
+  read_more();
+}
+
+void Connection::uncount() {
+  if (!counted) return;
+  counted = false;
+  server.active_connections--;
+  server.counters.connections_open--;
+}
+
+void Connection::abandon_jobs() {
+  for (auto& [key, job] : inflight) {
+    job->replied = true;
+    job->token->cancel(CancellationToken::Reason::kCancelled);
+    if (job->deadline_timer) job->deadline_timer->cancel();
+    server.pool->try_remove(job);
+  }
+  inflight.clear();
+}
+
+void Connection::close() {
+  if (closed) return;
+  closed = true;
+  uncount();
+  if (lingering) server.lingering--;
+  asio::error_code ignored;
+  socket.shutdown(asio::socket_base::shutdown_both, ignored);
+  socket.close(ignored);
+  free_large();
+  abandon_jobs();
+  server.connections.erase(shared_from_this());
+}
+
+void Connection::check_timeouts(Clock::time_point now) {
+  if (closed) return;
+  const auto since = [&](Clock::time_point t) {
+    return std::chrono::duration<double>(now - t).count();
+  };
+  if (lingering) {
+    if (now >= linger_until) close();
+    return;
+  }
+  const ServerOptions& o = server.options;
+  if (o.frame_timeout_s <= 0 && o.idle_timeout_s <= 0) return;
+  if (o.frame_timeout_s > 0 && !writing.empty() &&
+      since(write_start) > o.frame_timeout_s + double(write_bytes) / o.min_receive_rate) {
+    // The client does not take its replies: nothing more can reach it, so no error reply.
+    server.counters.write_timeouts++;
+    return close();
+  }
+  if (close_after_flush) return;
+  if (o.frame_timeout_s > 0 && frame_started && !read_paused) {
+    const std::size_t have = large.data() ? large_have : in_end - in_start;
+    const double allowed = o.frame_timeout_s + double(have) / o.min_receive_rate;
+    if (since(frame_start) > allowed) {
+      server.counters.frame_timeouts++;
+      char text[64];
+      std::snprintf(text, sizeof(text), "%.3g s", allowed);
+      const std::size_t announced =
+          large.data() ? large.size()
+          : have >= 4  ? 4 + std::size_t(protocol::read_u32be(
+                                 reinterpret_cast<const unsigned char*>(&inbuf[in_start])))
+                       : 0;
+      send_error(nullptr, pc::kTimeout,
+                 "frame incomplete after " + std::string(text) + ": " + std::to_string(have) +
+                     (announced ? " of " + std::to_string(announced) : std::string()) +
+                     " bytes received (a frame must arrive within --frame-timeout plus its "
+                     "bytes at --min-receive-rate); connection closed");
+      return finish_and_close();
+    }
+  }
+  const bool busy = frame_started || !inflight.empty() || !out.empty() || !writing.empty();
+  if (busy) return;
+  // Before hello on a token server, silence is bounded by the frame timeout too.
+  double limit = o.idle_timeout_s;
+  const bool waiting_for_hello = !authenticated && o.frame_timeout_s > 0;
+  if (waiting_for_hello) limit = limit > 0 ? std::min(limit, o.frame_timeout_s) : o.frame_timeout_s;
+  if (limit > 0 && since(last_active) > limit) {
+    server.counters.idle_timeouts++;
+    char text[64];
+    std::snprintf(text, sizeof(text), "%.3g s", limit);
+    send_error(
+        nullptr, pc::kTimeout,
+        waiting_for_hello
+            ? "no hello within " + std::string(text) + " (--frame-timeout); connection closed"
+            : "connection idle for " + std::string(text) + " (--idle-timeout); connection closed");
+    finish_and_close();
+  }
+}
+
+void Connection::finish_job(const std::shared_ptr<Job>& job, std::string frame, bool ok,
+                            const std::string& code) {
+  if (job->deadline_timer) job->deadline_timer->cancel();
+  const auto it = inflight.find(job->key);
+  if (it != inflight.end() && it->second == job) inflight.erase(it);
+  if (job->replied) return;  // already answered (cancel, deadline, shutdown) or gone
+  job->replied = true;
+  if (ok)
+    server.counters.replies_ok++;
+  else
+    server.count_error(code);
+  send(std::move(frame));
+}
+
+void Connection::abort_job(const std::shared_ptr<Job>& job, const char* code,
+                           const std::string& message) {
+  if (job->replied) return;
+  if (job->deadline_timer) job->deadline_timer->cancel();
+  inflight.erase(job->key);
+  job->replied = true;
+  send_error(job->id, code, message);
+}
+void Connection::dispatch(std::string_view body) {
+  server.counters.requests++;
+  const auto arrival = Clock::now();
+  Message m;
+  json id = nullptr;
+  protocol::Request req;
+  try {
+    m = protocol::decode_body(body);
+    id = protocol::salvage_id(m.header);
+    req = protocol::parse_envelope(m.header, &id);
+    protocol::check_attachment_names(m);
+  } catch (const ProtocolError& e) {
+    server.counters.malformed_frames++;
+    send_error(id, e.code(), e.what());
+    // Before hello on a token server every refusal ends the connection, as `unauthorized` does:
+    // a peer without the token gets no second try on the same connection.
+    if (!authenticated) finish_and_close();
+    return;
+  }
+  {
+    // Per-op counters for known ops only, so hostile op names cannot grow the map.
+    const bool known = req.op == "hello" || req.op == "status" || req.op == "cancel" ||
+                       server.registry.find(req.op) != nullptr;
+    std::lock_guard<std::mutex> lock(server.counters.mu);
+    server.counters.ops[known ? req.op : "(unknown)"]++;
+  }
+
+  if (!authenticated) {
+    // The first request must be a hello carrying the shared token.
+    const auto tok = m.header.find("token");
+    const bool ok =
+        req.op == "hello" && tok != m.header.end() && tok->is_string() &&
+        protocol::constant_time_equal(tok->get_ref<const std::string&>(), *server.options.token);
+    if (!ok) {
+      server.counters.auth_failures++;
+      send_error(id, pc::kUnauthorized,
+                 req.op == "hello" ? "wrong or missing token"
+                                   : "authenticate first: send hello with \"token\"");
+      finish_and_close();
+      return;
+    }
+    authenticated = true;
+  }
+  // While draining, status still answers (it is how a client sees "draining": true).
+  if (server.draining && req.op != "status") {
+    send_error(id, pc::kShuttingDown, "server is shutting down; request '" + req.op + "' refused");
+    return;
+  }
+  if (req.deadline_ms && *req.deadline_ms <= 0) {
+    server.counters.deadline_exceeded++;
+    send_error(id, pc::kDeadlineExceeded, "deadline of 0 ms expired before '" + req.op + "' ran");
+    return;
+  }
+
+  auto run_inline = [&](const std::function<OpResult()>& fn) {
+    try {
+      OpResult r = fn();
+      server.counters.replies_ok++;
+      const Message reply = protocol::make_reply(
+          id, r.result_text.empty() ? std::move(r.result) : json(), std::move(r.attachments));
+      send(protocol::encode_frame(reply, r.result_text));
+    } catch (const ProtocolError& e) {
+      send_error(id, e.code(), e.what());
+    } catch (const std::exception& e) {
+      send_error(id, pc::kFailed, req.op + ": " + e.what());
+    }
+  };
+
+  // The built-in operations' fields (registered operations carry theirs in Operation::fields).
+  static const std::vector<std::string> kHelloFields{"token"}, kStatusFields{},
+      kCancelFields{"target"};
+  const Operation* op = nullptr;
+  const std::vector<std::string>* fields = nullptr;
+  if (req.op == "hello") {
+    fields = &kHelloFields;
+  } else if (req.op == "status") {
+    fields = &kStatusFields;
+  } else if (req.op == "cancel") {
+    fields = &kCancelFields;
+  } else {
+    op = server.registry.find(req.op);
+    if (!op) {
+      std::string known = "hello, status, cancel";
+      for (const auto& n : server.registry.names()) known += ", " + n;
+      const std::string shown = req.op.size() > 64 ? req.op.substr(0, 64) + "..." : req.op;
+      send_error(id, pc::kUnknownOp, "unknown op '" + shown + "' (known: " + known + ")");
+      return;
+    }
+    if (op->fields) fields = &*op->fields;
+  }
+  if (fields) {
+    try {
+      protocol::check_fields(m.header, req.op, *fields);
+    } catch (const ProtocolError& e) {
+      send_error(id, e.code(), e.what());
+      return;
+    }
+  }
+
+  if (req.op == "hello") {
+    return run_inline([&] {
+      OpResult r;
+      r.result = {{"server", "terrastride"},
+                  {"version", "0.1.0"},
+                  {"protocol", protocol::kVersion},
+                  {"connection", cid},
+                  {"ops", json::array()},
+                  {"capabilities",
+                   {{"max_frame_bytes", server.options.max_frame_bytes},
+                    {"attachment_dtypes", {"float32"}},
+                    {"pipelining", true},
+                    {"deadlines", true},
+                    {"cancel", true},
+                    {"workers", server.pool->workers()},
+                    {"queue", server.pool->capacity()},
+                    {"token_required", server.options.token.has_value()},
+                    {"max_connections", server.options.max_connections},
+                    {"frame_timeout_s", server.options.frame_timeout_s},
+                    {"min_receive_rate", server.options.min_receive_rate},
+                    {"idle_timeout_s", server.options.idle_timeout_s}}}};
+      r.result["ops"] = {"hello", "status", "cancel"};
+      for (const auto& n : server.registry.names()) r.result["ops"].push_back(n);
+      if (server.hello_extra) r.result.update(server.hello_extra());
+      return r;
+    });
+  }
+  if (req.op == "status") {
+    return run_inline([&] {
+      OpResult r;
+      r.result = server.status_json();
+      return r;
+    });
+  }
+  if (req.op == "cancel") return run_inline([&] { return builtin_cancel(m); });
+
+  if (op->kind == OpKind::kInline) {
+    auto token = std::make_shared<CancellationToken>();
+    if (req.deadline_ms)
+      token->set_deadline(
+          arrival + std::chrono::microseconds(static_cast<long long>(*req.deadline_ms * 1000)));
+    return run_inline([&] {
+      OpContext ctx{m, token};
+      return op->handler(ctx);
+    });
+  }
+
+  // A worker job.
+  auto job = std::make_shared<Job>();
+  job->seq = server.next_job_seq++;
+  job->id = id;
+  job->key = id.dump();
+  if (inflight.count(job->key)) {
+    send_error(id, pc::kBadRequest,
+               "id " + job->key + " is already in flight on this connection; ids must be unique");
+    return;
+  }
+  if (static_cast<int>(inflight.size()) >= server.options.max_inflight_per_connection) {
+    server.counters.busy++;
+    send_error(id, pc::kBusy,
+               "too many requests in flight on this connection (limit " +
+                   std::to_string(server.options.max_inflight_per_connection) + ")");
+    return;
+  }
+  job->op = op;
+  job->request = std::move(m);
+  // The attachments stay in memory until a worker runs the job: count them as buffered request
+  // bytes (already received, so counted rather than refused; the next large frame sees them).
+  std::size_t request_bytes = 0;
+  for (const auto& a : job->request.attachments) request_bytes += a.data.size();
+  job->request_bytes.add(server.budget, request_bytes);
+  job->conn = weak_from_this();
+  if (req.deadline_ms) {
+    const auto deadline =
+        arrival + std::chrono::microseconds(static_cast<long long>(*req.deadline_ms * 1000));
+    job->token->set_deadline(deadline);
+    job->deadline_timer = std::make_unique<asio::steady_timer>(server.io, deadline);
+  }
+  if (!server.pool->try_submit(job)) {
+    server.counters.busy++;
+    send_error(id, pc::kBusy,
+               "all " + std::to_string(server.pool->workers()) + " workers busy and the queue of " +
+                   std::to_string(server.pool->capacity()) + " is full; retry later");
+    return;
+  }
+  inflight[job->key] = job;
+  if (job->deadline_timer) {
+    std::weak_ptr<Connection> wc = weak_from_this();
+    job->deadline_timer->async_wait([wc, job](const asio::error_code& ec) {
+      auto c = wc.lock();
+      if (ec || !c || job->replied) return;
+      job->token->cancel(CancellationToken::Reason::kDeadline);
+      c->server.pool->try_remove(job);
+      c->server.counters.deadline_exceeded++;
+      c->abort_job(job, pc::kDeadlineExceeded,
+                   std::string("deadline exceeded ") +
+                       (job->running ? "while running" : "in queue") + " ('" + job->op->name +
+                       "')");
+    });
+  }
+}
+
+OpResult Connection::builtin_cancel(const Message& m) {
+  const auto t = m.header.find("target");
+  if (t == m.header.end() || !(t->is_number_integer() || t->is_string()))
+    throw ProtocolError(pc::kBadRequest,
+                        "cancel needs \"target\": the id of the request to cancel");
+  OpResult r;
+  const auto it = inflight.find(t->dump());
+  if (it == inflight.end()) {
+    r.result = {{"target", *t}, {"cancelled", false}, {"state", "unknown"}};
+    return r;
+  }
+  auto job = it->second;
+  const bool queued = server.pool->try_remove(job);
+  job->token->cancel(CancellationToken::Reason::kCancelled);
+  server.counters.cancelled++;
+  r.result = {{"target", *t}, {"cancelled", true}, {"state", queued ? "queued" : "running"}};
+  abort_job(job, pc::kCancelled, "request cancelled by cancel (id " + job->key + ")");
+  return r;
+}
+
+}  // namespace terrastride::service

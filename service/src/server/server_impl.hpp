@@ -1,0 +1,82 @@
+// The server's state (Server::Impl): options, operations, listeners, the worker pool, the open
+// connections, the counters `status` reports, and the drain on shutdown. Touched only on the I/O
+// thread, except the atomics and what the worker pool locks.
+#pragma once
+
+#include <asio.hpp>
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <set>
+#include <string>
+
+#include "listen.hpp"
+#include "request_memory.hpp"
+#include "terrastride/service/server.hpp"
+#include "worker_pool.hpp"
+
+namespace terrastride::service {
+
+struct Connection;  // connection.hpp
+struct Job;
+
+struct Counters {
+  std::atomic<std::uint64_t> connections_total{0}, connections_open{0}, connections_rejected{0},
+      requests{0}, replies_ok{0}, replies_error{0}, malformed_frames{0}, busy{0}, bytes_in{0},
+      bytes_out{0}, slow_client_drops{0}, disconnects_mid_request{0}, cancelled{0},
+      deadline_exceeded{0}, auth_failures{0}, frame_timeouts{0}, idle_timeouts{0},
+      write_timeouts{0};
+  std::mutex mu;
+  std::map<std::string, std::uint64_t> errors_by_code;
+  std::map<std::string, std::uint64_t> ops;
+};
+
+using Clock = std::chrono::steady_clock;
+
+struct Server::Impl {
+  ServerOptions options;
+  OperationRegistry registry;
+  std::function<nlohmann::json()> status_extra, hello_extra;
+  asio::io_context io;
+  Listeners listeners;
+  std::unique_ptr<WorkerPool> pool;
+  std::set<std::shared_ptr<Connection>> connections;
+  Counters counters;
+  Clock::time_point started = Clock::now();
+  std::uint64_t next_conn_id = 1;
+  std::uint64_t next_job_seq = 1;
+  std::atomic<bool> draining{false};
+  Clock::time_point drain_started;
+  bool drain_cancelled = false;
+  std::unique_ptr<asio::signal_set> signals;
+  std::unique_ptr<asio::steady_timer> drain_timer;
+  std::atomic<bool> stopped{false};
+  std::shared_ptr<ByteBudget> budget;
+  // Connections counted against max_connections (not the ones closing or refused).
+  int active_connections = 0;
+  // Connections that sent their last reply and wait briefly for the peer's end (see linger()).
+  int lingering = 0;
+  std::unique_ptr<asio::steady_timer> sweep_timer;
+
+  void accept_tcp(asio::ip::tcp::acceptor& acc);
+  void accept_unix(asio::local::stream_protocol::acceptor& acc);
+  void adopt(asio::generic::stream_protocol::socket sock, bool tcp);
+  void run_job(std::shared_ptr<Job> job);  // worker thread
+  void begin_shutdown();
+  void drain_tick();
+  void sweep();  // timeouts: slow frames, stalled writes, idle connections, lingering closes
+  double sweep_period_s() const;
+  nlohmann::json status_json();
+  void count_error(const std::string& code) {
+    counters.replies_error++;
+    std::lock_guard<std::mutex> lock(counters.mu);
+    counters.errors_by_code[code]++;
+  }
+};
+
+}  // namespace terrastride::service
