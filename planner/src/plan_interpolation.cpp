@@ -12,20 +12,10 @@
 
 namespace terrastride::planner {
 
-namespace {
-
-Eigen::Matrix3d euler_rate_matrix(const Eigen::Vector3d& e) {
-  const double cy = std::cos(e[0]), sy = std::sin(e[0]), cp = std::cos(e[1]), sp = std::sin(e[1]);
-  Eigen::Matrix3d E;
-  E << 0, -sy, cy * cp, 0, cy, sy * cp, 1, 0, -sp;
-  return E;
-}
-
-}  // namespace
-
+// The Euler-rate matrix is piece_math.hpp's, the one the optimiser's pieces use.
 Eigen::Vector3d euler_rates_of(const Eigen::Vector3d& euler_zyx,
                                const Eigen::Vector3d& angular_velocity) {
-  return euler_rate_matrix(euler_zyx).fullPivLu().solve(angular_velocity);
+  return euler_rate_matrix<double>(euler_zyx).fullPivLu().solve(angular_velocity);
 }
 
 namespace interpolation {
@@ -57,7 +47,7 @@ TrajectorySample hermite_between(const TrajectorySample& a, const TrajectorySamp
   Eigen::Vector3d euler_rate;
   hermite<double>(u, h, a.base.euler_zyx, euler_rates(a), b.base.euler_zyx, euler_rates(b),
                   &s.base.euler_zyx, &euler_rate, nullptr);
-  s.base.angular_velocity = euler_rate_matrix(s.base.euler_zyx) * euler_rate;
+  s.base.angular_velocity = euler_rate_matrix<double>(s.base.euler_zyx) * euler_rate;
   s.base.linear_acceleration = mix(a.base.linear_acceleration, b.base.linear_acceleration);
   s.base.angular_acceleration = mix(a.base.angular_acceleration, b.base.angular_acceleration);
   for (std::size_t f = 0; f < s.feet.size() && f < b.feet.size(); ++f) {

@@ -158,6 +158,18 @@ void hermite(double s, const T& h, const T* x, const HermiteLocal& l, Vec3<T>* p
 // R = Rz(yaw) Ry(pitch) Rx(roll), euler = (yaw, pitch, roll): the robot's (robot/geometry.hpp).
 using robot::rotation_zyx;
 
+// The Euler-rate matrix E(e) of ZYX Euler angles e = (yaw, pitch, roll): the world angular
+// velocity is w = E(e) e'. Singular at pitch +-pi/2 (gimbal lock).
+template <class T>
+Eigen::Matrix<T, 3, 3> euler_rate_matrix(const Vec3<T>& e) {
+  using std::cos;
+  using std::sin;
+  const T cy = cos(e[0]), sy = sin(e[0]), cp = cos(e[1]), sp = sin(e[1]);
+  Eigen::Matrix<T, 3, 3> E;
+  E << T(0.0), -sy, cy * cp, T(0.0), cy, sy * cp, T(1.0), T(0.0), -sp;
+  return E;
+}
+
 // World angular velocity and acceleration from ZYX Euler angles and their derivatives:
 // w = E(e) e', w' = E e'' + E' e'.
 template <class T>
@@ -166,8 +178,8 @@ void euler_to_angular(const Vec3<T>& e, const Vec3<T>& ed, const Vec3<T>& edd, V
   using std::cos;
   using std::sin;
   const T cy = cos(e[0]), sy = sin(e[0]), cp = cos(e[1]), sp = sin(e[1]);
-  Eigen::Matrix<T, 3, 3> E, Ed;
-  E << T(0.0), -sy, cy * cp, T(0.0), cy, sy * cp, T(1.0), T(0.0), -sp;
+  const Eigen::Matrix<T, 3, 3> E = euler_rate_matrix<T>(e);
+  Eigen::Matrix<T, 3, 3> Ed;
   const T yd = ed[0], pd = ed[1];
   Ed << T(0.0), -cy * yd, -sy * cp * yd - cy * sp * pd, T(0.0), -sy * yd,
       cy * cp * yd - sy * sp * pd, T(0.0), T(0.0), -cp * pd;
