@@ -5,9 +5,9 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 
+#include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/planner/polytope_core.hpp"
 
 namespace terrastride::planner {
@@ -265,23 +265,12 @@ void save_polytope_model(const RobotPolytopeModel& model, const robot::RobotMode
   out << YAML::EndSeq << YAML::EndMap;
   if (!out.good()) throw PolytopeFileError("cannot write " + path + ": " + out.GetLastError());
 
-  // Nothing half-written: write a sibling temporary file, then rename over the target.
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream f(tmp);
-    if (!f) throw PolytopeFileError("cannot write " + path + ": cannot open " + tmp);
-    f << out.c_str() << "\n";
-    f.close();
-    if (!f) {
-      std::remove(tmp.c_str());
-      throw PolytopeFileError("cannot write " + path + ": write to " + tmp + " failed");
-    }
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) {
-    std::remove(tmp.c_str());
-    throw PolytopeFileError("cannot write " + path + ": " + ec.message());
+  // Nothing half-written: perception's writer replaces a regular file atomically (also behind a
+  // symbolic link, which stays) and writes a FIFO or device through.
+  try {
+    perception::write_file_atomically(path, std::string(out.c_str()) + "\n");
+  } catch (const perception::InputError& e) {
+    throw PolytopeFileError(std::string("cannot write ") + e.what());
   }
 }
 

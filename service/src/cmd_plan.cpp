@@ -242,12 +242,10 @@ void run_plan(const PlanCliOptions& o) {
     failures.insert(failures.end(), sim.begin(), sim.end());
   }
   if (useful) {
-    // The same text as planner::write_plan_file, written by perception::write_file_atomically:
-    // atomic for files (through symbolic links), written through for pipes and devices.
+    // Atomic for files (through symbolic links), written through for pipes and devices.
     try {
       std::cout.flush();
-      perception::write_file_atomically(o.out,
-                                        planner::plan_to_json(out.trajectory).dump(1) + "\n");
+      planner::write_plan_file(o.out, out.trajectory);
     } catch (const std::exception& e) {
       throw CommandError(std::string("--out: ") + e.what());
     }

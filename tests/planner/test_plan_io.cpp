@@ -1,12 +1,16 @@
 // plan.json round trip, validation of malformed plan files, interpolation between samples, and
 // measured start states in plan.json's conventions.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <limits>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -112,6 +116,45 @@ TEST(PlanIo, MalformedPlansNameTheField) {
     EXPECT_NE(std::string(e.what()).find("not valid JSON"), std::string::npos);
   }
   EXPECT_THROW(write_plan_file("/nonexistent/dir/plan.json", two_sample_plan()), PlanFileError);
+}
+
+// write_plan_file writes as `terrastride plan --out` does (perception::write_file_atomically): a
+// symbolic link stays a link and its target gets the plan, a FIFO is written through (a temporary
+// renamed over it would replace the FIFO and its reader would wait forever), /dev/null works.
+TEST(PlanIo, WritesThroughLinksFifosAndDevices) {
+  namespace fs = std::filesystem;
+  const fs::path dir =
+      fs::temp_directory_path() / ("terrastride_plan_io_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const Trajectory t = two_sample_plan();
+  const std::string text = plan_to_json(t).dump(1) + "\n";
+
+  std::ofstream((dir / "target.json").string()) << "old";
+  fs::create_symlink("target.json", dir / "link.json");
+  write_plan_file((dir / "link.json").string(), t);
+  EXPECT_TRUE(fs::is_symlink(dir / "link.json"));
+  EXPECT_EQ(read_plan_file((dir / "target.json").string()).samples.size(), t.samples.size());
+
+  const std::string fifo = (dir / "plan.fifo").string();
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  std::string received;
+  std::thread reader([&] {
+    std::ifstream in(fifo, std::ios::binary);
+    received.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  });
+  write_plan_file(fifo, t);
+  reader.join();
+  EXPECT_EQ(received, text);
+  EXPECT_TRUE(fs::is_fifo(fifo));
+
+  EXPECT_NO_THROW(write_plan_file("/dev/null", t));
+  // Nothing else was left in the folder (no temporaries).
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(dir)) names.push_back(e.path().filename().string());
+  std::sort(names.begin(), names.end());
+  EXPECT_EQ(names, (std::vector<std::string>{"link.json", "plan.fifo", "target.json"}));
+  fs::remove_all(dir);
 }
 
 // interpolate_plan: positions and their rates come from the cubic through the two neighbouring

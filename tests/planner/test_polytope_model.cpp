@@ -3,11 +3,14 @@
 // the parameter files (round trip, missing, stale, malformed).
 #include <gtest/gtest.h>
 
+#include <sys/stat.h>
+
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <string>
+#include <thread>
 
 #include "terrastride/planner/polytope_fit.hpp"
 #include "terrastride/planner/polytope_model.hpp"
@@ -200,7 +203,9 @@ class PolytopeFile : public ::testing::Test {
 
 TEST_F(PolytopeFile, RoundTripKeepsEveryValue) {
   save_polytope_model(model_, robot_, path("p.yaml"));
-  EXPECT_FALSE(std::filesystem::exists(path("p.yaml.tmp")));
+  // No temporary is left beside it.
+  for (const auto& e : std::filesystem::directory_iterator(dir_))
+    EXPECT_EQ(e.path().filename(), "p.yaml");
   const RobotPolytopeModel back = load_polytope_model(robot_, path("p.yaml"));
   ASSERT_EQ(back.legs.size(), model_.legs.size());
   for (size_t i = 0; i < back.legs.size(); ++i) {
@@ -214,6 +219,36 @@ TEST_F(PolytopeFile, RoundTripKeepsEveryValue) {
     EXPECT_EQ(a.l_knots, b.l_knots);
     EXPECT_EQ(a.alpha_knots, b.alpha_knots);
     EXPECT_EQ(a.nodes, b.nodes);  // 17 significant digits: bit-exact
+  }
+}
+
+// save_polytope_model writes as every output of terrastride does (perception's atomic writer): a
+// symbolic link stays a link and its target gets the file, a FIFO is written through.
+TEST_F(PolytopeFile, WritesThroughLinksAndFifos) {
+  std::ofstream(path("target.yaml")) << "old";
+  std::filesystem::create_symlink("target.yaml", path("link.yaml"));
+  save_polytope_model(model_, robot_, path("link.yaml"));
+  EXPECT_TRUE(std::filesystem::is_symlink(path("link.yaml")));
+  EXPECT_EQ(load_polytope_model(robot_, path("target.yaml")).legs.size(), model_.legs.size());
+
+  ASSERT_EQ(::mkfifo(path("p.fifo").c_str(), 0600), 0);
+  std::string received;
+  std::thread reader([&] {
+    std::ifstream in(path("p.fifo"), std::ios::binary);
+    received.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  });
+  save_polytope_model(model_, robot_, path("p.fifo"));
+  reader.join();
+  EXPECT_TRUE(std::filesystem::is_fifo(path("p.fifo")));
+  std::ifstream in(path("target.yaml"));
+  const std::string saved((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(received, saved);
+  // A missing folder is an error naming the path.
+  try {
+    save_polytope_model(model_, robot_, path("missing/p.yaml"));
+    FAIL() << "expected an error";
+  } catch (const PolytopeFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("missing/p.yaml"), std::string::npos) << e.what();
   }
 }
 
