@@ -277,18 +277,9 @@ void run_check(const CheckCliOptions& o) {
       throw CommandError(std::string("--series: ") + e.what());
     }
   }
-  planner::Trajectory traj;
-  try {
-    traj = planner::read_plan_file(o.plan);
-  } catch (const planner::PlanFileError& e) {
-    throw CommandError(e.what());
-  }
-  robot::RobotModel model;
-  try {
-    model = robot::load_robot(robot::resolve_robot_path(traj.robot.empty() ? "hyq" : traj.robot));
-  } catch (const robot::RobotFileError& e) {
-    throw CommandError(o.plan + ": robot: '" + traj.robot + "' cannot be loaded: " + e.what());
-  }
+  PlanWithRobot loaded = read_plan_with_robot(o.plan);
+  const planner::Trajectory& traj = loaded.trajectory;
+  const robot::RobotModel& model = loaded.robot;
   const TerrainSource source = load_terrain_source(
       o.terrain, /*smooth_scene=*/false,
       "a file; pass a terrain directory from 'terrastride map', an OctoMap (.bt, .ot) or a scene "

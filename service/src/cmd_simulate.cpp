@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "simulation_run.hpp"
+#include "terrain_source.hpp"
 #include "terrastride/collision/simulation.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/point_cloud.hpp"
@@ -130,18 +131,9 @@ void run_simulate(const SimulateCliOptions& o) {
     if (v[4] < 0) throw CommandError("--push " + text + ": the duration must not be negative");
     sim.pushes.push_back({v[0], Eigen::Vector3d(v[1], v[2], v[3]), v[4]});
   }
-  planner::Trajectory traj;
-  try {
-    traj = planner::read_plan_file(o.plan);
-  } catch (const planner::PlanFileError& e) {
-    throw CommandError(e.what());
-  }
-  robot::RobotModel model;
-  try {
-    model = robot::load_robot(robot::resolve_robot_path(traj.robot.empty() ? "hyq" : traj.robot));
-  } catch (const robot::RobotFileError& e) {
-    throw CommandError(o.plan + ": robot: '" + traj.robot + "' cannot be loaded: " + e.what());
-  }
+  PlanWithRobot loaded = read_plan_with_robot(o.plan);
+  const planner::Trajectory& traj = loaded.trajectory;
+  const robot::RobotModel& model = loaded.robot;
   const auto names = terrain::scene_names();
   const bool is_scene = std::find(names.begin(), names.end(), o.terrain) != names.end();
   if (!is_scene && !std::filesystem::is_directory(o.terrain))

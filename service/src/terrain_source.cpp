@@ -8,6 +8,7 @@
 #include "terrastride/collision/octree_terrain.hpp"
 #include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/planner/plan_io.hpp"
 #include "terrastride/terrain/map_build.hpp"
 #include "terrastride/service/cli.hpp"
 
@@ -129,6 +130,22 @@ std::vector<std::string> add_post_hoc_checks(const robot::RobotModel& model,
     traj->extra["post_hoc"] = {{"error", e.what()}};
     return {std::string("the post-hoc checks could not read the plan: ") + e.what()};
   }
+}
+
+PlanWithRobot read_plan_with_robot(const std::string& path) {
+  PlanWithRobot out;
+  try {
+    out.trajectory = planner::read_plan_file(path);
+  } catch (const planner::PlanFileError& e) {
+    throw CommandError(e.what());
+  }
+  const std::string& name = out.trajectory.robot;
+  try {
+    out.robot = robot::load_robot(robot::resolve_robot_path(name.empty() ? "hyq" : name));
+  } catch (const robot::RobotFileError& e) {
+    throw CommandError(path + ": robot: '" + name + "' cannot be loaded: " + e.what());
+  }
+  return out;
 }
 
 }  // namespace terrastride::service

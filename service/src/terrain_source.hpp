@@ -63,4 +63,12 @@ std::vector<std::string> add_post_hoc_checks(const robot::RobotModel& model,
 // The voxel size of the post-hoc leg check on an exact scene (`terrastride check --resolution`).
 constexpr double kPostHocVoxel = 0.01;
 
+// A plan file and the robot it names (hyq when it names none), as `terrastride check PLAN` and
+// `terrastride simulate PLAN` read them. Throws CommandError naming the file.
+struct PlanWithRobot {
+  planner::Trajectory trajectory;
+  robot::RobotModel robot;
+};
+PlanWithRobot read_plan_with_robot(const std::string& path);
+
 }  // namespace terrastride::service
