@@ -42,6 +42,13 @@ std::map<std::string, double> CheckReport::keys() const {
       k["thigh_min_certain_distance_m"] = clearance->thigh_min_certain_distance;
     }
   }
+  if (trunk) {
+    k["trunk_min_distance_m"] = trunk->min_distance;
+    k["trunk_collisions"] = trunk->collisions;
+    k["trunk_collisions_certain"] = trunk->collisions_certain;
+    k["trunk_contacts_uncertain"] = trunk->contacts_uncertain;
+    k["trunk_min_certain_distance_m"] = trunk->min_certain_distance;
+  }
   if (footholds) {
     k["unsafe_footholds"] = footholds->unsafe;
     // An analytic scene's margin is 1e9 where no edge is in reach: there the figure means
@@ -102,6 +109,21 @@ std::vector<std::string> CheckReport::failures() const {
                   std::to_string(clearance->thigh_collisions_certain) + " (thigh), first at t = " +
                   fmt(clearance->first_certain_collision_t) + " s: " + legs + more);
   }
+  if (trunk && trunk->collisions_certain > 0) {
+    std::string how;
+    if (trunk->min_distance < -trunk->deep_contact_depth)
+      how = "; deepest " + fmt(-trunk->min_distance) + " m into occupied voxels (more than the " +
+            fmt(trunk->deep_contact_depth) + " m the map's voxels explain) at t = " +
+            fmt(trunk->time[trunk->min_sample]) + " s, base at (" + fmt(trunk->min_base.x()) +
+            ", " + fmt(trunk->min_base.y()) + ", " + fmt(trunk->min_base.z()) + ")";
+    else if (trunk->min_sample >= 0)
+      how = "; deepest at t = " + fmt(trunk->time[trunk->min_sample]) + " s, base at (" +
+            fmt(trunk->min_base.x()) + ", " + fmt(trunk->min_base.y()) + ", " +
+            fmt(trunk->min_base.z()) + ")";
+    out.push_back("trunk collides with the terrain at " +
+                  std::to_string(trunk->collisions_certain) + " samples, first at t = " +
+                  fmt(trunk->first_certain_collision_t) + " s" + how);
+  }
   if (footholds && footholds->unsafe > 0) {
     const Foothold& w = footholds->footholds[footholds->worst];
     out.push_back(
@@ -130,6 +152,9 @@ CheckReport run_checks(const robot::RobotModel& model, const planner::Trajectory
     }
     rep.clearance = check_leg_clearance(model, trajectory, rep.kinematics, *terrain.octree,
                                         options.clearance, certain.get());
+    if (model.trunk && options.clearance.check_trunk)
+      rep.trunk = check_trunk_clearance(model, trajectory, *terrain.octree, options.clearance,
+                                        certain.get());
   }
   if (terrain.field) rep.footholds = check_footholds(trajectory, *terrain.field, model.foot_radius);
   rep.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -147,6 +172,9 @@ void trajectory_extent(const robot::RobotModel& model, const planner::Trajectory
     const Eigen::Matrix3d rot = rotation_zyx(s.base.euler_zyx);
     for (const auto& leg : model.legs) add(s.base.position + rot * leg.haa_origin);
     for (const auto& f : s.feet) add(f.position);
+    if (model.trunk)
+      for (int c = 0; c < 8; ++c)
+        add(robot::trunk_corner_world<double>(*model.trunk, c, s.base.position, s.base.euler_zyx));
   }
   if (trajectory.samples.empty()) a = b = Eigen::Vector2d::Zero();
   // Knees lie between hips and feet in x and y only up to the leg's reach, so grow by the lower

@@ -1,12 +1,6 @@
 // Leg capsules (shin: knee to near the foot; thigh: HFE to knee) against the terrain's OctoMap,
 // with FCL's octree-shape distance and collision queries.
-#include <fcl/broadphase/broadphase_dynamic_AABB_tree.h>
-#include <fcl/broadphase/default_broadphase_callbacks.h>
-#include <fcl/geometry/octree/octree.h>
-#include <fcl/geometry/shape/box.h>
 #include <fcl/geometry/shape/capsule.h>
-#include <fcl/narrowphase/collision.h>
-#include <fcl/narrowphase/distance.h>
 
 #include <Eigen/Geometry>
 #include <algorithm>
@@ -21,11 +15,14 @@
 
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/collision/octree_terrain.hpp"
+#include "fcl_distance.hpp"
 
 namespace terrastride::collision {
 namespace {
 
 using fcl::Transform3d;
+using detail::signed_distance;
+using detail::SolidGeometry;
 
 // Pose of an FCL capsule (axis along its local z, centred at the origin) spanning a -> b.
 Transform3d capsule_pose(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
@@ -35,74 +32,6 @@ Transform3d capsule_pose(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
       Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), b - a).toRotationMatrix();
   return tf;
 }
-
-// Signed distance from a capsule to the occupied voxels: >= 0 clearance (capped at `cutoff`), < 0
-// in collision, where it is minus the deepest penetration into any single voxel. A voxel map holds
-// surface and solid cells, not a continuous solid, so that depth is only a rough measure of how far
-// in the capsule went; the sign is what the check relies on.
-double signed_distance(const fcl::OcTree<double>& tree, const fcl::Capsule<double>& capsule,
-                       const Transform3d& pose, double cutoff, double upper_bound) {
-  const Transform3d identity = Transform3d::Identity();
-  fcl::DistanceRequest<double> dreq;
-  fcl::DistanceResult<double> dres;
-  // Seeding the result bounds the search: FCL skips octree nodes whose box is farther than the
-  // best distance so far, so nothing beyond the bound is ever visited.
-  dres.min_distance = std::min(cutoff, upper_bound);
-  fcl::distance(&tree, identity, &capsule, pose, dreq, dres);
-  if (dres.min_distance > 1e-9) return std::min(dres.min_distance, cutoff);
-  fcl::CollisionRequest<double> creq(std::numeric_limits<int>::max() / 2, true);
-  fcl::CollisionResult<double> cres;
-  fcl::collide(&tree, identity, &capsule, pose, creq, cres);
-  if (!cres.isCollision()) return 0.0;  // touching within GJK's tolerance
-  double depth = 0.0;
-  for (size_t c = 0; c < cres.numContacts(); ++c)
-    depth = std::max(depth, cres.getContact(c).penetration_depth);
-  return -depth;
-}
-
-// The certain solid (boxes) in an FCL broadphase tree, queried with the same capsules.
-class SolidGeometry {
- public:
-  explicit SolidGeometry(const CertainSolid& solid) {
-    objects_.reserve(solid.boxes.size());
-    for (const auto& b : solid.boxes) {
-      auto box = std::make_shared<fcl::Box<double>>(b.hi - b.lo);
-      Transform3d tf = Transform3d::Identity();
-      tf.translation() = 0.5 * (b.lo + b.hi);
-      objects_.push_back(std::make_unique<fcl::CollisionObject<double>>(box, tf));
-    }
-    // One bulk (top-down) build of the AABB tree: much cheaper than inserting leaf by leaf.
-    std::vector<fcl::CollisionObject<double>*> all;
-    all.reserve(objects_.size());
-    for (const auto& o : objects_) all.push_back(o.get());
-    manager_.registerObjects(all);
-    manager_.setup();
-  }
-
-  // Signed distance as for the octree: >= 0 clearance (capped at cutoff), < 0 minus the deepest
-  // penetration into one box (a rough depth; the sign is the verdict).
-  double signed_distance(const std::shared_ptr<fcl::Capsule<double>>& capsule,
-                         const Transform3d& pose, double cutoff) {
-    if (objects_.empty()) return cutoff;
-    fcl::CollisionObject<double> obj(capsule, pose);
-    fcl::DefaultDistanceData<double> dd;
-    dd.result.min_distance = cutoff;
-    manager_.distance(&obj, &dd, fcl::DefaultDistanceFunction<double>);
-    if (dd.result.min_distance > 1e-9) return std::min(dd.result.min_distance, cutoff);
-    fcl::DefaultCollisionData<double> cd;
-    cd.request = fcl::CollisionRequest<double>(std::numeric_limits<int>::max() / 2, true);
-    manager_.collide(&obj, &cd, fcl::DefaultCollisionFunction<double>);
-    if (!cd.result.isCollision()) return 0.0;
-    double depth = 0.0;
-    for (size_t c = 0; c < cd.result.numContacts(); ++c)
-      depth = std::max(depth, cd.result.getContact(c).penetration_depth);
-    return -depth;
-  }
-
- private:
-  std::vector<std::unique_ptr<fcl::CollisionObject<double>>> objects_;
-  fcl::DynamicAABBTreeCollisionManager<double> manager_;
-};
 
 // One capsule's axis end points over the samples (valid = IK gave a configuration).
 struct CapsuleTrack {
@@ -264,6 +193,8 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
   rep.time = kin.time;
   rep.octree_resolution = octree.getResolution();
   rep.certain_resolved_below = options.exact_below;
+  const double deep_depth = detail::deep_contact_depth(options, octree);
+  rep.deep_contact_depth = deep_depth;
   auto exclusion_for = [&](const robot::LegModel& leg) {
     return options.shin_exclusion >= 0
                ? options.shin_exclusion
@@ -314,12 +245,7 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
         *out.min_sample = static_cast<int>(k);
       }
       *out.certain_min = std::min(*out.certain_min, r.certain_distance[k]);
-      ContactVerdict v = ContactVerdict::clear;
-      if (r.certain_distance[k] <= 0) {
-        v = ContactVerdict::certain;
-      } else if (d <= 0) {
-        v = ContactVerdict::uncertain;
-      }
+      const ContactVerdict v = detail::contact_verdict(d, r.certain_distance[k], deep_depth);
       if (d <= 0 || v == ContactVerdict::certain) {
         ++*out.collisions;
         if (series->first_collision_t < 0 || kin.time[k] < series->first_collision_t)

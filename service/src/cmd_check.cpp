@@ -115,6 +115,20 @@ json summary_json(const collision::CheckReport& rep, const std::string& plan,
                                           ? json(rep.clearance->first_certain_collision_t)
                                           : json()}};
   }
+  if (rep.trunk) {
+    const auto& tr = *rep.trunk;
+    out["trunk"] = {
+        {"min_distance_m", tr.min_distance},
+        {"min_t", tr.min_sample >= 0 ? json(tr.time[tr.min_sample]) : json()},
+        {"min_certain_distance_m", tr.min_certain_distance},
+        {"collisions", tr.collisions},
+        {"collisions_certain", tr.collisions_certain},
+        {"contacts_uncertain", tr.contacts_uncertain},
+        {"deep_contact_depth_m", tr.deep_contact_depth},
+        {"first_certain_collision_t",
+         tr.first_certain_collision_t >= 0 ? json(tr.first_certain_collision_t) : json()},
+        {"fcl_queries", tr.fcl_queries}};
+  }
   if (rep.footholds) {
     json unsafe = json::array();
     for (const auto& f : rep.footholds->footholds) {
@@ -250,6 +264,17 @@ void print_human(const collision::CheckReport& rep, const std::string& plan,
                 << std::setprecision(3) << "              certain solid: " << cl.certain_source
                 << "\n";
     }
+  }
+  if (rep.trunk) {
+    const auto& tr = *rep.trunk;
+    std::cout << "trunk box     distance to the occupied voxels: min " << tr.min_distance << " m";
+    if (tr.min_sample >= 0) std::cout << " at t = " << tr.time[tr.min_sample] << " s";
+    std::cout << "; certain collisions " << tr.collisions_certain
+              << " samples, within the map's uncertainty " << tr.contacts_uncertain
+              << " (contacts deeper than " << tr.deep_contact_depth
+              << " m into the voxels count as certain)\n";
+  } else if (rep.clearance) {
+    std::cout << "trunk box     not checked: the robot file has no trunk (trunk: none)\n";
   }
   if (rep.footholds)
     std::cout << "footholds     " << rep.footholds->footholds.size() << " stances, "

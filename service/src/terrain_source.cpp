@@ -123,6 +123,18 @@ std::vector<std::string> add_post_hoc_checks(const robot::RobotModel& model,
     const std::vector<std::string> failures = rep.failures();
     traj->extra["post_hoc"] = {
         {"terrain", view.description}, {"failures", failures}, {"wall_s", rep.wall_s}};
+    if (rep.trunk) {
+      const auto& tr = *rep.trunk;
+      traj->extra["post_hoc"]["trunk"] = {
+          {"min_distance_m", tr.min_distance},
+          {"min_t", tr.min_sample >= 0 ? nlohmann::json(tr.time[tr.min_sample]) : nlohmann::json()},
+          {"min_certain_distance_m", tr.min_certain_distance},
+          {"collisions_certain", tr.collisions_certain},
+          {"contacts_uncertain", tr.contacts_uncertain},
+          {"deep_contact_depth_m", tr.deep_contact_depth}};
+    } else if (view.octree) {
+      traj->extra["post_hoc"]["trunk"] = "not checked: the robot file has no trunk (trunk: none)";
+    }
     return failures;
   } catch (const collision::TrajectoryError& e) {
     // A plan the checks cannot interpret (e.g. non-finite numbers from a failed solve): the

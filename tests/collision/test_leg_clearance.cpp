@@ -466,3 +466,176 @@ TEST(LegClearanceVerdict, ExactSceneDecidesVoxelContactsAndNoSolidKeepsTheOldVer
     EXPECT_FALSE(old.passed());
   }
 }
+
+// ---- Depth into occupied voxels beyond what the cell explains (issue #15, item 4) ----
+
+namespace {
+
+// LF's thigh over a slab of solid under its knee, voxelised at 2 cm, the voxels' top `depth` above
+// the thigh's lowest point (the robot is raised so that point lies mid-voxel); no certain solid
+// anywhere (as at a thin wall, which the grid's erosion removes): only the voxels can tell.
+ClearanceReport thigh_into_a_slab(double depth) {
+  const auto model = hyq();
+  const auto& leg = model.legs[0];
+  const double voxel = 0.02;
+  const auto probe = standing(model, 0.002, 0.002);
+  const auto& s0 = probe.samples.front();
+  const Eigen::Vector3d q =
+      robot::inverse_kinematics(leg, s0.feet[0].position - s0.base.position).q;
+  const double low_rel = robot::knee_position(leg, q).z() - leg.thigh_radius;
+  const double low = std::floor((0.58 + low_rel) / voxel) * voxel + 0.5 * voxel;
+  const Eigen::Vector3d base(0, 0, low - low_rel);
+  const auto traj = standing(model, 0.01, 0.002, base);
+  const Eigen::Vector3d knee = base + robot::knee_position(leg, q);
+  const double voxel_top = low + depth;
+  const terrain::Box slab{Eigen::Vector3d(knee.x() - 0.06, knee.y() - 0.06, voxel_top - 0.1),
+                          Eigen::Vector3d(knee.x() + 0.06, knee.y() + 0.06, voxel_top - 0.005)};
+  Eigen::Vector2d lo, hi;
+  trajectory_extent(model, traj, 0.1, &lo, &hi);
+  VoxeliseOptions vo;
+  vo.resolution = voxel;
+  vo.ground_thickness = voxel;
+  const auto tree = voxelise_boxes(-1.0, {slab}, lo, hi, vo);
+  const CertainSolid none{{}, "test: no certain solid"};
+  return check_leg_clearance(model, traj, leg_kinematics(model, traj), *tree, {}, &none);
+}
+
+}  // namespace
+
+TEST(LegClearanceVerdict, ThighDeeperIntoVoxelsThanACellIsACertainCollision) {
+  // 5 cm into 2 cm voxels: more than any voxel's quantisation explains.
+  const ClearanceReport deep = thigh_into_a_slab(0.05);
+  EXPECT_NEAR(deep.deep_contact_depth, 0.02, 1e-12);
+  const auto& lf = deep.legs[0];
+  ASSERT_LT(lf.thigh_min, -0.02);
+  EXPECT_GT(lf.thigh_certain_samples, 0);
+  EXPECT_EQ(lf.thigh_certain_samples, lf.thigh_collision_samples);
+  for (auto v : lf.thigh_verdict) EXPECT_EQ(v, ContactVerdict::certain);
+  EXPECT_GT(deep.thigh_collisions_certain, 0);
+  CheckReport rep;
+  rep.clearance = deep;
+  ASSERT_FALSE(rep.passed());
+  EXPECT_NE(rep.failures().front().find("thigh"), std::string::npos);
+}
+
+TEST(LegClearanceVerdict, ThighTouchingVoxelsWithinACellStaysUncertain) {
+  // Less than one voxel in: the measured surface may lie anywhere in that voxel.
+  const ClearanceReport shallow = thigh_into_a_slab(0.01);
+  const auto& lf = shallow.legs[0];
+  ASSERT_LT(lf.thigh_min, 0.0);
+  ASSERT_GT(lf.thigh_min, -0.02);
+  EXPECT_EQ(lf.thigh_certain_samples, 0);
+  EXPECT_GT(lf.thigh_collision_samples, 0);
+  EXPECT_EQ(shallow.thigh_collisions_certain, 0);
+  EXPECT_GT(shallow.thigh_contacts_uncertain, 0);
+}
+
+// ---- The trunk box (robot file `trunk`) against the terrain ----
+
+namespace {
+
+CheckReport checks_on_scene(const robot::RobotModel& model, const planner::Trajectory& traj,
+                            const std::vector<terrain::Box>& boxes) {
+  Eigen::Vector2d lo, hi;
+  trajectory_extent(model, traj, 0.1, &lo, &hi);
+  const auto scene = std::make_shared<terrain::Scene>("boxes", "test boxes", 0.0, boxes, lo, hi);
+  VoxeliseOptions vo;
+  vo.resolution = kRes;
+  CheckTerrain terrain;
+  terrain.field = scene.get();
+  terrain.octree = voxelise_scene(*scene, lo, hi, vo);
+  CheckReport rep = run_checks(model, traj, terrain);
+  return rep;
+}
+
+}  // namespace
+
+TEST(TrunkClearance, StandingOnFlatGroundIsClearByTheTrunksHeight) {
+  const auto model = hyq();
+  ASSERT_TRUE(model.trunk);
+  const auto traj = standing(model, 0.01, 0.002);
+  Eigen::Vector2d lo, hi;
+  trajectory_extent(model, traj, 0.1, &lo, &hi);
+  // The swept extent holds the trunk's corners (it reaches past the feet in x).
+  EXPECT_LT(lo.x(), -0.5);
+  EXPECT_GT(hi.x(), 0.5);
+  VoxeliseOptions vo;
+  vo.resolution = kRes;
+  const auto tree = voxelise_boxes(0.0, {}, lo, hi, vo);
+  ClearanceOptions far;
+  far.distance_cutoff = 0.6;
+  const TrunkClearanceReport rep = check_trunk_clearance(model, traj, *tree, far);
+  // Bottom face at base z - 0.08 = 0.50 m over the ground's top at z = 0.
+  EXPECT_NEAR(rep.min_distance, 0.50, 1e-3);
+  EXPECT_EQ(rep.collisions, 0);
+  EXPECT_EQ(rep.collisions_certain, 0);
+  ASSERT_EQ(rep.distance.size(), traj.samples.size());
+  EXPECT_EQ(rep.exact.front(), 1);
+}
+
+TEST(TrunkClearance, ABlockBetweenTheLegsHitsTheTrunkOnly) {
+  const auto model = hyq();
+  const auto traj = standing(model, 0.04, 0.002);
+  // A block under the belly, between the legs: its top 3 cm above the trunk's bottom (0.50 m).
+  const CheckReport hit =
+      checks_on_scene(model, traj, {terrain::Box{Eigen::Vector3d(-0.15, -0.08, 0.0),
+                                                 Eigen::Vector3d(0.15, 0.08, 0.53)}});
+  ASSERT_TRUE(hit.trunk);
+  EXPECT_EQ(hit.trunk->collisions_certain, static_cast<int>(traj.samples.size()));
+  EXPECT_LT(hit.trunk->min_certain_distance, 0.0);
+  EXPECT_NEAR(hit.trunk->first_certain_collision_t, 0.0, 1e-12);
+  EXPECT_EQ(hit.clearance->shin_collisions + hit.clearance->thigh_collisions, 0);
+  EXPECT_EQ(hit.keys().at("trunk_collisions_certain"), traj.samples.size());
+  ASSERT_FALSE(hit.passed());
+  EXPECT_NE(hit.failures().front().find("trunk collides with the terrain"), std::string::npos)
+      << hit.failures().front();
+
+  // The same block 2 cm lower: clear by 2 cm, measured exactly.
+  const CheckReport clear =
+      checks_on_scene(model, traj, {terrain::Box{Eigen::Vector3d(-0.15, -0.08, 0.0),
+                                                 Eigen::Vector3d(0.15, 0.08, 0.48)}});
+  ASSERT_TRUE(clear.trunk);
+  EXPECT_EQ(clear.trunk->collisions, 0);
+  EXPECT_NEAR(clear.trunk->min_distance, 0.02, 2e-3);
+  EXPECT_TRUE(clear.passed()) << clear.failures().front();
+}
+
+TEST(TrunkClearance, TheBoxTurnsWithTheBase) {
+  const auto model = hyq();
+  // A post 45 cm ahead of the base: inside the trunk's front (x up to 0.5) facing +x, but beside
+  // it (y up to 0.24) with the base turned by 90 degrees.
+  const std::vector<terrain::Box> post{
+      terrain::Box{Eigen::Vector3d(0.42, -0.03, 0.0), Eigen::Vector3d(0.48, 0.03, 0.7)}};
+  const CheckReport ahead = checks_on_scene(model, standing(model, 0.01, 0.002), post);
+  ASSERT_TRUE(ahead.trunk);
+  EXPECT_GT(ahead.trunk->collisions_certain, 0);
+  const auto turned_traj =
+      standing(model, 0.01, 0.002, Eigen::Vector3d(0, 0, 0.58), Eigen::Vector3d(M_PI / 2, 0, 0));
+  const CheckReport turned = checks_on_scene(model, turned_traj, post);
+  ASSERT_TRUE(turned.trunk);
+  EXPECT_EQ(turned.trunk->collisions, 0);
+  EXPECT_TRUE(turned.passed()) << turned.failures().front();
+  // Resolved past the default 10 cm cutoff: the post's face is 0.42 - 0.2413 m from the side.
+  Eigen::Vector2d lo, hi;
+  trajectory_extent(model, turned_traj, 0.1, &lo, &hi);
+  VoxeliseOptions vo;
+  vo.resolution = kRes;
+  ClearanceOptions far;
+  far.distance_cutoff = 0.3;
+  const auto tree = voxelise_boxes(0.0, post, lo, hi, vo);
+  EXPECT_NEAR(check_trunk_clearance(model, turned_traj, *tree, far).min_distance, 0.42 - 0.2413,
+              2e-3);
+}
+
+TEST(TrunkClearance, ARobotWithoutATrunkIsNotChecked) {
+  auto model = hyq();
+  model.trunk.reset();
+  const auto traj = standing(model, 0.01, 0.002);
+  const CheckReport rep = checks_on_scene(model, traj, {});
+  EXPECT_FALSE(rep.trunk);
+  EXPECT_EQ(rep.keys().count("trunk_collisions_certain"), 0u);
+  Eigen::Vector2d lo, hi;
+  trajectory_extent(model, traj, 0.1, &lo, &hi);
+  const auto tree = voxelise_boxes(0.0, {}, lo, hi);
+  EXPECT_THROW(check_trunk_clearance(model, traj, *tree), std::invalid_argument);
+}

@@ -137,12 +137,20 @@ struct ClearanceOptions {
   // bounding boxes, so FCL tests far fewer voxels; see leg_clearance.cpp).
   double piece_length = 0.1;
   bool check_thigh = true;  // thighs (HFE to knee, thigh_radius) as well as shins
+  bool check_trunk = true;  // the robot file's trunk box (run_checks; robots with `trunk: none` skip)
+  // Depth into occupied voxels that the map's quantisation explains: a voxel is occupied when a
+  // measured point lies anywhere inside it, so a body may overlap it by up to one voxel edge
+  // without touching the surface. A contact deeper than this is a certain collision even where
+  // the certain solid has nothing (thin walls, which its one-cell erosion removes at coarse
+  // cells). Negative: the octree's voxel edge.
+  double deep_contact_depth = -1.0;
 };
 
-// The resolution-aware verdict of one capsule at one sample (see CertainSolid in
+// The resolution-aware verdict of one body (capsule, trunk box) at one sample (see CertainSolid in
 // octree_terrain.hpp): clear of every occupied voxel; touching occupied voxels but clear of the
-// solid the map is certain of (within the map's uncertainty: voxel quantisation, mixed pixels);
-// or reaching into that certain solid (a certain collision).
+// solid the map is certain of and no deeper into them than ClearanceOptions::deep_contact_depth
+// (within the map's uncertainty: voxel quantisation, mixed pixels); or reaching into that certain
+// solid or deeper into occupied voxels than the quantisation explains (a certain collision).
 enum class ContactVerdict : char { clear = 0, uncertain = 1, certain = 2 };
 
 struct LegClearanceSeries {
@@ -189,6 +197,7 @@ struct ClearanceReport {
   // minimum at or above it reads "at least this much".
   double certain_resolved_below = 0.0;
   double octree_resolution = 0.0;
+  double deep_contact_depth = 0.0;  // voxel contacts deeper than this are certain (m)
   long fcl_queries = 0;      // capsule distance queries run (the rest were bounded, see options)
   long certain_queries = 0;  // capsule queries against the certain solid
 };
@@ -203,6 +212,39 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model,
                                     const octomap::OcTree& octree,
                                     const ClearanceOptions& options = {},
                                     const CertainSolid* certain = nullptr);
+
+// ---- The trunk box against the terrain's OctoMap (FCL) ----
+
+// The robot file's trunk box (robot::TrunkBox, fixed to the base) at every sample, checked as the
+// leg capsules are: distance to the occupied voxels, to the certain solid, and the verdict.
+struct TrunkClearanceReport {
+  std::vector<double> time;
+  std::vector<double> distance;          // m; <= 0 in collision (-penetration depth)
+  std::vector<char> exact;               // 1: FCL result; 0: lower bound (> exact_below)
+  std::vector<double> certain_distance;  // m; <= 0: reaches into the certain solid
+  std::vector<ContactVerdict> verdict;
+  double min_distance = 0.0, min_certain_distance = 0.0;
+  int min_sample = -1;
+  int collisions = 0;          // samples touching an occupied voxel (certain + uncertain)
+  int collisions_certain = 0;  // certain collisions among them
+  int contacts_uncertain = 0;
+  double first_collision_t = -1.0, first_certain_collision_t = -1.0;  // < 0: none
+  // The worst sample (smallest voxel distance): base position there, for messages.
+  Eigen::Vector3d min_base = Eigen::Vector3d::Zero();
+  double deep_contact_depth = 0.0;  // voxel contacts deeper than this are certain (m)
+  std::string certain_source;
+  double certain_resolved_below = 0.0;
+  long fcl_queries = 0, certain_queries = 0;
+};
+
+// Throws std::invalid_argument when `model` has no trunk (robot file `trunk: none`). Uses
+// distance_cutoff, exact_below, bound_tolerance, bound_relative and deep_contact_depth of
+// `options` as the leg check does (temporal coherence bounds by the largest corner motion).
+TrunkClearanceReport check_trunk_clearance(const robot::RobotModel& model,
+                                           const planner::Trajectory& trajectory,
+                                           const octomap::OcTree& octree,
+                                           const ClearanceOptions& options = {},
+                                           const CertainSolid* certain = nullptr);
 
 // ---- Stance footholds against the foothold-safety margin ----
 
@@ -250,6 +292,7 @@ struct CheckReport {
   TrajectoryKinematics kinematics;
   TorqueReport torque;
   std::optional<ClearanceReport> clearance;
+  std::optional<TrunkClearanceReport> trunk;  // with an OctoMap and a robot that has a trunk
   std::optional<FootholdReport> footholds;
   double wall_s = 0.0;
 
@@ -257,7 +300,9 @@ struct CheckReport {
   // shin_collisions, unsafe_footholds, plus thigh_min_distance_m, thigh_collisions,
   // foothold_margin_min_m, ik_failures, joint_limit_violations; and the resolution-aware split of
   // the capsule contacts: shin_collisions_certain, shin_contacts_uncertain,
-  // shin_min_certain_distance_m (thigh_* likewise). shin_collisions and shin_min_distance_m keep
+  // shin_min_certain_distance_m (thigh_* likewise); trunk_min_distance_m, trunk_collisions,
+  // trunk_collisions_certain, trunk_contacts_uncertain, trunk_min_certain_distance_m when the
+  // trunk was checked. shin_collisions and shin_min_distance_m keep
   // their meaning (contact with / distance to the occupied voxels); failures() and the report's
   // problems count certain collisions only. Checks that did not run are absent.
   std::map<std::string, double> keys() const;
@@ -269,8 +314,9 @@ struct CheckReport {
 CheckReport run_checks(const robot::RobotModel& model, const planner::Trajectory& trajectory,
                        const CheckTerrain& terrain, const CheckOptions& options = {});
 
-// The xy rectangle a trajectory's legs sweep (hips, knees and feet of every sample), grown by
-// `margin`: the region an analytic scene must be voxelised over.
+// The xy rectangle a trajectory's legs and trunk sweep (hips, knees, feet and the trunk box's
+// corners at every sample), grown by `margin`: the region an analytic scene must be voxelised
+// over.
 void trajectory_extent(const robot::RobotModel& model, const planner::Trajectory& trajectory,
                        double margin, Eigen::Vector2d* lo, Eigen::Vector2d* hi);
 
