@@ -174,6 +174,9 @@ std::string flag_of(std::string field) {
 struct DemoPlan {
   planner::Trajectory trajectory;  // with the post-hoc checks' figures
   std::string problem;             // why it is not a usable plan; empty when it is
+  // The exit code `plan` gives that problem: 3 not optimal, kExitChecksFailed (4) optimal but
+  // failing a post-hoc check.
+  int exit_code = 0;
 };
 
 // 3. plan: the request `terrastride plan --terrain TERRAIN_DIR --constraints C --max-time T`
@@ -182,8 +185,8 @@ struct DemoPlan {
 // is not usable (not optimal, or failing a check) is returned with the reason, which names
 // `final_plan_path`; a plan not worth writing is a CommandError.
 DemoPlan plan_on_map(const robot::RobotModel& model, const DemoMap& map,
-                     const std::string& terrain_dir, const std::string& constraints,
-                     double max_time, const fs::path& plan_path,
+                     const std::string& terrain_dir, const std::string& final_terrain_dir,
+                     const std::string& constraints, double max_time, const fs::path& plan_path,
                      const std::string& final_plan_path) {
   const json fields = {
       {"terrain", terrain_dir}, {"constraints", constraints}, {"max_time", max_time}};
@@ -205,12 +208,14 @@ DemoPlan plan_on_map(const robot::RobotModel& model, const DemoMap& map,
   } catch (const std::invalid_argument& e) {
     throw CommandError(e.what());
   }
-  out.trajectory.extra["terrain"] = terrain_dir;
+  // The map is read from the demo's temporary folder, which is renamed into place at the end: the
+  // plan names the folder it will be found in (as `plan --terrain out/demo/terrain` would).
+  out.trajectory.extra["terrain"] = final_terrain_dir;
   // The checks `plan` runs on a map folder: footholds on the map, leg capsules on its OctoMap.
   collision::CheckTerrain view;
   view.field = map.map.get();
   view.octree = map.octree;
-  view.description = "map " + terrain_dir + " (scan OctoMap at " +
+  view.description = "map " + final_terrain_dir + " (scan OctoMap at " +
                      std::to_string(map.octree->getResolution()) + " m)";
   const std::vector<std::string> failures = add_post_hoc_checks(model, view, &out.trajectory);
 
@@ -226,11 +231,13 @@ DemoPlan plan_on_map(const robot::RobotModel& model, const DemoMap& map,
                              "duration)",
                          3);
     plan.problem += "; the plan was written to " + final_plan_path + " for inspection";
+    plan.exit_code = kExitNotOptimal;
   } else if (!failures.empty()) {
     plan.problem = "the solver's plan fails " + std::to_string(failures.size()) +
                    " post-hoc check" + (failures.size() > 1 ? "s" : "") + ": ";
     for (size_t i = 0; i < failures.size(); ++i) plan.problem += (i ? "; " : "") + failures[i];
     plan.problem += "; the plan was written to " + final_plan_path + " for inspection";
+    plan.exit_code = kExitChecksFailed;
   }
   perception::write_file_atomically(plan_path.string(),
                                     planner::plan_to_json(out.trajectory).dump(1) + "\n");
@@ -344,8 +351,9 @@ void run_demo(const DemoOptions& o) {
   DemoPlan plan;
   try {
     model = robot::load_robot(robot::resolve_robot_path("hyq"));
-    plan = plan_on_map(model, map, terrain_dir.string(), constraints, o.max_time,
-                       work / "plan.json", (final_dir / "plan.json").string());
+    plan = plan_on_map(model, map, terrain_dir.string(), (final_dir / "terrain").string(),
+                       constraints, o.max_time, work / "plan.json",
+                       (final_dir / "plan.json").string());
   } catch (const CommandError& e) {
     progress.fail();
     throw CommandError(std::string("stage 'plan' failed: ") + e.what(), e.exit_code());
@@ -398,6 +406,7 @@ void run_demo(const DemoOptions& o) {
   }
   // A "fail" is a post-hoc failure of the plan, as for `plan --simulate`.
   for (const auto& f : sim_failures) plan.problem += (plan.problem.empty() ? "" : "; ") + f;
+  if (!sim_failures.empty() && plan.exit_code == 0) plan.exit_code = kExitChecksFailed;
   const json& sim_json = traj.extra["post_hoc"]["simulation"];
   summary["stages"]["simulate"] = sim_json;
   if (sim_json.contains("verdict")) {
@@ -444,7 +453,10 @@ void run_demo(const DemoOptions& o) {
     print_text_summary(rep, traj, model.foot_radius, total, cpu, html);
   }
   if (!plan.problem.empty())
-    throw CommandError("the plan is not optimal (" + plan.problem + "); the report shows it", 3);
+    throw CommandError(plan.exit_code == kExitNotOptimal
+                           ? "the plan is not optimal (" + plan.problem + "); the report shows it"
+                           : plan.problem + "; the report shows it",
+                       plan.exit_code);
 }
 
 }  // namespace

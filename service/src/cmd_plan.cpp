@@ -52,11 +52,6 @@ struct PlanCliOptions {
   bool given(const std::string& flag) const { return flags.count(flag) > 0; }
 };
 
-// Exit codes (docs/design.md, "Command line"): 3 when the solver did not reach an optimal plan,
-// 4 when it did but a post-hoc check fails (torques, leg capsules, footholds, and with --simulate
-// a "fail" verdict of the simulated execution): never 0 for a plan that fails a check.
-constexpr int kExitChecksFailed = 4;
-
 std::vector<std::string> split_list(const std::string& s) {
   std::vector<std::string> out;
   std::stringstream ss(s);

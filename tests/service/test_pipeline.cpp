@@ -89,14 +89,18 @@ TEST_F(PipelineTest, TheDemoPlansAsPlanDoesOnTheDemosTerrainFolder) {
   // A generous solver time limit: the test machine may be busy with other builds.
   const auto demo =
       run_terrastride("demo --out " + shell_quote(out.string()) + " --max-time 60 --json");
-  ASSERT_TRUE(demo.code == 0 || demo.code == 3) << demo.code << "\n" << demo.err;
+  ASSERT_TRUE(demo.code == 0 || demo.code == 3 || demo.code == 4) << demo.code << "\n" << demo.err;
   // The demo simulates its plan and records the verdict as `plan --simulate` does.
   const auto plan = run_terrastride("plan --terrain " + shell_quote((out / "terrain").string()) +
                                     " --constraints all --max-time 60 --simulate --out " +
                                     at("plan.json"));
   ASSERT_TRUE(plan.code == 0 || plan.code == 3 || plan.code == 4) << plan.code << "\n" << plan.err;
   json by_demo = read_json(out / "plan.json"), by_plan = read_json(dir_ / "plan.json");
-  // The terrain is named as each was given it (the demo names its folder while it is written).
+  // The demo's plan names the terrain folder it is found in, as `plan --terrain DIR` does: never
+  // the temporary folder the demo wrote it in (issue #15).
+  EXPECT_EQ(by_demo["terrain"], (out / "terrain").string());
+  EXPECT_EQ(by_demo["post_hoc"]["terrain"], by_plan["post_hoc"]["terrain"]);
+  EXPECT_EQ(by_demo.dump().find(".tmp-"), std::string::npos);
   for (json* p : {&by_demo, &by_plan}) {
     p->erase("terrain");
     (*p)["post_hoc"].erase("terrain");
@@ -107,6 +111,21 @@ TEST_F(PipelineTest, TheDemoPlansAsPlanDoesOnTheDemosTerrainFolder) {
   }
   EXPECT_TRUE(by_demo["post_hoc"]["simulation"].contains("verdict"));
   EXPECT_EQ(without(by_demo), without(by_plan));
+}
+
+// A demo whose plan is optimal but fails a post-hoc check exits as `plan` does on it: 4, naming
+// the failed checks (it exited 3, "not optimal", before issue #15).
+TEST_F(PipelineTest, TheDemoExitsFourWhenItsPlanFailsAPostHocCheck) {
+  const fs::path out = dir_ / "demo_baseline";
+  const auto demo = run_terrastride("demo --out " + shell_quote(out.string()) +
+                                    " --constraints baseline --max-time 60");
+  ASSERT_EQ(demo.code, 4) << demo.all();
+  EXPECT_NE(demo.err.find("post-hoc check"), std::string::npos) << demo.err;
+  EXPECT_EQ(demo.err.find("not optimal"), std::string::npos) << demo.err;
+  const json plan = read_json(out / "plan.json");
+  EXPECT_EQ(plan["solver"]["status"], "optimal");
+  EXPECT_FALSE(plan["post_hoc"]["failures"].empty());
+  EXPECT_EQ(plan["terrain"], (out / "terrain").string());
 }
 
 }  // namespace

@@ -21,6 +21,13 @@ class CommandError : public std::runtime_error {
   int exit_code_;
 };
 
+// Exit codes (docs/design.md, "Command line"): `plan` (and `demo`, which runs one) exits 3 when the
+// solver did not reach an optimal plan, 4 when it did but a post-hoc check fails (torques, leg
+// capsules, trunk, footholds, and with --simulate a "fail" verdict of the simulated execution):
+// never 0 for a plan that fails a check.
+constexpr int kExitNotOptimal = 3;
+constexpr int kExitChecksFailed = 4;
+
 // Parses "x,y" or "x,y,z" (exactly `n` finite numbers); `what` names the option in errors.
 Eigen::VectorXd parse_numbers(const std::string& text, int n, const std::string& what);
 
