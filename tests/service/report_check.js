@@ -228,6 +228,71 @@ async function main() {
     if (c.is3d && (!c.canvas || c.glError)) result.failures.push(`3-D chart ${c.id} has no WebGL canvas`);
     if (c.width < 50 || c.height < 50) result.failures.push(`chart ${c.id} is not visible`);
   }
+  // The base path must show on the height map: along the path, the terrain colour under each
+  // point (the heatmap's colour scale at that cell's height) against the path's line colour or its
+  // edge, whichever stands out more; the worst WCAG contrast ratio over the path must reach 3:1
+  // (the guideline for graphical objects). A white path on the white top of a pallet has 1:1.
+  const contrastProbe = `(function () {
+      var el = document.getElementById('chart-heightmap');
+      if (!el || !el._fullData) return JSON.stringify(null);
+      function rgb(c) {
+        if (!c) return null;
+        c = String(c).trim();
+        var m = c.match(/^#([0-9a-f]{2})([0-9a-f]{2})([0-9a-f]{2})$/i);
+        if (m) return [parseInt(m[1], 16), parseInt(m[2], 16), parseInt(m[3], 16)];
+        m = c.match(/^rgba?\\(([^,]+),([^,]+),([^,)]+)/i);
+        if (m) return [parseFloat(m[1]), parseFloat(m[2]), parseFloat(m[3])];
+        return null;
+      }
+      function lum(c) {
+        var v = c.map(function (x) { x /= 255; return x <= 0.03928 ? x / 12.92 : Math.pow((x + 0.055) / 1.055, 2.4); });
+        return 0.2126 * v[0] + 0.7152 * v[1] + 0.0722 * v[2];
+      }
+      function contrast(a, b) { var la = lum(a), lb = lum(b); return (Math.max(la, lb) + 0.05) / (Math.min(la, lb) + 0.05); }
+      var heat = el._fullData[0];
+      var scale = heat.colorscale.map(function (s) { return [s[0], rgb(s[1])]; });
+      function colourAt(z) {
+        var f = (z - heat.zmin) / ((heat.zmax - heat.zmin) || 1);
+        f = Math.max(0, Math.min(1, f));
+        for (var i = 1; i < scale.length; ++i) {
+          if (f <= scale[i][0]) {
+            var t = (f - scale[i - 1][0]) / ((scale[i][0] - scale[i - 1][0]) || 1);
+            return scale[i - 1][1].map(function (a, k) { return a + t * (scale[i][1][k] - a); });
+          }
+        }
+        return scale[scale.length - 1][1];
+      }
+      function nearest(arr, v) {
+        var best = 0;
+        for (var i = 1; i < arr.length; ++i) if (Math.abs(arr[i] - v) < Math.abs(arr[best] - v)) best = i;
+        return best;
+      }
+      var paths = [];
+      el._fullData.forEach(function (t) {
+        if (!/ base path$/.test(t.name || '')) return;
+        var edge = el._fullData.filter(function (e) { return e.name === t.name + ' edge'; })[0];
+        var colours = [rgb(t.line.color)].concat(edge ? [rgb(edge.line.color)] : []);
+        var worst = Infinity, at = null;
+        for (var k = 0; k < t.x.length; ++k) {
+          var z = heat.z[nearest(heat.y, t.y[k])][nearest(heat.x, t.x[k])];
+          if (z === null || z === undefined) continue;
+          var ground = colourAt(z);
+          var c = Math.max.apply(null, colours.map(function (col) { return contrast(col, ground); }));
+          if (c < worst) { worst = c; at = [t.x[k], t.y[k], z]; }
+        }
+        paths.push({ name: t.name, line: t.line.color, edge: edge ? edge.line.color : null,
+                     min_contrast: worst, at: at });
+      });
+      return JSON.stringify(paths);
+    })()`;
+  const basePaths = JSON.parse((await send('Runtime.evaluate',
+    { expression: contrastProbe, returnByValue: true }, sessionId)).result.value);
+  result.base_paths = basePaths;
+  for (const bp of basePaths || []) {
+    if (!(bp.min_contrast >= 3))
+      result.failures.push(`${bp.name} does not show on the height map: contrast ${bp.min_contrast.toFixed(2)}:1 ` +
+                           `with the terrain at ${JSON.stringify(bp.at)} (line ${bp.line}, edge ${bp.edge})`);
+  }
   if (!selfCheck.ok) result.failures.push(`the page's self-check failed: ${JSON.stringify(selfCheck.errors)}`);
   result.flags = selfCheck.flags || [];
 

@@ -334,6 +334,93 @@ TEST_F(ReportTest, BadInputsNameTheProblemAndWriteNothing) {
   EXPECT_FALSE(fs::exists(html));
 }
 
+// ---- What the report says is true (issue #15, item 8) ----
+
+// A 45-degree slope: no cell of it is a safe foothold (slope 1 > the 0.6 limit). Its terrain rows
+// must say so with a status against a stated threshold, in `map`'s words and figure.
+TEST_F(ReportTest, TerrainRowsCarryStatusesAgainstStatedThresholds) {
+  {
+    std::ofstream xyz(dir_ / "slope.xyz");
+    for (int i = 0; i <= 100; ++i)
+      for (int j = 0; j <= 100; ++j) xyz << i * 0.01 << " " << j * 0.01 << " " << i * 0.01 << "\n";
+  }
+  const auto mapped = run("map " + shell_quote((dir_ / "slope.xyz").string()) + " --out " +
+                          shell_quote((dir_ / "slope").string()));
+  ASSERT_EQ(mapped.code, 0) << mapped.all();
+  const auto r = run("report --terrain " + shell_quote((dir_ / "slope").string()) + " --out " +
+                     shell_quote((dir_ / "slope.html").string()));
+  ASSERT_EQ(r.code, 0) << r.all();
+  const json rep = read_json(dir_ / "slope.json");
+  const json& primary = rep["summary"][rep["terrain"]["primary_layer"].get<int>()];
+  // `map` prints "safe for foot radius 0.02 m: 0.0 % of observed cells"; the report the same.
+  EXPECT_EQ(primary["label"], "safe for foot radius 0.02 m") << primary.dump();
+  EXPECT_EQ(primary["unit"], "% of observed cells");
+  EXPECT_DOUBLE_EQ(primary["value"].get<double>(), 0.0);
+  EXPECT_EQ(primary["status"], "problem") << primary.dump();
+  EXPECT_NE(primary["note"].get<std::string>().find("problem below 5 %"), std::string::npos);
+  bool flagged = false;
+  for (const json& p : rep["problems"]) flagged |= p["id"] == "terrain_unsafe";
+  EXPECT_TRUE(flagged) << rep["problems"].dump();
+  EXPECT_FALSE(rep["ok"].get<bool>());
+  // One definition: the map's own figure (terrain.json, SafetyLayer::safe_fraction()).
+  const json terrain = read_json(dir_ / "slope" / "terrain.json");
+  for (const json& layer : terrain["safety"]["radii"]) {
+    bool found = false;
+    for (const json& l : rep["terrain"]["layers"])
+      if (std::abs(l["radius_m"].get<double>() - layer["radius"].get<double>()) < 1e-9) {
+        EXPECT_NEAR(l["safe_fraction"].get<double>(), layer["safe_fraction"].get<double>(), 1e-4);
+        found = true;
+      }
+    EXPECT_TRUE(found) << layer.dump();
+  }
+  EXPECT_NE(mapped.out.find("safe for foot radius 0.02 m: 0.0 % of observed cells"),
+            std::string::npos)
+      << mapped.out;
+}
+
+// The shin chart's thresholds are the verdict's: on the demo's scan (pallet_10, 5 cm OctoMap) the
+// shins dip into the voxels within the map's uncertainty (the exact scene says they clear the
+// pallet); a sample deeper than one voxel is a certain collision in the chart and the summary.
+TEST_F(ReportTest, TheShinChartAndTheSummaryAgree) {
+  std::string clouds;
+  for (const char* f : {"pallet_10.pcd", "pallet_10.1.pcd", "pallet_10.2.pcd"})
+    clouds += " " + shell_quote(std::string(TERRASTRIDE_TEST_DATA_DIR) + "/scans/" + f);
+  ASSERT_EQ(run("map" + clouds + " --out " + shell_quote((dir_ / "terrain").string())).code, 0);
+  const auto planned = run("plan --terrain " + shell_quote((dir_ / "terrain").string()) +
+                           " --constraints all --max-time 60 --out " +
+                           shell_quote((dir_ / "plan.json").string()));
+  ASSERT_TRUE(planned.code == 0 || planned.code == 4) << planned.all();
+  ASSERT_EQ(run("report --terrain " + shell_quote((dir_ / "terrain").string()) + " --plan " +
+                shell_quote((dir_ / "plan.json").string()) + " --out " +
+                shell_quote((dir_ / "r.html").string()))
+                .code,
+            0);
+  const json rep = read_json(dir_ / "r.json");
+  const json& cl = rep["plans"][0]["clearance"];
+  ASSERT_TRUE(cl.contains("deep_contact_depth_m")) << "the chart needs the certain threshold";
+  const double deep = cl["deep_contact_depth_m"].get<double>();
+  EXPECT_NEAR(deep, cl["octree_resolution_m"].get<double>(), 1e-9);
+  double lowest = 1.0;
+  for (const json& leg : cl["legs"]) {
+    ASSERT_EQ(leg["shin_m"].size(), leg["shin_verdict"].size());
+    for (size_t k = 0; k < leg["shin_m"].size(); ++k) {
+      if (leg["shin_m"][k].is_null()) continue;
+      const double d = leg["shin_m"][k].get<double>();
+      lowest = std::min(lowest, d);
+      // Below the chart's red line is a certain collision, whatever the certain solid says.
+      if (d < -deep) EXPECT_EQ(leg["shin_verdict"][k], 2) << leg["name"] << " sample " << k;
+    }
+  }
+  const bool certain = cl["shin_collisions_certain"].get<int>() > 0;
+  for (const json& row : rep["plans"][0]["summary"])
+    if (row["label"] == "shin samples in certain collision")
+      EXPECT_EQ(row["status"], certain ? "problem" : "ok") << row.dump();
+  if (!certain) EXPECT_GE(lowest, -deep);
+  std::printf("demo scan: lowest shin distance to the voxels %.1f mm, certain below %.1f mm, "
+              "certain samples %d\n",
+              lowest * 1e3, -deep * 1e3, cl["shin_collisions_certain"].get<int>());
+}
+
 // ---- headless Chromium: the page as a person opens it ----
 
 std::string find_program(const char* name) {
@@ -410,6 +497,10 @@ TEST_F(ReportBrowserTest, ReportsOpenOfflineWithEveryChartDrawnAndProblemsShown)
   EXPECT_EQ(page_flags, json_flags);
   EXPECT_TRUE(page_flags.count("unsafe_foothold"));
   EXPECT_TRUE(page_flags.count("torque_limit"));
+  // The base path shows on the height map wherever it goes, the pallet's white top included
+  // (it was drawn white: 1.2:1 there).
+  ASSERT_EQ(bad_check["base_paths"].size(), 1u) << bad_check.dump(1);
+  EXPECT_GE(bad_check["base_paths"][0]["min_contrast"].get<double>(), 3.0);
 
   const json clean_check = browser_check(dir_ / "clean.html", dir_, &code);
   ASSERT_EQ(code, 0) << clean_check.dump(1);

@@ -297,9 +297,30 @@ json clearance_section(const PlanSections& s) {
       problems.push_back(problem("thigh_collision", name,
                                  "thigh capsule certainly collides with the terrain in " +
                                      std::to_string(cl.thigh_collisions_certain) + " samples"));
+    clearance["deep_contact_depth_m"] = num(cl.deep_contact_depth);
   } else {
     clearance = {{"absent", "leg capsules not checked: " + octree_note}};
     summary.push_back(row("minimum shin distance", nullptr, "m", "absent", octree_note));
+  }
+  if (checks.trunk) {
+    const auto& tr = *checks.trunk;
+    const bool bad = tr.collisions_certain > 0;
+    clearance["trunk"] = {{"min_m", num(tr.min_distance)},
+                          {"certain_min_m", num(tr.min_certain_distance)},
+                          {"collisions_certain", tr.collisions_certain},
+                          {"contacts_uncertain", tr.contacts_uncertain}};
+    summary.push_back(row("trunk samples in certain collision", tr.collisions_certain, "",
+                          bad ? "problem" : (tr.contacts_uncertain > 0 ? "note" : "ok"),
+                          "trunk box vs the terrain; minimum distance to the voxels " +
+                              fmt(tr.min_distance * 1000, 1) + " mm, " +
+                              std::to_string(tr.contacts_uncertain) +
+                              " samples touch voxels only within the map's uncertainty"));
+    if (bad)
+      problems.push_back(problem("trunk_collision", name,
+                                 "trunk certainly collides with the terrain in " +
+                                     std::to_string(tr.collisions_certain) +
+                                     " samples (first at t = " +
+                                     fmt(tr.first_certain_collision_t, 2) + " s)"));
   }
   return clearance;
 }

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -64,20 +65,48 @@ json plan_json(const PlanInput& input, const TerrainView& terrain, const robot::
   return out;
 }
 
-// The report's own summary table: the safe fraction of every layer, and the observed fraction.
-json overall_summary(const json& terrain, double resolution) {
+// The terrain rows' thresholds (stated in each row's note). The safe fraction is
+// SafetyLayer::safe_fraction(), `map`'s figure: safe cells over observed (measured or interpolated)
+// cells. For the robot's foot, below kSafeProblem there is next to no ground to stand on (a
+// problem: the plans' footholds, if any, must be the few safe cells); below kSafeNote a note.
+// The other radii get a note at most. An observed fraction below kObservedNote is a note: most
+// of the grid's box was not seen.
+constexpr double kSafeProblem = 0.05;
+constexpr double kSafeNote = 0.5;
+constexpr double kObservedNote = 0.1;
+
+// The report's own summary table: the safe fraction of every layer, and the observed fraction,
+// each with a status against the thresholds above; a terrain problem goes into `problems`.
+json overall_summary(const json& terrain, double resolution, json& problems) {
   json summary = json::array();
   for (const json& layer : terrain["layers"]) {
     const bool primary = &layer == &terrain["layers"][terrain["primary_layer"].get<int>()];
-    summary.push_back(
-        row("safe fraction, foot radius " + fmt(layer["radius_m"].get<double>() * 1000, 0) + " mm",
-            layer["safe_fraction"], "", "ok",
-            std::string("of observed cells") + (primary ? " (robot's foot)" : "")));
+    const double f = layer["safe_fraction"].get<double>();
+    const double radius = layer["radius_m"].get<double>();
+    std::string status = "ok";
+    if (f < kSafeNote) status = "note";
+    if (primary && f < kSafeProblem) status = "problem";
+    std::ostringstream radius_text;  // as `map` prints it (default stream format: 0.02)
+    radius_text << radius;
+    const std::string words = "safe for foot radius " + radius_text.str() + " m";
+    summary.push_back(row(words, num(100.0 * f, 1), "% of observed cells", status,
+                          std::string(primary ? "the robot's foot; " : "") + "ok at >= " +
+                              fmt(100 * kSafeNote, 0) + " %, a note below" +
+                              (primary ? ", a problem below " + fmt(100 * kSafeProblem, 0) + " %"
+                                       : std::string())));
+    if (status == "problem")
+      problems.push_back(problem("terrain_unsafe", "",
+                                 "only " + fmt(100.0 * f, 1) + " % of the observed cells are " +
+                                     words + " (the robot's foot; a problem below " +
+                                     fmt(100 * kSafeProblem, 0) + " %)"));
   }
-  summary.push_back(row("observed fraction", terrain["observed_fraction"], "", "ok",
+  const double observed = terrain["observed_fraction"].get<double>();
+  summary.push_back(row("observed fraction", terrain["observed_fraction"], "",
+                        observed < kObservedNote ? "note" : "ok",
                         std::to_string(terrain["observed_cells"].get<size_t>()) + " of " +
                             std::to_string(terrain["cells"].get<size_t>()) + " cells of " +
-                            fmt(resolution, 3) + " m"));
+                            fmt(resolution, 3) + " m; a note below " +
+                            fmt(100 * kObservedNote, 0) + " %"));
   return summary;
 }
 
@@ -123,7 +152,7 @@ json build_report(const TerrainView& terrain, const std::vector<PlanInput>& plan
   }
   report["plans"] = plan_list;
 
-  report["summary"] = overall_summary(report["terrain"], terrain.resolution);
+  report["summary"] = overall_summary(report["terrain"], terrain.resolution, problems);
   report["problems"] = problems;
   report["ok"] = problems.empty();
   report["report_build_s"] =

@@ -36,6 +36,9 @@ struct TerrainView {
   std::vector<uint8_t> observed;           // 1 = measured (always 1 for a scene)
   std::vector<double> radii;               // foot radii of the safety layers
   std::vector<std::vector<float>> margin;  // per radius: signed safety margin (m), k-indexed
+  // Per radius, a map's SafetyLayer::safe_fraction() (`map`'s figure: safe over observed cells);
+  // empty for a scene, whose fraction the report counts on its own grid the same way.
+  std::vector<double> safe_fraction;
   // The terrain as the planner and the checks see it (heights and margins at any point); footholds
   // and profiles are queried here rather than on the coarser display grid.
   std::shared_ptr<const terrain::HeightField> field;

@@ -35,7 +35,11 @@ void fill_from_map(TerrainView& view, std::shared_ptr<const terrain::TerrainMap>
     if (grid.observed[k]) view.height[k] = grid.elevation[k];
   view.radii = radii;
   view.margin.clear();
-  for (double r : radii) view.margin.push_back(map->layer(r).margin);
+  view.safe_fraction.clear();
+  for (double r : radii) {
+    view.margin.push_back(map->layer(r).margin);
+    view.safe_fraction.push_back(map->layer(r).safe_fraction());
+  }
   view.field = map;
 }
 

@@ -66,9 +66,13 @@ json terrain_section(const TerrainView& t, const ReportOptions& options, double 
     size_t safe = 0;
     for (size_t k = 0; k < t.height.size(); ++k)
       if (t.observed[k] && std::isfinite(t.margin[r][k]) && t.margin[r][k] >= 0.0) ++safe;
+    // One definition of the safe fraction: a map's own (SafetyLayer::safe_fraction(), as `map`
+    // prints it); a scene's counted here the same way, safe over observed cells.
+    const double fraction = r < t.safe_fraction.size() ? t.safe_fraction[r]
+                                                       : (observed ? double(safe) / observed : 0.0);
     layers.push_back({{"radius_m", num(t.radii[r], 4)},
                       {"safe_cells", safe},
-                      {"safe_fraction", num(observed ? double(safe) / observed : 0.0, 4)},
+                      {"safe_fraction", num(fraction, 4)},
                       {"margin", std::move(margins[r])}});
   }
   const int primary = t.radii.empty() ? -1 : closest_radius(t.radii, foot_radius);
