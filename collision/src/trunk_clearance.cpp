@@ -2,6 +2,7 @@
 // certain solid, with FCL, sample by sample along the plan.
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -53,7 +54,8 @@ TrunkClearanceReport check_trunk_clearance(const robot::RobotModel& model,
   // corner; from an exact distance d, d +- that motion bounds the distance now.
   bool have = false;
   double d_last = 0.0;
-  std::array<Eigen::Vector3d, 8> corners_last{};
+  std::array<Eigen::Vector3d, 8> corners_last;
+  corners_last.fill(Eigen::Vector3d::Zero());  // read only once `have` is set
   for (size_t k = 0; k < n; ++k) {
     const auto& base = traj.samples[k].base;
     rep.time[k] = traj.samples[k].t;

@@ -336,7 +336,8 @@ TEST_F(ReportTest, BadInputsNameTheProblemAndWriteNothing) {
 
 // ---- What the report says is true (issue #15, item 8) ----
 
-// A 45-degree slope: no cell of it is a safe foothold (slope 1 > the 0.6 limit). Its terrain rows
+// A 45-degree slope: next to no cell of it is a safe foothold (slope 1 > the 0.6 limit; 1.9 % at
+// its rim for a 2 cm foot). Its terrain rows
 // must say so with a status against a stated threshold, in `map`'s words and figure.
 TEST_F(ReportTest, TerrainRowsCarryStatusesAgainstStatedThresholds) {
   {
@@ -352,10 +353,11 @@ TEST_F(ReportTest, TerrainRowsCarryStatusesAgainstStatedThresholds) {
   ASSERT_EQ(r.code, 0) << r.all();
   const json rep = read_json(dir_ / "slope.json");
   const json& primary = rep["summary"][rep["terrain"]["primary_layer"].get<int>()];
-  // `map` prints "safe for foot radius 0.02 m: 0.0 % of observed cells"; the report the same.
+  // `map` prints "safe for foot radius 0.02 m: 1.9 % of observed cells"; the report the same.
   EXPECT_EQ(primary["label"], "safe for foot radius 0.02 m") << primary.dump();
   EXPECT_EQ(primary["unit"], "% of observed cells");
-  EXPECT_DOUBLE_EQ(primary["value"].get<double>(), 0.0);
+  const double percent = primary["value"].get<double>();
+  EXPECT_LT(percent, 5.0);  // a few cells at the slope's rim
   EXPECT_EQ(primary["status"], "problem") << primary.dump();
   EXPECT_NE(primary["note"].get<std::string>().find("problem below 5 %"), std::string::npos);
   bool flagged = false;
@@ -373,9 +375,10 @@ TEST_F(ReportTest, TerrainRowsCarryStatusesAgainstStatedThresholds) {
       }
     EXPECT_TRUE(found) << layer.dump();
   }
-  EXPECT_NE(mapped.out.find("safe for foot radius 0.02 m: 0.0 % of observed cells"),
-            std::string::npos)
-      << mapped.out;
+  char words[96];
+  std::snprintf(words, sizeof words, "safe for foot radius 0.02 m: %.1f %% of observed cells",
+                percent);
+  EXPECT_NE(mapped.out.find(words), std::string::npos) << words << "\n" << mapped.out;
 }
 
 // The shin chart's thresholds are the verdict's: on the demo's scan (pallet_10, 5 cm OctoMap) the
@@ -408,14 +411,20 @@ TEST_F(ReportTest, TheShinChartAndTheSummaryAgree) {
       const double d = leg["shin_m"][k].get<double>();
       lowest = std::min(lowest, d);
       // Below the chart's red line is a certain collision, whatever the certain solid says.
-      if (d < -deep) EXPECT_EQ(leg["shin_verdict"][k], 2) << leg["name"] << " sample " << k;
+      if (d < -deep) {
+        EXPECT_EQ(leg["shin_verdict"][k], 2) << leg["name"] << " sample " << k;
+      }
     }
   }
   const bool certain = cl["shin_collisions_certain"].get<int>() > 0;
-  for (const json& row : rep["plans"][0]["summary"])
-    if (row["label"] == "shin samples in certain collision")
+  for (const json& row : rep["plans"][0]["summary"]) {
+    if (row["label"] == "shin samples in certain collision") {
       EXPECT_EQ(row["status"], certain ? "problem" : "ok") << row.dump();
-  if (!certain) EXPECT_GE(lowest, -deep);
+    }
+  }
+  if (!certain) {
+    EXPECT_GE(lowest, -deep);
+  }
   std::printf("demo scan: lowest shin distance to the voxels %.1f mm, certain below %.1f mm, "
               "certain samples %d\n",
               lowest * 1e3, -deep * 1e3, cl["shin_collisions_certain"].get<int>());
