@@ -64,7 +64,9 @@ std::string error_of(const json& j) {
 
 TEST(PlanIo, RoundTripKeepsEverything) {
   const Trajectory t = two_sample_plan();
-  const auto path = (std::filesystem::temp_directory_path() / "terrastride_plan_io.json").string();
+  const auto path = (std::filesystem::temp_directory_path() /
+                     ("terrastride_plan_io_" + std::to_string(::getpid()) + ".json"))
+                        .string();
   write_plan_file(path, t);
   const Trajectory r = read_plan_file(path);
   EXPECT_EQ(r.robot, "hyq");
@@ -107,7 +109,9 @@ TEST(PlanIo, MalformedPlansNameTheField) {
   EXPECT_NE(error_of(j).find("samples: must not be empty"), std::string::npos);
   EXPECT_NE(error_of(json::array()).find("must be a JSON object"), std::string::npos);
   EXPECT_THROW(read_plan_file("/nonexistent/plan.json"), PlanFileError);
-  const auto bad = (std::filesystem::temp_directory_path() / "terrastride_bad_plan.json").string();
+  const auto bad = (std::filesystem::temp_directory_path() /
+                    ("terrastride_bad_plan_" + std::to_string(::getpid()) + ".json"))
+                       .string();
   std::ofstream(bad) << "{ not json";
   try {
     read_plan_file(bad);
