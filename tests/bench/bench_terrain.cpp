@@ -94,7 +94,12 @@ std::vector<std::string> million_point_scan(const std::filesystem::path& dir) {
 
 void BM_MapCommand1M(benchmark::State& state) {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / ("bench_terrain_" + std::to_string(getpid()));
+  // BENCH_TERRAIN_KEEP_DIR=D: write the scan and the map into D and keep them (to profile or
+  // compare the map command by hand on the very same input).
+  const char* keep = std::getenv("BENCH_TERRAIN_KEEP_DIR");
+  const fs::path dir =
+      keep ? fs::path(keep)
+           : fs::temp_directory_path() / ("bench_terrain_" + std::to_string(getpid()));
   fs::create_directories(dir);
   const auto files = million_point_scan(dir);
   std::string cmd = std::string(TERRASTRIDE_BINARY) + " map";
@@ -114,7 +119,7 @@ void BM_MapCommand1M(benchmark::State& state) {
   const char* label[] = {"--outlier-k 0", "defaults (outlier removal by 1 cm cell)",
                          "--outlier-voxel 0 (outlier removal per point)"};
   state.SetLabel(label[state.range(0)]);
-  fs::remove_all(dir);
+  if (!keep) fs::remove_all(dir);
 }
 BENCHMARK(BM_MapCommand1M)
     ->Arg(0)
