@@ -207,36 +207,46 @@ bool octree_cells(const pcl::PointCloud<pcl::PointXYZ>& cloud, double resolution
     }
   }
   // Depth-first leaf order: child index (x bit, y bit, z bit) from the top level down, i.e. the
-  // Morton code with x most significant.
-  std::vector<uint64_t> code(n);
+  // Morton code with x most significant (keys are below 2^depth <= 2^21).
+  const auto spread = [](uint64_t v) {  // bit b of v to bit 3b
+    v &= 0x1fffff;
+    v = (v | v << 32) & 0x1f00000000ffffULL;
+    v = (v | v << 16) & 0x1f0000ff0000ffULL;
+    v = (v | v << 8) & 0x100f00f00f00f00fULL;
+    v = (v | v << 4) & 0x10c30c30c30c30c3ULL;
+    v = (v | v << 2) & 0x1249249249249249ULL;
+    return v;
+  };
+  std::vector<uint64_t> code(n), code_scratch(n);
   for (size_t i = 0; i < n; ++i) {
-    uint64_t c = 0;
-    const uint64_t k[3] = {static_cast<uint64_t>(key[3 * i] + added_below[0]),
-                           static_cast<uint64_t>(key[3 * i + 1] + added_below[1]),
-                           static_cast<uint64_t>(key[3 * i + 2] + added_below[2])};
-    for (int b = static_cast<int>(depth) - 1; b >= 0; --b) {
-      c = (c << 3) | (((k[0] >> b) & 1) << 2) | (((k[1] >> b) & 1) << 1) | ((k[2] >> b) & 1);
-    }
-    code[i] = c;
+    code[i] = spread(static_cast<uint64_t>(key[3 * i] + added_below[0])) << 2 |
+              spread(static_cast<uint64_t>(key[3 * i + 1] + added_below[1])) << 1 |
+              spread(static_cast<uint64_t>(key[3 * i + 2] + added_below[2]));
   }
   std::vector<int64_t>().swap(key);
-  // Stable LSD radix sort of the indices by code (11-bit digits, only those the depth uses), so
-  // each cell's indices stay ascending as the tree's index vectors hold them.
+  // Stable LSD radix sort of (code, index) by code, 11-bit digits, only those the depth uses: each
+  // cell's indices stay ascending, as the tree's index vectors hold them.
   std::vector<uint32_t> order(n), scratch(n);
   for (size_t i = 0; i < n; ++i) order[i] = static_cast<uint32_t>(i);
   constexpr unsigned kDigit = 11;
+  constexpr uint64_t kMask = (1u << kDigit) - 1;
+  std::vector<size_t> count(kMask + 2);
   for (unsigned shift = 0; shift < 3 * depth; shift += kDigit) {
-    std::vector<size_t> count((1u << kDigit) + 1, 0);
-    for (size_t i = 0; i < n; ++i) ++count[((code[order[i]] >> shift) & ((1u << kDigit) - 1)) + 1];
+    std::fill(count.begin(), count.end(), 0);
+    for (size_t i = 0; i < n; ++i) ++count[((code[i] >> shift) & kMask) + 1];
+    if (count[((code[0] >> shift) & kMask) + 1] == n) continue;  // one digit value: no move
     for (size_t d = 1; d < count.size(); ++d) count[d] += count[d - 1];
-    for (size_t i = 0; i < n; ++i)
-      scratch[count[(code[order[i]] >> shift) & ((1u << kDigit) - 1)]++] = order[i];
+    for (size_t i = 0; i < n; ++i) {
+      const size_t to = count[(code[i] >> shift) & kMask]++;
+      code_scratch[to] = code[i];
+      scratch[to] = order[i];
+    }
+    code.swap(code_scratch);
     order.swap(scratch);
   }
   cells->starts.clear();
   for (size_t i = 0; i < n; ++i)
-    if (i == 0 || code[order[i]] != code[order[i - 1]])
-      cells->starts.push_back(static_cast<uint32_t>(i));
+    if (i == 0 || code[i] != code[i - 1]) cells->starts.push_back(static_cast<uint32_t>(i));
   cells->starts.push_back(static_cast<uint32_t>(n));
   cells->order = std::move(order);
   return true;
