@@ -125,133 +125,6 @@ pcl::Indices remove_statistical_outliers(const pcl::PointCloud<pcl::PointXYZ>& c
   return kept;
 }
 
-// The cells of a pcl::octree::OctreePointCloudPointVector<PointXYZ> of the given resolution after
-// addPointsFromInputCloud(), in the order its leaf_depth_begin() visits them, each with its point
-// indices in ascending order, computed without building the tree. The tree (one heap node and one
-// index vector per cell, freed again at the end) cost about as much as the outlier removal on the
-// cells; this is a sort of one 64-bit code per point. The octree's cell of a point depends on the
-// order the points arrive in (its bounding box starts at the first point and doubles towards each
-// point outside it), so this replays OctreePointCloud::adoptBoundingBoxToPoint, getKeyBitSize and
-// genOctreeKeyforPoint (PCL 1.13, octree_pointcloud.hpp) with the same double arithmetic: a key
-// computed before the box grew below a point keeps its value inside the moved subtree, i.e. grows
-// by the cells added below. tests/perception/test_filters_pcl.cpp compares it with the tree.
-// Returns false (the caller then builds the tree) when the tree would be deeper than 21 levels,
-// whose 3 x 21 key bits fill the 64-bit code.
-struct OctreeCells {
-  std::vector<uint32_t> order;   // point indices, cell after cell
-  std::vector<uint32_t> starts;  // cell c holds order[starts[c] .. starts[c + 1])
-};
-
-bool octree_cells(const pcl::PointCloud<pcl::PointXYZ>& cloud, double resolution,
-                  OctreeCells* cells) {
-  constexpr unsigned kMaxDepth = 21;
-  const size_t n = cloud.size();
-  if (n == 0 || n > std::numeric_limits<uint32_t>::max()) return false;
-  const double min_value = std::numeric_limits<float>::epsilon();  // PCL's minValue
-  double lo[3] = {0.0, 0.0, 0.0}, hi[3] = {resolution, resolution, resolution};
-  unsigned depth = 0;
-  bool defined = false;
-  int64_t added_below[3] = {0, 0, 0};  // cells the box has grown by below, per axis
-  // Per point and axis: its key when inserted minus the cells added below until then.
-  std::vector<int64_t> key(3 * n);
-  for (size_t i = 0; i < n; ++i) {
-    const float p[3] = {cloud[i].x, cloud[i].y, cloud[i].z};
-    for (;;) {  // adoptBoundingBoxToPoint
-      bool below[3], above[3];
-      for (int a = 0; a < 3; ++a) {
-        below[a] = p[a] < lo[a];
-        above[a] = p[a] >= hi[a];
-      }
-      const bool violated = below[0] || below[1] || below[2] || above[0] || above[1] || above[2];
-      if (defined && !violated) break;
-      if (defined) {
-        const double side = static_cast<double>(1 << depth) * resolution;
-        for (int a = 0; a < 3; ++a) {
-          if (!above[a]) {
-            lo[a] -= side;
-            added_below[a] += int64_t{1} << depth;
-          }
-        }
-        ++depth;
-        if (depth > kMaxDepth) return false;
-        const double grown = static_cast<double>(1 << depth) * resolution - min_value;
-        for (int a = 0; a < 3; ++a) hi[a] = lo[a] + grown;
-      } else {  // the first point, then getKeyBitSize on the empty tree
-        for (int a = 0; a < 3; ++a) {
-          lo[a] = p[a] - resolution / 2;
-          hi[a] = p[a] + resolution / 2;
-        }
-        uint32_t max_voxels = 2;
-        for (int a = 0; a < 3; ++a) {
-          max_voxels =
-              std::max(max_voxels,
-                       static_cast<uint32_t>(std::ceil((hi[a] - lo[a] - min_value) / resolution)));
-        }
-        depth = std::min<uint32_t>(
-            32, static_cast<uint32_t>(std::ceil(std::log2(max_voxels) - min_value)));
-        if (depth > kMaxDepth) return false;
-        const double side = static_cast<double>(1 << depth) * resolution;
-        for (int a = 0; a < 3; ++a) {
-          const double oversize = (side - (hi[a] - lo[a])) / 2.0;
-          if (oversize > min_value) {
-            lo[a] -= oversize;
-            hi[a] += oversize;
-          }
-        }
-        defined = true;
-      }
-    }
-    for (int a = 0; a < 3; ++a) {  // genOctreeKeyforPoint
-      key[3 * i + a] =
-          static_cast<int64_t>(static_cast<uint32_t>((p[a] - lo[a]) / resolution)) - added_below[a];
-    }
-  }
-  // Depth-first leaf order: child index (x bit, y bit, z bit) from the top level down, i.e. the
-  // Morton code with x most significant (keys are below 2^depth <= 2^21).
-  const auto spread = [](uint64_t v) {  // bit b of v to bit 3b
-    v &= 0x1fffff;
-    v = (v | v << 32) & 0x1f00000000ffffULL;
-    v = (v | v << 16) & 0x1f0000ff0000ffULL;
-    v = (v | v << 8) & 0x100f00f00f00f00fULL;
-    v = (v | v << 4) & 0x10c30c30c30c30c3ULL;
-    v = (v | v << 2) & 0x1249249249249249ULL;
-    return v;
-  };
-  std::vector<uint64_t> code(n), code_scratch(n);
-  for (size_t i = 0; i < n; ++i) {
-    code[i] = spread(static_cast<uint64_t>(key[3 * i] + added_below[0])) << 2 |
-              spread(static_cast<uint64_t>(key[3 * i + 1] + added_below[1])) << 1 |
-              spread(static_cast<uint64_t>(key[3 * i + 2] + added_below[2]));
-  }
-  std::vector<int64_t>().swap(key);
-  // Stable LSD radix sort of (code, index) by code, 11-bit digits, only those the depth uses: each
-  // cell's indices stay ascending, as the tree's index vectors hold them.
-  std::vector<uint32_t> order(n), scratch(n);
-  for (size_t i = 0; i < n; ++i) order[i] = static_cast<uint32_t>(i);
-  constexpr unsigned kDigit = 11;
-  constexpr uint64_t kMask = (1u << kDigit) - 1;
-  std::vector<size_t> count(kMask + 2);
-  for (unsigned shift = 0; shift < 3 * depth; shift += kDigit) {
-    std::fill(count.begin(), count.end(), 0);
-    for (size_t i = 0; i < n; ++i) ++count[((code[i] >> shift) & kMask) + 1];
-    if (count[((code[0] >> shift) & kMask) + 1] == n) continue;  // one digit value: no move
-    for (size_t d = 1; d < count.size(); ++d) count[d] += count[d - 1];
-    for (size_t i = 0; i < n; ++i) {
-      const size_t to = count[(code[i] >> shift) & kMask]++;
-      code_scratch[to] = code[i];
-      scratch[to] = order[i];
-    }
-    code.swap(code_scratch);
-    order.swap(scratch);
-  }
-  cells->starts.clear();
-  for (size_t i = 0; i < n; ++i)
-    if (i == 0 || code[i] != code[i - 1]) cells->starts.push_back(static_cast<uint32_t>(i));
-  cells->starts.push_back(static_cast<uint32_t>(n));
-  cells->order = std::move(order);
-  return true;
-}
-
 }  // namespace
 
 void filter_with_pcl(const PointCloud& cloud, const CloudFilterOptions& options,
@@ -326,32 +199,21 @@ void filter_with_pcl(const PointCloud& cloud, const CloudFilterOptions& options,
       throw InputError(name + ": outlier voxel size " + std::to_string(options.outlier_voxel) +
                        " m is too small for the cloud's extent");
     }
-    OctreeCells cells;
-    if (!octree_cells(*current, options.outlier_voxel, &cells)) {
-      // Deeper than octree_cells handles: the tree itself.
-      pcl::octree::OctreePointCloudPointVector<pcl::PointXYZ> octree(options.outlier_voxel);
-      octree.setInputCloud(current);
-      octree.addPointsFromInputCloud();
-      cells.order.clear();
-      cells.starts.clear();
-      for (auto it = octree.leaf_depth_begin(); it != octree.leaf_depth_end(); ++it) {
-        const pcl::Indices& idx = it.getLeafContainer().getPointIndicesVector();
-        if (idx.empty()) continue;
-        cells.starts.push_back(static_cast<uint32_t>(cells.order.size()));
-        for (const auto i : idx) cells.order.push_back(static_cast<uint32_t>(i));
-      }
-      cells.starts.push_back(static_cast<uint32_t>(cells.order.size()));
-    }
-    const size_t cell_count = cells.starts.size() - 1;
+    pcl::octree::OctreePointCloudPointVector<pcl::PointXYZ> octree(options.outlier_voxel);
+    octree.setInputCloud(current);
+    octree.addPointsFromInputCloud();
     Cloud::Ptr centroids(new Cloud);
-    centroids->reserve(cell_count);
-    for (size_t c = 0; c < cell_count; ++c) {
+    std::vector<const pcl::Indices*> members;
+    centroids->reserve(octree.getLeafCount());
+    members.reserve(octree.getLeafCount());
+    for (auto it = octree.leaf_depth_begin(); it != octree.leaf_depth_end(); ++it) {
+      const pcl::Indices& idx = it.getLeafContainer().getPointIndicesVector();
+      if (idx.empty()) continue;
       Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-      for (uint32_t j = cells.starts[c]; j < cells.starts[c + 1]; ++j)
-        sum += (*current)[cells.order[j]].getVector3fMap().cast<double>();
-      const double count = static_cast<double>(cells.starts[c + 1] - cells.starts[c]);
-      const Eigen::Vector3f m = (sum / count).cast<float>();
-      centroids->push_back(pcl::PointXYZ(m.x(), m.y(), m.z()));
+      for (const auto i : idx) sum += (*current)[i].getVector3fMap().cast<double>();
+      const Eigen::Vector3f c = (sum / static_cast<double>(idx.size())).cast<float>();
+      centroids->push_back(pcl::PointXYZ(c.x(), c.y(), c.z()));
+      members.push_back(&idx);
     }
     // Cells holding under two points on average (a sparse cloud): judging cells would save little
     // and blur the neighbour distances, so the points are judged themselves below.
@@ -362,7 +224,7 @@ void filter_with_pcl(const PointCloud& cloud, const CloudFilterOptions& options,
           *centroids, options.outlier_neighbours, options.outlier_stddev);
       std::vector<uint8_t> keep(current->size(), 0);
       for (const auto c : kept_cells)
-        for (uint32_t j = cells.starts[c]; j < cells.starts[c + 1]; ++j) keep[cells.order[j]] = 1;
+        for (const auto i : *members[c]) keep[i] = 1;
       Cloud::Ptr next(new Cloud);
       next->reserve(current->size());
       for (size_t i = 0; i < current->size(); ++i)
