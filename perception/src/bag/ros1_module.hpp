@@ -3,8 +3,9 @@
 // class_loader, rospack and with it libpython), which every process would otherwise load and
 // relocate, for commands that never open a ROS 1 bag.
 //
-// Where the module is looked for, in order: $TERRASTRIDE_ROSBAG_MODULE; terrastride_rosbag.so
-// beside the running executable; the build tree's path, compiled in (the test executables).
+// Where the module is looked for (module_loader.hpp), in order: $TERRASTRIDE_ROSBAG_MODULE;
+// terrastride_rosbag.so beside the running executable; the build tree's path, compiled in (the
+// test executables).
 #pragma once
 
 #include <memory>
