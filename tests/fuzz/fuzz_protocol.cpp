@@ -42,6 +42,10 @@ void exercise_body(std::string_view body) {
       (void)p::read_floats(a, 2, false);
     } catch (const p::ProtocolError&) {
     }
+    try {
+      (void)p::read_bytes(a);
+    } catch (const p::ProtocolError&) {
+    }
   }
   // Re-encoding a decoded message must succeed and decode to the same header.
   const std::string frame = p::encode_frame(m);

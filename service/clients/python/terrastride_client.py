@@ -7,7 +7,12 @@
         print(c.call("map.query", points=[[1.0, 0.0]])["results"])
 
 Frames: u32 big-endian body length | u32 big-endian header length | JSON header | attachments.
-Attachments are float32 little-endian arrays described in header["attachments"].
+Attachments are float32 little-endian arrays or uint8 byte strings, described in
+header["attachments"]. A ROS 2 robot pushes what its lidar driver publishes, unconverted:
+
+    from rclpy.serialization import serialize_message
+    c.call("map.update", [Attachment.raw("pointcloud2", serialize_message(cloud_msg))],
+           pose=[x, y, z, qx, qy, qz, qw], frame=cloud_msg.header.frame_id)
 """
 
 import array
@@ -31,7 +36,10 @@ class ServiceError(Exception):
 
 
 class Attachment:
-    """A float32 array: `values` is a flat sequence, `shape` e.g. (N, 3)."""
+    """A float32 array: `values` is a flat sequence, `shape` e.g. (N, 3). Attachment.raw(name,
+    data) is a uint8 attachment: `values` is the bytes."""
+
+    dtype = "float32"
 
     def __init__(self, name, shape, values):
         self.name = name
@@ -51,7 +59,16 @@ class Attachment:
         cols = len(rows[0]) if rows else 3
         return cls(name, (len(rows), cols), itertools.chain.from_iterable(rows))
 
+    @classmethod
+    def raw(cls, name, data):
+        """A uint8 attachment of shape (len(data),), e.g. a serialised ROS message."""
+        att = cls.__new__(cls)
+        att.name, att.shape, att.values, att.dtype = name, (len(data),), bytes(data), "uint8"
+        return att
+
     def to_bytes(self):
+        if self.dtype == "uint8":
+            return self.values
         a = array.array("f", self.values)
         if sys.byteorder != "little":
             a.byteswap()
@@ -65,7 +82,7 @@ class Attachment:
 def encode_frame(header, attachments=()):
     header = dict(header)
     if attachments:
-        header["attachments"] = [{"name": a.name, "dtype": "float32", "shape": list(a.shape)}
+        header["attachments"] = [{"name": a.name, "dtype": a.dtype, "shape": list(a.shape)}
                                  for a in attachments]
     text = json.dumps(header, separators=(",", ":"), allow_nan=False).encode("utf-8")
     blobs = b"".join(a.to_bytes() for a in attachments)
@@ -83,9 +100,14 @@ def decode_body(body):
     rest = memoryview(body)[4 + hlen:]
     atts = []
     for d in header.get("attachments", []):
-        n = 4
+        dtype = d.get("dtype", "float32")
+        n = 1 if dtype == "uint8" else 4
         for s in d["shape"]:
             n *= s
+        if dtype == "uint8":
+            atts.append(Attachment.raw(d["name"], bytes(rest[:n])))
+            rest = rest[n:]
+            continue
         a = array.array("f")
         a.frombytes(bytes(rest[:n]))
         if sys.byteorder != "little":

@@ -31,6 +31,89 @@ def wait_idle(c):
     raise AssertionError("workers never became idle")
 
 
+def cdr_pointcloud2(points, frame, stamp=(1700000000, 5)):
+    """A sensor_msgs/PointCloud2 in CDR little endian (what rclpy's serialize_message gives):
+    one row, fields x y z float32, 12-byte points."""
+    out = bytearray(b"\x00\x01\x00\x00")
+
+    def align(n):
+        while (len(out) - 4) % n:
+            out.append(0)
+
+    def u32(v):
+        align(4)
+        out.extend(struct.pack("<I", v))
+
+    def string(s):
+        u32(len(s) + 1)
+        out.extend(s.encode() + b"\x00")
+
+    u32(stamp[0])
+    u32(stamp[1])
+    string(frame)
+    u32(1)
+    u32(len(points))
+    u32(3)
+    for k, name in enumerate("xyz"):
+        string(name)
+        u32(4 * k)
+        out.append(7)  # FLOAT32
+        u32(1)
+    out.append(0)  # is_bigendian
+    u32(12)
+    u32(12 * len(points))
+    u32(12 * len(points))
+    for p in points:
+        out.extend(struct.pack("<3f", *p))
+    out.append(1)  # is_dense
+    return bytes(out)
+
+
+def pointcloud2_updates(c):
+    """map.update with a serialised PointCloud2 and the sensor's pose (docs/protocol.md)."""
+    floor = [(0.01 * i - 0.5, 0.01 * j - 0.5, -0.5) for i in range(100) for j in range(100)]
+    floor[7] = (math.nan, math.nan, math.nan)  # an organised cloud's miss: dropped and counted
+    msg = cdr_pointcloud2(floor, "lidar")
+    up = c.call("map.update", [Attachment.raw("pointcloud2", msg)], mode="replace",
+                pose=[2.0, 1.0, 0.6, 0.0, 0.0, 0.0, 1.0], frame="lidar")
+    assert up["source"] == "pointcloud2", up
+    info = up["stats"]["pointcloud2"]
+    assert info["points"] == 9999 and info["non_finite"] == 1 and info["frame"] == "lidar", info
+    res = c.call("map.query", points=[[2.0, 1.0]])["results"][0]
+    assert abs(res["height"] - 0.1) < 1e-3 and res["observed"], res
+    # A message as a ROS 2 recorder stored it (the db3 fixture, written with
+    # @foxglove/rosmsg2-serialization's bytes): the same payload a driver publishes.
+    import os
+    import sqlite3
+    db3 = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "..", "tests",
+                       "fixtures", "bags", "scan.db3")
+    if os.path.exists(db3):
+        con = sqlite3.connect(f"file:{db3}?mode=ro", uri=True)
+        (data,) = con.execute("SELECT m.data FROM messages m JOIN topics t ON m.topic_id = t.id "
+                              "WHERE t.name = '/points' ORDER BY m.timestamp LIMIT 1").fetchone()
+        con.close()
+        up = c.call("map.update", [Attachment.raw("pointcloud2", data)], mode="replace",
+                    pose=[0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0], frame="lidar")
+        info = up["stats"]["pointcloud2"]
+        assert info["width"] * info["height"] == info["points"] + info["non_finite"], info
+        assert info["points"] > 100, info
+    # Bad payloads: bad_request naming the problem; the connection stays usable.
+    for att, fields, part in (
+            (Attachment.raw("pointcloud2", msg[:len(msg) // 2]), {}, "cut short"),
+            (Attachment.raw("pointcloud2", msg), {"pose": [0, 0, 0, 0, 0, 0, 3]}, "not a rotation"),
+            (Attachment.raw("pointcloud2", msg), {"frame": "camera"}, "'lidar'"),
+            (Attachment("pointcloud2", (3,), [1, 2, 3]), {}, "uint8")):
+        f = {"pose": [2.0, 1.0, 0.6, 0.0, 0.0, 0.0, 1.0]}
+        f.update(fields)
+        e = expect_error("bad_request", lambda: c.call("map.update", [att], **f))
+        assert part in e.message, (part, e.message)
+    e = expect_error("bad_request", lambda: c.call(
+        "map.update", [Attachment.raw("pointcloud2", msg)], pose=[0, 0, 1]))
+    assert "pose" in e.message, e.message
+    assert "uint8" in c.call("hello")["capabilities"]["attachment_dtypes"]
+    c.call("map.update", scene="pallet_10")
+
+
 def main(address):
     with Client.connect(address) as c:
         hello = c.call("hello")
@@ -85,6 +168,8 @@ def main(address):
         c.send_raw(struct.pack(">I", len(body)) + body)
         header, _ = c.receive()
         assert header["error"]["code"] == "bad_json" and header["id"] is None, header
+
+        pointcloud2_updates(c)
 
         # Plan and check: a real result or an honest "unavailable".
         for op, fields in (("plan", {"terrain": "flat", "goal": [0.3, 0.0, 0.0]}),

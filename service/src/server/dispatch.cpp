@@ -124,7 +124,7 @@ void Connection::dispatch(std::string_view body) {
                   {"ops", json::array()},
                   {"capabilities",
                    {{"max_frame_bytes", server.options.max_frame_bytes},
-                    {"attachment_dtypes", {"float32"}},
+                    {"attachment_dtypes", {"float32", "uint8"}},
                     {"pipelining", true},
                     {"deadlines", true},
                     {"cancel", true},

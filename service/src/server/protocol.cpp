@@ -11,6 +11,9 @@ namespace terrastride::service::protocol {
 
 using nlohmann::json;
 
+const char* dtype_name(Dtype dtype) { return dtype == Dtype::kUint8 ? "uint8" : "float32"; }
+std::size_t dtype_bytes(Dtype dtype) { return dtype == Dtype::kUint8 ? 1 : 4; }
+
 namespace {
 
 [[noreturn]] void fail(const char* code, const std::string& message) {
@@ -23,10 +26,10 @@ std::string shape_text(const std::vector<std::uint64_t>& shape) {
   return s + "]";
 }
 
-// Number of bytes for a float32 array of this shape; nullopt on overflow past `limit`.
-std::optional<std::uint64_t> byte_size(const std::vector<std::uint64_t>& shape,
+// Number of bytes for an array of this shape and type; nullopt on overflow past `limit`.
+std::optional<std::uint64_t> byte_size(const std::vector<std::uint64_t>& shape, Dtype dtype,
                                        std::uint64_t limit) {
-  std::uint64_t n = 4;
+  std::uint64_t n = dtype_bytes(dtype);
   for (std::uint64_t d : shape) {
     if (d != 0 && n > limit / d) return std::nullopt;
     n *= d;
@@ -140,11 +143,11 @@ std::string encode_frame(const Message& message, std::string_view raw_result) {
   if (!message.attachments.empty()) {
     json list = json::array();
     for (const auto& a : message.attachments) {
-      const auto n = byte_size(a.shape, std::numeric_limits<std::uint32_t>::max());
+      const auto n = byte_size(a.shape, a.dtype, std::numeric_limits<std::uint32_t>::max());
       if (!n || *n != a.data.size())
         fail(code::kBadFrame, "attachment '" + a.name + "' has shape " + shape_text(a.shape) +
                                   " but " + std::to_string(a.data.size()) + " bytes");
-      list.push_back({{"name", a.name}, {"dtype", "float32"}, {"shape", a.shape}});
+      list.push_back({{"name", a.name}, {"dtype", dtype_name(a.dtype)}, {"shape", a.shape}});
     }
     header["attachments"] = std::move(list);
   } else {
@@ -212,8 +215,14 @@ Message decode_body(std::string_view body) {
         fail(code::kBadFrame, where + ".name must be a string");
       a.name = name->get<std::string>();
       const auto dtype = d.find("dtype");
-      if (dtype != d.end() && (!dtype->is_string() || dtype->get<std::string>() != "float32"))
-        fail(code::kBadFrame, where + ".dtype: only \"float32\" is supported");
+      if (dtype != d.end()) {
+        if (dtype->is_string() && dtype->get_ref<const std::string&>() == "float32")
+          a.dtype = Dtype::kFloat32;
+        else if (dtype->is_string() && dtype->get_ref<const std::string&>() == "uint8")
+          a.dtype = Dtype::kUint8;
+        else
+          fail(code::kBadFrame, where + ".dtype: only \"float32\" and \"uint8\" are supported");
+      }
       const auto shape = d.find("shape");
       if (shape == d.end() || !shape->is_array() || shape->empty() || shape->size() > 4)
         fail(code::kBadFrame, where + ".shape must be an array of 1 to 4 sizes");
@@ -222,7 +231,7 @@ Message decode_body(std::string_view body) {
           fail(code::kBadFrame, where + ".shape must hold integers >= 0");
         a.shape.push_back(s.get<std::uint64_t>());
       }
-      const auto n = byte_size(a.shape, rest.size());
+      const auto n = byte_size(a.shape, a.dtype, rest.size());
       if (!n)
         fail(code::kBadFrame, where + " ('" + a.name + "') with shape " + shape_text(a.shape) +
                                   " needs more bytes than the frame holds (" +
@@ -450,7 +459,26 @@ Attachment make_points_attachment(const std::string& name,
   return make_float_attachment(name, {points.size(), 3}, v);
 }
 
+Attachment make_bytes_attachment(const std::string& name, std::string bytes) {
+  Attachment a;
+  a.name = name;
+  a.shape = {bytes.size()};
+  a.data = std::move(bytes);
+  a.dtype = Dtype::kUint8;
+  return a;
+}
+
+std::string_view read_bytes(const Attachment& a) {
+  if (a.dtype != Dtype::kUint8 || a.shape.size() != 1)
+    fail(code::kBadRequest, "attachment '" + a.name + "' must be uint8 of shape [bytes], got " +
+                                dtype_name(a.dtype) + " " + shape_text(a.shape));
+  return a.data;
+}
+
 std::vector<float> read_floats(const Attachment& a, std::size_t cols, bool require_finite) {
+  if (a.dtype != Dtype::kFloat32)
+    fail(code::kBadRequest, "attachment '" + a.name + "' must be float32, got " +
+                                dtype_name(a.dtype));
   if (a.shape.size() != 2 || a.shape[1] != cols)
     fail(code::kBadRequest, "attachment '" + a.name + "' must have shape [N, " +
                                 std::to_string(cols) + "], got " + shape_text(a.shape));

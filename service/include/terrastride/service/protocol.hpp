@@ -59,11 +59,18 @@ class ProtocolError : public std::runtime_error {
   std::string code_;
 };
 
-// A binary array: float32 little-endian, row-major with the given shape (e.g. [N, 3] for xyz).
+// The element types of attachments: float32 little-endian arrays (points, samples) and uint8
+// byte strings (a ROS message as its driver serialised it, map.update's "pointcloud2").
+enum class Dtype { kFloat32, kUint8 };
+const char* dtype_name(Dtype dtype);
+std::size_t dtype_bytes(Dtype dtype);
+
+// A binary array, row-major with the given shape (e.g. [N, 3] for xyz).
 struct Attachment {
   std::string name;
   std::vector<std::uint64_t> shape;
-  std::string data;  // raw bytes, product(shape) * 4 long
+  std::string data;  // raw bytes, product(shape) * dtype_bytes(dtype) long
+  Dtype dtype = Dtype::kFloat32;
 };
 
 struct Message {
@@ -163,10 +170,15 @@ Attachment make_points_attachment(const std::string& name,
                                   const std::vector<Eigen::Vector3f>& points);
 Attachment make_float_attachment(const std::string& name, std::vector<std::uint64_t> shape,
                                  const std::vector<float>& values);
+// A uint8 attachment of shape [bytes.size()].
+Attachment make_bytes_attachment(const std::string& name, std::string bytes);
 // Reads an [N, cols] float32 attachment into row-major floats. Throws bad_request naming the
 // attachment when the shape differs or (if `require_finite`) a value is NaN or infinite.
 std::vector<float> read_floats(const Attachment& a, std::size_t cols, bool require_finite);
 std::vector<Eigen::Vector3f> read_points(const Attachment& a);
+// The bytes of a uint8 attachment of shape [N]. Throws bad_request naming the attachment when its
+// dtype or shape differ.
+std::string_view read_bytes(const Attachment& a);
 
 // Appends `v` as JSON: fixed point rounded to 1e-9 for 1e-4 <= |v| < 1e9, otherwise the shortest
 // round-trip text; null when not finite.

@@ -1,14 +1,17 @@
 // map.update: replace or extend the terrain map from a scene, a terrain directory or a point
-// cloud; the new map is published atomically (queries see the old map or the new one).
+// cloud (float32 points in the world frame, or a serialised sensor_msgs/PointCloud2 with the
+// sensor's pose); the new map is published atomically (queries see the old map or the new one).
 #include <chrono>
 #include <cmath>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "server/backend.hpp"
 #include "terrastride/perception/filters.hpp"
+#include "terrastride/perception/ros_messages.hpp"
 #include "terrastride/terrain/map_build.hpp"
 
 namespace terrastride::service {
@@ -30,16 +33,15 @@ struct FusedMap {
 // Cleans the cloud and rebuilds the map from it, after the clouds of the current map for "add"
 // (terrain::build_terrain_map: cleaning, height grid, safety layers; no OctoMap, which the
 // server does not keep). Caller holds the backend's update mutex.
-FusedMap fuse_cloud(Backend& backend, OpContext& ctx, const protocol::Attachment& att,
+FusedMap fuse_cloud(Backend& backend, OpContext& ctx, perception::PointCloud cloud,
                     const std::string& mode) {
   const json& h = ctx.request.header;
   const auto t0 = std::chrono::steady_clock::now();
-  perception::PointCloud cloud;
-  cloud.points = protocol::read_points(att);  // rejects NaN / infinity, wrong shapes
-  if (cloud.points.empty())
-    throw ProtocolError(pc::kBadRequest, "attachment 'points' holds no points");
-  if (h.contains("origin") && !h["origin"].is_null())
-    cloud.sensor_origin = protocol::get_vector(h, "origin", 3);
+  // Refused before cleaning (which would take minutes on such a cloud), not only at the grid.
+  if (cloud.points.size() > kMaxMapPoints)
+    throw ProtocolError(pc::kBadRequest, "the cloud holds " + std::to_string(cloud.points.size()) +
+                                             " points, above the map's limit of " +
+                                             std::to_string(kMaxMapPoints));
   cloud.source = "map.update";
   terrain::MapBuildOptions options;
   options.grid.resolution = protocol::get_number(h, "resolution", 0.02);
@@ -102,6 +104,86 @@ FusedMap fuse_cloud(Backend& backend, OpContext& ctx, const protocol::Attachment
   return fused;
 }
 
+// The float32 attachment "points" (world frame) with an optional "origin".
+perception::PointCloud cloud_from_points(const json& h, const protocol::Attachment& att) {
+  if (h.contains("pose") || h.contains("frame") || h.contains("encoding"))
+    throw ProtocolError(pc::kBadRequest, "\"pose\", \"frame\" and \"encoding\" go with a "
+                                         "\"pointcloud2\" attachment, not with \"points\" "
+                                         "(whose points are in the world frame: use \"origin\")");
+  perception::PointCloud cloud;
+  cloud.points = protocol::read_points(att);  // rejects NaN / infinity, wrong shapes
+  if (cloud.points.empty())
+    throw ProtocolError(pc::kBadRequest, "attachment 'points' holds no points");
+  if (h.contains("origin") && !h["origin"].is_null())
+    cloud.sensor_origin = protocol::get_vector(h, "origin", 3);
+  return cloud;
+}
+
+// The uint8 attachment "pointcloud2": a sensor_msgs/PointCloud2 as its driver serialised it (ROS
+// 2 CDR with its 4-byte encapsulation header, or ROS 1), decoded by the bag reader's decoder (any
+// field layout with float32/float64 x, y, z; NaN points, an organised cloud's misses, dropped and
+// counted), placed in the world frame with "pose" [x, y, z, qx, qy, qz, qw], the pose of the
+// cloud's frame (the sensor) in the world; its position is the sensor origin for ray casting.
+perception::PointCloud cloud_from_pointcloud2(const json& h, const protocol::Attachment& att,
+                                              json* info) {
+  if (h.contains("origin"))
+    throw ProtocolError(pc::kBadRequest, "a \"pointcloud2\" attachment takes \"pose\" (the "
+                                         "sensor's position and orientation), not \"origin\"");
+  const std::string_view bytes = protocol::read_bytes(att);
+  const std::string encoding = protocol::get_string(h, "encoding", std::string("cdr"));
+  if (encoding != "cdr" && encoding != "ros1")
+    throw ProtocolError(pc::kBadRequest,
+                        "\"encoding\" must be \"cdr\" (ROS 2) or \"ros1\", got '" + encoding + "'");
+  if (!h.contains("pose"))
+    throw ProtocolError(pc::kBadRequest,
+                        "a \"pointcloud2\" attachment needs \"pose\": [x, y, z, qx, qy, qz, qw], "
+                        "the pose of the cloud's frame (the sensor) in the map's frame");
+  const Eigen::VectorXd pose = protocol::get_vector(h, "pose", 7);  // finite numbers
+  const Eigen::Quaterniond q(pose[6], pose[3], pose[4], pose[5]);
+  if (std::abs(q.norm() - 1.0) > 1e-3)
+    throw ProtocolError(pc::kBadRequest, "\"pose\": the quaternion [qx, qy, qz, qw] has norm " +
+                                             std::to_string(q.norm()) + " (not a rotation)");
+  perception::DecodedCloud decoded;
+  try {
+    decoded = perception::decode_pointcloud2(
+        bytes, encoding == "ros1" ? perception::MessageEncoding::kRos1
+                                  : perception::MessageEncoding::kCdr);
+  } catch (const perception::InputError& e) {
+    throw ProtocolError(pc::kBadRequest, std::string("attachment 'pointcloud2': ") + e.what());
+  }
+  // tf2 frame names carry no leading slash (ROS 1 drivers' often do).
+  std::string frame_id = decoded.frame_id;
+  if (!frame_id.empty() && frame_id.front() == '/') frame_id.erase(0, 1);
+  if (h.contains("frame")) {
+    std::string frame = protocol::get_string(h, "frame", std::nullopt);
+    if (!frame.empty() && frame.front() == '/') frame.erase(0, 1);
+    if (frame != frame_id)
+      throw ProtocolError(pc::kBadRequest, "attachment 'pointcloud2' is in frame '" + frame_id +
+                                               "', but \"frame\" says '" + frame +
+                                               "' (the pose is that frame's)");
+  }
+  if (decoded.points.empty())
+    throw ProtocolError(pc::kBadRequest, "attachment 'pointcloud2' holds no finite points (" +
+                                             std::to_string(decoded.points_in) + " points, " +
+                                             std::to_string(decoded.non_finite) +
+                                             " NaN or infinite)");
+  Eigen::Isometry3d world_from_sensor = Eigen::Isometry3d::Identity();
+  world_from_sensor.linear() = q.normalized().toRotationMatrix();
+  world_from_sensor.translation() = pose.head<3>();
+  const Eigen::Isometry3f tf = world_from_sensor.cast<float>();
+  perception::PointCloud cloud;
+  cloud.points = std::move(decoded.points);
+  for (Eigen::Vector3f& p : cloud.points) p = tf * p;
+  cloud.sensor_origin = world_from_sensor.translation();
+  *info = {{"frame", frame_id},
+           {"stamp", static_cast<double>(decoded.stamp_ns) * 1e-9},
+           {"width", decoded.width},
+           {"height", decoded.height},
+           {"points", cloud.points.size()},
+           {"non_finite", decoded.non_finite}};
+  return cloud;
+}
+
 OpResult map_update(Backend& backend, OpContext& ctx) {
   const json& h = ctx.request.header;
   const std::string mode = protocol::get_string(h, "mode", std::string("add"));
@@ -111,11 +193,19 @@ OpResult map_update(Backend& backend, OpContext& ctx) {
   const bool has_scene = h.contains("scene");
   const bool has_dir = h.contains("terrain_dir");
   const auto* points = ctx.request.find("points");
-  if (int(has_scene) + int(has_dir) + int(points != nullptr) != 1)
+  const auto* pointcloud2 = ctx.request.find("pointcloud2");
+  if (int(has_scene) + int(has_dir) + int(points != nullptr) + int(pointcloud2 != nullptr) != 1)
     throw ProtocolError(pc::kBadRequest,
                         "map.update needs exactly one source: \"scene\" (a scenario name), "
-                        "\"terrain_dir\" (a `terrastride map` output) or a float32 attachment "
-                        "\"points\" of shape [N, 3] with \"origin\"");
+                        "\"terrain_dir\" (a `terrastride map` output), a float32 attachment "
+                        "\"points\" of shape [N, 3] with \"origin\", or a uint8 attachment "
+                        "\"pointcloud2\" (a serialised sensor_msgs/PointCloud2) with \"pose\"");
+  // A cloud is decoded and checked before the update lock: a bad one never waits for, or holds
+  // up, another update.
+  json cloud_info;
+  std::optional<perception::PointCloud> cloud;
+  if (points) cloud = cloud_from_points(h, *points);
+  if (pointcloud2) cloud = cloud_from_pointcloud2(h, *pointcloud2, &cloud_info);
   // Updates are serialised; queries never wait.
   std::lock_guard<std::mutex> lock(backend.update_mutex());
   ctx.check_stop();
@@ -148,9 +238,10 @@ OpResult map_update(Backend& backend, OpContext& ctx) {
     next->stats["load_s"] = seconds_since(t0);
     next->field = std::move(tm);
   } else {
-    FusedMap fused = fuse_cloud(backend, ctx, *points, mode);
+    FusedMap fused = fuse_cloud(backend, ctx, std::move(*cloud), mode);
     next->stats = std::move(fused.stats);
-    next->source = "cloud";
+    if (pointcloud2) next->stats["pointcloud2"] = std::move(cloud_info);
+    next->source = pointcloud2 ? "pointcloud2" : "cloud";
     next->field = std::move(fused.field);
   }
   ctx.check_stop();
@@ -168,9 +259,9 @@ void add_map_update_operation(Backend& backend, OperationRegistry& registry) {
   registry.add({"map.update", OpKind::kWorker,
                 "replace or extend the terrain map (scene, terrain dir or point cloud)",
                 [b](OpContext& c) { return map_update(*b, c); },
-                std::vector<std::string>{"mode", "scene", "terrain_dir", "origin", "resolution",
-                                         "voxel", "outlier_neighbours", "outlier_cell",
-                                         "foot_radii"}});
+                std::vector<std::string>{"mode", "scene", "terrain_dir", "origin", "pose",
+                                         "frame", "encoding", "resolution", "voxel",
+                                         "outlier_neighbours", "outlier_cell", "foot_radii"}});
 }
 
 }  // namespace terrastride::service
