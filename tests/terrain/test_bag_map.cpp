@@ -107,7 +107,7 @@ TEST_P(BagFixture, SameMapAsTheEquivalentPcdFiles) {
 
 INSTANTIATE_TEST_SUITE_P(Formats, BagFixture,
                          ::testing::Values("scan_zstd.mcap", "scan_lz4.mcap", "scan.db3",
-                                           "scan.bag"),
+                                           "scan.bag", "split"),
                          [](const auto& info) {
                            std::string n = info.param;
                            for (char& c : n)
@@ -221,8 +221,54 @@ TEST(BagInput, NotABagAndBrokenBagsFailClearly) {
   }
 }
 
+// A split rosbag2 recording (tests/fixtures/bags/split: metadata.yaml and three .mcap files,
+// /tf_static only in the first) is read as one recording, in metadata.yaml's order: the same
+// clouds as the unsplit file (and, in BagFixture, the same map as the PCDs).
+TEST(BagInput, SplitRosbag2FolderIsOneRecording) {
+  const terrain::BagMapInput whole = terrain::read_map_bags({fixture("scan_zstd.mcap")}, both_lidars());
+  const terrain::BagMapInput split = terrain::read_map_bags({fixture("split")}, both_lidars());
+  ASSERT_EQ(split.input.clouds.size(), whole.input.clouds.size());
+  for (size_t k = 0; k < whole.input.clouds.size(); ++k) {
+    EXPECT_EQ(split.input.clouds[k].points, whole.input.clouds[k].points) << k;
+    EXPECT_EQ(*split.input.clouds[k].sensor_origin, *whole.input.clouds[k].sensor_origin) << k;
+  }
+  EXPECT_EQ(split.stats[0].format, "mcap");
+  EXPECT_EQ(split.stats[0].static_transforms, whole.stats[0].static_transforms);
+  EXPECT_TRUE(perception::is_bag_file(fixture("split")));
+  // A later split alone cannot place its clouds: /tf_static is in the first file.
+  expect_input_error(
+      [&] { terrain::read_map_bags({fixture("split/split_1.mcap")}, both_lidars()); },
+      {"split_1.mcap", "'odom'"});
+}
+
+TEST(BagInput, BrokenRosbag2FoldersFailClearly) {
+  ScratchDir dir;
+  const std::filesystem::path folder = dir.file("run");
+  std::filesystem::create_directories(folder);
+  expect_input_error([&] { perception::open_bag(folder.string()); }, {"run", "metadata.yaml"});
+  EXPECT_FALSE(perception::is_bag_file(folder.string()));
+  for (const char* f : {"split_0.mcap", "split_2.mcap"})
+    std::filesystem::copy_file(fixture(std::string("split/") + f), folder / f);
+  std::filesystem::copy_file(fixture("split/metadata.yaml"), folder / "metadata.yaml");
+  expect_input_error([&] { terrain::read_map_bags({folder.string()}, both_lidars()); },
+                     {"metadata.yaml", "'split_1.mcap'", "missing"});
+  perception::test::write_text((folder / "metadata.yaml").string(), "rosbag2_bagfile_information: [1, 2\n");
+  expect_input_error([&] { perception::open_bag(folder.string()); }, {"metadata.yaml", "YAML"});
+  perception::test::write_text((folder / "metadata.yaml").string(), "something_else: 1\n");
+  expect_input_error([&] { perception::open_bag(folder.string()); },
+                     {"metadata.yaml", "rosbag2_bagfile_information"});
+  perception::test::write_text((folder / "metadata.yaml").string(),
+                               "rosbag2_bagfile_information:\n  relative_file_paths:\n    - /etc/passwd\n");
+  expect_input_error([&] { perception::open_bag(folder.string()); }, {"not a path relative"});
+  // Foxy's metadata (version < 4) names the files relative to the folder's parent.
+  perception::test::write_text((folder / "metadata.yaml").string(),
+                               "rosbag2_bagfile_information:\n  version: 3\n  relative_file_paths:\n"
+                               "    - run/split_0.mcap\n");
+  EXPECT_EQ(perception::open_bag(folder.string())->format(), "mcap");
+}
+
 TEST(BagInput, ListsTopicsTypesCountsAndFrames) {
-  for (const std::string name : {"scan_zstd.mcap", "scan.db3", "scan.bag"}) {
+  for (const std::string name : {"scan_zstd.mcap", "scan.db3", "scan.bag", "split"}) {
     const perception::BagListing l = perception::list_bag(fixture(name));
     std::map<std::string, perception::BagListing::Topic> t;
     for (const auto& x : l.topics) t[x.name] = x;

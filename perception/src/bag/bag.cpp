@@ -21,15 +21,17 @@ std::string lower_extension(const std::string& path) {
 
 bool is_bag_file(const std::string& path) {
   const std::string ext = lower_extension(path);
-  return ext == ".mcap" || ext == ".db3" || ext == ".bag";
+  return ext == ".mcap" || ext == ".db3" || ext == ".bag" || bag::is_rosbag2_folder(path);
 }
 
 std::unique_ptr<BagReader> open_bag(const std::string& path) {
   std::error_code ec;
   if (!std::filesystem::exists(path, ec)) throw InputError(path + ": file not found");
-  if (std::filesystem::is_directory(path, ec))
-    throw InputError(path + ": is a directory (give the bag file itself: a rosbag2 folder's .mcap "
-                            "or .db3)");
+  if (std::filesystem::is_directory(path, ec)) {
+    if (bag::is_rosbag2_folder(path)) return bag::open_rosbag2_folder(path);
+    throw InputError(path + ": is a directory without metadata.yaml (a rosbag2 folder has one; "
+                            "or give a bag file itself: .mcap, .db3, .bag)");
+  }
   if (std::filesystem::file_size(path, ec) == 0) throw InputError(path + ": file is empty");
   const std::string ext = lower_extension(path);
   if (ext == ".mcap") return bag::open_mcap(path);

@@ -62,10 +62,13 @@ class BagReader {
   BagDamage damage_;
 };
 
-// True for .mcap, .db3 and .bag (case-insensitive).
+// True for .mcap, .db3 and .bag (case-insensitive) and for a rosbag2 folder (a directory with
+// metadata.yaml).
 bool is_bag_file(const std::string& path);
 
-// Opens a bag by its extension (.mcap, .db3, .bag), checking its magic. Throws InputError.
+// Opens a bag by its extension (.mcap, .db3, .bag), checking its magic, or a rosbag2 folder: its
+// storage files in metadata.yaml's order (split recordings), read one after the other as one
+// recording. Throws InputError.
 std::unique_ptr<BagReader> open_bag(const std::string& path);
 
 // The type name without "/msg/": "sensor_msgs/msg/PointCloud2" -> "sensor_msgs/PointCloud2".
