@@ -102,42 +102,65 @@ struct LinkResult {
   std::vector<char> exact;
 };
 
-// Voxel distances of a link (min over pieces) and, where a piece comes within exact_below of the
-// voxels, its distance to the certain solid (`solid` null: the voxel distance stands for it).
-LinkResult link_distances(const fcl::OcTree<double>& tree, SolidGeometry* solid, double radius,
-                          const CapsuleTrack& track, double length, const ClearanceOptions& options,
-                          long* queries, long* certain_queries) {
+// The pieces of a link of length `length`.
+int piece_count(double length, const ClearanceOptions& options) {
+  return std::max(1, static_cast<int>(std::ceil(length / options.piece_length - 1e-9)));
+}
+
+// One piece's distances: to the voxels (`distance`, `exact` as capsule_distances) and, where it
+// comes within exact_below of the voxels, to the certain solid (`certain`; `solid` null: the voxel
+// distance stands for it). Pieces are independent of each other (each has its own coherence
+// track), so they are the leg check's tasks.
+struct PieceResult {
+  std::vector<double> distance, certain;
+  std::vector<char> exact;
+  long queries = 0, certain_queries = 0;
+};
+
+PieceResult piece_distances(const fcl::OcTree<double>& tree, SolidGeometry* solid, double radius,
+                            const CapsuleTrack& track, double length, int piece,
+                            const ClearanceOptions& options) {
   const size_t n = track.valid.size();
-  const int pieces = std::max(1, static_cast<int>(std::ceil(length / options.piece_length - 1e-9)));
+  const int pieces = piece_count(length, options);
   const auto capsule_ptr = std::make_shared<fcl::Capsule<double>>(radius, length / pieces);
-  const fcl::Capsule<double>& capsule = *capsule_ptr;
+  const double s0 = static_cast<double>(piece) / pieces,
+               s1 = static_cast<double>(piece + 1) / pieces;
+  CapsuleTrack part = track;
+  for (size_t k = 0; k < n; ++k) {
+    part.a[k] = track.a[k] + s0 * (track.b[k] - track.a[k]);
+    part.b[k] = track.a[k] + s1 * (track.b[k] - track.a[k]);
+  }
+  PieceResult r;
+  r.distance = capsule_distances(tree, *capsule_ptr, part, options, &r.exact, &r.queries);
+  r.certain = r.distance;
+  if (solid) {
+    for (size_t k = 0; k < n; ++k) {
+      if (std::isnan(r.distance[k]) || !(r.distance[k] < options.exact_below)) continue;
+      r.certain[k] = solid->signed_distance(capsule_ptr, capsule_pose(part.a[k], part.b[k]),
+                                            options.distance_cutoff);
+      ++r.certain_queries;
+    }
+  }
+  return r;
+}
+
+// A link's distances from its pieces' (in piece order): the voxel distance is the minimum over
+// pieces (an exact piece wins a tie), the certain-solid distance the minimum of theirs.
+LinkResult merge_pieces(const std::vector<PieceResult>& pieces, size_t n) {
   LinkResult r;
   r.distance.assign(n, std::numeric_limits<double>::quiet_NaN());
   r.certain_distance.assign(n, std::numeric_limits<double>::quiet_NaN());
   r.exact.assign(n, 0);
-  CapsuleTrack piece = track;
-  std::vector<char> piece_exact;
-  for (int j = 0; j < pieces; ++j) {
-    const double s0 = static_cast<double>(j) / pieces, s1 = static_cast<double>(j + 1) / pieces;
+  for (const PieceResult& p : pieces) {
     for (size_t k = 0; k < n; ++k) {
-      piece.a[k] = track.a[k] + s0 * (track.b[k] - track.a[k]);
-      piece.b[k] = track.a[k] + s1 * (track.b[k] - track.a[k]);
-    }
-    const std::vector<double> d =
-        capsule_distances(tree, capsule, piece, options, &piece_exact, queries);
-    for (size_t k = 0; k < n; ++k) {
-      if (std::isnan(d[k])) continue;
-      if (std::isnan(r.distance[k]) || d[k] < r.distance[k] ||
-          (d[k] == r.distance[k] && piece_exact[k])) {
-        r.distance[k] = d[k];
-        r.exact[k] = piece_exact[k];
+      const double d = p.distance[k];
+      if (std::isnan(d)) continue;
+      if (std::isnan(r.distance[k]) || d < r.distance[k] ||
+          (d == r.distance[k] && p.exact[k])) {
+        r.distance[k] = d;
+        r.exact[k] = p.exact[k];
       }
-      double c = d[k];
-      if (solid && d[k] < options.exact_below) {
-        c = solid->signed_distance(capsule_ptr, capsule_pose(piece.a[k], piece.b[k]),
-                                   options.distance_cutoff);
-        ++*certain_queries;
-      }
+      const double c = p.certain[k];
       if (std::isnan(r.certain_distance[k]) || c < r.certain_distance[k]) r.certain_distance[k] = c;
     }
   }
@@ -263,7 +286,7 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
   };
 
   // The capsule tracks of every leg first (cheap), then their distances, the FCL queries that are
-  // nearly all of the check's time, as independent tasks (one per leg and link) on up to
+  // nearly all of the check's time, as independent tasks (one per piece of each link) on up to
   // kClearanceThreads threads: each task reads the shared trees and writes only its own result, so
   // the figures are those of one thread, in the same order. Then the summaries, leg by leg.
   std::vector<CapsuleTrack> shin_tracks(n_legs), thigh_tracks(n_legs);
@@ -298,24 +321,56 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
       thigh_track.valid[k] = 1;
     }
   }
+  // One task per piece of every link (shins first: they come nearest the ground and cost most),
+  // so that the two cores of a robot computer share the work evenly.
+  struct PieceTask {
+    size_t leg;
+    bool thigh;
+    int piece;
+  };
+  std::vector<PieceTask> piece_tasks;
+  std::vector<std::vector<PieceResult>> shin_pieces(n_legs), thigh_pieces(n_legs);
+  for (const bool thigh : {false, true}) {
+    if (thigh && !options.check_thigh) continue;
+    for (size_t i = 0; i < n_legs; ++i) {
+      const auto& leg = model.legs[i];
+      const int pieces = piece_count(thigh ? leg.l1 : leg.l2 - exclusions[i], options);
+      (thigh ? thigh_pieces : shin_pieces)[i].resize(static_cast<size_t>(pieces));
+      for (int j = 0; j < pieces; ++j) piece_tasks.push_back({i, thigh, j});
+    }
+  }
+  auto run_task = [&](size_t t) {
+    const PieceTask& task = piece_tasks[t];
+    const auto& leg = model.legs[task.leg];
+    const size_t j = static_cast<size_t>(task.piece);
+    if (task.thigh) {
+      thigh_pieces[task.leg][j] = piece_distances(tree, solid.get(), leg.thigh_radius,
+                                                  thigh_tracks[task.leg], leg.l1, task.piece,
+                                                  options);
+    } else {
+      shin_pieces[task.leg][j] = piece_distances(tree, solid.get(), leg.shin_radius,
+                                                 shin_tracks[task.leg],
+                                                 leg.l2 - exclusions[task.leg], task.piece, options);
+    }
+  };
+  run_in_parallel(piece_tasks.size(), run_task);
   struct LinkTask {
     LinkResult result;
     long queries = 0, certain_queries = 0;
   };
   std::vector<LinkTask> shin_tasks(n_legs), thigh_tasks(n_legs);
-  const size_t n_tasks = options.check_thigh ? 2 * n_legs : n_legs;
-  auto run_task = [&](size_t t) {
-    const size_t i = t % n_legs;
-    const auto& leg = model.legs[i];
-    LinkTask& task = t < n_legs ? shin_tasks[i] : thigh_tasks[i];
-    task.result = t < n_legs ? link_distances(tree, solid.get(), leg.shin_radius, shin_tracks[i],
-                                              leg.l2 - exclusions[i], options, &task.queries,
-                                              &task.certain_queries)
-                             : link_distances(tree, solid.get(), leg.thigh_radius,
-                                              thigh_tracks[i], leg.l1, options, &task.queries,
-                                              &task.certain_queries);
-  };
-  run_in_parallel(n_tasks, run_task);
+  for (size_t i = 0; i < n_legs; ++i) {
+    for (auto [pieces, task] : {std::pair{&shin_pieces[i], &shin_tasks[i]},
+                                std::pair{&thigh_pieces[i], &thigh_tasks[i]}}) {
+      if (pieces->empty()) continue;
+      task->result = merge_pieces(*pieces, n);
+      for (const PieceResult& p : *pieces) {
+        task->queries += p.queries;
+        task->certain_queries += p.certain_queries;
+      }
+      pieces->clear();
+    }
+  }
 
   for (size_t i = 0; i < n_legs; ++i) {
     LegClearanceSeries& series = rep.legs[i];
