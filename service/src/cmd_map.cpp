@@ -52,6 +52,9 @@ struct MapOptions {
   std::string frame;
   std::optional<double> start, end;
   int every = 1;
+  // Points kept per grid cell over all of a recording's clouds (terrain::BagStreamOptions): memory
+  // follows the map, not the file; 0 = keep every point.
+  size_t max_cell_points = 256;
   bool list = false;
 };
 
@@ -254,7 +257,8 @@ void list_bags(const MapOptions& o) {
 }
 
 // `map RUN.mcap --topic T --frame F`: the clouds of a recording, placed by its tf.
-terrain::MapInput read_bags(const MapOptions& o, Progress& progress, json* bag_json) {
+terrain::MapInput read_bags(const MapOptions& o, Progress& progress, json* bag_json,
+                            double* clean_s) {
   if (!o.origin.empty())
     throw CommandError("--origin: a bag's clouds take their origins from its tf (--frame)");
   if (o.topics.empty())
@@ -270,15 +274,23 @@ terrain::MapInput read_bags(const MapOptions& o, Progress& progress, json* bag_j
   options.start = o.start;
   options.end = o.end;
   options.every = o.every;
-  terrain::BagMapInput in;
+  // Each cloud is cleaned as it is read and thinned per grid cell, so memory follows the map.
+  terrain::BagStreamOptions stream;
+  stream.cleaning = map_build_options(o).cleaning;
+  stream.cell_size = o.resolution;
+  stream.max_cell_points = o.max_cell_points;
+  terrain::StreamedBagInput streamed;
   try {
-    in = terrain::read_map_bags(o.clouds, options, [&](size_t b, size_t clouds) {
+    streamed = terrain::stream_map_bags(o.clouds, options, stream, [&](size_t b, size_t clouds) {
       if (clouds % 50 == 0)
-        progress.stage("reading " + o.clouds[b] + ": " + std::to_string(clouds) + " clouds");
+        progress.stage("reading and cleaning " + o.clouds[b] + ": " + std::to_string(clouds) +
+                       " clouds");
     });
   } catch (const perception::InputError& e) {
     throw CommandError(e.what());
   }
+  *clean_s = streamed.clean_s;
+  terrain::BagMapInput& in = streamed.bags;
   *bag_json = json::array();
   for (size_t b = 0; b < in.stats.size(); ++b) {
     const auto& st = in.stats[b];
@@ -296,6 +308,12 @@ terrain::MapInput read_bags(const MapOptions& o, Progress& progress, json* bag_j
                          {"skipped", st.damage.problems},
                          {"skipped_bytes", st.damage.skipped_bytes}});
   }
+  // Over all bags: what the per-cell cap dropped (0 when nothing was re-observed that often).
+  for (json& b : *bag_json)
+    b["stream"] = {{"points_cleaned", streamed.points_cleaned},
+                   {"points_over_cell_cap", streamed.points_over_cap},
+                   {"max_cell_points", o.max_cell_points},
+                   {"cells", streamed.cells}};
   return std::move(in.input);
 }
 
@@ -318,9 +336,9 @@ void run_map(const MapOptions& o) {
   if (any_bag && !std::all_of(o.clouds.begin(), o.clouds.end(), perception::is_bag_file))
     throw CommandError("bags (.mcap, .db3, .bag) cannot be mixed with cloud files or OctoMaps");
   if (!any_bag && (o.list || !o.topics.empty() || !o.frame.empty() || o.start || o.end ||
-                   o.every != 1))
-    throw CommandError("--list, --topic, --frame, --start, --end and --every apply to bags "
-                       "(.mcap, .db3, .bag)");
+                   o.every != 1 || o.max_cell_points != MapOptions{}.max_cell_points))
+    throw CommandError("--list, --topic, --frame, --start, --end, --every and --max-cell-points "
+                       "apply to bags (.mcap, .db3, .bag, a rosbag2 folder)");
   if (o.list) {
     if (o.clouds.empty()) throw CommandError("no input bag given");
     list_bags(o);
@@ -342,8 +360,9 @@ void run_map(const MapOptions& o) {
 
   terrain::MapInput input;
   json bags;
+  double bag_clean_s = 0.0;
   if (any_bag) {
-    input = read_bags(o, progress, &bags);
+    input = read_bags(o, progress, &bags, &bag_clean_s);
   } else {
     try {
       input = terrain::read_map_clouds(o.clouds, origin, [&](size_t k) {
@@ -356,6 +375,7 @@ void run_map(const MapOptions& o) {
   }
 
   terrain::MapBuildOptions options = map_build_options(o);
+  if (any_bag) options.cleaning.reset();  // cleaned as they were read
   const size_t n_clouds = input.clouds.size();
   options.on_stage = [&](terrain::MapStage stage, const terrain::MapBuild&) {
     if (stage == terrain::MapStage::kClean)
@@ -372,6 +392,7 @@ void run_map(const MapOptions& o) {
     throw CommandError(e.what());
   }
 
+  if (any_bag) build.timings.clean_s = bag_clean_s;
   progress.stage("writing " + o.out);
   json meta;
   try {
@@ -397,8 +418,8 @@ void add_map_command(CLI::App& app) {
   auto o = std::make_shared<MapOptions>();
   CLI::App* cmd = app.add_subcommand(
       "map",
-      "Build a terrain map from point clouds (PCD, PLY, XYZ, NPY), ROS bags (.mcap, .db3, .bag: "
-      "--topic, --frame) or an OctoMap (.bt, .ot): "
+      "Build a terrain map from point clouds (PCD, PLY, XYZ, NPY), ROS bags (.mcap, .db3, .bag "
+      "or a rosbag2 folder with metadata.yaml: --topic, --frame) or an OctoMap (.bt, .ot): "
       "OctoMap, height grid, smoothed field and foothold-safety layers in DIR");
   cmd->add_option("clouds", o->clouds, "Input clouds, bags or an OctoMap")->required();
   cmd->add_option("--origin", o->origin,
@@ -442,6 +463,10 @@ void add_map_command(CLI::App& app) {
                   "epoch when >= 1e9)");
   cmd->add_option("--end", o->end, "Bags: last log time to use (as --start)");
   cmd->add_option("--every", o->every, "Bags: use every N-th cloud of each topic")
+      ->capture_default_str();
+  cmd->add_option("--max-cell-points", o->max_cell_points,
+                  "Bags: points kept per grid cell over the whole recording (first come; later "
+                  "ones dropped and counted), so memory follows the map, not the file; 0 = all")
       ->capture_default_str();
   cmd->add_flag("--list", o->list,
                 "Bags: print the topics, types, message counts, cloud frames and tf links, and "

@@ -13,6 +13,7 @@
 #include <mutex>
 #include <sstream>
 #include <thread>
+#include <unordered_map>
 
 #include "terrastride/perception/cloud_io.hpp"
 
@@ -323,6 +324,108 @@ BagMapInput read_map_bags(const std::vector<std::string>& paths,
     out.stats.push_back(std::move(stats));
   }
   out.input.sources.read_s = seconds_since(t0);
+  return out;
+}
+
+StreamedBagInput stream_map_bags(const std::vector<std::string>& paths,
+                                 const perception::BagCloudOptions& options,
+                                 const BagStreamOptions& stream,
+                                 const std::function<void(size_t, size_t)>& progress) {
+  if (!(stream.cell_size > 0)) throw perception::InputError("cell size must be > 0");
+  StreamedBagInput out;
+  BagMapInput& in = out.bags;
+  const auto t0 = Clock::now();
+  in.input.sources.started = t0;
+  // The cleaning thread: takes raw clouds in order, cleans, thins, appends to the input.
+  std::mutex mutex;
+  std::condition_variable changed;
+  std::vector<perception::PointCloud> waiting;  // raw clouds, oldest first
+  bool reading_done = false, stop = false;
+  std::exception_ptr clean_error;
+  std::unordered_map<uint64_t, uint32_t> cell_points;
+  const auto cell_key = [&](const Eigen::Vector3f& p) {
+    const auto index = [&](float v) {
+      const double i = std::floor(static_cast<double>(v) / stream.cell_size);
+      return static_cast<uint32_t>(static_cast<int64_t>(std::clamp(i, -2147483648.0, 2147483647.0)) +
+                                   2147483648LL);
+    };
+    return (static_cast<uint64_t>(index(p.x())) << 32) | index(p.y());
+  };
+  std::thread cleaner([&] {
+    for (;;) {
+      perception::PointCloud cloud;
+      {
+        std::unique_lock<std::mutex> lock(mutex);
+        changed.wait(lock, [&] { return !waiting.empty() || reading_done || stop; });
+        if (stop || waiting.empty()) return;
+        cloud = std::move(waiting.front());
+        waiting.erase(waiting.begin());
+      }
+      changed.notify_all();  // room for the reader
+      try {
+        const auto t = Clock::now();
+        if (stream.cleaning) cloud = perception::filter_cloud(cloud, *stream.cleaning);
+        out.points_cleaned += cloud.points.size();
+        if (stream.max_cell_points > 0) {
+          size_t kept = 0;
+          for (const Eigen::Vector3f& p : cloud.points) {
+            uint32_t& n = cell_points[cell_key(p)];
+            if (n >= stream.max_cell_points) continue;
+            ++n;
+            cloud.points[kept++] = p;
+          }
+          out.points_over_cap += cloud.points.size() - kept;
+          cloud.points.resize(kept);
+          cloud.points.shrink_to_fit();
+        }
+        out.clean_s += seconds_since(t);
+        std::lock_guard<std::mutex> lock(mutex);
+        in.input.clouds.push_back(std::move(cloud));
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(mutex);
+        clean_error = std::current_exception();
+        stop = true;
+        changed.notify_all();
+        return;
+      }
+    }
+  });
+  const auto finish = [&](bool abandon) {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      reading_done = true;
+      stop = stop || abandon;
+    }
+    changed.notify_all();
+    cleaner.join();
+  };
+  try {
+    for (size_t b = 0; b < paths.size(); ++b) {
+      perception::BagCloudStats stats;
+      perception::read_bag_clouds(
+          paths[b], options,
+          [&](perception::PointCloud&& cloud, const perception::BagCloudInfo& info) {
+            in.input.sources.files.push_back({cloud.source, info.points_in, info.non_finite});
+            std::unique_lock<std::mutex> lock(mutex);
+            changed.wait(lock, [&] { return waiting.size() < 2 || stop; });
+            if (clean_error) std::rethrow_exception(clean_error);
+            waiting.push_back(std::move(cloud));
+            lock.unlock();
+            changed.notify_all();
+            if (progress) progress(b, in.input.sources.files.size());
+          },
+          &stats);
+      in.stats.push_back(std::move(stats));
+    }
+  } catch (...) {
+    finish(/*abandon=*/true);
+    if (clean_error) std::rethrow_exception(clean_error);
+    throw;
+  }
+  finish(/*abandon=*/false);
+  if (clean_error) std::rethrow_exception(clean_error);
+  out.cells = cell_points.size();
+  in.input.sources.read_s = seconds_since(t0);
   return out;
 }
 

@@ -1,4 +1,4 @@
-// `terrastride map RUN.mcap|.db3|.bag` end to end (issue #19): --list, a map with its bag summary,
+// `terrastride map RUN.mcap|.db3|.bag|RUN_DIR` end to end (issue #19): --list, a map with its bag summary,
 // and the errors a user meets first.
 #include <gtest/gtest.h>
 
@@ -43,8 +43,31 @@ TEST(BagCli, MapsABag) {
   const auto j = nlohmann::json::parse(r.out);
   EXPECT_EQ(j["bags"][0]["topics"]["/points"]["used"], 9);
   EXPECT_EQ(j["bags"][0]["topics"]["/points"]["non_finite"], 252);
+  EXPECT_EQ(j["bags"][0]["stream"]["max_cell_points"], 256);
+  EXPECT_EQ(j["bags"][0]["stream"]["points_cleaned"], j["points_kept"]);
   EXPECT_TRUE(fs::exists(out / "octomap.bt"));
   fs::remove_all(out);
+}
+
+// A split rosbag2 recording: the folder (metadata.yaml and three .mcap files) is the input.
+TEST(BagCli, MapsARosbag2Folder) {
+  const auto list = run_terrastride("map " + fixture("split") + " --list --json");
+  ASSERT_EQ(list.code, 0) << list.err;
+  EXPECT_EQ(nlohmann::json::parse(list.out)["topics"].size(), 5u);
+  const fs::path out =
+      fs::temp_directory_path() / ("terrastride_bag_cli_split_" + std::to_string(::getpid()));
+  fs::remove_all(out);
+  const auto r = run_terrastride("map " + fixture("split") + " --topic /points --frame odom --out " +
+                                 out.string() + " --json");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["bags"][0]["format"], "mcap");
+  EXPECT_EQ(j["bags"][0]["topics"]["/points"]["used"], 9);
+  EXPECT_TRUE(fs::exists(out / "terrain.json"));
+  fs::remove_all(out);
+  const auto empty = run_terrastride("map " + fs::temp_directory_path().string() +
+                                     " --topic /points --frame odom --out " + out.string());
+  EXPECT_NE(empty.code, 0);
 }
 
 TEST(BagCli, ErrorsNameWhatIsMissing) {

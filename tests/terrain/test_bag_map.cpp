@@ -241,6 +241,57 @@ TEST(BagInput, SplitRosbag2FolderIsOneRecording) {
       {"split_1.mcap", "'odom'"});
 }
 
+// Streaming (terrain::stream_map_bags): clouds cleaned as they are read are the clouds
+// build_terrain_map cleans; a per-cell cap bounds the points kept by the map's cells, however
+// often the ground is seen again (here: the same recording given twice).
+TEST(BagInput, StreamingCleansAsBuildDoesAndTheCellCapBoundsPoints) {
+  terrain::BagMapInput read = terrain::read_map_bags({fixture("scan_zstd.mcap")}, both_lidars());
+  terrain::MapBuildOptions no_octomap;
+  no_octomap.octomap.reset();
+  const terrain::MapBuild built = terrain::build_terrain_map(read.input.clouds, no_octomap);
+  terrain::BagStreamOptions stream;  // the default cleaning, no cap
+  const terrain::StreamedBagInput all =
+      terrain::stream_map_bags({fixture("scan_zstd.mcap")}, both_lidars(), stream);
+  ASSERT_EQ(all.bags.input.clouds.size(), built.clouds.size());
+  for (size_t k = 0; k < built.clouds.size(); ++k)
+    ASSERT_EQ(all.bags.input.clouds[k].points, built.clouds[k].points) << k;
+  EXPECT_EQ(all.points_cleaned, built.points_kept);
+  EXPECT_EQ(all.points_over_cap, 0u);
+  EXPECT_EQ(all.bags.input.sources.files.size(), built.clouds.size());
+
+  const auto count_cells = [](const std::vector<perception::PointCloud>& clouds) {
+    std::map<std::pair<int64_t, int64_t>, size_t> n;
+    for (const auto& c : clouds)
+      for (const auto& p : c.points)
+        ++n[{static_cast<int64_t>(std::floor(p.x() / 0.02)),
+             static_cast<int64_t>(std::floor(p.y() / 0.02))}];
+    return n;
+  };
+  stream.max_cell_points = 3;
+  const terrain::StreamedBagInput once =
+      terrain::stream_map_bags({fixture("scan_zstd.mcap")}, both_lidars(), stream);
+  const terrain::StreamedBagInput twice = terrain::stream_map_bags(
+      {fixture("scan_zstd.mcap"), fixture("scan_zstd.mcap")}, both_lidars(), stream);
+  const auto cells_once = count_cells(once.bags.input.clouds);
+  const auto cells_twice = count_cells(twice.bags.input.clouds);
+  EXPECT_EQ(cells_once.size(), count_cells(all.bags.input.clouds).size());  // no cell lost
+  EXPECT_EQ(cells_twice.size(), cells_once.size());
+  EXPECT_EQ(once.cells, cells_once.size());
+  size_t kept_twice = 0;
+  for (const auto& [cell, n] : cells_twice) {
+    EXPECT_LE(n, 3u);
+    kept_twice += n;
+  }
+  EXPECT_GT(once.points_over_cap, 0u);
+  EXPECT_EQ(twice.points_cleaned, 2 * once.points_cleaned);
+  EXPECT_LE(kept_twice, 3 * cells_once.size());  // bounded by the cells, not by the input
+  EXPECT_EQ(kept_twice + twice.points_over_cap, twice.points_cleaned);
+  // A cleaning option the filter refuses fails the stream (and stops its thread).
+  stream.cleaning->outlier_stddev = -1;
+  expect_input_error(
+      [&] { terrain::stream_map_bags({fixture("scan_zstd.mcap")}, both_lidars(), stream); }, {});
+}
+
 TEST(BagInput, BrokenRosbag2FoldersFailClearly) {
   ScratchDir dir;
   const std::filesystem::path folder = dir.file("run");

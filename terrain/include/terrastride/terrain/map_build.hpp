@@ -164,6 +164,31 @@ BagMapInput read_map_bags(const std::vector<std::string>& paths,
                           const perception::BagCloudOptions& options,
                           const std::function<void(size_t bag, size_t clouds)>& progress = {});
 
+// A recording streamed into a map's input (`terrastride map RUN --topic ...`): memory follows
+// the map, not the file. Each cloud is cleaned as soon as it is read (filter_cloud with
+// `cleaning`, per cloud as build_terrain_map does, on a second thread: reading and cleaning
+// overlap, at most two raw clouds wait), then thinned to at most `max_cell_points` points per
+// grid cell of `cell_size` over all clouds so far: a cell's first points are kept, later ones
+// dropped and counted. A robot standing still, or driving over the same ground again, adds no
+// memory once its cells are full; 0 keeps every point (memory then grows with the points kept,
+// as before). The clouds come out cleaned: build them with MapBuildOptions::cleaning = nullopt.
+struct BagStreamOptions {
+  std::optional<perception::CloudFilterOptions> cleaning = perception::default_map_cleaning();
+  double cell_size = 0.02;       // the grid's resolution
+  size_t max_cell_points = 0;    // 0: no cap
+};
+struct StreamedBagInput {
+  BagMapInput bags;             // cleaned (and thinned) clouds; sources count the points read
+  double clean_s = 0.0;         // cleaning's own time (on its thread)
+  size_t points_cleaned = 0;    // left after cleaning, before the cap
+  size_t points_over_cap = 0;   // dropped by the cap
+  size_t cells = 0;             // grid cells holding points
+};
+StreamedBagInput stream_map_bags(const std::vector<std::string>& paths,
+                                 const perception::BagCloudOptions& options,
+                                 const BagStreamOptions& stream,
+                                 const std::function<void(size_t bag, size_t clouds)>& progress = {});
+
 // What `terrastride map --out` writes, for perception::AtomicOutputDir: outputs of versions
 // before the marker file are recognised by their names (every version wrote all three of
 // terrain.json, octomap.bt and layers/, so a folder that merely holds a terrain.json is not taken
