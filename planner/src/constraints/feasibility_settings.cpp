@@ -43,6 +43,8 @@ const std::map<std::string, Setting>& settings_table() {
       {"leg_probe_margin",
        {[](FeasibilityOptions& o, double v) { o.leg_probe_margin = v; }, -1.0, 0.2, false,
         "m (negative: no probes)"}},
+      {"leg_capsule_margin",
+       {[](FeasibilityOptions& o, double v) { o.leg_capsule_margin = v; }, 0.0, 0.1, false, "m"}},
       {"leg_clearance_points",
        {[](FeasibilityOptions& o, double v) { o.leg_clearance_points = static_cast<int>(v); }, 1,
         20, true, ""}},

@@ -21,10 +21,14 @@
 #pragma once
 
 #include <algorithm>
+#include <array>
 #include <cmath>
-
+#include <stdexcept>
+#include <string>
 #include <vector>
 
+#include "feasibility_common.hpp"
+#include "spline_variables.hpp"
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/piece_math.hpp"
@@ -44,6 +48,102 @@ std::vector<std::vector<int>> leg_clearance_points(SrbdProblem& problem,
 // Values one capsule adds: per point, the terrain under it and (but the last) under the next
 // point, and with probe > 0 two probes across.
 constexpr int capsule_clearance_values(int nk, bool probed) { return (probed ? 4 : 2) * nk - 1; }
+
+// The rows of one link's pieces, shared by shin_ik and thigh. The capsule is the link's radius
+// grown by options.leg_capsule_margin (what the planner holds clear is a fatter link than the
+// post-hoc check and MuJoCo judge; see FeasibilityOptions::leg_capsule_margin); a fixed vertical
+// clearance (fixed_gap, shin_ik's shin_clearance >= 0) replaces the grown radius's gap.
+struct CapsuleRows {
+  double gap_radius = 0.0;  // the radius whose gap r / cos(inclination) the values subtract
+  double probe = 0.0;       // across the axis, 0: no probes
+  int n_values = 0;         // values per piece (folded into one row with shin_softmin > 0)
+  std::vector<double> lo, hi;
+};
+inline CapsuleRows capsule_rows(const std::string& family, double link_radius, bool fixed_gap,
+                                double lower, int nk, const FeasibilityOptions& options) {
+  CapsuleRows c;
+  const double grown = link_radius + options.leg_capsule_margin;
+  c.gap_radius = fixed_gap ? 0.0 : grown;
+  c.probe = options.leg_probe_margin >= 0.0 ? grown + options.leg_probe_margin : 0.0;
+  c.n_values = capsule_clearance_values(nk, c.probe > 0.0);
+  if (c.n_values > kMaxShinValues || (options.shin_softmin <= 0.0 && c.n_values > 64))
+    throw std::invalid_argument(family + ": too many points along the link (" +
+                                std::to_string(nk) + " make " + std::to_string(c.n_values) +
+                                " values per piece)");
+  const int rows = options.shin_softmin > 0.0 ? 1 : c.n_values;
+  c.lo.assign(rows, lower);
+  c.hi.assign(rows, kInf);
+  return c;
+}
+
+// One constraint point of a leg link's piece: the variables it reads (foot f's, the base position
+// and Euler angles at fraction sigma of segment s, the segment's duration when a Hermite needs it;
+// in stance also the base pose at the stance's first knot) and, for any scalar type, the leg's
+// pose there.
+//
+// The foot rolls. A foot is a sphere fixed to the shin: while the shin turns during a stance the
+// sphere rolls, and its centre and contact point move along the ground by r_foot times the
+// shin's turn, which the planner's fixed foothold does not show. Measured in MuJoCo
+// (collision::simulate_plan) on the 11 s pallet_15 crawl with `all`: the RH contact point crept
+// 11 mm towards the pallet over its 2.6 s stance (no sliding: the material point's slip was
+// 1.6 mm; the report's "centre drift" is this roll, 17 mm at worst over the plan), and the shin,
+// 5 mm clear of the edge in the plan, met it for 6.1 N s. So in stance the link rows use the foot
+// rolled from the stance's touchdown: p + r_foot * dphi * h, h the heading and dphi the change of
+// the shin's pitch in the vertical plane along h (atan2(u . h, u_z) of the foot-to-knee axis u)
+// since the stance's first knot (rolling about an axis across the heading; a roll sideways, from
+// the HAA joint, is small on a crawl and left out). A re-plan starting inside a stance counts the
+// roll from its own start (the earlier part is in the measured state).
+struct LegPoint {
+  HermiteLocal foot, base, euler;
+  int duration = -1;  // local index of the segment's duration, -1: not needed
+  double sigma = 0.0, seg_fraction = 1.0;
+  double roll_radius = 0.0;  // the foot sphere's radius in stance, 0 in swing (no roll)
+  std::array<int, 3> touchdown_base{{-1, -1, -1}}, touchdown_euler{{-1, -1, -1}};
+
+  // The foot (rolled in stance), base position, Euler angles and rotation at this point.
+  template <class T>
+  void eval(const robot::LegModel& leg, const T* x, Vec3<T>* foot_w, Vec3<T>* base_w,
+            Vec3<T>* euler_w, Eigen::Matrix<T, 3, 3>* R) const {
+    using std::atan2;
+    using std::cos;
+    using std::sin;
+    const T h = duration >= 0 ? T(x[duration] * seg_fraction) : T(1.0);
+    hermite<T>(sigma, h, x, foot, foot_w, nullptr, nullptr);
+    hermite<T>(sigma, h, x, base, base_w, nullptr, nullptr);
+    hermite<T>(sigma, h, x, euler, euler_w, nullptr, nullptr);
+    *R = rotation_zyx<T>(*euler_w);
+    if (roll_radius <= 0.0) return;
+    const Vec3<T> p = *foot_w;
+    const Vec3<T> heading(cos((*euler_w)[0]), sin((*euler_w)[0]), T(0.0));
+    const auto pitch = [&](const Vec3<T>& b, const Eigen::Matrix<T, 3, 3>& Rb) {
+      const Vec3<T> u =
+          b + Rb * robot::knee_in_base<T>(leg, robot::leg_joint_angles<T>(leg, Rb.transpose() * (p - b))) - p;
+      return atan2(u.dot(heading), u[2]);
+    };
+    const Vec3<T> b0 = gather3(x, touchdown_base);
+    const T dphi = pitch(*base_w, *R) - pitch(b0, rotation_zyx<T>(gather3(x, touchdown_euler)));
+    *foot_w = p + (roll_radius * dphi) * heading;
+  }
+};
+inline LegPoint add_leg_point(LocalVars& lv, const Layout& L, int f, int s, double sigma,
+                              double foot_radius) {
+  LegPoint p;
+  p.sigma = sigma;
+  p.seg_fraction = L.seg_fraction[s];
+  p.foot = add_foot_position(lv, L, f, s, sigma, true);
+  p.base = add_base_position(lv, L, s, sigma, true);
+  p.euler = add_base_euler(lv, L, s, sigma, true);
+  if (p.foot.needs_duration || p.base.needs_duration || p.euler.needs_duration)
+    p.duration = add_segment_duration(lv, L, s);
+  if (foot_radius > 0.0 && L.contact[f][s])
+    for (const Layout::Stance& st : L.stances)
+      if (st.foot == f && st.first_seg <= s && s <= st.last_seg) {
+        p.roll_radius = foot_radius;
+        p.touchdown_base = lv.add3(L.base[st.first_seg]);
+        p.touchdown_euler = lv.add3(L.base[st.first_seg] + 6);
+      }
+  return p;
+}
 
 // Writes capsule_clearance_values(nk, probe > 0) values to out. `across` is the horizontal unit vector across
 // the base's heading (-sin psi, cos psi). `t_start` is the fraction of the axis left out at a.

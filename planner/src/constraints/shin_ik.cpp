@@ -34,6 +34,7 @@ void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options) 
   const int nk = std::max(2, options.shin_points);
   const double t_soft = options.shin_softmin;
   const int nf = static_cast<int>(problem.robot().legs.size());
+  const double foot_radius = problem.robot().foot_radius;
   const std::vector<std::vector<int>> points = feasibility::leg_clearance_points(problem, options);
   for (int f = 0; f < nf; ++f) {
     const robot::LegModel leg = problem.robot().legs[f];
@@ -41,48 +42,33 @@ void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options) 
                                  ? options.shin_exclusion
                                  : robot::shin_exclusion(problem.robot(), leg);
     // A fixed shin_clearance replaces the capsule's gap r / cos(inclination).
-    const double gap_radius = options.shin_clearance >= 0.0 ? 0.0 : leg.shin_radius;
-    const double probe = options.leg_probe_margin >= 0.0 ? leg.shin_radius + options.leg_probe_margin
-                                                         : 0.0;
-    const int n_values = feasibility::capsule_clearance_values(nk, probe > 0.0);
-    if (n_values > feasibility::kMaxShinValues || (t_soft <= 0.0 && n_values > 64))
-      throw std::invalid_argument("shin_ik: too many shin points (" + std::to_string(nk) +
-                                  " make " + std::to_string(n_values) + " values per piece)");
-    const int rows = t_soft > 0.0 ? 1 : n_values;
-    std::vector<double> lo(rows, std::max(0.0, options.shin_clearance) + options.shin_ik_margin),
-        hi(rows, kInf);
+    const feasibility::CapsuleRows rows = feasibility::capsule_rows(
+        "shin_ik", leg.shin_radius, options.shin_clearance >= 0.0,
+        std::max(0.0, options.shin_clearance) + options.shin_ik_margin, nk, options);
     for (int s = 0; s < S; ++s) {
       // Every knot (the segment's start; its end only in the last segment, the next segment's
       // start covers it), and leg_clearance_points per segment where the terrain is tall.
       for (const double sigma : L.segment_points(s, std::max(1, points[f][s]), s == S - 1)) {
         LocalVars lv;
-        const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, true);
-        const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
-        const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
-        const int dur = fp.needs_duration || rp.needs_duration || ep.needs_duration
-                            ? add_segment_duration(lv, L, s)
-                            : -1;
-        const double frac = L.seg_fraction[s];
-        problem.add_piece(make_piece("shin_ik", lv, lo, hi, [=](const auto* x, auto* g) {
+        const feasibility::LegPoint at = feasibility::add_leg_point(lv, L, f, s, sigma, foot_radius);
+        problem.add_piece(make_piece("shin_ik", lv, rows.lo, rows.hi, [=](const auto* x, auto* g) {
           using T = std::decay_t<decltype(*g)>;
           using std::cos;
           using std::sin;
           using std::sqrt;
-          const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);
           Vec3<T> foot, base, euler;
-          hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
-          hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
-          hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
-          const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(euler);
+          Eigen::Matrix<T, 3, 3> R;
+          at.eval(leg, x, &foot, &base, &euler, &R);
           const Vec3<T> knee =
               base + R * robot::knee_in_base<T>(
                              leg, robot::leg_joint_angles<T>(leg, R.transpose() * (foot - base)));
           const T len = sqrt((knee - foot).squaredNorm());
           T values[feasibility::kMaxShinValues] = {};
           T* out = t_soft > 0.0 ? values : g;
-          feasibility::capsule_clearance<T>(*field, foot, knee, gap_radius, probe, exclusion / len,
-                                            nk, -sin(euler[0]), cos(euler[0]), out);
-          if (t_soft > 0.0) g[0] = feasibility::soft_min(values, n_values, t_soft);
+          feasibility::capsule_clearance<T>(*field, foot, knee, rows.gap_radius, rows.probe,
+                                            exclusion / len, nk, -sin(euler[0]), cos(euler[0]),
+                                            out);
+          if (t_soft > 0.0) g[0] = feasibility::soft_min(values, rows.n_values, t_soft);
         }));
       }
     }

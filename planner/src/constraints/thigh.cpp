@@ -26,47 +26,34 @@ void build_thigh_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   const int nk = std::max(2, options.thigh_points);
   const double t_soft = options.shin_softmin;
   const int nf = static_cast<int>(problem.robot().legs.size());
+  const double foot_radius = problem.robot().foot_radius;
   const std::vector<std::vector<int>> points = feasibility::leg_clearance_points(problem, options);
   for (int f = 0; f < nf; ++f) {
     const robot::LegModel leg = problem.robot().legs[f];
-    const double radius = leg.thigh_radius;
-    if (!(radius > 0.0)) continue;
-    const double probe = options.leg_probe_margin >= 0.0 ? radius + options.leg_probe_margin : 0.0;
-    const int n_values = feasibility::capsule_clearance_values(nk, probe > 0.0);
-    if (n_values > feasibility::kMaxShinValues || (t_soft <= 0.0 && n_values > 64))
-      throw std::invalid_argument("thigh: too many thigh points (" + std::to_string(nk) +
-                                  " make " + std::to_string(n_values) + " values per piece)");
-    const int rows = t_soft > 0.0 ? 1 : n_values;
-    std::vector<double> lo(rows, options.shin_ik_margin), hi(rows, kInf);
+    if (!(leg.thigh_radius > 0.0)) continue;
+    const feasibility::CapsuleRows rows =
+        feasibility::capsule_rows("thigh", leg.thigh_radius, false, options.shin_ik_margin, nk,
+                                  options);
     for (int s = 0; s < S; ++s) {
       if (points[f][s] <= 0) continue;
       for (const double sigma : L.segment_points(s, points[f][s], s == S - 1 || points[f][s + 1] <= 0)) {
         LocalVars lv;
-        const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, true);
-        const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
-        const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
-        const int dur = fp.needs_duration || rp.needs_duration || ep.needs_duration
-                            ? add_segment_duration(lv, L, s)
-                            : -1;
-        const double frac = L.seg_fraction[s];
-        problem.add_piece(make_piece("thigh", lv, lo, hi, [=](const auto* x, auto* g) {
+        const feasibility::LegPoint at = feasibility::add_leg_point(lv, L, f, s, sigma, foot_radius);
+        problem.add_piece(make_piece("thigh", lv, rows.lo, rows.hi, [=](const auto* x, auto* g) {
           using T = std::decay_t<decltype(*g)>;
           using std::cos;
           using std::sin;
-          const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);
           Vec3<T> foot, base, euler;
-          hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
-          hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
-          hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
-          const Eigen::Matrix<T, 3, 3> R = rotation_zyx<T>(euler);
+          Eigen::Matrix<T, 3, 3> R;
+          at.eval(leg, x, &foot, &base, &euler, &R);
           const Vec3<T> q = robot::leg_joint_angles<T>(leg, R.transpose() * (foot - base));
           const Vec3<T> hfe = base + R * robot::hfe_in_base<T>(leg, q);
           const Vec3<T> knee = base + R * robot::knee_in_base<T>(leg, q);
           T values[feasibility::kMaxShinValues] = {};
           T* out = t_soft > 0.0 ? values : g;
-          feasibility::capsule_clearance<T>(*field, hfe, knee, radius, probe, T(0.0), nk,
-                                            -sin(euler[0]), cos(euler[0]), out);
-          if (t_soft > 0.0) g[0] = feasibility::soft_min(values, n_values, t_soft);
+          feasibility::capsule_clearance<T>(*field, hfe, knee, rows.gap_radius, rows.probe, T(0.0),
+                                            nk, -sin(euler[0]), cos(euler[0]), out);
+          if (t_soft > 0.0) g[0] = feasibility::soft_min(values, rows.n_values, t_soft);
         }));
       }
     }

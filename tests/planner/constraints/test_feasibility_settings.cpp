@@ -49,12 +49,14 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
   }
   // The leg clearance families' settings (shin_ik, thigh).
   const FeasibilityOptions leg = feasibility_options(
-      {{"leg_probe_margin", -1.0}, {"leg_clearance_points", 2.0}, {"thigh_points", 6.0}});
+      {{"leg_probe_margin", -1.0}, {"leg_clearance_points", 2.0}, {"thigh_points", 6.0},
+       {"leg_capsule_margin", 0.004}});
+  EXPECT_EQ(leg.leg_capsule_margin, 0.004);
   EXPECT_EQ(leg.leg_probe_margin, -1.0);
   EXPECT_EQ(leg.leg_clearance_points, 2);
   EXPECT_EQ(leg.thigh_points, 6);
   EXPECT_EQ(feasibility_options({{"trunk_margin", 0.05}}).trunk_margin, 0.05);
-  EXPECT_EQ(feasibility_option_names().size(), 15u);
+  EXPECT_EQ(feasibility_option_names().size(), 16u);
 }
 
 }  // namespace

@@ -2,6 +2,7 @@
 // central differences (per-point and merged rows), and the rows against the robot's own inverse
 // kinematics and knee position.
 #include <cmath>
+#include <optional>
 
 #include "family_test.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
@@ -49,9 +50,13 @@ TEST_P(ShinIkVariants, JacobianMatchesCentralDifferences) {
 
 // The knee is the robot's own IK knee: at every knot, the piece's row for point nk - 1 (the knee;
 // rows 2 j - 1 are the points j >= 1 without probes) is the height of robot::knee_position at the
-// IK solution above the flat ground.
-TEST(ShinIk, KneeIsTheIkKnee) {
-  const auto r = hyq();
+// IK solution above the flat ground. With the robot's foot radius, a stance foot rolls (see
+// constraints/leg_capsule_clearance.hpp): the knee is then the IK knee of the foot moved along
+// the heading by r_foot times the change of the shin's pitch since the stance's first knot,
+// computed here with the robot's own IK; with a point foot (radius 0) nothing rolls.
+void expect_rows_at_the_ik_knee(double foot_radius) {
+  auto r = hyq();
+  r.foot_radius = foot_radius;
   FlatField flat;
   SrbdProblem p(r, flat, crawl_timeline(r), ProblemOptions{});
   FeasibilityOptions fo;
@@ -61,28 +66,55 @@ TEST(ShinIk, KneeIsTheIkKnee) {
   const auto pieces = pieces_added_by(p, [&] { build_shin_ik_set(p, fo); });
   const std::vector<double> x = perturbed_guess(p, 3, 0.01);
   const Layout& L = p.layout();
-  int checked = 0;
+  const auto knee_of = [&](int foot, const Eigen::Vector3d& pf, const Eigen::Vector3d& base,
+                           const Eigen::Matrix3d& R) -> std::optional<Eigen::Vector3d> {
+    const auto ik = robot::inverse_kinematics(r.legs[foot], R.transpose() * (pf - base));
+    if (ik.status == robot::IkStatus::unreachable) return std::nullopt;
+    return base + R * robot::knee_position(r.legs[foot], ik.q);
+  };
+  int checked = 0, rolled = 0;
   for (const Piece* piece : pieces) {
     // Which foot and knot: the piece's variables are the foot's position at a knot (3; its
-    // foothold in stance, its spline knot in swing), base position (3), euler (3).
+    // foothold in stance, its spline knot in swing), base position (3), euler (3), and in stance
+    // the base pose at the stance's first knot.
     const int pv = piece->vars[0], bv = piece->vars[3];
-    int foot = -1;
+    int foot = -1, knot = -1;
     for (std::size_t f = 0; f < L.foot_pos.size(); ++f)
       for (int k = 0; k <= L.num_segments; ++k)
-        if (L.foot_pos[f][k] == pv && L.base[k] == bv) foot = static_cast<int>(f);
+        if (L.foot_pos[f][k] == pv && L.base[k] == bv) foot = static_cast<int>(f), knot = k;
     ASSERT_GE(foot, 0);
-    const Eigen::Vector3d pf = vec3_at(x, pv), base = vec3_at(x, bv), e = vec3_at(x, bv + 6);
+    Eigen::Vector3d pf = vec3_at(x, pv);
+    const Eigen::Vector3d base = vec3_at(x, bv), e = vec3_at(x, bv + 6);
     const Eigen::Matrix3d R = rotation_of(e);
-    const auto ik = robot::inverse_kinematics(r.legs[foot], R.transpose() * (pf - base));
-    if (ik.status == robot::IkStatus::unreachable) continue;
-    const Eigen::Vector3d knee = base + R * robot::knee_position(r.legs[foot], ik.q);
+    const int seg = std::min(knot, L.num_segments - 1);
+    if (foot_radius > 0.0 && L.contact[foot][seg]) {
+      const Layout::Stance* stance = nullptr;
+      for (const auto& st : L.stances)
+        if (st.foot == foot && st.first_seg <= seg && seg <= st.last_seg) stance = &st;
+      ASSERT_NE(stance, nullptr);
+      const Eigen::Vector3d b0 = vec3_at(x, L.base[stance->first_seg]);
+      const Eigen::Matrix3d R0 = rotation_of(vec3_at(x, L.base[stance->first_seg] + 6));
+      const auto k0 = knee_of(foot, pf, b0, R0), k1 = knee_of(foot, pf, base, R);
+      if (!k0 || !k1) continue;
+      const Eigen::Vector3d h(std::cos(e[0]), std::sin(e[0]), 0.0);
+      const auto pitch = [&](const Eigen::Vector3d& u) { return std::atan2(u.dot(h), u.z()); };
+      const double dphi = pitch(*k1 - pf) - pitch(*k0 - pf);
+      pf += foot_radius * dphi * h;
+      rolled += std::abs(dphi) > 1e-3;
+    }
+    const auto knee = knee_of(foot, pf, base, R);
+    if (!knee) continue;
     const auto g = rows_at(*piece, x);
     ASSERT_EQ(g.size(), 2u * fo.shin_points - 1);
-    EXPECT_NEAR(g[2 * fo.shin_points - 3], knee.z(), 1e-9);  // the knee; flat ground z = 0
+    EXPECT_NEAR(g[2 * fo.shin_points - 3], knee->z(), 1e-9);  // the knee; flat ground z = 0
     ++checked;
   }
   EXPECT_GT(checked, 10);
+  if (foot_radius > 0.0) EXPECT_GT(rolled, 5) << "stance knots where the shin has turned";
 }
+
+TEST(ShinIk, KneeIsTheIkKnee) { expect_rows_at_the_ik_knee(0.0); }
+TEST(ShinIk, StanceKneeIsTheIkKneeOfTheRolledFoot) { expect_rows_at_the_ik_knee(0.02); }
 
 // Merged (the default): each piece's row is the soft minimum of its 4 nk - 1 point rows.
 TEST(ShinIk, MergedRowIsTheSoftMinimumOfTheKnotsPointRows) {

@@ -38,7 +38,9 @@ TEST(Thigh, NoPiecesOnFlatGround) {
 
 // The rows are the chain's HFE joint and knee (robot::hfe_position, robot::knee_position at the
 // IK angles) above the terrain, by the capsule's radius over the cosine of the thigh's
-// inclination (capped at 0.5): row 0 is the HFE joint, row 2 nk - 3 the knee (no probes).
+// inclination (capped at 0.5), the radius grown by leg_capsule_margin: row 0 is the HFE joint,
+// row 2 nk - 3 the knee (no probes). (Knot pieces with 9 variables: a swing knot or a stance's
+// first knot, where the foot has not rolled yet.)
 TEST(Thigh, RowsAreTheChainsThighAboveTheTerrain) {
   const auto r = hyq();
   MarginStep terrain(0.1, 0.5, 0.05, 0.01);
@@ -67,7 +69,7 @@ TEST(Thigh, RowsAreTheChainsThighAboveTheTerrain) {
     const Eigen::Vector3d hfe = base + R * robot::hfe_position(leg, ik.q);
     const Eigen::Vector3d knee = base + R * robot::knee_position(leg, ik.q);
     const Eigen::Vector3d d = knee - hfe;
-    const double gap = leg.thigh_radius / std::max(0.5, d.head<2>().norm() / d.norm());
+    const double gap = (leg.thigh_radius + fo.leg_capsule_margin) / std::max(0.5, d.head<2>().norm() / d.norm());
     const auto g = rows_at(*piece, x);
     ASSERT_EQ(static_cast<int>(g.size()), 2 * nk - 1);
     EXPECT_NEAR(g[0], hfe.z() - terrain.height(hfe.x(), hfe.y()) - gap, 1e-6);
