@@ -9,6 +9,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 
+#include "report/batch.hpp"
 #include "report/report.hpp"
 #include "report/report_file.hpp"
 #include "report/terrain_input.hpp"
@@ -33,6 +34,9 @@ struct ReportCommandOptions {
   std::string title;
   bool json_output = false;
   bool simulate = false;
+  std::string shard;
+  bool resume = false;
+  bool timestamp = false;
 };
 
 std::vector<double> parse_radii(const std::string& text) {
@@ -42,13 +46,6 @@ std::vector<double> parse_radii(const std::string& text) {
   const Eigen::VectorXd v = parse_numbers(text, n, "--foot-radius");
   for (int i = 0; i < n; ++i) radii.push_back(v[i]);
   return radii;
-}
-
-bool is_scan_file(const fs::path& p) {
-  std::string ext = p.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return std::tolower(c); });
-  return ext == ".pcd" || ext == ".ply" || ext == ".xyz" || ext == ".npy";
 }
 
 void check_out_html(const std::string& out) {
@@ -66,28 +63,6 @@ void check_out_html(const std::string& out) {
   } catch (const perception::InputError& e) {
     throw CommandError(std::string("--out: ") + e.what());
   }
-}
-
-// What `report --batch --out DIR` writes, for perception::AtomicOutputDir. Outputs of versions
-// before the marker file are recognised by index.json and index.html plus exactly the reports
-// index.json lists (NAME.html and the NAME.json beside it), so a folder that merely holds some
-// .html/.json files is never taken for one.
-perception::OutputDirKind batch_output_kind() {
-  perception::OutputDirKind kind{
-      "report --batch", {"index.json", "index.html"}, {"index.json", "index.html"}, {}};
-  kind.legacy_listed = [](const std::string& dir) {
-    std::vector<std::string> names;
-    std::ifstream in(fs::path(dir) / "index.json");
-    const json index = json::parse(in);
-    for (const json& row : index.at("reports")) {
-      const std::string html = row.at("html").get<std::string>();
-      if (html.find('/') != std::string::npos || fs::path(html).extension() != ".html") continue;
-      names.push_back(html);
-      names.push_back(fs::path(html).replace_extension(".json").string());
-    }
-    return names;
-  };
-  return kind;
 }
 
 json summary_json(const json& report, const std::string& html, const std::string& json_path) {
@@ -139,97 +114,59 @@ void run_single(const ReportCommandOptions& o, const report::TerrainInputOptions
   print_summary(summary_json(rep, o.out, json_path), o.json_output);
 }
 
-// Batch mode: one report per scan of the --batch folder, and the index ranking them.
+// Batch mode: this process's share of the scans, each report committed on its own; exits 0 when
+// every scan of the share has a report, kExitBatchScansFailed when some failed (recorded in the
+// index), 1 when the batch could not run.
 void run_batch(const ReportCommandOptions& o, const report::TerrainInputOptions& topts,
-               report::ReportOptions ropts) {
+               const report::ReportOptions& ropts) {
   if (!o.plans.empty()) throw CommandError("--plan cannot be combined with --batch");
-  if (!fs::is_directory(o.batch)) throw CommandError("--batch " + o.batch + ": not a folder");
-  // Before mapping every scan: refuse an --out folder holding anything but an earlier report
-  // (e.g. --out equal to --batch, the scans themselves), and an unwritable one.
-  try {
-    perception::check_output_dir(o.out, batch_output_kind());
-  } catch (const perception::InputError& e) {
-    throw CommandError(std::string("--out: ") + e.what());
-  }
-  // One scan per name: files NAME.ext, NAME.1.ext, NAME.2.ext ... (one per sensor pose, as the
-  // scan simulator writes them) are mapped together; map folders are scans of their own.
-  std::map<std::string, std::vector<std::string>> groups;
-  for (const auto& entry : fs::directory_iterator(o.batch)) {
-    const fs::path p = entry.path();
-    const std::string name = p.filename().string();
-    if (entry.is_regular_file() && is_scan_file(p))
-      groups[name.substr(0, name.find('.'))].push_back(p.string());
-    else if (entry.is_directory() && report::is_terrain_dir(p.string()))
-      groups[name].push_back(p.string());
-  }
-  std::vector<std::pair<std::string, std::vector<std::string>>> scans(groups.begin(), groups.end());
-  for (auto& [name, files] : scans) std::sort(files.begin(), files.end());
-  if (scans.empty())
-    throw CommandError("--batch " + o.batch +
-                       ": no scans (.pcd, .ply, .xyz, .npy) or terrain folders in it");
-  perception::AtomicOutputDir out_dir(o.out, batch_output_kind());
-  json rows = json::array();
-  std::vector<std::string> failed;
-  for (size_t i = 0; i < scans.size(); ++i) {
-    const std::string& stem = scans[i].first;
-    const std::vector<std::string>& files = scans[i].second;
-    std::cerr << "[" << i + 1 << "/" << scans.size() << "] " << stem << "\n";
-    const std::string html_name = stem + ".html";
-    json files_json = json::array();
-    for (const auto& f : files) files_json.push_back(f);
-    json row_json{{"scan", stem}, {"files", files_json}, {"html", html_name}};
-    try {
-      ropts.title = "terrastride foothold-safety report: " + stem;
-      const json rep = report::make_report_file(files, {}, topts, ropts,
-                                                (fs::path(out_dir.path()) / html_name).string());
-      const json& t = rep["terrain"];
-      row_json["safe_fraction"] = t["safe_fraction"];
-      row_json["observed_fraction"] = t["observed_fraction"];
-      row_json["cells"] = t["cells"];
-      row_json["height_min_m"] = t["height_min_m"];
-      row_json["height_max_m"] = t["height_max_m"];
-      row_json["problems"] = rep["problems"].size();
-    } catch (const std::exception& e) {
-      row_json["error"] = e.what();
-      failed.push_back(stem + ": " + e.what());
-    }
-    rows.push_back(row_json);
-  }
-  // Rank: best safe fraction first; failed scans last.
-  std::stable_sort(rows.begin(), rows.end(), [](const json& a, const json& b) {
-    const double fa = a.contains("error") ? -1.0 : a["safe_fraction"].get<double>();
-    const double fb = b.contains("error") ? -1.0 : b["safe_fraction"].get<double>();
-    return fa > fb;
-  });
-  json index{{"source", o.batch},
-             {"foot_radius_m", topts.foot_radius},
-             {"generated_utc", report::utc_now()},
-             {"reports", rows}};
-  perception::write_file_atomically((fs::path(out_dir.path()) / "index.json").string(),
-                                    index.dump(1) + "\n");
-  perception::write_file_atomically((fs::path(out_dir.path()) / "index.html").string(),
-                                    report::render_index_html(index));
-  out_dir.commit();
+  report::BatchOptions b;
+  b.source = o.batch;
+  b.out = o.out;
+  b.shard = report::parse_batch_shard(o.shard);
+  b.resume = o.resume;
+  b.timestamp = o.timestamp;
+  b.terrain = topts;
+  b.report = ropts;
+  b.progress = [&](size_t k, size_t n, const std::string& name, bool skipped) {
+    std::cerr << "[" << k << "/" << n << "] " << name << (skipped ? " (reported: skipped)" : "")
+              << "\n";
+  };
+  const report::BatchResult r = report::run_report_batch(b);
+  const json& index = r.index;
   if (o.json_output) {
-    std::cout << index.dump() << "\n";
+    json out{{"scans", r.scans},
+             {"shard", std::to_string(b.shard.index) + "/" + std::to_string(b.shard.count)},
+             {"assigned", r.assigned},
+             {"skipped", r.skipped},
+             {"reported", r.reported},
+             {"failed", r.failures},
+             {"index", index}};
+    std::cout << out.dump() << "\n";
   } else {
+    const json& rows = index["reports"];
     for (size_t i = 0; i < rows.size(); ++i) {
-      const json& r = rows[i];
-      if (r.contains("error"))
-        std::cout << "  -  " << r["scan"].get<std::string>() << ": failed\n";
+      const json& row = rows[i];
+      if (row.contains("pending"))
+        std::cout << "  -  " << row["scan"].get<std::string>() << ": not run yet\n";
+      else if (row.contains("error"))
+        std::cout << "  -  " << row["scan"].get<std::string>() << ": failed\n";
       else
-        std::cout << "  " << i + 1 << ". " << r["scan"].get<std::string>() << "  safe "
-                  << r["safe_fraction"] << ", problems " << r["problems"] << "\n";
+        std::cout << "  " << i + 1 << ". " << row["scan"].get<std::string>() << "  safe "
+                  << row["safe_fraction"] << ", problems " << row["problems"] << "\n";
     }
-    std::cout << "index: " << (fs::path(o.out) / "index.html").string() << "\n";
+    std::cout << "shard " << b.shard.index << "/" << b.shard.count << ": " << r.assigned
+              << " scans, " << r.reported << " reported, " << r.skipped << " skipped, "
+              << r.failures.size() << " failed; the batch: " << index["finished"] << " of "
+              << r.scans << " reported, " << index["failed"] << " failed, " << index["pending"]
+              << " not run yet\nindex: " << (fs::path(o.out) / "index.html").string() << "\n";
   }
-  if (failed.size() == scans.size())
-    throw CommandError("--batch " + o.batch + ": every scan failed; first: " + failed.front());
-  if (!failed.empty()) {
-    std::string msg = std::to_string(failed.size()) + " of " + std::to_string(scans.size()) +
-                      " scans failed (the others are in " + o.out + "):";
-    for (const auto& f : failed) msg += "\n  " + f;
-    throw CommandError(msg);
+  if (!r.failures.empty()) {
+    std::string msg = std::to_string(r.failures.size()) + " of " + std::to_string(r.assigned) +
+                      " scans failed (recorded in " + (fs::path(o.out) / "index.json").string() +
+                      "; the others are reported):";
+    for (const auto& f : r.failures) msg += "\n  " + f;
+    throw CommandError(msg, kExitBatchScansFailed);
   }
 }
 
@@ -269,8 +206,23 @@ void add_report_command(CLI::App& app) {
                   "an OctoMap (.bt, .ot) or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap)");
   cmd->add_option("--plan", o->plans, "plan.json files to show on the terrain (repeatable)");
   cmd->add_option("--batch", o->batch,
-                  "A folder of scans (and/or map folders): one report each plus index.html ranking "
-                  "them by safe fraction; --out is then the output folder");
+                  "A folder of scans (and/or map folders), or a manifest file (one scan file or "
+                  "map folder per line): one report each, OUT/NAME/NAME.html, committed scan by "
+                  "scan, plus OUT/index.html ranking them by safe fraction; --out is then the "
+                  "output folder. Exit codes: 0 every scan of this shard reported, 3 some scans "
+                  "failed (each recorded in index.json; the others reported), 1 the batch could "
+                  "not run (bad --batch, --out or settings), 2 usage");
+  cmd->add_option("--shard", o->shard,
+                  "Batch: run only scans k with k mod N == I (scans in name order): I/N, or N "
+                  "with I from JOB_COMPLETION_INDEX (Kubernetes Indexed Job) or "
+                  "SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN (Slurm job array). Any number of "
+                  "shards may write into one --out at once");
+  cmd->add_flag("--resume", o->resume,
+                "Batch: skip scans whose report is already in --out (e.g. after a kill or a "
+                "retried job); failed scans are run again");
+  cmd->add_flag("--timestamp", o->timestamp,
+                "Batch: stamp generated_utc and timings into the reports and index (without it "
+                "the outputs are byte-reproducible)");
   cmd->add_option("--out", o->out,
                   "report.html (report.json beside it), or the batch output folder")
       ->required();

@@ -294,8 +294,8 @@ TEST_F(ReportTest, MapFolderAndBatchRanking) {
                           shell_quote(out.string()));
   ASSERT_EQ(b.code, 0) << b.err;
   EXPECT_TRUE(fs::exists(out / "index.html"));
-  EXPECT_TRUE(fs::exists(out / "flat_map.html"));
-  EXPECT_TRUE(fs::exists(out / "stairs_map.json"));
+  EXPECT_TRUE(fs::exists(out / "flat_map" / "flat_map.html"));
+  EXPECT_TRUE(fs::exists(out / "stairs_map" / "stairs_map.json"));
   const json index = read_json(out / "index.json");
   ASSERT_EQ(index["reports"].size(), 2u);
   EXPECT_EQ(index["reports"][0]["scan"], "flat_map");  // flat ranks first (safer)

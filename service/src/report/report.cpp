@@ -157,6 +157,13 @@ json build_report(const TerrainView& terrain, const std::vector<PlanInput>& plan
   report["ok"] = problems.empty();
   report["report_build_s"] =
       num(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 4);
+  if (!options.clock_fields) {
+    report.erase("generated_utc");
+    report.erase("report_build_s");
+    report["terrain"].erase("build_s");
+    if (report["terrain"]["info"].is_object()) report["terrain"]["info"].erase("timings");
+    for (json& p : report["plans"]) p.erase("checks_wall_s");
+  }
   return report;
 }
 

@@ -75,12 +75,16 @@ struct ReportOptions {
   size_t max_display_cells = 160'000;  // larger grids are shown decimated (noted in the page)
   // Run every plan without a simulation in MuJoCo on the terrain (`report --simulate`).
   bool simulate = false;
+  // Wall-clock fields (generated_utc, report_build_s, the terrain's build_s and map timings,
+  // checks_wall_s). Off: the report is a function of its inputs alone, byte for byte (`report
+  // --batch` without --timestamp), so reruns and resumed batches can be compared with cmp.
+  bool clock_fields = true;
 };
 
 // Everything the page shows, as numbers: terrain layers and statistics, per plan the path, feet,
 // footholds with margins, elevation profile, torque series, leg clearance series, and the list of
 // problems (each with the figure and the limit it breaks). Deterministic for given inputs except
-// the "generated_utc" and timing fields.
+// the "generated_utc" and timing fields (left out when options.clock_fields is false).
 nlohmann::json build_report(const TerrainView& terrain, const std::vector<PlanInput>& plans,
                             const ReportOptions& options);
 

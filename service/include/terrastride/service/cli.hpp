@@ -27,6 +27,9 @@ class CommandError : public std::runtime_error {
 // never 0 for a plan that fails a check.
 constexpr int kExitNotOptimal = 3;
 constexpr int kExitChecksFailed = 4;
+// `report --batch`: it ran, but some scans of its shard failed (recorded in the index); 1 is kept
+// for "could not run at all" (bad --batch, --out or settings).
+constexpr int kExitBatchScansFailed = 3;
 
 // Parses "x,y" or "x,y,z" (exactly `n` finite numbers); `what` names the option in errors.
 Eigen::VectorXd parse_numbers(const std::string& text, int n, const std::string& what);
