@@ -11,6 +11,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <limits>
 #include <thread>
 #include <tuple>
@@ -18,6 +19,8 @@
 
 #include "terrastride/service/client.hpp"
 #include "terrastride/service/protocol.hpp"
+#include "terrastride/terrain/scan_sim.hpp"
+#include "terrastride/terrain/scenes.hpp"
 #include "test_server_process.hpp"
 
 namespace {
@@ -238,10 +241,50 @@ TEST_F(ServerTest, PlanAndCheckAnswerHonestly) {
   // The post-hoc checks of that plan on the current map (pallet_10: the plan stays before it).
   const json chk = c.call_ok({{"op", "check"}, {"plan", r}});
   EXPECT_TRUE(chk["checks"].contains("torque_ratio_max")) << chk.dump();
-  EXPECT_FALSE(chk["checks"].contains("shin_collisions"));  // no OctoMap in the server
+  // The scene's exact boxes, voxelised where the legs go, as `terrastride check` checks them.
+  EXPECT_TRUE(chk["checks"].contains("shin_collisions")) << chk.dump();
+  EXPECT_TRUE(chk["checks"].contains("trunk_collisions")) << chk.dump();
   m = c.call({{"op", "check"}, {"plan", json::object()}});
   EXPECT_EQ(error_code(m), "bad_request");
   EXPECT_FALSE(error_message(m).empty());
+}
+
+// A map the server builds from scans (map.update with clouds) keeps its OctoMap, so a plan on it
+// gets the post-hoc leg-capsule and trunk checks that `terrastride plan --terrain DIR` runs (issue
+// #15: without them the socket's plan on a scanned map came back clean while the CLI's failed).
+// The baseline crawl over pallet_15 rests a hind shin on the pallet's edge (bench_scenarios:
+// 128 samples, -58 mm on the exact scene): on the scanned map the reply must say so.
+TEST_F(ServerTest, PlanOnAScannedMapRunsTheLegAndTrunkChecks) {
+  Client c = Client::connect(address_);
+  const auto scene = terrastride::terrain::make_scene("pallet_15");
+  std::string mode = "replace";
+  for (const auto& scan : terrastride::terrain::simulate_scans(*scene, {})) {
+    std::vector<float> pts;
+    for (const auto& q : scan.cloud.points) pts.insert(pts.end(), {q.x(), q.y(), q.z()});
+    const Eigen::Vector3d o = *scan.cloud.sensor_origin;
+    const json up = c.call_ok(
+        {{"op", "map.update"}, {"origin", {o.x(), o.y(), o.z()}}, {"mode", mode}},
+        {p::make_float_attachment("points", {scan.cloud.points.size(), 3}, pts)});
+    EXPECT_GT(up["stats"]["octomap_resolution"].get<double>(), 0.0) << up.dump();
+    mode = "add";
+  }
+  const json plan = c.call_ok({{"op", "plan"}, {"terrain", "current"}, {"goal", {1.0, 0.0, 0.0}}});
+  ASSERT_EQ(plan["solver"]["status"], "optimal") << plan.dump().substr(0, 2000);
+  EXPECT_TRUE(plan["checks"].contains("shin_collisions")) << plan["checks"].dump();
+  EXPECT_TRUE(plan["checks"].contains("trunk_collisions")) << plan["checks"].dump();
+  EXPECT_GT(plan["checks"]["shin_collisions"].get<int>(), 0) << plan["checks"].dump();
+  EXPECT_FALSE(plan["checks_passed"].get<bool>());
+  EXPECT_FALSE(plan["success"].get<bool>());
+  const std::string failures = plan["post_hoc"]["failures"].dump();
+  std::cout << "pallet_15 scanned, baseline crawl: " << plan["post_hoc"]["terrain"] << ": "
+            << failures << "\n";
+  EXPECT_NE(failures.find("shin"), std::string::npos) << failures;
+  EXPECT_NE(plan["post_hoc"]["terrain"].get<std::string>().find("OctoMap"), std::string::npos)
+      << plan["post_hoc"]["terrain"];
+  // `check` of the same plan on the same map agrees.
+  const json chk = c.call_ok({{"op", "check"}, {"plan", plan}});
+  EXPECT_FALSE(chk["passed"].get<bool>()) << chk.dump();
+  EXPECT_EQ(chk["checks"]["shin_collisions"], plan["checks"]["shin_collisions"]);
 }
 
 // A re-plan from the robot's measured state, as `terrastride plan --init --start-time

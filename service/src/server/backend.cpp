@@ -10,7 +10,9 @@
 #include <cmath>
 #include <filesystem>
 
+#include "terrain_source.hpp"
 #include "terrastride/planner/gait.hpp"
+#include "terrastride/planner/plan_io.hpp"
 
 namespace terrastride::service {
 
@@ -169,6 +171,48 @@ json grid_stats(const terrain::TerrainMap& tm) {
           {"filled_cells", g.filled_cells},
           {"points_in_grid", g.points_in_grid},
           {"foot_radii", tm.radii()}};
+}
+
+RequestPlan read_request_plan(const Backend& backend, const json& header, const std::string& op) {
+  const auto it = header.find("plan");
+  if (it == header.end() || !it->is_object())
+    throw ProtocolError(pc::kBadRequest, op + " needs \"plan\": a plan.json object");
+  RequestPlan r{{}, backend.robot()};
+  try {
+    r.trajectory = planner::plan_from_json(*it, "plan");
+  } catch (const std::exception& e) {
+    throw ProtocolError(pc::kBadRequest, e.what());
+  }
+  const std::string& name = r.trajectory.robot;
+  if (!name.empty() && name != backend.robot().name) {
+    // A robot name from the data folder, never a path a client names (see gait_name).
+    if (!is_plain_name(name))
+      throw ProtocolError(pc::kBadRequest, "plan.robot: a robot name (e.g. " +
+                                               backend.robot().name +
+                                               "); the server reads no robot files a client names");
+    try {
+      r.robot = robot::load_robot(robot::resolve_robot_path(name));
+    } catch (const robot::RobotFileError& e) {
+      throw ProtocolError(pc::kBadRequest, std::string("plan.robot: ") + e.what());
+    }
+  }
+  return r;
+}
+
+collision::CheckTerrain snapshot_check_terrain(const MapSnapshot& snapshot,
+                                               const robot::RobotModel& model,
+                                               const planner::Trajectory& trajectory) {
+  if (const auto* scene = dynamic_cast<const terrain::Scene*>(snapshot.field.get()))
+    return scene_check_terrain(*scene, snapshot.source, model, trajectory, kPostHocVoxel);
+  collision::CheckTerrain view;
+  view.field = snapshot.field.get();
+  view.octree = snapshot.octree;
+  view.description =
+      "map " + snapshot.source +
+      (snapshot.octree
+           ? " (its OctoMap at " + std::to_string(snapshot.octree->getResolution()) + " m)"
+           : " (no OctoMap: leg capsules and trunk not checked)");
+  return view;
 }
 
 std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRegistry& registry) {

@@ -16,6 +16,8 @@
 #include <vector>
 
 #include "child_process.hpp"
+#include "terrastride/collision/checks.hpp"
+#include "terrastride/planner/trajectory.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/server.hpp"
@@ -28,6 +30,10 @@ namespace terrastride::service {
 // One published map: immutable once published; readers hold it for as long as they need it.
 struct MapSnapshot {
   std::shared_ptr<const terrain::HeightField> field;
+  // The occupancy map the post-hoc leg-capsule and trunk checks need: a cloud's (map.update
+  // builds it as `terrastride map` does) or a terrain dir's octomap.bt. Null for a scene (checked
+  // on its exact boxes) and a terrain dir without one.
+  std::shared_ptr<const octomap::OcTree> octree;
   std::uint64_t generation = 0;
   std::string source;  // "scene:pallet_10", "cloud", ...
   double updated_unix = 0.0;
@@ -117,5 +123,23 @@ std::string gait_name(const nlohmann::json& header);
 // map.update's and status's figures of a grid map.
 nlohmann::json grid_stats(const terrain::TerrainMap& map);
 double seconds_since(std::chrono::steady_clock::time_point t);
+
+// A request's "plan" (a plan.json object) and the robot it names (the server's when it names none;
+// another only by a plain name from the data folder): `check` and `simulate` read it alike.
+// bad_request naming the field otherwise.
+struct RequestPlan {
+  planner::Trajectory trajectory;
+  robot::RobotModel robot;
+};
+RequestPlan read_request_plan(const Backend& backend, const nlohmann::json& header,
+                              const std::string& op);
+
+// The post-hoc checks' view of a published map, as `terrastride check` sees a map folder: the
+// height field for the footholds and the map's OctoMap for the leg capsules and the trunk (a
+// scene published as the map: its exact boxes voxelised where the legs go). A map without an
+// OctoMap says so in the description (its capsules and trunk are not checked).
+collision::CheckTerrain snapshot_check_terrain(const MapSnapshot& snapshot,
+                                               const robot::RobotModel& model,
+                                               const planner::Trajectory& trajectory);
 
 }  // namespace terrastride::service

@@ -3,6 +3,7 @@
 // sensor's pose); the new map is published atomically (queries see the old map or the new one).
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -10,6 +11,7 @@
 #include <vector>
 
 #include "server/backend.hpp"
+#include "terrastride/collision/octree_terrain.hpp"
 #include "terrastride/perception/filters.hpp"
 #include "terrastride/perception/ros_messages.hpp"
 #include "terrastride/terrain/map_build.hpp"
@@ -27,12 +29,14 @@ constexpr std::size_t kMaxMapPoints = 20'000'000;
 
 struct FusedMap {
   std::shared_ptr<const terrain::HeightField> field;
+  std::shared_ptr<const octomap::OcTree> octree;
   json stats;
 };
 
 // Cleans the cloud and rebuilds the map from it, after the clouds of the current map for "add"
-// (terrain::build_terrain_map: cleaning, height grid, safety layers; no OctoMap, which the
-// server does not keep). Caller holds the backend's update mutex.
+// (terrain::build_terrain_map: cleaning, height grid, safety layers, and the OctoMap that the
+// post-hoc leg-capsule and trunk checks of a plan on this map need, as `terrastride map` builds
+// it). Caller holds the backend's update mutex.
 FusedMap fuse_cloud(Backend& backend, OpContext& ctx, perception::PointCloud cloud,
                     const std::string& mode) {
   const json& h = ctx.request.header;
@@ -63,7 +67,6 @@ FusedMap fuse_cloud(Backend& backend, OpContext& ctx, perception::PointCloud clo
                         "\"outlier_cell\" must be within [0, 0.1] m (0 = per point)");
   fo.outlier_voxel = static_cast<float>(outlier_cell);
   options.cleaning = fo;
-  options.octomap.reset();
   CloudHistory& history = backend.clouds();
   const bool add = mode == "add";
   if (add) options.cleaned_before = &history.clouds;
@@ -100,7 +103,10 @@ FusedMap fuse_cloud(Backend& backend, OpContext& ctx, perception::PointCloud clo
   fused.stats["clouds"] = history.clouds.size();
   fused.stats["points"] = history.points;
   fused.stats["build_s"] = seconds_since(t0);
+  fused.stats["octomap_resolution"] =
+      build.octree ? json(build.octree->getResolution()) : json(nullptr);
   fused.field = std::move(build.map);
+  fused.octree = std::move(build.octree);
   return fused;
 }
 
@@ -225,16 +231,30 @@ OpResult map_update(Backend& backend, OpContext& ctx) {
   } else if (has_dir) {
     const std::string dir = protocol::get_string(h, "terrain_dir", std::nullopt);
     const auto t0 = std::chrono::steady_clock::now();
+    const std::string dir_path = backend.terrain_dir_path(dir, "terrain_dir");
     std::unique_ptr<terrain::TerrainMap> tm;
     try {
-      tm = terrain::load_terrain_dir(backend.terrain_dir_path(dir, "terrain_dir"));
+      tm = terrain::load_terrain_dir(dir_path);
     } catch (const perception::InputError& e) {
       throw ProtocolError(pc::kBadRequest, std::string("\"terrain_dir\": ") + e.what());
     }
     for (double r : backend.radii_from(h)) tm->layer(r);
+    // The scan's occupancy map, when the folder has one (`terrastride map` writes it), for the
+    // post-hoc leg and trunk checks; without it a plan's capsules and trunk are not checked
+    // (as `terrastride plan --terrain DIR`), which its post_hoc.terrain says.
+    const std::string bt = (std::filesystem::path(dir_path) / "octomap.bt").string();
+    if (std::filesystem::exists(bt)) {
+      try {
+        next->octree = collision::read_octomap(bt);
+      } catch (const std::runtime_error& e) {
+        throw ProtocolError(pc::kBadRequest, std::string("\"terrain_dir\": ") + e.what());
+      }
+    }
     backend.clouds().clear();
     next->source = "terrain_dir:" + dir;
     next->stats = grid_stats(*tm);
+    next->stats["octomap_resolution"] =
+        next->octree ? json(next->octree->getResolution()) : json(nullptr);
     next->stats["load_s"] = seconds_since(t0);
     next->field = std::move(tm);
   } else {
@@ -243,6 +263,7 @@ OpResult map_update(Backend& backend, OpContext& ctx) {
     if (pointcloud2) next->stats["pointcloud2"] = std::move(cloud_info);
     next->source = pointcloud2 ? "pointcloud2" : "cloud";
     next->field = std::move(fused.field);
+    next->octree = std::move(fused.octree);
   }
   ctx.check_stop();
   const auto gen = backend.publish(next);

@@ -12,6 +12,7 @@
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"
+#include "terrastride/service/cli.hpp"
 
 namespace terrastride::service {
 
@@ -85,7 +86,7 @@ OpResult plan(Backend& backend, OpContext& ctx) {
   // Terrains: the optimiser needs a C2 field; exact scenes are checked as they are.
   std::shared_ptr<const MapSnapshot> snapshot;  // keeps the published map alive while planning
   std::shared_ptr<const SceneRaster> raster;
-  std::unique_ptr<terrain::TerrainMap> smooth;
+  TerrainSource dir;  // a terrain directory: its map, and its octomap.bt for the checks
   const terrain::HeightField* plan_field = nullptr;
   const terrain::HeightField* check_field = nullptr;
   try {
@@ -106,8 +107,9 @@ OpResult plan(Backend& backend, OpContext& ctx) {
         plan_field = raster->smooth.get();
         check_field = raster->scene.get();
       } else {
-        smooth = terrain::load_terrain_dir(backend.terrain_dir_path(spec, "terrain"));
-        plan_field = check_field = smooth.get();
+        dir.spec = backend.terrain_dir_path(spec, "terrain");
+        dir.map = terrain::load_terrain_dir(dir.spec);
+        plan_field = check_field = dir.map.get();
       }
     }
   } catch (const perception::InputError& e) {
@@ -157,15 +159,20 @@ OpResult plan(Backend& backend, OpContext& ctx) {
     if (warm.previous) out.trajectory.extra["start_time"] = warm.shift;
     if (!stance_corrections.empty())
       out.trajectory.extra["start_state_corrections"] = stance_corrections;
-    // The post-hoc checks `terrastride plan` runs, on what this server has: an exact scene
-    // voxelised for the leg capsules; a scanned map without them (the server keeps no OctoMap).
+    // The post-hoc checks `terrastride plan` runs, on the same terrain: an exact scene voxelised
+    // for the leg capsules and the trunk; a map with its OctoMap (a cloud's, or a terrain dir's
+    // octomap.bt), as `terrastride plan --terrain DIR` checks it.
     collision::CheckTerrain view;
-    if (raster) {
-      view =
-          scene_check_terrain(*raster->scene, spec, backend.robot(), out.trajectory, kPostHocVoxel);
-    } else {
-      view.field = check_field;
-      view.description = spec + " (no OctoMap in the server: leg capsules not checked)";
+    try {
+      if (raster)
+        view = scene_check_terrain(*raster->scene, spec, backend.robot(), out.trajectory,
+                                   kPostHocVoxel);
+      else if (snapshot)
+        view = snapshot_check_terrain(*snapshot, backend.robot(), out.trajectory);
+      else
+        view = check_terrain_for(dir, backend.robot(), out.trajectory, kPostHocVoxel, false);
+    } catch (const CommandError& e) {
+      throw ProtocolError(pc::kBadRequest, e.what());
     }
     const std::vector<std::string> failures =
         add_post_hoc_checks(backend.robot(), view, &out.trajectory);

@@ -9,7 +9,6 @@
 #include "server/backend.hpp"
 #include "simulation_run.hpp"
 #include "terrastride/collision/simulation.hpp"
-#include "terrastride/planner/plan_io.hpp"
 
 namespace terrastride::service {
 
@@ -53,28 +52,9 @@ std::vector<collision::Push> read_pushes(const json& h) {
 
 OpResult simulate(Backend& backend, OpContext& ctx) {
   const json& h = ctx.request.header;
-  const auto it = h.find("plan");
-  if (it == h.end() || !it->is_object())
-    throw ProtocolError(pc::kBadRequest, "simulate needs \"plan\": a plan.json object");
-  planner::Trajectory traj;
-  try {
-    traj = planner::plan_from_json(*it, "plan");
-  } catch (const std::exception& e) {
-    throw ProtocolError(pc::kBadRequest, e.what());
-  }
-  robot::RobotModel model = backend.robot();
-  if (!traj.robot.empty() && traj.robot != backend.robot().name) {
-    // A robot name from the data folder, never a path a client names (see gait_name).
-    if (!is_plain_name(traj.robot))
-      throw ProtocolError(pc::kBadRequest,
-                          "plan.robot: a robot name (e.g. " + backend.robot().name +
-                              "); the server reads no robot files a client names");
-    try {
-      model = robot::load_robot(robot::resolve_robot_path(traj.robot));
-    } catch (const robot::RobotFileError& e) {
-      throw ProtocolError(pc::kBadRequest, std::string("plan.robot: ") + e.what());
-    }
-  }
+  const RequestPlan plan = read_request_plan(backend, h, "simulate");
+  const robot::RobotModel& model = plan.robot;
+  const planner::Trajectory& traj = plan.trajectory;
   // The simulation's options: the CLI's flags and limits.
   collision::SimulationOptions options;
   options.dt = protocol::get_number(h, "dt", 0.002);
