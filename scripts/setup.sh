@@ -52,7 +52,8 @@ if [ "${#missing[@]}" -gt 0 ]; then
 fi
 if [ "$mode" = deps ] || [ "$mode" = fuzz ]; then exit 0; fi
 
-# JavaScript assets of the report (pinned by service/report/package-lock.json). `npm ci` only
+# JavaScript assets of the report and the export tests' MCAP reader (pinned by
+# service/report/package-lock.json). `npm ci` only
 # when the lock file changed since the last install, so re-runs stay fast and offline.
 if command -v npm >/dev/null 2>&1; then
   stamp=service/report/node_modules/.terrastride-lock

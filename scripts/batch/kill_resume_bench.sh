@@ -36,11 +36,12 @@ for trial in $(seq 1 "$TRIALS"); do
   for k in $(seq 1 "$KILLS"); do
     "$T" report --batch scans --out "$out" --resume >/dev/null 2>&1 &
     pid=$!
-    delay=$(echo "scale=3; $full * $RANDOM / 32768" | bc)
+    # Uniform in (0, full/KILLS): each run is resumed work, so the later ones are shorter.
+    delay=$(echo "scale=3; $full * $RANDOM / 32768 / $KILLS" | bc)
     sleep "$delay"
-    if kill -9 "$pid" 2>/dev/null; then kills="$kills ${delay}s"; else kills="$kills (done)"; fi
+    if kill -9 "$pid" 2>/dev/null; then kills="$kills ${delay}s"; else kills="$kills (finished before ${delay}s)"; fi
     wait "$pid" 2>/dev/null
-    done_now=$(ls "$out" 2>/dev/null | grep -vc '^index')
+    done_now=$(find "$out" -mindepth 2 -maxdepth 2 -name summary.json 2>/dev/null | wc -l)
     kills="$kills[$done_now scans]"
   done
   "$T" report --batch scans --out "$out" --resume >/dev/null 2>&1

@@ -1,0 +1,127 @@
+// Independent check of an MCAP file terrastride wrote, with @mcap/core (service/report's Node
+// toolchain): the file is read twice, once indexed (footer, summary, chunk indexes, message
+// indexes) and once as a stream (every record in order, CRCs of chunks, data section and summary
+// validated), every message decoded as JSON and checked against its channel's schema (the
+// published Foxglove JSON schema the file carries), and the counts per topic compared.
+//   node tests/service/mcap_check.js FILE.mcap ['{"topic": count, ...}']
+// Prints one JSON line: {ok, errors, topics: {topic: count}, statistics, chunks, compression}.
+'use strict';
+const fs = require('fs');
+const path = require('path');
+const modules = path.join(__dirname, '..', '..', 'service', 'report', 'node_modules');
+const { McapIndexedReader, McapStreamReader } = require(path.join(modules, '@mcap', 'core'));
+const zstd = require(path.join(modules, '@foxglove', 'wasm-zstd'));
+
+// A JSON-schema subset validator: the keywords the Foxglove schemas use.
+function validate(schema, value, where, errors) {
+  if (errors.length > 20) return;
+  if (schema.oneOf) {
+    if (!schema.oneOf.some((s) => s.const === undefined || s.const === value))
+      errors.push(where + ': ' + JSON.stringify(value) + ' is none of ' + schema.title);
+    return;
+  }
+  switch (schema.type) {
+    case 'object':
+      if (value === null || typeof value !== 'object' || Array.isArray(value)) {
+        errors.push(where + ': not an object'); return;
+      }
+      for (const k of schema.required || [])
+        if (!(k in value)) errors.push(where + ': missing ' + k);
+      for (const [k, s] of Object.entries(schema.properties || {}))
+        if (k in value) validate(s, value[k], where + '.' + k, errors);
+      return;
+    case 'array':
+      if (!Array.isArray(value)) { errors.push(where + ': not an array'); return; }
+      value.forEach((v, i) => validate(schema.items || {}, v, where + '[' + i + ']', errors));
+      return;
+    case 'number':
+      if (typeof value !== 'number' || !isFinite(value)) errors.push(where + ': not a finite number');
+      return;
+    case 'integer':
+      if (!Number.isInteger(value)) errors.push(where + ': not an integer');
+      else if (schema.minimum !== undefined && value < schema.minimum) errors.push(where + ': below minimum');
+      return;
+    case 'string':
+      if (typeof value !== 'string') errors.push(where + ': not a string');
+      else if (schema.contentEncoding === 'base64' && !/^[A-Za-z0-9+/]*={0,2}$/.test(value))
+        errors.push(where + ': not base64');
+      return;
+    case 'boolean':
+      if (typeof value !== 'boolean') errors.push(where + ': not a boolean');
+      return;
+  }
+}
+
+async function main() {
+  const file = process.argv[2];
+  const expected = process.argv[3] ? JSON.parse(process.argv[3]) : null;
+  const bytes = fs.readFileSync(file);
+  await zstd.isLoaded;
+  const decompressHandlers = { zstd: (buf, size) => zstd.decompress(buf, Number(size)) };
+  const errors = [];
+
+  // 1. Indexed reading: summary, statistics, chunk and message indexes.
+  const readable = {
+    size: async () => BigInt(bytes.length),
+    read: async (offset, length) => bytes.subarray(Number(offset), Number(offset + length)),
+  };
+  const reader = await McapIndexedReader.Initialize({ readable, decompressHandlers });
+  const topics = {};
+  const schemaOf = {};
+  for (const [id, ch] of reader.channelsById) {
+    const schema = reader.schemasById.get(ch.schemaId);
+    if (!schema || schema.encoding !== 'jsonschema' || ch.messageEncoding !== 'json')
+      errors.push(ch.topic + ': not a jsonschema/json channel');
+    schemaOf[id] = JSON.parse(new TextDecoder().decode(schema.data));
+    topics[ch.topic] = 0;
+  }
+  let messages = 0;
+  for await (const m of reader.readMessages()) {
+    const ch = reader.channelsById.get(m.channelId);
+    topics[ch.topic]++;
+    messages++;
+    let value;
+    try {
+      value = JSON.parse(new TextDecoder().decode(m.data));
+    } catch (e) {
+      errors.push(ch.topic + ': message ' + m.sequence + ' is not JSON'); continue;
+    }
+    const errs = [];
+    validate(schemaOf[m.channelId], value, ch.topic + '#' + m.sequence, errs);
+    errors.push(...errs.slice(0, 3));
+  }
+  const stats = reader.statistics;
+  if (!stats) errors.push('no statistics record');
+  else {
+    if (Number(stats.messageCount) !== messages)
+      errors.push('statistics say ' + stats.messageCount + ' messages, read ' + messages);
+    for (const [id, n] of stats.channelMessageCounts) {
+      const topic = reader.channelsById.get(id).topic;
+      if (Number(n) !== topics[topic]) errors.push(topic + ': statistics ' + n + ', read ' + topics[topic]);
+    }
+  }
+
+  // 2. Streaming every record (validates the chunk, data-section and summary CRCs).
+  const stream = new McapStreamReader({ validateCrcs: true, decompressHandlers });
+  stream.append(bytes);
+  let streamed = 0, footer = false, compression = new Set();
+  for (let r; (r = stream.nextRecord()); ) {
+    if (r.type === 'Message') streamed++;
+    if (r.type === 'Footer') footer = true;
+    if (r.type === 'ChunkIndex') compression.add(r.compression || 'none');
+  }
+  if (!stream.done()) errors.push('the stream reader did not reach the end magic');
+  if (!footer) errors.push('no footer');
+  if (streamed !== messages) errors.push('streamed ' + streamed + ' messages, indexed ' + messages);
+
+  if (expected)
+    for (const [topic, n] of Object.entries(expected))
+      if (topics[topic] !== n) errors.push(topic + ': ' + topics[topic] + ' messages, expected ' + n);
+  console.log(JSON.stringify({
+    ok: errors.length === 0, errors, topics, messages,
+    chunks: reader.chunkIndexes.length, compression: [...compression],
+    statistics: stats ? { messageCount: Number(stats.messageCount), channelCount: stats.channelCount } : null,
+  }));
+  process.exit(errors.length === 0 ? 0 : 1);
+}
+main().catch((e) => { console.log(JSON.stringify({ ok: false, errors: [String(e.stack || e)] })); process.exit(1); });
