@@ -98,7 +98,8 @@ TEST_P(BagFixture, SameMapAsTheEquivalentPcdFiles) {
       ADD_FAILURE() << "cell " << g.geometry.center(i, j).transpose() << ": observed "
                     << int(g.observed[k]) << " vs " << int(h.observed[k]) << ", elevation "
                     << g.elevation[k] << " vs " << h.elevation[k] << ", count " << g.count[k]
-                    << " vs " << h.count[k] << ", support " << g.support[k] << " vs " << h.support[k];
+                    << " vs " << h.count[k] << ", support " << g.support[k] << " vs "
+                    << h.support[k];
     }
   EXPECT_EQ(observed_differs, 0u);
   EXPECT_LE(worst, 1e-3);
@@ -205,7 +206,8 @@ TEST(BagInput, NotABagAndBrokenBagsFailClearly) {
     expect_input_error([&] { perception::open_bag(dir.file(name))->read({}, [](const auto&) {}); },
                        {name});
   }
-  expect_input_error([&] { perception::open_bag(dir.file("none.mcap")); }, {"none.mcap", "not found"});
+  expect_input_error([&] { perception::open_bag(dir.file("none.mcap")); },
+                     {"none.mcap", "not found"});
   // A ROS 1 bag cut in half has lost its index (at the end of the file).
   const std::string bag = read_bytes(fixture("scan.bag"));
   std::ofstream(dir.file("cut.bag"), std::ios::binary) << bag.substr(0, bag.size() / 2);
@@ -221,11 +223,28 @@ TEST(BagInput, NotABagAndBrokenBagsFailClearly) {
   }
 }
 
+// SQLite opens a .db3 through a "file:" URI: a name with '?', '#', '%' or a space must still name
+// the file (it used to be cut at the '?' or decoded at the '%').
+TEST(BagInput, Db3WithUriCharactersInItsNameOpens) {
+  ScratchDir dir;
+  const std::string db = read_bytes(fixture("scan.db3"));
+  const size_t clouds =
+      terrain::read_map_bags({fixture("scan.db3")}, both_lidars()).input.clouds.size();
+  ASSERT_GT(clouds, 0u);
+  for (const std::string name : {"run?mode=rw.db3", "run#1.db3", "50%41.db3", "two words.db3"}) {
+    std::ofstream(dir.file(name), std::ios::binary) << db;
+    const auto in = terrain::read_map_bags({dir.file(name)}, both_lidars());
+    EXPECT_EQ(in.input.clouds.size(), clouds) << name;
+    EXPECT_FALSE(in.stats[0].damage.damaged()) << name;
+  }
+}
+
 // A split rosbag2 recording (tests/fixtures/bags/split: metadata.yaml and three .mcap files,
 // /tf_static only in the first) is read as one recording, in metadata.yaml's order: the same
 // clouds as the unsplit file (and, in BagFixture, the same map as the PCDs).
 TEST(BagInput, SplitRosbag2FolderIsOneRecording) {
-  const terrain::BagMapInput whole = terrain::read_map_bags({fixture("scan_zstd.mcap")}, both_lidars());
+  const terrain::BagMapInput whole =
+      terrain::read_map_bags({fixture("scan_zstd.mcap")}, both_lidars());
   const terrain::BagMapInput split = terrain::read_map_bags({fixture("split")}, both_lidars());
   ASSERT_EQ(split.input.clouds.size(), whole.input.clouds.size());
   for (size_t k = 0; k < whole.input.clouds.size(); ++k) {
@@ -303,18 +322,21 @@ TEST(BagInput, BrokenRosbag2FoldersFailClearly) {
   std::filesystem::copy_file(fixture("split/metadata.yaml"), folder / "metadata.yaml");
   expect_input_error([&] { terrain::read_map_bags({folder.string()}, both_lidars()); },
                      {"metadata.yaml", "'split_1.mcap'", "missing"});
-  perception::test::write_text((folder / "metadata.yaml").string(), "rosbag2_bagfile_information: [1, 2\n");
+  perception::test::write_text((folder / "metadata.yaml").string(),
+                               "rosbag2_bagfile_information: [1, 2\n");
   expect_input_error([&] { perception::open_bag(folder.string()); }, {"metadata.yaml", "YAML"});
   perception::test::write_text((folder / "metadata.yaml").string(), "something_else: 1\n");
   expect_input_error([&] { perception::open_bag(folder.string()); },
                      {"metadata.yaml", "rosbag2_bagfile_information"});
-  perception::test::write_text((folder / "metadata.yaml").string(),
-                               "rosbag2_bagfile_information:\n  relative_file_paths:\n    - /etc/passwd\n");
+  perception::test::write_text(
+      (folder / "metadata.yaml").string(),
+      "rosbag2_bagfile_information:\n  relative_file_paths:\n    - /etc/passwd\n");
   expect_input_error([&] { perception::open_bag(folder.string()); }, {"not a path relative"});
   // Foxy's metadata (version < 4) names the files relative to the folder's parent.
-  perception::test::write_text((folder / "metadata.yaml").string(),
-                               "rosbag2_bagfile_information:\n  version: 3\n  relative_file_paths:\n"
-                               "    - run/split_0.mcap\n");
+  perception::test::write_text(
+      (folder / "metadata.yaml").string(),
+      "rosbag2_bagfile_information:\n  version: 3\n  relative_file_paths:\n"
+      "    - run/split_0.mcap\n");
   EXPECT_EQ(perception::open_bag(folder.string())->format(), "mcap");
 }
 

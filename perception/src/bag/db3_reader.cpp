@@ -33,13 +33,33 @@ std::string column_text(sqlite3_stmt* s, int i) {
   return t ? reinterpret_cast<const char*>(t) : "";
 }
 
+// The path part of an SQLite "file:" URI: '?' would start the query, '#' a fragment and '%' an
+// escape, so those (and every byte outside printable ASCII) are percent-encoded; a folder or file
+// named "run?1" or "50%" then opens as itself instead of a truncated or mangled path.
+std::string sqlite_uri_path(const std::string& path) {
+  static const char kHex[] = "0123456789ABCDEF";
+  std::string out;
+  out.reserve(path.size());
+  for (const char ch : path) {
+    const auto c = static_cast<unsigned char>(ch);
+    if (c == '?' || c == '#' || c == '%' || c <= 0x20 || c >= 0x7f) {
+      out += '%';
+      out += kHex[c >> 4];
+      out += kHex[c & 15];
+    } else {
+      out += ch;
+    }
+  }
+  return out;
+}
+
 class Db3Reader : public BagReader {
  public:
   explicit Db3Reader(const std::string& path) : BagReader(path) {
     std::error_code ec;
     damage_.file_bytes = std::filesystem::file_size(path, ec);
     // immutable=1: SQLite neither locks nor looks for a journal (a bag folder may be read-only).
-    const std::string uri = "file:" + path + "?mode=ro&immutable=1";
+    const std::string uri = "file:" + sqlite_uri_path(path) + "?mode=ro&immutable=1";
     if (sqlite3_open_v2(uri.c_str(), &db_, SQLITE_OPEN_READONLY | SQLITE_OPEN_URI, nullptr) !=
         SQLITE_OK) {
       const std::string msg = db_ ? sqlite3_errmsg(db_) : "out of memory";
