@@ -9,6 +9,8 @@
 #include <sys/resource.h>
 
 #include <algorithm>
+#include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <iostream>
@@ -24,6 +26,7 @@
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/planner.hpp"
+#include "terrastride/planner/planning_session.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/scenes.hpp"
@@ -44,7 +47,66 @@ struct Scenario {
   double warm_base_offset = 0.0;
   std::vector<std::string> constraints{"baseline"};
   bool feasibility_row = false;  // printed with the feasibility columns; run on request only
+  // >= 0: a planning session (planning_session.hpp) with this horizon (0 = to the goal) after the
+  // cold plan; `session_steps` steps 0.1 s apart, each from the previous plan's state 1 cm to the
+  // side and 0.05 m/s faster (issue #22's measured state); the row gives the median and p99.
+  double session_horizon = -1.0;
 };
+
+// Session rows: cold plan, then steps every 0.1 s from an offset state; walls of whole steps.
+nlohmann::json run_session_row(const Scenario& sc, const robot::RobotModel& robot,
+                               const terrain::HeightField& smooth, const terrain::HeightField& scene,
+                               const planner::PlannerOptions& o, int steps, bool print) {
+  const auto cold = planner::plan_motion(robot, smooth, scene, o, 0.01);
+  planner::PlanningSession session(robot, smooth, scene, o, cold.trajectory, sc.session_horizon,
+                                   0.01);
+  std::vector<double> walls, solves;
+  int iterations = 0, failures = 0, max_iterations = 0;
+  for (int k = 1; k <= steps; ++k) {
+    const double t = 0.1 * k;
+    planner::SrbdProblem::StartState measured = session.planned_state(t);
+    measured.position.y() += 0.01;
+    measured.linear_velocity.x() += 0.05;
+    const auto t0 = std::chrono::steady_clock::now();
+    const auto step = session.step(measured, t);
+    walls.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    solves.push_back(step.outcome.solve.wall_s);
+    iterations += step.outcome.solve.iterations;
+    max_iterations = std::max(max_iterations, step.outcome.solve.iterations);
+    failures += !step.outcome.success;
+    if (std::getenv("BENCH_SESSION_DETAIL"))
+      std::fprintf(stderr, "t %.1f end %.2f it %d build %.3f solve %.3f total %.3f vars %d rows %d %s\n", t,
+                   step.end_time, step.outcome.solve.iterations, step.build_s,
+                   step.outcome.solve.wall_s, walls.back(), step.outcome.trajectory.solver.n_variables,
+                   step.outcome.trajectory.solver.n_constraints, step.outcome.solve.status.c_str());
+  }
+  auto quantile = [](std::vector<double> v, double q) {
+    std::sort(v.begin(), v.end());
+    return v[std::min(v.size() - 1, static_cast<std::size_t>(std::ceil(q * v.size())) - 1)];
+  };
+  const double cold_wall = cold.trajectory.extra["timings"].value("total_s", 0.0);
+  nlohmann::json row = {{"scenario", sc.name},
+                        {"horizon_s", sc.session_horizon},
+                        {"cold_total_s", cold_wall},
+                        {"cold_iterations", cold.solve.iterations},
+                        {"steps", steps},
+                        {"step_median_s", quantile(walls, 0.5)},
+                        {"step_p99_s", quantile(walls, 0.99)},
+                        {"solve_median_s", quantile(solves, 0.5)},
+                        {"iterations_mean", static_cast<double>(iterations) / steps},
+                        {"iterations_max", max_iterations},
+                        {"failures", failures},
+                        {"median_over_cold", quantile(walls, 0.5) / cold_wall}};
+  if (print) {
+    std::printf("%-22s horizon %.1f s: cold %.3f s (%d it); %d steps: median %.4f s, p99 %.4f s "
+                "(%.3f of cold), %.2f it/step (max %d), %d failed\n",
+                sc.name.c_str(), sc.session_horizon, cold_wall, cold.solve.iterations, steps,
+                quantile(walls, 0.5), quantile(walls, 0.99), quantile(walls, 0.5) / cold_wall,
+                static_cast<double>(iterations) / steps, max_iterations, failures);
+    std::fflush(stdout);
+  }
+  return row;
+}
 
 double user_cpu_s() {
   rusage u{};
@@ -111,6 +173,17 @@ int main(int argc, char** argv) {
       {"pallet_15_warm_0.1s", "pallet_15", 11.0, false, 0.1},
       {"pallet_15_warm_0.1s_off", "pallet_15", 11.0, false, 0.1, 0.01},
   };
+  // Planning sessions on pallet_15 with every constraint set (issue #22): to the goal, and with
+  // a 2 s receding horizon.
+  for (double horizon : {0.0, 2.0, 1.0}) {
+    Scenario sc{horizon > 0 ? "pallet_15_all_session_h" + std::to_string(static_cast<int>(horizon))
+                            : "pallet_15_all_session",
+                "pallet_15",
+                11.0, false};
+    sc.constraints = {"all"};
+    sc.session_horizon = horizon;
+    scenarios.push_back(sc);
+  }
   for (const char* scene : {"pallet_10", "pallet_15"})
     for (const char* sets : {"baseline", "foot", "foot,shin", "all"}) {
       Scenario sc{std::string(scene) + "/" + sets, scene, 11.0, false};
@@ -144,6 +217,10 @@ int main(int argc, char** argv) {
     o.has_goal = true;
     o.goal = Eigen::Vector3d(scene->goal().x(), scene->goal().y(), 0.0);
     o.constraints = sc.constraints;
+    if (sc.session_horizon >= 0.0) {
+      rows.push_back(run_session_row(sc, robot, *smooth, *scene, o, 20 * repeat, !json));
+      continue;
+    }
     planner::Trajectory cold;
     if (sc.warm_shift >= 0.0) {
       const auto c = planner::plan_motion(robot, *smooth, *scene, o, 0.01);

@@ -236,3 +236,41 @@ class Client:
             err = header.get("error", {})
             raise ServiceError(err.get("code", "?"), err.get("message", "?"), header)
         return header.get("result", {})
+
+
+class PlanningSession:
+    """A planning session (docs/protocol.md, "Planning sessions"): the server plans the reference
+    motion once, then re-plans from each measured state the client sends, warm-started from the
+    previous step. Use as a context manager, or call close(); closing the connection frees it too.
+
+        with PlanningSession(client, terrain="pallet_15", constraints="all", horizon=1.0) as s:
+            plan = s.step(0.1, {"base": {"position": [x, y, z]}})
+    """
+
+    def __init__(self, client, **fields):
+        self.client = client
+        self.reference = client.call("plan.session.open", **fields)
+        self.id = self.reference["session"]
+
+    def step(self, time, start_state=None, deadline_ms=None):
+        """The plan from session time `time` (s) and the measured state (plan.json's terms; fields
+        left out are the session's current plan's). Raises ServiceError: `failed` when the solve
+        fails (the session stays usable), `deadline_exceeded` past deadline_ms."""
+        fields = {"session": self.id, "time": time}
+        if start_state is not None:
+            fields["start_state"] = start_state
+        if deadline_ms is not None:
+            fields["deadline_ms"] = deadline_ms
+        return self.client.call("plan.session.step", **fields)
+
+    def close(self):
+        if self.id is not None:
+            self.client.call("plan.session.close", session=self.id)
+            self.id = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self.client._sock is not None:
+            self.close()

@@ -9,7 +9,7 @@ import time
 import struct
 import sys
 
-from terrastride_client import Attachment, Client, ServiceError
+from terrastride_client import Attachment, Client, PlanningSession, ServiceError
 
 
 def expect_error(code, fn):
@@ -195,6 +195,21 @@ def main(address):
         assert sim["position_error_rms_m"] < 0.02, sim["position_error_rms_m"]
         e = expect_error("bad_request", lambda: c.call("simulate", plan=planned, dt=1.0))
         assert "dt" in e.message, e.message
+
+        # A planning session: re-plans from measured states, a failed step, close.
+        with PlanningSession(c, terrain="flat", duration=2.4, goal=[0.3, 0.0, 0.0],
+                             horizon=1.0, sample_dt=0.02) as s:
+            ref = s.reference["samples"]
+            at = next(x for x in ref if abs(x["t"] - 0.2) < 1e-9)["base"]
+            pos = list(at["position"])
+            pos[1] += 0.01
+            step = s.step(0.2, {"base": {"position": pos}})
+            assert step["start_time"] == 0.2 and step["solver"]["status"] == "optimal", step
+            assert abs(step["samples"][0]["base"]["position"][1] - pos[1]) < 1e-9
+            e = expect_error("failed", lambda: s.step(0.3, {"base": {"position": [0.3, 0.4, 0.9]}}))
+            assert "still violated" in e.message, e.message
+            assert s.step(0.3)["solver"]["status"] == "optimal"
+        assert c.call("plan.session.status")["open"] == 0
 
         c.call("map.clear")
         expect_error("no_map", lambda: c.call("map.query", points=[[0, 0]]))

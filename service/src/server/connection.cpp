@@ -272,6 +272,7 @@ void Connection::close() {
   socket.close(ignored);
   free_large();
   abandon_jobs();
+  server.registry.disconnected(cid);
   server.connections.erase(shared_from_this());
 }
 

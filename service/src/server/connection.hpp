@@ -30,6 +30,7 @@ struct Job {
   BudgetHold request_bytes;  // the request's attachments, until the worker frees them
   std::shared_ptr<CancellationToken> token = std::make_shared<CancellationToken>();
   std::weak_ptr<Connection> conn;
+  std::uint64_t connection = 0;  // the connection's id (OpContext::connection)
   bool replied = false;
   bool running = false;
   std::unique_ptr<asio::steady_timer> deadline_timer;

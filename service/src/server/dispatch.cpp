@@ -156,7 +156,7 @@ void Connection::dispatch(std::string_view body) {
       token->set_deadline(
           arrival + std::chrono::microseconds(static_cast<long long>(*req.deadline_ms * 1000)));
     return run_inline([&] {
-      OpContext ctx{m, token};
+      OpContext ctx{m, token, cid};
       return op->handler(ctx);
     });
   }
@@ -186,6 +186,7 @@ void Connection::dispatch(std::string_view body) {
   for (const auto& a : job->request.attachments) request_bytes += a.data.size();
   job->request_bytes.add(server.budget, request_bytes);
   job->conn = weak_from_this();
+  job->connection = cid;
   if (req.deadline_ms) {
     const auto deadline =
         arrival + std::chrono::microseconds(static_cast<long long>(*req.deadline_ms * 1000));

@@ -41,7 +41,7 @@ void Server::Impl::run_job(std::shared_ptr<Job> job) {
   std::string code;
   std::string frame;
   try {
-    OpContext ctx{job->request, job->token};
+    OpContext ctx{job->request, job->token, job->connection};
     ctx.check_stop();
     OpResult r = job->op->handler(ctx);
     frame = protocol::encode_frame(

@@ -110,6 +110,10 @@ class SrbdProblem {
 
   // Initial guess from a previous plan (time `shift` of that plan becomes t = 0 here).
   void warm_start_from(const struct Trajectory& previous, double shift);
+  // Holds the base at the last knot at `end` (pose, velocity, Euler rates) instead of resting at
+  // the goal: the end of a receding-horizon step (planning_session.hpp). Degrees of freedom the
+  // robot cannot move keep their start value.
+  void pin_end_state(const StartState& end);
 
  private:
 

@@ -21,6 +21,9 @@ namespace terrastride::service {
 struct OpContext {
   const protocol::Message& request;
   std::shared_ptr<CancellationToken> token;
+  // The connection the request came on (unique for the server's lifetime): state an operation
+  // keeps for a client (planning sessions) is tied to it and freed when it closes.
+  std::uint64_t connection = 0;
   // Throws ProtocolError(cancelled / deadline_exceeded / shutting_down) once a stop was requested.
   void check_stop() const;
 };
@@ -66,9 +69,18 @@ class OperationRegistry {
     for (const auto& [k, v] : ops_) n.push_back(k);
     return n;
   }
+  // Called on the I/O thread with a connection's id when it closes (for any reason: the client
+  // left, a timeout, shutdown). Must be quick and must not throw.
+  void on_disconnect(std::function<void(std::uint64_t)> hook) {
+    disconnect_hooks_.push_back(std::move(hook));
+  }
+  void disconnected(std::uint64_t connection) const {
+    for (const auto& hook : disconnect_hooks_) hook(connection);
+  }
 
  private:
   std::map<std::string, Operation> ops_;
+  std::vector<std::function<void(std::uint64_t)>> disconnect_hooks_;
 };
 
 // min(1 GiB, a quarter of the physical memory): the default request-buffer budget.

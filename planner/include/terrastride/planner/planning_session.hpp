@@ -1,0 +1,86 @@
+// A planning session: re-plans of one motion from a robot's measured states, one after another
+// (model-predictive re-planning). The session keeps what a re-plan can reuse from the previous one:
+// the reference plan it follows (contact schedule, goal), the terrain, and the previous step's
+// solution as the initial guess (time-shifted to the new start, the reference beyond its end).
+//
+// With a horizon H > 0 a step plans only from its start t to the first contact switch at or after
+// t + H at which no foot is in mid-swing, and the base there is held at the reference plan's state
+// (pose, velocity and rates): the reference is feasible, so the horizon problem has a solution
+// whenever the robot can return to it within H. Once t + H reaches the reference's end the step
+// plans to the goal as the reference did. Ipopt 3.11 keeps nothing between two problems of
+// different structure (and a step's structure changes whenever its start crosses a segment
+// knot), so the cost of a step is that of its problem: a horizon of 2 s instead of the 11 s of
+// pallet_15 makes each step's problem about five times smaller (docs/design.md §6.9).
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "terrastride/planner/planner.hpp"
+
+namespace terrastride::planner {
+
+struct SessionStep {
+  PlanOutcome outcome;   // the plan from t (its samples start at 0 = the session's time t)
+  double start_time = 0.0;  // t on the session's (the reference plan's) time axis
+  double end_time = 0.0;    // where this plan ends on that axis
+  bool to_goal = false;     // the plan ends at the goal (not at a horizon)
+  double build_s = 0.0;     // problem construction and warm start
+};
+
+// What bounds one step's solve (the service's per-step deadline): polled once per iteration, and
+// a wall-clock budget in s (0: the session options' max_time).
+struct StepLimits {
+  std::function<bool()> should_stop;
+  double max_time = 0.0;
+};
+
+class PlanningSession {
+ public:
+  // `reference` is a plan from plan_motion (with its "timeline"), starting at session time 0.
+  // The terrains must outlive the session. horizon <= 0: every step plans to the goal.
+  PlanningSession(const robot::RobotModel& robot, const terrain::HeightField& plan_terrain,
+                  const terrain::HeightField& check_terrain, const PlannerOptions& options,
+                  Trajectory reference, double horizon, double sample_dt);
+
+  // A plan from `measured` at session time t. Throws RequestError("time" or "start_state") for a
+  // time outside the reference or a state with the wrong feet. A step whose solve fails returns
+  // an outcome with success false (and its message) and leaves the session as it was, so the next
+  // step warm-starts from the last good plan.
+  SessionStep step(const SrbdProblem::StartState& measured, double t,
+                   const StepLimits& limits = {});
+
+  const Trajectory& reference() const { return reference_; }
+  // The last successful plan (its samples from 0 = previous_start_time()); the reference before
+  // the first step.
+  const Trajectory& previous() const { return previous_; }
+  double previous_start_time() const { return previous_start_; }
+  double horizon() const { return horizon_; }
+  int steps() const { return steps_; }
+  // Bytes the session holds (reference and previous plans, their samples): for the service's
+  // per-session bound.
+  std::size_t memory_bytes() const;
+
+  // The state of the last successful plan at session time t (the reference before the first
+  // step; beyond the previous plan's end, the reference).
+  SrbdProblem::StartState planned_state(double t) const;
+
+ private:
+  const robot::RobotModel& robot_;
+  const terrain::HeightField& plan_terrain_;
+  const terrain::HeightField& check_terrain_;
+  PlannerOptions options_;
+  Trajectory reference_;
+  PhaseTimeline reference_timeline_;
+  double horizon_;
+  double sample_dt_;
+  Trajectory previous_;
+  double previous_start_ = 0.0;
+  int steps_ = 0;
+};
+
+// The part of `timeline` up to `end` (an event time of it): the horizon of a session step.
+PhaseTimeline truncated_timeline(const PhaseTimeline& timeline, double end);
+
+}  // namespace terrastride::planner

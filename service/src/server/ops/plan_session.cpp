@@ -1,0 +1,321 @@
+// plan.session.open / plan.session.step / plan.session.close: planning sessions over the socket
+// (docs/protocol.md, "Planning sessions"). A session is a planner::PlanningSession (the reference
+// plan, the terrain, the previous step's solution) owned by the connection that opened it: it
+// ends on close, when that connection closes, or after kIdleTimeoutS without a step. Steps run in
+// the server process (one solve at a time per process: Debian's MUMPS is not re-entrant), so they
+// pay no process start; a session's steps run one at a time.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "plan_request.hpp"
+#include "server/backend.hpp"
+#include "terrain_source.hpp"
+#include "terrastride/planner/plan_io.hpp"
+#include "terrastride/planner/planning_session.hpp"
+#include "terrastride/planner/request_limits.hpp"
+
+namespace terrastride::service {
+
+namespace pc = protocol::code;
+using nlohmann::json;
+using protocol::ProtocolError;
+
+namespace {
+
+// Limits of the session table (docs/protocol.md): sessions at once per server, idle time before
+// a session is closed, and the memory one session may hold (its reference and previous plans).
+constexpr std::size_t kMaxSessions = 64;
+constexpr double kIdleTimeoutS = 300.0;
+constexpr std::size_t kMaxSessionBytes = std::size_t{16} << 20;
+
+using Clock = std::chrono::steady_clock;
+
+struct Session {
+  std::string id;
+  std::uint64_t connection = 0;
+  // What the planner session reads, kept alive with it.
+  std::shared_ptr<const MapSnapshot> snapshot;
+  std::shared_ptr<const SceneRaster> raster;
+  std::unique_ptr<terrain::TerrainMap> owned_terrain;
+  std::string terrain;
+  double sample_dt = 0.01;
+  std::unique_ptr<planner::PlanningSession> planner;
+  std::timed_mutex step_mu;  // one step at a time
+  Clock::time_point last_used = Clock::now();
+};
+
+class SessionTable {
+ public:
+  // Refuses a new session beyond kMaxSessions (after closing the idle ones).
+  void add(std::shared_ptr<Session> s) {
+    std::lock_guard<std::mutex> lock(mu_);
+    expire_locked();
+    if (sessions_.size() >= kMaxSessions)
+      throw ProtocolError(pc::kBusy, "the server holds " + std::to_string(kMaxSessions) +
+                                         " planning sessions, its limit; close one first");
+    sessions_[s->id] = std::move(s);
+  }
+  // The session `id` of `connection`; not_found-like bad_request otherwise.
+  std::shared_ptr<Session> get(const std::string& id, std::uint64_t connection) {
+    std::lock_guard<std::mutex> lock(mu_);
+    expire_locked();
+    const auto it = sessions_.find(id);
+    if (it == sessions_.end() || it->second->connection != connection)
+      throw ProtocolError(pc::kBadRequest,
+                          "session: no open session \"" + id +
+                              "\" on this connection (closed, expired after " +
+                              std::to_string(static_cast<int>(kIdleTimeoutS)) +
+                              " s idle, or opened on another connection)");
+    it->second->last_used = Clock::now();
+    return it->second;
+  }
+  bool close(const std::string& id, std::uint64_t connection) {
+    std::lock_guard<std::mutex> lock(mu_);
+    const auto it = sessions_.find(id);
+    if (it == sessions_.end() || it->second->connection != connection) return false;
+    sessions_.erase(it);
+    return true;
+  }
+  void close_connection(std::uint64_t connection) {
+    std::lock_guard<std::mutex> lock(mu_);
+    for (auto it = sessions_.begin(); it != sessions_.end();)
+      it = it->second->connection == connection ? sessions_.erase(it) : std::next(it);
+  }
+  std::string next_id() {
+    std::lock_guard<std::mutex> lock(mu_);
+    return "s" + std::to_string(++counter_);
+  }
+  json status() {
+    std::lock_guard<std::mutex> lock(mu_);
+    expire_locked();
+    return {{"open", sessions_.size()}, {"limit", kMaxSessions}, {"opened", counter_}};
+  }
+
+ private:
+  void expire_locked() {
+    const auto now = Clock::now();
+    for (auto it = sessions_.begin(); it != sessions_.end();) {
+      const double idle = std::chrono::duration<double>(now - it->second->last_used).count();
+      it = idle > kIdleTimeoutS ? sessions_.erase(it) : std::next(it);
+    }
+  }
+  std::mutex mu_;
+  std::map<std::string, std::shared_ptr<Session>> sessions_;
+  std::uint64_t counter_ = 0;
+};
+
+double number_field(const json& h, const char* key, double fallback) {
+  if (!h.contains(key)) return fallback;
+  if (!h[key].is_number() || !std::isfinite(h[key].get<double>()))
+    throw ProtocolError(pc::kBadRequest, std::string(key) + ": must be a finite number");
+  return h[key].get<double>();
+}
+
+std::string session_field(const json& h) {
+  if (!h.contains("session") || !h["session"].is_string())
+    throw ProtocolError(pc::kBadRequest, "session: the id plan.session.open returned (a string)");
+  return h["session"].get<std::string>();
+}
+
+// The deadline of a request as the solver's budget (as `plan` does).
+void apply_deadline(OpContext& ctx, planner::PlannerOptions* po) {
+  po->should_stop = CancellationToken::as_callback(ctx.token);
+  if (ctx.token->has_deadline()) {
+    const double left =
+        std::chrono::duration<double>(ctx.token->deadline() - Clock::now()).count();
+    if (left <= 0) ctx.check_stop();
+    po->max_time = po->max_time > 0 ? std::min(po->max_time, left) : left;
+  }
+}
+
+json plan_reply(const planner::Trajectory& t, const Session& s, const planner::SessionStep* step) {
+  json r = planner::plan_to_json(t);
+  r["session"] = s.id;
+  if (step) {
+    r["start_time"] = step->start_time;
+    r["end_time"] = step->end_time;
+    r["to_goal"] = step->to_goal;
+  }
+  r["memory_bytes"] = s.planner->memory_bytes();
+  return r;
+}
+
+OpResult open_session(Backend& backend, SessionTable& table, OpContext& ctx) {
+  json fields = ctx.request.header;
+  const double horizon = number_field(fields, "horizon", 0.0);
+  if (!(horizon >= 0.0) || horizon > planner::PlanLimits::kMaxDuration)
+    throw ProtocolError(pc::kBadRequest, "horizon: must be within [0, " +
+                                             std::to_string(planner::PlanLimits::kMaxDuration) +
+                                             "] s (0 = every step plans to the goal)");
+  for (const char* envelope : protocol::kEnvelopeKeys) fields.erase(envelope);
+  fields.erase("horizon");
+  gait_name(fields);
+  PlanRequest req;
+  try {
+    req = read_plan_request(fields, backend.robot());
+  } catch (const RequestFieldError& e) {
+    throw ProtocolError(pc::kBadRequest, e.what());
+  }
+  auto s = std::make_shared<Session>();
+  s->terrain = req.terrain;
+  s->sample_dt = req.sample_dt;
+  s->connection = ctx.connection;
+  const terrain::HeightField* plan_field = nullptr;
+  const terrain::HeightField* check_field = nullptr;
+  try {
+    if (req.terrain == "current") {
+      s->snapshot = backend.map();
+      if (!s->snapshot) throw ProtocolError(pc::kNoMap, "plan.session.open on \"current\": no map");
+      if (const auto* sc = dynamic_cast<const terrain::Scene*>(s->snapshot->field.get())) {
+        s->raster =
+            backend.scene_raster(s->snapshot->source.substr(s->snapshot->source.find(':') + 1));
+        plan_field = s->raster->smooth.get();
+        check_field = sc;
+      } else {
+        plan_field = check_field = s->snapshot->field.get();
+      }
+    } else {
+      const auto names = terrain::scene_names();
+      if (std::find(names.begin(), names.end(), req.terrain) != names.end()) {
+        s->raster = backend.scene_raster(req.terrain);
+        plan_field = s->raster->smooth.get();
+        check_field = s->raster->scene.get();
+      } else {
+        s->owned_terrain =
+            terrain::load_terrain_dir(backend.terrain_dir_path(req.terrain, "terrain"));
+        plan_field = check_field = s->owned_terrain.get();
+      }
+    }
+    check_stances_on_terrain(req, backend.robot(), *check_field);
+  } catch (const perception::InputError& e) {
+    throw ProtocolError(pc::kBadRequest, "\"terrain\" " + req.terrain + ": " + e.what());
+  } catch (const RequestFieldError& e) {
+    throw ProtocolError(pc::kBadRequest, e.what());
+  }
+  planner::PlannerOptions po = req.options;
+  apply_deadline(ctx, &po);
+  // The reference plan: a cold solve from rest, as `plan` makes it.
+  planner::PlanOutcome cold;
+  try {
+    cold = planner::plan_motion(backend.robot(), *plan_field, *check_field, po, req.sample_dt);
+  } catch (const planner::GaitError& e) {
+    throw ProtocolError(pc::kBadRequest, std::string("\"gait\": ") + e.what());
+  } catch (const std::invalid_argument& e) {
+    throw ProtocolError(pc::kBadRequest, e.what());
+  }
+  ctx.check_stop();
+  if (!cold.success)
+    throw ProtocolError(pc::kFailed, "plan.session.open: the reference plan failed: " +
+                                         cold.message);
+  po.should_stop = nullptr;
+  po.max_time = req.options.max_time;
+  try {
+    s->planner = std::make_unique<planner::PlanningSession>(
+        backend.robot(), *plan_field, *check_field, po, cold.trajectory, horizon, req.sample_dt);
+  } catch (const std::invalid_argument& e) {
+    throw ProtocolError(pc::kBadRequest, e.what());
+  }
+  if (s->planner->memory_bytes() > kMaxSessionBytes)
+    throw ProtocolError(pc::kBadRequest,
+                        "the session would hold " + std::to_string(s->planner->memory_bytes()) +
+                            " bytes, more than the " + std::to_string(kMaxSessionBytes) +
+                            " a session may (a larger sample_dt or a shorter plan)");
+  s->id = table.next_id();
+  table.add(s);
+  OpResult r;
+  r.result = plan_reply(s->planner->reference(), *s, nullptr);
+  r.result["horizon"] = horizon;
+  r.result["success"] = true;
+  return r;
+}
+
+OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
+  const json& h = ctx.request.header;
+  const auto s = table.get(session_field(h), ctx.connection);
+  // A step waits for the one before it (which may still be stopping after its deadline's reply
+  // went out), within its own deadline.
+  std::unique_lock<std::timed_mutex> lock(s->step_mu, std::defer_lock);
+  while (!lock.try_lock_for(std::chrono::milliseconds(2))) ctx.check_stop();
+  if (!h.contains("time"))
+    throw ProtocolError(pc::kBadRequest, "time: the session time (s) of the measured state");
+  const double t = number_field(h, "time", 0.0);
+  planner::PlanningSession& ps = *s->planner;
+  // Fields the client leaves out of its state are the session's current plan's at t.
+  planner::SrbdProblem::StartState measured;
+  try {
+    const bool on_previous =
+        t >= ps.previous_start_time() && t <= ps.previous_start_time() + ps.previous().duration;
+    const planner::Trajectory& from = on_previous ? ps.previous() : ps.reference();
+    const double at = on_previous ? t - ps.previous_start_time() : t;
+    if (!(t >= 0.0 && t < ps.reference().duration))
+      throw RequestFieldError("time", "must be within the session's plan [0, " +
+                                          std::to_string(ps.reference().duration) + ") s");
+    measured = h.contains("start_state")
+                   ? planner::start_state_from_json(h["start_state"], "start_state", from, at)
+                   : ps.planned_state(t);
+  } catch (const std::invalid_argument& e) {
+    throw ProtocolError(pc::kBadRequest, e.what());
+  }
+  // The per-step budget: the request's deadline, else the session's max_time.
+  planner::PlannerOptions po;
+  apply_deadline(ctx, &po);
+  planner::SessionStep step;
+  try {
+    step = ps.step(measured, t, {po.should_stop, po.max_time});
+  } catch (const std::invalid_argument& e) {
+    throw ProtocolError(pc::kBadRequest, e.what());
+  }
+  ctx.check_stop();
+  if (!step.outcome.success) {
+    if (step.outcome.solve.status == "time_limit")
+      throw ProtocolError(pc::kDeadlineExceeded,
+                          "session " + s->id + ": " + step.outcome.message);
+    throw ProtocolError(pc::kFailed, "session " + s->id + ": " + step.outcome.message);
+  }
+  s->last_used = Clock::now();
+  OpResult r;
+  r.result = plan_reply(step.outcome.trajectory, *s, &step);
+  r.result["success"] = true;
+  (void)backend;
+  return r;
+}
+
+}  // namespace
+
+void add_plan_session_operation(Backend& backend, OperationRegistry& registry) {
+  Backend* b = &backend;
+  auto table = std::make_shared<SessionTable>();
+  registry.on_disconnect([table](std::uint64_t connection) { table->close_connection(connection); });
+  registry.add({"plan.session.open", OpKind::kWorker,
+                "open a planning session: plan the reference motion, keep it for re-plans",
+                [b, table](OpContext& c) { return open_session(*b, *table, c); },
+                std::vector<std::string>{"terrain", "gait", "cycles", "duration", "goal",
+                                         "constraints", "feasibility", "sample_dt", "max_time",
+                                         "horizon"}});
+  registry.add({"plan.session.step", OpKind::kWorker,
+                "re-plan a session from a measured state at a session time",
+                [b, table](OpContext& c) { return step_session(*b, *table, c); },
+                std::vector<std::string>{"session", "time", "start_state"}});
+  registry.add({"plan.session.close", OpKind::kInline, "close a planning session",
+                [table](OpContext& c) {
+                  OpResult r;
+                  r.result["closed"] = table->close(session_field(c.request.header), c.connection);
+                  return r;
+                },
+                std::vector<std::string>{"session"}});
+  registry.add({"plan.session.status", OpKind::kInline, "planning sessions open on this server",
+                [table](OpContext&) {
+                  OpResult r;
+                  r.result = table->status();
+                  return r;
+                },
+                std::vector<std::string>{}});
+}
+
+}  // namespace terrastride::service

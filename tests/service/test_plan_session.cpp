@@ -1,0 +1,143 @@
+// Planning sessions through the socket (docs/protocol.md, "Planning sessions"; issue #22): steps
+// warm-started from the previous plan, a failed step leaves the session usable, per-step
+// deadlines, sessions freed on close and on disconnect, 50 sessions within a memory bound.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <fstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "terrastride/service/client.hpp"
+#include "terrastride/service/protocol.hpp"
+#include "test_server_process.hpp"
+
+namespace {
+
+using nlohmann::json;
+using terrastride::service::Client;
+using terrastride::test::ServerProcess;
+namespace p = terrastride::service::protocol;
+
+std::string error_code(const p::Message& m) {
+  return m.header.value("ok", false) ? "" : m.header["error"].value("code", "?");
+}
+
+// The flat 2.4 s crawl to x = 0.3 (a cold solve of some 0.1 s), with a 1 s horizon.
+json open_request() {
+  return {{"op", "plan.session.open"}, {"terrain", "flat"}, {"duration", 2.4},
+          {"goal", {0.3, 0.0, 0.0}},   {"horizon", 1.0},     {"sample_dt", 0.02}};
+}
+
+double rss_kib(int pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("VmRSS:", 0) == 0) return std::stod(line.substr(6));
+  return -1;
+}
+
+int open_sessions(Client& c) { return c.call_ok({{"op", "plan.session.status"}})["open"]; }
+
+TEST(PlanSession, StepsFromAMeasuredStateThenAFailedStepLeavesItUsable) {
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  Client c = Client::connect(server.tcp());
+  const json ref = c.call_ok(open_request());
+  const std::string id = ref["session"];
+  EXPECT_EQ(ref["solver"]["status"], "optimal");
+  // 1 cm beside the plan and 0.05 m/s faster, 0.2 s in.
+  json state = {{"base", {{"position", {0.0, 0.01, 0.0}}}}};
+  const auto& s = ref["samples"];
+  json at;
+  for (const auto& smp : s)
+    if (std::abs(smp["t"].get<double>() - 0.2) < 1e-9) at = smp;
+  ASSERT_FALSE(at.is_null());
+  state["base"]["position"] = at["base"]["position"];
+  state["base"]["position"][1] = at["base"]["position"][1].get<double>() + 0.01;
+  state["base"]["linear_velocity"] = at["base"]["linear_velocity"];
+  state["base"]["linear_velocity"][0] = at["base"]["linear_velocity"][0].get<double>() + 0.05;
+  const json step = c.call_ok({{"op", "plan.session.step"}, {"session", id}, {"time", 0.2},
+                               {"start_state", state}});
+  EXPECT_EQ(step["solver"]["status"], "optimal");
+  EXPECT_DOUBLE_EQ(step["start_time"].get<double>(), 0.2);
+  EXPECT_FALSE(step["to_goal"].get<bool>());
+  // The plan starts where the robot is.
+  EXPECT_NEAR(step["samples"][0]["base"]["position"][1].get<double>(),
+              state["base"]["position"][1].get<double>(), 1e-9);
+  // A state the robot cannot be in (its base 40 cm up and 40 cm aside of its feet): a clear
+  // error, and the session goes on from its last plan.
+  json bad = {{"base", {{"position", {0.3, 0.4, 0.9}}}}};
+  const auto failed = c.call({{"op", "plan.session.step"}, {"session", id}, {"time", 0.3},
+                              {"start_state", bad}});
+  EXPECT_EQ(error_code(failed), "failed") << failed.header.dump();
+  EXPECT_NE(failed.header["error"]["message"].get<std::string>().find("still violated"),
+            std::string::npos);
+  const json next = c.call_ok({{"op", "plan.session.step"}, {"session", id}, {"time", 0.3}});
+  EXPECT_EQ(next["solver"]["status"], "optimal");
+  // A deadline applies per step: 1 ms is too short for any solve; the session survives it.
+  const auto late = c.call({{"op", "plan.session.step"}, {"session", id}, {"time", 0.4},
+                            {"deadline_ms", 1}});
+  EXPECT_EQ(error_code(late), "deadline_exceeded") << late.header.dump();
+  EXPECT_EQ(c.call_ok({{"op", "plan.session.step"}, {"session", id}, {"time", 0.4}})["solver"]
+                     ["status"],
+            "optimal");
+  // Bad requests name their field; another connection cannot use the session.
+  EXPECT_EQ(error_code(c.call({{"op", "plan.session.step"}, {"session", id}, {"time", 9.0}})),
+            "bad_request");
+  Client other = Client::connect(server.tcp());
+  EXPECT_EQ(error_code(other.call({{"op", "plan.session.step"}, {"session", id}, {"time", 0.5}})),
+            "bad_request");
+  EXPECT_EQ(open_sessions(c), 1);
+  EXPECT_TRUE(c.call_ok({{"op", "plan.session.close"}, {"session", id}})["closed"].get<bool>());
+  EXPECT_EQ(open_sessions(c), 0);
+}
+
+TEST(PlanSession, DisconnectFreesTheSession) {
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  Client watcher = Client::connect(server.tcp());
+  {
+    Client c = Client::connect(server.tcp());
+    c.call_ok(open_request());
+    EXPECT_EQ(open_sessions(watcher), 1);
+  }  // the client leaves without closing its session
+  int open = 1;
+  for (int i = 0; i < 200 && open != 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    open = open_sessions(watcher);
+  }
+  EXPECT_EQ(open, 0);
+}
+
+// 50 sessions at once on one server: the server's resident memory grows by less than 100 MiB
+// (each session holds its reference and last plans, about 0.1 MiB on the flat crawl at 20 ms
+// samples; the 11 s pallet crawl at 10 ms holds 1.1 MB), and closing them all frees the table.
+TEST(PlanSession, FiftySessionsStayWithinTheMemoryBound) {
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  Client c = Client::connect(server.tcp());
+  c.call_ok(open_request());  // the first loads the scene, the solver and MuJoCo-free code paths
+  const double before = rss_kib(server.pid());
+  std::size_t session_bytes = 0;
+  for (int i = 1; i < 50; ++i) session_bytes += c.call_ok(open_request())["memory_bytes"].get<std::size_t>();
+  EXPECT_EQ(open_sessions(c), 50);
+  const double after = rss_kib(server.pid());
+  EXPECT_LT(after - before, 100.0 * 1024) << "RSS " << before << " -> " << after << " KiB";
+  EXPECT_LT(session_bytes, std::size_t{49} << 20);
+  // Each still steps.
+  EXPECT_EQ(c.call_ok({{"op", "plan.session.step"}, {"session", "s50"}, {"time", 0.1}})["solver"]
+                     ["status"],
+            "optimal");
+  c.close();
+  Client watcher = Client::connect(server.tcp());
+  int open = 50;
+  for (int i = 0; i < 200 && open != 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    open = open_sessions(watcher);
+  }
+  EXPECT_EQ(open, 0);
+}
+
+}  // namespace
