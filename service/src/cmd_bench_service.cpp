@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <fstream>
 #include <functional>
 #include <iomanip>
@@ -43,6 +44,11 @@ struct BenchOptions {
   bool json = false;
   bool json_points = false;
   double rate = 0;  // requests per second per client; 0 = back to back (saturation)
+  // Replan mode (issue #22): a planning session on pallet_15 with every constraint set.
+  int replan_steps = 50;
+  double horizon = 1.0;
+  std::string replan_scene = "pallet_15";
+  std::string replan_constraints = "all";
   // Hostile mode.
   int slowloris = 32;      // connections per slow-frame case
   double max_wait_s = 15;  // longest wait for the server to close a hostile connection
@@ -708,6 +714,80 @@ json bench_hostile(const BenchOptions& o, const json& extent) {
                                                  : json()}};
 }
 
+// ---- replan mode ----
+// A planning session (plan.session.open: the cold solve), then steps 0.1 s apart, each from the
+// current plan's state at that time 1 cm to the side and 0.05 m/s faster (a robot's measured
+// state), timed as the client sees them (send to reply). The cold figure is the open's round
+// trip minus nothing: the reference plan's solve and everything around it, as a `plan` would be.
+json bench_replan(const BenchOptions& o) {
+  Client c = connect(o);
+  c.set_timeout(600);
+  const auto t_open = Clock::now();
+  const json ref = c.call_ok({{"op", "plan.session.open"},
+                              {"terrain", o.replan_scene},
+                              {"constraints", o.replan_constraints},
+                              {"horizon", o.horizon}});
+  const double cold_ms = ms_since(t_open);
+  const std::string id = ref["session"];
+  json current = ref;
+  double current_start = 0.0;
+  const double duration = ref["duration"];
+  std::vector<double> latencies, solves;
+  int failures = 0, iterations = 0;
+  for (int k = 1; k <= o.replan_steps; ++k) {
+    // Wrap round the plan (a new session when it ends), so any number of steps fit.
+    const double t = std::fmod(0.1 * k, duration - 0.2);
+    if (t < current_start) {
+      current = ref;
+      current_start = 0.0;
+    }
+    const json* at = nullptr;
+    for (const json& s : current["samples"])
+      if (s["t"].get<double>() + current_start >= t - 1e-9) {
+        at = &s;
+        break;
+      }
+    if (!at) at = &current["samples"].back();
+    json base = {{"position", (*at)["base"]["position"]},
+                 {"linear_velocity", (*at)["base"]["linear_velocity"]}};
+    base["position"][1] = base["position"][1].get<double>() + 0.01;
+    base["linear_velocity"][0] = base["linear_velocity"][0].get<double>() + 0.05;
+    const auto t0 = Clock::now();
+    const auto reply = c.call({{"op", "plan.session.step"},
+                               {"session", id},
+                               {"time", t},
+                               {"start_state", {{"base", base}}}});
+    latencies.push_back(ms_since(t0));
+    if (!reply.header.value("ok", false)) {
+      ++failures;
+      continue;
+    }
+    const json& r = reply.header["result"];
+    solves.push_back(1e3 * r["solver"]["wall_s"].get<double>());
+    iterations += r["solver"]["iterations"].get<int>();
+    current = r;
+    current_start = t;
+  }
+  c.call_ok({{"op", "plan.session.close"}, {"session", id}});
+  json j = {{"scene", o.replan_scene},
+            {"constraints", o.replan_constraints},
+            {"horizon_s", o.horizon},
+            {"cold_ms", cold_ms},
+            {"cold_solve_ms", 1e3 * ref["solver"]["wall_s"].get<double>()},
+            {"cold_iterations", ref["solver"]["iterations"]},
+            {"steps", o.replan_steps},
+            {"failures", failures},
+            {"iterations_per_step", static_cast<double>(iterations) /
+                                        std::max<std::size_t>(1, solves.size())},
+            {"latency", latency_json(latencies)},
+            {"solve", latency_json(solves)}};
+  if (j["latency"].contains("p50_ms")) {
+    j["median_over_cold"] = j["latency"]["p50_ms"].get<double>() / cold_ms;
+    j["targets"] = {{"median_over_cold_max", 0.10}, {"p99_ms_max", 50.0}};
+  }
+  return j;
+}
+
 void print_latency(const std::string& label, const json& j) {
   if (!j.contains("p50_ms")) return;
   std::cout << std::fixed << std::setprecision(3) << label << "p50 " << j["p50_ms"].get<double>()
@@ -728,9 +808,21 @@ void add_bench_service_command(CLI::App& app) {
                   "Server address (tcp://HOST:PORT or unix:PATH); default: start one in-process "
                   "on an ephemeral loopback port");
   cmd->add_option("--token", o->token, "Token for hello, when the server requires one");
-  cmd->add_option("--mode", o->mode, "query, plan, hostile or all")
+  cmd->add_option("--mode", o->mode,
+                  "query, plan, hostile, all, or replan (planning-session re-plan latency; not "
+                  "part of all)")
       ->capture_default_str()
-      ->check(CLI::IsMember({"query", "plan", "hostile", "all"}));
+      ->check(CLI::IsMember({"query", "plan", "hostile", "all", "replan"}));
+  cmd->add_option("--steps", o->replan_steps, "Replan mode: session steps, 0.1 s apart")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  cmd->add_option("--horizon", o->horizon, "Replan mode: the session's horizon in s (0 = to the goal)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 60.0));
+  cmd->add_option("--replan-scene", o->replan_scene, "Replan mode: the scene")
+      ->capture_default_str();
+  cmd->add_option("--replan-constraints", o->replan_constraints, "Replan mode: constraint sets")
+      ->capture_default_str();
   cmd->add_option("--clients", o->clients, "Concurrent query clients")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));
@@ -828,6 +920,7 @@ void add_bench_service_command(CLI::App& app) {
         out["plan_overhead_json_samples"] = bench_overhead(*o, "json");
       }
       if (o->mode == "hostile" || o->mode == "all") out["hostile"] = bench_hostile(*o, extent);
+      if (o->mode == "replan") out["replan"] = bench_replan(*o);
     } catch (const ClientError& e) {
       if (server) {
         server->shutdown();
@@ -866,6 +959,22 @@ void add_bench_service_command(CLI::App& app) {
         print_latency("  planner outside the solve (build, sampling, dense checks): ",
                       p["planner_outside_solve"]);
       if (p.contains("note")) std::cout << "  note: " << p["note"].get<std::string>() << "\n";
+    }
+    if (out.contains("replan")) {
+      const json& r = out["replan"];
+      std::cout << std::fixed << std::setprecision(1) << "replan (" << r["scene"].get<std::string>()
+                << ", " << r["constraints"].get<std::string>() << ", horizon "
+                << r["horizon_s"].get<double>() << " s, 1 cm and 0.05 m/s off the plan):\n"
+                << "  cold: session open " << r["cold_ms"].get<double>() << " ms (solve "
+                << r["cold_solve_ms"].get<double>() << " ms, " << r["cold_iterations"]
+                << " iterations)\n";
+      print_latency("  step, client-observed: ", r["latency"]);
+      print_latency("  step solve: ", r["solve"]);
+      std::cout << std::setprecision(3) << "  median / cold = "
+                << r.value("median_over_cold", -1.0) << " (target <= 0.10), p99 "
+                << r["latency"].value("p99_ms", -1.0) << " ms (target <= 50 ms); "
+                << std::setprecision(2) << r["iterations_per_step"].get<double>()
+                << " iterations per step, " << r["failures"] << " failed steps\n";
     }
     if (out.contains("hostile")) {
       const json& h = out["hostile"];

@@ -10,7 +10,7 @@
 // plans to the goal as the reference did. Ipopt 3.11 keeps nothing between two problems of
 // different structure (and a step's structure changes whenever its start crosses a segment
 // knot), so the cost of a step is that of its problem: a horizon of 2 s instead of the 11 s of
-// pallet_15 makes each step's problem about five times smaller (docs/design.md §6.9).
+// pallet_15 makes each step's problem about five times smaller (docs/design.md §6.7).
 #pragma once
 
 #include <functional>
