@@ -6,6 +6,8 @@
 // Jacobian nonzeros, iterations, wall and user CPU s, the post-hoc checks on the exact scene
 // (worst joint torque ratio over the whole plan, capsule collisions and minimum distance, unsafe
 // footholds) and the worst quasi-static stance torque ratio max |J_i^T f| / tau_i.
+// Session rows (pallet_15_all_session[_h1|_h2], issue #22): 20 x --repeat re-plans 0.1 s apart
+// from states 1 cm and 0.05 m/s off the plan; BENCH_SESSION_DETAIL=1 prints each step on stderr.
 #include <sys/resource.h>
 
 #include <algorithm>
