@@ -29,6 +29,8 @@ packages=(
   # Bags as map input (perception/src/bag): MCAP chunks (zstd, lz4, zlib's CRC-32), ROS 2 .db3
   # (SQLite), ROS 1 .bag (rosbag_storage; its headers include pluginlib's).
   libzstd-dev liblz4-dev zlib1g-dev libsqlite3-dev librosbag-storage-dev
+  # URDF import (`terrastride robot import`): urdfdom parses the URDF.
+  liburdfdom-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   python3
   # The offline report inlines a plotting library installed with npm (service/report), and its

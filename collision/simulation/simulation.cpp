@@ -62,15 +62,12 @@ struct LinkPose {
 };
 
 std::array<LinkPose, 3> link_poses(const robot::LegModel& leg, const Vector3d& q) {
-  // The chain of leg_kinematics.cpp: HAA about -side x, HFE and KFE about the rotated y.
-  const Matrix3d r0 = Eigen::AngleAxisd(-leg.side * q[0], Vector3d::UnitX()).toRotationMatrix();
-  const Matrix3d r1 = r0 * Eigen::AngleAxisd(q[1], Vector3d::UnitY()).toRotationMatrix();
-  const Matrix3d r2 = r1 * Eigen::AngleAxisd(q[2], Vector3d::UnitY()).toRotationMatrix();
-  const Vector3d o0 = leg.haa_origin;
-  const Vector3d o1 = o0 + r0 * Vector3d(0, 0, -leg.l0);
-  const Vector3d o2 = o1 + r1 * Vector3d(0, 0, -leg.l1);
-  return {LinkPose{o0 + r0 * leg.links[0].com, r0}, LinkPose{o1 + r1 * leg.links[1].com, r1},
-          LinkPose{o2 + r2 * leg.links[2].com, r2}};
+  // The chain of leg_kinematics.cpp (leg_frames): each link's frame and its centre of mass.
+  const robot::LegFrames fr = robot::leg_frames(leg, q);
+  std::array<LinkPose, 3> poses;
+  for (int i = 0; i < 3; ++i)
+    poses[i] = LinkPose{fr.origin[i] + fr.rotation[i] * leg.links[i].com, fr.rotation[i]};
+  return poses;
 }
 
 // Joint angles that put each foot sphere's centre (nominal foot + r z) in place.
@@ -134,28 +131,40 @@ std::string robot_body(const robot::RobotModel& model, double mass_scale, const 
     // its end cap then stays above the sphere's lowest point for any shin pitch, so a shin contact
     // is a real contact of the lower leg, not the foot.
     const double shin_end = leg.l2 - (r_foot + leg.shin_radius);
+    // The leg's general geometry (robot_model.hpp, LegModel): every body frame is parallel to the
+    // trunk's at q = 0, so the offsets and axes go in as they are. The in-plane leg (HyQ) gives
+    // (0, 0, -l) and the axes (-side, 0, 0), (0, 1, 0) and writes what it always wrote.
+    const Vector3d& d0 = leg.joint_offset[0];
+    const Vector3d& d1 = leg.joint_offset[1];
+    const Vector3d& d2 = leg.joint_offset[2];
+    const Vector3d shin_tip = d2 / leg.l2 * shin_end;
+    const auto axis = [&](int j) {
+      if (leg.shape == robot::LegShape::in_plane)
+        return j == 0 ? std::to_string(-leg.side) + " 0 0" : std::string("0 1 0");
+      return fmt(leg.joint_axis[j]);
+    };
     x << "<body name=\"" << n << "_hip\" pos=\"" << fmt(leg.haa_origin) << "\">\n"
-      << "<joint name=\"" << n << "_HAA\" type=\"hinge\" axis=\"" << -leg.side << " 0 0\" range=\""
+      << "<joint name=\"" << n << "_HAA\" type=\"hinge\" axis=\"" << axis(0) << "\" range=\""
       << fmt(leg.q_min[0]) << " " << fmt(leg.q_max[0]) << "\"/>\n"
       << "<inertial pos=\"" << fmt(leg.links[0].com) << "\" mass=\"" << fmt(leg.links[0].mass)
       << "\" fullinertia=\"" << full_inertia(floor_inertia(leg.links[0].inertia)) << "\"/>\n"
-      << "<body name=\"" << n << "_upper\" pos=\"0 0 " << fmt(-leg.l0) << "\">\n"
-      << "<joint name=\"" << n << "_HFE\" type=\"hinge\" axis=\"0 1 0\" range=\""
+      << "<body name=\"" << n << "_upper\" pos=\"" << fmt(d0) << "\">\n"
+      << "<joint name=\"" << n << "_HFE\" type=\"hinge\" axis=\"" << axis(1) << "\" range=\""
       << fmt(leg.q_min[1]) << " " << fmt(leg.q_max[1]) << "\"/>\n"
       << "<inertial pos=\"" << fmt(leg.links[1].com) << "\" mass=\"" << fmt(leg.links[1].mass)
       << "\" fullinertia=\"" << full_inertia(floor_inertia(leg.links[1].inertia)) << "\"/>\n"
-      << "<geom name=\"" << n << "_thigh\" type=\"capsule\" fromto=\"0 0 0 0 0 " << fmt(-leg.l1)
+      << "<geom name=\"" << n << "_thigh\" type=\"capsule\" fromto=\"0 0 0 " << fmt(d1)
       << "\" size=\"" << fmt(leg.thigh_radius) << "\" " << kRobotGeom << "/>\n"
-      << "<body name=\"" << n << "_lower\" pos=\"0 0 " << fmt(-leg.l1) << "\">\n"
-      << "<joint name=\"" << n << "_KFE\" type=\"hinge\" axis=\"0 1 0\" range=\""
+      << "<body name=\"" << n << "_lower\" pos=\"" << fmt(d1) << "\">\n"
+      << "<joint name=\"" << n << "_KFE\" type=\"hinge\" axis=\"" << axis(2) << "\" range=\""
       << fmt(leg.q_min[2]) << " " << fmt(leg.q_max[2]) << "\"/>\n"
       << "<inertial pos=\"" << fmt(leg.links[2].com) << "\" mass=\"" << fmt(leg.links[2].mass)
       << "\" fullinertia=\"" << full_inertia(floor_inertia(leg.links[2].inertia)) << "\"/>\n"
-      << "<geom name=\"" << n << "_shin\" type=\"capsule\" fromto=\"0 0 0 0 0 " << fmt(-shin_end)
+      << "<geom name=\"" << n << "_shin\" type=\"capsule\" fromto=\"0 0 0 " << fmt(shin_tip)
       << "\" size=\"" << fmt(leg.shin_radius) << "\" " << kRobotGeom << "/>\n"
-      << "<geom name=\"" << n << "_foot\" type=\"sphere\" pos=\"0 0 " << fmt(-leg.l2)
+      << "<geom name=\"" << n << "_foot\" type=\"sphere\" pos=\"" << fmt(d2)
       << "\" size=\"" << fmt(r_foot) << "\" " << kRobotGeom << "/>\n"
-      << "<site name=\"" << n << "_foot\" pos=\"0 0 " << fmt(-leg.l2) << "\"/>\n"
+      << "<site name=\"" << n << "_foot\" pos=\"" << fmt(d2) << "\"/>\n"
       << "</body>\n</body>\n</body>\n";
   }
   x << "</body>\n";

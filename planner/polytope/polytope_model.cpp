@@ -208,6 +208,14 @@ std::string leg_fingerprint(const robot::LegModel& leg) {
   add3(leg.torque_limit);
   add3(leg.nominal_foot);
   add3(leg.range_of_motion);
+  // The general leg's geometry (the in-plane leg's is all in l0, l1, l2 and side above: its
+  // fingerprint stays what it was).
+  if (leg.shape != robot::LegShape::in_plane) {
+    for (int j = 0; j < 3; ++j) {
+      add3(leg.joint_axis[j]);
+      add3(leg.joint_offset[j]);
+    }
+  }
   uint64_t h = 1469598103934665603ull;
   for (unsigned char ch : text) {
     h ^= ch;

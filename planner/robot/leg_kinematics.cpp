@@ -7,6 +7,8 @@
 #include <algorithm>
 #include <cmath>
 #include <sstream>
+#include <vector>
+#include <Eigen/Cholesky>
 
 namespace terrastride::robot {
 namespace {
@@ -14,16 +16,25 @@ namespace {
 Matrix3 rot_x(double a) { return Eigen::AngleAxisd(a, Vector3::UnitX()).toRotationMatrix(); }
 Matrix3 rot_y(double a) { return Eigen::AngleAxisd(a, Vector3::UnitY()).toRotationMatrix(); }
 
-// Joint frames of the chain in the base frame: origin, orientation and joint axis of HAA, HFE, KFE.
-struct ChainFrames {
-  std::array<Vector3, 3> origin;
-  std::array<Matrix3, 3> rotation;
-  std::array<Vector3, 3> axis;
-  Vector3 foot;
-};
+using ChainFrames = LegFrames;
 
 ChainFrames chain_frames(const LegModel& leg, const Vector3& q) {
   ChainFrames fr;
+  if (leg.shape != LegShape::in_plane) {
+    // The general chain (robot_model.hpp, LegModel): R_i about the q = 0 axis, carried along.
+    Matrix3 r = Matrix3::Identity();
+    Vector3 o = leg.haa_origin;
+    for (int i = 0; i < 3; ++i) {
+      fr.origin[i] = o;
+      fr.axis[i] = r * leg.joint_axis[i];
+      r = r * Eigen::AngleAxisd(q[i], leg.joint_axis[i]).toRotationMatrix();
+      fr.rotation[i] = r;
+      o = o + r * leg.joint_offset[i];
+    }
+    fr.foot = o;
+    return fr;
+  }
+  // The in-plane leg (HyQ), as it always was:
   // HAA turns by -side*qA about x, i.e. by qA about the axis -side*x.
   fr.origin[0] = leg.haa_origin;
   fr.rotation[0] = rot_x(-leg.side * q[0]);
@@ -45,9 +56,99 @@ std::string format_vec(const Vector3& v) {
   return s.str();
 }
 
+static const char* kJointNames[3] = {"HAA", "HFE", "KFE"};
+
+// Status and message for joint angles q that reach the foot (or not, by `excess` m).
+IkResult finish_ik(const LegModel& leg, const Vector3& foot_in_base, const Vector3& q,
+                   double excess) {
+  IkResult res;
+  res.q = q;
+  if (excess > 1e-9) {
+    res.status = IkStatus::unreachable;
+    std::ostringstream s;
+    s << "leg " << leg.name << ": foot " << format_vec(foot_in_base)
+      << " (base frame) is out of reach (" << excess << " m beyond the leg's reach)";
+    res.message = s.str();
+    return res;
+  }
+  for (int i = 0; i < 3; ++i) {
+    if (q[i] < leg.q_min[i] - 1e-9 || q[i] > leg.q_max[i] + 1e-9) {
+      res.status = IkStatus::outside_joint_limits;
+      std::ostringstream s;
+      s << "leg " << leg.name << ": foot " << format_vec(foot_in_base) << " needs "
+        << kJointNames[i] << " = " << q[i] * 180.0 / M_PI << " deg, outside ["
+        << leg.q_min[i] * 180.0 / M_PI << ", " << leg.q_max[i] * 180.0 / M_PI << "] deg";
+      res.message = s.str();
+      return res;
+    }
+  }
+  res.status = IkStatus::ok;
+  return res;
+}
+
+IkResult other_shape_ik(const LegModel& leg, const Vector3& foot_in_base) {
+  double excess = 0.0;
+  Vector3 q;
+  if (leg.shape == LegShape::lateral_offset) {
+    q = lateral_offset_joint_angles<double>(leg, foot_in_base, &excess);
+  } else {
+    q = general_leg_angles(leg, foot_in_base, &excess);
+  }
+  return finish_ik(leg, foot_in_base, q, excess);
+}
+
 }  // namespace
 
+Vector3 general_leg_angles(const LegModel& leg, const Vector3& foot_in_base, double* residual) {
+  // Starts: the middle of the ranges and the eight corners of the box spanning the middle half.
+  const Vector3 mid = 0.5 * (leg.q_min + leg.q_max), quarter = 0.25 * (leg.q_max - leg.q_min);
+  std::vector<Vector3> starts{mid};
+  for (int k = 0; k < 8; ++k)
+    starts.push_back(mid + Vector3((k & 1) ? quarter.x() : -quarter.x(),
+                                   (k & 2) ? quarter.y() : -quarter.y(),
+                                   (k & 4) ? quarter.z() : -quarter.z()));
+  Vector3 best = mid;
+  double best_err = HUGE_VAL, best_score = HUGE_VAL;
+  for (const Vector3& start : starts) {
+    Vector3 q = start;
+    double lambda = 1e-3;
+    Vector3 e = foot_in_base - foot_position(leg, q);
+    for (int it = 0; it < 100 && e.norm() > 1e-13; ++it) {
+      const Matrix3 j = foot_jacobian(leg, q);
+      const Matrix3 a = j.transpose() * j + lambda * Matrix3::Identity();
+      const Vector3 step = a.ldlt().solve(j.transpose() * e);
+      const Vector3 e_new = foot_in_base - foot_position(leg, q + step);
+      if (e_new.norm() < e.norm()) {
+        q += step;
+        e = e_new;
+        lambda = std::max(lambda * 0.3, 1e-12);
+      } else {
+        lambda *= 10.0;
+        if (lambda > 1e8) break;
+      }
+    }
+    for (int i = 0; i < 3; ++i) {
+      q[i] = std::remainder(q[i], 2.0 * M_PI);
+      q[i] = into_joint_range<double>(q[i], leg.q_min[i], leg.q_max[i]);
+    }
+    const double err = e.norm();
+    // Reaching the foot first, then within the ranges, then nearest the middle.
+    bool inside = true;
+    for (int i = 0; i < 3; ++i) inside = inside && q[i] >= leg.q_min[i] && q[i] <= leg.q_max[i];
+    const double score = (inside ? 0.0 : 10.0) + (q - mid).cwiseQuotient(2.0 * quarter + Vector3::Constant(1e-9)).squaredNorm() * 1e-3;
+    const bool reaches = err < 1e-9, best_reaches = best_err < 1e-9;
+    if ((reaches && !best_reaches) || (reaches == best_reaches && (reaches ? score < best_score : err < best_err))) {
+      best = q;
+      best_err = err;
+      best_score = score;
+    }
+  }
+  if (residual) *residual = best_err;
+  return best;
+}
+
 Vector3 foot_position(const LegModel& leg, const Vector3& q) { return chain_frames(leg, q).foot; }
+LegFrames leg_frames(const LegModel& leg, const Vector3& q) { return chain_frames(leg, q); }
 Vector3 hfe_position(const LegModel& leg, const Vector3& q) {
   return chain_frames(leg, q).origin[1];
 }
@@ -68,6 +169,7 @@ IkResult inverse_kinematics(const LegModel& leg, const Vector3& foot_in_base) {
     res.message = "leg " + leg.name + ": foot position is not finite";
     return res;
   }
+  if (leg.shape != LegShape::in_plane) return other_shape_ik(leg, foot_in_base);
   // The planner's IK equations (geometry.hpp). The planner's rows clamp a foot beyond reach to the
   // stretched knee; here it is reported.
   const LegPlane<double> plane = leg_plane<double>(leg, foot_in_base);

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <sstream>
+#include <algorithm>
 
 #ifndef TERRASTRIDE_SOURCE_DATA_DIR
 #define TERRASTRIDE_SOURCE_DATA_DIR "data"
@@ -132,7 +133,64 @@ std::optional<TrunkBox> read_trunk(const FieldReader& top) {
   return box;
 }
 
+// The general leg geometry (robot_model.hpp, LegModel):
+//   geometry: {haa_to_hfe: [x, y, z], hfe_to_kfe: [...], kfe_to_foot: [...],
+//              axes: {haa: [x, y, z], hfe: [...], kfe: [...]}}
+void read_general_geometry(const FieldReader& r, LegModel& leg) {
+  const FieldReader g = r.sub("geometry");
+  leg.joint_offset[0] = g.vec3("haa_to_hfe");
+  leg.joint_offset[1] = g.vec3("hfe_to_kfe");
+  leg.joint_offset[2] = g.vec3("kfe_to_foot");
+  const FieldReader axes = g.sub("axes");
+  static const char* kJoints[3] = {"haa", "hfe", "kfe"};
+  for (int j = 0; j < 3; ++j) {
+    const Eigen::Vector3d a = axes.vec3(kJoints[j]);
+    if (!(std::abs(a.norm() - 1.0) < 1e-6)) axes.fail(kJoints[j], "must be a unit vector");
+    leg.joint_axis[j] = a / a.norm();
+  }
+}
+
 }  // namespace
+
+void classify_leg_geometry(LegModel& leg, bool side_given) {
+  const auto fail = [&](const std::string& what) {
+    throw std::invalid_argument("leg " + leg.name + ": " + what);
+  };
+  for (int j = 0; j < 3; ++j) {
+    if (!leg.joint_axis[j].allFinite() || !(std::abs(leg.joint_axis[j].norm() - 1.0) < 1e-6))
+      fail("joint axis " + std::to_string(j) + " is not a unit vector");
+    if (!leg.joint_offset[j].allFinite()) fail("joint offset " + std::to_string(j) + " is not finite");
+  }
+  if (!(leg.joint_offset[1].norm() > 0)) fail("the HFE -> KFE offset (thigh) has no length");
+  if (!(leg.joint_offset[2].norm() > 0)) fail("the KFE -> foot offset (shank) has no length");
+  const auto is = [](const Eigen::Vector3d& v, double x, double y, double z) {
+    return v.x() == x && v.y() == y && v.z() == z;
+  };
+  const Eigen::Vector3d &a0 = leg.joint_axis[0], &a1 = leg.joint_axis[1], &a2 = leg.joint_axis[2];
+  const bool haa_x = is(a0, 1, 0, 0) || is(a0, -1, 0, 0);
+  const bool knee_y = (is(a1, 0, 1, 0) || is(a1, 0, -1, 0)) && (is(a2, 0, 1, 0) || is(a2, 0, -1, 0));
+  bool straight_down = is(a1, 0, 1, 0) && is(a2, 0, 1, 0);
+  for (int j = 0; j < 3; ++j) {
+    const Eigen::Vector3d& d = leg.joint_offset[j];
+    straight_down = straight_down && d.x() == 0 && d.y() == 0 && d.z() <= 0;
+  }
+  if (haa_x && straight_down) {
+    leg.shape = LegShape::in_plane;
+    const int side = a0.x() < 0 ? +1 : -1;
+    if (side_given && side != leg.side)
+      fail("side does not match the HAA axis (a left leg turns about -x, a right one about +x)");
+    leg.side = side;
+    leg.l0 = -leg.joint_offset[0].z();
+    leg.l1 = -leg.joint_offset[1].z();
+    leg.l2 = -leg.joint_offset[2].z();
+    return;
+  }
+  leg.shape = haa_x && knee_y ? LegShape::lateral_offset : LegShape::general;
+  if (!side_given) leg.side = leg.haa_origin.y() >= 0 ? +1 : -1;
+  leg.l0 = std::max(0.0, -leg.joint_offset[0].z());
+  leg.l1 = leg.joint_offset[1].norm();
+  leg.l2 = leg.joint_offset[2].norm();
+}
 
 const LegModel& RobotModel::leg(const std::string& leg_name) const {
   const int i = leg_index(leg_name);
@@ -146,6 +204,10 @@ int RobotModel::leg_index(const std::string& leg_name) const {
   return -1;
 }
 
+namespace {
+RobotModel read_robot(const YAML::Node& root, const std::string& path);
+}  // namespace
+
 RobotModel load_robot(const std::string& path) {
   YAML::Node root;
   try {
@@ -155,12 +217,32 @@ RobotModel load_robot(const std::string& path) {
   } catch (const YAML::Exception& e) {
     throw RobotFileError(path + ": not valid YAML: " + e.what());
   }
+  return read_robot(root, path);
+}
+
+RobotModel parse_robot(const std::string& text, const std::string& label) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    throw RobotFileError(label + ": not valid YAML: " + e.what());
+  }
+  return read_robot(root, label);
+}
+
+namespace {
+RobotModel read_robot(const YAML::Node& root, const std::string& path) {
   if (!root.IsMap()) throw RobotFileError(path + ": robot file must be a YAML mapping");
   const FieldReader top(path, root, "");
 
   RobotModel robot;
   robot.source_file = path;
   robot.name = top.text("name");
+  if (top.has("source")) {
+    YAML::Emitter out;
+    out << YAML::Flow << top.child("source");
+    robot.source = out.c_str();
+  }
   const FieldReader body = top.sub("body");
   robot.mass = body.positive("mass");
   robot.inertia = read_inertia(body.sub("inertia"));
@@ -192,7 +274,9 @@ RobotModel load_robot(const std::string& path) {
   }
 
   // Shared leg description; each leg may override any of these keys.
-  const FieldReader legs_node = top.sub("leg_model");
+  // (Optional: an imported robot file gives every key per leg.)
+  const FieldReader legs_node =
+      top.has("leg_model") ? top.sub("leg_model") : FieldReader(path, YAML::Node(YAML::NodeType::Map), "leg_model");
   YAML::Node list = top.child("legs");
   if (!list.IsSequence() || list.size() == 0) top.fail("legs", "must be a non-empty list");
   for (size_t k = 0; k < list.size(); ++k) {
@@ -206,13 +290,35 @@ RobotModel load_robot(const std::string& path) {
     leg.name = r.text("name");
     if (robot.leg_index(leg.name) >= 0) r.fail("name", "duplicate leg name '" + leg.name + "'");
     leg.haa_origin = r.vec3("haa_origin");
-    leg.l0 = r.non_negative("l0");
-    leg.l1 = r.positive("l1");
-    leg.l2 = r.positive("l2");
-    const std::string side = r.text("side");
-    if (side == "left") leg.side = +1;
-    else if (side == "right") leg.side = -1;
-    else r.fail("side", "must be 'left' or 'right' (got '" + side + "')");
+    const bool side_given = r.has("side");
+    if (side_given) {
+      const std::string side = r.text("side");
+      if (side == "left") leg.side = +1;
+      else if (side == "right") leg.side = -1;
+      else r.fail("side", "must be 'left' or 'right' (got '" + side + "')");
+    }
+    if (r.has("geometry")) {
+      // The general leg. The in-plane keys would say the same thing twice.
+      for (const char* key : {"l0", "l1", "l2"})
+        if (r.has(key))
+          r.fail(key, "give either 'geometry' or l0/l1/l2, not both");
+      read_general_geometry(r, leg);
+    } else {
+      // The in-plane leg (HyQ): l0, l1, l2 straight down, HAA about -side x, HFE and KFE about y.
+      leg.l0 = r.non_negative("l0");
+      leg.l1 = r.positive("l1");
+      leg.l2 = r.positive("l2");
+      if (!side_given) r.fail("side", "missing");
+      leg.joint_axis = {Eigen::Vector3d(-leg.side, 0.0, 0.0), Eigen::Vector3d::UnitY(),
+                        Eigen::Vector3d::UnitY()};
+      leg.joint_offset = {Eigen::Vector3d(0.0, 0.0, -leg.l0), Eigen::Vector3d(0.0, 0.0, -leg.l1),
+                          Eigen::Vector3d(0.0, 0.0, -leg.l2)};
+    }
+    try {
+      classify_leg_geometry(leg, side_given);
+    } catch (const std::invalid_argument& e) {
+      r.fail(r.has("geometry") ? "geometry" : "l0", e.what());
+    }
     const std::string knee = r.text("knee");
     if (knee == "backward") leg.knee_sign = -1;
     else if (knee == "forward") leg.knee_sign = +1;
@@ -226,10 +332,28 @@ RobotModel load_robot(const std::string& path) {
       leg.q_max[j] = hi;
     }
     // The knee branch must agree with the KFE range, or IK would always fail.
-    if ((leg.knee_sign < 0 && leg.q_max[2] > 0) || (leg.knee_sign > 0 && leg.q_min[2] < 0))
-      r.fail("joint_range_deg.kfe", "range does not match knee: " + knee);
+    if (leg.shape == LegShape::in_plane) {
+      if ((leg.knee_sign < 0 && leg.q_max[2] > 0) || (leg.knee_sign > 0 && leg.q_min[2] < 0))
+        r.fail("joint_range_deg.kfe", "range does not match knee: " + knee);
+    } else if (leg.shape == LegShape::lateral_offset) {
+      // The straight leg's KFE angle: the closed form's knee branch starts there.
+      const Eigen::Vector3d &d1 = leg.joint_offset[1], &d2 = leg.joint_offset[2];
+      const double s2 = leg.joint_axis[2].y();
+      const double straight =
+          s2 * std::atan2(d1.x() * d2.z() - d1.z() * d2.x(), d1.x() * d2.x() + d1.z() * d2.z());
+      const double lo = leg.knee_sign * (leg.q_min[2] - straight),
+                   hi = leg.knee_sign * (leg.q_max[2] - straight);
+      if (std::min(lo, hi) < -1e-9 || std::max(lo, hi) > 2 * M_PI)
+        r.fail("joint_range_deg.kfe",
+               "range does not lie on the knee's side (" + knee + ") of the straight leg (KFE = " +
+                   std::to_string(straight * 180.0 / M_PI) + " deg)");
+    }
     const FieldReader torque = r.sub("torque_limit");
     for (int j = 0; j < 3; ++j) leg.torque_limit[j] = torque.positive(kJoints[j]);
+    if (r.has("velocity_limit")) {
+      const FieldReader velocity = r.sub("velocity_limit");
+      for (int j = 0; j < 3; ++j) leg.velocity_limit[j] = velocity.positive(kJoints[j]);
+    }
     const FieldReader links = r.sub("links");
     leg.links[0] = read_link(links.sub("hip"));
     leg.links[1] = read_link(links.sub("upper"));
@@ -247,6 +371,7 @@ RobotModel load_robot(const std::string& path) {
   }
   return robot;
 }
+}  // namespace
 
 std::string data_dir() {
   if (const char* env = std::getenv("TERRASTRIDE_DATA_DIR"); env && *env) return env;

@@ -1,10 +1,15 @@
 // `terrastride robot`: inspect a robot file, forward/inverse kinematics, exact force polytopes.
 #include <iostream>
+#include <map>
+#include <sstream>
+#include <vector>
 #include <memory>
 #include <nlohmann/json.hpp>
 
+#include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
+#include "terrastride/robot/urdf_import.hpp"
 #include "terrastride/service/cli.hpp"
 
 namespace terrastride::service {
@@ -39,7 +44,37 @@ struct RobotOptions {
   std::string leg = "LF";
   std::string q;
   std::string foot;
+  // robot import
+  std::string urdf;
+  std::string out;
+  std::string name;
+  std::string feet;
+  double nominal_height = 0.0;
+  std::vector<std::string> joint_ranges;
 };
+
+// "A,B,C=MIN:MAX" (degrees) -> each joint's range.
+void add_joint_ranges(const std::string& spec,
+                      std::map<std::string, std::pair<double, double>>* ranges) {
+  const size_t eq = spec.find('=');
+  const size_t colon = spec.find(':', eq == std::string::npos ? 0 : eq);
+  if (eq == std::string::npos || colon == std::string::npos)
+    throw CommandError("--joint-range '" + spec + "': expected JOINT[,JOINT...]=MIN:MAX (degrees)");
+  double lo = 0, hi = 0;
+  try {
+    size_t used = 0;
+    lo = std::stod(spec.substr(eq + 1, colon - eq - 1), &used);
+    if (used != colon - eq - 1) throw std::invalid_argument("trailing");
+    hi = std::stod(spec.substr(colon + 1), &used);
+    if (used != spec.size() - colon - 1) throw std::invalid_argument("trailing");
+  } catch (const std::exception&) {
+    throw CommandError("--joint-range '" + spec + "': MIN and MAX must be numbers (degrees)");
+  }
+  std::stringstream names(spec.substr(0, eq));
+  std::string joint;
+  while (std::getline(names, joint, ','))
+    if (!joint.empty()) (*ranges)[joint] = {lo, hi};
+}
 
 }  // namespace
 
@@ -101,6 +136,61 @@ void add_robot_command(CLI::App& app) {
     const auto res = robot::inverse_kinematics(leg, parse_numbers(opts->foot, 3, "--foot"));
     if (!res.ok()) throw CommandError(res.message);
     std::cout << json{{"leg", leg.name}, {"q", vec_json(res.q)}}.dump() << "\n";
+  });
+
+  CLI::App* import = cmd->add_subcommand(
+      "import",
+      "Write a robot file from a URDF (urdfdom): four HAA-HFE-KFE leg chains ending in a foot "
+      "sphere, limits, inertias and collision radii; prints the defaults it used for what a URDF "
+      "does not hold (nominal stance, range-of-motion box, shin model). Writes nothing on error.");
+  import->add_option("urdf", opts->urdf, "The URDF file")->required();
+  import->add_option("--out", opts->out, "The robot file to write (e.g. data/robots/NAME.yaml)")
+      ->required();
+  import->add_option("--name", opts->name, "The robot's name (default: --out's file name without .yaml)");
+  import->add_option("--feet", opts->feet,
+                     "Foot links, comma-separated (default: every link three revolute joints "
+                     "below the base with a sphere collision)");
+  import->add_option("--nominal-height", opts->nominal_height,
+                     "Base height above flat ground in the nominal stance, m (default: 75 % of the "
+                     "feet's drop below the HAA joints at q = 0)");
+  import->add_option("--joint-range", opts->joint_ranges,
+                     "JOINT[,JOINT...]=MIN:MAX in degrees: replaces the URDF's range (required "
+                     "for placeholder ranges, e.g. ANYmal C's +-540 deg); repeatable");
+  import->callback([opts, import] {
+    robot::UrdfImportOptions o;
+    o.name = opts->name;
+    if (o.name.empty()) {
+      std::string base = opts->out.substr(opts->out.find_last_of('/') + 1);
+      if (base.size() > 5 && base.substr(base.size() - 5) == ".yaml") base.resize(base.size() - 5);
+      o.name = base;
+    }
+    if (!opts->feet.empty()) {
+      std::stringstream list(opts->feet);
+      std::string f;
+      while (std::getline(list, f, ','))
+        if (!f.empty()) o.feet.push_back(f);
+    }
+    if (import->count("--nominal-height")) o.nominal_height = opts->nominal_height;
+    for (const auto& spec : opts->joint_ranges) add_joint_ranges(spec, &o.joint_range_deg);
+    o.command = "terrastride robot import " + opts->urdf + " --out " + opts->out;
+    if (!opts->name.empty()) o.command += " --name " + opts->name;
+    if (!opts->feet.empty()) o.command += " --feet " + opts->feet;
+    if (o.nominal_height) o.command += " --nominal-height " + std::to_string(*o.nominal_height);
+    for (const auto& spec : opts->joint_ranges) o.command += " --joint-range " + spec;
+    robot::UrdfImport result;
+    try {
+      result = robot::import_urdf(opts->urdf, o);
+    } catch (const robot::UrdfImportError& e) {
+      throw CommandError(e.what());
+    }
+    try {
+      perception::write_file_atomically(opts->out, result.yaml);
+    } catch (const std::exception& e) {
+      throw CommandError("--out " + opts->out + ": " + e.what());
+    }
+    for (const auto& n : result.notes) std::cout << "read: " << n << "\n";
+    for (const auto& d : result.defaults) std::cout << "default: " << d << "\n";
+    std::cout << "wrote " << opts->out << " (robot " << o.name << ")\n";
   });
 }
 

@@ -24,6 +24,22 @@ Vector3 knee_position(const LegModel& leg, const Vector3& q);
 // 3x3 foot Jacobian d(foot)/dq in the base frame.
 Matrix3 foot_jacobian(const LegModel& leg, const Vector3& q);
 
+// The leg's joint frames in the base frame at joint angles q: joint i's origin, the orientation
+// of the link it moves (the frame its LinkInertia is given in) and its axis; and the foot centre.
+struct LegFrames {
+  std::array<Vector3, 3> origin;
+  std::array<Matrix3, 3> rotation;
+  std::array<Vector3, 3> axis;
+  Vector3 foot = Vector3::Zero();
+};
+LegFrames leg_frames(const LegModel& leg, const Vector3& q);
+
+// The general leg's inverse kinematics (LegShape::general): damped Newton (Levenberg-Marquardt)
+// on the forward kinematics from several starts across the joint ranges; of the answers that
+// reach the foot, the one within the joint ranges nearest the middle of the ranges. A foot out of
+// reach gets the closest configuration found; `residual` (when given) receives its distance (m).
+Vector3 general_leg_angles(const LegModel& leg, const Vector3& foot_in_base, double* residual);
+
 enum class IkStatus { ok, unreachable, outside_joint_limits };
 
 struct IkResult {
@@ -33,8 +49,9 @@ struct IkResult {
   bool ok() const { return status == IkStatus::ok; }
 };
 
-// Analytic inverse kinematics on the leg's knee branch: the planner's (geometry.hpp), with a foot
-// out of reach reported as unreachable. A solution outside the joint range is returned with status
+// Inverse kinematics on the leg's knee branch: the planner's (geometry.hpp; closed form for the
+// in-plane and lateral-offset legs, the numeric solve otherwise), with a foot out of reach
+// reported as unreachable. A solution outside the joint range is returned with status
 // outside_joint_limits.
 IkResult inverse_kinematics(const LegModel& leg, const Vector3& foot_in_base);
 

@@ -1,0 +1,43 @@
+// A robot file (data/robots/*.yaml) from a URDF, read with Debian's urdfdom (docs/design.md §4.1,
+// "Robots from URDF"): the four HAA-HFE-KFE leg chains ending in a foot sphere, fixed joints
+// composed, fixed children's inertia lumped into the moving link, effort/velocity/range limits,
+// the foot sphere radius and link radii from the collision primitives, and the SRBD mass and
+// composite inertia at the nominal stance. What a URDF does not hold (nominal stance, range-of-
+// motion box, shin model) gets stated defaults, listed in UrdfImport::defaults.
+#pragma once
+
+#include <map>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace terrastride::robot {
+
+// The URDF cannot be imported; the message names the file and the joint or link at fault.
+class UrdfImportError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct UrdfImportOptions {
+  std::string name;                      // the robot's name in the file (required)
+  std::vector<std::string> feet;         // foot link names; empty: every leg chain's sphere link
+  std::optional<double> nominal_height;  // m, base above flat ground in the nominal stance
+  // Joint ranges that replace the URDF's (by URDF joint name, degrees): required where the URDF's
+  // are placeholders (a range wider than a full turn, or a continuous joint).
+  std::map<std::string, std::pair<double, double>> joint_range_deg;
+  std::string command;  // how the file was made (recorded in its `source`)
+};
+
+struct UrdfImport {
+  std::string yaml;                   // the robot file's text (load_robot reads it back)
+  std::vector<std::string> defaults;  // values the URDF does not hold, with the default used
+  std::vector<std::string> notes;     // what was read and from where
+};
+
+// Reads `urdf_path` and returns the robot file; throws UrdfImportError.
+UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& options);
+
+}  // namespace terrastride::robot
