@@ -527,10 +527,17 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
       body.add(link.mass, com_q, fr.rotation[k] * link.inertia_com() * fr.rotation[k].transpose());
     }
   }
-  const Vector3d body_com = body.com();
+  // The SRBD model puts the centre of mass at the base origin (the planner's dynamics and the
+  // simulator's trunk = body - legs both rely on it): the robot file's base frame is the URDF's
+  // base frame moved to the centre of mass at the nominal stance (axes unchanged). On Go2 the
+  // legs are 55 % of the mass, so the difference matters: left in the URDF's frame, the trunk
+  // that makes the body's centre the origin would sit 14 cm up, with an unphysical inertia.
+  const Vector3d shift = body.com();
+  out.base_origin_in_urdf = {shift.x(), shift.y(), shift.z()};
   out.notes.push_back("SRBD: mass " + short_num(body.mass) + " kg (" + std::to_string(infos.size()) +
-                      " links), centre of mass at (" + short_num(body_com.x()) + ", " + short_num(body_com.y()) + ", " +
-                      short_num(body_com.z()) + ") m in the base frame at the nominal stance (the SRBD model puts it at the base origin)");
+                      " links); its centre of mass at the nominal stance, (" + short_num(shift.x()) + ", " +
+                      short_num(shift.y()) + ", " + short_num(shift.z()) +
+                      ") m in the URDF's base frame, is the robot file's base origin");
 
   // The trunk box: the bounding box of the base's collision primitives.
   Vector3d trunk_lo, trunk_hi;
@@ -568,15 +575,16 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
   for (const auto& n : out.notes) y << "#   " << n << "\n";
   y << "name: " << options.name << "\n"
     << "source: {urdf: \"" << quoted(urdf_path) << "\", urdf_robot: \"" << quoted(model->getName()) << "\", fnv1a64: \"" << fingerprint(xml)
-    << "\"" << (options.command.empty() ? "" : ", command: \"" + quoted(options.command) + "\"") << "}\n"
+    << "\", base_origin_in_urdf: " << vec(shift)
+    << (options.command.empty() ? "" : ", command: \"" + quoted(options.command) + "\"") << "}\n"
     << "body:\n"
     << "  mass: " << num(body.mass) << "   # kg, all links (SRBD)\n"
     << "  inertia: " << inertia_yaml(body.inertia_com()) << "   # about the centre of mass, nominal stance\n"
-    << "nominal_base_height: " << num(height) << "\n"
+    << "nominal_base_height: " << num(height + shift.z()) << "   # the centre of mass above the ground\n"
     << "foot_radius: " << num(foot_radius) << "\n"
     << "trunk:\n"
     << "  size: " << vec(trunk_hi - trunk_lo) << "\n"
-    << "  center: " << vec(0.5 * (trunk_hi + trunk_lo)) << "\n"
+    << "  center: " << vec(0.5 * (trunk_hi + trunk_lo) - shift) << "\n"
     << "legs:\n";
   static const char* kJoints[3] = {"haa", "hfe", "kfe"};
   static const char* kLinks[3] = {"hip", "upper", "lower"};
@@ -586,7 +594,7 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
     y << "  - name: " << m.name << "   # joints " << c.joints[0]->name << ", " << c.joints[1]->name << ", "
       << c.joints[2]->name << "; foot " << c.foot_link << "\n"
       << "    knee: " << (m.knee_sign < 0 ? "backward" : "forward") << "\n"
-      << "    haa_origin: " << vec(m.haa_origin) << "\n"
+      << "    haa_origin: " << vec(m.haa_origin - shift) << "\n"
       << "    geometry:\n"
       << "      haa_to_hfe: " << vec(m.joint_offset[0]) << "\n"
       << "      hfe_to_kfe: " << vec(m.joint_offset[1]) << "\n"
@@ -616,7 +624,7 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
         << ", inertia: " << inertia_yaml(link.inertia_com()) << "}\n";
     }
     const double reach = m.l1 + m.l2;
-    y << "    nominal_foot: " << vec(m.nominal_foot) << "\n"
+    y << "    nominal_foot: " << vec(m.nominal_foot - shift) << "\n"
       << "    range_of_motion: " << vec(Vector3d(0.25, 0.20, 0.10) * (reach / 0.691)) << "\n";
     const LegFrames fr = leg_frames(m, q_nominal[l]);
     const Vector3d shank = fr.origin[2] - fr.foot;

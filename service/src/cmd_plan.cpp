@@ -298,7 +298,7 @@ void add_plan_command(CLI::App& app) {
       "plan", "Plan base motion, footholds, contact forces and timing (SRBD optimisation, Ipopt)");
   cmd->add_option("--terrain", o->terrain,
                   "terrain directory (from 'terrastride map'), OctoMap file (.bt, .ot) or scene name (flat, pallet_10, "
-                  "pallet_15, eur_pallet, stairs, gap)")
+                  "pallet_15, eur_pallet, stairs, gap; pallet_NN: a box NN cm high)")
       ->required();
   cmd->add_option("--robot", o->robot, "robot name or robot file")->capture_default_str();
   cmd->add_option("--gait", o->gait, "gait name (data/gaits) or gait file")->capture_default_str();

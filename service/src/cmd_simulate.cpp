@@ -134,12 +134,11 @@ void run_simulate(const SimulateCliOptions& o) {
   PlanWithRobot loaded = read_plan_with_robot(o.plan);
   const planner::Trajectory& traj = loaded.trajectory;
   const robot::RobotModel& model = loaded.robot;
-  const auto names = terrain::scene_names();
-  const bool is_scene = std::find(names.begin(), names.end(), o.terrain) != names.end();
+  const bool is_scene = terrain::is_scene_name(o.terrain);
   if (!is_scene && !std::filesystem::is_directory(o.terrain))
     throw CommandError("--terrain " + o.terrain +
                        ": neither a terrain directory from 'terrastride map' nor a scene name "
-                       "(flat, pallet_10, pallet_15, eur_pallet, stairs, gap)");
+                       "(flat, pallet_10, pallet_15, eur_pallet, stairs, gap, pallet_NN)");
   std::unique_ptr<terrain::HeightField> terrain;
   if (is_scene) {
     terrain = terrain::make_scene(o.terrain);
@@ -222,7 +221,7 @@ void add_simulate_command(CLI::App& app) {
       ->check(CLI::ExistingFile);
   cmd->add_option("--terrain", opts->terrain,
                   "Terrain directory from 'terrastride map' (its elevation becomes a heightfield) "
-                  "or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap: exact "
+                  "or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap, pallet_NN: exact "
                   "boxes)")
       ->required();
   cmd->add_option("--dt", opts->dt, "Simulation time step (s)")->capture_default_str();

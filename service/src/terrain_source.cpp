@@ -35,12 +35,12 @@ TerrainSource load_terrain_source(const std::string& spec, bool smooth_scene,
       return t;
     }
     if (fs::exists(spec)) throw CommandError("--terrain " + spec + ": " + file_hint);
-    const auto names = terrain::scene_names();
-    if (std::find(names.begin(), names.end(), spec) == names.end()) {
+    if (!terrain::is_scene_name(spec)) {
       std::string list;
-      for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
+      for (const auto& n : terrain::scene_names()) list += (list.empty() ? "" : ", ") + n;
       throw CommandError("--terrain " + spec +
-                         ": neither a terrain directory nor a scene name (scenes: " + list + ")");
+                         ": neither a terrain directory nor a scene name (scenes: " + list +
+                         ", pallet_NN)");
     }
     t.scene = terrain::make_scene(spec);
     // A 2 cm C2 B-spline of the rasterised scene for the optimiser; checks on the exact scene.

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <cstdio>
 #include <sstream>
 
 #include "terrastride/perception/point_cloud.hpp"
@@ -188,6 +189,22 @@ std::string Scene::describe() const {
   return os.str();
 }
 
+int pallet_height_cm(const std::string& name) {
+  if (name.size() < 8 || name.size() > 9 || name.compare(0, 7, "pallet_") != 0) return 0;
+  int cm = 0;
+  for (size_t i = 7; i < name.size(); ++i) {
+    if (name[i] < '0' || name[i] > '9') return 0;
+    cm = 10 * cm + (name[i] - '0');
+  }
+  if (name[7] == '0') return 0;  // one spelling per height
+  return cm >= 1 && cm <= 60 ? cm : 0;
+}
+
+bool is_scene_name(const std::string& name) {
+  const auto names = scene_names();
+  return std::find(names.begin(), names.end(), name) != names.end() || pallet_height_cm(name) > 0;
+}
+
 std::vector<std::string> scene_names() {
   return {"flat", "pallet_10", "pallet_15", "eur_pallet", "stairs", "gap"};
 }
@@ -198,12 +215,14 @@ std::unique_ptr<Scene> make_scene(const std::string& name) {
   const Eigen::Vector2d lo(-1.0, -1.0), hi(2.5, 1.0);
   if (name == "flat")
     return std::make_unique<Scene>(name, "flat ground", 0.0, std::vector<Box>{}, lo, hi);
-  if (name == "pallet_10" || name == "pallet_15") {
-    const double h = name == "pallet_10" ? 0.10 : 0.15;
+  // pallet_NN: the solid box NN cm high (pallet_10 and pallet_15 are HyQ's; other heights scale
+  // the step to another robot's legs, e.g. a third of Go2's 0.426 m of thigh and shank).
+  if (const int cm = pallet_height_cm(name); cm > 0) {
+    const double h = cm / 100.0;
+    char height[16];
+    std::snprintf(height, sizeof height, "%.2f", h);
     return std::make_unique<Scene>(
-        name,
-        "solid box " + std::string(name == "pallet_10" ? "0.10" : "0.15") +
-            " m high, x in [0.55, 1.75], y in [-0.6, 0.6]",
+        name, "solid box " + std::string(height) + " m high, x in [0.55, 1.75], y in [-0.6, 0.6]",
         0.0, std::vector<Box>{box(0.55, 1.75, -0.6, 0.6, 0.0, h)}, lo, hi);
   }
   if (name == "eur_pallet") {
@@ -243,6 +262,7 @@ std::unique_ptr<Scene> make_scene(const std::string& name) {
   }
   std::string valid;
   for (const auto& n : scene_names()) valid += (valid.empty() ? "" : ", ") + n;
+  valid += ", pallet_NN (a box NN cm high, 1 to 60)";
   throw perception::InputError("unknown scene '" + name + "' (valid scenes: " + valid + ")");
 }
 

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 #include <urdf_parser/urdf_parser.h>
+#include <yaml-cpp/yaml.h>
 
 #include <Eigen/Geometry>
 #include <cstdlib>
@@ -75,8 +76,16 @@ struct LegNames {
   std::string leg, haa, hfe, kfe, foot;
 };
 
+// The robot file's base origin in the URDF's base frame, from its `source`.
+Eigen::Vector3d base_origin_in_urdf(const RobotModel& robot) {
+  const YAML::Node source = YAML::Load(robot.source);
+  const YAML::Node o = source["base_origin_in_urdf"];
+  return Eigen::Vector3d(o[0].as<double>(), o[1].as<double>(), o[2].as<double>());
+}
+
 void expect_fk_is_the_urdf_chain(const std::string& urdf_path, const RobotModel& robot,
                                  const std::vector<LegNames>& names) {
+  const Eigen::Vector3d origin = base_origin_in_urdf(robot);
   const urdf::ModelInterfaceSharedPtr model = urdf::parseURDFFile(urdf_path);
   ASSERT_TRUE(model);
   std::mt19937 rng(2026);
@@ -88,7 +97,7 @@ void expect_fk_is_the_urdf_chain(const std::string& urdf_path, const RobotModel&
       const Eigen::Vector3d q =
           leg.q_min + Eigen::Vector3d(u(rng), u(rng), u(rng)).cwiseProduct(leg.q_max - leg.q_min);
       const Eigen::Vector3d expected = urdf_foot(*model, n.foot, {{n.haa, q[0]}, {n.hfe, q[1]}, {n.kfe, q[2]}});
-      worst = std::max(worst, (foot_position(leg, q) - expected).norm());
+      worst = std::max(worst, (origin + foot_position(leg, q) - expected).norm());
     }
   }
   EXPECT_LT(worst, 1e-9) << robot.name;

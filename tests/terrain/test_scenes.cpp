@@ -97,3 +97,20 @@ TEST(Scenes, RayCast) {
   ASSERT_TRUE(hit);
   EXPECT_NEAR(hit->point.x(), 0.55, 1e-9);  // the middle block row
 }
+
+// pallet_NN: the pallet at any height from 1 to 60 cm (a step scaled to a robot's legs); HyQ's
+// pallet_10 and pallet_15 keep their descriptions.
+TEST(Scenes, PalletOfAnyHeight) {
+  EXPECT_EQ(pallet_height_cm("pallet_14"), 14);
+  EXPECT_DOUBLE_EQ(make_scene("pallet_14")->height(1.0, 0.0), 0.14);
+  EXPECT_DOUBLE_EQ(make_scene("pallet_21")->height(1.0, 0.0), 0.21);
+  EXPECT_NE(make_scene("pallet_21")->describe().find("solid box 0.21 m high"), std::string::npos);
+  EXPECT_NE(make_scene("pallet_10")->describe().find("solid box 0.10 m high, x in [0.55, 1.75]"),
+            std::string::npos);
+  EXPECT_TRUE(is_scene_name("pallet_60"));
+  EXPECT_TRUE(is_scene_name("stairs"));
+  for (const char* bad : {"pallet_0", "pallet_07", "pallet_61", "pallet_1x", "pallet_", "pallet_123"}) {
+    EXPECT_FALSE(is_scene_name(bad)) << bad;
+    EXPECT_THROW(make_scene(bad), terrastride::perception::InputError) << bad;
+  }
+}

@@ -51,8 +51,7 @@ bool is_terrain_dir(const std::string& path) {
 }
 
 bool is_scene_name(const std::string& name) {
-  const auto names = terrain::scene_names();
-  return std::find(names.begin(), names.end(), name) != names.end();
+  return terrain::is_scene_name(name);
 }
 
 std::vector<double> safety_radii(const std::vector<double>& requested,

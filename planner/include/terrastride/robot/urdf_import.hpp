@@ -6,6 +6,7 @@
 // motion box, shin model) gets stated defaults, listed in UrdfImport::defaults.
 #pragma once
 
+#include <array>
 #include <map>
 #include <optional>
 #include <stdexcept>
@@ -35,6 +36,9 @@ struct UrdfImport {
   std::string yaml;                   // the robot file's text (load_robot reads it back)
   std::vector<std::string> defaults;  // values the URDF does not hold, with the default used
   std::vector<std::string> notes;     // what was read and from where
+  // The robot file's base origin (the centre of mass at the nominal stance) in the URDF's base
+  // frame; the axes are the URDF's. Recorded in the file's `source`.
+  std::array<double, 3> base_origin_in_urdf{};
 };
 
 // Reads `urdf_path` and returns the robot file; throws UrdfImportError.

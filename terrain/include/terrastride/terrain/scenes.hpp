@@ -86,4 +86,11 @@ std::vector<std::string> scene_names();
 // Throws perception::InputError (message lists the valid names) for an unknown name.
 std::unique_ptr<Scene> make_scene(const std::string& name);
 
+// The height in cm of a pallet_NN scene name (NN from 1 to 60, no leading zero), 0 for any other
+// name. make_scene makes every such height (the step scaled to a robot's legs); scene_names()
+// lists the two HyQ's benchmarks use.
+int pallet_height_cm(const std::string& name);
+// A name make_scene makes: one of scene_names() or a pallet_NN.
+bool is_scene_name(const std::string& name);
+
 }  // namespace terrastride::terrain
