@@ -2,6 +2,7 @@
 // Plans are written here from the Trajectory struct (a simple crawl whose footholds, forces and
 // timing we control), so each test knows exactly which problem the report must find.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <cstdio>
@@ -44,7 +45,8 @@ class ReportTest : public ::testing::Test {
   void SetUp() override {
     const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
     dir_ = fs::temp_directory_path() /
-           (std::string("terrastride-report-") + info->test_suite_name() + "-" + info->name());
+           (std::string("terrastride-report-") + info->test_suite_name() + "-" + info->name() +
+            "-" + std::to_string(::getpid()));  // two checkouts' suites run at once here
     fs::remove_all(dir_);
     fs::create_directories(dir_);
   }
