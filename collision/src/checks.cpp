@@ -26,6 +26,7 @@ std::map<std::string, double> CheckReport::keys() const {
   std::map<std::string, double> k;
   k["torque_ratio_max"] = torque.ratio_max;
   k["torque_violations"] = torque.violating_samples;
+  k["energy_proxy_J"] = torque.energy_proxy_J;
   k["ik_failures"] = kinematics.unreachable_samples;
   k["joint_limit_violations"] = kinematics.joint_limit_samples;
   if (clearance) {

@@ -39,6 +39,11 @@ TorqueReport check_joint_torques(const robot::RobotModel& model, const planner::
           robot::joint_torques(leg, ls.q, ls.qd, ls.qdd, f_base, rt * g_world);
       const Eigen::Vector3d ratio = tau.cwiseAbs().cwiseQuotient(leg.torque_limit);
       series.tau[k] = tau;
+      // Mechanical power |tau_j q'_j| summed over joints, integrated with each sample's share of
+      // the time (half the steps on both sides): the energy proxy of plan.json's quality block.
+      const double dt = 0.5 * ((k + 1 < n ? traj.samples[k + 1].t : traj.samples[k].t) -
+                               (k > 0 ? traj.samples[k - 1].t : traj.samples[k].t));
+      rep.energy_proxy_J += tau.cwiseProduct(ls.qd).cwiseAbs().sum() * dt;
       series.ratio[k] = ratio;
       bool leg_violates = false;
       for (int j = 0; j < 3; ++j) {

@@ -19,6 +19,12 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
   const bool rot_free = robot.base_dof_free[3] || robot.base_dof_free[4] || robot.base_dof_free[5];
   std::vector<Eigen::Vector3d> anchor(nf);
   std::vector<bool> was_contact(nf, false);
+  // Largest rate of change of a contact force (N/s) between consecutive samples, a swing foot's
+  // force counting as zero: a lift-off or touch-down under load shows as a step here.
+  double force_rate = 0.0;
+  std::vector<Eigen::Vector3d> last_force(nf, Eigen::Vector3d::Zero());
+  double last_t = 0.0;
+  bool first_sample = true;
   const bool debug = std::getenv("TERRASTRIDE_DEBUG_CHECKS") != nullptr;  // once, not per sample
   for (const auto& s : dense.samples) {
     if (s.feet.size() != nf) continue;
@@ -62,6 +68,10 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
         pen = std::max(pen, hs.height - ft.position.z());
       }
       was_contact[f] = ft.contact;
+      const Eigen::Vector3d force = ft.contact ? ft.force : Eigen::Vector3d::Zero();
+      if (!first_sample && s.t > last_t)
+        force_rate = std::max(force_rate, (force - last_force[f]).norm() / (s.t - last_t));
+      last_force[f] = force;
       const Eigen::Vector3d pb = R.transpose() * (ft.position - b.position);
       const Eigen::Vector3d ex =
           (pb - robot.legs[f].nominal_foot).cwiseAbs() - robot.legs[f].range_of_motion;
@@ -70,6 +80,8 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
                      int(ft.contact), pb.x(), pb.y(), pb.z());
       rom = std::max(rom, ex.maxCoeff());
     }
+    last_t = s.t;
+    first_sample = false;
   }
   std::map<std::string, double> out;
   out["dynamics_linear_max_N"] = lin;
@@ -79,6 +91,7 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
   out["slip_max_m"] = slip;
   out["range_of_motion_excess_max_m"] = std::max(0.0, rom);
   out["stance_height_error_max_m"] = stance_h;
+  out["force_rate_max_N_per_s"] = force_rate;
   return out;
 }
 

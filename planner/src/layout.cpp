@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "terrastride/planner/constraints.hpp"
 #include "terrastride/planner/piece_math.hpp"
 
 namespace terrastride::planner {
@@ -28,6 +29,7 @@ Layout make_layout(int num_feet, const PhaseTimeline& timeline, const ProblemOpt
                    Variables* variables) {
   Layout L;
   const int nf = num_feet;
+  const bool force_ramps = requests_constraint_set(options.constraints, "force_ramp");
   auto add = [&](int n, double lo, double hi) {
     const int first = variables->size();
     for (int i = 0; i < n; ++i) {
@@ -111,8 +113,11 @@ Layout make_layout(int num_feet, const PhaseTimeline& timeline, const ProblemOpt
         L.foot_pos[f][k] = add(3, -kInf, kInf);
         L.foot_vel[f][k] = add(3, -kInf, kInf);
       }
-      // Forces: one value per knot, shared by the stance segments on both sides of it.
-      if (left == 1 || right == 1) {
+      // Forces: one value per knot, shared by the stance segments on both sides of it. With
+      // force ramps, none at a touch-down or lift-off: the force is zero there, so it rises from
+      // and falls to zero continuously (constraints/force_ramp.cpp).
+      const bool switch_knot = (left == 0 && right == 1) || (left == 1 && right == 0);
+      if ((left == 1 || right == 1) && !(force_ramps && switch_knot)) {
         const int fv = add(3, -kInf, kInf);
         if (left == 1) L.force[f][k - 1][1] = fv;
         if (right == 1) L.force[f][k][0] = fv;

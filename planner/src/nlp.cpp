@@ -5,6 +5,7 @@
 #include <stdexcept>
 #include <thread>
 
+#include "costs/costs.hpp"
 #include "initialization/initial_guess.hpp"
 #include "terrastride/planner/piece_math.hpp"
 
@@ -15,7 +16,11 @@ SrbdProblem::~SrbdProblem() = default;
 SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightField& terrain,
                          const PhaseTimeline& timeline, const ProblemOptions& options,
                          const StartState* start_state)
-    : robot_(robot), terrain_(terrain), timeline_(timeline), options_(options) {
+    : robot_(robot),
+      terrain_(terrain),
+      timeline_(timeline),
+      options_(options),
+      starts_at_rest_(start_state == nullptr) {
   if (timeline_.feet.size() != robot_.legs.size())
     throw std::invalid_argument("timeline has " + std::to_string(timeline_.feet.size()) +
                                 " feet, robot " + robot_.name + " has " +
@@ -26,6 +31,8 @@ SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightFi
   initialization::build_initial_guess({robot_, terrain_, timeline_, options_, layout_, start_state},
                                       &variables_);
   add_constraint_sets(*this, options_.constraints);
+  // After the guess and before any warm start: the costs take their nominal path from the guess.
+  build_objective(*this);
 }
 
 int SrbdProblem::num_free_variables() const {

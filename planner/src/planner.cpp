@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "terrastride/planner/piece_math.hpp"
+#include "terrastride/planner/quality.hpp"
 #include "terrastride/planner/reachability.hpp"
 #include "terrastride/planner/request_limits.hpp"
 #include "terrastride/planner/violation_report.hpp"
@@ -82,7 +83,11 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     // 102 iterations (6.7 s); adaptive: optimal in 3 (offsets of 3 mm to 4 cm: 3-5).
     ipopt_options = {{"mu_init", "1e-4"}, {"bound_push", "1e-5"}, {"bound_frac", "1e-5"}};
   }
-  out.solve = solve(problem, options, ipopt_options);
+  SolverOptions solver_options = options;
+  // A warm start continues a plan that was optimised already: stop at its first verified
+  // feasible iterate, as without an objective (a start on the plan re-verifies in 0 iterations).
+  if (warm.previous) solver_options.stop_at_first_feasible = true;
+  out.solve = solve(problem, solver_options, ipopt_options);
   const auto t_after_solve = std::chrono::steady_clock::now();
   out.success = out.solve.success;
   if (std::getenv("TERRASTRIDE_DEBUG_CHECKS"))
@@ -97,6 +102,15 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   st.n_constraints = problem.num_constraints();
   out.trajectory.extra["solver_max_violation"] = out.solve.max_violation;
   out.trajectory.extra["solver_termination"] = out.solve.termination;
+  if (problem.has_objective()) {
+    out.trajectory.extra["objective"] = problem.eval_objective(out.solve.x.data());
+    // The two phases of the solve (SolverOptions::objective_max_iterations).
+    out.trajectory.extra["solver_phases"] = {
+        {"feasibility_iterations", out.solve.feasibility_iterations},
+        {"objective_iterations", out.solve.objective_iterations},
+        {"polish_iterations", out.solve.polish_iterations},
+        {"objective_at_feasible_point", out.solve.objective_start}};
+  }
   out.trajectory.extra["cycles"] = options.cycles;
   out.trajectory.extra["optimize_timing"] = options.optimize_timing;
   out.trajectory.extra["constraints"] = options.constraints;
@@ -111,6 +125,8 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   const Trajectory dense = sample_solution(problem, out.solve.x, kDenseDt);
   out.trajectory.checks = dense_checks(robot, check_terrain, dense, lim);
   out.trajectory.extra["checks_dt"] = kDenseDt;
+  out.trajectory.extra["quality"] =
+      quality_to_json(plan_quality(out.trajectory), out.trajectory.feet);
   // Where the planner's time went (the solve is solver.wall_s): problem construction (with the
   // reachability check), and the sampling plus dense checks after it.
   out.trajectory.extra["timings"] = {{"build_s", build_s},

@@ -120,6 +120,9 @@ std::vector<std::string> add_post_hoc_checks(const robot::RobotModel& model,
   try {
     const collision::CheckReport rep = collision::run_checks(model, *traj, view);
     for (const auto& [k, v] : rep.keys()) traj->checks[k] = v;
+    // The quality block's energy proxy comes from the torque check (planner/quality.hpp).
+    if (traj->extra.contains("quality") && traj->extra["quality"].is_object())
+      traj->extra["quality"]["energy_proxy_J"] = rep.torque.energy_proxy_J;
     const std::vector<std::string> failures = rep.failures();
     traj->extra["post_hoc"] = {
         {"terrain", view.description}, {"failures", failures}, {"wall_s", rep.wall_s}};

@@ -1,6 +1,9 @@
 // Scenario runner for the planner (docs/design.md §11): one row per scenario with problem size,
 // iterations, wall time (median of --repeat runs), peak memory and the dense checks.
-//   bench_scenarios [--repeat 3] [--only NAME[,NAME...]] [--feasibility] [--json]
+//   bench_scenarios [--repeat 3] [--only NAME[,NAME...]] [--feasibility] [--json] [--original]
+// Each row is followed by its quality figures (plan.json "quality", planner/quality.hpp).
+// --original plans as before issue #17, for before/after comparisons in one binary: no objective,
+// no rest rows at the ends, and "all" without "force_ramp".
 // --feasibility (or --only naming them) adds the feasibility-variant rows SCENE/SETS (baseline,
 // foot, foot,shin, all on pallet_10 and pallet_15; issue #5) with their own columns: rows and
 // Jacobian nonzeros, iterations, wall and user CPU s, the post-hoc checks on the exact scene
@@ -29,6 +32,7 @@
 #include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/planner/planning_session.hpp"
+#include "terrastride/planner/quality.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/scenes.hpp"
@@ -145,6 +149,8 @@ int main(int argc, char** argv) {
   int repeat = 3;
   bool json = false;
   bool feasibility = false;
+  bool original = false;
+  double objective_scale = 1.0;  // times every objective weight (tuning runs)
   std::vector<std::string> only;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -158,8 +164,13 @@ int main(int argc, char** argv) {
       feasibility = true;
     } else if (a == "--json") {
       json = true;
+    } else if (a == "--objective-scale" && i + 1 < argc) {
+      objective_scale = std::atof(argv[++i]);
+    } else if (a == "--original") {
+      original = true;
     } else {
-      std::cerr << "usage: bench_scenarios [--repeat N] [--only NAME,...] [--feasibility] [--json]\n";
+      std::cerr << "usage: bench_scenarios [--repeat N] [--only NAME,...] [--feasibility] [--json] "
+                   "[--original]\n";
       return 2;
     }
   }
@@ -219,6 +230,18 @@ int main(int argc, char** argv) {
     o.has_goal = true;
     o.goal = Eigen::Vector3d(scene->goal().x(), scene->goal().y(), 0.0);
     o.constraints = sc.constraints;
+    o.objective.scale(objective_scale);
+    if (original) {
+      o.objective = planner::ObjectiveWeights::none();
+      o.rest_boundaries = false;
+      std::vector<std::string> sets;
+      for (const auto& c : o.constraints)
+        if (c == "all")
+          sets.insert(sets.end(), {"foot", "shin_ik", "polytope", "joints"});
+        else
+          sets.push_back(c);
+      o.constraints = sets;
+    }
     if (sc.session_horizon >= 0.0) {
       rows.push_back(run_session_row(sc, robot, *smooth, *scene, o, 20 * repeat, !json));
       continue;
@@ -267,6 +290,22 @@ int main(int argc, char** argv) {
                           {"goal_error_m", goal_err},
                           {"checks", t.checks}};
     if (sc.warm_shift >= 0.0) row["cold_wall_s"] = cold.solver.wall_s;
+    const planner::PlanQuality quality = planner::plan_quality(t);
+    row["quality"] = planner::quality_to_json(quality, t.feet);
+    auto print_quality = [&] {
+      if (json) return;
+      std::printf("%-22s quality: path %.3f back %.1f mm sway %.1f mm dz %.1f mm jerk99 %.2f "
+                  "fstep %.1f N/10ms acc0 %.3f accT %.3f ang0 %.3f angT %.3f rise %.1f mm%s\n",
+                  "", quality.path_ratio, 1e3 * quality.backward_max_m,
+                  1e3 * quality.lateral_sway_m, 1e3 * quality.body_height_variation_m,
+                  quality.jerk_p99, quality.force_step_max_N, quality.start_acceleration,
+                  quality.end_acceleration, quality.start_angular_acceleration,
+                  quality.end_angular_acceleration, 1e3 * quality.swing_rise_max_m,
+                  t.extra.contains("objective")
+                      ? (" objective " + std::to_string(t.extra["objective"].get<double>())).c_str()
+                      : "");
+      std::fflush(stdout);
+    };
     if (sc.feasibility_row) {
       // Problem size (the same problem plan_motion built), the post-hoc checks of `terrastride
       // plan` (capsules against the scene voxelised at 1 cm) and the stance torque ratio.
@@ -297,6 +336,9 @@ int main(int argc, char** argv) {
                     key("torque_ratio_max"), static_cast<double>(row["stance_torque_ratio"]),
                     key("shin_min_distance_m"), key("shin_collisions"), key("unsafe_footholds"));
         std::fflush(stdout);
+        row["quality"]["energy_proxy_J"] = key("energy_proxy_J");
+        print_quality();
+        std::printf("%-22s energy proxy %.1f J\n", "", key("energy_proxy_J"));
       }
       rows.push_back(row);
       continue;
@@ -309,6 +351,7 @@ int main(int argc, char** argv) {
                   chk("dynamics_linear_max_N"), chk("dynamics_angular_max_Nm"),
                   1e3 * chk("penetration_max_m"), chk("friction_violation_max_N"),
                   1e3 * chk("slip_max_m"), 1e3 * chk("range_of_motion_excess_max_m"), goal_err);
+      print_quality();
       if (sc.warm_shift >= 0.0)
         std::printf("%-22s cold solve %.3f s; warm/cold = %.2f\n", "", cold.solver.wall_s,
                     wall / std::max(1e-9, cold.solver.wall_s));

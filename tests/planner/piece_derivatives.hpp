@@ -9,6 +9,7 @@
 #include <cmath>
 #include <functional>
 #include <map>
+#include <memory>
 #include <random>
 #include <string>
 #include <vector>
@@ -26,14 +27,17 @@ inline std::map<std::string, int> count_kinds(const SrbdProblem& p) {
 
 // Checks the pieces for which `select(piece)` is true; stops at the first mismatch (reported with
 // the piece kind, row and variable). Returns the number of pieces checked.
-inline int check_piece_derivatives(const SrbdProblem& p, unsigned seed, double noise_size,
+// The same over another list of pieces (the objective's cost pieces) of problem p.
+inline int check_piece_derivatives(const SrbdProblem& p,
+                                   const std::vector<std::unique_ptr<Piece>>& pieces, unsigned seed,
+                                   double noise_size,
                                    const std::function<bool(const Piece&)>& select) {
   std::mt19937 rng(seed);
   std::normal_distribution<double> noise(0.0, 1.0);
   std::vector<double> x = const_cast<SrbdProblem&>(p).initial_guess();
   for (double& v : x) v += noise_size * noise(rng);
   int checked = 0;
-  for (const auto& piece : p.pieces()) {
+  for (const auto& piece : pieces) {
     if (!select(*piece)) continue;
     ++checked;
     const int n = static_cast<int>(piece->vars.size()), m = piece->rows();
@@ -67,6 +71,11 @@ inline int check_piece_derivatives(const SrbdProblem& p, unsigned seed, double n
     }
   }
   return checked;
+}
+
+inline int check_piece_derivatives(const SrbdProblem& p, unsigned seed, double noise_size,
+                                   const std::function<bool(const Piece&)>& select) {
+  return check_piece_derivatives(p, p.pieces(), seed, noise_size, select);
 }
 
 }  // namespace terrastride::planner::testing

@@ -1,4 +1,4 @@
-// The "baseline" set: the SRBD formulation of nlp.hpp, its eight families in one place.
+// The "baseline" set: the SRBD formulation of nlp.hpp, its families in one place.
 #include "terrastride/planner/constraints.hpp"
 #include "terrastride/planner/nlp.hpp"
 
@@ -18,6 +18,7 @@ void build_baseline_set(SrbdProblem& problem) {
   add_friction(problem);
   add_swing_clearance(problem);
   add_total_duration(problem);
+  if (problem.options().rest_boundaries) add_rest_boundary(problem);
 }
 
 }  // namespace terrastride::planner

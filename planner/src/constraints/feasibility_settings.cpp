@@ -62,6 +62,9 @@ const std::map<std::string, Setting>& settings_table() {
       {"swing_acceleration",
        {[](FeasibilityOptions& o, double v) { o.swing_acceleration = v; }, 1e-3, 1e4, false,
         "m/s^2"}},
+      {"force_rate_max",
+       {[](FeasibilityOptions& o, double v) { o.force_rate_max = v; }, 0.0, 1e6, false,
+        "N/s (0: no bound)"}},
       {"joint_margin",
        {[](FeasibilityOptions& o, double v) { o.joint_margin = v; }, 0.0, 0.5, false, "rad"}},
   };

@@ -30,7 +30,8 @@ std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets() {
           {"trunk", [=](SrbdProblem& p) { build_trunk_set(p, options(p)); }},
           {"polytope", [=](SrbdProblem& p) { build_polytope_set(p, options(p)); }},
           {"swing", [=](SrbdProblem& p) { build_swing_set(p, options(p)); }},
-          {"joints", [=](SrbdProblem& p) { build_joints_set(p, options(p)); }}};
+          {"joints", [=](SrbdProblem& p) { build_joints_set(p, options(p)); }},
+          {"force_ramp", [=](SrbdProblem& p) { build_force_ramp_set(p, options(p)); }}};
 }
 
 std::map<std::string, ConstraintSetBuilder>& registry() {
@@ -59,7 +60,9 @@ std::vector<std::string> constraint_set_names() {
   return names;
 }
 
-void add_constraint_sets(SrbdProblem& problem, const std::vector<std::string>& requested) {
+namespace {
+// "baseline", then `requested` with "all" expanded and implied sets appended (maybe repeated).
+std::vector<std::string> expanded_sets(const std::vector<std::string>& requested) {
   std::vector<std::string> sets{"baseline"};  // always, and first
   for (const auto& name : requested)
     if (name == "all")
@@ -68,6 +71,17 @@ void add_constraint_sets(SrbdProblem& problem, const std::vector<std::string>& r
       sets.push_back(name);
   for (const auto& [set, implied] : kImpliedFeasibilitySets)
     if (std::find(sets.begin(), sets.end(), set) != sets.end()) sets.push_back(implied);
+  return sets;
+}
+}  // namespace
+
+bool requests_constraint_set(const std::vector<std::string>& requested, const std::string& set) {
+  const auto sets = expanded_sets(requested);
+  return std::find(sets.begin(), sets.end(), set) != sets.end();
+}
+
+void add_constraint_sets(SrbdProblem& problem, const std::vector<std::string>& requested) {
+  const std::vector<std::string> sets = expanded_sets(requested);
   for (std::size_t i = 0; i < sets.size(); ++i) {
     const std::string& name = sets[i];
     if (std::find(sets.begin(), sets.begin() + i, name) != sets.begin() + i) continue;  // once

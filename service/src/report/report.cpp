@@ -57,6 +57,7 @@ json plan_json(const PlanInput& input, const TerrainView& terrain, const robot::
   out["simulation"] = simulation_section(sections);
   solver_rows(sections);
   dense_check_rows(sections);
+  out["quality"] = quality_section(sections);
   out["summary"] = summary;
   out["profile"] = profile_section(traj, terrain, model, stride);
   out["checks"] = checks.keys();

@@ -91,6 +91,8 @@ void dense_check_rows(const PlanSections& s);
 // limits, contact events (feet planned vs actual, shin/thigh/trunk contacts) and the verdict
 // (simulation_section.cpp); a "fail" is a problem, a "warn" a note.
 nlohmann::json simulation_section(const PlanSections& s);
+// The motion's quality figures (quality_section.cpp) as summary rows and an object.
+nlohmann::json quality_section(const PlanSections& s);
 // The elevation profile along the base path: ground, base, feet, and the shin points from IK.
 nlohmann::json profile_section(const planner::Trajectory& trajectory, const TerrainView& terrain,
                                const robot::RobotModel& model, size_t stride);

@@ -56,7 +56,7 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
   EXPECT_EQ(leg.leg_clearance_points, 2);
   EXPECT_EQ(leg.thigh_points, 6);
   EXPECT_EQ(feasibility_options({{"trunk_margin", 0.05}}).trunk_margin, 0.05);
-  EXPECT_EQ(feasibility_option_names().size(), 16u);
+  EXPECT_EQ(feasibility_option_names().size(), 17u);  // force_rate_max (force_ramp) the 17th
 }
 
 }  // namespace

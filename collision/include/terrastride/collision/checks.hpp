@@ -98,6 +98,9 @@ struct TorqueReport {
   double ratio_max = 0.0;  // worst |tau|/tau_lim over all legs, joints and samples
   int worst_sample = -1, worst_leg = -1, worst_joint = -1;
   int violating_samples = 0;  // samples where any joint of any leg exceeds its limit
+  // Energy proxy (J): the integral over the plan of sum over legs and joints of |tau_j q'_j|, the
+  // mechanical work the motors do with no recuperation (samples where IK failed left out).
+  double energy_proxy_J = 0.0;
 };
 
 TorqueReport check_joint_torques(const robot::RobotModel& model,

@@ -14,7 +14,9 @@
 //   foothold_planarity  a stance foot where the terrain is locally planar;
 //   friction          contact forces in the friction pyramid, below the normal force limit;
 //   swing_clearance   a swing foot above the terrain probed around it;
-//   total_duration    the phase durations sum to the plan's duration (optimised timing only).
+//   total_duration    the phase durations sum to the plan's duration (optimised timing only);
+//   rest_boundary     zero base accelerations where the plan is at rest: its end, and its start
+//                     unless it starts from a given state (ProblemOptions::rest_boundaries).
 #pragma once
 
 #include <functional>
@@ -36,8 +38,8 @@ void register_constraint_set(const std::string& name, ConstraintSetBuilder build
 std::vector<std::string> constraint_set_names();
 
 // What "all" expands to, in order.
-inline const char* const kAllFeasibilitySets[] = {"foot",     "shin_ik", "thigh",
-                                                  "trunk",    "polytope", "joints"};
+inline const char* const kAllFeasibilitySets[] = {"foot",   "shin_ik", "thigh",     "trunk",
+                                                  "polytope", "joints", "force_ramp"};
 // {set, the set it implies}: the second is added whenever the first is asked for.
 inline const std::pair<const char*, const char*> kImpliedFeasibilitySets[] = {
     {"polytope", "swing"}};
@@ -61,5 +63,10 @@ void add_foothold_planarity(SrbdProblem& problem);
 void add_friction(SrbdProblem& problem);
 void add_swing_clearance(SrbdProblem& problem);
 void add_total_duration(SrbdProblem& problem);
+void add_rest_boundary(SrbdProblem& problem);
+
+// Whether the sets `requested` (as --constraints names them) include `set`, with "all" expanded
+// and implied sets added (the layout asks this of "force_ramp", which removes force variables).
+bool requests_constraint_set(const std::vector<std::string>& requested, const std::string& set);
 
 }  // namespace terrastride::planner

@@ -98,6 +98,12 @@ struct FeasibilityOptions {
   // joints: the joint angles keep this far (rad) inside their ranges at the spline's knots; it
   // covers the motion between knots.
   double joint_margin = 0.035;
+  // force_ramp: bound on the rate of change of each contact force within a stance (N/s, the
+  // norm of the force vector's change over a segment, divided by the segment's duration; 0 = no
+  // bound). The force knots at touch-down and lift-off are zero (no variables, Layout), so a
+  // foot loads and unloads at most at this rate: 2000 N/s is 20 N per 10 ms sample, a quarter of
+  // HyQ's weight in 0.1 s.
+  double force_rate_max = 2000.0;
 };
 
 void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
@@ -116,6 +122,10 @@ void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options = {
 // "joints" (in "all"; beyond the paper): joint angles from IK within the joint ranges at every
 // knot of the base spline (see constraints/joints.cpp).
 void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+// "force_ramp" (in "all"; beyond the paper): contact forces that load and unload continuously.
+// The layout leaves out the force knots at touch-down and lift-off (zero force there); this adds
+// the force rate bound force_rate_max per stance segment (see constraints/force_ramp.cpp).
+void build_force_ramp_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 
 // FeasibilityOptions from the defaults and NAME=VALUE settings (ProblemOptions::
 // feasibility_settings, `terrastride plan --feasibility`); names are the fields' names. Throws

@@ -83,6 +83,18 @@ class SrbdProblem {
 
   void add_piece(std::unique_ptr<Piece> piece);
 
+  // The objective (planner/src/costs/): a sum of squares of the rows of its cost pieces,
+  // f(x) = sum over pieces and rows of g_r(x)^2 (a cost piece's bounds are unused). Empty when
+  // every weight is zero: then the problem is the feasibility problem of the original design.
+  void add_cost(std::unique_ptr<Piece> piece);
+  const std::vector<std::unique_ptr<Piece>>& cost_pieces() const { return cost_pieces_; }
+  bool has_objective() const { return !cost_pieces_.empty(); }
+  double eval_objective(const double* x) const;
+  // grad (num_variables() entries) = df/dx.
+  void eval_objective_gradient(const double* x, double* grad) const;
+  // Whether the plan starts from rest (no start state was given) and so gets the rest rows there.
+  bool starts_at_rest() const { return starts_at_rest_; }
+
   // Full constraint vector and the Jacobian as triplets (row, col, value) in piece order.
   void eval_constraints(const double* x, double* g) const;
   void jacobian_structure(int* rows, int* cols) const;
@@ -124,6 +136,8 @@ class SrbdProblem {
   Layout layout_;
   Variables variables_;
   std::vector<std::unique_ptr<Piece>> pieces_;
+  std::vector<std::unique_ptr<Piece>> cost_pieces_;
+  bool starts_at_rest_ = true;
   std::vector<int> row_offset_, nz_offset_;
   int num_rows_ = 0, nnz_ = 0;
 };

@@ -7,11 +7,42 @@
 
 #include <Eigen/Core>
 #include <functional>
+#include <initializer_list>
 #include <string>
 #include <utility>
 #include <vector>
 
 namespace terrastride::planner {
+
+// The terms of the objective and their weights (each term is dimensionless; see
+// planner/src/costs/). Every term is a sum of squares, integrated over the plan's time.
+struct ObjectiveWeights {
+  double base_acceleration = 1.0;          // integral of |r''/g|^2
+  double base_angular_acceleration = 0.1;  // integral of |e''|^2 (rad/s^2)^2
+  double force_rate = 0.01;                // integral of |f'/(m g)|^2 over stances
+  double swing_acceleration = 0.01;        // integral of |p''/g|^2 over swings
+  double body_height = 1.0;                // integral of ((z - z_nominal) / 0.05 m)^2 / T
+  double heading = 1.0;                    // integral of |(yaw, pitch, roll) - nominal|^2 (rad) / T
+  double lateral = 1.0;                    // integral of (lateral offset / 0.05 m)^2 / T
+  double progress = 0.1;  // integral of (offset along the line from the nominal / 0.05 m)^2 / T
+  double base_jerk = 0.01;  // integral of |jerk/g|^2, knot jumps of the acceleration included
+  // Every weight zero: the feasibility problem of the original design.
+  static ObjectiveWeights none() {
+    ObjectiveWeights w;
+    w.scale(0.0);
+    return w;
+  }
+  void scale(double k) {
+    for (double* v : {&base_acceleration, &base_angular_acceleration, &force_rate,
+                      &swing_acceleration, &body_height, &heading, &lateral, &progress, &base_jerk})
+      *v *= k;
+  }
+  bool any() const {
+    return base_acceleration > 0 || base_angular_acceleration > 0 || force_rate > 0 ||
+           swing_acceleration > 0 || body_height > 0 || heading > 0 || lateral > 0 ||
+           progress > 0 || base_jerk > 0;
+  }
+};
 
 struct ProblemOptions {
   // ---- The motion asked for ----
@@ -58,6 +89,16 @@ struct ProblemOptions {
   // NAME=VALUE settings of the constraint sets' FeasibilityOptions (feasibility.hpp), applied in
   // order over the defaults; feasibility_options() validates them.
   std::vector<std::pair<std::string, double>> feasibility_settings;
+
+  // ---- Boundary conditions and the objective (issue #17) ----
+  // A plan that starts from rest (no start state given: the nominal stance) and every plan's end
+  // (velocities zero there already) also has zero base linear and Euler accelerations there, so
+  // the forces balance gravity at both ends (constraints/rest_boundary.cpp). A re-plan from a
+  // state keeps that state's motion: its start is not constrained beyond the state itself.
+  bool rest_boundaries = true;
+  // The objective's weights (costs/objective.hpp); 0 leaves a term out, all 0 gives the
+  // zero-objective feasibility problem of the original design.
+  ObjectiveWeights objective;
 };
 
 struct SolverOptions {
@@ -78,6 +119,20 @@ struct SolverOptions {
   // their scaled units: forces / m g, lengths in m) is at most this; 0 = wait for Ipopt's own
   // convergence test, which also converges the multipliers.
   double feasibility_stop_tolerance = 1e-6;
+  // With an objective (ObjectiveWeights) the solve has two phases (solver.cpp): the feasibility
+  // phase with a zero objective, stopping at its first verified feasible point as without one,
+  // then at most objective_max_iterations (0 = none) of improvement from there, which end at a
+  // verified feasible iterate whose objective fell by at most objective_stop_tolerance (relative)
+  // since the previous, also feasible, iterate: feasible and good enough.
+  double objective_stop_tolerance = 0.01;
+  int objective_max_iterations = 40;
+  // The improvement phase judges iterates whose largest violation is at most this (rows' units);
+  // the polish then takes the best of them to feasibility_stop_tolerance (solver.cpp, improve()).
+  double objective_near_feasible_tolerance = 1e-3;
+  // Stop at the first verified feasible iterate even with an objective (plan_motion sets it for
+  // warm starts: the previous plan was optimised already, and a start on it re-verifies in 0
+  // iterations).
+  bool stop_at_first_feasible = false;
 };
 
 // Both parts in one object: every field is reachable by its own name (options.gait,

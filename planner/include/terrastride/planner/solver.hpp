@@ -22,6 +22,12 @@ struct SolveResult {
   // options.feasibility_stop_tolerance (the objective is zero, so that is a solution);
   // "ipopt": Ipopt's own termination.
   std::string termination;
+  // With an objective: the iterations of the feasibility phase and of the improvement phase
+  // (iterations is their sum), and the objective at the feasibility phase's point.
+  int feasibility_iterations = 0;
+  int objective_iterations = 0;  // improvement and polish
+  int polish_iterations = 0;
+  double objective_start = 0.0;
 };
 
 // Honours options.max_time on this call (Ipopt's max_cpu_time plus a wall-clock check in the

@@ -1,0 +1,85 @@
+// "force_ramp" (constraints/force_ramp.cpp and the layout's missing force knots; issue #17):
+// which force knots the layout leaves out, the rate rows' Jacobian against central differences,
+// and the rows against the force change over each stance segment.
+#include "family_test.hpp"
+
+namespace terrastride::planner {
+namespace {
+
+using namespace testing;
+
+// With force ramps every touch-down and lift-off knot is identically zero (no variable); the
+// initial stance's first knot and the final stance's last knot keep theirs. Without, none is zero.
+TEST(ForceRamp, LayoutLeavesOutTouchDownAndLiftOffKnots) {
+  const auto r = hyq();
+  FlatField flat;
+  for (const std::vector<std::string>& sets :
+       {std::vector<std::string>{"force_ramp"}, std::vector<std::string>{"all"},
+        std::vector<std::string>{"baseline"}}) {
+    ProblemOptions o = paper_test_options();
+    o.constraints = sets;
+    const bool ramps = sets.front() != "baseline";
+    EXPECT_EQ(requests_constraint_set(o.constraints, "force_ramp"), ramps);
+    const SrbdProblem p(r, flat, crawl_timeline(r), o);
+    const Layout& L = p.layout();
+    int zero_knots = 0;
+    for (const auto& st : L.stances) {
+      const bool starts = st.first_seg > 0, ends = st.last_seg < L.num_segments - 1;
+      EXPECT_EQ(L.force[st.foot][st.first_seg][0] < 0, ramps && starts) << sets.front();
+      EXPECT_EQ(L.force[st.foot][st.last_seg][1] < 0, ramps && ends) << sets.front();
+      zero_knots += (L.force[st.foot][st.first_seg][0] < 0) + (L.force[st.foot][st.last_seg][1] < 0);
+      for (int s = st.first_seg; s < st.last_seg; ++s)  // inner knots: shared variables
+        EXPECT_GE(L.force[st.foot][s][1], 0);
+    }
+    EXPECT_EQ(zero_knots, ramps ? 8 : 0);  // one cycle: four swings, each a lift-off and touch-down
+  }
+}
+
+TEST(ForceRamp, JacobianMatchesCentralDifferences) {
+  const auto r = hyq();
+  TanhStep terrain(0.1, 0.5, 0.05, 0.01);
+  for (bool timing : {false, true}) {
+    ProblemOptions o = turning_crawl_options(timing);
+    o.constraints = {"force_ramp"};
+    const SrbdProblem p(r, terrain, crawl_timeline(r), o);
+    EXPECT_GT(check_kind_derivatives(p, "force_ramp"), 0) << "timing " << timing;
+    EXPECT_GT(largest_jacobian_entry(p, "force_ramp"), 0.0);
+  }
+}
+
+// One row per stance segment that carries force: |f1 - f0|^2 / (rate h)^2 <= 1.
+TEST(ForceRamp, RowsAreTheSquaredForceChangeOverTheBound) {
+  const auto r = hyq();
+  FlatField flat;
+  ProblemOptions o = paper_test_options();
+  o.constraints = {"force_ramp"};
+  SrbdProblem p(r, flat, crawl_timeline(r), o);
+  const Layout& L = p.layout();
+  std::vector<double> x = perturbed_guess(p, 3, 0.02);
+  FeasibilityOptions fo;
+  fo.force_rate_max = 1500.0;
+  const auto pieces = pieces_added_by(p, [&] { build_force_ramp_set(p, fo); });
+  std::size_t k = 0;
+  int checked = 0;
+  for (int f = 0; f < 4; ++f)
+    for (int s = 0; s < L.num_segments; ++s) {
+      if (!L.contact[f][s]) continue;
+      ASSERT_LT(k, pieces.size());
+      const double h = segment_length(L, x, s);
+      auto force = [&](int v) { return v < 0 ? Eigen::Vector3d::Zero().eval() : vec3_at(x, v); };
+      const Eigen::Vector3d df = force(L.force[f][s][1]) - force(L.force[f][s][0]);
+      const auto g = rows_at(*pieces[k], x);
+      ASSERT_EQ(g.size(), 1u);
+      EXPECT_NEAR(g[0], df.squaredNorm() / std::pow(1500.0 * h, 2), 1e-9 * (1 + g[0]));
+      EXPECT_EQ(pieces[k]->ub[0], 1.0);
+      ++k;
+      ++checked;
+    }
+  EXPECT_EQ(k, pieces.size());
+  EXPECT_GT(checked, 10);
+  fo.force_rate_max = 0.0;  // the layout's ramps alone
+  EXPECT_TRUE(pieces_added_by(p, [&] { build_force_ramp_set(p, fo); }).empty());
+}
+
+}  // namespace
+}  // namespace terrastride::planner

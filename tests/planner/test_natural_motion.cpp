@@ -1,0 +1,64 @@
+// Plans a robot engineer accepts (issue #17), on a short flat crawl solved end to end: at rest at
+// both ends (zero accelerations, forces balancing gravity), forces that ramp with "all", and the
+// objective's stop (feasible and good enough) still stopping early.
+#include <gtest/gtest.h>
+
+#include "terrastride/planner/planner.hpp"
+#include "terrastride/planner/quality.hpp"
+#include "test_robots.hpp"
+#include "test_terrains.hpp"
+
+namespace terrastride::planner {
+namespace {
+
+using namespace testing;
+
+PlannerOptions crawl(const std::vector<std::string>& sets) {
+  PlannerOptions o;
+  o.gait = "crawl";
+  o.cycles = 1;
+  o.duration = 4.0;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.3, 0.0, 0.0);
+  o.constraints = sets;
+  return o;
+}
+
+TEST(NaturalMotion, RestsAtBothEndsWithForcesBalancingGravity) {
+  const auto r = hyq();
+  FlatField flat;
+  const auto out = plan_motion(r, flat, flat, crawl({"baseline"}), 0.01);
+  ASSERT_TRUE(out.success) << out.message;
+  const auto& S = out.trajectory.samples;
+  for (const auto* s : {&S.front(), &S.back()}) {
+    EXPECT_LT(s->base.linear_acceleration.norm(), 1e-3) << "t " << s->t;
+    EXPECT_LT(s->base.angular_acceleration.norm(), 1e-3) << "t " << s->t;
+    EXPECT_LT(s->base.linear_velocity.norm(), 1e-6) << "t " << s->t;
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    for (const auto& f : s->feet) sum += f.force;
+    EXPECT_NEAR(sum.z(), r.mass * 9.81, 0.05) << "t " << s->t;
+    EXPECT_NEAR(sum.head<2>().norm(), 0.0, 0.05) << "t " << s->t;
+  }
+  EXPECT_EQ(out.trajectory.extra["solver_termination"], "feasible_point");
+}
+
+// With "force_ramp" no foot lifts off or touches down under load, and no force changes by more
+// than its rate bound; the dense checks report the largest rate.
+TEST(NaturalMotion, ForcesRampWithForceRamp) {
+  const auto r = hyq();
+  FlatField flat;
+  auto without = crawl({"baseline"});
+  without.objective = ObjectiveWeights::none();
+  const auto a = plan_motion(r, flat, flat, without, 0.01);
+  const auto b = plan_motion(r, flat, flat, crawl({"force_ramp"}), 0.01);
+  ASSERT_TRUE(a.success && b.success);
+  const double step_a = plan_quality(a.trajectory).force_step_max_N;
+  const double step_b = plan_quality(b.trajectory).force_step_max_N;
+  EXPECT_GT(step_a, 50.0);   // the zero-objective plan steps
+  EXPECT_LE(step_b, 20.0 + 1e-3);  // 2000 N/s, 20 N per 10 ms
+  EXPECT_LE(b.trajectory.checks.at("force_rate_max_N_per_s"), 2000.0 * (1 + 1e-3));
+  EXPECT_GT(a.trajectory.checks.at("force_rate_max_N_per_s"), 5000.0);
+}
+
+}  // namespace
+}  // namespace terrastride::planner

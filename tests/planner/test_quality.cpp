@@ -1,0 +1,91 @@
+// plan.json's quality figures (planner/quality.hpp; issue #17) on made-up trajectories whose
+// answers are known by construction.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "terrastride/planner/quality.hpp"
+
+namespace terrastride::planner {
+namespace {
+
+// Two feet, 10 ms samples over 2 s. The base goes 1 m along x with a 3 cm sideways bump and a
+// 2 cm retreat; foot 1 swings from t = 0.5 to 1.0 s with an apex 7 cm above its higher end.
+Trajectory made_up() {
+  Trajectory t;
+  t.feet = {"A", "B"};
+  t.sample_dt = 0.01;
+  for (int k = 0; k <= 200; ++k) {
+    TrajectorySample s;
+    s.t = 0.01 * k;
+    const double u = s.t / 2.0;
+    double x = u;
+    if (s.t > 1.0 && s.t <= 1.2) x = 0.5 - 0.1 * (s.t - 1.0);  // backs up 2 cm
+    if (s.t > 1.2) x = 0.48 + (s.t - 1.2) * (0.52 / 0.8);
+    const double y = 0.03 * std::exp(-std::pow((s.t - 0.6) / 0.05, 2));
+    s.base.position = Eigen::Vector3d(x, y, 0.6 + (s.t > 1.5 ? 0.01 : 0.0));
+    s.base.linear_acceleration = Eigen::Vector3d(k == 0 ? 0.3 : 0.0, 0.0, 0.0);
+    FootState a, b;
+    a.contact = true;
+    a.force = Eigen::Vector3d(0, 0, 400);
+    b.contact = !(s.t > 0.5 && s.t < 1.0);
+    b.force = b.contact ? Eigen::Vector3d(0, 0, 400) : Eigen::Vector3d::Zero();
+    b.position = Eigen::Vector3d(0, 0, s.t >= 1.0 ? 0.05 : 0.0);
+    if (!b.contact) b.position.z() = 0.12 * std::sin(M_PI * (s.t - 0.5) / 0.5);
+    s.feet = {a, b};
+    t.samples.push_back(s);
+  }
+  return t;
+}
+
+TEST(PlanQuality, FiguresOfAKnownTrajectory) {
+  const Trajectory t = made_up();
+  const PlanQuality q = plan_quality(t);
+  EXPECT_NEAR(q.backward_max_m, 0.02, 1e-9);
+  EXPECT_NEAR(q.lateral_sway_m, 0.03, 2e-4);
+  // The rise is measured above the higher end (the touch-down at 5 cm): the apex reached at the
+  // samples is 12 cm.
+  ASSERT_EQ(q.swings.size(), 1u);
+  EXPECT_EQ(q.swings[0].foot, 1);
+  EXPECT_NEAR(q.swings[0].lift_off_t, 0.5, 1e-9);
+  EXPECT_NEAR(q.swings[0].touch_down_t, 1.0, 1e-9);
+  EXPECT_NEAR(q.swings[0].rise_m, 0.12 - 0.05, 1e-9);
+  EXPECT_NEAR(q.swing_rise_max_m, 0.07, 1e-9);
+  // Lift-off under load: 400 N within one 10 ms sample.
+  EXPECT_NEAR(q.force_step_max_N, 400.0, 1e-9);
+  EXPECT_NEAR(q.start_acceleration, 0.3, 1e-12);
+  EXPECT_EQ(q.end_acceleration, 0.0);
+  // Base 60 cm above the feet before the swing and in it (foot A alone), 57.5 cm above the mean
+  // of A and B after it (B touched down 5 cm higher), 58.5 cm once the base rises 1 cm.
+  EXPECT_NEAR(q.body_height_variation_m, 0.6 - 0.575, 1e-9);
+  // The path: 1 m forward plus the retreat twice (there and back) plus the bump twice, roughly.
+  EXPECT_GT(q.path_ratio, 1.04);
+  EXPECT_LT(q.path_ratio, 1.12);
+  // Jerk: the 0.3 m/s^2 start drops to 0 in one sample (30 m/s^3), the only nonzero difference,
+  // below the 99th percentile of 200 differences.
+  EXPECT_EQ(q.jerk_p99, 0.0);
+  const auto j = quality_to_json(q, t.feet);
+  EXPECT_EQ(j["swings"][0]["foot"], "B");
+  EXPECT_TRUE(j.contains("path_ratio"));
+}
+
+// Per 10 ms whatever the sampling: the same ramp sampled every 2 ms gives the same step.
+TEST(PlanQuality, ForceStepIsPerTenMilliseconds) {
+  for (double dt : {0.002, 0.01, 0.02}) {
+    Trajectory t;
+    t.feet = {"A"};
+    for (int k = 0; k * dt <= 1.0 + 1e-9; ++k) {
+      TrajectorySample s;
+      s.t = k * dt;
+      FootState a;
+      a.contact = true;
+      a.force = Eigen::Vector3d(0, 0, 1000.0 * s.t);  // 10 N per 10 ms
+      s.feet = {a};
+      t.samples.push_back(s);
+    }
+    EXPECT_NEAR(plan_quality(t).force_step_max_N, 10.0, 1e-9) << dt;
+  }
+}
+
+}  // namespace
+}  // namespace terrastride::planner
