@@ -315,8 +315,9 @@ void add_plan_command(CLI::App& app) {
                   "IK shin), thigh (thigh collision where the terrain is tall), trunk (trunk box above "
                   "tall terrain), polytope (force "
                   "polytopes in stance; implies swing), swing (swing "
-                  "foot acceleration bound), joints (joint ranges from IK), all "
-                  "(= foot,shin_ik,thigh,trunk,polytope,joints)")
+                  "foot acceleration bound), joints (joint ranges from IK), force_ramp (contact "
+                  "forces zero at touch-down and lift-off, rate bounded), all "
+                  "(= foot,shin_ik,thigh,trunk,polytope,joints,force_ramp)")
       ->capture_default_str();
   {
     std::string names;

@@ -2,6 +2,7 @@
 // iterations, wall time (median of --repeat runs), peak memory and the dense checks.
 //   bench_scenarios [--repeat 3] [--only NAME[,NAME...]] [--feasibility] [--json] [--original]
 // Each row is followed by its quality figures (plan.json "quality", planner/quality.hpp).
+// --objective-scale S plans with the tuned objective weights (ObjectiveWeights{}) times S.
 // --original plans as before issue #17, for before/after comparisons in one binary: no objective,
 // no rest rows at the ends, and "all" without "force_ramp".
 // --feasibility (or --only naming them) adds the feasibility-variant rows SCENE/SETS (baseline,
@@ -150,7 +151,7 @@ int main(int argc, char** argv) {
   bool json = false;
   bool feasibility = false;
   bool original = false;
-  double objective_scale = 1.0;  // times every objective weight (tuning runs)
+  double objective_scale = 0.0;  // > 0: the tuned objective weights times this (off by default)
   std::vector<std::string> only;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -170,7 +171,7 @@ int main(int argc, char** argv) {
       original = true;
     } else {
       std::cerr << "usage: bench_scenarios [--repeat N] [--only NAME,...] [--feasibility] [--json] "
-                   "[--original]\n";
+                   "[--original] [--objective-scale S]\n";
       return 2;
     }
   }
@@ -230,7 +231,10 @@ int main(int argc, char** argv) {
     o.has_goal = true;
     o.goal = Eigen::Vector3d(scene->goal().x(), scene->goal().y(), 0.0);
     o.constraints = sc.constraints;
-    o.objective.scale(objective_scale);
+    if (objective_scale > 0.0) {
+      o.objective = planner::ObjectiveWeights{};
+      o.objective.scale(objective_scale);
+    }
     if (original) {
       o.objective = planner::ObjectiveWeights::none();
       o.rest_boundaries = false;

@@ -60,5 +60,22 @@ TEST(NaturalMotion, ForcesRampWithForceRamp) {
   EXPECT_GT(a.trajectory.checks.at("force_rate_max_N_per_s"), 5000.0);
 }
 
+// With the tuned objective the improvement phase returns a feasible plan whose objective is
+// below the feasibility phase's point's, at rest at both ends still.
+TEST(NaturalMotion, ObjectiveImprovesAFeasiblePlan) {
+  const auto r = hyq();
+  FlatField flat;
+  auto o = crawl({"baseline"});
+  o.objective = ObjectiveWeights{};
+  const auto out = plan_motion(r, flat, flat, o, 0.01);
+  ASSERT_TRUE(out.success) << out.message;
+  const auto& phases = out.trajectory.extra["solver_phases"];
+  EXPECT_GT(phases["objective_iterations"].get<int>(), 0);
+  EXPECT_LT(out.trajectory.extra["objective"].get<double>(),
+            0.9 * phases["objective_at_feasible_point"].get<double>());
+  EXPECT_LE(out.solve.max_violation, o.feasibility_stop_tolerance);
+  EXPECT_LT(out.trajectory.samples.back().base.linear_acceleration.norm(), 1e-3);
+}
+
 }  // namespace
 }  // namespace terrastride::planner

@@ -183,6 +183,7 @@ TEST(Solve, StopsAtAVerifiedFeasiblePoint) {
   PlannerOptions o;
   o.has_goal = true;
   o.goal = Eigen::Vector3d(0.2, 0.0, 0.0);
+  o.objective = ObjectiveWeights{};  // with the objective's phases too
   const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
   SrbdProblem p(r, terrain, tl, o);
   const SolveResult early = solve(p, o);

@@ -39,7 +39,8 @@ TEST(Costs, JacobiansMatchCentralDifferences) {
   for (bool timing : {false, true}) {
     ProblemOptions o = turning_crawl_options(timing);
     o.constraints = {"force_ramp"};
-    const SrbdProblem p(r, terrain, crawl_timeline(r), o);  // default weights: every term
+    o.objective = ObjectiveWeights{};  // the tuned weights: every term
+    const SrbdProblem p(r, terrain, crawl_timeline(r), o);
     for (const char* kind : {"cost_base_acceleration", "cost_force_rate",
                              "cost_swing_acceleration", "cost_nominal_pose", "cost_base_jerk"})
       EXPECT_GT(check_cost_derivatives(p, kind), 3) << kind << " timing " << timing;
@@ -51,6 +52,8 @@ TEST(Costs, WeightsSelectTheTerms) {
   const auto r = hyq();
   FlatField flat;
   ProblemOptions o = paper_test_options();
+  EXPECT_FALSE(o.objective.any());  // off by default
+  o.objective = ObjectiveWeights{};
   const SrbdProblem p(r, flat, crawl_timeline(r), o);
   std::map<std::string, int> kinds;
   for (const auto& c : p.cost_pieces()) ++kinds[c->kind];
@@ -180,6 +183,7 @@ TEST(Costs, GradientMatchesCentralDifferencesOfTheObjective) {
   TanhStep terrain(0.1, 0.5, 0.05, 0.01);
   ProblemOptions o = turning_crawl_options(true);
   o.constraints = {"force_ramp"};
+  o.objective = ObjectiveWeights{};
   SrbdProblem p(r, terrain, crawl_timeline(r), o);
   auto x = perturbed_guess(p, 9, 0.02);
   std::vector<double> grad(p.num_variables());
