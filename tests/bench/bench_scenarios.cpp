@@ -240,9 +240,10 @@ int main(int argc, char** argv) {
       o.rest_boundaries = false;
       std::vector<std::string> sets;
       for (const auto& c : o.constraints)
-        if (c == "all")
-          sets.insert(sets.end(), {"foot", "shin_ik", "polytope", "joints"});
-        else
+        if (c == "all") {
+          for (const char* set : planner::kAllFeasibilitySets)
+            if (std::string(set) != "force_ramp") sets.push_back(set);
+        } else
           sets.push_back(c);
       o.constraints = sets;
     }
