@@ -67,6 +67,14 @@ void SrbdProblem::pin_end_state(const StartState& end) {
       variables_.fix(g + 9 + d, end.euler_rates[d]);
     }
   }
+  // Pinned in motion, the end is not at rest: its rest rows (zero base accelerations at t = T,
+  // constraints/rest_boundary.cpp; the last rest_boundary piece built) no longer apply.
+  for (auto it = pieces_.rbegin(); it != pieces_.rend(); ++it)
+    if ((*it)->kind == "rest_boundary") {
+      std::fill((*it)->lb.begin(), (*it)->lb.end(), -kInf);
+      std::fill((*it)->ub.begin(), (*it)->ub.end(), kInf);
+      break;
+    }
 }
 
 PlanningSession::PlanningSession(const robot::RobotModel& robot,
