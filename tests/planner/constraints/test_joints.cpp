@@ -23,7 +23,7 @@ TEST(Joints, JacobianMatchesCentralDifferences) {
               0);
 }
 
-// One piece per foot and base knot, then one per swing segment at its middle; the rows are the IK
+// One piece per foot and base knot, then three per swing segment (at 1/4, 1/2, 3/4); the rows are the IK
 // joint angles, bounded by the joint range shrunk by the margin.
 TEST(Joints, RowsAreTheIkAnglesWithinTheRangeLessTheMargin) {
   const auto r = hyq();
@@ -42,7 +42,7 @@ TEST(Joints, RowsAreTheIkAnglesWithinTheRangeLessTheMargin) {
   for (int f = 0; f < nf; ++f)
     for (int s = 0; s < L.num_segments; ++s) swing_segments += !L.contact[f][s];
   ASSERT_EQ(static_cast<int>(p.pieces().size() - before),
-            nf * (L.num_segments + 1) + swing_segments);
+            nf * (L.num_segments + 1) + 3 * swing_segments);
   std::vector<double> x = p.initial_guess();
   for (std::size_t i = 0; i < x.size(); ++i)
     if (p.lower()[i] < p.upper()[i]) x[i] += 0.02 * std::sin(2.3 * static_cast<double>(i));
@@ -72,31 +72,35 @@ TEST(Joints, RowsAreTheIkAnglesWithinTheRangeLessTheMargin) {
       }
     }
   EXPECT_GT(knots_checked, 3 * nf * (L.num_segments + 1) / 4);
-  // Then one piece per swing segment of each foot, at the segment's middle: the IK angles of the
-  // splines evaluated there.
+  // Then three pieces per swing segment of each foot, at 1/4, 1/2 and 3/4 of it: the IK angles of
+  // the splines evaluated there.
   std::size_t piece_index = before + nf * (L.num_segments + 1);
   int swing_checked = 0;
   for (int f = 0; f < nf; ++f)
     for (int s = 0; s < L.num_segments; ++s) {
       if (L.contact[f][s]) continue;
-      const Piece& piece = *p.pieces()[piece_index++];
-      ASSERT_EQ(piece.kind, "joints");
-      const double t_mid = 0.5 * (L.nominal_knot_time[s] + L.nominal_knot_time[s + 1]);
-      const auto st = p.evaluate(x, t_mid);
-      const Eigen::Vector3d e = st.euler;
-      const Eigen::Matrix3d R = (Eigen::AngleAxisd(e[0], Eigen::Vector3d::UnitZ()) *
-                                 Eigen::AngleAxisd(e[1], Eigen::Vector3d::UnitY()) *
-                                 Eigen::AngleAxisd(e[2], Eigen::Vector3d::UnitX()))
-                                    .toRotationMatrix();
-      const auto ik =
-          robot::inverse_kinematics(r.legs[f], R.transpose() * (st.foot_pos[f] - st.pos));
-      row += 3;
-      if (ik.status == robot::IkStatus::unreachable) continue;
-      for (int j = 0; j < 3; ++j)
-        EXPECT_NEAR(g[row - 3 + j], ik.q[j], 1e-9) << "foot " << f << " swing segment " << s;
-      ++swing_checked;
+      for (const double sigma : {0.25, 0.5, 0.75}) {
+        const Piece& piece = *p.pieces()[piece_index++];
+        ASSERT_EQ(piece.kind, "joints");
+        const double t = L.nominal_knot_time[s] +
+                         sigma * (L.nominal_knot_time[s + 1] - L.nominal_knot_time[s]);
+        const auto st = p.evaluate(x, t);
+        const Eigen::Vector3d e = st.euler;
+        const Eigen::Matrix3d R = (Eigen::AngleAxisd(e[0], Eigen::Vector3d::UnitZ()) *
+                                   Eigen::AngleAxisd(e[1], Eigen::Vector3d::UnitY()) *
+                                   Eigen::AngleAxisd(e[2], Eigen::Vector3d::UnitX()))
+                                      .toRotationMatrix();
+        const auto ik =
+            robot::inverse_kinematics(r.legs[f], R.transpose() * (st.foot_pos[f] - st.pos));
+        row += 3;
+        if (ik.status == robot::IkStatus::unreachable) continue;
+        for (int j = 0; j < 3; ++j)
+          EXPECT_NEAR(g[row - 3 + j], ik.q[j], 1e-9)
+              << "foot " << f << " swing segment " << s << " at " << sigma;
+        ++swing_checked;
+      }
     }
-  EXPECT_GT(swing_checked, 3 * swing_segments / 4);
+  EXPECT_GT(swing_checked, 3 * 3 * swing_segments / 4);
   EXPECT_GT(swing_segments, 0);
   FeasibilityOptions bad;
   bad.joint_margin = 2.0;  // more than half of every range
