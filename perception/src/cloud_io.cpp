@@ -24,12 +24,7 @@ namespace fs = std::filesystem;
 namespace terrastride::perception {
 namespace {
 
-std::string lower_extension(const std::string& path) {
-  std::string ext = fs::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  return ext;
-}
+using detail::lower_extension;
 
 void check_readable_file(const std::string& path) {
   std::error_code ec;

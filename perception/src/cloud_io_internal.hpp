@@ -3,6 +3,9 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <algorithm>
+#include <cctype>
+#include <filesystem>
 #include <optional>
 #include <string>
 #include <vector>
@@ -17,5 +20,13 @@ struct RawCloud {
 
 RawCloud read_pcd_with_pcl(const std::string& path);
 RawCloud read_ply_with_pcl(const std::string& path);
+
+// A file's extension in lower case ("scan.PCD" -> ".pcd"): every input reader dispatches on it.
+inline std::string lower_extension(const std::string& path) {
+  std::string ext = std::filesystem::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return ext;
+}
 
 }  // namespace terrastride::perception::detail

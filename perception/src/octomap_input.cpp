@@ -16,15 +16,12 @@
 #include <unordered_map>
 #include <vector>
 
+#include "cloud_io_internal.hpp"
+
 namespace terrastride::perception {
 namespace {
 
-std::string lower_extension(const std::string& path) {
-  std::string ext = std::filesystem::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  return ext;
-}
+using detail::lower_extension;
 
 std::string read_file(const std::string& path) {
   std::error_code ec;
@@ -93,7 +90,8 @@ void check_type(const std::string& path, const std::string& id) {
 
 void check_resolution(const std::string& path, const Header& h) {
   if (!h.has_res || !std::isfinite(h.res) || h.res < 0.001 || h.res > 10)
-    throw InputError(path + ": OctoMap resolution " + (h.has_res ? std::to_string(h.res) : "missing") +
+    throw InputError(path + ": OctoMap resolution " +
+                     (h.has_res ? std::to_string(h.res) : "missing") +
                      " is not within [0.001, 10] m");
 }
 
@@ -229,16 +227,16 @@ PointCloud octree_support_cloud(const octomap::OcTree& tree, const std::string& 
       if (seen_beneath) {
         ++st.seen_beneath;
       } else {
-        const octomap::point3d c =
-            tree.keyToCoord(octomap::OcTreeKey(kx, ky, zs[top]));
+        const octomap::point3d c = tree.keyToCoord(octomap::OcTreeKey(kx, ky, zs[top]));
         cloud.points.emplace_back(c.x(), c.y(), c.z());
       }
       r = top + 1;
     }
   }
   if (cloud.points.empty())
-    throw InputError(source + ": every occupied voxel of the OctoMap has free space beneath it "
-                              "(no support surface)");
+    throw InputError(source +
+                     ": every occupied voxel of the OctoMap has free space beneath it "
+                     "(no support surface)");
   if (stats) *stats = st;
   return cloud;
 }

@@ -6,16 +6,12 @@
 #include <filesystem>
 
 #include "bag/bag_readers.hpp"
+#include "cloud_io_internal.hpp"
 
 namespace terrastride::perception {
 namespace {
 
-std::string lower_extension(const std::string& path) {
-  std::string ext = std::filesystem::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  return ext;
-}
+using detail::lower_extension;
 
 }  // namespace
 
@@ -29,8 +25,9 @@ std::unique_ptr<BagReader> open_bag(const std::string& path) {
   if (!std::filesystem::exists(path, ec)) throw InputError(path + ": file not found");
   if (std::filesystem::is_directory(path, ec)) {
     if (bag::is_rosbag2_folder(path)) return bag::open_rosbag2_folder(path);
-    throw InputError(path + ": is a directory without metadata.yaml (a rosbag2 folder has one; "
-                            "or give a bag file itself: .mcap, .db3, .bag)");
+    throw InputError(path +
+                     ": is a directory without metadata.yaml (a rosbag2 folder has one; "
+                     "or give a bag file itself: .mcap, .db3, .bag)");
   }
   if (std::filesystem::file_size(path, ec) == 0) throw InputError(path + ": file is empty");
   const std::string ext = lower_extension(path);
