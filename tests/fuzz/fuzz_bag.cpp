@@ -54,19 +54,25 @@ void exercise_message(std::string_view data) {
   }
 }
 
-// A scratch file per process, rewritten for every input.
-const std::string& scratch(const char* extension) {
-  static std::string dir = [] {
+// A scratch folder per process, rewritten for every input. The folder is removed by its owner's
+// destructor: an atexit handler registered while the static is being built runs after the static's
+// destructor (reverse order of registration) and read a freed string under ASan.
+struct ScratchDir {
+  std::string path;
+  ScratchDir() {
     const char* base = std::getenv("TMPDIR");
-    std::string d = std::string(base && *base ? base : "/tmp") + "/fuzz-bag-XXXXXX";
-    if (!::mkdtemp(d.data())) std::abort();
-    std::atexit([] {
-      std::error_code ec;
-      std::filesystem::remove_all(dir, ec);
-    });
-    return d;
-  }();
-  static std::string mcap = dir + "/in.mcap", db3 = dir + "/in.db3";
+    path = std::string(base && *base ? base : "/tmp") + "/fuzz-bag-XXXXXX";
+    if (!::mkdtemp(path.data())) std::abort();
+  }
+  ~ScratchDir() {
+    std::error_code ec;
+    std::filesystem::remove_all(path, ec);
+  }
+};
+
+const std::string& scratch(const char* extension) {
+  static const ScratchDir dir;
+  static const std::string mcap = dir.path + "/in.mcap", db3 = dir.path + "/in.db3";
   return std::strcmp(extension, ".mcap") == 0 ? mcap : db3;
 }
 
