@@ -285,7 +285,10 @@ std::string full_mjcf(const robot::RobotModel& model, const TerrainMjcf* terrain
     << "<compiler angle=\"radian\" autolimits=\"true\"/>\n"
     // Contact and constraint buffers: MuJoCo 2.2.2's defaults (100 contacts) fill up on a scanned
     // heightfield (a foot sphere or a shin meets several prisms) and contacts beyond are dropped.
-    << "<size nconmax=\"1000\" njmax=\"6000\"/>\n"
+    // njmax: an elliptic condim-3 contact is 3 constraint rows, plus the joints' range limits;
+    // MuJoCo 2.2.2 sizes dense njmax x njmax matrices from it (6000 cost ~290 MB per model).
+    // A run that fills either buffer says so in its verdict (dropped contacts).
+    << "<size nconmax=\"1000\" njmax=\"3100\"/>\n"
     << "<option timestep=\"" << fmt(o.dt) << "\" gravity=\"0 0 " << fmt(-kGravity)
     << "\" cone=\"elliptic\" impratio=\"100\"/>\n"
     << "<default><geom solref=\"0.005 1\" friction=\"" << fmt(o.friction)
@@ -984,6 +987,12 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
        limit_joint + " pressed against its range's end stop: " + str(rep.joint_limit_impulse_max) +
            " N m s over " + str(rep.joint_limit_max_s) + " s (limit " +
            str(th.joint_limit_impulse_Nms) + " N m s)");
+  const int contacts_full = d->warning[mjWARN_CONTACTFULL].number;
+  const int constraints_full = d->warning[mjWARN_CNSTRFULL].number;
+  warn(contacts_full + constraints_full > 0,
+       "MuJoCo's contact or constraint buffer was full in " +
+           std::to_string(contacts_full + constraints_full) +
+           " step(s): contacts were dropped, the physics is not faithful there");
   rep.verdict = rep.fell ? "fail" : (rep.reasons.empty() ? "pass" : "warn");
   return rep;
 }
