@@ -571,6 +571,15 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
   if (!(o.mass_scale > 0.1 && o.mass_scale < 10))
     throw SimulationError("mass scale: must be in (0.1, 10)");
   if (!(o.friction > 0 && o.friction < 5)) throw SimulationError("friction: must be in (0, 5)");
+  if (!(o.replan_every >= 0 && o.replan_every <= 100))
+    throw SimulationError("replan every: must be within [0, 100] s (0 = open loop)");
+  if (o.replan_every > 0) {
+    if (o.replan_every < o.dt)
+      throw SimulationError("replan every: must be at least the time step (" + fmt(o.dt) + " s)");
+    if (!o.replanner) throw SimulationError("replan every: needs a re-planner");
+    if (!(o.replan_latency >= 0 && o.replan_latency < o.replan_every))
+      throw SimulationError("replan latency: must be within [0, replan every)");
+  }
   const int n_legs = static_cast<int>(model.legs.size());
   if (plan.feet.size() != model.legs.size())
     throw SimulationError("plan: " + std::to_string(plan.feet.size()) + " feet, robot '" +
@@ -585,6 +594,31 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
                             "': its base moves on restricted degrees of freedom (a slider); only "
                             "free-floating robots are simulated");
   const PlanView view(plan, n_legs);
+  // Closed loop: the re-plan being tracked (its samples from 0 = `start` on the plan's axis) and
+  // the one waiting for its latency; outside the tracked re-plan's span, the original plan.
+  struct Tracked {
+    std::unique_ptr<planner::Trajectory> plan;
+    std::unique_ptr<PlanView> view;
+    double start = 0.0, end = 0.0;
+  };
+  Tracked tracked, pending;
+  double pending_from = 0.0;
+  const Replanner replanner = o.replan_every > 0 ? o.replanner() : Replanner();
+  if (o.replan_every > 0 && !replanner) throw SimulationError("replan every: no re-planner made");
+  // The plan the controller follows at t and the shift from the plan's axis to its own.
+  auto view_for = [&](double t) -> std::pair<const PlanView*, double> {
+    if (tracked.view && t >= tracked.start - 1e-9 && t <= tracked.end + 1e-9)
+      return {tracked.view.get(), tracked.start};
+    return {&view, 0.0};
+  };
+  auto plan_at = [&](double t) {
+    const auto [v, shift] = view_for(t);
+    return v->at(t - shift);
+  };
+  auto contact_at = [&](int i, double t) {
+    const auto [v, shift] = view_for(t);
+    return v->contact(i, t - shift);
+  };
   const double r_foot = model.foot_radius;
   const double mu = o.friction;
   const ControllerOptions& c = o.controller;
@@ -683,6 +717,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
   const int n_steps = static_cast<int>(std::ceil((t_end - t0) / o.dt - 1e-9));
   double sq_err_sum = 0.0, saturated_s = 0.0;
   double next_record = t0;
+  double next_replan = t0 + o.replan_every;
   const auto wall0 = std::chrono::steady_clock::now();
   const double cpu0 = thread_cpu_seconds();
   std::vector<Vector3d> tau_applied(n_legs, Vector3d::Zero());
@@ -691,13 +726,11 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
     if (o.stop_requested && step % 50 == 0 && o.stop_requested())
       throw SimulationCancelled("simulation stopped at t = " + std::to_string(d->time + t0) + " s");
     const double t = d->time + t0;
-    const auto ps = view.at(t);
     const Vector3d p(d->qpos[0], d->qpos[1], d->qpos[2]);
     const Matrix3d rot =
         Eigen::Quaterniond(d->qpos[3], d->qpos[4], d->qpos[5], d->qpos[6]).toRotationMatrix();
     const Vector3d v(d->qvel[0], d->qvel[1], d->qvel[2]);
     const Vector3d omega = rot * Vector3d(d->qvel[3], d->qvel[4], d->qvel[5]);
-    const Matrix3d rot_plan = rotation_zyx(ps.euler);
 
     // Contacts: per foot force (terrain on foot), shin/thigh/trunk normal force.
     std::vector<Vector3d> foot_force(n_legs, Vector3d::Zero());
@@ -722,6 +755,70 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
       }
       if (con.geom1 == trunk_geom || con.geom2 == trunk_geom) trunk_f += std::abs(res[0]);
     }
+
+    // Closed loop: the measured state to the re-planner; its plan tracked after the latency.
+    if (pending.view && t >= pending_from - 1e-9) {
+      tracked = std::move(pending);
+      pending = Tracked{};
+    }
+    if (replanner && t >= next_replan - 1e-9 && t < t_end - 0.1 - 1e-9) {
+      next_replan += o.replan_every;
+      MeasuredState ms;
+      ms.t = t;
+      ms.base_position = p;
+      ms.base_euler_zyx = euler_zyx_of(rot);
+      ms.base_linear_velocity = v;
+      ms.base_angular_velocity = omega;
+      ms.foot_contact = foot_contact;
+      for (int i = 0; i < n_legs; ++i) {
+        const Vector3d centre(d->site_xpos[3 * foot_site[i]], d->site_xpos[3 * foot_site[i] + 1],
+                              d->site_xpos[3 * foot_site[i] + 2]);
+        ms.foot_position.push_back(centre - r_foot * terrain_normal(scene, centre));
+        mj_jacSite(m, d, jacp.data(), nullptr, foot_site[i]);
+        Vector3d vel = Vector3d::Zero();
+        for (int r = 0; r < 3; ++r)
+          for (int k = 0; k < nv; ++k) vel[r] += jacp[r * nv + k] * d->qvel[k];
+        ms.foot_velocity.push_back(vel);
+      }
+      const auto call0 = std::chrono::steady_clock::now();
+      const double call_cpu0 = thread_cpu_seconds();
+      Replan next = replanner(ms);
+      rep.replan_wall_s.push_back(
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - call0).count());
+      rep.replan_cpu_s.push_back(thread_cpu_seconds() - call_cpu0);
+      ++rep.replans;
+      if (next.success) {
+        try {
+          if (next.plan.feet != plan.feet)
+            throw SimulationError("its feet differ from the simulated plan's");
+          Tracked n;
+          n.plan = std::make_unique<planner::Trajectory>(std::move(next.plan));
+          n.view = std::make_unique<PlanView>(*n.plan, n_legs);
+          n.start = next.start_time;
+          n.end = next.start_time + n.view->t_end();
+          pending = std::move(n);
+          pending_from = t + o.replan_latency;
+        } catch (const SimulationError& e) {
+          next.success = false;
+          next.message = std::string("re-plan at t = ") + fmt(t) + " s: " + e.what();
+        }
+      }
+      if (!next.success) {
+        ++rep.replan_failures;
+        if (rep.replan_first_failure.empty())
+          rep.replan_first_failure = next.message.empty() ? "re-plan failed" : next.message;
+      }
+      if (pending.view && o.replan_latency <= 0) {
+        tracked = std::move(pending);
+        pending = Tracked{};
+      }
+    }
+    const auto [plan_view, plan_shift] = view_for(t);
+    const auto ps = plan_view->at(t - plan_shift);
+    const Matrix3d rot_plan = rotation_zyx(ps.euler);
+    if (replanner)
+      rep.reference_position_max =
+          std::max(rep.reference_position_max, (p - view.at(t).base_pos).norm());
 
     // Tracking errors.
     const double pos_err = (p - ps.base_pos).norm();
@@ -765,7 +862,12 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
       if (!s.touched_down) {
         s.touched_down = true;
         s.touchdown_t = t;
-        const Vector3d planned = view.at(0.5 * (s.t_start + s.t_end)).foot[i];
+        // The foothold of the plan tracked now (a re-plan may have moved it): within its span,
+        // since beyond that the original plan's foothold would be compared.
+        double t_foothold = 0.5 * (s.t_start + s.t_end);
+        if (tracked.view && t >= tracked.start && t <= tracked.end)
+          t_foothold = std::max(t, std::min(t_foothold, tracked.end));
+        const Vector3d planned = plan_at(t_foothold).foot[i];
         s.touchdown_error = (contact_pt - planned).norm();
         touchdown_point[idx] = contact_pt;
       } else {
@@ -794,7 +896,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
       smp.foot_contact = foot_contact;
       smp.foot_force = foot_force;
       for (int i = 0; i < n_legs; ++i) {
-        smp.planned_contact.push_back(view.contact(i, t));
+        smp.planned_contact.push_back(contact_at(i, t));
         const Vector3d centre(d->site_xpos[3 * foot_site[i]], d->site_xpos[3 * foot_site[i] + 1],
                               d->site_xpos[3 * foot_site[i] + 2]);
         smp.foot_position.push_back(centre - r_foot * terrain_normal(scene, centre));
@@ -810,7 +912,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
     std::vector<int> stance;
     std::vector<Vector3d> lever;
     for (int i = 0; i < n_legs; ++i)
-      if (view.contact(i, t)) {
+      if (contact_at(i, t)) {
         stance.push_back(i);
         lever.push_back(Vector3d(d->site_xpos[3 * foot_site[i]], d->site_xpos[3 * foot_site[i] + 1],
                                  d->site_xpos[3 * foot_site[i] + 2]) -
@@ -833,7 +935,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
 
     // The plan a moment before and after, for the swing feed-forward's joint rates.
     constexpr double h = 0.004;
-    const auto pm = view.at(t - h), pp = view.at(t + h);
+    const auto pm = plan_view->at(t - h - plan_shift), pp = plan_view->at(t + h - plan_shift);
     const Matrix3d rot_m = rotation_zyx(pm.euler), rot_p = rotation_zyx(pp.euler);
     mj_fullM(m, full_m.data(), d->qM);
     bool saturated = false;
@@ -863,7 +965,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
       const Vector3d qp = ik_in(i, pp.base_pos, rot_p, pp.foot[i], n, q0);
       const Vector3d qd_des = (qp - qm) / (2 * h);
       const Vector3d qdd_des = (qp - 2 * q0 + qm) / (h * h);
-      const bool in_stance = view.contact(i, t);
+      const bool in_stance = contact_at(i, t);
       Vector3d tau = bias;
       if (in_stance) {
         Vector3d f = c.planned_forces ? ps.force[i] : Vector3d::Zero();
@@ -928,6 +1030,16 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
   rep.cpu_s = thread_cpu_seconds() - cpu0;
   rep.duration = d->time;
   rep.realtime_factor = rep.wall_s > 0 ? rep.duration / rep.wall_s : 0.0;
+  if (!rep.replan_wall_s.empty()) {
+    std::vector<double> w = rep.replan_wall_s;
+    std::sort(w.begin(), w.end());
+    rep.replan_wall_median = w[w.size() / 2];
+    rep.replan_wall_max = w.back();
+    w = rep.replan_cpu_s;
+    std::sort(w.begin(), w.end());
+    rep.replan_cpu_median = w[w.size() / 2];
+    rep.replan_cpu_max = w.back();
+  }
   const int n_eval = rep.steps + 1;
   rep.position_rms = std::sqrt(sq_err_sum / n_eval);
   rep.saturation_fraction = rep.duration > 0 ? saturated_s / rep.duration : 0.0;

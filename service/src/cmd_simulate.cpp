@@ -17,7 +17,11 @@
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/robot/robot_model.hpp"
+#include "plan_request.hpp"
+#include "terrastride/planner/request_limits.hpp"
 #include "terrastride/service/cli.hpp"
+#include "terrastride/service/client.hpp"
+#include "terrastride/service/server.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
 
@@ -41,7 +45,55 @@ struct SimulateCliOptions {
   bool margin = false;
   double margin_push_time = 0.5;
   double margin_push_duration = 0.2;
+  // Closed loop (issue #22).
+  double replan_every = 0.0;
+  std::string via = "in-process";
+  double horizon = 1.0;
+  double replan_latency = 0.0;
+  double connect_timeout = 10.0;
+  double step_timeout = 120.0;
 };
+
+// --via tcp://HOST:PORT or unix:PATH: each run opens a planning session on the server with the
+// simulated plan as its reference ("init") and sends each measured state as plan.session.step's
+// start_state (collision::start_state_json: the terms the in-process re-planner reads back the
+// same way). The session ends with the connection (the server frees it on disconnect).
+collision::ReplannerFactory socket_replanner(const SimulateCliOptions& o,
+                                             const planner::Trajectory& plan) {
+  auto init = std::make_shared<const json>(planner::plan_to_json(plan));
+  return [o, init, feet = plan.feet]() -> collision::Replanner {
+    auto client = std::make_shared<Client>(Client::connect(o.via, o.connect_timeout));
+    client->set_timeout(o.step_timeout);
+    const json opened = client->call_ok({{"op", "plan.session.open"},
+                                         {"terrain", o.terrain},
+                                         {"init", *init},
+                                         {"horizon", o.horizon}});
+    const std::string id = opened.at("session").get<std::string>();
+    return [client, id, feet](const collision::MeasuredState& ms) {
+      collision::Replan out;
+      out.start_time = ms.t;
+      const protocol::Message reply = client->call({{"op", "plan.session.step"},
+                                                    {"session", id},
+                                                    {"time", ms.t},
+                                                    {"start_state",
+                                                     collision::start_state_json(ms, feet)}});
+      const std::string error = error_text(reply);
+      if (!error.empty()) {
+        out.message = error;
+        return out;
+      }
+      const json& r = reply.header.at("result");
+      try {
+        out.plan = planner::plan_from_json(r, "plan.session.step reply");
+      } catch (const planner::PlanFileError& e) {
+        throw ClientError(std::string("plan.session.step: unreadable reply: ") + e.what());
+      }
+      out.start_time = r.value("start_time", ms.t);
+      out.success = true;
+      return out;
+    };
+  };
+}
 
 void print_human(const collision::SimulationReport& r, const robot::RobotModel& model,
                  const std::string& plan, const std::string& terrain) {
@@ -67,7 +119,21 @@ void print_human(const collision::SimulationReport& r, const robot::RobotModel& 
               << std::setprecision(1) << r.torque_max[i][0] << std::setw(8) << r.torque_max[i][1]
               << std::setw(8) << r.torque_max[i][2] << std::setprecision(3) << std::setw(20)
               << r.shin_impulse[i] << std::setw(22) << r.thigh_impulse[i] << "\n";
-  std::cout << "trunk contact impulse " << r.trunk_impulse << " N s\n\n";
+  std::cout << "trunk contact impulse " << r.trunk_impulse << " N s\n";
+  if (r.replans > 0) {
+    double total = 0.0;
+    for (double w : r.replan_wall_s) total += w;
+    std::cout << std::setprecision(3) << "re-plans  " << r.replans << " (" << r.replan_failures
+              << " failed, the previous plan kept), planner per re-plan: wall median "
+              << 1e3 * r.replan_wall_median << " ms, max " << 1e3 * r.replan_wall_max
+              << " ms; this thread's CPU median " << 1e3 * r.replan_cpu_median << " ms, max "
+              << 1e3 * r.replan_cpu_max << " ms; wall total " << total << " s (the simulation waits for it: simulated time "
+              << "does not pass while the planner runs); base max " << r.reference_position_max
+              << " m from the original plan\n";
+    if (!r.replan_first_failure.empty())
+      std::cout << "          first failure: " << r.replan_first_failure << "\n";
+  }
+  std::cout << "\n";
   if (r.verdict == "pass") {
     std::cout << "PASS: the plan executed within every threshold\n";
   } else {
@@ -131,6 +197,31 @@ void run_simulate(const SimulateCliOptions& o) {
     if (v[4] < 0) throw CommandError("--push " + text + ": the duration must not be negative");
     sim.pushes.push_back({v[0], Eigen::Vector3d(v[1], v[2], v[3]), v[4]});
   }
+  if (!std::isfinite(o.replan_every) || o.replan_every < 0 || o.replan_every > 100)
+    throw CommandError("--replan-every: must be within [0, 100] s (0 = open loop)");
+  if (o.replan_every > 0 && o.replan_every < o.dt)
+    throw CommandError("--replan-every: must be at least --dt");
+  if (!std::isfinite(o.horizon) || o.horizon < 0 || o.horizon > planner::PlanLimits::kMaxDuration)
+    throw CommandError("--horizon: must be within [0, " +
+                       std::to_string(planner::PlanLimits::kMaxDuration) +
+                       "] s (0 = every re-plan to the goal)");
+  if (!std::isfinite(o.replan_latency) || o.replan_latency < 0 ||
+      (o.replan_every > 0 && o.replan_latency >= o.replan_every))
+    throw CommandError("--replan-latency: must be within [0, --replan-every)");
+  const bool via_socket = o.via.rfind("tcp://", 0) == 0 || o.via.rfind("unix:", 0) == 0;
+  if (o.via != "in-process" && !via_socket)
+    throw CommandError("--via " + o.via + ": must be in-process, tcp://HOST:PORT or unix:PATH");
+  if (via_socket) {
+    if (!std::isfinite(o.connect_timeout) || o.connect_timeout <= 0 || o.connect_timeout > 600)
+      throw CommandError("--connect-timeout: must be within (0, 600] s");
+    if (!std::isfinite(o.step_timeout) || o.step_timeout <= 0 || o.step_timeout > 3600)
+      throw CommandError("--step-timeout: must be within (0, 3600] s");
+    try {
+      parse_listen_address(o.via);
+    } catch (const std::invalid_argument& e) {
+      throw CommandError("--via " + o.via + ": " + e.what());
+    }
+  }
   PlanWithRobot loaded = read_plan_with_robot(o.plan);
   const planner::Trajectory& traj = loaded.trajectory;
   const robot::RobotModel& model = loaded.robot;
@@ -156,11 +247,37 @@ void run_simulate(const SimulateCliOptions& o) {
         o.margin_push_duration > 2)
       throw CommandError("--margin-push-duration: must be in (0, 2] s");
   }
+  // Closed loop: the re-planner in this process (the plan's options, planning on the 2 cm
+  // B-spline of a scene or the map's own field, checking on the exact terrain, as `plan` does) or
+  // through a server.
+  std::unique_ptr<TerrainSource> replan_terrain;
+  if (o.replan_every > 0) {
+    sim.replan_every = o.replan_every;
+    sim.replan_latency = o.replan_latency;
+    if (via_socket) {
+      sim.replanner = socket_replanner(o, traj);
+    } else {
+      replan_terrain = std::make_unique<TerrainSource>(
+          load_terrain_source(o.terrain, /*smooth_scene=*/true, "not a terrain directory"));
+      PlanRequest req;
+      try {
+        req = read_plan_request({{"terrain", o.terrain}, {"init", planner::plan_to_json(traj)}},
+                                model);
+      } catch (const RequestFieldError& e) {
+        throw CommandError(o.plan + ": as a re-planning session's reference: " + e.what());
+      }
+      sim.replanner = collision::session_replanner(model, *replan_terrain->smooth(),
+                                                   *replan_terrain->exact(), req.options, traj,
+                                                   o.horizon, req.sample_dt);
+    }
+  }
   collision::SimulationReport rep;
   try {
     rep = collision::simulate_plan(model, traj, *terrain, sim);
   } catch (const collision::SimulationError& e) {
     throw CommandError(o.plan + ": " + e.what());
+  } catch (const ClientError& e) {
+    throw CommandError("--via " + o.via + ": " + e.what());
   }
   json summary = simulation_summary_json(rep, model);
   summary["plan"] = o.plan;
@@ -176,6 +293,9 @@ void run_simulate(const SimulateCliOptions& o) {
     } catch (const collision::SimulationError& e) {
       if (tty) std::cerr << "\n";
       throw CommandError("--margin: " + std::string(e.what()));
+    } catch (const ClientError& e) {
+      if (tty) std::cerr << "\n";
+      throw CommandError("--margin: --via " + o.via + ": " + e.what());
     }
     if (tty) std::cerr << "\r" << std::string(52, ' ') << "\r" << std::flush;
   }
@@ -215,7 +335,10 @@ void add_simulate_command(CLI::App& app) {
       "thigh on the terrain); pass when base error RMS <= 2 cm and max <= 6 cm, torques saturated "
       "<= 1 % of the time, slip <= 1 cm per stance, touchdown error <= 3 cm, shin contact impulse "
       "< 5 N s, end-stop impulse of every joint <= 1 N m s; warn otherwise.\n"
-      "Exit codes: 0 pass or warn; 3 fail; 1 bad input; 2 usage.");
+      "Closed loop (--replan-every): the measured state is re-planned from at that period "
+      "(in this process or through a server, --via) and the controller tracks each new plan; the "
+      "verdict then judges tracking and falls against the plan being tracked at each instant.\n"
+      "Exit codes: 0 pass or warn; 3 fail; 1 bad input or unreachable server; 2 usage.");
   cmd->add_option("plan", opts->plan, "plan.json written by 'terrastride plan'")
       ->required()
       ->check(CLI::ExistingFile);
@@ -246,6 +369,32 @@ void add_simulate_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--margin-push-duration", opts->margin_push_duration,
                   "With --margin: the push lasts this long (s)")
+      ->capture_default_str();
+  cmd->add_option("--replan-every", opts->replan_every,
+                  "Closed loop: every this many seconds of simulated time the measured state "
+                  "(MuJoCo's trunk pose and twist, feet) goes to a planning session whose "
+                  "reference is PLAN, and the controller tracks each new plan (0 = open loop). "
+                  "The simulation waits for the planner: its compute time is reported, not "
+                  "simulated (see --replan-latency)")
+      ->capture_default_str();
+  cmd->add_option("--via", opts->via,
+                  "With --replan-every: in-process (a planning session in this process) or "
+                  "tcp://HOST:PORT / unix:PATH of a 'terrastride serve' (plan.session.* with PLAN "
+                  "as the reference; the server must know --terrain)")
+      ->capture_default_str();
+  cmd->add_option("--horizon", opts->horizon,
+                  "With --replan-every: each re-plan's horizon (s; to the first contact switch "
+                  "after it, the base held at PLAN's state there); 0 = every re-plan to the goal")
+      ->capture_default_str();
+  cmd->add_option("--replan-latency", opts->replan_latency,
+                  "With --replan-every: a re-plan is tracked this much simulated time after the "
+                  "state it starts from was measured (s)")
+      ->capture_default_str();
+  cmd->add_option("--connect-timeout", opts->connect_timeout,
+                  "With --via tcp/unix: seconds to wait for the server's connection")
+      ->capture_default_str();
+  cmd->add_option("--step-timeout", opts->step_timeout,
+                  "With --via tcp/unix: seconds to wait for one reply of the server")
       ->capture_default_str();
   cmd->callback([opts] { run_simulate(*opts); });
 }

@@ -42,7 +42,7 @@ json simulation_summary_json(const collision::SimulationReport& r, const robot::
                        {"touchdown_error_m", s.touchdown_error},
                        {"slip_m", s.slip},
                        {"centre_drift_m", s.centre_drift}});
-  return {{"terrain", r.terrain},
+  json out = {{"terrain", r.terrain},
           {"verdict", r.verdict},
           {"reasons", r.reasons},
           {"fell", r.fell},
@@ -82,6 +82,23 @@ json simulation_summary_json(const collision::SimulationReport& r, const robot::
             {"touchdown_error_m", th.touchdown_error_m},
             {"shin_impulse_Ns", th.shin_impulse_Ns},
             {"joint_limit_impulse_Nms", th.joint_limit_impulse_Nms}}}};
+  if (r.replans > 0)
+    out["closed_loop"] = {{"replans", r.replans},
+                          {"replan_failures", r.replan_failures},
+                          {"first_failure", r.replan_first_failure.empty()
+                                                ? json()
+                                                : json(r.replan_first_failure)},
+                          {"planner_wall_median_s", r.replan_wall_median},
+                          {"planner_wall_max_s", r.replan_wall_max},
+                          {"planner_cpu_median_s", r.replan_cpu_median},
+                          {"planner_cpu_max_s", r.replan_cpu_max},
+                          {"planner_wall_total_s", [&] {
+                             double sum = 0.0;
+                             for (double w : r.replan_wall_s) sum += w;
+                             return sum;
+                           }()},
+                          {"reference_position_max_m", r.reference_position_max}};
+  return out;
 }
 
 json simulation_samples_json(const collision::SimulationReport& r, const robot::RobotModel& model) {

@@ -12,12 +12,20 @@
 //           as a heightfield
 //   speed   simulated seconds per wall second at dt 2 ms: the flat crawl on boxes and on a 2 cm
 //           heightfield, median of --repeat runs (wall and CPU), with the machine's load
+//   closed_loop  (only when named; issue #22) pallet_15 `all`: open loop vs re-planning at the
+//           --rates (Hz; default 10,20) over a --horizon (s; default 1) planning session: the
+//           largest lateral push (0.2 s, left and right, bisection to 20 N) survived at mid-climb
+//           (the time the planned base is halfway up), and pass/fail at trunk mass x0.8 and x1.2
+//           and friction 0.4. Re-plans wait for the planner (simulated time stands still).
 // Plans come from the planner library with `terrastride plan`'s request (3 crawl cycles, goal 1 m
 // ahead, 2 cm B-spline of a scene; a map's own field).
 #include <sys/resource.h>
 
 #include <algorithm>
+#include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -53,9 +61,8 @@ std::vector<std::string> split(const std::string& s) {
   return out;
 }
 
-planner::Trajectory plan_on(const robot::RobotModel& robot, const terrain::HeightField& smooth,
-                            const terrain::HeightField& exact, const Eigen::Vector2d& goal,
-                            double duration, const std::string& sets) {
+planner::PlannerOptions plan_options(const Eigen::Vector2d& goal, double duration,
+                                     const std::string& sets) {
   planner::PlannerOptions o;
   o.gait = "crawl";
   o.cycles = 3;
@@ -64,8 +71,116 @@ planner::Trajectory plan_on(const robot::RobotModel& robot, const terrain::Heigh
   o.goal = Eigen::Vector3d(goal.x(), goal.y(), 0.0);
   o.constraints = split(sets);
   o.max_time = 120.0;
-  auto out = planner::plan_motion(robot, smooth, exact, o, 0.01);
+  return o;
+}
+
+planner::Trajectory plan_on(const robot::RobotModel& robot, const terrain::HeightField& smooth,
+                            const terrain::HeightField& exact, const Eigen::Vector2d& goal,
+                            double duration, const std::string& sets) {
+  auto out =
+      planner::plan_motion(robot, smooth, exact, plan_options(goal, duration, sets), 0.01);
   return out.trajectory;
+}
+
+// The first time the planned base is halfway between its start and end heights (the middle of
+// a climb), as a fraction of the plan's duration.
+double mid_climb_fraction(const planner::Trajectory& plan) {
+  const double z0 = plan.samples.front().base.position.z();
+  const double z1 = plan.samples.back().base.position.z();
+  for (const auto& s : plan.samples)
+    if (std::abs(s.base.position.z() - z0) >= 0.5 * std::abs(z1 - z0))
+      return s.t / plan.samples.back().t;
+  return 0.5;
+}
+
+// One configuration of the closed-loop table: push margin and the model-error runs.
+void closed_loop_row(const robot::RobotModel& robot, const planner::Trajectory& plan,
+                     const terrain::Scene& scene, const terrain::HeightField& smooth,
+                     const planner::PlannerOptions& options, double rate_hz, double horizon,
+                     nlohmann::json* rows, bool json) {
+  collision::SimulationOptions sim;
+  sim.record_dt = 0.0;
+  if (rate_hz > 0) {
+    sim.replan_every = 1.0 / rate_hz;
+    sim.replanner =
+        collision::session_replanner(robot, smooth, scene, options, plan, horizon, 0.01);
+  }
+  collision::MarginOptions mo;
+  mo.push_time_fraction = mid_climb_fraction(plan);
+  mo.push_tolerance = 20.0;
+  mo.mass = false;
+  const double cpu0 = static_cast<double>(std::clock()) / CLOCKS_PER_SEC;
+  const auto wall0 = std::chrono::steady_clock::now();
+  const auto nominal = collision::simulate_plan(robot, plan, scene, sim);
+  const auto margin = collision::simulation_margin(robot, plan, scene, sim, mo);
+  auto verdict_at = [&](double mass_scale, double friction) {
+    collision::SimulationOptions o = sim;
+    o.mass_scale = mass_scale;
+    o.friction = friction;
+    const auto r = collision::simulate_plan(robot, plan, scene, o);
+    return r.verdict + (r.fell ? " (fall " + std::to_string(r.fall_t).substr(0, 5) + " s)" : "") +
+           (r.replans > 0 ? " [" + std::to_string(r.replan_failures) + "/" +
+                                std::to_string(r.replans) + " re-plans failed]"
+                          : "");
+  };
+  const std::string heavy = verdict_at(1.2, sim.friction), light = verdict_at(0.8, sim.friction),
+                    slippery = verdict_at(1.0, 0.4);
+  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  const double cpu = static_cast<double>(std::clock()) / CLOCKS_PER_SEC - cpu0;
+  const std::string config =
+      rate_hz > 0 ? "re-plan " + std::to_string(static_cast<int>(rate_hz)) + " Hz" : "open loop";
+  auto side = [](const collision::MarginSide& s) {
+    std::ostringstream o;
+    o << s.survived << (s.failed < 0 ? "+" : "");
+    return o.str();
+  };
+  if (!json) {
+    std::printf("%-13s push %.2f s at t = %.2f s (%.2f of the plan): left %s N, right %s N, margin "
+                "%.0f N (%.0f N s); nominal %s", config.c_str(), mo.push_duration, margin.push_t,
+                mo.push_time_fraction, side(margin.push_left).c_str(),
+                side(margin.push_right).c_str(), margin.push_margin_N, margin.push_margin_Ns,
+                nominal.verdict.c_str());
+    if (nominal.replans > 0)
+      std::printf(" (%d re-plans, %d failed, planner CPU %.0f ms median, %.0f ms max; wall %.0f "
+                  "ms median)",
+                  nominal.replans, nominal.replan_failures, 1e3 * nominal.replan_cpu_median,
+                  1e3 * nominal.replan_cpu_max, 1e3 * nominal.replan_wall_median);
+    std::printf("\n              mass x1.2: %s; mass x0.8: %s; friction 0.4: %s; %d runs, %.0f s "
+                "wall, %.0f s CPU\n",
+                heavy.c_str(), light.c_str(), slippery.c_str(), margin.runs + 4, wall, cpu);
+    if (!margin.push_left.failure.empty())
+      std::printf("              left fails: %s\n", margin.push_left.failure.c_str());
+    if (!margin.push_right.failure.empty())
+      std::printf("              right fails: %s\n", margin.push_right.failure.c_str());
+    if (!nominal.replan_first_failure.empty())
+      std::printf("              first re-plan failure: %s\n",
+                  nominal.replan_first_failure.c_str());
+    std::fflush(stdout);
+  }
+  rows->push_back({{"group", "closed_loop"},
+                   {"config", config},
+                   {"rate_hz", rate_hz},
+                   {"horizon_s", horizon},
+                   {"push_t", margin.push_t},
+                   {"push_duration_s", mo.push_duration},
+                   {"push_left_survived_N", margin.push_left.survived},
+                   {"push_left_failed_N", margin.push_left.failed},
+                   {"push_right_survived_N", margin.push_right.survived},
+                   {"push_right_failed_N", margin.push_right.failed},
+                   {"push_margin_N", margin.push_margin_N},
+                   {"nominal_verdict", nominal.verdict},
+                   {"nominal_replans", nominal.replans},
+                   {"nominal_replan_failures", nominal.replan_failures},
+                   {"planner_wall_median_s", nominal.replan_wall_median},
+                   {"planner_wall_max_s", nominal.replan_wall_max},
+                   {"planner_cpu_median_s", nominal.replan_cpu_median},
+                   {"planner_cpu_max_s", nominal.replan_cpu_max},
+                   {"mass_1_2", heavy},
+                   {"mass_0_8", light},
+                   {"friction_0_4", slippery},
+                   {"runs", margin.runs + 4},
+                   {"wall_s", wall},
+                   {"cpu_s", cpu}});
 }
 
 struct ScenePlans {
@@ -150,6 +265,8 @@ int main(int argc, char** argv) {
   std::vector<std::string> only;
   int repeat = 3;
   bool json = false;
+  std::vector<double> rates = {10.0, 20.0};
+  double horizon = 1.0;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--only" && i + 1 < argc) {
@@ -158,9 +275,14 @@ int main(int argc, char** argv) {
       repeat = std::max(1, std::atoi(argv[++i]));
     } else if (a == "--json") {
       json = true;
+    } else if (a == "--rates" && i + 1 < argc) {
+      rates.clear();
+      for (const auto& r : split(argv[++i])) rates.push_back(std::atof(r.c_str()));
+    } else if (a == "--horizon" && i + 1 < argc) {
+      horizon = std::atof(argv[++i]);
     } else {
-      std::cerr << "usage: bench_simulation [--only flat,pallet,wrong,scenes,scans,speed] "
-                   "[--repeat N] [--json]\n";
+      std::cerr << "usage: bench_simulation [--only flat,pallet,wrong,scenes,scans,speed,closed_loop] "
+                   "[--repeat N] [--json] [--rates HZ,...] [--horizon S]\n";
       return 2;
     }
   }
@@ -254,6 +376,17 @@ int main(int argc, char** argv) {
       emit({"scans", label, std::string("scene ") + name + " (boxes)", plan.solver.status,
             collision::simulate_plan(robot, plan, *sc.scene, sim)});
     }
+  }
+  if (std::find(only.begin(), only.end(), "closed_loop") != only.end()) {
+    auto sc = scene("pallet_15");
+    const auto options = plan_options(sc.scene->goal(), 11.0, "all");
+    const auto plan = planner::plan_motion(robot, *sc.smooth, *sc.scene, options, 0.01).trajectory;
+    if (!json)
+      std::printf("closed_loop: pallet_15/all (%s, %.1f s), horizon %.2f s, load %.1f\n",
+                  plan.solver.status.c_str(), plan.duration, horizon, load1());
+    closed_loop_row(robot, plan, *sc.scene, *sc.smooth, options, 0.0, horizon, &rows, json);
+    for (double rate : rates)
+      closed_loop_row(robot, plan, *sc.scene, *sc.smooth, options, rate, horizon, &rows, json);
   }
   nlohmann::json speed = nlohmann::json::array();
   if (want("speed")) {

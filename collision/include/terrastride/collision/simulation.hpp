@@ -15,6 +15,9 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
+#include "terrastride/planner/planning_session.hpp"
 #include "terrastride/planner/trajectory.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/scenes.hpp"
@@ -78,6 +81,39 @@ struct ControllerOptions {
   double cone_margin = 0.9;
 };
 
+// The robot's state as the simulator measures it (MuJoCo's), in plan.json's terms: world frame,
+// the base origin, ZYX Euler angles, world-frame angular velocity, each foot's contact point
+// (sphere centre - r n, as a plan's foot) and that point's velocity; feet in the robot's order.
+struct MeasuredState {
+  double t = 0.0;  // on the simulated plan's time axis (s)
+  Eigen::Vector3d base_position = Eigen::Vector3d::Zero();
+  Eigen::Vector3d base_euler_zyx = Eigen::Vector3d::Zero();
+  Eigen::Vector3d base_linear_velocity = Eigen::Vector3d::Zero();
+  Eigen::Vector3d base_angular_velocity = Eigen::Vector3d::Zero();
+  std::vector<Eigen::Vector3d> foot_position, foot_velocity;
+  std::vector<bool> foot_contact;  // touching the terrain (the plan's schedule decides stances)
+};
+
+// The measured state as the socket's plan.session.step "start_state" (and `plan --start-state`)
+// takes it: {"base": {position, euler_zyx, linear_velocity, angular_velocity}, "feet": {NAME:
+// {position, velocity}}} keyed by `feet` (docs/protocol.md). The in-process re-planner reads it
+// back with planner::start_state_from_json, as the server does, so both map it the same way.
+nlohmann::json start_state_json(const MeasuredState& state, const std::vector<std::string>& feet);
+
+// What a re-planner returns: the plan from `start_time` (its samples from 0 = start_time on the
+// simulated plan's axis, contact schedule the remaining one of that plan), or a failure (the
+// controller keeps tracking the plan it has).
+struct Replan {
+  bool success = false;
+  planner::Trajectory plan;
+  double start_time = 0.0;
+  std::string message;  // why not, when !success
+};
+using Replanner = std::function<Replan(const MeasuredState&)>;
+// Makes a fresh re-planner (a new planning session) for each simulated run, so runs do not share
+// a session's state (simulation_margin repeats the run).
+using ReplannerFactory = std::function<Replanner()>;
+
 struct SimulationOptions {
   double dt = 0.002;  // MuJoCo time step (s)
   std::vector<Push> pushes;
@@ -89,6 +125,14 @@ struct SimulationOptions {
   // Polled every 50 steps; true stops the run with SimulationCancelled (the service's
   // cancellation token; the module does not depend on the service).
   std::function<bool()> stop_requested;
+  // Closed loop: every `replan_every` seconds of simulated time (from the plan's start while at
+  // least 0.1 s of it remain) the measured state goes to a re-planner made by `replanner` for
+  // this run, and the controller tracks the plan it returns from `replan_latency` seconds later
+  // (the simulated time a real planner's answer would take to arrive; the simulation waits for
+  // the planner, so this is the only way its compute time enters). 0 = open loop.
+  double replan_every = 0.0;
+  double replan_latency = 0.0;
+  ReplannerFactory replanner;
 };
 
 // One recorded sample.
@@ -162,6 +206,22 @@ struct SimulationReport {
   SimulationThresholds thresholds;
 
   std::vector<SimulationSample> samples;
+
+  // Closed loop (replan_every > 0): re-plans asked for, failed (the previous plan kept), the first
+  // failure's message, and the re-planner's wall time per call (included in wall_s and cpu_s).
+  // The tracking figures and the fall are judged against the plan being tracked at each instant;
+  // reference_position_max is the largest base distance from the original plan, for comparison.
+// A touchdown's error is against the foothold of the plan tracked at touchdown.
+  int replans = 0;
+  int replan_failures = 0;
+  std::string replan_first_failure;
+  std::vector<double> replan_wall_s;  // per call
+  double replan_wall_median = 0.0, replan_wall_max = 0.0;
+  // The calling thread's CPU time per call: the planner's own cost when it runs in process (a
+  // loaded machine inflates the wall time); through a socket only the client's share.
+  std::vector<double> replan_cpu_s;
+  double replan_cpu_median = 0.0, replan_cpu_max = 0.0;
+  double reference_position_max = 0.0;
 };
 
 // The MJCF of the robot alone (no terrain, no options), for tests and inspection.
@@ -203,6 +263,18 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
 SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
                                const terrain::HeightField& terrain,
                                const SimulationOptions& options);
+
+// The in-process re-planner: for each run a planner::PlanningSession whose reference is
+// `reference` (the simulated plan, with its "timeline"; PlanningSession's horizon and sample_dt),
+// each call one session step from the measured state, mapped to the planner's start state as the
+// socket's plan.session.step maps it (start_state_json, then planner::start_state_from_json). The
+// robot and terrains must outlive every run; `options` as the reference was planned with.
+ReplannerFactory session_replanner(const robot::RobotModel& robot,
+                                   const terrain::HeightField& plan_terrain,
+                                   const terrain::HeightField& check_terrain,
+                                   const planner::PlannerOptions& options,
+                                   const planner::Trajectory& reference, double horizon,
+                                   double sample_dt);
 
 // Robustness margin (`terrastride simulate --margin`): the largest disturbance a plan survives,
 // so two plans can be compared by how much they take. Survives = the verdict is not "fail" (no

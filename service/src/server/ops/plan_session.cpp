@@ -200,19 +200,28 @@ OpResult open_session(Backend& backend, SessionTable& table, OpContext& ctx) {
   }
   planner::PlannerOptions po = req.options;
   apply_deadline(ctx, &po);
-  // The reference plan: a cold solve from rest, as `plan` makes it.
+  // The reference plan: the client's ("init": a plan.json, e.g. the plan a simulator or robot
+  // executes, with its options), else a cold solve from rest, as `plan` makes it.
   planner::PlanOutcome cold;
-  try {
-    cold = planner::plan_motion(backend.robot(), *plan_field, *check_field, po, req.sample_dt);
-  } catch (const planner::GaitError& e) {
-    throw ProtocolError(pc::kBadRequest, std::string("\"gait\": ") + e.what());
-  } catch (const std::invalid_argument& e) {
-    throw ProtocolError(pc::kBadRequest, e.what());
+  if (req.replan) {
+    if (req.start_time != 0.0 || req.has_start_state)
+      throw ProtocolError(pc::kBadRequest,
+                          "init: a session's reference is followed from its start (no start_time "
+                          "or start_state at open; send the state with plan.session.step)");
+    cold.trajectory = req.previous;
+  } else {
+    try {
+      cold = planner::plan_motion(backend.robot(), *plan_field, *check_field, po, req.sample_dt);
+    } catch (const planner::GaitError& e) {
+      throw ProtocolError(pc::kBadRequest, std::string("\"gait\": ") + e.what());
+    } catch (const std::invalid_argument& e) {
+      throw ProtocolError(pc::kBadRequest, e.what());
+    }
+    ctx.check_stop();
+    if (!cold.success)
+      throw ProtocolError(pc::kFailed, "plan.session.open: the reference plan failed: " +
+                                           cold.message);
   }
-  ctx.check_stop();
-  if (!cold.success)
-    throw ProtocolError(pc::kFailed, "plan.session.open: the reference plan failed: " +
-                                         cold.message);
   po.should_stop = nullptr;
   po.max_time = req.options.max_time;
   try {
@@ -297,7 +306,7 @@ void add_plan_session_operation(Backend& backend, OperationRegistry& registry) {
                 [b, table](OpContext& c) { return open_session(*b, *table, c); },
                 std::vector<std::string>{"terrain", "gait", "cycles", "duration", "goal",
                                          "constraints", "feasibility", "sample_dt", "max_time",
-                                         "horizon"}});
+                                         "horizon", "init"}});
   registry.add({"plan.session.step", OpKind::kWorker,
                 "re-plan a session from a measured state at a session time",
                 [b, table](OpContext& c) { return step_session(*b, *table, c); },

@@ -1,0 +1,98 @@
+// `terrastride simulate --replan-every` (issue #22): the simulator's measured state re-planned by a
+// planning session, in this process or through a server's plan.session.* ops, and each new plan
+// tracked. Re-plans go through the socket; bad --via input is named.
+#include <gtest/gtest.h>
+
+#include <csignal>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "support/run_command.hpp"
+#include "terrastride/service/client.hpp"
+#include "test_server_process.hpp"
+
+namespace {
+
+using nlohmann::json;
+using terrastride::service::Client;
+using terrastride::test::ServerProcess;
+using terrastride::test_support::run_terrastride;
+
+std::string scratch(const std::string& name) {
+  return (std::filesystem::temp_directory_path() /
+          ("terrastride_loop_" + std::to_string(::getpid()) + "_" + name))
+      .string();
+}
+
+// `terrastride plan ARGS --out FILE` once per test process.
+std::string plan_file(const std::string& name, const std::string& args) {
+  const std::string out = scratch(name + ".json");
+  if (!std::filesystem::exists(out)) {
+    const auto r = run_terrastride("plan " + args + " --out " + out);
+    if (!std::filesystem::exists(out))
+      throw std::runtime_error("no plan from 'plan " + args + "': " + r.all());
+  }
+  return out;
+}
+
+json summary(const terrastride::test_support::CommandResult& r) {
+  try {
+    return json::parse(r.out);
+  } catch (const json::exception&) {
+    return json{{"unparsable", r.all()}};
+  }
+}
+
+}  // namespace
+
+// The flat 2.4 s crawl re-planned every 0.2 s through a server on a loopback port: the server
+// opened a session with the plan as its reference and answered the steps.
+TEST(ClosedLoop, ReplansGoThroughTheSocket) {
+  const std::string plan = plan_file("flat", "--terrain flat --duration 2.4");
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  const auto r = run_terrastride("simulate " + plan + " --terrain flat --json --replan-every 0.2 " +
+                                 "--horizon 1 --via " + server.tcp());
+  const json s = summary(r);
+  EXPECT_EQ(r.code, 0) << r.all();
+  EXPECT_EQ(s.value("verdict", ""), "pass") << s.dump();
+  ASSERT_TRUE(s.contains("closed_loop")) << s.dump();
+  // Steps at 0.2, 0.4, ..., 2.2 s (not within the plan's last 0.1 s).
+  EXPECT_EQ(s["closed_loop"]["replans"].get<int>(), 11);
+  EXPECT_EQ(s["closed_loop"]["replan_failures"].get<int>(), 0)
+      << s["closed_loop"]["first_failure"].dump();
+  Client c = Client::connect(server.tcp());
+  const json status = c.call_ok({{"op", "plan.session.status"}});
+  EXPECT_EQ(status["opened"].get<int>(), 1);
+  EXPECT_EQ(status["open"].get<int>(), 0);  // freed when the simulator disconnected
+  // The same run in process re-plans the same number of times.
+  const auto local = run_terrastride("simulate " + plan +
+                                     " --terrain flat --json --replan-every 0.2 --horizon 1");
+  const json l = summary(local);
+  EXPECT_EQ(local.code, 0) << local.all();
+  EXPECT_EQ(l["closed_loop"]["replans"].get<int>(), 11) << l.dump();
+  EXPECT_EQ(server.stop(SIGTERM), 0) << server.output;
+  std::filesystem::remove(plan);
+}
+
+TEST(ClosedLoop, BadViaAndUnreachableServerAreNamed) {
+  const std::string plan = plan_file("flat_bad", "--terrain flat --duration 2.4");
+  auto r = run_terrastride("simulate " + plan + " --terrain flat --replan-every 0.1 --via ftp://x");
+  EXPECT_EQ(r.code, 1) << r.all();
+  EXPECT_NE(r.err.find("--via ftp://x"), std::string::npos) << r.all();
+  r = run_terrastride("simulate " + plan +
+                      " --terrain flat --replan-every 0.1 --via tcp://127.0.0.1:notaport");
+  EXPECT_EQ(r.code, 1) << r.all();
+  EXPECT_NE(r.err.find("--via"), std::string::npos) << r.all();
+  // Port 1 on loopback: nothing listens there, the connection is refused at once.
+  r = run_terrastride("simulate " + plan +
+                      " --terrain flat --replan-every 0.1 --via tcp://127.0.0.1:1 --json");
+  EXPECT_EQ(r.code, 1) << r.all();
+  EXPECT_NE(r.err.find("tcp://127.0.0.1:1"), std::string::npos) << r.all();
+  EXPECT_TRUE(r.out.empty()) << r.out;
+  r = run_terrastride("simulate " + plan + " --terrain flat --replan-every -1");
+  EXPECT_EQ(r.code, 1) << r.all();
+  EXPECT_NE(r.err.find("--replan-every"), std::string::npos) << r.all();
+  std::filesystem::remove(plan);
+}
