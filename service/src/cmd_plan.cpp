@@ -316,8 +316,11 @@ void add_plan_command(CLI::App& app) {
                   "tall terrain), polytope (force "
                   "polytopes in stance; implies swing), swing (swing "
                   "foot acceleration bound), joints (joint ranges from IK), force_ramp (contact "
-                  "forces zero at touch-down and lift-off, rate bounded), all "
-                  "(= foot,shin_ik,thigh,trunk,polytope,joints,force_ramp)")
+                  "forces zero at touch-down and lift-off, rate bounded), monotone_progress, "
+                  "lateral_corridor, swing_apex (the base's and swing feet's path shape, each on "
+                  "when its --feasibility setting is non-zero), all "
+                  "(= foot,shin_ik,thigh,trunk,polytope,joints,force_ramp,monotone_progress,"
+                  "lateral_corridor,swing_apex)")
       ->capture_default_str();
   {
     std::string names;

@@ -1,10 +1,15 @@
 // Scenario runner for the planner (docs/design.md §11): one row per scenario with problem size,
 // iterations, wall time (median of --repeat runs), peak memory and the dense checks.
 //   bench_scenarios [--repeat 3] [--only NAME[,NAME...]] [--feasibility] [--json] [--original]
+//                   [--settings NAME=VALUE,...] [--add-sets SET,...]
 // Each row is followed by its quality figures (plan.json "quality", planner/quality.hpp).
 // --objective-scale S plans with the tuned objective weights (ObjectiveWeights{}) times S.
 // --original plans as before issue #17, for before/after comparisons in one binary: no objective,
-// no rest rows at the ends, and "all" without "force_ramp".
+// no rest rows at the ends, and "all" without "force_ramp" and the path-shape sets
+// (monotone_progress, lateral_corridor, swing_apex).
+// --settings passes feasibility settings (`terrastride plan --feasibility`) to every row, e.g.
+// monotone_progress=1,lateral_corridor=0.02,swing_apex_rise=0.1; --add-sets adds constraint sets
+// to every row (the standard rows plan with "baseline" alone).
 // --feasibility (or --only naming them) adds the feasibility-variant rows SCENE/SETS (baseline,
 // foot, foot,shin, all on pallet_10 and pallet_15; issue #5) with their own columns: rows and
 // Jacobian nonzeros, iterations, wall and user CPU s, the post-hoc checks on the exact scene
@@ -29,6 +34,7 @@
 
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/collision/octree_terrain.hpp"
+#include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/planner.hpp"
@@ -152,7 +158,8 @@ int main(int argc, char** argv) {
   bool feasibility = false;
   bool original = false;
   double objective_scale = 0.0;  // > 0: the tuned objective weights times this (off by default)
-  std::vector<std::string> only;
+  std::vector<std::string> only, add_sets;
+  std::vector<std::pair<std::string, double>> settings;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--repeat" && i + 1 < argc) {
@@ -169,9 +176,31 @@ int main(int argc, char** argv) {
       objective_scale = std::atof(argv[++i]);
     } else if (a == "--original") {
       original = true;
+    } else if (a == "--settings" && i + 1 < argc) {
+      std::stringstream ss(argv[++i]);
+      std::string item;
+      while (std::getline(ss, item, ',')) {
+        const auto eq = item.find('=');
+        if (eq == std::string::npos) {
+          std::cerr << "--settings: '" << item << "' is not NAME=VALUE\n";
+          return 2;
+        }
+        settings.emplace_back(item.substr(0, eq), std::atof(item.c_str() + eq + 1));
+      }
+      try {
+        planner::feasibility_options(settings);
+      } catch (const std::invalid_argument& e) {
+        std::cerr << "--settings: " << e.what() << "\n";
+        return 2;
+      }
+    } else if (a == "--add-sets" && i + 1 < argc) {
+      std::stringstream ss(argv[++i]);
+      std::string item;
+      while (std::getline(ss, item, ',')) add_sets.push_back(item);
     } else {
       std::cerr << "usage: bench_scenarios [--repeat N] [--only NAME,...] [--feasibility] [--json] "
-                   "[--original] [--objective-scale S]\n";
+                   "[--original] [--objective-scale S] [--settings NAME=VALUE,...] "
+                   "[--add-sets SET,...]\n";
       return 2;
     }
   }
@@ -231,6 +260,8 @@ int main(int argc, char** argv) {
     o.has_goal = true;
     o.goal = Eigen::Vector3d(scene->goal().x(), scene->goal().y(), 0.0);
     o.constraints = sc.constraints;
+    o.constraints.insert(o.constraints.end(), add_sets.begin(), add_sets.end());
+    o.feasibility_settings = settings;
     if (objective_scale > 0.0) {
       o.objective = planner::ObjectiveWeights{};
       o.objective.scale(objective_scale);
@@ -242,7 +273,9 @@ int main(int argc, char** argv) {
       for (const auto& c : o.constraints)
         if (c == "all") {
           for (const char* set : planner::kAllFeasibilitySets)
-            if (std::string(set) != "force_ramp") sets.push_back(set);
+            if (std::strcmp(set, "force_ramp") != 0 && std::strcmp(set, "monotone_progress") != 0 &&
+                std::strcmp(set, "lateral_corridor") != 0 && std::strcmp(set, "swing_apex") != 0)
+              sets.push_back(set);
         } else
           sets.push_back(c);
       o.constraints = sets;

@@ -77,5 +77,33 @@ TEST(NaturalMotion, ObjectiveImprovesAFeasiblePlan) {
   EXPECT_LT(out.trajectory.samples.back().base.linear_acceleration.norm(), 1e-3);
 }
 
+// The path-shape families (monotone_progress, lateral_corridor, swing_apex) bound the splines'
+// control points, so their bounds hold on the dense samples of the solved plan, not only at the
+// knots; the same plan without them breaks the same (tight) bounds. A diagonal, turning goal, so
+// the corridor follows the start-to-goal line.
+TEST(NaturalMotion, PathShapeBoundsHoldOnTheDenseSamples) {
+  const auto r = hyq();
+  TanhStep step(0.1, 0.6, 0.02);  // the front feet step up onto it
+  auto o = crawl({"baseline", "monotone_progress", "lateral_corridor", "swing_apex"});
+  o.goal = Eigen::Vector3d(0.4, 0.1, 0.2);
+  constexpr double kCorridor = 0.005, kRise = 0.07;
+  const auto without = plan_motion(r, step, step, o, 0.01);
+  o.feasibility_settings = {
+      {"monotone_progress", 1.0}, {"lateral_corridor", kCorridor}, {"swing_apex_rise", kRise}};
+  const auto with = plan_motion(r, step, step, o, 0.01);
+  ASSERT_TRUE(without.success) << without.message;
+  ASSERT_TRUE(with.success) << with.message;
+  const PlanQuality a = plan_quality(without.trajectory), b = plan_quality(with.trajectory);
+  EXPECT_LE(b.backward_max_m, 1e-6);
+  EXPECT_LE(b.lateral_sway_m, kCorridor + 1e-6);
+  EXPECT_LE(b.swing_rise_max_m, kRise + 1e-6);
+  EXPECT_GT(a.backward_max_m + std::max(0.0, a.lateral_sway_m - kCorridor) +
+                std::max(0.0, a.swing_rise_max_m - kRise),
+            1e-3)
+      << "back " << a.backward_max_m << " sway " << a.lateral_sway_m << " rise "
+      << a.swing_rise_max_m;
+  EXPECT_GE(b.swings.size(), 4u);
+}
+
 }  // namespace
 }  // namespace terrastride::planner

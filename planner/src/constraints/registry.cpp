@@ -31,7 +31,11 @@ std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets() {
           {"polytope", [=](SrbdProblem& p) { build_polytope_set(p, options(p)); }},
           {"swing", [=](SrbdProblem& p) { build_swing_set(p, options(p)); }},
           {"joints", [=](SrbdProblem& p) { build_joints_set(p, options(p)); }},
-          {"force_ramp", [=](SrbdProblem& p) { build_force_ramp_set(p, options(p)); }}};
+          {"force_ramp", [=](SrbdProblem& p) { build_force_ramp_set(p, options(p)); }},
+          {"monotone_progress",
+           [=](SrbdProblem& p) { build_monotone_progress_set(p, options(p)); }},
+          {"lateral_corridor", [=](SrbdProblem& p) { build_lateral_corridor_set(p, options(p)); }},
+          {"swing_apex", [=](SrbdProblem& p) { build_swing_apex_set(p, options(p)); }}};
 }
 
 std::map<std::string, ConstraintSetBuilder>& registry() {

@@ -8,6 +8,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <functional>
 #include <random>
@@ -106,6 +107,32 @@ inline double segment_start(const Layout& L, const std::vector<double>& x, int s
 }
 inline double segment_length(const Layout& L, const std::vector<double>& x, int s) {
   return x[L.interval_var[L.seg_interval[s]]] * L.seg_fraction[s];
+}
+
+// The four Bezier control points of segment s of a cubic Hermite spline, from the values and
+// derivatives the problem evaluates at the segment's ends (value(state) and rate(state) pick the
+// spline: the base position, a foot's position...): P0, P0 + h v0 / 3, P1 - h v1 / 3, P1.
+inline std::array<Eigen::Vector3d, 4> bezier_points(
+    const SrbdProblem& p, const std::vector<double>& x, int s,
+    const std::function<Eigen::Vector3d(const SrbdProblem::State&)>& value,
+    const std::function<Eigen::Vector3d(const SrbdProblem::State&)>& rate) {
+  const double t0 = segment_start(p.layout(), x, s), h = segment_length(p.layout(), x, s);
+  const auto a = p.evaluate(x, t0), b = p.evaluate(x, t0 + h);  // C1: either side of the knot
+  return {value(a), value(a) + h * rate(a) / 3.0, value(b) - h * rate(b) / 3.0, value(b)};
+}
+
+// The control points of segment s's two halves (split at its middle), from the values and rates
+// the problem evaluates at the segment's start, middle and end: A0 A1 A2 M B1 B2 B3 (M ends the
+// first half and starts the second).
+inline std::array<Eigen::Vector3d, 7> half_bezier_points(
+    const SrbdProblem& p, const std::vector<double>& x, int s,
+    const std::function<Eigen::Vector3d(const SrbdProblem::State&)>& value,
+    const std::function<Eigen::Vector3d(const SrbdProblem::State&)>& rate) {
+  const double t0 = segment_start(p.layout(), x, s), h = segment_length(p.layout(), x, s);
+  const auto a = p.evaluate(x, t0), m = p.evaluate(x, t0 + 0.5 * h), b = p.evaluate(x, t0 + h);
+  const double k = h / 6.0;  // (h / 2) / 3
+  return {value(a),          value(a) + k * rate(a), value(m) - k * rate(m), value(m),
+          value(m) + k * rate(m), value(b) - k * rate(b), value(b)};
 }
 
 inline Eigen::Vector3d vec3_at(const std::vector<double>& x, int i) {

@@ -56,7 +56,24 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
   EXPECT_EQ(leg.leg_clearance_points, 2);
   EXPECT_EQ(leg.thigh_points, 6);
   EXPECT_EQ(feasibility_options({{"trunk_margin", 0.05}}).trunk_margin, 0.05);
-  EXPECT_EQ(feasibility_option_names().size(), 17u);  // force_rate_max (force_ramp) the 17th
+  // The path-shape families' settings (issue #17): off by default, validated.
+  const FeasibilityOptions shape = feasibility_options(
+      {{"monotone_progress", 1.0}, {"lateral_corridor", 0.02}, {"swing_apex_rise", 0.1}});
+  EXPECT_EQ(shape.monotone_progress, 1);
+  EXPECT_EQ(shape.lateral_corridor, 0.02);
+  EXPECT_EQ(shape.swing_apex_rise, 0.1);
+  for (const auto& bad : std::vector<std::pair<std::string, double>>{
+           {"monotone_progress", 0.5}, {"monotone_progress", 2.0}, {"lateral_corridor", -0.01},
+           {"swing_apex_rise", -0.1}}) {
+    try {
+      feasibility_options({bad});
+      ADD_FAILURE() << bad.first << " = " << bad.second;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(bad.first), std::string::npos) << e.what();
+    }
+  }
+  // force_rate_max (force_ramp) the 17th; monotone_progress, lateral_corridor, swing_apex_rise
+  EXPECT_EQ(feasibility_option_names().size(), 20u);
 }
 
 }  // namespace

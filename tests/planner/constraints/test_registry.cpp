@@ -13,15 +13,16 @@ TEST(Registry, AllExpandsAndNamesAreListed) {
   const auto names = constraint_set_names();
   for (const std::string n :
        {"baseline", "foot", "shin", "shin_ik", "thigh", "trunk", "polytope", "swing",
-        "joints", "force_ramp", "all"})
+        "joints", "force_ramp", "monotone_progress", "lateral_corridor", "swing_apex", "all"})
     EXPECT_NE(std::find(names.begin(), names.end(), n), names.end()) << n;
   const auto r = hyq();
   FlatField flat;
   const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
   PlannerOptions a, b;
   a.constraints = {"all"};
-  b.constraints = {"baseline", "foot",   "shin_ik",    "thigh", "trunk",
-                   "polytope", "joints", "force_ramp", "foot"};  // duplicates added once
+  b.constraints = {"baseline",         "foot",       "shin_ik",          "thigh",
+                   "trunk",            "polytope",   "joints",           "force_ramp",
+                   "monotone_progress", "lateral_corridor", "swing_apex", "foot"};  // once each
   SrbdProblem pa(r, flat, tl, a), pb(r, flat, tl, b);
   EXPECT_EQ(count_kinds(pa), count_kinds(pb));
   EXPECT_EQ(pa.num_constraints(), pb.num_constraints());

@@ -38,8 +38,9 @@ void register_constraint_set(const std::string& name, ConstraintSetBuilder build
 std::vector<std::string> constraint_set_names();
 
 // What "all" expands to, in order.
-inline const char* const kAllFeasibilitySets[] = {"foot",   "shin_ik", "thigh",     "trunk",
-                                                  "polytope", "joints", "force_ramp"};
+inline const char* const kAllFeasibilitySets[] = {
+    "foot",   "shin_ik",    "thigh",             "trunk",           "polytope",
+    "joints", "force_ramp", "monotone_progress", "lateral_corridor", "swing_apex"};
 // {set, the set it implies}: the second is added whenever the first is asked for.
 inline const std::pair<const char*, const char*> kImpliedFeasibilitySets[] = {
     {"polytope", "swing"}};

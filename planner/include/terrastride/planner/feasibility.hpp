@@ -104,6 +104,16 @@ struct FeasibilityOptions {
   // foot loads and unloads at most at this rate: 2000 N/s is 20 N per 10 ms sample, a quarter of
   // HyQ's weight in 0.1 s.
   double force_rate_max = 2000.0;
+  // The shape of the base and swing paths (issue #17; constraints/monotone_progress.cpp,
+  // lateral_corridor.cpp, swing_apex.cpp). Each bounds the splines' Bezier control points, so the
+  // bound holds along the whole polynomial, not only at knots. 0 = off.
+  // monotone_progress: 1 = the base never moves back along the start-to-goal line.
+  int monotone_progress = 0;
+  // lateral_corridor (m): the base within this distance of the start-to-goal line.
+  double lateral_corridor = 0.0;
+  // swing_apex_rise (m): a swing foot at most this far above the higher of its lift-off and
+  // touch-down points.
+  double swing_apex_rise = 0.0;
 };
 
 void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
@@ -126,6 +136,11 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options = 
 // The layout leaves out the force knots at touch-down and lift-off (zero force there); this adds
 // the force rate bound force_rate_max per stance segment (see constraints/force_ramp.cpp).
 void build_force_ramp_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+// "monotone_progress", "lateral_corridor", "swing_apex" (in "all"; issue #17): the base path's and
+// the swing feet's shape, each on when its setting above is non-zero (no rows otherwise).
+void build_monotone_progress_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+void build_lateral_corridor_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+void build_swing_apex_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 
 // FeasibilityOptions from the defaults and NAME=VALUE settings (ProblemOptions::
 // feasibility_settings, `terrastride plan --feasibility`); names are the fields' names. Throws
