@@ -39,4 +39,17 @@ inline bool all_fixed(const std::vector<int>& vars, const std::vector<double>& l
   return true;
 }
 
+// Whether p + c h v (a Bezier control point: p and v knot values and rates, h the segment's
+// duration variable `duration`, c a constant) is a constant: p and v fixed, and h fixed or v fixed
+// at zero (a knot at rest: then the point is the knot, whatever the duration).
+inline bool fixed_control_point(const std::vector<int>& p, const std::vector<int>& v, int duration,
+                                const std::vector<double>& lower,
+                                const std::vector<double>& upper) {
+  if (!all_fixed(p, lower, upper) || !all_fixed(v, lower, upper)) return false;
+  if (lower[duration] == upper[duration]) return true;
+  for (int i : v)
+    if (lower[i] != 0.0) return false;
+  return true;
+}
+
 }  // namespace terrastride::planner

@@ -44,9 +44,10 @@ void build_lateral_corridor_set(SrbdProblem& problem, const FeasibilityOptions& 
     // knots are the previous segment's end), A = x0 + h v0 / 6, B, C, D (the middle), E =
     // x1 - h v1 / 6, the end knot.
     const bool r0 = s == 0 && !all_fixed({p0, p0 + 1}, lo, hi);
-    const bool rA = !all_fixed({p0, p0 + 1, v0, v0 + 1, dv}, lo, hi);
-    const bool rBCD = !all_fixed({p0, p0 + 1, v0, v0 + 1, p1, p1 + 1, v1, v1 + 1, dv}, lo, hi);
-    const bool rE = !all_fixed({p1, p1 + 1, v1, v1 + 1, dv}, lo, hi);
+    const bool rA = !fixed_control_point({p0, p0 + 1}, {v0, v0 + 1}, dv, lo, hi);
+    const bool rBCD =
+        !fixed_control_point({p0, p0 + 1, p1, p1 + 1}, {v0, v0 + 1, v1, v1 + 1}, dv, lo, hi);
+    const bool rE = !fixed_control_point({p1, p1 + 1}, {v1, v1 + 1}, dv, lo, hi);
     const bool r3 = !all_fixed({p1, p1 + 1}, lo, hi);
     const int rows = r0 + rA + 3 * rBCD + rE + r3;
     if (rows == 0) continue;

@@ -38,7 +38,8 @@ void build_monotone_progress_set(SrbdProblem& problem, const FeasibilityOptions&
   for (int s = 0; s < L.num_segments; ++s) {
     const bool start_row = s == 0 && free_velocity(0), end_row = free_velocity(s + 1);
     const int p0 = L.base[s], v0 = L.base[s] + 3, p1 = L.base[s + 1], v1 = L.base[s + 1] + 3;
-    const bool middle_row = !all_fixed({p0, p0 + 1, v0, v0 + 1, p1, p1 + 1, v1, v1 + 1}, lo, hi);
+    const bool middle_row = !fixed_control_point({p0, p0 + 1, p1, p1 + 1}, {v0, v0 + 1, v1, v1 + 1},
+                                                 L.interval_var[L.seg_interval[s]], lo, hi);
     if (!start_row && !middle_row && !end_row) continue;
     LocalVars lv;
     const int x0[2] = {lv.add(p0), lv.add(p0 + 1)}, w0[2] = {lv.add(v0), lv.add(v0 + 1)};

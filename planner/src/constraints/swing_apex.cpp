@@ -50,13 +50,13 @@ void build_swing_apex_set(SrbdProblem& problem, const FeasibilityOptions& option
       // move), E = p1 - h v1 / 6 (unless v1 is zero), F = p1 (inner knots only).
       // Rows on fixed variables only are left out (a re-plan's swing under way at its start).
       const int dv = L.interval_var[L.seg_interval[s]];
-      const bool rA = vz0 >= 0 && !all_fixed({ref, z0, vz0, dv}, lo, hi);
-      const bool rE = vz1 >= 0 && !all_fixed({ref, z1, vz1, dv}, lo, hi);
+      const bool rA = vz0 >= 0 && !fixed_control_point({ref, z0}, {vz0}, dv, lo, hi);
+      const bool rE = vz1 >= 0 && !fixed_control_point({ref, z1}, {vz1}, dv, lo, hi);
       const bool rF = s + 1 < k1 && !all_fixed({ref, z1}, lo, hi);
-      std::vector<int> middle{ref, z0, z1, dv};
-      if (vz0 >= 0) middle.push_back(vz0);
-      if (vz1 >= 0) middle.push_back(vz1);
-      const bool rBCD = !all_fixed(middle, lo, hi);
+      std::vector<int> rates;
+      if (vz0 >= 0) rates.push_back(vz0);
+      if (vz1 >= 0) rates.push_back(vz1);
+      const bool rBCD = !fixed_control_point({ref, z0, z1}, rates, dv, lo, hi);
       const int rows = 3 * rBCD + rA + rE + rF;
       if (rows == 0) continue;
       LocalVars lv;
