@@ -387,8 +387,8 @@ void add_check_command(CLI::App& app) {
       ->check(CLI::ExistingFile);
   cmd->add_option("--terrain", opts->terrain,
                   "Terrain directory from 'terrastride map' (uses its octomap.bt and safety "
-                  "margins), an OctoMap file (.bt, .ot) or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap: "
-                  "exact analytic terrain, voxelised for the leg check)")
+                  "margins), an OctoMap file (.bt, .ot) or a scene name (exact analytic terrain, "
+                  "voxelised for the leg check: " + terrain::scene_names_text() + ")")
       ->required();
   cmd->add_option("--resolution", opts->resolution,
                   "Voxel size (m) used to voxelise a scene for the leg check")

@@ -15,6 +15,7 @@
 #include "report/terrain_input.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/service/cli.hpp"
+#include "terrastride/terrain/scenes.hpp"
 
 namespace terrastride::service {
 namespace {
@@ -203,7 +204,7 @@ void add_report_command(CLI::App& app) {
       "file with every number it shows");
   cmd->add_option("--terrain", o->terrain,
                   "A folder written by `terrastride map`, point-cloud files (PCD, PLY, XYZ, NPY), "
-                  "an OctoMap (.bt, .ot) or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap)");
+                  "an OctoMap (.bt, .ot) or a scene name (" + terrain::scene_names_text() + ")");
   cmd->add_option("--plan", o->plans, "plan.json files to show on the terrain (repeatable)");
   cmd->add_option("--batch", o->batch,
                   "A folder of scans (and/or map folders), or a manifest file (one scan file or "

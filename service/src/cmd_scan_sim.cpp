@@ -143,14 +143,12 @@ void run_scan_sim(const ScanSimOptions& o) {
 
 void add_scan_sim_command(CLI::App& app) {
   auto o = std::make_shared<ScanSimOptions>();
-  std::string names;
-  for (const auto& n : terrain::scene_names()) names += (names.empty() ? "" : ", ") + n;
   CLI::App* cmd = app.add_subcommand(
       "scan-sim",
       "Simulate a recorded scan of a scene: a robot-mounted depth camera (noise, dropouts, mixed "
       "pixels) at a few poses; FILE.pcd holds the first pose, FILE.1.pcd ... the others, each "
       "with its sensor origin as VIEWPOINT");
-  cmd->add_option("--scene", o->scene, "Scene: " + names)->required();
+  cmd->add_option("--scene", o->scene, "Scene: " + terrain::scene_names_text())->required();
   cmd->add_option("--height", o->height, "Sensor height above the ground (m)")
       ->capture_default_str();
   cmd->add_option("--pitch", o->pitch, "Sensor pitch down from horizontal (degrees)")

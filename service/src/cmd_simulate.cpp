@@ -228,8 +228,8 @@ void run_simulate(const SimulateCliOptions& o) {
   const bool is_scene = terrain::is_scene_name(o.terrain);
   if (!is_scene && !std::filesystem::is_directory(o.terrain))
     throw CommandError("--terrain " + o.terrain +
-                       ": neither a terrain directory from 'terrastride map' nor a scene name "
-                       "(flat, pallet_10, pallet_15, eur_pallet, stairs, gap, pallet_NN)");
+                       ": neither a terrain directory from 'terrastride map' nor a scene name (" +
+                       terrain::scene_names_text() + ")");
   std::unique_ptr<terrain::HeightField> terrain;
   if (is_scene) {
     terrain = terrain::make_scene(o.terrain);
@@ -344,8 +344,7 @@ void add_simulate_command(CLI::App& app) {
       ->check(CLI::ExistingFile);
   cmd->add_option("--terrain", opts->terrain,
                   "Terrain directory from 'terrastride map' (its elevation becomes a heightfield) "
-                  "or a scene name (flat, pallet_10, pallet_15, eur_pallet, stairs, gap, pallet_NN: exact "
-                  "boxes)")
+                  "or a scene name (exact boxes: " + terrain::scene_names_text() + ")")
       ->required();
   cmd->add_option("--dt", opts->dt, "Simulation time step (s)")->capture_default_str();
   cmd->add_option("--push", opts->pushes,

@@ -36,11 +36,9 @@ TerrainSource load_terrain_source(const std::string& spec, bool smooth_scene,
     }
     if (fs::exists(spec)) throw CommandError("--terrain " + spec + ": " + file_hint);
     if (!terrain::is_scene_name(spec)) {
-      std::string list;
-      for (const auto& n : terrain::scene_names()) list += (list.empty() ? "" : ", ") + n;
       throw CommandError("--terrain " + spec +
-                         ": neither a terrain directory nor a scene name (scenes: " + list +
-                         ", pallet_NN)");
+                         ": neither a terrain directory nor a scene name (scenes: " +
+                         terrain::scene_names_text() + ")");
     }
     t.scene = terrain::make_scene(spec);
     // A 2 cm C2 B-spline of the rasterised scene for the optimiser; checks on the exact scene.

@@ -209,6 +209,12 @@ std::vector<std::string> scene_names() {
   return {"flat", "pallet_10", "pallet_15", "eur_pallet", "stairs", "gap"};
 }
 
+std::string scene_names_text() {
+  std::string text;
+  for (const auto& n : scene_names()) text += (text.empty() ? "" : ", ") + n;
+  return text + ", pallet_NN (a box NN cm high, 1 to 60)";
+}
+
 std::unique_ptr<Scene> make_scene(const std::string& name) {
   // The region of interest: the robot (hind feet near x = -0.31) to beyond its goal (front feet
   // near x = 1.31), wide enough for the sensor footprint.
@@ -260,10 +266,8 @@ std::unique_ptr<Scene> make_scene(const std::string& name) {
     return std::make_unique<Scene>(name, "0.20 m wide, 0.30 m deep trench at x in [0.50, 0.70]",
                                    -depth, std::move(b), lo, hi);
   }
-  std::string valid;
-  for (const auto& n : scene_names()) valid += (valid.empty() ? "" : ", ") + n;
-  valid += ", pallet_NN (a box NN cm high, 1 to 60)";
-  throw perception::InputError("unknown scene '" + name + "' (valid scenes: " + valid + ")");
+  throw perception::InputError("unknown scene '" + name + "' (valid scenes: " +
+                               scene_names_text() + ")");
 }
 
 }  // namespace terrastride::terrain

@@ -144,6 +144,40 @@ TEST(ServerInProcess, UnknownFieldsAreRefused) {
   c.call_ok({{"op", "cancel"}, {"target", 5}});
 }
 
+// The socket's terrain names are the CLI's (terrain::is_scene_name): a pallet_NN scene plans,
+// opens a session and simulates as an exact scene. Before, plan, plan.session.open and simulate
+// knew only scene_names() and took "pallet_12" for a terrain directory ("this server reads no
+// terrain directories").
+TEST(ServerInProcess, PalletOfAnyHeightIsASceneForEveryOperation) {
+  InProcessServer s(1, 2);
+  Client c = Client::connect(s.address);
+  // A short crawl that stays before the box (its edge at x = 0.55, HyQ's front feet at 0.41).
+  const json request = {{"terrain", "pallet_12"}, {"duration", 2.4}, {"goal", {0.1, 0.0, 0.0}}};
+  json plan_request = request;
+  plan_request["op"] = "plan";
+  const p::Message planned = c.call(plan_request);
+  ASSERT_EQ(code_of(planned), "") << planned.header.dump();
+  const json plan = planned.header["result"];
+  EXPECT_EQ(plan["solver"]["status"], "optimal");
+  json open = request;
+  open["op"] = "plan.session.open";
+  const p::Message opened = c.call(open);
+  ASSERT_EQ(code_of(opened), "") << opened.header.dump();
+  c.call_ok({{"op", "plan.session.close"}, {"session", opened.header["result"]["session"]}});
+  const p::Message simulated = c.call({{"op", "simulate"}, {"plan", plan}, {"terrain", "pallet_12"}});
+  ASSERT_EQ(code_of(simulated), "") << simulated.header.dump();
+  EXPECT_EQ(simulated.header["result"]["terrain"].get<std::string>().rfind("scene pallet_12 (", 0),
+            0u)
+      << simulated.header["result"]["terrain"];
+  // A name no resolver knows is still refused naming the scenes (pallet_NN among them).
+  const p::Message bad = c.call({{"op", "plan"}, {"terrain", "pallet_61"}});
+  EXPECT_EQ(code_of(bad), "bad_request");
+  const p::Message bad_check = c.call({{"op", "check"}, {"plan", plan}, {"terrain", "pallet_61"}});
+  EXPECT_EQ(code_of(bad_check), "bad_request");
+  EXPECT_NE(bad_check.header["error"].value("message", "").find("pallet_NN"), std::string::npos)
+      << bad_check.header.dump();
+}
+
 TEST(ServerInProcess, RegisteredOperationsDeclareTheirFields) {
   ServerOptions so;
   so.handle_signals = false;

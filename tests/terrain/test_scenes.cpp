@@ -109,6 +109,18 @@ TEST(Scenes, PalletOfAnyHeight) {
             std::string::npos);
   EXPECT_TRUE(is_scene_name("pallet_60"));
   EXPECT_TRUE(is_scene_name("stairs"));
+  // The list every help text and error prints: the named scenes and pallet_NN.
+  const std::string text = scene_names_text();
+  for (const auto& n : scene_names()) {
+    EXPECT_TRUE(is_scene_name(n)) << n;
+    EXPECT_NE(text.find(n), std::string::npos) << text;
+  }
+  EXPECT_NE(text.find("pallet_NN"), std::string::npos) << text;
+  try {
+    make_scene("pallet_61");
+  } catch (const terrastride::perception::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find(text), std::string::npos) << e.what();
+  }
   for (const char* bad : {"pallet_0", "pallet_07", "pallet_61", "pallet_1x", "pallet_", "pallet_123"}) {
     EXPECT_FALSE(is_scene_name(bad)) << bad;
     EXPECT_THROW(make_scene(bad), terrastride::perception::InputError) << bad;

@@ -169,8 +169,8 @@ TerrainView load_terrain_view(const std::vector<std::string>& inputs,
                            ": a folder without terrain.json (not written by `terrastride map`)");
       if (!fs::exists(in, ec))
         throw CommandError("--terrain " + in +
-                           ": no such file, folder or scene (scenes: flat, "
-                           "pallet_10, pallet_15, eur_pallet, stairs, gap)");
+                           ": no such file, folder or scene (scenes: " +
+                           terrain::scene_names_text() + ")");
     }
     // Mapped in memory as `terrastride map` maps them (its defaults, this report's --resolution
     // and --origin); the page describes the map as that folder's terrain.json would.

@@ -101,8 +101,7 @@ OpResult plan(Backend& backend, OpContext& ctx) {
         plan_field = check_field = snapshot->field.get();
       }
     } else {
-      const auto names = terrain::scene_names();
-      if (std::find(names.begin(), names.end(), spec) != names.end()) {
+      if (terrain::is_scene_name(spec)) {
         raster = backend.scene_raster(spec);
         plan_field = raster->smooth.get();
         check_field = raster->scene.get();

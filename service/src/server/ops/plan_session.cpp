@@ -181,8 +181,7 @@ OpResult open_session(Backend& backend, SessionTable& table, OpContext& ctx) {
         plan_field = check_field = s->snapshot->field.get();
       }
     } else {
-      const auto names = terrain::scene_names();
-      if (std::find(names.begin(), names.end(), req.terrain) != names.end()) {
+      if (terrain::is_scene_name(req.terrain)) {
         s->raster = backend.scene_raster(req.terrain);
         plan_field = s->raster->smooth.get();
         check_field = s->raster->scene.get();

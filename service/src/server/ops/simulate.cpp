@@ -84,8 +84,7 @@ OpResult simulate(Backend& backend, OpContext& ctx) {
       if (!snapshot) throw ProtocolError(pc::kNoMap, "simulate on \"current\": no map loaded");
       field = snapshot->field.get();
     } else {
-      const auto names = terrain::scene_names();
-      if (std::find(names.begin(), names.end(), spec) != names.end()) {
+      if (terrain::is_scene_name(spec)) {
         raster = backend.scene_raster(spec);
         field = raster->scene.get();
       } else {

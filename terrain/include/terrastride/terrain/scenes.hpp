@@ -81,7 +81,8 @@ class Scene : public HeightField {
   std::vector<EdgeSegment> edges_;
 };
 
-// Valid names: flat, pallet_10, pallet_15, eur_pallet, stairs, gap.
+// The named benchmark scenes: flat, pallet_10, pallet_15, eur_pallet, stairs, gap. make_scene
+// also makes every pallet_NN (is_scene_name); scene_names_text() lists both for messages.
 std::vector<std::string> scene_names();
 // Throws perception::InputError (message lists the valid names) for an unknown name.
 std::unique_ptr<Scene> make_scene(const std::string& name);
@@ -90,7 +91,11 @@ std::unique_ptr<Scene> make_scene(const std::string& name);
 // name. make_scene makes every such height (the step scaled to a robot's legs); scene_names()
 // lists the two HyQ's benchmarks use.
 int pallet_height_cm(const std::string& name);
-// A name make_scene makes: one of scene_names() or a pallet_NN.
+// A name make_scene makes: one of scene_names() or a pallet_NN. The one test every caller that
+// takes "a scene name or something else" (CLI, socket operations, report) asks.
 bool is_scene_name(const std::string& name);
+// Every scene name for help texts and errors: "flat, pallet_10, ..., gap, pallet_NN (a box NN cm
+// high, 1 to 60)".
+std::string scene_names_text();
 
 }  // namespace terrastride::terrain
