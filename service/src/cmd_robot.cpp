@@ -20,6 +20,15 @@ using robot::RobotModel;
 
 json vec_json(const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); }
 
+const char* leg_shape_name(robot::LegShape shape) {
+  switch (shape) {
+    case robot::LegShape::in_plane: return "in_plane";
+    case robot::LegShape::lateral_offset: return "lateral_offset";
+    case robot::LegShape::general: return "general";
+  }
+  return "?";
+}
+
 RobotModel load(const std::string& name) {
   try {
     return robot::load_robot(robot::resolve_robot_path(name));
@@ -89,16 +98,34 @@ void add_robot_command(CLI::App& app) {
       ->capture_default_str();
   show->callback([opts] {
     const RobotModel model = load(opts->robot);
-    json out{{"name", model.name}, {"file", model.source_file}, {"mass", model.mass},
-             {"foot_radius", model.foot_radius}, {"legs", json::array()}};
+    json out{{"name", model.name},
+             {"file", model.source_file},
+             {"mass", model.mass},
+             {"nominal_base_height", model.nominal_base_height},
+             {"foot_radius", model.foot_radius},
+             {"legs", json::array()}};
     for (const auto& leg : model.legs) {
-      out["legs"].push_back({{"name", leg.name},
-                             {"haa_origin", vec_json(leg.haa_origin)},
-                             {"lengths", {leg.l0, leg.l1, leg.l2}},
-                             {"q_min", vec_json(leg.q_min)},
-                             {"q_max", vec_json(leg.q_max)},
-                             {"torque_limit", vec_json(leg.torque_limit)},
-                             {"nominal_foot", vec_json(leg.nominal_foot)}});
+      // The general leg (docs/design.md §4.2): joint offsets and axes at q = 0 in the base frame,
+      // whatever the file's keys; HyQ's l0/l1/l2 only where they mean what they say (in-plane).
+      const auto& d = leg.joint_offset;
+      const auto& a = leg.joint_axis;
+      json item{{"name", leg.name},
+                {"shape", leg_shape_name(leg.shape)},
+                {"knee", leg.knee_sign < 0 ? "backward" : "forward"},
+                {"haa_origin", vec_json(leg.haa_origin)},
+                {"geometry",
+                 {{"haa_to_hfe", vec_json(d[0])},
+                  {"hfe_to_kfe", vec_json(d[1])},
+                  {"kfe_to_foot", vec_json(d[2])},
+                  {"axes", {{"haa", vec_json(a[0])}, {"hfe", vec_json(a[1])}, {"kfe", vec_json(a[2])}}}}},
+                {"link_lengths", {{"haa_to_hfe", d[0].norm()}, {"thigh", d[1].norm()}, {"shank", d[2].norm()}}},
+                {"q_min", vec_json(leg.q_min)},
+                {"q_max", vec_json(leg.q_max)},
+                {"torque_limit", vec_json(leg.torque_limit)},
+                {"nominal_foot", vec_json(leg.nominal_foot)}};
+      if (leg.shape == robot::LegShape::in_plane) item["lengths"] = {leg.l0, leg.l1, leg.l2};
+      if ((leg.velocity_limit.array() > 0).any()) item["velocity_limit"] = vec_json(leg.velocity_limit);
+      out["legs"].push_back(item);
     }
     out["trunk"] = model.trunk ? json{{"size", vec_json(model.trunk->size)},
                                       {"center", vec_json(model.trunk->center)}}

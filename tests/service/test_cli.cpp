@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -62,6 +63,44 @@ TEST(Cli, RobotFkAndIkRoundTrip) {
   r = run("robot ik --leg LF --foot 0.367,0.323,-0.574");
   ASSERT_EQ(r.code, 0) << r.out;
   EXPECT_NEAR(nlohmann::json::parse(r.out)["q"][1].get<double>(), 0.75, 2e-3);
+}
+
+// `robot show` prints the general leg (offsets and axes at q = 0) for every robot: on Go2 the
+// lateral HAA->HFE offset and the foot sphere 2 mm ahead of the knee, which HyQ's l0/l1/l2 (what it
+// printed before) cannot say; HyQ's in-plane legs keep their lengths besides.
+TEST(Cli, RobotShowPrintsTheGeneralGeometry) {
+  CliResult r = run("robot show --robot go2");
+  ASSERT_EQ(r.code, 0) << r.out;
+  auto show = nlohmann::json::parse(r.out);
+  ASSERT_EQ(show["legs"].size(), 4u);
+  auto lf = show["legs"][0];
+  EXPECT_EQ(lf["name"], "LF");
+  EXPECT_EQ(lf["shape"], "lateral_offset");
+  EXPECT_EQ(lf["knee"], "backward");
+  EXPECT_FALSE(lf.contains("lengths")) << lf.dump();
+  EXPECT_NEAR(lf["geometry"]["haa_to_hfe"][1].get<double>(), 0.0955, 1e-9);
+  EXPECT_NEAR(lf["geometry"]["kfe_to_foot"][0].get<double>(), -0.002, 1e-9);
+  EXPECT_NEAR(lf["geometry"]["kfe_to_foot"][2].get<double>(), -0.213, 1e-9);
+  EXPECT_EQ(lf["geometry"]["axes"]["haa"], nlohmann::json::array({1.0, 0.0, 0.0}));
+  EXPECT_NEAR(lf["link_lengths"]["shank"].get<double>(), std::hypot(0.002, 0.213), 1e-9);
+  EXPECT_EQ(lf["velocity_limit"].size(), 3u);
+  // ANYmal C's right hind leg turns HFE and KFE about -y (its URDF's axes).
+  r = run("robot show --robot anymal_c");
+  ASSERT_EQ(r.code, 0) << r.out;
+  show = nlohmann::json::parse(r.out);
+  for (const auto& leg : show["legs"]) {
+    EXPECT_EQ(leg["shape"], "lateral_offset") << leg.dump();
+    EXPECT_GT(std::abs(leg["geometry"]["hfe_to_kfe"][1].get<double>()), 0.05) << leg.dump();
+  }
+  r = run("robot show --robot hyq");
+  ASSERT_EQ(r.code, 0) << r.out;
+  show = nlohmann::json::parse(r.out);
+  const auto hyq_lh = show["legs"][2];
+  EXPECT_EQ(hyq_lh["shape"], "in_plane");
+  EXPECT_EQ(hyq_lh["knee"], "forward");
+  EXPECT_EQ(hyq_lh["lengths"], nlohmann::json::array({0.08, 0.35, 0.341}));
+  EXPECT_NEAR(hyq_lh["geometry"]["hfe_to_kfe"][2].get<double>(), -0.35, 1e-12);
+  EXPECT_FALSE(hyq_lh.contains("velocity_limit"));
 }
 
 TEST(Cli, BadInputNamesTheProblem) {
