@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -255,22 +256,83 @@ TEST(LegGeometry, HyqInGeneralKeysIsTheInPlaneLeg) {
   }
 }
 
-// Every shipped robot file: the round trip, the Jacobian, the nominal stance reachable.
-TEST(LegGeometry, EveryShippedRobotRoundTripsOverItsJointRanges) {
-  int robots = 0;
+// The shipped robot files (data/robots/*.yaml): hyq, go2 and anymal_c at least, every leg.
+std::vector<RobotModel> shipped_robots() {
+  std::vector<RobotModel> robots;
   for (const auto& entry : std::filesystem::directory_iterator(data("robots"))) {
     const std::string file = entry.path().filename().string();
     if (entry.path().extension() != ".yaml" || file.find(".polytopes.") != std::string::npos) continue;
-    const RobotModel r = load_robot(entry.path().string());
-    ++robots;
+    robots.push_back(load_robot(entry.path().string()));
+  }
+  std::sort(robots.begin(), robots.end(),
+            [](const RobotModel& a, const RobotModel& b) { return a.name < b.name; });
+  return robots;
+}
+
+TEST(LegGeometry, ShippedRobotsAreTheThreeQuadrupedsAndMore) {
+  std::vector<std::string> names;
+  for (const RobotModel& r : shipped_robots()) names.push_back(r.name);
+  for (const char* name : {"hyq", "go2", "anymal_c"})
+    EXPECT_NE(std::find(names.begin(), names.end(), name), names.end()) << name;
+}
+
+// Every shipped robot file: the round trip over its joint ranges (every leg, HyQ's in-plane ones
+// too), the nominal stance reachable.
+TEST(LegGeometry, EveryShippedRobotRoundTripsOverItsJointRanges) {
+  for (const RobotModel& r : shipped_robots()) {
+    SCOPED_TRACE(r.name);
     for (const LegModel& leg : r.legs) {
       const IkResult nominal = inverse_kinematics(leg, leg.nominal_foot);
       EXPECT_TRUE(nominal.ok()) << r.name << ": " << nominal.message;
-      if (leg.shape == LegShape::in_plane) continue;  // test_robot.cpp's round trip covers HyQ's
       round_trip(leg, 12, 1e-6);
     }
   }
-  EXPECT_GE(robots, 2);
+}
+
+// Every shipped robot file: the foot Jacobian against central differences of the FK on a grid
+// over each leg's joint ranges (ends included), and the planner's joint-angle derivatives (the
+// inverse Jacobian its rows differentiate) against central differences of the IK.
+TEST(LegGeometry, EveryShippedRobotsJacobianMatchesFiniteDifferences) {
+  using Ad = Eigen::AutoDiffScalar<Eigen::Vector3d>;
+  constexpr int kSteps = 6;
+  for (const RobotModel& r : shipped_robots()) {
+    SCOPED_TRACE(r.name);
+    for (const LegModel& leg : r.legs) {
+      int ik_compared = 0;
+      for (int a = 0; a <= kSteps; ++a)
+        for (int b = 0; b <= kSteps; ++b)
+          for (int c = 0; c <= kSteps; ++c) {
+            const Vec t(a / double(kSteps), b / double(kSteps), c / double(kSteps));
+            const Vec q = leg.q_min + t.cwiseProduct(leg.q_max - leg.q_min);
+            const Eigen::Matrix3d jac = foot_jacobian(leg, q);
+            const double h = 1e-6;
+            for (int j = 0; j < 3; ++j) {
+              const Vec fd = (foot_position(leg, q + h * Vec::Unit(j)) -
+                              foot_position(leg, q - h * Vec::Unit(j))) / (2 * h);
+              EXPECT_LT((jac.col(j) - fd).norm(), 1e-8) << leg.name << " q=" << q.transpose() << " column " << j;
+            }
+            // The IK's derivatives where the IK gives q back (its branch) and away from the
+            // singular configurations, where central differences lose their accuracy.
+            if (!(leg.shape != LegShape::general && on_closed_form_branch(leg, q))) continue;
+            if (jac.inverse().cwiseAbs().maxCoeff() > 30.0) continue;
+            const Vec foot = foot_position(leg, q);
+            Vector3T<Ad> p;
+            for (int i = 0; i < 3; ++i) p[i] = Ad(foot[i], 3, i);
+            const Vector3T<Ad> qa = leg_joint_angles<Ad>(leg, p);
+            for (int j = 0; j < 3; ++j) {
+              const Vec fd = (leg_joint_angles<double>(leg, Vec(foot + h * Vec::Unit(j))) -
+                              leg_joint_angles<double>(leg, Vec(foot - h * Vec::Unit(j)))) / (2 * h);
+              for (int i = 0; i < 3; ++i) {
+                EXPECT_NEAR(qa[i].value(), q[i], 1e-6) << leg.name;
+                EXPECT_NEAR(qa[i].derivatives()[j], fd[i], 1e-5 * (1 + std::abs(fd[i])))
+                    << leg.name << " q=" << q.transpose() << " dq" << i << "/dp" << j;
+              }
+            }
+            ++ik_compared;
+          }
+      EXPECT_GT(ik_compared, 20) << leg.name;
+    }
+  }
 }
 
 }  // namespace
