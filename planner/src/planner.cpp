@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <limits>
 #include <sstream>
 
 #include "terrastride/planner/piece_math.hpp"
@@ -153,6 +154,18 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
         "status '" + out.solve.status + "'" + (violated.empty() ? "" : "; " + violated);
   }
   return out;
+}
+
+int default_cycles(const robot::RobotModel& robot, const Eigen::Vector3d& start,
+                   const Eigen::Vector3d& goal) {
+  const int gait_default = ProblemOptions{}.cycles;
+  double stride = std::numeric_limits<double>::infinity();
+  for (const auto& leg : robot.legs) stride = std::min(stride, 2.0 * leg.range_of_motion.x());
+  const double distance = (goal.head<2>() - start.head<2>()).norm();
+  if (!(stride > 0.0) || !std::isfinite(distance)) return gait_default;
+  // 1e-9: a goal exactly a whole number of strides away (HyQ's 1.5 m, 3 x 0.5 m) takes that many.
+  const double needed = std::ceil(distance / stride - 1e-9);
+  return static_cast<int>(std::clamp<double>(needed, gait_default, PlanLimits::kMaxCycles));
 }
 
 void check_plan_horizon(double duration, const std::string& field) {

@@ -297,12 +297,14 @@ void add_plan_command(CLI::App& app) {
   CLI::App* cmd = app.add_subcommand(
       "plan", "Plan base motion, footholds, contact forces and timing (SRBD optimisation, Ipopt)");
   cmd->add_option("--terrain", o->terrain,
-                  "terrain directory (from 'terrastride map'), OctoMap file (.bt, .ot) or scene name (flat, pallet_10, "
-                  "pallet_15, eur_pallet, stairs, gap; pallet_NN: a box NN cm high)")
+                  "terrain directory (from 'terrastride map'), OctoMap file (.bt, .ot) or scene name (" +
+                      terrain::scene_names_text() + ")")
       ->required();
   cmd->add_option("--robot", o->robot, "robot name or robot file")->capture_default_str();
   cmd->add_option("--gait", o->gait, "gait name (data/gaits) or gait file")->capture_default_str();
-  cmd->add_option("--cycles", o->cycles, "number of gait cycles")->capture_default_str();
+  cmd->add_option("--cycles", o->cycles,
+                  "number of gait cycles (default: 3, more when the goal is farther than 3 of the "
+                  "robot's strides, the length of its range-of-motion box: Go2 4 for 1 m)");
   cmd->add_option("--duration", o->duration, "total duration in s (default: the gait's)");
   cmd->add_option("--goal", o->goal,
                   "goal X,Y,YAW of the base (default 1,0,0; a re-plan: --init's goal)");

@@ -187,6 +187,8 @@ PlanRequest read_plan_request(const json& fields, const robot::RobotModel& robot
                                         r.previous.gait +
                                         "': a re-plan continues the contact schedule of the plan "
                                         "it starts from (plan anew for another gait)");
+  // Left out: init's for a re-plan, otherwise enough for the goal (read below).
+  const bool cycles_given = find(fields, "cycles") != nullptr;
   const double cycles = number(fields, "cycles", r.replan ? extra.value("cycles", 3.0) : 3.0);
   if (cycles != std::floor(cycles))
     throw RequestFieldError("cycles", "must be an integer within [1, 50]");
@@ -209,6 +211,8 @@ PlanRequest read_plan_request(const json& fields, const robot::RobotModel& robot
                               "start_state for a measured pose)");
     po.start = triple(fields, "start", "x, y, yaw");
   }
+  if (!cycles_given && !r.replan && po.start.allFinite() && po.goal.allFinite())
+    po.cycles = planner::default_cycles(robot, po.start, po.goal);
   if (const json* c = find(fields, "constraints"))
     po.constraints = constraint_sets(*c);
   else if (r.replan && extra.contains("constraints"))

@@ -89,9 +89,9 @@ std::string format(double v) {
 
 }  // namespace
 
-FeasibilityOptions feasibility_options(
-    const std::vector<std::pair<std::string, double>>& settings) {
-  FeasibilityOptions o;
+namespace {
+FeasibilityOptions apply_settings(FeasibilityOptions o,
+                                  const std::vector<std::pair<std::string, double>>& settings) {
   const auto& table = settings_table();
   for (const auto& [name, value] : settings) {
     const auto it = table.find(name);
@@ -111,6 +111,17 @@ FeasibilityOptions feasibility_options(
     s.set(o, value);
   }
   return o;
+}
+}  // namespace
+
+FeasibilityOptions feasibility_options(
+    const std::vector<std::pair<std::string, double>>& settings) {
+  return apply_settings(FeasibilityOptions{}, settings);
+}
+
+FeasibilityOptions feasibility_options(
+    const robot::RobotModel& robot, const std::vector<std::pair<std::string, double>>& settings) {
+  return apply_settings(robot_feasibility_defaults(robot), settings);
 }
 
 std::vector<std::string> feasibility_option_names() {

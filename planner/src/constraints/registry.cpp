@@ -17,10 +17,10 @@ namespace terrastride::planner {
 namespace {
 
 // The built-in sets: the baseline, and the feasibility sets, each built with the problem's
-// feasibility settings.
+// feasibility settings over its robot's defaults.
 std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets() {
   auto options = [](const SrbdProblem& p) {
-    return feasibility_options(p.options().feasibility_settings);
+    return feasibility_options(p.robot(), p.options().feasibility_settings);
   };
   return {{"baseline", build_baseline_set},
           {"foot", [=](SrbdProblem& p) { build_foot_set(p, options(p)); }},

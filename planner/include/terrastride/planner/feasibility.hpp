@@ -94,6 +94,8 @@ struct FeasibilityOptions {
   // swing leg (about 3.5 kg of thigh and shin within 0.6 m of the HFE axis) needs some 40-60 N m
   // of its 150 N m at 100 m/s^2, leaving the rest for velocity and gravity terms and for the base's
   // own acceleration; the flat 2.4 s crawl's 0.33 m steps in 0.16 s need about 80 m/s^2.
+  // A plan's default is its robot's (robot_swing_acceleration): HyQ's 100, Go2's 135, ANYmal
+  // C's 35 (its 3 kg thigh on 80 N m motors); this value is the default without a robot.
   double swing_acceleration = 100.0;
   // joints: the joint angles keep this far (rad) inside their ranges at the spline's knots; it
   // covers the motion between knots.
@@ -146,6 +148,23 @@ void build_swing_apex_set(SrbdProblem& problem, const FeasibilityOptions& option
 // feasibility_settings, `terrastride plan --feasibility`); names are the fields' names. Throws
 // std::invalid_argument naming the setting when the name is unknown or the value out of range.
 FeasibilityOptions feasibility_options(const std::vector<std::pair<std::string, double>>& settings);
+// The same over a robot's defaults (robot_feasibility_defaults): what a plan for that robot uses.
+FeasibilityOptions feasibility_options(const robot::RobotModel& robot,
+                                       const std::vector<std::pair<std::string, double>>& settings);
+
+// The defaults that depend on the robot, the rest FeasibilityOptions{}'s: swing_acceleration.
+FeasibilityOptions robot_feasibility_defaults(const robot::RobotModel& robot);
+
+// The swing set's bound for a robot (m/s^2): 0.65 of the foot acceleration at which a swing leg
+// reaches a joint's torque limit, rounded to 5 m/s^2. That acceleration is, at each leg's nominal
+// stance and over the worst corner of the bound's box (every component at +-a), the least over
+// joints i of (tau_max_i - |g_i(q)|) / sum_j |(M(q) J(q)^-1)_ij|: the torque the leg's own inertia
+// asks for, gravity held. 0.65 is HyQ's 100 m/s^2 of its 154; it leaves a third of the torque
+// for the velocity terms and the base's acceleration the bound does not see. Measured: ANYmal C's
+// 'all' plan over pallet_21 needed its LF HFE at 1.31 x the limit with 100 m/s^2 (its swing leg
+// saturates at 54). Throws std::invalid_argument naming the robot and leg when the nominal foot is
+// out of reach or a joint's gravity torque alone exceeds its limit.
+double robot_swing_acceleration(const robot::RobotModel& robot);
 // The names feasibility_options() accepts.
 std::vector<std::string> feasibility_option_names();
 

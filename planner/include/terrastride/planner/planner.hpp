@@ -35,6 +35,16 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
                         const terrain::HeightField& check_terrain, const PlannerOptions& options,
                         double sample_dt, const WarmStart& warm = {});
 
+// The number of gait cycles for a request that names none (`plan` and the socket's plan without
+// "cycles"): ProblemOptions' 3, or more when the goal lies farther from the start than 3 strides
+// of the robot, a stride being the length of its range-of-motion box along x (2 b_x, the least
+// over the legs): every gait moves each foot once a cycle, and a foot cannot travel further
+// relative to the base than its box. Go2 (box 0.31 m) asked for 1 m in 3 cycles reached with the
+// base (18 deg of roll and pitch at pallet_14's edge, a shin 1 mm into it); it gets 4. HyQ (box
+// 0.5 m) keeps 3 up to 1.5 m.
+int default_cycles(const robot::RobotModel& robot, const Eigen::Vector3d& start,
+                   const Eigen::Vector3d& goal);
+
 // The timeline of a plan: its stored "timeline" key, or rebuilt from gait/cycles/duration.
 PhaseTimeline timeline_of(const Trajectory& plan);
 
