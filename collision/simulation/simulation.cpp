@@ -622,6 +622,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
   const double r_foot = model.foot_radius;
   const double mu = o.friction;
   const ControllerOptions& c = o.controller;
+  const ControllerGains g = c.gains ? *c.gains : controller_gains(model);
 
   // Initial state: the plan's first sample, legs by IK of its feet.
   const auto s0 = view.at(plan.samples.front().t);
@@ -629,6 +630,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
   const Eigen::Quaterniond quat0(rot0);
   SimulationReport rep;
   rep.thresholds = o.thresholds;
+  rep.gains = g;
   rep.dt = o.dt;
   rep.model_xml = full_mjcf(model, &terrain, o, s0.base_pos, quat0);
   rep.terrain = terrain.description;
@@ -921,9 +923,9 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
     std::vector<Vector3d> delta(stance.size(), Vector3d::Zero());
     if (c.trunk_wrench) {
       Eigen::Matrix<double, 6, 1> w;
-      w.head<3>() = c.kp_position * (ps.base_pos - p) + c.kd_position * (ps.base_vel - v);
-      w.tail<3>() = c.kp_orientation * rotation_vector(rot_plan * rot.transpose()) +
-                    c.kd_orientation * (ps.omega - omega);
+      w.head<3>() = g.kp_position * (ps.base_pos - p) + g.kd_position * (ps.base_vel - v);
+      w.tail<3>() = g.kp_orientation * rotation_vector(rot_plan * rot.transpose()) +
+                    g.kd_orientation * (ps.omega - omega);
       if (!c.planned_forces) {
         // Without the plan's forces the wrench carries the weight.
         double mass = 0;
@@ -973,10 +975,10 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
         f += delta[it - stance.begin()];
         f = into_cone(f, n, c.cone_margin * mu);
         tau -= jac.transpose() * f;
-        tau += c.kp_stance * (q_des - q) + c.kd_stance * (qd_des - qd);
+        tau += g.kp_stance * (q_des - q) + g.kd_stance * (qd_des - qd);
       } else {
         if (c.swing_feedforward) tau += mass * qdd_des;
-        tau += c.kp_swing * (q_des - q) + c.kd_swing * (qd_des - qd);
+        tau += g.kp_swing * (q_des - q) + g.kd_swing * (qd_des - qd);
       }
       for (int j = 0; j < 3; ++j) {
         const double lim = leg.torque_limit[j];

@@ -2,6 +2,7 @@
 // the SRBD body, a stand holds, the flat crawl executes with a pass, and a broken plan does not.
 #include <gtest/gtest.h>
 
+#include <sys/wait.h>
 #include <unistd.h>
 #include <cstdio>
 #include <cstdlib>
@@ -10,6 +11,7 @@
 #include <map>
 #include <random>
 #include <string>
+#include <utility>
 
 #include "terrastride/collision/simulation.hpp"
 #include "terrastride/planner/plan_io.hpp"
@@ -102,13 +104,14 @@ TEST(Simulation, StandHoldsFiveSeconds) {
 
 // `terrastride plan ARGS` through the CLI; the plan is read back whatever the exit code (a plan
 // that fails a post-hoc check is still written, for inspection).
-planner::Trajectory plan_with_cli(const std::string& args) {
+planner::Trajectory plan_with_cli(const std::string& args, int* exit_code = nullptr) {
   const std::string out = (std::filesystem::temp_directory_path() /
                            ("terrastride_sim_plan_" + std::to_string(::getpid()) + ".json"))
                               .string();
   const std::string cmd =
       std::string(TERRASTRIDE_BINARY) + " plan " + args + " --out " + out + " > /dev/null 2>&1";
   const int code = std::system(cmd.c_str());
+  if (exit_code) *exit_code = WIFEXITED(code) ? WEXITSTATUS(code) : -1;
   if (!std::filesystem::exists(out))
     throw std::runtime_error("no plan from: " + cmd + " (exit " + std::to_string(code) + ")");
   auto p = planner::read_plan_file(out);
@@ -347,6 +350,60 @@ TEST(Simulation, HeightFieldOverloadDispatchesByTerrainType) {
 
 // The robustness margin: a bisection on the verdict. The push it reports is survived and the
 // bracket's upper end fails (both sides), within the tolerance; a heavier trunk has a margin too.
+robot::RobotModel shipped(const std::string& name) {
+  return robot::load_robot(std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/" + name + ".yaml");
+}
+
+// The controller's gains follow the robot (controller_gains.cpp): HyQ's are the tuned absolute
+// gains of issue #16 to 0.1 %; a 16 kg Go2 stands on its own gains and falls over on HyQ's (150
+// N m s/rad of orientation damping on its 0.18 kg m^2 roll inertia: kd dt / I = 1.6 per step).
+TEST(Simulation, ControllerGainsFollowTheRobot) {
+  const collision::ControllerGains g = collision::controller_gains(hyq());
+  EXPECT_NEAR(g.kp_position, 6000.0, 6.0);
+  EXPECT_NEAR(g.kd_position, 1200.0, 1.2);
+  EXPECT_NEAR(g.kp_orientation, 1500.0, 1.5);
+  EXPECT_NEAR(g.kd_orientation, 150.0, 0.15);
+  EXPECT_NEAR(g.kp_swing, 400.0, 0.4);
+  EXPECT_NEAR(g.kd_swing, 10.0, 0.01);
+  EXPECT_NEAR(g.kp_stance, 150.0, 0.15);
+  EXPECT_NEAR(g.kd_stance, 5.0, 0.005);
+  const auto go2 = shipped("go2");
+  const collision::ControllerGains small = collision::controller_gains(go2);
+  EXPECT_NEAR(small.kp_position / g.kp_position, go2.mass / 83.0, 1e-3);
+  EXPECT_LT(small.kd_orientation, 0.1 * g.kd_orientation);
+  EXPECT_LT(small.kd_swing, 0.2 * g.kd_swing);
+  const auto flat = terrain::make_scene("flat");
+  collision::SimulationOptions own;
+  const auto stand = collision::simulate_plan(go2, stand_plan(go2, 3.0), *flat, own);
+  print("go2 stand 3 s, its own gains", stand);
+  EXPECT_EQ(stand.verdict, "pass");
+  EXPECT_NEAR(stand.gains.kd_swing, small.kd_swing, 1e-12);
+  collision::SimulationOptions hyq_gains;
+  hyq_gains.controller.gains = g;
+  const auto falls = collision::simulate_plan(go2, stand_plan(go2, 3.0), *flat, hyq_gains);
+  print("go2 stand 3 s, HyQ's gains", falls);
+  EXPECT_EQ(falls.verdict, "fail");
+}
+
+// Issue #20: Go2 and ANYmal C with every constraint set at the defaults: the flat 1 m crawl and
+// the step of a third of thigh + shank (pallet_14 for Go2's 0.426 m, pallet_21 for ANYmal C's
+// 0.632 m) plan optimal with clean post-hoc checks (exit 0) and execute in MuJoCo with a pass.
+TEST(Simulation, Go2AndAnymalCrawlAndStepExecute) {
+  for (const auto& [robot, step] : {std::pair<std::string, std::string>{"go2", "pallet_14"},
+                                    std::pair<std::string, std::string>{"anymal_c", "pallet_21"}}) {
+    const auto model = shipped(robot);
+    for (const std::string& scene : {std::string("flat"), step}) {
+      int code = -1;
+      const auto plan =
+          plan_with_cli("--robot " + robot + " --terrain " + scene + " --constraints all", &code);
+      EXPECT_EQ(code, 0) << robot << " on " << scene;
+      const auto rep = collision::simulate_plan(model, plan, *terrain::make_scene(scene), {});
+      print(robot + " on " + scene + " --constraints all", rep);
+      EXPECT_EQ(rep.verdict, "pass") << robot << " on " << scene;
+    }
+  }
+}
+
 TEST(Simulation, MarginBracketsTheLargestSurvivedPush) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("flat");

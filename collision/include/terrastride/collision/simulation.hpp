@@ -11,6 +11,7 @@
 #include <Eigen/Core>
 #include <array>
 #include <functional>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -66,17 +67,32 @@ struct SimulationThresholds {
   double joint_limit_impulse_Nms = 1.0;
 };
 
+// The tracking controller's PD gains.
+struct ControllerGains {
+  // Trunk PD wrench (N/m, N s/m, N m/rad, N m s/rad).
+  double kp_position = 0.0, kd_position = 0.0;
+  double kp_orientation = 0.0, kd_orientation = 0.0;
+  // Joint PD in swing and stance (N m/rad, N m s/rad).
+  double kp_swing = 0.0, kd_swing = 0.0;
+  double kp_stance = 0.0, kd_stance = 0.0;
+};
+
+// The gains for a robot (controller_gains.cpp): each PD loop is a natural frequency and a damping
+// ratio on the inertia it moves, so a 15 kg Go2 gets gains its own masses can carry at the time
+// step, not HyQ's absolute numbers. The trunk's translation acts on the SRBD mass, its rotation on
+// the smallest principal moment of the SRBD inertia, the joints on the smallest diagonal entry of
+// a leg's joint-space inertia at the nominal stance (over all legs): the stiffest mode each
+// scalar gain meets. The frequencies and ratios are HyQ's tuned gains (6000/1200, 1500/150,
+// 400/10, 150/5 on 83 kg, 4.25 kg m^2 and its knee) to within 0.1 %.
+ControllerGains controller_gains(const robot::RobotModel& model);
+
 // Controller terms, all on by default; switches exist to measure what each term buys.
 struct ControllerOptions {
   bool planned_forces = true;
   bool trunk_wrench = true;
   bool swing_feedforward = true;
-  // Trunk PD wrench gains (N/m, N s/m, N m/rad, N m s/rad).
-  double kp_position = 6000.0, kd_position = 1200.0;
-  double kp_orientation = 1500.0, kd_orientation = 150.0;
-  // Joint PD gains in swing and stance (N m/rad, N m s/rad).
-  double kp_swing = 400.0, kd_swing = 10.0;
-  double kp_stance = 150.0, kd_stance = 5.0;
+  // Empty (the default): controller_gains(model). Given: these gains, whatever the robot.
+  std::optional<ControllerGains> gains;
   // The wrench's foot forces are kept in a cone of mu * this (margin to the true cone).
   double cone_margin = 0.9;
 };
@@ -169,6 +185,7 @@ struct StanceReport {
 
 struct SimulationReport {
   std::string model_xml;  // the generated MJCF (for inspection)
+  ControllerGains gains;  // the controller's, as used
   std::string terrain;    // what the robot walked on
   int filled_cells = 0;   // heightfield cells the map had hole-filled or had no elevation for
   double dt = 0.0;
