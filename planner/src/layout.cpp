@@ -92,6 +92,16 @@ Layout make_layout(int num_feet, const PhaseTimeline& timeline, const ProblemOpt
   L.contact.assign(nf, std::vector<bool>(S));
   for (int f = 0; f < nf; ++f)
     for (int s = 0; s < S; ++s) L.contact[f][s] = timeline.contact[f][L.seg_interval[s]];
+  // Knots where force ramps apply: those that some foot's stance passes through. A gait without
+  // such a foot at a contact switch (a trot whose diagonal pairs swap at one instant) would have
+  // no force at all there, a free fall the dynamics cannot follow (every trot with 'all' stalled):
+  // its switch knots keep their force variables, as without ramps.
+  std::vector<bool> ramp_knot(S + 1, false);
+  if (force_ramps)
+    for (int k = 1; k < S; ++k)
+      for (int f = 0; f < nf; ++f)
+        if (L.contact[f][k - 1] && L.contact[f][k]) ramp_knot[k] = true;
+
   // Feet.
   L.foot_pos.assign(nf, std::vector<int>(S + 1, -1));
   L.foot_vel.assign(nf, std::vector<int>(S + 1, -1));
@@ -114,10 +124,11 @@ Layout make_layout(int num_feet, const PhaseTimeline& timeline, const ProblemOpt
         L.foot_vel[f][k] = add(3, -kInf, kInf);
       }
       // Forces: one value per knot, shared by the stance segments on both sides of it. With
-      // force ramps, none at a touch-down or lift-off: the force is zero there, so it rises from
-      // and falls to zero continuously (constraints/force_ramp.cpp).
+      // force ramps, none at a touch-down or lift-off that another foot's stance carries through
+      // (ramp_knot): the force is zero there, so it rises from and falls to zero continuously
+      // (constraints/force_ramp.cpp).
       const bool switch_knot = (left == 0 && right == 1) || (left == 1 && right == 0);
-      if ((left == 1 || right == 1) && !(force_ramps && switch_knot)) {
+      if ((left == 1 || right == 1) && !(ramp_knot[k] && switch_knot)) {
         const int fv = add(3, -kInf, kInf);
         if (left == 1) L.force[f][k - 1][1] = fv;
         if (right == 1) L.force[f][k][0] = fv;

@@ -35,6 +35,35 @@ TEST(ForceRamp, LayoutLeavesOutTouchDownAndLiftOffKnots) {
   }
 }
 
+// A trot's diagonal pairs swap at one instant: no foot's stance passes through that switch knot,
+// so zero forces there would leave the body without support (every trot with 'all' stalled).
+// Such knots keep their force variables; a switch that another stance carries through (the
+// trot's lead-in and lead-out, every crawl switch) is ramped.
+TEST(ForceRamp, SwitchKnotsWithoutContinuousSupportKeepTheirForces) {
+  const auto r = hyq();
+  FlatField flat;
+  ProblemOptions o = paper_test_options();
+  o.constraints = {"force_ramp"};
+  const PhaseTimeline trot = make_timeline(load_gait(resolve_gait_path("trot")), feet_of(r), 2, 2.1);
+  const SrbdProblem p(r, flat, trot, o);
+  const Layout& L = p.layout();
+  int switches = 0, unsupported = 0;
+  for (int k = 1; k < L.num_segments; ++k) {
+    bool carried = false;
+    for (int f = 0; f < 4; ++f) carried = carried || (L.contact[f][k - 1] && L.contact[f][k]);
+    for (int f = 0; f < 4; ++f) {
+      const bool down = L.contact[f][k - 1] != L.contact[f][k];
+      if (!down) continue;
+      ++switches;
+      const int var = L.contact[f][k] ? L.force[f][k][0] : L.force[f][k - 1][1];
+      if (!carried) ++unsupported;
+      EXPECT_EQ(var < 0, carried) << "foot " << f << " knot " << k;
+    }
+  }
+  EXPECT_GT(switches, unsupported);  // the lead-in's and lead-out's switches ramp
+  EXPECT_GT(unsupported, 0);         // the pairs' swaps keep their forces
+}
+
 TEST(ForceRamp, JacobianMatchesCentralDifferences) {
   const auto r = hyq();
   TanhStep terrain(0.1, 0.5, 0.05, 0.01);
