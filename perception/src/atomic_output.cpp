@@ -18,9 +18,11 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <set>
 #include <sstream>
 #include <system_error>
+#include <thread>
 #include <utility>
 
 #include "terrastride/perception/point_cloud.hpp"
@@ -132,6 +134,78 @@ std::string write_all(int fd, const std::string& bytes) {
     left -= static_cast<size_t>(n);
   }
   if (masked) ::pthread_sigmask(SIG_SETMASK, &old_mask, nullptr);
+  return problem;
+}
+
+// The temporary directories of the AtomicOutputDirs alive in this process. A file written into one
+// of them is not fsynced on its own: the directory's commit() fsyncs every file in it before the
+// rename that publishes it, which is the same guarantee (no published name over unwritten data)
+// for one journal commit instead of one per file (`terrastride map`: 15 files, 0.12 s of its wall
+// time in fsyncs under load).
+std::mutex& pending_dirs_mutex() {
+  static std::mutex m;
+  return m;
+}
+std::vector<std::string>& pending_dirs() {
+  static std::vector<std::string> dirs;
+  return dirs;
+}
+
+void stop_deferring_syncs(const std::string& dir) {
+  std::lock_guard<std::mutex> lock(pending_dirs_mutex());
+  auto& dirs = pending_dirs();
+  const auto it = std::find(dirs.begin(), dirs.end(), dir);
+  if (it != dirs.end()) dirs.erase(it);
+}
+
+bool inside_pending_dir(const std::string& target) {
+  std::lock_guard<std::mutex> lock(pending_dirs_mutex());
+  for (const std::string& d : pending_dirs()) {
+    if (target.size() > d.size() && target.compare(0, d.size(), d) == 0 && target[d.size()] == '/')
+      return true;
+  }
+  return false;
+}
+
+// fsyncs every regular file under `dir` (symbolic links are not followed): starts the write-back
+// of all of them, then waits for them from several threads at once. One fsync after another waits
+// for one journal commit each on ext4 (10-20 ms each on this machine under load, 17 files for a
+// map); concurrent ones share commits. Returns "" or the first problem.
+std::string sync_tree(const std::string& dir) {
+  std::vector<int> fds;
+  std::string problem;
+  std::error_code ec;
+  for (fs::recursive_directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    if (!it->is_regular_file(ec) || it->is_symlink(ec)) continue;
+    const int fd = ::open(it->path().c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
+    if (fd < 0) {
+      problem = it->path().string() + ": cannot open to sync: " + errno_text();
+      break;
+    }
+    ::sync_file_range(fd, 0, 0, SYNC_FILE_RANGE_WRITE);  // a hint: errors surface in fsync
+    fds.push_back(fd);
+  }
+  if (ec && problem.empty()) problem = dir + ": cannot list to sync: " + ec.message();
+  std::vector<int> errors(fds.size(), 0);
+  std::atomic<size_t> next{0};
+  const auto work = [&] {
+    for (size_t k; (k = next.fetch_add(1)) < fds.size();)
+      if (::fsync(fds[k]) != 0) errors[k] = errno;
+  };
+  std::vector<std::thread> threads;
+  for (size_t t = 1; t < std::min<size_t>(fds.size(), 16); ++t) {
+    try {
+      threads.emplace_back(work);
+    } catch (const std::system_error&) {
+      break;  // no more threads: the ones running (and this one) do the rest
+    }
+  }
+  work();
+  for (auto& th : threads) th.join();
+  for (size_t k = 0; k < fds.size(); ++k) {
+    if (errors[k] != 0 && problem.empty()) problem = "fsync failed: " + errno_text(errors[k]);
+    ::close(fds[k]);
+  }
   return problem;
 }
 
@@ -395,7 +469,9 @@ void write_file_atomically(const std::string& path, const std::string& bytes) {
   }
   problem = write_all(fd, bytes);
   // fsync before rename: otherwise a crash can leave the new name pointing at an empty file.
-  if (problem.empty() && ::fsync(fd) != 0) problem = "fsync failed: " + errno_text();
+  // Inside an AtomicOutputDir's temporary directory, its commit() fsyncs before publishing.
+  if (problem.empty() && !inside_pending_dir(f.target) && ::fsync(fd) != 0)
+    problem = "fsync failed: " + errno_text();
   if (::close(fd) != 0 && problem.empty()) problem = "close failed: " + errno_text();
   if (problem.empty() && ::rename(temp.c_str(), f.target.c_str()) != 0)
     problem = "rename failed: " + errno_text();
@@ -473,9 +549,12 @@ AtomicOutputDir::AtomicOutputDir(const std::string& final_dir, OutputDirKind kin
   if (::mkdir(temp_dir_.c_str(), 0755) != 0) {
     throw InputError(final_dir + ": cannot create temporary output directory: " + errno_text());
   }
+  std::lock_guard<std::mutex> lock(pending_dirs_mutex());
+  pending_dirs().push_back(temp_dir_);
 }
 
 AtomicOutputDir::~AtomicOutputDir() {
+  stop_deferring_syncs(temp_dir_);
   if (!committed_) {
     std::error_code ec;
     fs::remove_all(temp_dir_, ec);  // best effort; never throw from a destructor
@@ -486,6 +565,10 @@ void AtomicOutputDir::commit() {
   if (committed_) return;
   write_file_atomically((fs::path(temp_dir_) / kOutputMarker).string(),
                         marker_text(temp_dir_, kind_.command));
+  // Every file's data on disk before the rename publishes the directory (see inside_pending_dir).
+  stop_deferring_syncs(temp_dir_);
+  if (const std::string problem = sync_tree(temp_dir_); !problem.empty())
+    throw InputError(final_dir_ + ": " + problem);
   struct stat st;
   if (::lstat(final_dir_.c_str(), &st) != 0) {
     if (::rename(temp_dir_.c_str(), final_dir_.c_str()) != 0)

@@ -205,12 +205,22 @@ MapInput read_map_clouds(const std::vector<std::string>& paths,
   MapInput input;
   const auto t0 = Clock::now();
   input.sources.started = t0;
-  for (size_t k = 0; k < paths.size(); ++k) {
-    if (before_file) before_file(k);
-    perception::ReadStats stats;
-    input.clouds.push_back(perception::read_cloud(paths[k], origin, &stats));
-    input.sources.files.push_back({paths[k], stats.points_in_file, stats.non_finite});
-  }
+  // One file per core at a time: parsing a PCD is CPU-bound (the 1 M-point scan's three files,
+  // read_s 0.15 s of the map command one after the other). Each file writes its own slot; the
+  // error of the first failing file in the given order is the one thrown, as a loop would.
+  std::vector<perception::PointCloud> clouds(paths.size());
+  std::vector<perception::ReadStats> stats(paths.size());
+  std::mutex progress_mutex;
+  parallel_for(paths.size(), [&](size_t k) {
+    if (before_file) {
+      std::lock_guard<std::mutex> lock(progress_mutex);
+      before_file(k);
+    }
+    clouds[k] = perception::read_cloud(paths[k], origin, &stats[k]);
+  });
+  for (size_t k = 0; k < paths.size(); ++k)
+    input.sources.files.push_back({paths[k], stats[k].points_in_file, stats[k].non_finite});
+  input.clouds = std::move(clouds);
   input.sources.read_s = seconds_since(t0);
   return input;
 }

@@ -192,4 +192,35 @@ TEST_F(MapBuildTest, ReadingNamesTheFile) {
   }
 }
 
+// The files are read in parallel (one per core), but the clouds and their statistics come back in
+// the order given, each as a read of that file alone returns it, and of several bad files the
+// first in that order is the one named, as a loop would.
+TEST_F(MapBuildTest, ParallelReadingKeepsTheOrderAndNamesTheFirstBadFile) {
+  const std::vector<std::string> files = pallet_scan();
+  const std::vector<std::string> order = {files[2], files[0], files[1], files[0]};
+  const terrain::MapInput input = terrain::read_map_clouds(order, std::nullopt);
+  ASSERT_EQ(input.clouds.size(), order.size());
+  ASSERT_EQ(input.sources.files.size(), order.size());
+  for (size_t k = 0; k < order.size(); ++k) {
+    const terrain::MapInput alone = terrain::read_map_clouds({order[k]}, std::nullopt);
+    EXPECT_EQ(input.sources.files[k].path, order[k]);
+    EXPECT_EQ(input.sources.files[k].points, alone.sources.files[0].points);
+    ASSERT_EQ(input.clouds[k].points.size(), alone.clouds[0].points.size()) << order[k];
+    EXPECT_EQ(input.clouds[k].source, alone.clouds[0].source);
+    for (size_t i = 0; i < input.clouds[k].points.size(); ++i)
+      ASSERT_EQ(input.clouds[k].points[i], alone.clouds[0].points[i]) << order[k] << " point " << i;
+  }
+  // Files 1 and 3 do not exist; file 1's name is the error's whichever thread fails first.
+  const std::vector<std::string> bad = {files[0], (dir_ / "first_missing.pcd").string(), files[1],
+                                        (dir_ / "second_missing.pcd").string()};
+  for (int attempt = 0; attempt < 5; ++attempt) {
+    try {
+      terrain::read_map_clouds(bad, std::nullopt);
+      FAIL() << "no error";
+    } catch (const perception::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("first_missing.pcd"), std::string::npos) << e.what();
+    }
+  }
+}
+
 }  // namespace

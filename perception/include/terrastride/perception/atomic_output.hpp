@@ -104,6 +104,8 @@ void check_output_dir(const std::string& final_dir, const OutputDirKind& kind);
 // directory there only by the rules above (checked in the constructor and again in commit(), which
 // swaps the two atomically with renameat2(RENAME_EXCHANGE) where the filesystem has it). If
 // commit() was not called, the destructor removes the temp directory and final_dir is untouched.
+// Files written into path() with write_file_atomically are not fsynced one by one: commit() fsyncs
+// every regular file under path() together (one journal commit) before the rename.
 class AtomicOutputDir {
  public:
   AtomicOutputDir(const std::string& final_dir, OutputDirKind kind);

@@ -48,8 +48,9 @@ struct MapInput {
 };
 
 // Reads cloud files (PCD, PLY, XYZ, NPY) in the order given. `origin`, when given, is every
-// cloud's sensor origin (it overrides a PCD's VIEWPOINT). `before_file(k)`, when set, is called
-// before file k is read (progress). Throws perception::InputError naming the file.
+// cloud's sensor origin (it overrides a PCD's VIEWPOINT). Files are read on up to one thread per
+// core; `before_file(k)`, when set, is called before file k is read (progress), one call at a
+// time, from the reading thread. Throws perception::InputError naming the first failing file.
 MapInput read_map_clouds(const std::vector<std::string>& paths,
                          const std::optional<Eigen::Vector3d>& origin,
                          const std::function<void(size_t)>& before_file = {});
