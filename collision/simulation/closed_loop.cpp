@@ -61,6 +61,7 @@ ReplannerFactory session_replanner(const robot::RobotModel& robot,
             on_previous ? ms.t - t0 : ms.t);
         planner::SessionStep step = session->step(start, ms.t);
         out.success = step.outcome.success;
+        out.iterations = step.outcome.solve.iterations;
         out.message = step.outcome.message;
         out.start_time = step.start_time;
         out.plan = std::move(step.outcome.trajectory);

@@ -789,6 +789,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
           std::chrono::duration<double>(std::chrono::steady_clock::now() - call0).count());
       rep.replan_cpu_s.push_back(thread_cpu_seconds() - call_cpu0);
       ++rep.replans;
+      if (next.iterations >= 0) rep.replan_iterations.push_back(next.iterations);
       if (next.success) {
         try {
           if (next.plan.feet != plan.feet)
@@ -807,6 +808,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
       }
       if (!next.success) {
         ++rep.replan_failures;
+        rep.replan_failure_times.push_back(t);
         if (rep.replan_first_failure.empty())
           rep.replan_first_failure = next.message.empty() ? "re-plan failed" : next.message;
       }
@@ -1041,6 +1043,12 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
     std::sort(w.begin(), w.end());
     rep.replan_cpu_median = w[w.size() / 2];
     rep.replan_cpu_max = w.back();
+  }
+  if (!rep.replan_iterations.empty()) {
+    std::vector<int> it = rep.replan_iterations;
+    std::sort(it.begin(), it.end());
+    rep.replan_iterations_median = it[it.size() / 2];
+    rep.replan_iterations_max = it.back();
   }
   const int n_eval = rep.steps + 1;
   rep.position_rms = std::sqrt(sq_err_sum / n_eval);

@@ -89,6 +89,7 @@ collision::ReplannerFactory socket_replanner(const SimulateCliOptions& o,
         throw ClientError(std::string("plan.session.step: unreadable reply: ") + e.what());
       }
       out.start_time = r.value("start_time", ms.t);
+      out.iterations = out.plan.solver.iterations;
       out.success = true;
       return out;
     };

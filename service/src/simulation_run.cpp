@@ -106,6 +106,9 @@ json simulation_summary_json(const collision::SimulationReport& r, const robot::
                              for (double w : r.replan_wall_s) sum += w;
                              return sum;
                            }()},
+                          {"planner_iterations_median", r.replan_iterations_median},
+                          {"planner_iterations_max", r.replan_iterations_max},
+                          {"failure_times", r.replan_failure_times},
                           {"reference_position_max_m", r.reference_position_max}};
   return out;
 }

@@ -124,6 +124,7 @@ struct Replan {
   planner::Trajectory plan;
   double start_time = 0.0;
   std::string message;  // why not, when !success
+  int iterations = -1;  // the planner's iterations, when it says (-1: unknown)
 };
 using Replanner = std::function<Replan(const MeasuredState&)>;
 // Makes a fresh re-planner (a new planning session) for each simulated run, so runs do not share
@@ -238,6 +239,10 @@ struct SimulationReport {
   // loaded machine inflates the wall time); through a socket only the client's share.
   std::vector<double> replan_cpu_s;
   double replan_cpu_median = 0.0, replan_cpu_max = 0.0;
+  // The planner's iterations per call where it reported them, and the times of the failed calls.
+  std::vector<int> replan_iterations;
+  int replan_iterations_median = 0, replan_iterations_max = 0;
+  std::vector<double> replan_failure_times;
   double reference_position_max = 0.0;
 };
 
