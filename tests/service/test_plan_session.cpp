@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cmath>
 #include <fstream>
 #include <string>
 #include <thread>
@@ -92,6 +93,74 @@ TEST(PlanSession, StepsFromAMeasuredStateThenAFailedStepLeavesItUsable) {
   EXPECT_EQ(open_sessions(c), 1);
   EXPECT_TRUE(c.call_ok({{"op", "plan.session.close"}, {"session", id}})["closed"].get<bool>());
   EXPECT_EQ(open_sessions(c), 0);
+}
+
+// The C++ client's session helper (client.hpp, PlanningSession), as the Python client's test
+// uses its own: open, a step from a measured state, a failed step that leaves the session usable,
+// a per-step deadline, and the destructor closing the session on the server.
+TEST(PlanSession, TheClientsSessionHelperOpensStepsAndClosesOnScopeExit) {
+  using terrastride::service::ClientError;
+  using terrastride::service::PlanningSession;
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  Client c = Client::connect(server.tcp());
+  {
+    json fields = open_request();
+    fields.erase("op");
+    PlanningSession s = PlanningSession::open(c, fields);
+    EXPECT_TRUE(s.is_open());
+    EXPECT_EQ(s.reference()["solver"]["status"], "optimal");
+    EXPECT_EQ(open_sessions(c), 1);
+    json at;
+    for (const auto& smp : s.reference()["samples"])
+      if (std::abs(smp["t"].get<double>() - 0.2) < 1e-9) at = smp;
+    ASSERT_FALSE(at.is_null());
+    json pos = at["base"]["position"];
+    pos[1] = pos[1].get<double>() + 0.01;
+    const json step = s.step(0.2, {{"base", {{"position", pos}}}});
+    EXPECT_EQ(step["solver"]["status"], "optimal");
+    EXPECT_NEAR(step["samples"][0]["base"]["position"][1].get<double>(), pos[1].get<double>(),
+                1e-9);
+    // A state the robot cannot be in: ClientError with the code first; the session goes on.
+    try {
+      s.step(0.3, {{"base", {{"position", {0.3, 0.4, 0.9}}}}});
+      ADD_FAILURE() << "an unreachable state was planned";
+    } catch (const ClientError& e) {
+      const std::string what = e.what();
+      EXPECT_EQ(what.rfind("plan.session.step: failed: ", 0), 0u) << what;
+      EXPECT_NE(what.find("still violated"), std::string::npos) << what;
+    }
+    EXPECT_EQ(s.step(0.3)["solver"]["status"], "optimal");
+    try {
+      s.step(0.4, nullptr, 1);
+      ADD_FAILURE() << "a 1 ms step deadline was met";
+    } catch (const ClientError& e) {
+      EXPECT_NE(std::string(e.what()).find("deadline_exceeded"), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(s.step(0.4)["solver"]["status"], "optimal");
+    // Moved, the session is the new owner's to close.
+    PlanningSession moved = std::move(s);
+    EXPECT_FALSE(s.is_open());
+    EXPECT_EQ(open_sessions(c), 1);
+  }
+  EXPECT_EQ(open_sessions(c), 0);
+  // A bad open names the field.
+  try {
+    PlanningSession::open(c, {{"terrain", "flat"}, {"horizon", -1.0}});
+    ADD_FAILURE() << "a negative horizon was accepted";
+  } catch (const ClientError& e) {
+    EXPECT_NE(std::string(e.what()).find("horizon"), std::string::npos) << e.what();
+  }
+  // Closed explicitly, a step is refused by the client.
+  PlanningSession closed = PlanningSession::open(c, [] {
+    json f = open_request();
+    f.erase("op");
+    return f;
+  }());
+  closed.close();
+  closed.close();
+  EXPECT_EQ(open_sessions(c), 0);
+  EXPECT_THROW(closed.step(0.2), ClientError);
 }
 
 TEST(PlanSession, DisconnectFreesTheSession) {

@@ -13,6 +13,7 @@
 
 #include <cerrno>
 #include <cstring>
+#include <utility>
 
 #include "terrastride/service/server.hpp"
 
@@ -231,6 +232,56 @@ std::string error_text(const Message& reply) {
   if (reply.header.value("ok", false)) return "";
   const json e = reply.header.value("error", json::object());
   return e.value("code", std::string("?")) + ": " + e.value("message", std::string("?"));
+}
+
+PlanningSession PlanningSession::open(Client& client, json fields) {
+  fields["op"] = "plan.session.open";
+  json reply = client.call_ok(std::move(fields));
+  if (!reply.contains("session") || !reply["session"].is_string())
+    throw ClientError("plan.session.open: reply without a session id");
+  return PlanningSession(&client, std::move(reply));
+}
+
+PlanningSession::PlanningSession(Client* client, json reference)
+    : client_(client), id_(reference["session"].get<std::string>()),
+      reference_(std::move(reference)) {}
+
+PlanningSession::PlanningSession(PlanningSession&& other) noexcept
+    : client_(std::exchange(other.client_, nullptr)),
+      id_(std::move(other.id_)),
+      reference_(std::move(other.reference_)) {}
+
+PlanningSession& PlanningSession::operator=(PlanningSession&& other) noexcept {
+  if (this != &other) {
+    try {
+      close();
+    } catch (const std::exception&) {
+    }
+    client_ = std::exchange(other.client_, nullptr);
+    id_ = std::move(other.id_);
+    reference_ = std::move(other.reference_);
+  }
+  return *this;
+}
+
+PlanningSession::~PlanningSession() {
+  try {
+    close();
+  } catch (const std::exception&) {
+  }
+}
+
+json PlanningSession::step(double time, const json& start_state, int deadline_ms) {
+  if (!client_) throw ClientError("plan.session.step: the session " + id_ + " is closed");
+  json h = {{"op", "plan.session.step"}, {"session", id_}, {"time", time}};
+  if (!start_state.is_null()) h["start_state"] = start_state;
+  if (deadline_ms > 0) h["deadline_ms"] = deadline_ms;
+  return client_->call_ok(std::move(h));
+}
+
+void PlanningSession::close() {
+  Client* c = std::exchange(client_, nullptr);
+  if (c && c->is_open()) c->call_ok({{"op", "plan.session.close"}, {"session", id_}});
 }
 
 }  // namespace terrastride::service

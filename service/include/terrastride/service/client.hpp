@@ -67,4 +67,42 @@ class Client {
 // "code: message" of an error reply, or "" for a success reply.
 std::string error_text(const protocol::Message& reply);
 
+// A planning session on a client's connection (docs/protocol.md, "Planning sessions"): opened by
+// `open`, closed by the destructor (or `close`). Errors are ClientError("plan.session.OP: code:
+// message"), the code first: `failed` for a step whose solve failed and `deadline_exceeded` past
+// its deadline leave the session usable for the next step.
+//   PlanningSession s = PlanningSession::open(client, {{"terrain", "pallet_15"}, {"horizon", 1}});
+//   json plan = s.step(0.1, measured_state);
+class PlanningSession {
+ public:
+  // plan.session.open with `fields` (terrain, constraints, horizon, init, ... as the op takes).
+  // The client must outlive the session.
+  static PlanningSession open(Client& client, nlohmann::json fields);
+  PlanningSession(PlanningSession&& other) noexcept;
+  PlanningSession& operator=(PlanningSession&& other) noexcept;
+  PlanningSession(const PlanningSession&) = delete;
+  PlanningSession& operator=(const PlanningSession&) = delete;
+  // Closes the session if it is still open; errors are dropped (the connection may be gone, and
+  // the server frees a connection's sessions when it closes).
+  ~PlanningSession();
+
+  // plan.session.step: the plan from session time `time` (s) and the measured state (plan.json's
+  // terms; null: the session's current plan at `time`). deadline_ms > 0 bounds the step.
+  nlohmann::json step(double time, const nlohmann::json& start_state = nullptr,
+                      int deadline_ms = 0);
+  // plan.session.close; idempotent.
+  void close();
+
+  const std::string& id() const { return id_; }
+  // The open's reply: the reference plan (samples as JSON), session, horizon, memory_bytes.
+  const nlohmann::json& reference() const { return reference_; }
+  bool is_open() const { return client_ != nullptr; }
+
+ private:
+  PlanningSession(Client* client, nlohmann::json reference);
+  Client* client_ = nullptr;
+  std::string id_;
+  nlohmann::json reference_;
+};
+
 }  // namespace terrastride::service
