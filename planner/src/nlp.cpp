@@ -15,12 +15,13 @@ SrbdProblem::~SrbdProblem() = default;
 
 SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightField& terrain,
                          const PhaseTimeline& timeline, const ProblemOptions& options,
-                         const StartState* start_state)
+                         const StartState* start_state, const StartState* end_state)
     : robot_(robot),
       terrain_(terrain),
       timeline_(timeline),
       options_(options),
-      starts_at_rest_(start_state == nullptr) {
+      starts_at_rest_(start_state == nullptr),
+      ends_at_rest_(end_state == nullptr) {
   if (timeline_.feet.size() != robot_.legs.size())
     throw std::invalid_argument("timeline has " + std::to_string(timeline_.feet.size()) +
                                 " feet, robot " + robot_.name + " has " +
@@ -30,9 +31,24 @@ SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightFi
   layout_ = make_layout(static_cast<int>(robot_.legs.size()), timeline_, options_, &variables_);
   initialization::build_initial_guess({robot_, terrain_, timeline_, options_, layout_, start_state},
                                       &variables_);
+  if (end_state) pin_end_state(*end_state);
   add_constraint_sets(*this, options_.constraints);
   // After the guess and before any warm start: the costs take their nominal path from the guess.
   build_objective(*this);
+}
+
+void SrbdProblem::pin_end_state(const StartState& end) {
+  const int g = layout_.base[layout_.num_segments];
+  for (int d = 0; d < 3; ++d) {
+    if (robot_.base_dof_free[d]) {
+      variables_.fix(g + d, end.position[d]);
+      variables_.fix(g + 3 + d, end.linear_velocity[d]);
+    }
+    if (robot_.base_dof_free[3 + d]) {
+      variables_.fix(g + 6 + d, end.euler_zyx[d]);
+      variables_.fix(g + 9 + d, end.euler_rates[d]);
+    }
+  }
 }
 
 int SrbdProblem::num_free_variables() const {

@@ -64,7 +64,11 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     // Without a duration the horizon is the gait's period times its cycles (plus lead-in/out).
     check_plan_horizon(timeline.duration(), options.duration > 0.0 ? "duration" : "cycles");
   }
-  SrbdProblem problem(robot, plan_terrain, timeline, options, start_ptr);
+  // A re-plan follows the line of the plan it continues (ProblemOptions::path_line).
+  PlannerOptions problem_options = options;
+  if (warm.previous && !problem_options.has_path_line)
+    set_path_line_of(*warm.previous, &problem_options);
+  SrbdProblem problem(robot, plan_terrain, timeline, problem_options, start_ptr);
   // An unreachable goal stance otherwise costs seconds of iterations before "infeasible".
   const auto t_reach = std::chrono::steady_clock::now();
   require_reachable(problem);
@@ -115,6 +119,8 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   out.trajectory.extra["cycles"] = options.cycles;
   out.trajectory.extra["optimize_timing"] = options.optimize_timing;
   out.trajectory.extra["constraints"] = options.constraints;
+  // A re-plan records the line it followed, so that a re-plan of it follows the same one.
+  if (problem_options.has_path_line) out.trajectory.extra["path_line"] = path_line_json(problem_options);
   if (!options.feasibility_settings.empty()) {
     nlohmann::json fs = nlohmann::json::object();
     for (const auto& [k, v] : options.feasibility_settings) fs[k] = v;

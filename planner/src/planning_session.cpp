@@ -55,28 +55,6 @@ PhaseTimeline truncated_timeline(const PhaseTimeline& timeline, double end) {
   return out;
 }
 
-void SrbdProblem::pin_end_state(const StartState& end) {
-  const int g = layout_.base[layout_.num_segments];
-  for (int d = 0; d < 3; ++d) {
-    if (robot_.base_dof_free[d]) {
-      variables_.fix(g + d, end.position[d]);
-      variables_.fix(g + 3 + d, end.linear_velocity[d]);
-    }
-    if (robot_.base_dof_free[3 + d]) {
-      variables_.fix(g + 6 + d, end.euler_zyx[d]);
-      variables_.fix(g + 9 + d, end.euler_rates[d]);
-    }
-  }
-  // Pinned in motion, the end is not at rest: its rest rows (zero base accelerations at t = T,
-  // constraints/rest_boundary.cpp; the last rest_boundary piece built) no longer apply.
-  for (auto it = pieces_.rbegin(); it != pieces_.rend(); ++it)
-    if ((*it)->kind == "rest_boundary") {
-      std::fill((*it)->lb.begin(), (*it)->lb.end(), -kInf);
-      std::fill((*it)->ub.begin(), (*it)->ub.end(), kInf);
-      break;
-    }
-}
-
 PlanningSession::PlanningSession(const robot::RobotModel& robot,
                                  const terrain::HeightField& plan_terrain,
                                  const terrain::HeightField& check_terrain,
@@ -104,6 +82,9 @@ PlanningSession::PlanningSession(const robot::RobotModel& robot,
   options_.stall_iterations = 20;
   options_.has_goal = true;
   options_.goal = goal_of(reference_);
+  // Every step's base path is shaped along the reference's line (monotone_progress,
+  // lateral_corridor), not along one drawn from its measured start.
+  set_path_line_of(reference_, &options_);
   previous_ = reference_;
   previous_start_ = 0.0;
 }
@@ -158,8 +139,11 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   PhaseTimeline timeline = reference_timeline_.cropped(t);
   if (!to_goal) timeline = truncated_timeline(timeline, end - t);
 
-  SrbdProblem problem(robot_, plan_terrain_, timeline, options_, &measured);
-  if (!to_goal) problem.pin_end_state(start_state_of(reference_, end));
+  // A horizon's end is pinned to the reference as the problem is built, so that the rows of
+  // every constraint set see it as fixed (built after, the path-shape rows on it were constants).
+  const SrbdProblem::StartState pinned_end = start_state_of(reference_, end);
+  SrbdProblem problem(robot_, plan_terrain_, timeline, options_, &measured,
+                      to_goal ? nullptr : &pinned_end);
   Trajectory guess = spliced_guess(previous_, previous_start_, reference_);
   problem.warm_start_from(guess, t);
   SessionStep out;
@@ -187,6 +171,7 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   ex["solver_max_violation"] = o.solve.max_violation;
   ex["solver_termination"] = o.solve.termination;
   ex["constraints"] = options_.constraints;
+  ex["path_line"] = path_line_json(options_);
   ex["start_time"] = t;
   ex["session"] = {{"step", steps_ + 1}, {"end_time", end}, {"to_goal", to_goal},
                    {"horizon", horizon_}};

@@ -4,6 +4,7 @@
 #include <string>
 
 #include "plan_interpolation.hpp"
+#include "terrastride/planner/request_limits.hpp"
 #include "terrastride/planner/planner.hpp"
 
 namespace terrastride::planner {
@@ -52,6 +53,28 @@ Eigen::Vector3d goal_of(const Trajectory& plan) {
   if (plan.samples.empty()) throw std::invalid_argument("plan has no samples");
   const auto& last = plan.samples.back().base;
   return Eigen::Vector3d(last.position.x(), last.position.y(), last.euler_zyx[0]);
+}
+
+void set_path_line_of(const Trajectory& plan, ProblemOptions* options) {
+  if (plan.samples.empty()) throw std::invalid_argument("plan has no samples");
+  const auto it = plan.extra.find("path_line");
+  if (it != plan.extra.end() && it->is_array() && it->size() == 4) {
+    const auto& v = *it;
+    for (const auto& e : v)
+      if (!e.is_number()) throw RequestError("init.path_line", "must be four numbers");
+    options->path_line_start = Eigen::Vector2d(v[0].get<double>(), v[1].get<double>());
+    options->path_line_end = Eigen::Vector2d(v[2].get<double>(), v[3].get<double>());
+    if (!options->path_line_start.allFinite() || !options->path_line_end.allFinite())
+      throw RequestError("init.path_line", "must be four finite numbers");
+  } else {
+    options->path_line_start = plan.samples.front().base.position.head<2>();
+    options->path_line_end = plan.samples.back().base.position.head<2>();
+  }
+  options->has_path_line = true;
+}
+
+nlohmann::json path_line_json(const ProblemOptions& o) {
+  return {o.path_line_start.x(), o.path_line_start.y(), o.path_line_end.x(), o.path_line_end.y()};
 }
 
 SrbdProblem::StartState start_state_of(const Trajectory& plan, double t) {

@@ -92,6 +92,8 @@ nlohmann::json run_session_row(const Scenario& sc, const robot::RobotModel& robo
                    step.end_time, step.outcome.solve.iterations, step.build_s,
                    step.outcome.solve.wall_s, walls.back(), step.outcome.trajectory.solver.n_variables,
                    step.outcome.trajectory.solver.n_constraints, step.outcome.solve.status.c_str());
+    if (std::getenv("BENCH_SESSION_DETAIL") && !step.outcome.success)
+      std::fprintf(stderr, "  %s\n", step.outcome.message.c_str());
   }
   auto quantile = [](std::vector<double> v, double q) {
     std::sort(v.begin(), v.end());

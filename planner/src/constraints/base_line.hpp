@@ -1,12 +1,13 @@
-// The straight line from the plan's start to its goal in the horizontal plane, as the cold initial
-// guess draws it (initialization/base_guess.cpp: the base's first and last knots), for the
-// families that shape the base path along it (monotone_progress, lateral_corridor).
+// The straight line the base path is shaped along (monotone_progress, lateral_corridor, the
+// objective's nominal pose): ProblemOptions' path line when set (a re-plan of a motion: that
+// motion's line), else the plan's own start-to-goal line as the cold initial guess draws it
+// (initialization/base_guess.cpp: the base's first and last knots).
 #pragma once
 
 #include <Eigen/Core>
 #include <vector>
 
-#include "terrastride/planner/layout.hpp"
+#include "terrastride/planner/nlp.hpp"
 
 namespace terrastride::planner {
 
@@ -17,13 +18,24 @@ struct BaseLine {
   Eigen::Vector2d across{0, 0};  // unit, along turned +90 degrees
 };
 
-// From the guess (SrbdProblem::initial_guess() before any warm start overwrites it).
-inline BaseLine base_line_of(const Layout& L, const std::vector<double>& guess) {
+// From the options' path line or the guess (SrbdProblem::initial_guess() before any warm start
+// overwrites it).
+inline BaseLine base_line_of(SrbdProblem& problem) {
   BaseLine line;
-  const int b0 = L.base[0], bS = L.base[L.num_segments];
-  line.origin = Eigen::Vector2d(guess[b0], guess[b0 + 1]);
-  const Eigen::Vector2d d = Eigen::Vector2d(guess[bS], guess[bS + 1]) - line.origin;
-  if (d.norm() < 0.01) return line;
+  const ProblemOptions& o = problem.options();
+  Eigen::Vector2d end;
+  if (o.has_path_line) {
+    line.origin = o.path_line_start;
+    end = o.path_line_end;
+  } else {
+    const Layout& L = problem.layout();
+    const std::vector<double>& guess = problem.initial_guess();
+    const int b0 = L.base[0], bS = L.base[L.num_segments];
+    line.origin = Eigen::Vector2d(guess[b0], guess[b0 + 1]);
+    end = Eigen::Vector2d(guess[bS], guess[bS + 1]);
+  }
+  const Eigen::Vector2d d = end - line.origin;
+  if (!(d.norm() >= 0.01)) return line;
   line.defined = true;
   line.along = d.normalized();
   line.across = Eigen::Vector2d(-line.along.y(), line.along.x());

@@ -15,6 +15,17 @@
 // offset across the line of each, in [-w, w]. Linear in the variables with fixed timing
 // (bilinear in h and the velocities with optimised timing). Rows on fixed variables only (the
 // start, the goal) are left out.
+// A re-plan from a measured state may start outside the corridor (a planning session's steps
+// start 1 cm beside a plan that may itself run at the corridor's edge). Its start is fixed, so the
+// first half-segment's control points would have to come back within 0.05 s: 8 m/s^2 for 1 cm,
+// and pallet_15 session steps stalled (6 and 9 of 20 with the session's line and a pinned horizon
+// end). So the bound widens by the start's excess e over w (its offset, or the fixed control
+// point's after it) and narrows back to w linearly over kCorridorReturn: segment s starting at
+// nominal time t_s gets w + e max(0, 1 - t_s / kCorridorReturn) for all its rows (the larger end
+// of the segment, so the convex hull still bounds the curve). A start inside the corridor (every
+// cold plan) has e = 0: rows as before.
+#include <algorithm>
+#include <cmath>
 #include <stdexcept>
 #include <vector>
 
@@ -25,19 +36,40 @@
 
 namespace terrastride::planner {
 
+namespace {
+// How long (s) a re-plan starting outside the corridor has to return into it.
+constexpr double kCorridorReturn = 0.5;
+}  // namespace
+
 void build_lateral_corridor_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   if (!(options.lateral_corridor >= 0.0))
     throw std::invalid_argument("lateral_corridor must be >= 0 m");
   if (options.lateral_corridor == 0.0) return;
   const Layout& L = problem.layout();
-  const BaseLine line = base_line_of(L, problem.initial_guess());
+  const BaseLine line = base_line_of(problem);
   if (!line.defined) return;
   const auto& lo = problem.lower();
   const auto& hi = problem.upper();
   const double w = options.lateral_corridor;
   const Eigen::Vector2d n = line.across, o = line.origin;
   const double offset0 = n.dot(o);
+  // The start's excess over w, when the start is fixed (a re-plan from a state): its offset and
+  // that of the first control point after it, A = x0 + h v0 / 6, when fixed too.
+  double excess = 0.0;
+  {
+    const auto& x = problem.initial_guess();
+    const int p0 = L.base[0], v0 = L.base[0] + 3, dv = L.interval_var[L.seg_interval[0]];
+    auto across = [&](double px, double py) { return n.x() * px + n.y() * py - offset0; };
+    if (all_fixed({p0, p0 + 1}, lo, hi))
+      excess = std::max(excess, std::abs(across(x[p0], x[p0 + 1])) - w);
+    if (fixed_control_point({p0, p0 + 1}, {v0, v0 + 1}, dv, lo, hi)) {
+      const double h6 = x[dv] * L.seg_fraction[0] / 6.0;
+      excess = std::max(excess, std::abs(across(x[p0] + h6 * x[v0], x[p0 + 1] + h6 * x[v0 + 1])) - w);
+    }
+  }
   for (int s = 0; s < L.num_segments; ++s) {
+    const double bound =
+        w + excess * std::max(0.0, 1.0 - L.nominal_knot_time[s] / kCorridorReturn);
     const int p0 = L.base[s], v0 = L.base[s] + 3, p1 = L.base[s + 1], v1 = L.base[s + 1] + 3;
     const int dv = L.interval_var[L.seg_interval[s]];
     // Which points get a row (each unless it is fixed): the start knot (first segment only; later
@@ -57,7 +89,7 @@ void build_lateral_corridor_set(SrbdProblem& problem, const FeasibilityOptions& 
     const int dur = add_segment_duration(lv, L, s);
     const double frac = L.seg_fraction[s];
     problem.add_piece(make_piece(
-        "lateral_corridor", lv, std::vector<double>(rows, -w), std::vector<double>(rows, w),
+        "lateral_corridor", lv, std::vector<double>(rows, -bound), std::vector<double>(rows, bound),
         [=](const auto* x, auto* g) {
           using T = std::decay_t<decltype(*g)>;
           const T h = x[dur] * frac;

@@ -26,7 +26,7 @@ namespace terrastride::planner {
 void build_monotone_progress_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   if (options.monotone_progress == 0) return;
   const Layout& L = problem.layout();
-  const BaseLine line = base_line_of(L, problem.initial_guess());
+  const BaseLine line = base_line_of(problem);
   if (!line.defined) return;
   const auto& lo = problem.lower();
   const auto& hi = problem.upper();

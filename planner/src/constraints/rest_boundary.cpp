@@ -4,8 +4,9 @@
 // crawl ended with the forces summing to 1.6 m g, the base accelerating up at 5.8 m/s^2; the demo
 // started at 4.8 m/s^2). With zero base linear and Euler accelerations the dynamics rows at those
 // segment ends (exact there) make the forces balance gravity and their moments cancel: static
-// equilibrium. Imposed at the end always, and at the start when the plan starts from rest (no
-// start state: a re-plan from a measured or planned state keeps that state's motion).
+// equilibrium. Imposed at the end unless a horizon step pins it in motion, and at the start when
+// the plan starts from rest (no start state: a re-plan from a measured or planned state keeps
+// that state's motion).
 // Rows: the linear acceleration in g per free linear direction, the Euler accelerations in rad/s^2
 // per free rotational direction.
 #include <vector>
@@ -46,7 +47,8 @@ void add_rest_boundary(SrbdProblem& problem) {
     }));
   };
   if (problem.starts_at_rest()) add(0, 0.0);
-  add(S - 1, 1.0);
+  // A receding-horizon step pinned in motion (SrbdProblem's end_state) is not at rest at its end.
+  if (problem.ends_at_rest()) add(S - 1, 1.0);
 }
 
 }  // namespace terrastride::planner

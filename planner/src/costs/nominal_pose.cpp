@@ -4,12 +4,14 @@
 // Euler angles interpolated from the start's to the goal's. Residuals, each times
 // sqrt(weight * dt_k / T) (dt_k the knot's share of the plan's nominal time, so each term is a
 // mean square over the plan): (z - z_nom) / 5 cm; (e - e_nom) / 0.1 rad per angle; the offset
-// across the straight line / 5 cm and along it from the nominal (minimum-jerk) progress / 5 cm
-// (both left out when the goal is the start: no line). Why: the demo's base weaved 86 mm side to
-// side and rolled +-7 deg where nothing asked for it; with the other terms alone the pallet_15
-// base backed up 48 mm to make its steps.
+// across the straight line (base_line.hpp, as the path-shape sets draw it) / 5 cm and along it
+// from the nominal (minimum-jerk) progress / 5 cm (both left out when the goal is within 1 cm of
+// the start: no line). Why: the demo's base weaved 86 mm side to side and rolled +-7 deg where
+// nothing asked for it; with the other terms alone the pallet_15 base backed up 48 mm to make its
+// steps.
 #include <cmath>
 
+#include "../constraints/base_line.hpp"
 #include "costs.hpp"
 #include "terrastride/planner/piece_math.hpp"
 
@@ -26,13 +28,10 @@ void add_nominal_pose_cost(SrbdProblem& problem, double height_weight, double he
   const int S = L.num_segments;
   const std::vector<double>& guess = problem.initial_guess();
   const double T = L.nominal_knot_time[S];
-  const int b0 = L.base[0], bS = L.base[S];
-  Eigen::Vector2d dir(guess[bS] - guess[b0], guess[bS + 1] - guess[b0 + 1]);
-  const bool has_line = dir.norm() > 1e-3;
-  const Eigen::Vector2d across = has_line ? Eigen::Vector2d(-dir.y(), dir.x()).normalized()
-                                          : Eigen::Vector2d::Zero();
-  const Eigen::Vector2d along = has_line ? dir.normalized() : Eigen::Vector2d::Zero();
-  const Eigen::Vector2d origin(guess[b0], guess[b0 + 1]);
+  // The line of the path-shape sets (base_line.hpp): the motion's line in a re-plan.
+  const BaseLine line = base_line_of(problem);
+  const bool has_line = line.defined;
+  const Eigen::Vector2d across = line.across, along = line.along, origin = line.origin;
   for (int k = 0; k <= S; ++k) {
     const double t_prev = k > 0 ? L.nominal_knot_time[k - 1] : L.nominal_knot_time[0];
     const double t_next = k < S ? L.nominal_knot_time[k + 1] : L.nominal_knot_time[S];

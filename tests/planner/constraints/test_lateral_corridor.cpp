@@ -68,6 +68,79 @@ TEST(LateralCorridor, RowsAreTheControlPointsOffsetsAcrossTheGoalLine) {
   }
 }
 
+// A re-plan of a motion follows that motion's line (ProblemOptions::path_line, a planning
+// session's reference line), not the line from its own start: with the line 0.1 m to the left of
+// a straight plan, every row of the plan's guess (on y = 0) is -0.1.
+TEST(LateralCorridor, FollowsTheOptionsPathLine) {
+  const auto r = hyq();
+  FlatField flat;
+  ProblemOptions o = with_corridor(turning_crawl_options(false), 0.02);
+  o.goal = Eigen::Vector3d(0.4, 0.0, 0.0);
+  o.has_path_line = true;
+  o.path_line_start = Eigen::Vector2d(-1.0, 0.1);
+  o.path_line_end = Eigen::Vector2d(2.0, 0.1);
+  SrbdProblem p(r, flat, crawl_timeline(r), o);
+  int rows = 0;
+  for (const auto& piece : p.pieces())
+    if (piece->kind == "lateral_corridor")
+      for (double v : rows_at(*piece, p.initial_guess())) {
+        EXPECT_NEAR(v, -0.1, 1e-9);
+        ++rows;
+      }
+  EXPECT_GT(rows, 10);
+}
+
+// With the end pinned in motion (a receding-horizon step, SrbdProblem's end_state) the rows see
+// the end knot as fixed: none is left a constant. Pinned after the rows were built (as before),
+// the end knot's corridor row and its velocity's progress row were constants, which a 1 cm offset
+// of the line made contradictions (planning-session steps failed).
+TEST(LateralCorridor, NoConstantRowsWithAPinnedEnd) {
+  const auto r = hyq();
+  FlatField flat;
+  ProblemOptions o = turning_crawl_options(false);
+  o.constraints = {"monotone_progress", "lateral_corridor", "swing_apex"};
+  o.feasibility_settings = {
+      {"monotone_progress", 1.0}, {"lateral_corridor", 0.02}, {"swing_apex_rise", 0.1}};
+  o.goal = Eigen::Vector3d(0.4, 0.0, 0.0);
+  const SrbdProblem cold(r, flat, crawl_timeline(r), o);
+  auto state_at = [&](double t) {
+    const auto st = cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), t);
+    SrbdProblem::StartState s;
+    s.position = st.pos;
+    s.euler_zyx = st.euler;
+    s.linear_velocity = st.vel;
+    s.euler_rates = st.euler_rate;
+    s.foot_position = st.foot_pos;
+    s.foot_velocity = st.foot_vel;
+    return s;
+  };
+  const auto start = state_at(0.5), end = state_at(1.5);
+  ASSERT_GT(end.linear_velocity.x(), 0.01);  // pinned in motion
+  const auto timeline = crawl_timeline(r).cropped(0.5);
+  SrbdProblem p(r, flat, timeline, o, &start, &end);
+  const int last = p.layout().base[p.layout().num_segments];
+  for (int i = 0; i < 6; ++i) EXPECT_EQ(p.lower()[last + i], p.upper()[last + i]);
+  int rows = 0;
+  for (const auto& piece : p.pieces()) {
+    if (piece->kind != "monotone_progress" && piece->kind != "lateral_corridor" &&
+        piece->kind != "swing_apex")
+      continue;
+    const int n = static_cast<int>(piece->vars.size()), m = piece->rows();
+    std::vector<double> xl(n), g(m), J(m * n);
+    for (int i = 0; i < n; ++i) xl[i] = p.initial_guess()[piece->vars[i]];
+    piece->eval_jacobian(xl.data(), g.data(), J.data());
+    for (int row = 0; row < m; ++row) {
+      double free_entry = 0.0;
+      for (int c = 0; c < n; ++c)
+        if (p.lower()[piece->vars[c]] < p.upper()[piece->vars[c]])
+          free_entry = std::max(free_entry, std::abs(J[row * n + c]));
+      EXPECT_GT(free_entry, 1e-6) << piece->kind << " row " << row << " is a constant";
+      ++rows;
+    }
+  }
+  EXPECT_GT(rows, 20);
+}
+
 TEST(LateralCorridor, OffByDefault) {
   const auto r = hyq();
   FlatField flat;

@@ -69,6 +69,15 @@ TEST(RestBoundary, StartRowsOnlyForAPlanFromRest) {
   o.rest_boundaries = false;
   const SrbdProblem without(r, flat, crawl_timeline(r), o);
   EXPECT_EQ(count_kinds(without).count("rest_boundary"), 0u);
+  // A receding-horizon step pinned in motion at its end (end_state) is not at rest there either.
+  o.rest_boundaries = true;
+  SrbdProblem::StartState end = start;
+  end.position.x() = 0.3;
+  const SrbdProblem pinned(r, flat, crawl_timeline(r), o, &start, &end);
+  EXPECT_FALSE(pinned.ends_at_rest());
+  EXPECT_EQ(count_kinds(pinned).count("rest_boundary"), 0u);
+  const SrbdProblem pinned_from_rest(r, flat, crawl_timeline(r), o, nullptr, &end);
+  EXPECT_EQ(count_kinds(pinned_from_rest)["rest_boundary"], 1);
 }
 
 }  // namespace

@@ -58,14 +58,18 @@ class SrbdProblem {
  public:
   // Builds variables, bounds, initial guess and pieces. `timeline` is the contact schedule;
   // start state: base pose/velocity and feet from `start_state` when given, else nominal stance
-  // at options.start on `terrain`.
+  // at options.start on `terrain`. `end_state` (a receding-horizon step, planning_session.hpp):
+  // the base at the last knot is held at its pose, velocity and Euler rates instead of resting at
+  // the goal (degrees of freedom the robot cannot move keep their start value); the end then gets
+  // no rest rows. It is fixed before the constraint sets are built, so their rows see the pinned
+  // end as fixed (a row on fixed variables only is left out, not left as a constant).
   struct StartState {
     Eigen::Vector3d position, euler_zyx, linear_velocity, euler_rates;
     std::vector<Eigen::Vector3d> foot_position, foot_velocity;
   };
   SrbdProblem(const robot::RobotModel& robot, const terrain::HeightField& terrain,
               const PhaseTimeline& timeline, const ProblemOptions& options,
-              const StartState* start_state = nullptr);
+              const StartState* start_state = nullptr, const StartState* end_state = nullptr);
   ~SrbdProblem();
 
   int num_variables() const { return variables_.size(); }
@@ -94,6 +98,9 @@ class SrbdProblem {
   void eval_objective_gradient(const double* x, double* grad) const;
   // Whether the plan starts from rest (no start state was given) and so gets the rest rows there.
   bool starts_at_rest() const { return starts_at_rest_; }
+  // Whether the plan ends at rest at its goal (no end state was given) and so gets the rest rows
+  // there.
+  bool ends_at_rest() const { return ends_at_rest_; }
 
   // Full constraint vector and the Jacobian as triplets (row, col, value) in piece order.
   void eval_constraints(const double* x, double* g) const;
@@ -122,10 +129,6 @@ class SrbdProblem {
 
   // Initial guess from a previous plan (time `shift` of that plan becomes t = 0 here).
   void warm_start_from(const struct Trajectory& previous, double shift);
-  // Holds the base at the last knot at `end` (pose, velocity, Euler rates) instead of resting at
-  // the goal: the end of a receding-horizon step (planning_session.hpp). Degrees of freedom the
-  // robot cannot move keep their start value.
-  void pin_end_state(const StartState& end);
 
  private:
 
@@ -138,6 +141,8 @@ class SrbdProblem {
   std::vector<std::unique_ptr<Piece>> pieces_;
   std::vector<std::unique_ptr<Piece>> cost_pieces_;
   bool starts_at_rest_ = true;
+  bool ends_at_rest_ = true;
+  void pin_end_state(const StartState& end);
   std::vector<int> row_offset_, nz_offset_;
   int num_rows_ = 0, nnz_ = 0;
 };

@@ -90,6 +90,15 @@ struct ProblemOptions {
   // NAME=VALUE settings of the constraint sets' FeasibilityOptions (feasibility.hpp), applied in
   // order over the defaults; feasibility_options() validates them.
   std::vector<std::pair<std::string, double>> feasibility_settings;
+  // The straight line the base path is shaped along (monotone_progress, lateral_corridor and the
+  // objective's lateral/progress terms; issue #17): (x, y) of its start and of its end. Unset:
+  // the plan's own start-to-goal line (its cold guess's first and last base knots). A re-plan of
+  // a motion sets it to the motion's line (planning sessions, warm re-plans: the plan they
+  // continue, from its first base position to its goal), so every step follows one line; drawn
+  // from each measured start instead, the corridor moved with the robot's tracking error.
+  bool has_path_line = false;
+  Eigen::Vector2d path_line_start = Eigen::Vector2d::Zero();
+  Eigen::Vector2d path_line_end = Eigen::Vector2d::Zero();
 
   // ---- Boundary conditions and the objective (issue #17) ----
   // A plan that starts from rest (no start state given: the nominal stance) and every plan's end

@@ -56,6 +56,12 @@ TrajectorySample interpolate_plan(const Trajectory& plan, double t);
 // The goal a re-plan of `plan` keeps: x, y and yaw of the base at its last sample.
 Eigen::Vector3d goal_of(const Trajectory& plan);
 
+// The line a re-plan of `plan` shapes its base path along (ProblemOptions::path_line): the one
+// `plan` recorded ("path_line", a re-plan's), else from its first base position to its goal.
+void set_path_line_of(const Trajectory& plan, ProblemOptions* options);
+// plan.json's "path_line": [x0, y0, x1, y1] of the options' path line.
+nlohmann::json path_line_json(const ProblemOptions& options);
+
 // The start state a re-plan from `plan` at time t begins with (base pose and rates, feet).
 SrbdProblem::StartState start_state_of(const Trajectory& plan, double t);
 // The same from one state (a plan sample, or a measured state in plan.json's terms).
