@@ -477,6 +477,14 @@ Vector3d into_cone(const Vector3d& f, const Vector3d& n, double mu) {
 }
 
 // CPU time of this thread: the speed figure that a loaded machine does not distort.
+// The median (the upper one of an even count) and the largest of a non-empty series.
+template <class T>
+void median_and_max(std::vector<T> values, T* median, T* max) {
+  std::sort(values.begin(), values.end());
+  *median = values[values.size() / 2];
+  *max = values.back();
+}
+
 double thread_cpu_seconds() {
   timespec ts{};
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
@@ -1035,21 +1043,12 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
   rep.duration = d->time;
   rep.realtime_factor = rep.wall_s > 0 ? rep.duration / rep.wall_s : 0.0;
   if (!rep.replan_wall_s.empty()) {
-    std::vector<double> w = rep.replan_wall_s;
-    std::sort(w.begin(), w.end());
-    rep.replan_wall_median = w[w.size() / 2];
-    rep.replan_wall_max = w.back();
-    w = rep.replan_cpu_s;
-    std::sort(w.begin(), w.end());
-    rep.replan_cpu_median = w[w.size() / 2];
-    rep.replan_cpu_max = w.back();
+    median_and_max(rep.replan_wall_s, &rep.replan_wall_median, &rep.replan_wall_max);
+    median_and_max(rep.replan_cpu_s, &rep.replan_cpu_median, &rep.replan_cpu_max);
   }
-  if (!rep.replan_iterations.empty()) {
-    std::vector<int> it = rep.replan_iterations;
-    std::sort(it.begin(), it.end());
-    rep.replan_iterations_median = it[it.size() / 2];
-    rep.replan_iterations_max = it.back();
-  }
+  if (!rep.replan_iterations.empty())
+    median_and_max(rep.replan_iterations, &rep.replan_iterations_median,
+                   &rep.replan_iterations_max);
   const int n_eval = rep.steps + 1;
   rep.position_rms = std::sqrt(sq_err_sum / n_eval);
   rep.saturation_fraction = rep.duration > 0 ? saturated_s / rep.duration : 0.0;

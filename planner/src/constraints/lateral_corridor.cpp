@@ -98,17 +98,16 @@ void build_lateral_corridor_set(SrbdProblem& problem, const FeasibilityOptions& 
           const T a1 = n.x() * x[x1[0]] + n.y() * x[x1[1]] - offset0;
           const T b0 = n.x() * x[w0[0]] + n.y() * x[w0[1]];
           const T b1 = n.x() * x[w1[0]] + n.y() * x[w1[1]];
-          const T am = hermite_value(0.5, h, a0, b0, a1, b1);
-          const T hbm = 1.5 * (a1 - a0) - h * (b0 + b1) / 4.0;  // h times the middle's rate
+          const HalfControlPoints<T> c = half_control_points(h, a0, b0, a1, b1);
           int r = 0;
           if (r0) g[r++] = a0;
-          if (rA) g[r++] = a0 + h * b0 / 6.0;
+          if (rA) g[r++] = c.a;
           if (rBCD) {
-            g[r++] = am - hbm / 6.0;
-            g[r++] = am;
-            g[r++] = am + hbm / 6.0;
+            g[r++] = c.b;
+            g[r++] = c.c;
+            g[r++] = c.d;
           }
-          if (rE) g[r++] = a1 - h * b1 / 6.0;
+          if (rE) g[r++] = c.e;
           if (r3) g[r++] = a1;
         }));
   }

@@ -12,6 +12,23 @@ inline int add_segment_duration(LocalVars& lv, const Layout& L, int s) {
   return lv.add(L.interval_var[L.seg_interval[s]]);
 }
 
+// The inner Bezier control points of a scalar cubic Hermite segment split at its middle (de
+// Casteljau): A = p0 + h v0 / 6, B = pm - h vm / 6, C = pm, D = pm + h vm / 6, E = p1 - h v1 / 6,
+// with pm and vm the value and rate at the middle. Each half lies in the hull of its control points
+// (four times closer to the curve than the whole segment's), so bounds on them bound the curve
+// (lateral_corridor, swing_apex).
+template <class T>
+struct HalfControlPoints {
+  T a, b, c, d, e;
+};
+template <class T>
+HalfControlPoints<T> half_control_points(const T& h, const T& p0, const T& v0, const T& p1,
+                                         const T& v1) {
+  const T pm = hermite_value(0.5, h, p0, v0, p1, v1);
+  const T hvm = 1.5 * (p1 - p0) - h * (v0 + v1) / 4.0;  // h times the rate at the middle
+  return {p0 + h * v0 / 6.0, pm - hvm / 6.0, pm, pm + hvm / 6.0, p1 - h * v1 / 6.0};
+}
+
 // The base position's Hermite segment s.
 inline HermiteLocal add_base_position(LocalVars& lv, const Layout& L, int s, double sigma,
                                       bool value_only) {

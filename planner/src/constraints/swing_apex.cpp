@@ -20,7 +20,7 @@
 #include <stdexcept>
 #include <vector>
 
-#include "base_line.hpp"
+#include "base_line.hpp"  // all_fixed, fixed_control_point
 #include "spline_variables.hpp"
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/nlp.hpp"
@@ -70,17 +70,16 @@ void build_swing_apex_set(SrbdProblem& problem, const FeasibilityOptions& option
             using T = std::decay_t<decltype(*g)>;
             const T h = x[dur] * frac;
             const T v0 = b0 >= 0 ? x[b0] : T(0.0), v1 = b1 >= 0 ? x[b1] : T(0.0);
-            const T pm = hermite_value(0.5, h, x[a0], v0, x[a1], v1);
-            // h vm: the rate at the middle, 1.5 (p1 - p0) / h - (v0 + v1) / 4, times h.
-            const T hvm = 1.5 * (x[a1] - x[a0]) - h * (v0 + v1) / 4.0;
+            const T p0 = x[a0], p1 = x[a1];
+            const HalfControlPoints<T> c = half_control_points(h, p0, v0, p1, v1);
             int r = 0;
-            if (rA) g[r++] = x[a0] + h * v0 / 6.0 - x[zr];
+            if (rA) g[r++] = c.a - x[zr];
             if (rBCD) {
-              g[r++] = pm - hvm / 6.0 - x[zr];
-              g[r++] = pm - x[zr];
-              g[r++] = pm + hvm / 6.0 - x[zr];
+              g[r++] = c.b - x[zr];
+              g[r++] = c.c - x[zr];
+              g[r++] = c.d - x[zr];
             }
-            if (rE) g[r++] = x[a1] - h * v1 / 6.0 - x[zr];
+            if (rE) g[r++] = c.e - x[zr];
             if (rF) g[r++] = x[a1] - x[zr];
           }));
     }

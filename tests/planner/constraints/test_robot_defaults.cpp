@@ -72,7 +72,7 @@ TEST(RobotDefaults, CyclesCoverTheGoalInStridesOfTheRangeOfMotionBox) {
   const auto hyq = shipped("hyq"), go2 = shipped("go2"), anymal = shipped("anymal_c");
   const Eigen::Vector3d origin = Eigen::Vector3d::Zero();
   // HyQ (box 0.5 m long): its benchmark and off-path goals keep the 3 cycles they were planned in.
-  for (const Eigen::Vector3d goal : {Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(1.5, 0, 0),
+  for (const Eigen::Vector3d& goal : {Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(1.5, 0, 0),
                                      Eigen::Vector3d(1, 0.3, 0.5), Eigen::Vector3d(0.8, -0.25, -0.4),
                                      Eigen::Vector3d(0, 0, 0)})
     EXPECT_EQ(default_cycles(hyq, origin, goal), 3) << goal.transpose();
