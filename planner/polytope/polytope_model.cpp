@@ -5,6 +5,8 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <map>
+#include <mutex>
 #include <sstream>
 
 #include "terrastride/perception/atomic_output.hpp"
@@ -370,6 +372,39 @@ RobotPolytopeModel load_polytope_model(const robot::RobotModel& robot_model,
       throw PolytopeFileError(path + ": " + e.what());
     }
     model.legs.push_back(std::move(leg));
+  }
+  return model;
+}
+
+std::shared_ptr<const RobotPolytopeModel> shared_polytope_model(
+    const robot::RobotModel& robot_model) {
+  namespace fs = std::filesystem;
+  const std::string path = polytope_path_for(robot_model);
+  // What makes a parsed model valid for this robot: the file's version and the legs it was
+  // checked against (load_polytope_model compares their fingerprints with the file's).
+  std::string key = path + "\n" + robot_model.name;
+  for (const auto& leg : robot_model.legs) key += "\n" + leg.name + ":" + leg_fingerprint(leg);
+  std::error_code ec;
+  const auto mtime = fs::last_write_time(path, ec);
+  const auto size = ec ? std::uintmax_t{0} : fs::file_size(path, ec);
+  struct Entry {
+    fs::file_time_type mtime;
+    std::uintmax_t size = 0;
+    std::shared_ptr<const RobotPolytopeModel> model;
+  };
+  static std::mutex mu;
+  static std::map<std::string, Entry> cache;
+  if (!ec) {
+    std::lock_guard<std::mutex> lock(mu);
+    const auto it = cache.find(key);
+    if (it != cache.end() && it->second.mtime == mtime && it->second.size == size)
+      return it->second.model;
+  }
+  // A missing or unreadable file: load_polytope_model says what is wrong.
+  auto model = std::make_shared<const RobotPolytopeModel>(load_polytope_model(robot_model, path));
+  if (!ec) {
+    std::lock_guard<std::mutex> lock(mu);
+    cache[key] = Entry{mtime, size, model};
   }
   return model;
 }

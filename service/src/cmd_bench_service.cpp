@@ -19,6 +19,8 @@
 #include <random>
 #include <thread>
 
+#include <time.h>
+
 #include "terrastride/service/cli.hpp"
 #include "terrastride/service/client.hpp"
 #include "terrastride/service/server.hpp"
@@ -60,6 +62,14 @@ struct BenchOptions {
   int server_max_connections = 128;
   std::size_t server_max_buffered_bytes = std::size_t{256} << 20;
 };
+
+// CPU time of this whole process (all threads), in ms: with the in-process server, a step's CPU
+// is the server's work on it (the client thread only waits for the reply and parses it).
+double process_cpu_ms() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
+}
 
 double ms_since(Clock::time_point t) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
@@ -719,7 +729,7 @@ json bench_hostile(const BenchOptions& o, const json& extent) {
 // current plan's state at that time 1 cm to the side and 0.05 m/s faster (a robot's measured
 // state), timed as the client sees them (send to reply). The cold figure is the open's round
 // trip minus nothing: the reference plan's solve and everything around it, as a `plan` would be.
-json bench_replan(const BenchOptions& o) {
+json bench_replan(const BenchOptions& o, bool in_process) {
   Client c = connect(o);
   c.set_timeout(600);
   const auto t_open = Clock::now();
@@ -736,6 +746,11 @@ json bench_replan(const BenchOptions& o) {
   // Where a step's time goes, from the reply's "timings" (server side): building the problem and
   // its warm start, the solve, sampling and dense checks, and the step in all.
   std::vector<double> builds, checks, server_totals;
+  // Per-iteration cost beside the iteration counts (a faster Jacobian or linear solve shows in
+  // the first, a better warm start in the second), the process CPU of a step when the server is
+  // in-process (load-independent, unlike the wall times), and one record per step for the tail.
+  std::vector<double> per_iteration, cpu, outside_server;
+  json records = json::array();
   int failures = 0, iterations = 0;
   for (int k = 1; k <= o.replan_steps; ++k) {
     // Wrap round the plan (a new session when it ends), so any number of steps fit.
@@ -755,25 +770,53 @@ json bench_replan(const BenchOptions& o) {
                  {"linear_velocity", (*at)["base"]["linear_velocity"]}};
     base["position"][1] = base["position"][1].get<double>() + 0.01;
     base["linear_velocity"][0] = base["linear_velocity"][0].get<double>() + 0.05;
+    const double cpu0 = process_cpu_ms();
     const auto t0 = Clock::now();
     const auto reply = c.call({{"op", "plan.session.step"},
                                {"session", id},
                                {"time", t},
                                {"start_state", {{"base", base}}}});
-    latencies.push_back(ms_since(t0));
+    const double latency = ms_since(t0);
+    const double step_cpu = process_cpu_ms() - cpu0;
+    latencies.push_back(latency);
+    json rec = {{"t", t}, {"latency_ms", latency}};
+    if (in_process) {
+      cpu.push_back(step_cpu);
+      rec["cpu_ms"] = step_cpu;
+    }
     if (!reply.header.value("ok", false)) {
       ++failures;
+      const json error = reply.header.value("error", json::object());
+      rec["failed"] = error.value("message", std::string());
+      records.push_back(rec);
       continue;
     }
     const json& r = reply.header["result"];
-    solves.push_back(1e3 * r["solver"]["wall_s"].get<double>());
+    const double solve_ms = 1e3 * r["solver"]["wall_s"].get<double>();
+    const int its = r["solver"]["iterations"].get<int>();
+    solves.push_back(solve_ms);
+    if (its > 0) per_iteration.push_back(solve_ms / its);
+    rec["iterations"] = its;
+    rec["solve_ms"] = solve_ms;
+    rec["variables"] = r["solver"].value("n_variables", 0);
+    rec["constraints"] = r["solver"].value("n_constraints", 0);
+    rec["end_time"] = r.value("end_time", 0.0);
+    std::size_t reply_bytes = reply.header.dump().size();
+    for (const auto& a : reply.attachments) reply_bytes += a.data.size();
+    rec["reply_bytes"] = reply_bytes;
     if (r.contains("timings")) {
       const json& tm = r["timings"];
       builds.push_back(1e3 * tm.value("build_s", 0.0));
       checks.push_back(1e3 * tm.value("sample_and_checks_s", 0.0));
       server_totals.push_back(1e3 * tm.value("total_s", 0.0));
+      // The reply's JSON, the socket and the client's parsing: the client's latency minus the
+      // step in the server.
+      outside_server.push_back(latency - server_totals.back());
+      rec["build_ms"] = builds.back();
+      rec["server_ms"] = server_totals.back();
     }
-    iterations += r["solver"]["iterations"].get<int>();
+    records.push_back(rec);
+    iterations += its;
     current = r;
     current_start = t;
   }
@@ -792,7 +835,11 @@ json bench_replan(const BenchOptions& o) {
             {"solve", latency_json(solves)},
             {"build", latency_json(builds)},
             {"sample_and_checks", latency_json(checks)},
-            {"server_total", latency_json(server_totals)}};
+            {"server_total", latency_json(server_totals)},
+            {"solve_per_iteration", latency_json(per_iteration)},
+            {"outside_server", latency_json(outside_server)},
+            {"step_records", records}};
+  if (!cpu.empty()) j["cpu"] = latency_json(cpu);
   if (j["latency"].contains("p50_ms")) {
     j["median_over_cold"] = j["latency"]["p50_ms"].get<double>() / cold_ms;
     j["targets"] = {{"median_over_cold_max", 0.10}, {"p99_ms_max", 50.0}};
@@ -932,7 +979,7 @@ void add_bench_service_command(CLI::App& app) {
         out["plan_overhead_json_samples"] = bench_overhead(*o, "json");
       }
       if (o->mode == "hostile" || o->mode == "all") out["hostile"] = bench_hostile(*o, extent);
-      if (o->mode == "replan") out["replan"] = bench_replan(*o);
+      if (o->mode == "replan") out["replan"] = bench_replan(*o, server != nullptr);
     } catch (const ClientError& e) {
       if (server) {
         server->shutdown();
@@ -985,6 +1032,10 @@ void add_bench_service_command(CLI::App& app) {
       print_latency("  step build (problem, warm start): ", r["build"]);
       print_latency("  step sampling and dense checks: ", r["sample_and_checks"]);
       print_latency("  step in the server: ", r["server_total"]);
+      print_latency("  step outside the server (reply JSON, socket, client parsing): ",
+                    r["outside_server"]);
+      print_latency("  step solve per iteration: ", r["solve_per_iteration"]);
+      if (r.contains("cpu")) print_latency("  step process CPU (in-process server): ", r["cpu"]);
       std::cout << std::setprecision(3) << "  median / cold = "
                 << r.value("median_over_cold", -1.0) << " (target <= 0.10), p99 "
                 << r["latency"].value("p99_ms", -1.0) << " ms (target <= 50 ms); "

@@ -5,6 +5,7 @@
 
 #include <sys/stat.h>
 
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -281,6 +282,38 @@ TEST_F(PolytopeFile, ChangedRobotMakesTheFileStale) {
   changed = robot_;
   changed.name = "other";
   EXPECT_THROW(load_polytope_model(changed, path("p.yaml")), PolytopeFileError);
+}
+
+// The planner's shared copy (every problem build asks for it; a planning session builds one per
+// step): parsed once, the same model while the file stays as it was, re-read after a refit
+// (another modification time), errors thrown and not kept.
+TEST_F(PolytopeFile, SharedModelIsParsedOnceAndFollowsTheFile) {
+  robot_.source_file = path("robot.yaml");
+  const std::string file = polytope_path_for(robot_);
+  EXPECT_THROW(shared_polytope_model(robot_), PolytopeFileError);
+  save_polytope_model(model_, robot_, file);
+  const auto first = shared_polytope_model(robot_);
+  ASSERT_TRUE(first);
+  EXPECT_EQ(first->legs[0].nodes, model_.legs[0].nodes);
+  EXPECT_EQ(shared_polytope_model(robot_).get(), first.get());
+
+  RobotPolytopeModel refit = model_;
+  refit.legs[0].hip_offset += 0.01;
+  save_polytope_model(refit, robot_, file);
+  // A later modification time whatever the file system's clock resolution.
+  std::filesystem::last_write_time(
+      file, std::filesystem::last_write_time(file) + std::chrono::seconds(2));
+  const auto second = shared_polytope_model(robot_);
+  EXPECT_NE(second.get(), first.get());
+  EXPECT_EQ(second->legs[0].hip_offset, refit.legs[0].hip_offset);
+  EXPECT_EQ(first->legs[0].hip_offset, model_.legs[0].hip_offset);  // a holder's copy stays
+
+  // Legs the file was not fitted for: stale, as load_polytope_model says, every time.
+  robot::RobotModel changed = robot_;
+  changed.legs[1].torque_limit[0] += 10.0;
+  EXPECT_THROW(shared_polytope_model(changed), PolytopeFileError);
+  EXPECT_THROW(shared_polytope_model(changed), PolytopeFileError);
+  EXPECT_EQ(shared_polytope_model(robot_).get(), second.get());
 }
 
 TEST_F(PolytopeFile, MalformedFieldIsNamed) {

@@ -66,7 +66,7 @@ inline void polytope_rows(const LegPolytopeModel& m, const Vec3<Ad>& p, const Ve
 void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   const Layout& L = problem.layout();
   const auto& robot = problem.robot();
-  auto model = std::make_shared<const RobotPolytopeModel>(load_polytope_model(robot));
+  const auto model = shared_polytope_model(robot);
   if (model->legs.size() != robot.legs.size())
     throw std::invalid_argument("force polytopes of robot " + robot.name + " have " +
                                 std::to_string(model->legs.size()) + " legs, the robot " +

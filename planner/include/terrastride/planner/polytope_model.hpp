@@ -20,6 +20,7 @@
 #include <Eigen/Core>
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -114,5 +115,13 @@ RobotPolytopeModel load_polytope_model(const robot::RobotModel& robot_model,
 inline RobotPolytopeModel load_polytope_model(const robot::RobotModel& robot_model) {
   return load_polytope_model(robot_model, polytope_path_for(robot_model));
 }
+
+// load_polytope_model(robot_model), parsed once per file version and robot legs and then shared:
+// every problem the planner builds needs it, and a planning-session step builds one many times a
+// second (parsing the YAML file was a fifth of a pallet_15 step's problem building). The file is
+// read again when its modification time or size changes (a refit) or for legs of other
+// fingerprints; errors are thrown as by load_polytope_model and not cached. Thread-safe.
+std::shared_ptr<const RobotPolytopeModel> shared_polytope_model(
+    const robot::RobotModel& robot_model);
 
 }  // namespace terrastride::planner
