@@ -1,5 +1,6 @@
 #include "terrastride/planner/solver.hpp"
 #include "terrastride/planner/piece_math.hpp"  // kGravity
+#include "step_blockers.hpp"
 
 #include <IpIpoptApplication.hpp>
 #include <IpIpoptCalculatedQuantities.hpp>
@@ -12,6 +13,7 @@
 #include <cstring>
 #include <functional>
 #include <limits>
+#include <memory>
 #include <mutex>
 #include <new>
 #include <sstream>
@@ -73,6 +75,7 @@ class SrbdTnlp : public Ipopt::TNLP {
         objective_tol_(options.objective_stop_tolerance),
         stall_iterations_(options.stall_iterations) {
     start_ = std::chrono::steady_clock::now();
+    if (std::getenv("TERRASTRIDE_DEBUG_STEPS")) step_blockers_ = std::make_unique<StepBlockers>(p);
   }
   bool get_nlp_info(Index& n, Index& m, Index& nnz_jac, Index& nnz_h,
                     IndexStyleEnum& style) override {
@@ -170,9 +173,12 @@ class SrbdTnlp : public Ipopt::TNLP {
   // in Ipopt 3.11 is measured on the scaled problem: measured on a warm start, the argument stayed
   // near 1e-2 for seven iterations in which the unscaled violation was below 1e-10.
   bool intermediate_callback(Ipopt::AlgorithmMode mode, Index iter, Number, Number inf_pr, Number,
-                             Number, Number, Number, Number, Number, Index, const Ipopt::IpoptData*,
+                             Number, Number, Number, Number, Number alpha_pr, Index,
+                             const Ipopt::IpoptData* ip_data,
                              Ipopt::IpoptCalculatedQuantities* cq) override {
     iterations_ = iter;
+    if (step_blockers_ && mode == Ipopt::RegularMode)
+      step_blockers_->observe(iter, alpha_pr, ip_data, cq);
     if (max_wall_ > 0.0 && elapsed() > max_wall_) {
       timed_out_ = true;
       return false;
@@ -261,6 +267,7 @@ class SrbdTnlp : public Ipopt::TNLP {
   double last_feasible_objective_ = std::numeric_limits<double>::infinity();
   int stall_iterations_;
   std::chrono::steady_clock::time_point start_;
+  std::unique_ptr<StepBlockers> step_blockers_;  // TERRASTRIDE_DEBUG_STEPS
 };
 
 // Debian's sequential MUMPS (libdmumps_seq, Ipopt's only linear solver there) is not re-entrant:

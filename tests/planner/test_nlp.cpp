@@ -3,12 +3,15 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <set>
 #include <sstream>
+#include <string>
 
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/nlp.hpp"
@@ -200,6 +203,52 @@ TEST(Solve, StopsAtAVerifiedFeasiblePoint) {
   // improvement and polish come after it, SolverOptions::objective_max_iterations).
   EXPECT_LE(early.feasibility_iterations, converged.iterations);
   EXPECT_EQ(early.iterations, early.feasibility_iterations + early.objective_iterations);
+}
+
+// TERRASTRIDE_DEBUG_STEPS (planner/src/step_blockers.hpp) names the rows that cut each step: a
+// step is at most the fraction-to-the-boundary rule's, tau (<= 1) times the smallest ratio it
+// prints, and a step cut by that rule alone is 0.99 times it (tau = 0.99 while mu > 0.01), so the
+// row it names first is the one that cut the step.
+TEST(Solve, DebugStepsNamesTheRowsThatCutTheStep) {
+  const auto r = hyq();
+  testing::TanhStep terrain(0.05, 0.3, 0.08, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.2, 0.0, 0.0);
+  o.constraints = {"all"};
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem p(r, terrain, tl, o);
+  ::setenv("TERRASTRIDE_DEBUG_STEPS", "1", 1);
+  ::testing::internal::CaptureStderr();
+  const SolveResult result = solve(p, o);
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  ::unsetenv("TERRASTRIDE_DEBUG_STEPS");
+  ASSERT_TRUE(result.success) << result.status;
+  std::istringstream lines(err);
+  std::string line;
+  int steps = 0, cut_by_the_named_row = 0;
+  double alpha = 0.0;
+  std::set<std::string> kinds;
+  for (const auto& piece : p.pieces()) kinds.insert(piece->kind);
+  while (std::getline(lines, line)) {
+    int step = 0;
+    if (std::sscanf(line.c_str(), "step %d alpha_pr %lf", &step, &alpha) == 2) {
+      ++steps;
+      continue;
+    }
+    const std::string head = "  smallest gap/(-dgap): ";
+    if (line.rfind(head, 0) != 0) continue;
+    // "KIND row N (FEET kA-B) [before -> after in lo, hi] RATIO; ..."
+    const std::string first = line.substr(head.size(), line.find(';') - head.size());
+    EXPECT_TRUE(kinds.count(first.substr(0, first.find(' '))) > 0) << first;
+    const double ratio = std::stod(first.substr(first.rfind(' ') + 1));
+    EXPECT_LE(alpha, ratio * 1.01) << line;  // printed to 3 digits
+    if (alpha < 1.0 && std::abs(alpha - 0.99 * ratio) <= 0.01 * ratio) ++cut_by_the_named_row;
+  }
+  // Every regular iteration (restoration-phase ones are not reported).
+  EXPECT_GT(steps, 0);
+  EXPECT_LE(steps, result.feasibility_iterations);
+  EXPECT_GT(cut_by_the_named_row, 0) << err;
 }
 
 TEST(NlpDerivatives, IpoptDerivativeCheckerFindsNoErrors) {
