@@ -76,6 +76,8 @@ const std::map<std::string, Setting>& settings_table() {
         "m (0: off)"}},
       {"joint_margin",
        {[](FeasibilityOptions& o, double v) { o.joint_margin = v; }, 0.0, 0.5, false, "rad"}},
+      {"joints_softmax",
+       {[](FeasibilityOptions& o, double v) { o.joints_softmax = v; }, 0.0, 0.1, false, "rad"}},
   };
   return t;
 }

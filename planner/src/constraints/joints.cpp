@@ -8,6 +8,8 @@
 // (stance); swing segments get a row at their middle too. The post-hoc check measures the result
 // densely.
 // Each knot row depends on the knot's base position and orientation and the foot position only.
+// joints_softmax > 0 folds each knot's rows, and each swing segment's three points, into one soft-
+// maximum row (fewer KKT rows; off by default: more iterations, see FeasibilityOptions).
 // In "all" since the balanced initial guess (initialization/force_guess.cpp): pallet_15 "all" 10 ->
 // 13 iterations, the demo 23 -> 18, and no plan sample outside a joint range (44-67 before on the
 // pallets).
@@ -33,12 +35,27 @@ void joint_angle_rows(const robot::LegModel& leg, const Vec3<T>& base, const Vec
   for (int j = 0; j < 3; ++j) g[j] = q[j];
 }
 
+// The merged form: the six distances past the bounds, q_j - hi_j and lo_j - q_j (<= 0 inside),
+// appended to `values` at `n`.
+template <class T>
+void joint_excess_values(const robot::LegModel& leg, const Vec3<T>& base, const Vec3<T>& euler,
+                         const Vec3<T>& foot, const std::vector<double>& lo,
+                         const std::vector<double>& hi, T* values, int* n) {
+  T q[3];
+  joint_angle_rows(leg, base, euler, foot, q);
+  for (int j = 0; j < 3; ++j) {
+    values[(*n)++] = q[j] - hi[j];
+    values[(*n)++] = lo[j] - q[j];
+  }
+}
+
 }  // namespace
 
 void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   const Layout& L = problem.layout();
   const int S = L.num_segments;
   const double margin = options.joint_margin;
+  const double t_soft = options.joints_softmax;
   const int nf = static_cast<int>(problem.robot().legs.size());
   std::vector<std::vector<double>> lo(nf, std::vector<double>(3)), hi = lo;
   for (int f = 0; f < nf; ++f) {
@@ -60,6 +77,17 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
       const auto p = lv.add3(L.foot_pos[f][k]);
       const auto r = lv.add3(L.base[k]);
       const auto e = lv.add3(L.base[k] + 6);
+      if (t_soft > 0.0) {
+        problem.add_piece(make_piece("joints", lv, {-kInf}, {0.0}, [=](const auto* x, auto* g) {
+          using T = std::decay_t<decltype(*g)>;
+          T values[6];
+          int n = 0;
+          joint_excess_values(leg, gather3(x, r), gather3(x, e), gather3(x, p), lo[f], hi[f],
+                              values, &n);
+          g[0] = feasibility::soft_max(values, n, t_soft);
+        }));
+        continue;
+      }
       problem.add_piece(make_piece("joints", lv, lo[f], hi[f], [=](const auto* x, auto* g) {
         joint_angle_rows(leg, gather3(x, r), gather3(x, e), gather3(x, p), g);
       }));
@@ -71,11 +99,37 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   // with the middle only, the pallet_15 trot to 1.5,0,0 with `all` put a landing LH foot 0.9 deg
   // beyond HFE's limit at 0.91-0.92 s, between the middle and the end of its last swing segment
   // (off-path suite, exit 4).
+  constexpr double kSwingPoints[3] = {0.25, 0.5, 0.75};
   for (int f = 0; f < nf; ++f) {
     const robot::LegModel leg = problem.robot().legs[f];
     for (int s = 0; s < S; ++s) {
       if (L.contact[f][s]) continue;
-      for (const double sigma : {0.25, 0.5, 0.75}) {
+      if (t_soft > 0.0) {
+        // Merged: the three points share the segment's Hermite variables, so one piece and one
+        // row hold them all (its clique is each point's).
+        LocalVars lv;
+        const HermiteLocal rp = add_base_position(lv, L, s, 0.5, false);
+        const HermiteLocal ep = add_base_euler(lv, L, s, 0.5, false);
+        const HermiteLocal fp = add_foot_position(lv, L, f, s, 0.5, false);
+        const int dur = add_segment_duration(lv, L, s);
+        const double frac = L.seg_fraction[s];
+        problem.add_piece(make_piece("joints", lv, {-kInf}, {0.0}, [=](const auto* x, auto* g) {
+          using T = std::decay_t<decltype(*g)>;
+          const T h = x[dur] * frac;
+          T values[18];
+          int n = 0;
+          for (const double sigma : kSwingPoints) {
+            Vec3<T> base, euler, foot;
+            hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
+            hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
+            hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
+            joint_excess_values(leg, base, euler, foot, lo[f], hi[f], values, &n);
+          }
+          g[0] = feasibility::soft_max(values, n, t_soft);
+        }));
+        continue;
+      }
+      for (const double sigma : kSwingPoints) {
         LocalVars lv;
         const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
         const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);

@@ -15,7 +15,10 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
   FlatField flat;
   PlannerOptions a, b;
   a.constraints = b.constraints = {"swing", "joints"};
-  b.feasibility_settings = {{"swing_acceleration", 50.0}, {"joint_margin", 0.1}};
+  b.feasibility_settings = {
+      {"swing_acceleration", 50.0}, {"joint_margin", 0.1}, {"joints_softmax", 0.0}};
+  PlannerOptions merged = a;
+  merged.feasibility_settings = {{"joints_softmax", 0.01}};
   SrbdProblem pa(r, flat, crawl_timeline(r), a), pb(r, flat, crawl_timeline(r), b);
   ASSERT_EQ(pa.num_constraints(), pb.num_constraints());
   std::vector<double> ga(pa.num_constraints()), gb(pb.num_constraints());
@@ -33,6 +36,11 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
   const FeasibilityOptions fo = feasibility_options(b.feasibility_settings);
   EXPECT_EQ(fo.swing_acceleration, 50.0);
   EXPECT_EQ(fo.joint_margin, 0.1);
+  EXPECT_EQ(fo.joints_softmax, 0.0);
+  EXPECT_EQ(FeasibilityOptions{}.joints_softmax, 0.0);
+  // joints_softmax > 0: a row per knot and swing segment instead of three per knot and point.
+  const SrbdProblem pm(r, flat, crawl_timeline(r), merged);
+  EXPECT_LT(pm.num_constraints(), pa.num_constraints());
   for (std::size_t i = 0; i < pb.pieces().size(); ++i)
     if (pb.pieces()[i]->kind == "joints") {
       EXPECT_DOUBLE_EQ(pb.pieces()[i]->lb[1], r.legs[0].q_min[1] + 0.1);
@@ -72,8 +80,9 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
       EXPECT_NE(std::string(e.what()).find(bad.first), std::string::npos) << e.what();
     }
   }
-  // force_rate_max (force_ramp) the 17th; monotone_progress, lateral_corridor, swing_apex_rise
-  EXPECT_EQ(feasibility_option_names().size(), 20u);
+  // force_rate_max (force_ramp) the 17th; monotone_progress, lateral_corridor, swing_apex_rise;
+  // joints_softmax (#18)
+  EXPECT_EQ(feasibility_option_names().size(), 21u);
 }
 
 }  // namespace

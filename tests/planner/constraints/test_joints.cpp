@@ -1,5 +1,9 @@
-// "joints" (constraints/joints.cpp; joint ranges): Jacobians against central differences, and the
-// rows against the robot's own inverse kinematics.
+// "joints" (constraints/joints.cpp; joint ranges): Jacobians against central differences (merged
+// and separate rows), the separate rows against the robot's own inverse kinematics, and the merged
+// rows against the soft maximum of those rows' distances past their bounds.
+#include <algorithm>
+#include <cmath>
+
 #include "family_test.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 
@@ -15,6 +19,7 @@ TEST(Joints, JacobianMatchesCentralDifferences) {
   o.has_goal = true;
   o.goal = Eigen::Vector3d(0.4, 0.05, 0.3);  // a turn: yaw enters the base-frame foot position
   o.constraints = {"joints"};
+  o.feasibility_settings = {{"joints_softmax", 0.005}};  // merged rows (separate: below)
   SrbdProblem p(r, terrain, crawl_timeline(r), o);
   ASSERT_GT(count_kinds(p)["joints"], 0);
   for (unsigned seed : {1u, 2u, 3u})
@@ -23,8 +28,85 @@ TEST(Joints, JacobianMatchesCentralDifferences) {
               0);
 }
 
-// One piece per foot and base knot, then three per swing segment (at 1/4, 1/2, 3/4); the rows are the IK
-// joint angles, bounded by the joint range shrunk by the margin.
+// The separate rows (joints_softmax = 0, the default) too.
+TEST(Joints, SeparateRowsJacobianMatchesCentralDifferences) {
+  const auto r = hyq();
+  TanhStep terrain(0.1, 0.5, 0.05, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.05, 0.3);
+  SrbdProblem p(r, terrain, crawl_timeline(r), o);
+  FeasibilityOptions fo;
+  fo.joints_softmax = 0.0;
+  const auto pieces = pieces_added_by(p, [&] { build_joints_set(p, fo); });
+  ASSERT_FALSE(pieces.empty());
+  for (const Piece* piece : pieces) EXPECT_EQ(piece->rows(), 3);
+  for (unsigned seed : {1u, 2u})
+    EXPECT_GT(check_piece_derivatives(p, seed, 0.02,
+                                      [](const Piece& piece) { return piece.kind == "joints"; }),
+              0);
+}
+
+// Merged (joints_softmax > 0): one piece and one row per foot and base knot, then one per swing segment
+// (its three points); each row is the soft maximum of the separate rows' distances past their
+// bounds, so >= the largest of them (the row implies every bound) and at most t log(n) above it.
+TEST(Joints, MergedRowIsTheSoftMaximumOfTheSeparateRowsExcess) {
+  const auto r = hyq();
+  FlatField flat;
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.0, 0.2);
+  SrbdProblem merged(r, flat, crawl_timeline(r), o), separate(r, flat, crawl_timeline(r), o);
+  FeasibilityOptions fm, fs;
+  fm.joints_softmax = 0.01;
+  fs.joints_softmax = 0.0;
+  const auto pm = pieces_added_by(merged, [&] { build_joints_set(merged, fm); });
+  const auto ps = pieces_added_by(separate, [&] { build_joints_set(separate, fs); });
+  const Layout& L = merged.layout();
+  const int nf = static_cast<int>(r.legs.size());
+  int swing_segments = 0;
+  for (int f = 0; f < nf; ++f)
+    for (int s = 0; s < L.num_segments; ++s) swing_segments += !L.contact[f][s];
+  ASSERT_EQ(static_cast<int>(pm.size()), nf * (L.num_segments + 1) + swing_segments);
+  ASSERT_EQ(ps.size(), pm.size() + 2 * swing_segments);
+  std::vector<double> x = merged.initial_guess();
+  for (std::size_t i = 0; i < x.size(); ++i)
+    if (merged.lower()[i] < merged.upper()[i]) x[i] += 0.02 * std::sin(2.3 * static_cast<double>(i));
+  // Each separate piece's largest distance past a bound (q - ub, lb - q).
+  auto excess = [&](const Piece& piece) {
+    std::vector<double> xl(piece.vars.size()), g(piece.rows());
+    for (std::size_t i = 0; i < xl.size(); ++i) xl[i] = x[piece.vars[i]];
+    piece.eval(xl.data(), g.data());
+    double m = -1e300;
+    for (int j = 0; j < piece.rows(); ++j) m = std::max({m, g[j] - piece.ub[j], piece.lb[j] - g[j]});
+    return m;
+  };
+  std::size_t s_index = 0;
+  int checked = 0;
+  const std::size_t knot_pieces = nf * (L.num_segments + 1);
+  for (std::size_t i = 0; i < pm.size(); ++i) {
+    const Piece* piece = pm[i];
+    ASSERT_EQ(piece->rows(), 1);
+    EXPECT_EQ(piece->ub[0], 0.0);
+    // A knot's piece stands for one separate piece, a swing segment's for three.
+    const int n = i < knot_pieces ? 1 : 3;
+    double largest = -1e300;
+    for (int k = 0; k < n; ++k) largest = std::max(largest, excess(*ps[s_index++]));
+    std::vector<double> xl(piece->vars.size());
+    for (std::size_t i = 0; i < xl.size(); ++i) xl[i] = x[piece->vars[i]];
+    double g = 0.0;
+    piece->eval(xl.data(), &g);
+    if (!std::isfinite(largest) || !std::isfinite(g)) continue;
+    EXPECT_GE(g, largest - 1e-12);
+    EXPECT_LE(g, largest + 0.01 * std::log(6.0 * n) + 1e-12);
+    ++checked;
+  }
+  EXPECT_EQ(s_index, ps.size());
+  EXPECT_GT(checked, static_cast<int>(pm.size()) * 3 / 4);
+}
+
+// Separate rows: one piece per foot and base knot, then three per swing segment (at 1/4, 1/2,
+// 3/4); the rows are the IK joint angles, bounded by the joint range shrunk by the margin.
 TEST(Joints, RowsAreTheIkAnglesWithinTheRangeLessTheMargin) {
   const auto r = hyq();
   FlatField flat;
@@ -35,6 +117,7 @@ TEST(Joints, RowsAreTheIkAnglesWithinTheRangeLessTheMargin) {
   const std::size_t before = p.pieces().size();
   FeasibilityOptions fo;
   fo.joint_margin = 0.05;
+  fo.joints_softmax = 0.0;
   build_joints_set(p, fo);
   const Layout& L = p.layout();
   const int nf = static_cast<int>(r.legs.size());
