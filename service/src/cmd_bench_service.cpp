@@ -8,6 +8,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <fstream>
 #include <functional>
 #include <iomanip>
@@ -51,6 +52,7 @@ struct BenchOptions {
   double horizon = 1.0;
   std::string replan_scene = "pallet_15";
   std::string replan_constraints = "all";
+  std::string replan_samples = "json";  // a step reply's samples: "json" or "attachment"
   // Hostile mode.
   int slowloris = 32;      // connections per slow-frame case
   double max_wait_s = 15;  // longest wait for the server to close a hostile connection
@@ -725,6 +727,39 @@ json bench_hostile(const BenchOptions& o, const json& extent) {
 }
 
 // ---- replan mode ----
+// A step reply with its samples as a float32 table (plan.session.step "samples": "attachment"),
+// its samples turned back into the {t, base: {position, linear_velocity}} objects the next step's
+// measured state is taken from.
+json samples_from_table(const protocol::Message& reply) {
+  json r = reply.header["result"];
+  const json& desc = r["samples"];
+  const auto columns = desc["columns"].get<std::vector<std::string>>();
+  const std::size_t rows = desc["rows"], nc = columns.size();
+  const protocol::Attachment* a = nullptr;
+  for (const auto& att : reply.attachments)
+    if (att.name == desc["attachment"].get<std::string>()) a = &att;
+  if (!a || a->data.size() != rows * nc * sizeof(float))
+    throw ClientError("plan.session.step: the samples attachment is missing or of the wrong size");
+  std::vector<float> v(rows * nc);
+  std::memcpy(v.data(), a->data.data(), a->data.size());
+  auto col = [&](const std::string& name) {
+    const auto it = std::find(columns.begin(), columns.end(), name);
+    if (it == columns.end()) throw ClientError("plan.session.step: no samples column " + name);
+    return static_cast<std::size_t>(it - columns.begin());
+  };
+  const std::size_t ct = col("t"), cp = col("base.position.x"), cv = col("base.linear_velocity.x");
+  json samples = json::array();
+  for (std::size_t i = 0; i < rows; ++i) {
+    const float* row = v.data() + i * nc;
+    samples.push_back({{"t", row[ct]},
+                       {"base",
+                        {{"position", {row[cp], row[cp + 1], row[cp + 2]}},
+                         {"linear_velocity", {row[cv], row[cv + 1], row[cv + 2]}}}}});
+  }
+  r["samples"] = samples;
+  return r;
+}
+
 // A planning session (plan.session.open: the cold solve), then steps 0.1 s apart, each from the
 // current plan's state at that time 1 cm to the side and 0.05 m/s faster (a robot's measured
 // state), timed as the client sees them (send to reply). The cold figure is the open's round
@@ -761,7 +796,7 @@ json bench_replan(const BenchOptions& o, bool in_process) {
     }
     const json* at = nullptr;
     for (const json& s : current["samples"])
-      if (s["t"].get<double>() + current_start >= t - 1e-9) {
+      if (s["t"].get<double>() + current_start >= t - 1e-6) {  // float32 times in tables
         at = &s;
         break;
       }
@@ -775,7 +810,8 @@ json bench_replan(const BenchOptions& o, bool in_process) {
     const auto reply = c.call({{"op", "plan.session.step"},
                                {"session", id},
                                {"time", t},
-                               {"start_state", {{"base", base}}}});
+                               {"start_state", {{"base", base}}},
+                               {"samples", o.replan_samples}});
     const double latency = ms_since(t0);
     const double step_cpu = process_cpu_ms() - cpu0;
     latencies.push_back(latency);
@@ -817,13 +853,14 @@ json bench_replan(const BenchOptions& o, bool in_process) {
     }
     records.push_back(rec);
     iterations += its;
-    current = r;
+    current = o.replan_samples == "attachment" ? samples_from_table(reply) : r;
     current_start = t;
   }
   c.call_ok({{"op", "plan.session.close"}, {"session", id}});
   json j = {{"scene", o.replan_scene},
             {"constraints", o.replan_constraints},
             {"horizon_s", o.horizon},
+            {"samples", o.replan_samples},
             {"cold_ms", cold_ms},
             {"cold_solve_ms", 1e3 * ref["solver"]["wall_s"].get<double>()},
             {"cold_iterations", ref["solver"]["iterations"]},
@@ -880,6 +917,10 @@ void add_bench_service_command(CLI::App& app) {
       ->check(CLI::Range(0.0, 60.0));
   cmd->add_option("--replan-scene", o->replan_scene, "Replan mode: the scene")
       ->capture_default_str();
+  cmd->add_option("--replan-samples", o->replan_samples,
+                  "Replan mode: step replies' samples as json or attachment (a float32 table)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"json", "attachment"}));
   cmd->add_option("--replan-constraints", o->replan_constraints, "Replan mode: constraint sets")
       ->capture_default_str();
   cmd->add_option("--clients", o->clients, "Concurrent query clients")

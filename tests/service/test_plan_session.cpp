@@ -5,6 +5,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <fstream>
 #include <string>
 #include <thread>
@@ -93,6 +94,43 @@ TEST(PlanSession, StepsFromAMeasuredStateThenAFailedStepLeavesItUsable) {
   EXPECT_EQ(open_sessions(c), 1);
   EXPECT_TRUE(c.call_ok({{"op", "plan.session.close"}, {"session", id}})["closed"].get<bool>());
   EXPECT_EQ(open_sessions(c), 0);
+}
+
+// A step's samples as a float32 table ("samples": "attachment"), for clients that re-plan many
+// times a second: the same plan as the JSON samples of the same step in a twin session.
+TEST(PlanSession, StepSamplesAsATable) {
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  Client c = Client::connect(server.tcp());
+  const std::string as_json = c.call_ok(open_request())["session"];
+  const std::string as_table = c.call_ok(open_request())["session"];
+  const json state = {{"base", {{"position", {0.05, 0.01, 0.55}}}}};
+  const json j = c.call_ok({{"op", "plan.session.step"}, {"session", as_json}, {"time", 0.2},
+                            {"start_state", state}});
+  const auto reply = c.call({{"op", "plan.session.step"}, {"session", as_table}, {"time", 0.2},
+                             {"start_state", state}, {"samples", "attachment"}});
+  ASSERT_TRUE(reply.header.value("ok", false)) << reply.header.dump();
+  const json& r = reply.header["result"];
+  EXPECT_EQ(r["solver"]["iterations"], j["solver"]["iterations"]);
+  ASSERT_EQ(reply.attachments.size(), 1u);
+  const auto& a = reply.attachments[0];
+  EXPECT_EQ(a.name, "samples");
+  const auto columns = r["samples"]["columns"].get<std::vector<std::string>>();
+  const std::size_t rows = r["samples"]["rows"];
+  ASSERT_EQ(rows, j["samples"].size());
+  ASSERT_EQ(a.data.size(), rows * columns.size() * sizeof(float));
+  std::vector<float> v(rows * columns.size());
+  std::memcpy(v.data(), a.data.data(), a.data.size());
+  ASSERT_EQ(columns[0], "t");
+  ASSERT_EQ(columns[2], "base.position.y");
+  for (std::size_t i = 0; i < rows; ++i) {
+    EXPECT_NEAR(v[i * columns.size()], j["samples"][i]["t"].get<double>(), 1e-6);
+    EXPECT_NEAR(v[i * columns.size() + 2],
+                j["samples"][i]["base"]["position"][1].get<double>(), 1e-6);
+  }
+  EXPECT_EQ(error_code(c.call({{"op", "plan.session.step"}, {"session", as_table}, {"time", 0.3},
+                               {"samples", "yaml"}})),
+            "bad_request");
 }
 
 // The C++ client's session helper (client.hpp, PlanningSession), as the Python client's test
