@@ -215,7 +215,12 @@ class Client:
         """A plan with its samples as a float32 table (the fast encoding, docs/protocol.md).
         Returns (result, columns): columns maps each column name ("t", "base.position.x",
         "LF.force.z", ...) to its list of values, one per sample."""
-        header, atts = self.request("plan", samples="attachment", **fields)
+        return self.table_call("plan", **fields)
+
+    def table_call(self, op, **fields):
+        """`op` (plan or plan.session.step) with samples="attachment": (result, columns) as
+        plan_table returns them; raises ServiceError as call does."""
+        header, atts = self.request(op, samples="attachment", **fields)
         if not header.get("ok"):
             err = header.get("error", {})
             raise ServiceError(err.get("code", "?"), err.get("message", "?"), header)
@@ -223,7 +228,7 @@ class Client:
         desc = result.get("samples", {})
         table = next((a for a in atts if a.name == desc.get("attachment")), None)
         if table is None:
-            raise ServiceError("bad_reply", "plan reply without its samples attachment", header)
+            raise ServiceError("bad_reply", op + " reply without its samples attachment", header)
         names = desc["columns"]
         width = len(names)
         columns = {name: list(table.values[k::width]) for k, name in enumerate(names)}
@@ -262,6 +267,16 @@ class PlanningSession:
         if deadline_ms is not None:
             fields["deadline_ms"] = deadline_ms
         return self.client.call("plan.session.step", **fields)
+
+    def step_table(self, time, start_state=None, deadline_ms=None):
+        """As step, with the samples as a float32 table (a step's JSON samples are 100-200 KB on
+        pallet_15 with a 1 s horizon): returns (result, columns) as Client.plan_table does."""
+        fields = {"session": self.id, "time": time}
+        if start_state is not None:
+            fields["start_state"] = start_state
+        if deadline_ms is not None:
+            fields["deadline_ms"] = deadline_ms
+        return self.client.table_call("plan.session.step", **fields)
 
     def close(self):
         if self.id is not None:

@@ -209,6 +209,9 @@ def main(address):
             e = expect_error("failed", lambda: s.step(0.3, {"base": {"position": [0.3, 0.4, 0.9]}}))
             assert "still violated" in e.message, e.message
             assert s.step(0.3)["solver"]["status"] == "optimal"
+            result, columns = s.step_table(0.4, {"base": {"position": pos}})
+            assert result["start_time"] == 0.4 and result["samples"]["rows"] == len(columns["t"])
+            assert abs(columns["base.position.y"][0] - pos[1]) < 1e-6, columns["base.position.y"][0]
         assert c.call("plan.session.status")["open"] == 0
 
         c.call("map.clear")
