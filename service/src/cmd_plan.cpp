@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -206,6 +207,13 @@ void run_plan(const PlanCliOptions& o) {
     throw CommandError(e.what());
   }
   out.trajectory.extra["terrain"] = o.terrain;
+  // The samples are final: serialise them (two thirds of plan.json) on the second core while
+  // this one voxelises the terrain and runs the checks' one-thread parts (plan_io.hpp). The
+  // checks only read the samples. Pallet_15 baseline: see docs/design.md §12.6.
+  std::future<planner::SerialisedSamples> samples_text =
+      std::async(std::launch::async, [&samples = out.trajectory.samples] {
+        return planner::serialise_samples(samples);
+      });
   // The post-hoc checks (as `terrastride check` at its default resolution) judge every plan: a
   // plan that fails one is not a usable plan, whatever the solver says.
   std::vector<std::string> failures;
@@ -240,7 +248,8 @@ void run_plan(const PlanCliOptions& o) {
     // Atomic for files (through symbolic links), written through for pipes and devices.
     try {
       std::cout.flush();
-      planner::write_plan_file(o.out, out.trajectory);
+      const planner::SerialisedSamples samples = samples_text.get();
+      planner::write_plan_file(o.out, out.trajectory, &samples);
     } catch (const std::exception& e) {
       throw CommandError(std::string("--out: ") + e.what());
     }

@@ -86,6 +86,44 @@ TEST(PlanIo, RoundTripKeepsEverything) {
   EXPECT_FALSE(std::filesystem::exists(path + ".tmp." + std::to_string(::getpid())));
 }
 
+// The samples serialised ahead (terrastride plan does it while the post-hoc checks run) give
+// the very text of the whole document's dump, whatever the other keys hold: extra keys sorting
+// before and after "samples", strings that look like the key, nested "samples" keys, no samples.
+TEST(PlanIo, SamplesSerialisedAheadGiveTheSameText) {
+  Trajectory t = two_sample_plan();
+  t.extra["post_hoc"] = {{"terrain", "map \n \"samples\": null"}, {"samples", json::array({1, 2})}};
+  t.extra["zzz_after"] = json::object({{"a", json::array({json::object({{"b", "x\ny"}})})}});
+  t.extra["aaa_before"] = "\n \"samples\": null";
+  t.extra["samples"] = "an extra key of the same name loses to the samples";
+  const std::string whole = plan_to_json(t).dump(1) + "\n";
+  const SerialisedSamples ahead = serialise_samples(t.samples);
+  EXPECT_EQ(plan_text(t, &ahead), whole);
+  EXPECT_EQ(plan_text(t), whole);
+  ASSERT_NE(whole.find("\"samples\": [\n  {\n   \"base\""), std::string::npos) << whole;
+
+  Trajectory empty = t;
+  empty.samples.clear();
+  const SerialisedSamples none = serialise_samples(empty.samples);
+  EXPECT_EQ(plan_text(empty, &none), plan_to_json(empty).dump(1) + "\n");
+
+  // Another plan's samples are refused, not spliced in.
+  EXPECT_THROW(plan_text(empty, &ahead), std::logic_error);
+  Trajectory shifted = t;
+  shifted.samples.back().t += 0.01;
+  EXPECT_THROW(plan_text(shifted, &ahead), std::logic_error);
+
+  // And the file written with them reads back as the plan.
+  const auto path = (std::filesystem::temp_directory_path() /
+                     ("terrastride_plan_ahead_" + std::to_string(::getpid()) + ".json"))
+                        .string();
+  write_plan_file(path, t, &ahead);
+  std::ifstream in(path);
+  const std::string written((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(written, whole);
+  EXPECT_EQ(read_plan_file(path).samples.size(), t.samples.size());
+  std::filesystem::remove(path);
+}
+
 TEST(PlanIo, MalformedPlansNameTheField) {
   json good = plan_to_json(two_sample_plan());
   json j = good;

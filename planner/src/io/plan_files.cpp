@@ -6,11 +6,12 @@
 
 namespace terrastride::planner {
 
-void write_plan_file(const std::string& path, const Trajectory& trajectory) {
+void write_plan_file(const std::string& path, const Trajectory& trajectory,
+                     const SerialisedSamples* samples) {
   // perception's writer: a regular file (also behind a symbolic link, which stays) is replaced
   // atomically, a FIFO or device is written through, /dev/stdout is the process's descriptor.
   try {
-    perception::write_file_atomically(path, plan_to_json(trajectory).dump(1) + "\n");
+    perception::write_file_atomically(path, plan_text(trajectory, samples));
   } catch (const perception::InputError& e) {
     throw PlanFileError(e.what());
   }

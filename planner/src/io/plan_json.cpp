@@ -1,5 +1,8 @@
 // plan.json's document: a Trajectory to JSON and back (format in docs/design.md, 3.5 plan.json).
 #include <cmath>
+#include <stdexcept>
+#include <string>
+#include <vector>
 
 #include "json_reader.hpp"
 #include "terrastride/planner/plan_io.hpp"
@@ -19,7 +22,32 @@ const char* const kKnownKeys[] = {"robot", "gait",    "duration", "sample_dt",
 
 }  // namespace
 
-json plan_to_json(const Trajectory& t) {
+json samples_to_json(const std::vector<TrajectorySample>& samples) {
+  json out = json::array();
+  for (const TrajectorySample& s : samples) {
+    json feet = json::array();
+    for (const FootState& f : s.feet)
+      feet.push_back({{"position", vec3(f.position)},
+                      {"velocity", vec3(f.velocity)},
+                      {"force", vec3(f.force)},
+                      {"contact", f.contact}});
+    out.push_back({{"t", s.t},
+                   {"base",
+                    {{"position", vec3(s.base.position)},
+                     {"euler_zyx", vec3(s.base.euler_zyx)},
+                     {"linear_velocity", vec3(s.base.linear_velocity)},
+                     {"angular_velocity", vec3(s.base.angular_velocity)},
+                     {"linear_acceleration", vec3(s.base.linear_acceleration)},
+                     {"angular_acceleration", vec3(s.base.angular_acceleration)}}},
+                   {"feet", feet}});
+  }
+  return out;
+}
+
+namespace {
+
+// The document with "samples" null when `with_samples` is false (plan_text splices them in).
+json plan_document(const Trajectory& t, bool with_samples) {
   json out = json::object();
   // Extra keys first so the standard keys below always win.
   for (const auto& [key, value] : t.extra.items()) out[key] = value;
@@ -28,25 +56,7 @@ json plan_to_json(const Trajectory& t) {
   out["duration"] = t.duration;
   out["sample_dt"] = t.sample_dt;
   out["feet"] = t.feet;
-  json samples = json::array();
-  for (const TrajectorySample& s : t.samples) {
-    json feet = json::array();
-    for (const FootState& f : s.feet)
-      feet.push_back({{"position", vec3(f.position)},
-                      {"velocity", vec3(f.velocity)},
-                      {"force", vec3(f.force)},
-                      {"contact", f.contact}});
-    samples.push_back({{"t", s.t},
-                       {"base",
-                        {{"position", vec3(s.base.position)},
-                         {"euler_zyx", vec3(s.base.euler_zyx)},
-                         {"linear_velocity", vec3(s.base.linear_velocity)},
-                         {"angular_velocity", vec3(s.base.angular_velocity)},
-                         {"linear_acceleration", vec3(s.base.linear_acceleration)},
-                         {"angular_acceleration", vec3(s.base.angular_acceleration)}}},
-                       {"feet", feet}});
-  }
-  out["samples"] = std::move(samples);
+  out["samples"] = with_samples ? samples_to_json(t.samples) : json();
   out["solver"] = {{"status", t.solver.status},
                    {"iterations", t.solver.iterations},
                    {"wall_s", t.solver.wall_s},
@@ -56,6 +66,49 @@ json plan_to_json(const Trajectory& t) {
   for (const auto& [name, value] : t.checks) checks[name] = value;
   out["checks"] = checks;
   return out;
+}
+
+// The text json::dump(1) gives the samples array at the document's top level, one level
+// deeper: every line after the first indented by one more space (strings hold no raw newlines).
+std::string indented_one_level(const std::string& text) {
+  std::string out;
+  out.reserve(text.size() + text.size() / 16);
+  for (const char c : text) {
+    out += c;
+    if (c == '\n') out += ' ';
+  }
+  return out;
+}
+
+}  // namespace
+
+json plan_to_json(const Trajectory& t) { return plan_document(t, true); }
+
+SerialisedSamples serialise_samples(const std::vector<TrajectorySample>& samples) {
+  SerialisedSamples out;
+  out.count = samples.size();
+  if (!samples.empty()) {
+    out.first_t = samples.front().t;
+    out.last_t = samples.back().t;
+  }
+  out.text = indented_one_level(samples_to_json(samples).dump(1));
+  return out;
+}
+
+std::string plan_text(const Trajectory& t, const SerialisedSamples* samples) {
+  if (!samples) return plan_to_json(t).dump(1) + "\n";
+  if (samples->count != t.samples.size() ||
+      (!t.samples.empty() &&
+       (samples->first_t != t.samples.front().t || samples->last_t != t.samples.back().t)))
+    throw std::logic_error("plan_text: the serialised samples are not this plan's");
+  std::string text = plan_document(t, false).dump(1);
+  // Only a top-level key starts a line with exactly one space of indentation, so this is the
+  // "samples" key of the document and not a string or a nested key.
+  const std::string key = "\n \"samples\": null";
+  const std::size_t at = text.find(key);
+  if (at == std::string::npos) throw std::logic_error("plan_text: no samples key in the document");
+  text.replace(at + key.size() - 4, 4, samples->text);
+  return text + "\n";
 }
 
 Trajectory plan_from_json(const json& j, const std::string& source) {

@@ -5,6 +5,7 @@
 #include <nlohmann/json.hpp>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/trajectory.hpp"
@@ -19,13 +20,31 @@ class PlanFileError : public std::runtime_error {
 };
 
 nlohmann::json plan_to_json(const Trajectory& trajectory);
+// The "samples" array of plan.json.
+nlohmann::json samples_to_json(const std::vector<TrajectorySample>& samples);
+
+// Most of plan.json is its samples (1.4 of 2.1 MB for an 11 s plan), and they are final once the
+// planner returns, while the post-hoc checks still add keys to the rest. serialise_samples()
+// turns them into text ahead, e.g. on the second core while the checks run (`terrastride plan`),
+// and plan_text() joins that text with the rest of the document: the same text, byte for byte,
+// as plan_to_json(t).dump(1) plus a newline. Samples serialised from another plan are refused
+// (std::logic_error).
+struct SerialisedSamples {
+  std::string text;  // the array as the document writes it, at its indentation
+  std::size_t count = 0;
+  double first_t = 0.0, last_t = 0.0;  // which samples they were
+};
+SerialisedSamples serialise_samples(const std::vector<TrajectorySample>& samples);
+std::string plan_text(const Trajectory& trajectory, const SerialisedSamples* samples = nullptr);
 
 // Validates every field it reads: types, vector sizes, finite numbers, increasing times, one foot
 // entry per named foot. Keys it does not know are kept in Trajectory::extra.
 Trajectory plan_from_json(const nlohmann::json& json, const std::string& source);
 
 // Writes atomically (temporary file, then rename), so a failed run leaves no half-written plan.
-void write_plan_file(const std::string& path, const Trajectory& trajectory);
+// `samples`: the trajectory's samples serialised ahead (plan_text), or null.
+void write_plan_file(const std::string& path, const Trajectory& trajectory,
+                     const SerialisedSamples* samples = nullptr);
 Trajectory read_plan_file(const std::string& path);
 
 // A robot's measured state to re-plan from `previous` at `start_time` (`terrastride plan
