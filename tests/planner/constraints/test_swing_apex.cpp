@@ -1,6 +1,10 @@
 // "swing_apex" (constraints/swing_apex.cpp; issue #17): Jacobians against central differences
 // (fixed and optimised timing), the rows against the swing foot spline's Bezier control points'
 // heights above the higher end of the swing, and no rows when off.
+#include <algorithm>
+#include <utility>
+#include <vector>
+
 #include "family_test.hpp"
 
 namespace terrastride::planner {
@@ -27,8 +31,10 @@ TEST(SwingApex, JacobianMatchesCentralDifferences) {
 // Over a 10 cm step (feet landing on it rise from the ground), per swing segment: the heights of
 // the control points of its two halves (and of its end when an inner knot) above the swing end
 // that is higher in the guess, <= rise; control points equal to the lift-off or touch-down point
-// (zero velocity there) get no row.
-TEST(SwingApex, RowsAreTheControlPointsHeightsAboveTheHigherEnd) {
+// (zero velocity there) get no row. Where the terrain under the guess's swing path (its knots,
+// probed +-clearance_probe in x and y) is higher than that end, the reference is that terrain
+// height, a constant (the foot must rise over it anyway).
+TEST(SwingApex, RowsAreTheControlPointsHeightsAboveTheHigherEndOrTheTerrainPassed) {
   const auto r = hyq();
   TanhStep step(0.1, 0.6, 0.02);  // the front feet end on it, the hind feet stay below
   for (bool timing : {false, true}) {
@@ -42,7 +48,7 @@ TEST(SwingApex, RowsAreTheControlPointsHeightsAboveTheHigherEnd) {
     for (const auto& piece : p.pieces())
       if (piece->kind == "swing_apex") pieces.push_back(piece.get());
     std::size_t k = 0;
-    int rows = 0, up_steps = 0;
+    int rows = 0, up_steps = 0, terrain_refs = 0, end_refs = 0;
     for (const auto& sw : L.swings) {
       const int f = sw.foot, k0 = sw.first_seg, k1 = sw.last_seg + 1;
       auto foot_z = [&](const std::vector<double>& at, int knot) {
@@ -54,7 +60,17 @@ TEST(SwingApex, RowsAreTheControlPointsHeightsAboveTheHigherEnd) {
             .z();
       };
       const bool lift_off_higher = foot_z(guess, k0) >= last_z(guess);
-      const double ref = lift_off_higher ? foot_z(x, k0) : last_z(x);
+      double terrain_passed = -1e9;
+      for (int knot = k0; knot <= k1; ++knot) {
+        const double fx = guess[L.foot_pos[f][knot]], fy = guess[L.foot_pos[f][knot] + 1];
+        for (const auto& [dx, dy] : std::vector<std::pair<double, double>>{
+                 {0, 0}, {0.05, 0}, {-0.05, 0}, {0, 0.05}, {0, -0.05}})
+          terrain_passed = std::max(terrain_passed, step.sample(fx + dx, fy + dy).height);
+      }
+      const double guess_end = std::max(foot_z(guess, k0), last_z(guess));
+      const bool over_terrain = terrain_passed > guess_end + 1e-12;
+      (over_terrain ? terrain_refs : end_refs) += 1;
+      const double ref = over_terrain ? terrain_passed : lift_off_higher ? foot_z(x, k0) : last_z(x);
       up_steps += last_z(guess) > foot_z(guess, k0) + 0.05;
       auto pos = [f](const SrbdProblem::State& st) { return st.foot_pos[f]; };
       auto vel = [f](const SrbdProblem::State& st) { return st.foot_vel[f]; };
@@ -77,6 +93,8 @@ TEST(SwingApex, RowsAreTheControlPointsHeightsAboveTheHigherEnd) {
     EXPECT_EQ(k, pieces.size());
     EXPECT_GT(rows, 8);
     EXPECT_GT(up_steps, 0);  // some swings land on the step: their reference is the touch-down
+    EXPECT_GT(terrain_refs, 0) << "timing " << timing;  // some pass the step's rise
+    EXPECT_GT(end_refs, 0) << "timing " << timing;
   }
 }
 

@@ -124,7 +124,7 @@ struct FeasibilityOptions {
   // lateral_corridor (m): the base within this distance of the start-to-goal line.
   double lateral_corridor = 0.0;
   // swing_apex_rise (m): a swing foot at most this far above the higher of its lift-off and
-  // touch-down points.
+  // touch-down points, or of the terrain its guessed path passes where that is higher.
   double swing_apex_rise = 0.0;
 };
 
