@@ -45,6 +45,11 @@ void check_derivatives(const BSplineField& f, double x, double y) {
   Eigen::Vector2d g;
   EXPECT_NEAR(f.value_gradient(x, y, &g), s.height, 1e-12);
   EXPECT_NEAR((g - s.gradient).norm(), 0.0, 1e-9);
+  // The planner's height and gradient without the Hessian: sample()'s to the bit (plans depend on it).
+  Eigen::Vector2d g_exact;
+  EXPECT_EQ(f.sample_value_gradient(x, y, &g_exact), s.height) << x << "," << y;
+  EXPECT_EQ(g_exact.x(), s.gradient.x()) << x << "," << y;
+  EXPECT_EQ(g_exact.y(), s.gradient.y()) << x << "," << y;
   const HeightSample px = f.sample(x + e, y), mx = f.sample(x - e, y);
   const HeightSample py = f.sample(x, y + e), my = f.sample(x, y - e);
   const Eigen::Vector2d hx = (px.gradient - mx.gradient) / (2 * e);
@@ -171,6 +176,28 @@ TEST(Safety, RasterisedScenesKeepHeights) {
         const Eigen::Vector2d c = g.center(i, j);
         if (scene->edge_distance(c.x(), c.y()) < 0.05) continue;
         EXPECT_NEAR(map->height(c.x(), c.y()), scene->height(c.x(), c.y()), 1e-6) << name;
+      }
+  }
+}
+
+// height_and_gradient() (what the planner's rows read) is sample()'s height and gradient to the
+// bit, on the rasterised maps (their own override) and on the exact scenes (the default).
+TEST(HeightField, HeightAndGradientAreSamplesToTheBit) {
+  std::mt19937 rng(7);
+  for (const auto& name : scene_names()) {
+    auto scene = make_scene(name);
+    auto map = TerrainMap::from_scene(*scene, 0.02, {});
+    const Eigen::Vector2d lo = map->min_corner(), hi = map->max_corner();
+    std::uniform_real_distribution<double> ux(lo.x(), hi.x()), uy(lo.y(), hi.y());
+    for (const HeightField* f : {static_cast<const HeightField*>(map.get()),
+                                 static_cast<const HeightField*>(scene.get())})
+      for (int n = 0; n < 200; ++n) {
+        const double x = ux(rng), y = uy(rng);
+        const HeightSample s = f->sample(x, y);
+        Eigen::Vector2d g;
+        EXPECT_EQ(f->height_and_gradient(x, y, &g), s.height) << name << " " << x << "," << y;
+        EXPECT_EQ(g, s.gradient) << name << " " << x << "," << y;
+        EXPECT_EQ(f->height(x, y), s.height) << name;
       }
   }
 }

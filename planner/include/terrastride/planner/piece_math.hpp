@@ -204,18 +204,20 @@ void euler_to_angular(const Vec3<T>& e, const Vec3<T>& ed, const Vec3<T>& edd, V
 
 // Terrain height with its derivative chained through the foot coordinates.
 inline double terrain_height(const terrain::HeightField& f, double x, double y) {
-  return f.sample(x, y).height;
+  return f.height(x, y);
 }
 inline Ad terrain_height(const terrain::HeightField& f, const Ad& x, const Ad& y) {
-  const terrain::HeightSample s = f.sample(x.value(), y.value());
-  return Ad(s.height, chain2(s.gradient.x(), x.derivatives(), s.gradient.y(), y.derivatives()));
+  Eigen::Vector2d g;
+  const double h = f.height_and_gradient(x.value(), y.value(), &g);
+  return Ad(h, chain2(g.x(), x.derivatives(), g.y(), y.derivatives()));
 }
 // Terrain gradient (hx, hy) with its derivative chained through the foot coordinates (Hessian).
 inline void terrain_gradient(const terrain::HeightField& f, double x, double y, double* hx,
                              double* hy) {
-  const auto s = f.sample(x, y);
-  *hx = s.gradient.x();
-  *hy = s.gradient.y();
+  Eigen::Vector2d g;
+  f.height_and_gradient(x, y, &g);
+  *hx = g.x();
+  *hy = g.y();
 }
 inline void terrain_gradient(const terrain::HeightField& f, const Ad& x, const Ad& y, Ad* hx,
                              Ad* hy) {
@@ -230,9 +232,10 @@ inline void terrain_gradient(const terrain::HeightField& f, const Ad& x, const A
 // t2 = n x t1 (orthonormal).
 inline void terrain_frame(const terrain::HeightField& f, double x, double y, Vec3<double>* n,
                           Vec3<double>* t1, Vec3<double>* t2) {
-  const auto s = f.sample(x, y);
-  *n = Vec3<double>(-s.gradient.x(), -s.gradient.y(), 1.0).normalized();
-  *t1 = Vec3<double>(1.0, 0.0, s.gradient.x()).normalized();
+  Eigen::Vector2d g;
+  f.height_and_gradient(x, y, &g);
+  *n = Vec3<double>(-g.x(), -g.y(), 1.0).normalized();
+  *t1 = Vec3<double>(1.0, 0.0, g.x()).normalized();
   *t2 = n->cross(*t1);
 }
 inline void terrain_frame(const terrain::HeightField& f, const Ad& x, const Ad& y, Vec3<Ad>* n,

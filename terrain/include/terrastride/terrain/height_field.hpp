@@ -24,7 +24,17 @@ class HeightField {
   // Height and its first and second derivatives at (x, y). Must be C2 for smooth fields; exact
   // analytic scenes (sharp edges) report one-sided derivatives at discontinuities.
   virtual HeightSample sample(double x, double y) const = 0;
-  double height(double x, double y) const { return sample(x, y).height; }
+  // Height and gradient alone, the same values as sample()'s to the bit: most of the planner's
+  // terrain rows need no Hessian, and on a bicubic B-spline field it is a third of sample()'s work.
+  virtual double height_and_gradient(double x, double y, Eigen::Vector2d* gradient) const {
+    const HeightSample s = sample(x, y);
+    *gradient = s.gradient;
+    return s.height;
+  }
+  double height(double x, double y) const {
+    Eigen::Vector2d gradient;
+    return height_and_gradient(x, y, &gradient);
+  }
   // Signed foothold-safety margin for a foot of radius `foot_radius` (see docs/design.md §5.4).
   virtual MarginSample safety_margin(double x, double y, double foot_radius) const = 0;
   // Whether (x, y) was observed (always true for analytic terrains).

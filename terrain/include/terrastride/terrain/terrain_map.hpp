@@ -34,6 +34,8 @@ class BSplineField {
   // Value and gradient only (the planner's hot path).
   double value_gradient(double x, double y, Eigen::Vector2d* gradient) const;
   HeightSample sample(double x, double y) const;  // value, gradient, Hessian
+  // sample()'s value and gradient to the bit, without its Hessian.
+  double sample_value_gradient(double x, double y, Eigen::Vector2d* gradient) const;
 
  private:
   // Padded control points: 2 extra on the low side, 3 on the high side of each axis.
@@ -109,6 +111,9 @@ class TerrainMap : public HeightField {
                                                 SafetyOptions options = {});
 
   HeightSample sample(double x, double y) const override { return height_.sample(x, y); }
+  double height_and_gradient(double x, double y, Eigen::Vector2d* gradient) const override {
+    return height_.sample_value_gradient(x, y, gradient);
+  }
   double height_gradient(double x, double y, Eigen::Vector2d* gradient) const {
     return height_.value_gradient(x, y, gradient);
   }
