@@ -110,7 +110,9 @@ void expect_rows_at_the_ik_knee(double foot_radius) {
     ++checked;
   }
   EXPECT_GT(checked, 10);
-  if (foot_radius > 0.0) EXPECT_GT(rolled, 5) << "stance knots where the shin has turned";
+  if (foot_radius > 0.0) {
+    EXPECT_GT(rolled, 5) << "stance knots where the shin has turned";
+  }
 }
 
 TEST(ShinIk, KneeIsTheIkKnee) { expect_rows_at_the_ik_knee(0.0); }
