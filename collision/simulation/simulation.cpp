@@ -476,7 +476,6 @@ Vector3d into_cone(const Vector3d& f, const Vector3d& n, double mu) {
   return fn * n + ft;
 }
 
-// CPU time of this thread: the speed figure that a loaded machine does not distort.
 // The median (the upper one of an even count) and the largest of a non-empty series.
 template <class T>
 void median_and_max(std::vector<T> values, T* median, T* max) {
@@ -485,6 +484,7 @@ void median_and_max(std::vector<T> values, T* median, T* max) {
   *max = values.back();
 }
 
+// CPU time of this thread: the speed figure that a loaded machine does not distort.
 double thread_cpu_seconds() {
   timespec ts{};
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);

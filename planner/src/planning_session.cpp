@@ -4,7 +4,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <cstdlib>
 #include <sstream>
 
 #include "terrastride/planner/piece_math.hpp"
@@ -159,15 +158,10 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   if (limits.max_time > 0.0) solver_options.max_time = limits.max_time;
   std::vector<std::pair<std::string, std::string>> step_options = {
       {"mu_init", "1e-4"}, {"bound_push", "1e-5"}, {"bound_frac", "1e-5"}};
-  // TERRASTRIDE_STEP_IPOPT_OPTIONS="name=value ..." adds Ipopt options to session steps only
-  // (tuning runs; TERRASTRIDE_IPOPT_OPTIONS would change the reference's cold solve too).
-  if (const char* env = std::getenv("TERRASTRIDE_STEP_IPOPT_OPTIONS")) {
-    std::istringstream in(env);
-    std::string item;
-    while (in >> item)
-      if (const auto eq = item.find('='); eq != std::string::npos)
-        step_options.emplace_back(item.substr(0, eq), item.substr(eq + 1));
-  }
+  // TERRASTRIDE_STEP_IPOPT_OPTIONS adds Ipopt options to session steps only (tuning runs;
+  // TERRASTRIDE_IPOPT_OPTIONS would change the reference's cold solve too).
+  for (auto& option : ipopt_options_from_env("TERRASTRIDE_STEP_IPOPT_OPTIONS"))
+    step_options.push_back(std::move(option));
   o.solve = solve(problem, solver_options, step_options);
   o.success = o.solve.success;
   const auto t_after_solve = std::chrono::steady_clock::now();

@@ -359,6 +359,18 @@ void improve(const SrbdProblem& problem, const SolverOptions& options,
 
 }  // namespace
 
+std::vector<std::pair<std::string, std::string>> ipopt_options_from_env(const char* variable) {
+  std::vector<std::pair<std::string, std::string>> options;
+  const char* env = std::getenv(variable);
+  if (env == nullptr) return options;
+  std::istringstream in(env);
+  std::string item;
+  while (in >> item)
+    if (const auto eq = item.find('='); eq != std::string::npos)
+      options.emplace_back(item.substr(0, eq), item.substr(eq + 1));
+  return options;
+}
+
 SolveResult solve(const SrbdProblem& problem, const SolverOptions& options,
                   const std::vector<std::pair<std::string, std::string>>& extra_options) {
   const auto lock = acquire_solver(options);
@@ -414,15 +426,8 @@ SolveResult solve(const SrbdProblem& problem, const SolverOptions& options,
   if (options.max_time > 0.0) opts->SetNumericValue("max_cpu_time", options.max_time);
   // TERRASTRIDE_IPOPT_OPTIONS="name=value name=value" adds Ipopt options (for tuning runs).
   auto all_options = extra_options;
-  if (const char* env = std::getenv("TERRASTRIDE_IPOPT_OPTIONS")) {
-    std::istringstream in(env);
-    std::string item;
-    while (in >> item) {
-      const auto eq = item.find('=');
-      if (eq != std::string::npos)
-        all_options.emplace_back(item.substr(0, eq), item.substr(eq + 1));
-    }
-  }
+  for (auto& option : ipopt_options_from_env("TERRASTRIDE_IPOPT_OPTIONS"))
+    all_options.push_back(std::move(option));
   for (const auto& [k, v] : all_options) {
     // Numbers and integers are passed as such; anything else as a string option.
     char* end = nullptr;

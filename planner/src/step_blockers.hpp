@@ -14,7 +14,6 @@
 #include <map>
 #include <set>
 #include <string>
-#include <utility>
 #include <vector>
 
 #include "terrastride/planner/nlp.hpp"
@@ -79,7 +78,17 @@ class StepBlockers {
     if (row_of_d_.empty()) map_indices(*adapter, *data, *cq);
     const auto delta = data->delta();
     if (have_previous_ && Ipopt::IsValid(delta)) {
-      std::vector<std::pair<double, std::string>> ratios;  // ratio, "kind row"
+      // A bound's ratio gap/(-dgap), what it is ("KIND row N (FEET kA-B)" or "variable bound var
+      // N") and its row (-1 for a variable's bound or an unmapped row).
+      struct Ratio {
+        double ratio;
+        std::string text;
+        int row;
+        bool operator<(const Ratio& o) const {
+          return ratio < o.ratio || (ratio == o.ratio && text < o.text);
+        }
+      };
+      std::vector<Ratio> ratios;
       std::map<std::string, int> blocking;
       auto scan = [&](const Vector& gap, const Ipopt::Matrix& P, const Vector& dir, double sign,
                       const std::vector<int>& orig_index, bool rows) {
@@ -99,8 +108,10 @@ class StepBlockers {
           const std::string what = rows ? (o >= 0 ? *row_kind_[o] : std::string("?"))
                                         : std::string("variable bound");
           if (ratio < 1.0) ++blocking[what];
-          ratios.emplace_back(ratio, what + " " + (rows ? "row " : "var ") + std::to_string(o) +
-                                         (rows && o >= 0 ? " (" + where(o) + ")" : ""));
+          ratios.push_back({ratio,
+                            what + " " + (rows ? "row " : "var ") + std::to_string(o) +
+                                (rows && o >= 0 ? " (" + where(o) + ")" : ""),
+                            rows ? o : -1});
         }
       };
       const SmartPtr<const Vector> ds = delta->s(), dx = delta->x();
@@ -115,15 +126,12 @@ class StepBlockers {
       p_.eval_constraints(x.data(), g.data());
       const auto lo = p_.row_lower(), hi = p_.row_upper();
       for (std::size_t i = 0; i < ratios.size() && i < 3; ++i) {
-        const std::string& r = ratios[i].second;
-        const std::size_t at = r.find("row ");
-        if (at == std::string::npos) continue;
-        const int row = std::stoi(r.substr(at + 4));
+        const int row = ratios[i].row;
         if (row < 0) continue;
         char text[160];
         std::snprintf(text, sizeof text, " [%.4g -> %.4g in %.4g, %.4g]", prev_g_[row], g[row],
                       lo[row], hi[row]);
-        ratios[i].second += text;
+        ratios[i].text += text;
       }
       prev_g_ = g;
       std::fprintf(stderr, "step %d alpha_pr %.3g: would cross their bound at a full step:",
@@ -131,7 +139,7 @@ class StepBlockers {
       for (const auto& [k, n] : blocking) std::fprintf(stderr, " %s %d", k.c_str(), n);
       std::fprintf(stderr, "\n  smallest gap/(-dgap):");
       for (std::size_t i = 0; i < ratios.size() && i < 8; ++i)
-        std::fprintf(stderr, " %s %.3g;", ratios[i].second.c_str(), ratios[i].first);
+        std::fprintf(stderr, " %s %.3g;", ratios[i].text.c_str(), ratios[i].ratio);
       std::fprintf(stderr, "\n");
     }
     if (prev_g_.empty()) {

@@ -124,8 +124,9 @@ void expect_all_constraints_clear_the_pallet(const std::string& terrain, bool ba
   const TorqueFigures base = plan_and_check(scenario + " --constraints baseline", terrain + "_baseline");
   const TorqueFigures all = plan_and_check(scenario + " --constraints all", terrain + "_all");
   EXPECT_EQ(base.status, "optimal");
-  if (baseline_must_collide)
+  if (baseline_must_collide) {
     EXPECT_GT(base.shin_collisions, 0.0) << "the point-foot plan should hit the edge";
+  }
   EXPECT_EQ(all.status, "optimal");
   EXPECT_EQ(all.shin_collisions, 0.0);
   EXPECT_EQ(all.unsafe_footholds, 0.0);

@@ -4,8 +4,8 @@
 #pragma once
 
 #include <Eigen/Core>
-#include <array>
 #include <Eigen/Geometry>
+#include <array>
 #include <cmath>
 #include <memory>
 #include <stdexcept>

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "terrastride/planner/nlp.hpp"
@@ -35,5 +36,10 @@ struct SolveResult {
 // `extra_options` are Ipopt name=value strings (tests use them, e.g. for the derivative checker).
 SolveResult solve(const SrbdProblem& problem, const SolverOptions& options,
                   const std::vector<std::pair<std::string, std::string>>& extra_options = {});
+
+// The Ipopt options in the environment variable `variable`, "name=value name=value ..." (tuning
+// runs: TERRASTRIDE_IPOPT_OPTIONS for every solve, TERRASTRIDE_STEP_IPOPT_OPTIONS for planning
+// session steps); none when it is unset. Items without '=' are ignored.
+std::vector<std::pair<std::string, std::string>> ipopt_options_from_env(const char* variable);
 
 }  // namespace terrastride::planner
