@@ -20,6 +20,7 @@
 #include "report/report.hpp"
 #include "report/terrain_input.hpp"
 #include "simulation_run.hpp"
+#include "solver_heap.hpp"
 #include "terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/collision/simulation.hpp"
@@ -198,6 +199,7 @@ DemoPlan plan_on_map(const robot::RobotModel& model, const DemoMap& map,
     throw CommandError(flag_of(e.field()) + ": " + e.problem());
   }
   planner::PlanOutcome out;
+  serve_solver_workspace_from_heap();
   try {
     out = planner::plan_motion(model, *map.map, *map.map, request.options, request.sample_dt,
                                request.warm_start());
@@ -211,6 +213,7 @@ DemoPlan plan_on_map(const robot::RobotModel& model, const DemoMap& map,
   // The map is read from the demo's temporary folder, which is renamed into place at the end: the
   // plan names the folder it will be found in (as `plan --terrain out/demo/terrain` would).
   out.trajectory.extra["terrain"] = final_terrain_dir;
+  return_free_heap_pages();
   // The checks `plan` runs on a map folder: footholds on the map, leg capsules on its OctoMap.
   collision::CheckTerrain view;
   view.field = map.map.get();

@@ -13,6 +13,7 @@
 
 #include "plan_request.hpp"
 #include "simulation_run.hpp"
+#include "solver_heap.hpp"
 #include "terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
@@ -196,6 +197,7 @@ void run_plan(const PlanCliOptions& o) {
       perception::same_file_as_descriptor(o.out, STDOUT_FILENO) ? std::cerr : std::cout;
 
   planner::PlanOutcome out;
+  serve_solver_workspace_from_heap();
   try {
     out = planner::plan_motion(model, *terrains.smooth(), *terrains.exact(), po, req.sample_dt,
                                warm);
@@ -207,6 +209,7 @@ void run_plan(const PlanCliOptions& o) {
     throw CommandError(e.what());
   }
   out.trajectory.extra["terrain"] = o.terrain;
+  return_free_heap_pages();
   // The samples are final: serialise them (two thirds of plan.json) on the second core while
   // this one voxelises the terrain and runs the checks' one-thread parts (plan_io.hpp). The
   // checks only read the samples. Pallet_15 baseline: see docs/design.md §12.6.
