@@ -9,6 +9,9 @@ problem, the solve, the dense and post-hoc checks and writing plan.json. One row
   wall/solve      the process's wall time over its solve, per run (target <= 1.3)
   post_hoc_s      the post-hoc checks inside it (plan.json post_hoc.wall_s)
   cpu_s           user + system CPU of the process (less sensitive to the machine's load than wall)
+  sys_s           the system part of it (page faults, mapping and unmapping memory, I/O)
+  faults          minor page faults (pages the process touched for the first time, or again
+                  after giving them back; getrusage's ru_minflt, deterministic within a few %)
   max_rss_MiB     peak resident memory (getrusage of the child; target <= 40 MiB)
   iterations      Ipopt iterations (the same every run: a deterministic solve)
   libraries       shared objects the process loaded (LD_DEBUG=files, one extra run)
@@ -48,7 +51,8 @@ PLAN_SCENARIOS = [
 
 
 def run_with_rusage(cmd, env=None):
-    """Runs cmd and reaps it with wait4: (exit code, wall s, cpu s, max RSS KiB, stdout, stderr)."""
+    """Runs cmd and reaps it with wait4: (exit code, wall s, cpu s, max RSS KiB, stdout, stderr,
+    (system cpu s, minor page faults))."""
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         t0 = time.perf_counter()
         p = subprocess.Popen(cmd, stdout=out, stderr=err, env=env)
@@ -58,13 +62,13 @@ def run_with_rusage(cmd, env=None):
         out.seek(0)
         err.seek(0)
         return (p.returncode, wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss, out.read().decode(),
-                err.read().decode())
+                err.read().decode(), (ru.ru_stime, ru.ru_minflt))
 
 
 def libraries_loaded(cmd):
     """Shared objects the process loads (at start-up and by dlopen), from the dynamic loader."""
     env = dict(os.environ, LD_DEBUG="files")
-    _, _, _, _, _, err = run_with_rusage(cmd, env)
+    _, _, _, _, _, err, _ = run_with_rusage(cmd, env)
     names = set()
     for line in err.splitlines():
         if "calling init:" in line:
@@ -94,12 +98,12 @@ def bench_plan(binary, name, terrain, sets, repeat, work):
            "--out", plan, "--json"]
     rows = []
     for _ in range(repeat):
-        code, wall, cpu, rss, out, err = run_with_rusage(cmd)
+        code, wall, cpu, rss, out, err, (sys_cpu, faults) = run_with_rusage(cmd)
         if code not in (0, 4):  # 4: the plan fails a post-hoc check (still a full process)
             raise RuntimeError("%s: exit %d: %s" % (" ".join(cmd), code, err.strip()))
         doc = json.load(open(plan))
-        rows.append({"wall": wall, "cpu": cpu, "rss": rss / 1024.0,
-                     "solve": doc["solver"]["wall_s"], "iterations": doc["solver"]["iterations"],
+        rows.append({"wall": wall, "cpu": cpu, "sys": sys_cpu, "faults": faults,
+                     "rss": rss / 1024.0, "solve": doc["solver"]["wall_s"], "iterations": doc["solver"]["iterations"],
                      "post_hoc": doc.get("post_hoc", {}).get("wall_s", float("nan")),
                      "exit": code})
     return {
@@ -112,6 +116,8 @@ def bench_plan(binary, name, terrain, sets, repeat, work):
         "wall_over_solve": summary([r["wall"] / r["solve"] for r in rows]),
         "post_hoc_s": summary([r["post_hoc"] for r in rows]),
         "cpu_s": summary([r["cpu"] for r in rows]),
+        "sys_s": summary([r["sys"] for r in rows]),
+        "faults": summary([r["faults"] for r in rows]),
         "max_rss_MiB": summary([r["rss"] for r in rows]),
         "libraries": libraries_loaded(cmd),
     }
@@ -128,7 +134,7 @@ def bench_map_1m(bench_terrain, binary, repeat, work):
     cmd = [binary, "map"] + clouds + ["--out", os.path.join(work, "map1m_out"), "--json"]
     rows = []
     for _ in range(repeat):
-        code, wall, cpu, rss, out, err = run_with_rusage(cmd)
+        code, wall, cpu, rss, out, err, _ = run_with_rusage(cmd)
         if code != 0:
             raise RuntimeError("%s: exit %d: %s" % (" ".join(cmd), code, err.strip()))
         rows.append({"wall": wall, "cpu": cpu, "rss": rss / 1024.0})
@@ -168,10 +174,11 @@ def main():
             if not a.json:
                 r = results[-1]
                 print("%-24s it %-4s wall %s  solve %s  wall/solve %s  post-hoc %s  cpu %s  "
-                      "rss %s MiB  libs %d" %
+                      "sys %s  faults %d  rss %s MiB  libs %d" %
                       (r["scenario"], ",".join(map(str, r["iterations"])), fmt(r["wall_s"]),
                        fmt(r["solve_s"]), fmt(r["wall_over_solve"]), fmt(r["post_hoc_s"]),
-                       fmt(r["cpu_s"]), fmt(r["max_rss_MiB"]), r["libraries"]), flush=True)
+                       fmt(r["cpu_s"]), fmt(r["sys_s"]), r["faults"]["median"],
+                       fmt(r["max_rss_MiB"]), r["libraries"]), flush=True)
         if a.bench_terrain:
             results.append(bench_map_1m(os.path.abspath(a.bench_terrain), binary, a.repeat, work))
             if not a.json:
