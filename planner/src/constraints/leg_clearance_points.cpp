@@ -29,6 +29,15 @@ std::vector<std::vector<int>> leg_clearance_points(SrbdProblem& problem,
       const int v = L.foot_pos[f][k];
       const double px = x0[v], py = x0[v + 1];
       foot_z[f][k] = x0[v + 2];
+      // A foot in stance keeps its guess position from knot to knot (three quarters of a crawl's
+      // knots): the disc around it is the previous knot's, so is its highest terrain.
+      if (k > 0) {
+        const int u = L.foot_pos[f][k - 1];
+        if (x0[u] == px && x0[u + 1] == py) {
+          top[f][k] = top[f][k - 1];
+          continue;
+        }
+      }
       double m = -1e300;
       for (int i = -n; i <= n; ++i)
         for (int j = -n; j <= n; ++j) {
