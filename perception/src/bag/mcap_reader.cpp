@@ -15,23 +15,15 @@
 
 #include "bag/bag_readers.hpp"
 #include "bag/byte_cursor.hpp"
+#include "terrastride/perception/mcap_records.hpp"
 
 namespace terrastride::perception::bag {
 namespace {
 
-constexpr char kMagic[8] = {'\x89', 'M', 'C', 'A', 'P', '0', '\r', '\n'};
+using namespace mcap;  // the format's magic and opcodes (mcap_records.hpp)
+
 // A chunk bigger than this uncompressed is refused as corrupt: writers chunk at ~1-8 MB.
 constexpr uint64_t kMaxChunkBytes = 1ull << 31;
-
-enum Opcode : uint8_t {
-  kHeader = 0x01,
-  kFooter = 0x02,
-  kSchema = 0x03,
-  kChannel = 0x04,
-  kMessage = 0x05,
-  kChunk = 0x06,
-  kDataEnd = 0x0F,
-};
 
 struct Schema {
   std::string name;

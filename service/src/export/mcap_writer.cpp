@@ -8,23 +8,12 @@
 
 #include <stdexcept>
 
+#include "terrastride/perception/mcap_records.hpp"
+
 namespace terrastride::service::mcap {
 namespace {
 
-constexpr char kMagic[] = "\x89MCAP0\r\n";
-enum Op : uint8_t {
-  kHeader = 0x01,
-  kFooter = 0x02,
-  kSchema = 0x03,
-  kChannel = 0x04,
-  kMessage = 0x05,
-  kChunk = 0x06,
-  kMessageIndex = 0x07,
-  kChunkIndex = 0x08,
-  kStatistics = 0x0B,
-  kSummaryOffset = 0x0E,
-  kDataEnd = 0x0F,
-};
+using namespace perception::mcap;  // the format's magic and opcodes (mcap_records.hpp)
 
 void put_u8(std::string& s, uint8_t v) { s.push_back(static_cast<char>(v)); }
 template <class T>
