@@ -158,6 +158,22 @@ inline double capsule_octree_distance(const fcl::OcTree<double>& tree,
   return best;
 }
 
+// The signed distance of a shape found touching the tree (distance <= 0): minus its deepest
+// penetration into any single node (FCL's contacts, every one), or 0 when FCL's collision query
+// finds none (touching within GJK's tolerance).
+inline double contact_signed_distance(const fcl::OcTree<double>& tree, const Shape& shape,
+                                      const Transform3d& pose) {
+  const Transform3d identity = Transform3d::Identity();
+  fcl::CollisionRequest<double> creq(std::numeric_limits<int>::max() / 2, true);
+  fcl::CollisionResult<double> cres;
+  fcl::collide(&tree, identity, &shape, pose, creq, cres);
+  if (!cres.isCollision()) return 0.0;
+  double depth = 0.0;
+  for (size_t c = 0; c < cres.numContacts(); ++c)
+    depth = std::max(depth, cres.getContact(c).penetration_depth);
+  return -depth;
+}
+
 // Signed distance from a shape to the occupied voxels: >= 0 clearance (capped at `cutoff`), < 0 in
 // collision, where it is minus the deepest penetration into any single node of the tree (a voxel,
 // or a pruned block of voxels that are all occupied). Only the sign and whether that depth exceeds
@@ -172,14 +188,7 @@ inline double signed_distance(const fcl::OcTree<double>& tree, const Shape& shap
   dres.min_distance = std::min(cutoff, upper_bound);
   fcl::distance(&tree, identity, &shape, pose, dreq, dres);
   if (dres.min_distance > 1e-9) return std::min(dres.min_distance, cutoff);
-  fcl::CollisionRequest<double> creq(std::numeric_limits<int>::max() / 2, true);
-  fcl::CollisionResult<double> cres;
-  fcl::collide(&tree, identity, &shape, pose, creq, cres);
-  if (!cres.isCollision()) return 0.0;  // touching within GJK's tolerance
-  double depth = 0.0;
-  for (size_t c = 0; c < cres.numContacts(); ++c)
-    depth = std::max(depth, cres.getContact(c).penetration_depth);
-  return -depth;
+  return contact_signed_distance(tree, shape, pose);
 }
 
 // signed_distance for a capsule: the distance query through capsule_octree_distance (the same
@@ -188,15 +197,7 @@ inline double signed_distance(const fcl::OcTree<double>& tree, const fcl::Capsul
                               const Transform3d& pose, double cutoff, double upper_bound) {
   const double d = capsule_octree_distance(tree, capsule, pose, std::min(cutoff, upper_bound));
   if (d > 1e-9) return std::min(d, cutoff);
-  const Transform3d identity = Transform3d::Identity();
-  fcl::CollisionRequest<double> creq(std::numeric_limits<int>::max() / 2, true);
-  fcl::CollisionResult<double> cres;
-  fcl::collide(&tree, identity, &capsule, pose, creq, cres);
-  if (!cres.isCollision()) return 0.0;  // touching within GJK's tolerance
-  double depth = 0.0;
-  for (size_t c = 0; c < cres.numContacts(); ++c)
-    depth = std::max(depth, cres.getContact(c).penetration_depth);
-  return -depth;
+  return contact_signed_distance(tree, capsule, pose);
 }
 
 // The certain solid (boxes) in an FCL broadphase tree, queried with the same shapes.
