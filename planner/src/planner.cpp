@@ -68,6 +68,9 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   PlannerOptions problem_options = options;
   if (warm.previous && !problem_options.has_path_line)
     set_path_line_of(*warm.previous, &problem_options);
+  // A measured start ahead of the plan may return to it (monotone_progress).
+  if (warm.previous && warm.start)
+    set_start_lead_of(*warm.previous, warm.shift, start, &problem_options);
   SrbdProblem problem(robot, plan_terrain, timeline, problem_options, start_ptr);
   // An unreachable goal stance otherwise costs seconds of iterations before "infeasible".
   const auto t_reach = std::chrono::steady_clock::now();

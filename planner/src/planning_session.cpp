@@ -142,7 +142,10 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   // A horizon's end is pinned to the reference as the problem is built, so that the rows of
   // every constraint set see it as fixed (built after, the path-shape rows on it were constants).
   const SrbdProblem::StartState pinned_end = start_state_of(reference_, end);
-  SrbdProblem problem(robot_, plan_terrain_, timeline, options_, &measured,
+  // A measured state ahead of the reference may return to it (monotone_progress, issue #17).
+  ProblemOptions step_problem_options = options_;
+  set_start_lead_of(reference_, t, measured, &step_problem_options);
+  SrbdProblem problem(robot_, plan_terrain_, timeline, step_problem_options, &measured,
                       to_goal ? nullptr : &pinned_end);
   Trajectory guess = spliced_guess(previous_, previous_start_, reference_);
   problem.warm_start_from(guess, t);

@@ -1,4 +1,5 @@
 // What a re-plan takes from the plan it continues: the contact timeline, the goal, the start state.
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -71,6 +72,17 @@ void set_path_line_of(const Trajectory& plan, ProblemOptions* options) {
     options->path_line_end = plan.samples.back().base.position.head<2>();
   }
   options->has_path_line = true;
+}
+
+void set_start_lead_of(const Trajectory& plan, double t, const SrbdProblem::StartState& start,
+                       ProblemOptions* options) {
+  options->start_lead = 0.0;
+  if (!options->has_path_line) return;
+  const Eigen::Vector2d d = options->path_line_end - options->path_line_start;
+  if (!(d.norm() >= 0.01)) return;
+  const double lead = d.normalized().dot(start.position.head<2>() -
+                                         interpolate_plan(plan, t).base.position.head<2>());
+  if (std::isfinite(lead)) options->start_lead = std::max(0.0, lead);
 }
 
 nlohmann::json path_line_json(const ProblemOptions& o) {

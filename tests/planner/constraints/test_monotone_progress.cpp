@@ -18,7 +18,8 @@ TEST(MonotoneProgress, JacobianMatchesCentralDifferences) {
   const auto r = hyq();
   TanhStep terrain(0.1, 0.5, 0.05, 0.01);
   for (bool timing : {false, true}) {
-    const SrbdProblem p(r, terrain, crawl_timeline(r), with_monotone(turning_crawl_options(timing)));
+    const SrbdProblem p(r, terrain, crawl_timeline(r),
+                        with_monotone(turning_crawl_options(timing)));
     EXPECT_GT(check_kind_derivatives(p, "monotone_progress"), 10) << "timing " << timing;
     EXPECT_GT(largest_jacobian_entry(p, "monotone_progress"), 0.5);
   }
@@ -67,17 +68,80 @@ TEST(MonotoneProgress, RowsAreTheControlPointDifferencesAlongTheGoalLine) {
   }
 }
 
+// A re-plan from a state ahead of its motion (ProblemOptions::start_lead, issue #17): the knots'
+// velocity rows within the first 0.5 s are bounded by -u instead of 0 and the middle rows carry
+// + h u / 3 (the middle velocity control point >= -u), u = lead / the end time of the last such
+// segment, so the base gives back at most the lead; later rows as without a lead. Derivatives
+// against central differences with fixed and optimised timing.
+TEST(MonotoneProgress, AStartAheadOfItsMotionMayGiveItsLeadBack) {
+  const auto r = hyq();
+  FlatField flat;
+  ProblemOptions o = with_monotone(turning_crawl_options(false));
+  o.goal = Eigen::Vector3d(0.4, 0.0, 0.0);
+  const SrbdProblem cold(r, flat, crawl_timeline(r), o);
+  const auto st = cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), 0.3);
+  SrbdProblem::StartState start;
+  start.position = st.pos;
+  start.euler_zyx = st.euler;
+  start.linear_velocity = st.vel;
+  start.euler_rates = st.euler_rate;
+  start.foot_position = st.foot_pos;
+  start.foot_velocity = st.foot_vel;
+  o.has_path_line = true;
+  o.path_line_start = Eigen::Vector2d(0.0, 0.0);
+  o.path_line_end = Eigen::Vector2d(0.4, 0.0);
+  const auto timeline = crawl_timeline(r).cropped(0.3);
+  const double lead = 0.03;
+  for (bool timing : {false, true}) {
+    ProblemOptions oo = o;
+    oo.optimize_timing = timing;
+    oo.start_lead = lead;
+    const SrbdProblem p(r, flat, timeline, oo, &start);
+    EXPECT_GT(check_kind_derivatives(p, "monotone_progress"), 10) << "timing " << timing;
+  }
+  ProblemOptions without = o, with = o;
+  with.start_lead = lead;
+  SrbdProblem p0(r, flat, timeline, without, &start), p1(r, flat, timeline, with, &start);
+  const Layout& L = p1.layout();
+  int n = 0;  // segments starting before 0.5 s
+  while (L.nominal_knot_time[n] < 0.5) ++n;
+  const double u = lead / L.nominal_knot_time[n];
+  std::vector<const Piece*> a, b;
+  for (const auto& piece : p0.pieces())
+    if (piece->kind == "monotone_progress") a.push_back(piece.get());
+  for (const auto& piece : p1.pieces())
+    if (piece->kind == "monotone_progress") b.push_back(piece.get());
+  ASSERT_EQ(a.size(), b.size());
+  ASSERT_EQ(static_cast<int>(b.size()), L.num_segments);
+  const std::vector<double> x = perturbed_guess(p1, 3, 0.02);
+  int relaxed_knots = 0;
+  for (int s = 0; s < L.num_segments; ++s) {
+    ASSERT_EQ(a[s]->rows(), b[s]->rows()) << "segment " << s;
+    // The start's velocity is fixed: each segment has its middle row first, then its end knot's.
+    const auto ga = rows_at(*a[s], x), gb = rows_at(*b[s], x);
+    const double h = segment_length(L, x, s);
+    EXPECT_NEAR(gb[0] - ga[0], s < n ? h * u / 3.0 : 0.0, 1e-12) << "segment " << s;
+    EXPECT_EQ(b[s]->lb[0], 0.0);
+    if (b[s]->rows() > 1) {
+      EXPECT_NEAR(gb[1], ga[1], 1e-12);
+      EXPECT_EQ(b[s]->lb[1], s + 1 < n ? -u : 0.0) << "segment " << s;
+      EXPECT_EQ(a[s]->lb[1], 0.0);
+      relaxed_knots += s + 1 < n;
+    }
+  }
+  EXPECT_EQ(relaxed_knots, n - 1);
+  EXPECT_GE(n, 3);
+}
+
 TEST(MonotoneProgress, OffByDefaultAndWithoutAGoal) {
   const auto r = hyq();
   FlatField flat;
   ProblemOptions o = turning_crawl_options(false);
   o.constraints = {"monotone_progress"};
-  EXPECT_EQ(count_kinds(SrbdProblem(r, flat, crawl_timeline(r), o)).count("monotone_progress"),
-            0u);
+  EXPECT_EQ(count_kinds(SrbdProblem(r, flat, crawl_timeline(r), o)).count("monotone_progress"), 0u);
   o = with_monotone(o);
   o.has_goal = false;  // the goal is the start: no line
-  EXPECT_EQ(count_kinds(SrbdProblem(r, flat, crawl_timeline(r), o)).count("monotone_progress"),
-            0u);
+  EXPECT_EQ(count_kinds(SrbdProblem(r, flat, crawl_timeline(r), o)).count("monotone_progress"), 0u);
 }
 
 }  // namespace

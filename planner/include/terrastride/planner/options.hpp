@@ -99,6 +99,12 @@ struct ProblemOptions {
   bool has_path_line = false;
   Eigen::Vector2d path_line_start = Eigen::Vector2d::Zero();
   Eigen::Vector2d path_line_end = Eigen::Vector2d::Zero();
+  // How far (m) a re-plan's start lies ahead, along the path line, of the motion it re-plans at
+  // that time (a measured state ahead of the plan; set_start_lead_of). monotone_progress lets the
+  // base give back at most this much over its first 0.5 s, so that a re-plan pushed ahead can
+  // return to its motion (a session's pinned horizon end, the stances it planned) instead of
+  // standing still ahead of its feet. 0 (cold plans, starts on the plan): never back.
+  double start_lead = 0.0;
 
   // ---- Boundary conditions and the objective (issue #17) ----
   // A plan that starts from rest (no start state given: the nominal stance) and every plan's end

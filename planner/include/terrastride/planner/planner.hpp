@@ -59,6 +59,10 @@ Eigen::Vector3d goal_of(const Trajectory& plan);
 // The line a re-plan of `plan` shapes its base path along (ProblemOptions::path_line): the one
 // `plan` recorded ("path_line", a re-plan's), else from its first base position to its goal.
 void set_path_line_of(const Trajectory& plan, ProblemOptions* options);
+// ProblemOptions::start_lead of a re-plan of `plan` from `start` at time t: how far `start` lies
+// ahead of `plan`'s state at t along the options' path line (set first), 0 when behind or on it.
+void set_start_lead_of(const Trajectory& plan, double t, const SrbdProblem::StartState& start,
+                       ProblemOptions* options);
 // plan.json's "path_line": [x0, y0, x1, y1] of the options' path line.
 nlohmann::json path_line_json(const ProblemOptions& options);
 
