@@ -49,6 +49,13 @@ void SrbdProblem::pin_end_state(const StartState& end) {
       variables_.fix(g + 9 + d, end.euler_rates[d]);
     }
   }
+  // The feet at the end too (those the start does not fix): the next step continues from here on
+  // the reference, whose forces and base beyond this end were planned on its own footholds.
+  for (std::size_t f = 0; f < end.foot_position.size() && f < layout_.foot_pos.size(); ++f) {
+    const int pv = layout_.foot_pos[f][layout_.num_segments];
+    if (pv >= 0 && variables_.lower[pv] < variables_.upper[pv])
+      for (int d = 0; d < 3; ++d) variables_.fix(pv + d, end.foot_position[f][d]);
+  }
 }
 
 int SrbdProblem::num_free_variables() const {

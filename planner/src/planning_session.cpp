@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <memory>
 #include <sstream>
 
 #include "terrastride/planner/piece_math.hpp"
@@ -141,14 +142,26 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
 
   // A horizon's end is pinned to the reference as the problem is built, so that the rows of
   // every constraint set see it as fixed (built after, the path-shape rows on it were constants).
+  // The feet are held there too (the reference's foot positions), so that the next step's guess,
+  // this plan and then the reference, stands on one foothold across the splice (a stance spanning
+  // it has one variable; free end feet cost the horizon-end moves 7-11 iterations instead of 3,
+  // docs/design.md §6.7). A step that fails so is solved again with the end feet free: after a
+  // push a foothold the recovery needs may not be the reference's.
   const SrbdProblem::StartState pinned_end = start_state_of(reference_, end);
   // A measured state ahead of the reference may return to it (monotone_progress, issue #17).
   ProblemOptions step_problem_options = options_;
   set_start_lead_of(reference_, t, measured, &step_problem_options);
-  SrbdProblem problem(robot_, plan_terrain_, timeline, step_problem_options, &measured,
-                      to_goal ? nullptr : &pinned_end);
-  Trajectory guess = spliced_guess(previous_, previous_start_, reference_);
-  problem.warm_start_from(guess, t);
+  SrbdProblem::StartState base_end = pinned_end;
+  base_end.foot_position.clear();
+  base_end.foot_velocity.clear();
+  const Trajectory guess = spliced_guess(previous_, previous_start_, reference_);
+  auto build = [&](const SrbdProblem::StartState* end_state) {
+    auto p = std::make_unique<SrbdProblem>(robot_, plan_terrain_, timeline, step_problem_options,
+                                           &measured, end_state);
+    p->warm_start_from(guess, t);
+    return p;
+  };
+  std::unique_ptr<SrbdProblem> problem = build(to_goal ? nullptr : &pinned_end);
   SessionStep out;
   out.start_time = t;
   out.end_time = end;
@@ -165,16 +178,31 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   // TERRASTRIDE_IPOPT_OPTIONS would change the reference's cold solve too).
   for (auto& option : ipopt_options_from_env("TERRASTRIDE_STEP_IPOPT_OPTIONS"))
     step_options.push_back(std::move(option));
-  o.solve = solve(problem, solver_options, step_options);
+  o.solve = solve(*problem, solver_options, step_options);
+  const bool stopped = o.solve.status == "time_limit" ||
+                       (limits.should_stop && limits.should_stop());
+  if (!o.solve.success && !to_goal && !stopped) {
+    const SolveResult pinned = o.solve;
+    out.feet_freed = true;
+    out.pinned_feet_status = pinned.status;
+    out.pinned_feet_iterations = pinned.iterations;
+    problem = build(&base_end);
+    if (limits.max_time > 0.0)
+      solver_options.max_time = std::max(0.001, limits.max_time - seconds_since(t0));
+    o.solve = solve(*problem, solver_options, step_options);
+    // The step's solver figures cover both solves.
+    o.solve.iterations += pinned.iterations;
+    o.solve.wall_s += pinned.wall_s;
+  }
   o.success = o.solve.success;
   const auto t_after_solve = std::chrono::steady_clock::now();
-  o.trajectory = sample_solution(problem, o.solve.x, sample_dt_);
+  o.trajectory = sample_solution(*problem, o.solve.x, sample_dt_);
   auto& st = o.trajectory.solver;
   st.status = o.solve.status;
   st.iterations = o.solve.iterations;
   st.wall_s = o.solve.wall_s;
-  st.n_variables = problem.num_free_variables();
-  st.n_constraints = problem.num_constraints();
+  st.n_variables = problem->num_free_variables();
+  st.n_constraints = problem->num_constraints();
   auto& ex = o.trajectory.extra;
   ex["solver_max_violation"] = o.solve.max_violation;
   ex["solver_termination"] = o.solve.termination;
@@ -183,11 +211,14 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   ex["start_time"] = t;
   ex["session"] = {{"step", steps_ + 1}, {"end_time", end}, {"to_goal", to_goal},
                    {"horizon", horizon_}};
+  if (out.feet_freed)
+    ex["session"]["end_feet_freed"] = {{"pinned_status", out.pinned_feet_status},
+                                       {"pinned_iterations", out.pinned_feet_iterations}};
   DenseCheckLimits lim;
   lim.friction = options_.friction;
   lim.max_normal_force = options_.max_normal_force_factor * robot_.mass * kGravity;
   o.trajectory.checks =
-      dense_checks(robot_, check_terrain_, sample_solution(problem, o.solve.x, kDenseDt), lim);
+      dense_checks(robot_, check_terrain_, sample_solution(*problem, o.solve.x, kDenseDt), lim);
   ex["checks_dt"] = kDenseDt;
   ex["timings"] = {{"build_s", out.build_s},
                    {"solve_s", o.solve.wall_s},
@@ -199,7 +230,7 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
     m << "the re-plan from t = " << t << " s ended with status '" << o.solve.status << "' after "
       << o.solve.iterations << " iterations; largest constraint violation "
       << o.solve.max_violation;
-    const auto left = violated_families(problem, o.solve.x, options_.tolerance);
+    const auto left = violated_families(*problem, o.solve.x, options_.tolerance);
     if (!left.empty()) m << "; still violated: " << describe_violations(left);
     m << " (the session keeps its previous plan)";
     o.message = m.str();

@@ -308,6 +308,62 @@ TEST(Nlp, GoalPitchFollowsTheTerrainUnderTheNominalFeet) {
   EXPECT_NEAR(ps.lower()[gs + 8], 0.0, 1e-9);
 }
 
+// A receding-horizon step (planning sessions, issue #22) holds the end at the reference's state:
+// the base, and the feet at its foot positions, so that the next step's guess (this plan, then the
+// reference) agrees on a stance spanning the splice; a stance the start fixes keeps the start's.
+TEST(Nlp, HorizonEndPinsTheBaseAndTheFeet) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.3, 0.0, 0.0);
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem free_end(r, flat, tl, o);
+  auto state_at = [&](double t) {
+    const auto s = free_end.evaluate(free_end.initial_guess(), t);
+    SrbdProblem::StartState st;
+    st.position = s.pos;
+    st.linear_velocity = s.vel;
+    st.euler_zyx = s.euler;
+    st.euler_rates = s.euler_rate;
+    st.foot_position = s.foot_pos;
+    st.foot_velocity = s.foot_vel;
+    return st;
+  };
+  const SrbdProblem::StartState start = state_at(0.0);
+  SrbdProblem::StartState end = state_at(free_end.duration(free_end.initial_guess()));
+  // Footholds the problem's own guess would not choose, to see them pinned.
+  for (auto& p : end.foot_position) p += Eigen::Vector3d(0.03, -0.02, 0.0);
+  SrbdProblem p(r, flat, tl, o, &start, &end);
+  const Layout& L = p.layout();
+  const int S = L.num_segments;
+  int pinned = 0;
+  for (std::size_t f = 0; f < r.legs.size(); ++f) {
+    const int pv = L.foot_pos[f][S];
+    ASSERT_GE(pv, 0);
+    bool fixed_by_start = false;
+    for (const auto& st : L.stances)
+      fixed_by_start |= st.foot == static_cast<int>(f) && st.fixed && st.last_seg == S - 1;
+    const Eigen::Vector3d& want = fixed_by_start ? start.foot_position[f] : end.foot_position[f];
+    for (int d = 0; d < 3; ++d) {
+      EXPECT_EQ(p.lower()[pv + d], p.upper()[pv + d]) << "foot " << f << " axis " << d;
+      EXPECT_DOUBLE_EQ(p.lower()[pv + d], want[d]) << "foot " << f << " axis " << d;
+    }
+    pinned += !fixed_by_start;
+  }
+  EXPECT_EQ(pinned, static_cast<int>(r.legs.size()));  // a 2 s crawl: no stance spans it all
+  const int g = L.base[S];
+  for (int d = 0; d < 3; ++d) {
+    EXPECT_EQ(p.lower()[g + d], end.position[d]);
+    EXPECT_EQ(p.upper()[g + d], end.position[d]);
+  }
+  // Without an end state the last footholds stay free.
+  for (std::size_t f = 0; f < r.legs.size(); ++f) {
+    const int pv = free_end.layout().foot_pos[f][S];
+    EXPECT_LT(free_end.lower()[pv], free_end.upper()[pv]);
+  }
+}
+
 TEST(Nlp, UnknownConstraintSetIsNamed) {
   const auto r = hyq();
   testing::FlatField flat;

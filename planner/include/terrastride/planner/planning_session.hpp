@@ -5,8 +5,10 @@
 //
 // With a horizon H > 0 a step plans only from its start t to the first contact switch at or after
 // t + H at which no foot is in mid-swing, and the base there is held at the reference plan's state
-// (pose, velocity and rates): the reference is feasible, so the horizon problem has a solution
-// whenever the robot can return to it within H. Once t + H reaches the reference's end the step
+// (pose, velocity and rates) and the feet at its foot positions: the reference is feasible, so the
+// horizon problem has a solution whenever the robot can return to it within H, and the next step,
+// whose guess continues this plan with the reference beyond its end, starts from a guess that is
+// consistent across that splice (a stance spanning it has one foothold variable). Once t + H reaches the reference's end the step
 // plans to the goal as the reference did. Ipopt 3.11 keeps nothing between two problems of
 // different structure (and a step's structure changes whenever its start crosses a segment
 // knot), so the cost of a step is that of its problem: a horizon of 2 s instead of the 11 s of
@@ -27,6 +29,11 @@ struct SessionStep {
   double end_time = 0.0;    // where this plan ends on that axis
   bool to_goal = false;     // the plan ends at the goal (not at a horizon)
   double build_s = 0.0;     // problem construction and warm start
+  // The solve with the end's feet held at the reference's failed, and the step was solved again
+  // with them free (outcome.solve's iterations and wall time cover both solves).
+  bool feet_freed = false;
+  std::string pinned_feet_status;
+  int pinned_feet_iterations = 0;
 };
 
 // What bounds one step's solve (the service's per-step deadline): polled once per iteration, and
