@@ -321,3 +321,31 @@ TEST(StartState, MalformedStatesNameTheField) {
     EXPECT_NE(e.find(says), std::string::npos) << state.dump() << " -> '" << e << "'";
   }
 }
+
+// ProblemOptions::start_lead (issue #17): how far a re-plan's start lies ahead of the plan's state
+// at that time along the options' path line (a diagonal one here); 0 when behind it, beside it,
+// or without a line.
+TEST(StartLead, IsTheStartsLeadOverThePlanAlongThePathLine) {
+  const Trajectory plan = two_sample_plan();
+  ProblemOptions o;
+  o.has_path_line = true;
+  o.path_line_start = Eigen::Vector2d(0.0, 0.0);
+  o.path_line_end = Eigen::Vector2d(3.0, 4.0);  // along (0.6, 0.8), across (-0.8, 0.6)
+  const Eigen::Vector2d along(0.6, 0.8), across(-0.8, 0.6);
+  const SrbdProblem::StartState on_plan = start_state_of(plan, 0.015);
+  auto lead_of = [&](const Eigen::Vector2d& shift, const ProblemOptions& options) {
+    SrbdProblem::StartState s = on_plan;
+    s.position.head<2>() += shift;
+    ProblemOptions out = options;
+    out.start_lead = 123.0;  // overwritten
+    set_start_lead_of(plan, 0.015, s, &out);
+    return out.start_lead;
+  };
+  EXPECT_NEAR(lead_of(Eigen::Vector2d::Zero(), o), 0.0, 1e-12);
+  EXPECT_NEAR(lead_of(0.03 * along, o), 0.03, 1e-12);
+  EXPECT_NEAR(lead_of(0.03 * along + 0.05 * across, o), 0.03, 1e-12);
+  EXPECT_EQ(lead_of(-0.03 * along, o), 0.0);
+  EXPECT_EQ(lead_of(0.05 * across, o), 0.0);
+  ProblemOptions no_line;
+  EXPECT_EQ(lead_of(0.03 * along, no_line), 0.0);
+}
