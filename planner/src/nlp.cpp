@@ -56,6 +56,13 @@ void SrbdProblem::pin_end_state(const StartState& end) {
     if (pv >= 0 && variables_.lower[pv] < variables_.upper[pv])
       for (int d = 0; d < 3; ++d) variables_.fix(pv + d, end.foot_position[f][d]);
   }
+  // And the forces there, when it has them: the next step's guess continues with the
+  // reference's, so a force of this plan's own at its end would break the splice's dynamics.
+  for (std::size_t f = 0; f < end.foot_force.size() && f < layout_.force.size(); ++f) {
+    const int fv = layout_.force[f][layout_.num_segments - 1][1];
+    if (fv >= 0 && variables_.lower[fv] < variables_.upper[fv])
+      for (int d = 0; d < 3; ++d) variables_.fix(fv + d, end.foot_force[f][d]);
+  }
 }
 
 int SrbdProblem::num_free_variables() const {

@@ -142,18 +142,23 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
 
   // A horizon's end is pinned to the reference as the problem is built, so that the rows of
   // every constraint set see it as fixed (built after, the path-shape rows on it were constants).
-  // The feet are held there too (the reference's foot positions), so that the next step's guess,
-  // this plan and then the reference, stands on one foothold across the splice (a stance spanning
-  // it has one variable; free end feet cost the horizon-end moves 7-11 iterations instead of 3,
-  // docs/design.md §6.7). A step that fails so is solved again with the end feet free: after a
-  // push a foothold the recovery needs may not be the reference's.
-  const SrbdProblem::StartState pinned_end = start_state_of(reference_, end);
+  // The feet and their forces are held there too (the reference's), so that the next step's
+  // guess, this plan and then the reference, agrees with itself across the splice (a stance
+  // spanning it has one foothold variable, a knot one force: free, they cost the horizon-end
+  // moves 7-11 iterations instead of 3, docs/design.md §6.7). A step that fails so is solved again
+  // with the end's feet and forces free: after a push the recovery may need others.
+  SrbdProblem::StartState pinned_end = start_state_of(reference_, end);
+  // Its forces there: those just before the end (the end is a contact switch; a foot touching
+  // down at it has no force variable at the end knot).
+  for (const auto& f : interpolate_plan(reference_, end - kEventTol).feet)
+    pinned_end.foot_force.push_back(f.contact ? f.force : Eigen::Vector3d::Zero());
   // A measured state ahead of the reference may return to it (monotone_progress, issue #17).
   ProblemOptions step_problem_options = options_;
   set_start_lead_of(reference_, t, measured, &step_problem_options);
   SrbdProblem::StartState base_end = pinned_end;
   base_end.foot_position.clear();
   base_end.foot_velocity.clear();
+  base_end.foot_force.clear();
   const Trajectory guess = spliced_guess(previous_, previous_start_, reference_);
   auto build = [&](const SrbdProblem::StartState* end_state) {
     auto p = std::make_unique<SrbdProblem>(robot_, plan_terrain_, timeline, step_problem_options,

@@ -309,8 +309,8 @@ TEST(Nlp, GoalPitchFollowsTheTerrainUnderTheNominalFeet) {
 }
 
 // A receding-horizon step (planning sessions, issue #22) holds the end at the reference's state:
-// the base, and the feet at its foot positions, so that the next step's guess (this plan, then the
-// reference) agrees on a stance spanning the splice; a stance the start fixes keeps the start's.
+// the base, the feet at its foot positions and its forces, so that the next step's guess (this
+// plan, then the reference) agrees across the splice; a stance the start fixes keeps the start's.
 TEST(Nlp, HorizonEndPinsTheBaseAndTheFeet) {
   const auto r = hyq();
   testing::FlatField flat;
@@ -332,8 +332,10 @@ TEST(Nlp, HorizonEndPinsTheBaseAndTheFeet) {
   };
   const SrbdProblem::StartState start = state_at(0.0);
   SrbdProblem::StartState end = state_at(free_end.duration(free_end.initial_guess()));
-  // Footholds the problem's own guess would not choose, to see them pinned.
+  // Footholds and forces the problem's own guess would not choose, to see them pinned.
   for (auto& p : end.foot_position) p += Eigen::Vector3d(0.03, -0.02, 0.0);
+  for (std::size_t f = 0; f < r.legs.size(); ++f)
+    end.foot_force.push_back(Eigen::Vector3d(10.0 + f, -5.0, 150.0 + 10.0 * f));
   SrbdProblem p(r, flat, tl, o, &start, &end);
   const Layout& L = p.layout();
   const int S = L.num_segments;
@@ -352,6 +354,17 @@ TEST(Nlp, HorizonEndPinsTheBaseAndTheFeet) {
     pinned += !fixed_by_start;
   }
   EXPECT_EQ(pinned, static_cast<int>(r.legs.size()));  // a 2 s crawl: no stance spans it all
+  int forces = 0;
+  for (std::size_t f = 0; f < r.legs.size(); ++f) {
+    const int fv = L.force[f][S - 1][1];
+    if (fv < 0) continue;  // no force variable at the end knot (a ramp's zero)
+    ++forces;
+    for (int d = 0; d < 3; ++d) {
+      EXPECT_EQ(p.lower()[fv + d], p.upper()[fv + d]) << "foot " << f << " axis " << d;
+      EXPECT_DOUBLE_EQ(p.lower()[fv + d], end.foot_force[f][d]) << "foot " << f << " axis " << d;
+    }
+  }
+  EXPECT_GT(forces, 0);
   const int g = L.base[S];
   for (int d = 0; d < 3; ++d) {
     EXPECT_EQ(p.lower()[g + d], end.position[d]);

@@ -61,12 +61,14 @@ class SrbdProblem {
   // at options.start on `terrain`. `end_state` (a receding-horizon step, planning_session.hpp):
   // the base at the last knot is held at its pose, velocity and Euler rates instead of resting at
   // the goal (degrees of freedom the robot cannot move keep their start value), and the feet there
-  // at its foot positions when it has them (a stance the start fixes keeps the start's); the end
-  // then gets no rest rows. It is fixed before the constraint sets are built, so their rows see the pinned
+  // at its foot positions and their forces when it has them (a stance the start fixes keeps the
+  // start's); the end then gets no rest rows. It is fixed before the constraint sets are built, so their rows see the pinned
   // end as fixed (a row on fixed variables only is left out, not left as a constant).
   struct StartState {
     Eigen::Vector3d position, euler_zyx, linear_velocity, euler_rates;
     std::vector<Eigen::Vector3d> foot_position, foot_velocity;
+    // An end state's contact forces (world, N), when it has them: held at the last knot.
+    std::vector<Eigen::Vector3d> foot_force;
   };
   SrbdProblem(const robot::RobotModel& robot, const terrain::HeightField& terrain,
               const PhaseTimeline& timeline, const ProblemOptions& options,
