@@ -69,7 +69,7 @@ TEST(MonotoneProgress, RowsAreTheControlPointDifferencesAlongTheGoalLine) {
 }
 
 // A re-plan from a state ahead of its motion (ProblemOptions::start_lead, issue #17): the knots'
-// velocity rows within the first 0.5 s are bounded by -u instead of 0 and the middle rows carry
+// velocity rows within the first second are bounded by -u instead of 0 and the middle rows carry
 // + h u / 3 (the middle velocity control point >= -u), u = lead / the end time of the last such
 // segment, so the base gives back at most the lead; later rows as without a lead. Derivatives
 // against central differences with fixed and optimised timing.
@@ -103,8 +103,8 @@ TEST(MonotoneProgress, AStartAheadOfItsMotionMayGiveItsLeadBack) {
   with.start_lead = lead;
   SrbdProblem p0(r, flat, timeline, without, &start), p1(r, flat, timeline, with, &start);
   const Layout& L = p1.layout();
-  int n = 0;  // segments starting before 0.5 s
-  while (L.nominal_knot_time[n] < 0.5) ++n;
+  int n = 0;  // segments starting before 1 s
+  while (L.nominal_knot_time[n] < 1.0) ++n;
   const double u = lead / L.nominal_knot_time[n];
   std::vector<const Piece*> a, b;
   for (const auto& piece : p0.pieces())

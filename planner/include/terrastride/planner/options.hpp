@@ -101,7 +101,7 @@ struct ProblemOptions {
   Eigen::Vector2d path_line_end = Eigen::Vector2d::Zero();
   // How far (m) a re-plan's start lies ahead, along the path line, of the motion it re-plans at
   // that time (a measured state ahead of the plan; set_start_lead_of). monotone_progress lets the
-  // base give back at most this much over its first 0.5 s, so that a re-plan pushed ahead can
+  // base give back at most this much over its first second, so that a re-plan pushed ahead can
   // return to its motion (a session's pinned horizon end, the stances it planned) instead of
   // standing still ahead of its feet. 0 (cold plans, starts on the plan): never back.
   double start_lead = 0.0;
