@@ -19,6 +19,7 @@
 #include "terrastride/robot/robot_model.hpp"
 #include "piece_derivatives.hpp"
 #include "test_robots.hpp"
+#include "test_states.hpp"
 #include "test_terrains.hpp"
 
 namespace terrastride::planner {
@@ -320,15 +321,7 @@ TEST(Nlp, HorizonEndPinsTheBaseAndTheFeet) {
   const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
   SrbdProblem free_end(r, flat, tl, o);
   auto state_at = [&](double t) {
-    const auto s = free_end.evaluate(free_end.initial_guess(), t);
-    SrbdProblem::StartState st;
-    st.position = s.pos;
-    st.linear_velocity = s.vel;
-    st.euler_zyx = s.euler;
-    st.euler_rates = s.euler_rate;
-    st.foot_position = s.foot_pos;
-    st.foot_velocity = s.foot_vel;
-    return st;
+    return testing::start_state_of(free_end.evaluate(free_end.initial_guess(), t));
   };
   const SrbdProblem::StartState start = state_at(0.0);
   SrbdProblem::StartState end = state_at(free_end.duration(free_end.initial_guess()));

@@ -17,6 +17,7 @@
 
 #include "../piece_derivatives.hpp"
 #include "../test_robots.hpp"
+#include "../test_states.hpp"
 #include "../test_terrains.hpp"
 #include "terrastride/planner/constraints.hpp"
 #include "terrastride/planner/feasibility.hpp"

@@ -104,15 +104,7 @@ TEST(LateralCorridor, NoConstantRowsWithAPinnedEnd) {
   o.goal = Eigen::Vector3d(0.4, 0.0, 0.0);
   const SrbdProblem cold(r, flat, crawl_timeline(r), o);
   auto state_at = [&](double t) {
-    const auto st = cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), t);
-    SrbdProblem::StartState s;
-    s.position = st.pos;
-    s.euler_zyx = st.euler;
-    s.linear_velocity = st.vel;
-    s.euler_rates = st.euler_rate;
-    s.foot_position = st.foot_pos;
-    s.foot_velocity = st.foot_vel;
-    return s;
+    return start_state_of(cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), t));
   };
   const auto start = state_at(0.5), end = state_at(1.5);
   ASSERT_GT(end.linear_velocity.x(), 0.01);  // pinned in motion

@@ -79,14 +79,8 @@ TEST(MonotoneProgress, AStartAheadOfItsMotionMayGiveItsLeadBack) {
   ProblemOptions o = with_monotone(turning_crawl_options(false));
   o.goal = Eigen::Vector3d(0.4, 0.0, 0.0);
   const SrbdProblem cold(r, flat, crawl_timeline(r), o);
-  const auto st = cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), 0.3);
-  SrbdProblem::StartState start;
-  start.position = st.pos;
-  start.euler_zyx = st.euler;
-  start.linear_velocity = st.vel;
-  start.euler_rates = st.euler_rate;
-  start.foot_position = st.foot_pos;
-  start.foot_velocity = st.foot_vel;
+  const SrbdProblem::StartState start =
+      start_state_of(cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), 0.3));
   o.has_path_line = true;
   o.path_line_start = Eigen::Vector2d(0.0, 0.0);
   o.path_line_end = Eigen::Vector2d(0.4, 0.0);
