@@ -38,10 +38,16 @@ import shutil
 import subprocess
 import sys
 
+# The leaf-by-leaf JSON comparison is compare_plans.py's (the same folder).
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from compare_plans import differences  # noqa: E402
 
-# Elapsed times (s) under other names than "wall" and "timings".
-TIMING_KEYS = {"build_s", "report_build_s", "total_s", "cpu_s", "stage_s", "load_s"}
+
+# Elapsed times (s) under other names than "wall" and "timings", and the simulation's speed
+# (simulated over wall seconds).
+TIMING_KEYS = {"build_s", "report_build_s", "total_s", "cpu_s", "stage_s", "load_s",
+               "realtime_factor"}
 
 
 def scans(pattern):
@@ -133,27 +139,6 @@ def strip(node, root):
     return node
 
 
-def differences(a, b, path=""):
-    if isinstance(a, dict) and isinstance(b, dict):
-        out = []
-        for k in sorted(set(a) | set(b)):
-            if k not in a or k not in b:
-                out.append((path + "/" + k, a.get(k, "<absent>"), b.get(k, "<absent>")))
-            else:
-                out += differences(a[k], b[k], path + "/" + k)
-        return out
-    if isinstance(a, list) and isinstance(b, list):
-        if len(a) != len(b):
-            return [(path, "length %d" % len(a), "length %d" % len(b))]
-        out = []
-        for i, (x, y) in enumerate(zip(a, b)):
-            out += differences(x, y, "%s[%d]" % (path, i))
-        return out
-    if a != b or type(a) != type(b):
-        return [(path, a, b)]
-    return []
-
-
 def report_differences(what, a, b):
     diffs = differences(a, b)
     if not diffs:
@@ -195,6 +180,7 @@ def split_html(text):
 
 
 def mask_durations(text):
+    text = re.sub(r"\d+(\.\d+)?x real time", "Nx real time", text)
     return re.sub(r"\d+(\.\d+)? s\b", "N s", text)
 
 
