@@ -4,6 +4,7 @@
 #pragma once
 
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -17,5 +18,19 @@ namespace terrastride::service {
 // result["samples"] = {"attachment", "columns", "rows"}.
 protocol::Attachment samples_table(const std::vector<planner::TrajectorySample>& samples,
                                    const std::vector<std::string>& feet, nlohmann::json* result);
+
+// The result of an op that answers with a plan (plan, plan.session.step): `reply(trajectory)`.
+// With `encoding` "attachment" the samples leave the trajectory first and travel as the table,
+// appended to `attachments` (the result's "samples" describes it); with "json" they stay in it.
+template <class Reply>
+nlohmann::json plan_result(planner::Trajectory& trajectory, const std::string& encoding,
+                           std::vector<protocol::Attachment>* attachments, const Reply& reply) {
+  if (encoding != "attachment") return reply(trajectory);
+  const std::vector<planner::TrajectorySample> samples = std::move(trajectory.samples);
+  trajectory.samples.clear();
+  nlohmann::json result = reply(trajectory);
+  attachments->push_back(samples_table(samples, trajectory.feet, &result));
+  return result;
+}
 
 }  // namespace terrastride::service

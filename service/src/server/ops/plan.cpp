@@ -133,16 +133,10 @@ OpResult plan(Backend& backend, OpContext& ctx) {
     const std::vector<std::string> failures =
         add_post_hoc_checks(backend.robot(), view, &out.trajectory);
     OpResult r;
-    if (samples_encoding == "attachment") {
-      // The samples as one float32 table (see docs/protocol.md): building, printing and parsing
-      // a JSON tree of a thousand samples costs tens of milliseconds; the table costs a copy.
-      std::vector<planner::TrajectorySample> samples = std::move(out.trajectory.samples);
-      out.trajectory.samples.clear();
-      r.result = planner::plan_to_json(out.trajectory);
-      r.attachments.push_back(samples_table(samples, out.trajectory.feet, &r.result));
-    } else {
-      r.result = planner::plan_to_json(out.trajectory);
-    }
+    // "attachment": the samples as one float32 table (see docs/protocol.md): building, printing
+    // and parsing a JSON tree of a thousand samples costs tens of milliseconds; the table a copy.
+    r.result = plan_result(out.trajectory, samples_encoding, &r.attachments,
+                           [](const planner::Trajectory& t) { return planner::plan_to_json(t); });
     // Success means a usable plan: solved, and every post-hoc check passed.
     r.result["success"] = out.success && failures.empty();
     r.result["checks_passed"] = failures.empty();

@@ -293,16 +293,10 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
   }
   s->last_used = Clock::now();
   OpResult r;
-  if (samples == "attachment") {
-    // A float32 table instead of ~200 KB of JSON samples (a 1 s horizon on pallet_15 at
-    // sample_dt 0.01): the reply's JSON was ~5 ms of a ~60 ms step, client-observed.
-    std::vector<planner::TrajectorySample> table = std::move(step.outcome.trajectory.samples);
-    step.outcome.trajectory.samples.clear();
-    r.result = plan_reply(step.outcome.trajectory, *s, &step);
-    r.attachments.push_back(samples_table(table, step.outcome.trajectory.feet, &r.result));
-  } else {
-    r.result = plan_reply(step.outcome.trajectory, *s, &step);
-  }
+  // "attachment": a float32 table instead of ~200 KB of JSON samples (a 1 s horizon on pallet_15
+  // at sample_dt 0.01): the reply's JSON was ~5 ms of a ~60 ms step, client-observed.
+  r.result = plan_result(step.outcome.trajectory, samples, &r.attachments,
+                         [&](const planner::Trajectory& t) { return plan_reply(t, *s, &step); });
   r.result["success"] = true;
   (void)backend;
   return r;
