@@ -611,6 +611,12 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
   };
   Tracked tracked, pending;
   double pending_from = 0.0;
+  // The waiting re-plan becomes the tracked one once its latency has passed (at once without one).
+  auto promote_pending = [&](double now) {
+    if (!pending.view || now < pending_from - 1e-9) return;
+    tracked = std::move(pending);
+    pending = Tracked{};
+  };
   const Replanner replanner = o.replan_every > 0 ? o.replanner() : Replanner();
   if (o.replan_every > 0 && !replanner) throw SimulationError("replan every: no re-planner made");
   // The plan the controller follows at t and the shift from the plan's axis to its own.
@@ -767,10 +773,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
     }
 
     // Closed loop: the measured state to the re-planner; its plan tracked after the latency.
-    if (pending.view && t >= pending_from - 1e-9) {
-      tracked = std::move(pending);
-      pending = Tracked{};
-    }
+    promote_pending(t);
     if (replanner && t >= next_replan - 1e-9 && t < t_end - 0.1 - 1e-9) {
       next_replan += o.replan_every;
       MeasuredState ms;
@@ -820,10 +823,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
         if (rep.replan_first_failure.empty())
           rep.replan_first_failure = next.message.empty() ? "re-plan failed" : next.message;
       }
-      if (pending.view && o.replan_latency <= 0) {
-        tracked = std::move(pending);
-        pending = Tracked{};
-      }
+      promote_pending(t);
     }
     const auto [plan_view, plan_shift] = view_for(t);
     const auto ps = plan_view->at(t - plan_shift);
