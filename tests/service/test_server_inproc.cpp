@@ -9,6 +9,7 @@
 
 #include "terrastride/service/client.hpp"
 #include "terrastride/service/server.hpp"
+#include "backend.hpp"
 
 namespace {
 
@@ -176,6 +177,33 @@ TEST(ServerInProcess, PalletOfAnyHeightIsASceneForEveryOperation) {
   EXPECT_EQ(code_of(bad_check), "bad_request");
   EXPECT_NE(bad_check.header["error"].value("message", "").find("pallet_NN"), std::string::npos)
       << bad_check.header.dump();
+}
+
+TEST(ServerInProcess, SceneRasterCacheKeepsTheMostRecentlyUsed) {
+  InProcessServer s(1, 2);
+  Backend& b = *s.backend;
+  const auto first = b.scene_raster("pallet_1");
+  EXPECT_EQ(b.scene_raster("pallet_1"), first);  // a hit is the same raster
+  // Four more scene names than the cache holds, pallet_1 used again when it is full: it stays,
+  // the least recently used ones (pallet_2 first) go.
+  std::shared_ptr<const SceneRaster> second;
+  for (int cm = 2; cm <= static_cast<int>(kSceneRasterCacheEntries) + 4; ++cm) {
+    const auto r = b.scene_raster("pallet_" + std::to_string(cm));
+    if (cm == 2) second = r;
+    if (cm == static_cast<int>(kSceneRasterCacheEntries)) b.scene_raster("pallet_1");
+    EXPECT_LE(b.cached_scene_rasters(), kSceneRasterCacheEntries);
+  }
+  EXPECT_EQ(b.cached_scene_rasters(), kSceneRasterCacheEntries);
+  EXPECT_EQ(b.scene_raster("pallet_1"), first);
+  // pallet_2 was evicted and is built anew; the reference held to the old one stays valid.
+  const auto rebuilt = b.scene_raster("pallet_2");
+  EXPECT_NE(rebuilt, second);
+  EXPECT_NEAR(second->smooth->height(1.1, 0.0), 0.02, 1e-4);
+  EXPECT_NEAR(rebuilt->smooth->height(1.1, 0.0), 0.02, 1e-4);
+  Client c = Client::connect(s.address);
+  const json rasters = c.call_ok({{"op", "status"}})["scene_rasters"];
+  EXPECT_EQ(rasters["cached"], kSceneRasterCacheEntries) << rasters;
+  EXPECT_EQ(rasters["capacity"], kSceneRasterCacheEntries) << rasters;
 }
 
 TEST(ServerInProcess, RegisteredOperationsDeclareTheirFields) {

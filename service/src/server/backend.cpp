@@ -90,16 +90,31 @@ json Backend::plan_processes_json() const {
 }
 
 std::shared_ptr<const SceneRaster> Backend::scene_raster(const std::string& name) {
+  auto find_and_touch = [&]() -> std::shared_ptr<const SceneRaster> {
+    const auto it = std::find_if(rasters_.begin(), rasters_.end(),
+                                 [&](const auto& entry) { return entry.first == name; });
+    if (it == rasters_.end()) return nullptr;
+    rasters_.splice(rasters_.begin(), rasters_, it);
+    return rasters_.front().second;
+  };
   {
     std::lock_guard<std::mutex> lock(raster_mu_);
-    const auto it = rasters_.find(name);
-    if (it != rasters_.end()) return it->second;
+    if (auto hit = find_and_touch()) return hit;
   }
+  // Built outside the lock (tens of ms): other scenes' requests need not wait for it.
   auto r = std::make_shared<SceneRaster>();
   r->scene = terrain::make_scene(name);
   r->smooth = terrain::TerrainMap::from_scene(*r->scene, 0.02, {});
   std::lock_guard<std::mutex> lock(raster_mu_);
-  return rasters_.emplace(name, std::move(r)).first->second;
+  if (auto hit = find_and_touch()) return hit;  // another request built it meanwhile
+  rasters_.emplace_front(name, std::move(r));
+  while (rasters_.size() > kSceneRasterCacheEntries) rasters_.pop_back();
+  return rasters_.front().second;
+}
+
+std::size_t Backend::cached_scene_rasters() const {
+  std::lock_guard<std::mutex> lock(raster_mu_);
+  return rasters_.size();
 }
 
 std::string Backend::terrain_dir_path(const std::string& requested,
@@ -224,7 +239,10 @@ std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRe
 }
 
 json backend_status(const Backend& backend) {
-  return {{"map", backend.map_json()}, {"plan_processes", backend.plan_processes_json()}};
+  return {{"map", backend.map_json()},
+          {"plan_processes", backend.plan_processes_json()},
+          {"scene_rasters",
+           {{"cached", backend.cached_scene_rasters()}, {"capacity", kSceneRasterCacheEntries}}}};
 }
 
 json backend_hello(const Backend& backend) {

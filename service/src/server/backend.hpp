@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <list>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -52,6 +53,11 @@ struct CloudHistory {
 };
 
 // A scene and its C2 rasterisation, built once per scene name (Backend::scene_raster).
+// The cache keeps the most recently used ones: every pallet_NN height is a scene name (66 names
+// in all) and each raster holds about 0.5 MB, so an unbounded cache would grow with the requests'
+// variety rather than with the work in flight. Requests hold their own reference, so an evicted
+// raster lives on until the last one using it finishes.
+constexpr std::size_t kSceneRasterCacheEntries = 8;
 struct SceneRaster {
   std::shared_ptr<const terrain::Scene> scene;
   std::unique_ptr<terrain::TerrainMap> smooth;
@@ -83,6 +89,8 @@ class Backend {
   // Scenes are immutable and made from their name alone, so a scene and its C2 rasterisation
   // (about 10 ms) are built once per name and shared by every plan on it.
   std::shared_ptr<const SceneRaster> scene_raster(const std::string& name);
+  // How many scene rasters the cache holds now (at most kSceneRasterCacheEntries).
+  std::size_t cached_scene_rasters() const;
 
   // A terrain directory a client names: only inside one of the server's --terrain-root folders
   // (after resolving symlinks and ".."), and named relative to it or absolutely. `field` names the
@@ -107,8 +115,9 @@ class Backend {
   std::atomic<std::uint64_t> queries_{0}, points_queried_{0}, updates_{0};
   std::mutex update_mu_;
   CloudHistory clouds_;  // guarded by update_mu_
-  std::mutex raster_mu_;
-  std::map<std::string, std::shared_ptr<const SceneRaster>> rasters_;
+  mutable std::mutex raster_mu_;
+  // Most recently used first, at most kSceneRasterCacheEntries (guarded by raster_mu_).
+  std::list<std::pair<std::string, std::shared_ptr<const SceneRaster>>> rasters_;
   ChildProcessLimits plan_limits_;
   ChildProcessStats plan_processes_;
 };
