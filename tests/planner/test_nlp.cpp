@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -204,6 +205,50 @@ TEST(Solve, StopsAtAVerifiedFeasiblePoint) {
   // improvement and polish come after it, SolverOptions::objective_max_iterations).
   EXPECT_LE(early.feasibility_iterations, converged.iterations);
   EXPECT_EQ(early.iterations, early.feasibility_iterations + early.objective_iterations);
+}
+
+// Ipopt evaluates the Jacobian at an accepted iterate before its intermediate callback sees the
+// iterate; a solve that stops at a verified feasible point declines that Jacobian instead of
+// computing one it would never use: one Jacobian per iteration, none at the point it stops at
+// (Ipopt counts the declined request, so the smaller of its two Jacobian counts is the number
+// computed), and the point and iteration count are the ones the callback would have stopped at.
+TEST(Solve, ComputesNoJacobianAtThePointItStopsAt) {
+  const auto r = hyq();
+  testing::TanhStep terrain(0.05, 0.3, 0.08, 0.01);
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.2, 0.0, 0.0);
+  o.constraints = {"all"};
+  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+  SrbdProblem p(r, terrain, tl, o);
+  const std::string log =
+      ::testing::TempDir() + "/ipopt_jacobian_count_" + std::to_string(::getpid()) + ".txt";
+  std::filesystem::remove(log);
+  const SolveResult result =
+      solve(p, o, {{"output_file", log}, {"file_print_level", "5"}, {"print_level", "0"}});
+  std::ifstream in(log);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const std::string text = ss.str();
+  std::filesystem::remove(log);
+  ASSERT_TRUE(result.success) << result.status;
+  EXPECT_EQ(result.termination, "feasible_point");
+  EXPECT_LE(p.max_violation(result.x), o.feasibility_stop_tolerance);
+  auto count = [&](const std::string& label) {
+    const auto at = text.find(label);
+    if (at == std::string::npos) return -1;
+    return std::stoi(text.substr(text.find('=', at) + 1));
+  };
+  const int equality = count("Number of equality constraint Jacobian evaluations");
+  const int inequality = count("Number of inequality constraint Jacobian evaluations");
+  ASSERT_GE(equality, 0) << text.substr(0, 2000);
+  ASSERT_GE(inequality, 0) << text.substr(0, 2000);
+  ASSERT_GT(result.iterations, 0);
+  // Iterates 0 .. iterations - 1 had their Jacobian; the last iterate, where it stopped, had none.
+  EXPECT_EQ(std::min(equality, inequality), result.iterations);
+  EXPECT_NE(text.find("Number of Iterations....: " + std::to_string(result.iterations)),
+            std::string::npos)
+      << text.substr(text.size() > 3000 ? text.size() - 3000 : 0);
 }
 
 // TERRASTRIDE_DEBUG_STEPS (planner/src/step_blockers.hpp) names the rows that cut each step: a
