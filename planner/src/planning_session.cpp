@@ -178,7 +178,13 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   if (limits.should_stop) solver_options.should_stop = limits.should_stop;
   if (limits.max_time > 0.0) solver_options.max_time = limits.max_time;
   std::vector<std::pair<std::string, std::string>> step_options = {
-      {"mu_init", "1e-4"}, {"bound_push", "1e-5"}, {"bound_frac", "1e-5"}};
+      {"mu_init", "1e-4"}, {"bound_push", "1e-5"}, {"bound_frac", "1e-5"},
+      // A step's constraint Jacobian is rank-deficient (Ipopt's first factorisation of every
+      // iteration, without the constraints' regularisation delta_c, failed as singular in MUMPS
+      // after its full set-up, until Ipopt had seen three such iterations): the regularisation
+      // from the first, and no MUMPS scaling (the forces are already scaled to body weights,
+      // SrbdTnlp::get_scaling_parameters), which MUMPS recomputed for every factorisation.
+      {"perturb_always_cd", "yes"}, {"mumps_scaling", "0"}};
   // TERRASTRIDE_STEP_IPOPT_OPTIONS adds Ipopt options to session steps only (tuning runs;
   // TERRASTRIDE_IPOPT_OPTIONS would change the reference's cold solve too).
   for (auto& option : ipopt_options_from_env("TERRASTRIDE_STEP_IPOPT_OPTIONS"))
