@@ -45,6 +45,7 @@ void build_lateral_corridor_set(SrbdProblem& problem, const FeasibilityOptions& 
   if (!(options.lateral_corridor >= 0.0))
     throw std::invalid_argument("lateral_corridor must be >= 0 m");
   if (options.lateral_corridor == 0.0) return;
+  if (!path_shape_applies(problem, options)) return;
   const Layout& L = problem.layout();
   const BaseLine line = base_line_of(problem);
   if (!line.defined) return;

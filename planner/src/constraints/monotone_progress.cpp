@@ -44,6 +44,7 @@ constexpr double kLeadReturn = 1.0;
 
 void build_monotone_progress_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   if (options.monotone_progress == 0) return;
+  if (!path_shape_applies(problem, options)) return;
   const Layout& L = problem.layout();
   const BaseLine line = base_line_of(problem);
   if (!line.defined) return;

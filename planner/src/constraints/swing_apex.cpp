@@ -62,6 +62,7 @@ void build_swing_apex_set(SrbdProblem& problem, const FeasibilityOptions& option
   if (!(options.swing_apex_rise >= 0.0))
     throw std::invalid_argument("swing_apex_rise must be >= 0 m");
   if (options.swing_apex_rise == 0.0) return;
+  if (!path_shape_applies(problem, options)) return;
   const Layout& L = problem.layout();
   const auto& guess = problem.initial_guess();
   const auto& lo = problem.lower();

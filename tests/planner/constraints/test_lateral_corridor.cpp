@@ -100,7 +100,8 @@ TEST(LateralCorridor, NoConstantRowsWithAPinnedEnd) {
   ProblemOptions o = turning_crawl_options(false);
   o.constraints = {"monotone_progress", "lateral_corridor", "swing_apex"};
   o.feasibility_settings = {
-      {"monotone_progress", 1.0}, {"lateral_corridor", 0.02}, {"swing_apex_rise", 0.1}};
+      {"monotone_progress", 1.0}, {"lateral_corridor", 0.02}, {"swing_apex_rise", 0.1},
+      {"replan_path_shape", 1.0}};  // the rows from a state too
   o.goal = Eigen::Vector3d(0.4, 0.0, 0.0);
   const SrbdProblem cold(r, flat, crawl_timeline(r), o);
   auto state_at = [&](double t) {

@@ -81,6 +81,7 @@ TEST(MonotoneProgress, AStartAheadOfItsMotionMayGiveItsLeadBack) {
   const SrbdProblem cold(r, flat, crawl_timeline(r), o);
   const SrbdProblem::StartState start =
       start_state_of(cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), 0.3));
+  o.feasibility_settings.emplace_back("replan_path_shape", 1.0);  // rows from a state too
   o.has_path_line = true;
   o.path_line_start = Eigen::Vector2d(0.0, 0.0);
   o.path_line_end = Eigen::Vector2d(0.4, 0.0);
@@ -125,6 +126,36 @@ TEST(MonotoneProgress, AStartAheadOfItsMotionMayGiveItsLeadBack) {
   }
   EXPECT_EQ(relaxed_knots, n - 1);
   EXPECT_GE(n, 3);
+}
+
+// The re-plan rule (FeasibilityOptions::replan_path_shape, issue #17): a problem from a given
+// start state (a planning session's step, `plan --init`) carries none of the three path-shape
+// families unless replan_path_shape = 1; a plan from rest carries them whatever that setting.
+TEST(PathShape, AReplanFromAStateCarriesTheRowsOnlyWhenAsked) {
+  const auto r = hyq();
+  FlatField flat;
+  ProblemOptions o = turning_crawl_options(false);
+  o.constraints = {"monotone_progress", "lateral_corridor", "swing_apex"};
+  o.feasibility_settings = {
+      {"monotone_progress", 1.0}, {"lateral_corridor", 0.02}, {"swing_apex_rise", 0.1}};
+  o.goal = Eigen::Vector3d(0.4, 0.0, 0.0);
+  const SrbdProblem cold(r, flat, crawl_timeline(r), o);
+  const SrbdProblem::StartState start =
+      start_state_of(cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), 0.3));
+  const auto timeline = crawl_timeline(r).cropped(0.3);
+  const char* kinds[] = {"monotone_progress", "lateral_corridor", "swing_apex"};
+  const auto from_rest = count_kinds(cold);
+  const auto replan = count_kinds(SrbdProblem(r, flat, timeline, o, &start));
+  ProblemOptions asked = o;
+  asked.feasibility_settings.emplace_back("replan_path_shape", 1.0);
+  const auto replan_asked = count_kinds(SrbdProblem(r, flat, timeline, asked, &start));
+  const auto from_rest_asked = count_kinds(SrbdProblem(r, flat, crawl_timeline(r), asked));
+  for (const char* kind : kinds) {
+    EXPECT_GT(from_rest.count(kind), 0u) << kind;
+    EXPECT_EQ(replan.count(kind), 0u) << kind;
+    EXPECT_GT(replan_asked.count(kind), 0u) << kind;
+    EXPECT_EQ(from_rest_asked.at(kind), from_rest.at(kind)) << kind;
+  }
 }
 
 TEST(MonotoneProgress, OffByDefaultAndWithoutAGoal) {

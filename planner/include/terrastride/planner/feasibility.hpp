@@ -126,6 +126,13 @@ struct FeasibilityOptions {
   // swing_apex_rise (m): a swing foot at most this far above the higher of its lift-off and
   // touch-down points, or of the terrain its guessed path passes where that is higher.
   double swing_apex_rise = 0.0;
+  // replan_path_shape: 1 = the three path-shape families above also shape a problem that starts
+  // from a given state (a re-plan: a planning session's step, `plan --init`); 0 = only plans that
+  // start at rest (cold plans) carry them. Why (docs/design.md §6.4): a re-plan follows a plan
+  // that already has the shape, and its end is pinned to it (a session's horizon) or is the goal;
+  // a measured start that drifted ahead of or beside that plan cannot satisfy rows shaped for the
+  // cold plan. See path_shape_applies (constraints/base_line.hpp).
+  int replan_path_shape = 0;
 };
 
 void build_foot_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
