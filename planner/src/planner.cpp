@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
+#include <memory>
 #include <sstream>
 
 #include "terrastride/planner/piece_math.hpp"
@@ -21,6 +22,18 @@ namespace terrastride::planner {
 namespace {
 
 constexpr double kDenseDt = 0.002;  // docs/design.md §6.8: dense checks every 2 ms
+
+// The path-shape families whose rows `problem` carries (issue #17), in the order of `all`.
+std::vector<std::string> path_shape_kinds(const SrbdProblem& problem) {
+  std::vector<std::string> kinds;
+  for (const char* kind : {"monotone_progress", "lateral_corridor", "swing_apex"})
+    for (const auto& piece : problem.pieces())
+      if (piece->kind == kind) {
+        kinds.push_back(kind);
+        break;
+      }
+  return kinds;
+}
 
 }  // namespace
 
@@ -71,12 +84,13 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   // A measured start ahead of the plan may return to it (monotone_progress).
   if (warm.previous && warm.start)
     set_start_lead_of(*warm.previous, warm.shift, start, &problem_options);
-  SrbdProblem problem(robot, plan_terrain, timeline, problem_options, start_ptr);
+  auto problem =
+      std::make_unique<SrbdProblem>(robot, plan_terrain, timeline, problem_options, start_ptr);
   // An unreachable goal stance otherwise costs seconds of iterations before "infeasible".
   const auto t_reach = std::chrono::steady_clock::now();
-  require_reachable(problem);
+  require_reachable(*problem);
   const double reachability_s = seconds_since(t_reach);
-  if (warm.previous) problem.warm_start_from(*warm.previous, warm.shift);
+  if (warm.previous) problem->warm_start_from(*warm.previous, warm.shift);
   const double build_s = seconds_since(t_start);
   PlanOutcome out;
   std::vector<std::pair<std::string, std::string>> ipopt_options;
@@ -95,23 +109,59 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   // A warm start continues a plan that was optimised already: stop at its first verified
   // feasible iterate, as without an objective (a start on the plan re-verifies in 0 iterations).
   if (warm.previous) solver_options.stop_at_first_feasible = true;
-  out.solve = solve(problem, solver_options, ipopt_options);
+  out.solve = solve(*problem, solver_options, ipopt_options);
+  // The path-shape rows (monotone_progress, lateral_corridor, swing_apex; issue #17) are
+  // preferences on the plan's shape, not feasibility: a solve that fails with them (infeasible,
+  // stalled, ...) is solved once more without them, within what is left of max_time, and
+  // plan.json says so ("path_shape_fallback"; the solver figures cover both solves). Not after a
+  // cancellation, nor when the time limit is spent.
+  const std::vector<std::string> shape_kinds = path_shape_kinds(*problem);
+  nlohmann::json shape_fallback;
+  const double time_left =
+      options.max_time > 0.0 ? options.max_time - seconds_since(t_start) : 1.0;
+  if (!out.solve.success && !shape_kinds.empty() && out.solve.status != "stopped" &&
+      out.solve.status != "time_limit" && time_left > 0.0 &&
+      !(options.should_stop && options.should_stop())) {
+    const SolveResult shaped = out.solve;
+    shape_fallback = {{"dropped", shape_kinds},
+                      {"shaped_status", shaped.status},
+                      {"shaped_iterations", shaped.iterations},
+                      {"shaped_max_violation", shaped.max_violation}};
+    const auto left = violated_families(*problem, shaped.x, options.tolerance);
+    if (!left.empty()) shape_fallback["shaped_violated"] = describe_violations(left);
+    if (options.verbose)
+      std::fprintf(stderr,
+                   "plan: the solve with the path-shape rows ended '%s' after %d iterations; "
+                   "solving again without them\n",
+                   shaped.status.c_str(), shaped.iterations);
+    PlannerOptions unshaped = problem_options;
+    for (const char* name : {"monotone_progress", "lateral_corridor", "swing_apex_rise"})
+      unshaped.feasibility_settings.emplace_back(name, 0.0);
+    problem = std::make_unique<SrbdProblem>(robot, plan_terrain, timeline, unshaped, start_ptr);
+    if (warm.previous) problem->warm_start_from(*warm.previous, warm.shift);
+    if (options.max_time > 0.0) solver_options.max_time = time_left;
+    out.solve = solve(*problem, solver_options, ipopt_options);
+    out.solve.iterations += shaped.iterations;
+    out.solve.feasibility_iterations += shaped.feasibility_iterations;
+    out.solve.objective_iterations += shaped.objective_iterations;
+    out.solve.wall_s += shaped.wall_s;
+  }
   const auto t_after_solve = std::chrono::steady_clock::now();
   out.success = out.solve.success;
   if (std::getenv("TERRASTRIDE_DEBUG_CHECKS"))
-    for (const auto& [k, v] : problem.violation_by_kind(out.solve.x))
+    for (const auto& [k, v] : problem->violation_by_kind(out.solve.x))
       std::fprintf(stderr, "final violation %s %g\n", k.c_str(), v);
-  out.trajectory = sample_solution(problem, out.solve.x, sample_dt);
+  out.trajectory = sample_solution(*problem, out.solve.x, sample_dt);
   auto& st = out.trajectory.solver;
   st.status = out.solve.status;
   st.iterations = out.solve.iterations;
   st.wall_s = out.solve.wall_s;
-  st.n_variables = problem.num_free_variables();
-  st.n_constraints = problem.num_constraints();
+  st.n_variables = problem->num_free_variables();
+  st.n_constraints = problem->num_constraints();
   out.trajectory.extra["solver_max_violation"] = out.solve.max_violation;
   out.trajectory.extra["solver_termination"] = out.solve.termination;
-  if (problem.has_objective()) {
-    out.trajectory.extra["objective"] = problem.eval_objective(out.solve.x.data());
+  if (problem->has_objective()) {
+    out.trajectory.extra["objective"] = problem->eval_objective(out.solve.x.data());
     // The two phases of the solve (SolverOptions::objective_max_iterations).
     out.trajectory.extra["solver_phases"] = {
         {"feasibility_iterations", out.solve.feasibility_iterations},
@@ -129,10 +179,11 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     for (const auto& [k, v] : options.feasibility_settings) fs[k] = v;
     out.trajectory.extra["feasibility_settings"] = fs;
   }
+  if (!shape_fallback.is_null()) out.trajectory.extra["path_shape_fallback"] = shape_fallback;
   DenseCheckLimits lim;
   lim.friction = options.friction;
   lim.max_normal_force = options.max_normal_force_factor * robot.mass * kGravity;
-  const Trajectory dense = sample_solution(problem, out.solve.x, kDenseDt);
+  const Trajectory dense = sample_solution(*problem, out.solve.x, kDenseDt);
   out.trajectory.checks = dense_checks(robot, check_terrain, dense, lim);
   out.trajectory.extra["checks_dt"] = kDenseDt;
   out.trajectory.extra["quality"] =
@@ -147,14 +198,18 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   if (!out.success) {
     std::ostringstream m;
     m << "the optimiser ended with status '" << out.solve.status << "' after "
-      << out.solve.iterations << " iterations (" << out.solve.wall_s
-      << " s); largest constraint violation " << out.solve.max_violation;
+      << out.solve.iterations << " iterations (" << out.solve.wall_s << " s)";
+    if (!shape_fallback.is_null())
+      m << ", solved again without the path-shape rows after " << shape_fallback["shaped_iterations"].get<int>()
+        << " with them ended '" << shape_fallback["shaped_status"].get<std::string>() << "'";
+    m << "; largest constraint violation " << out.solve.max_violation;
     if (out.solve.status == "stalled")
       m << ", no 1 % reduction of it in the last " << options.stall_iterations << " iterations";
+
     // Which constraints stay violated, on which feet and when: what a user can change (the goal,
     // the duration, the gait, a constraint set) depends on it.
     const std::vector<FamilyViolation> left =
-        violated_families(problem, out.solve.x, options.tolerance);
+        violated_families(*problem, out.solve.x, options.tolerance);
     const std::string violated = left.empty() ? "" : "still violated: " + describe_violations(left);
     if (!left.empty()) m << "; " << violated;
     out.message = m.str();

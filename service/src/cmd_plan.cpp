@@ -271,6 +271,10 @@ void run_plan(const PlanCliOptions& o) {
                             {"failures", failures},
                             {"simulation", simulation},
                             {"written", useful ? o.out : ""}};
+  // A cold solve that failed with the path-shape rows and was solved again without them.
+  const nlohmann::json shape_fallback =
+      out.trajectory.extra.value("path_shape_fallback", nlohmann::json());
+  if (!shape_fallback.is_null()) summary["path_shape_fallback"] = shape_fallback;
   if (o.json) {
     summary_out << summary.dump() << "\n";
   } else {
@@ -278,6 +282,11 @@ void run_plan(const PlanCliOptions& o) {
                 << out.trajectory.solver.iterations << " iterations in "
                 << out.trajectory.solver.wall_s << " s (" << out.trajectory.solver.n_variables
                 << " variables, " << out.trajectory.solver.n_constraints << " constraints)\n";
+    if (!shape_fallback.is_null())
+      summary_out << "  path shape: the solve with the path-shape rows ended '"
+                  << shape_fallback["shaped_status"].get<std::string>() << "' after "
+                  << shape_fallback["shaped_iterations"].get<int>()
+                  << " iterations (counted above); solved again without them\n";
     for (const auto& [k, v] : out.trajectory.checks) summary_out << "  " << k << " = " << v << "\n";
     if (simulation.contains("verdict")) {
       summary_out << "  simulation: " << simulation["verdict"].get<std::string>();

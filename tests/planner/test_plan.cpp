@@ -241,6 +241,36 @@ TEST(Layout, CroppedFirstSegmentKeepsThePreviousConstraintPoints) {
   EXPECT_TRUE(near(L.segment_points(1, 2, false), {0.0, 0.5}));  // only the first segment
 }
 
+// The path-shape rows are preferences (issue #17): a cold solve they make fail is solved once
+// more without them, and the plan says so. A swing apex of 1 mm above its ends contradicts the
+// 5 cm swing clearance (infeasible by construction); the crawl itself is feasible.
+TEST(Plan, AColdSolveTheShapeRowsMakeFailIsSolvedAgainWithoutThem) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o = options_to_goal(0.4);
+  o.constraints = {"swing_apex"};
+  o.feasibility_settings = {{"swing_apex_rise", 0.001}};
+  const PlanOutcome out = plan_motion(r, flat, flat, o, 0.01);
+  ASSERT_TRUE(out.success) << out.message;
+  ASSERT_TRUE(out.trajectory.extra.contains("path_shape_fallback"));
+  const auto& fb = out.trajectory.extra["path_shape_fallback"];
+  EXPECT_EQ(fb["dropped"], nlohmann::json::array({"swing_apex"}));
+  EXPECT_NE(fb["shaped_status"], "optimal");
+  EXPECT_GT(fb["shaped_max_violation"].get<double>(), 0.01);  // 5 cm against 1 mm
+  const int shaped = fb["shaped_iterations"].get<int>();
+  EXPECT_GT(shaped, 0);
+  EXPECT_GT(out.trajectory.solver.iterations, shaped);  // both solves counted
+  // Without the rows the swings rise as the clearance needs, far above 1 mm.
+  const auto& q = out.trajectory.extra["quality"];
+  ASSERT_TRUE(q.contains("swing_rise_max_m")) << q.dump();
+  EXPECT_GT(q["swing_rise_max_m"].get<double>(), 0.03);
+  // A solve the rows do not trouble is solved once, without the block.
+  o.feasibility_settings = {{"swing_apex_rise", 0.1}};
+  const PlanOutcome shaped_ok = plan_motion(r, flat, flat, o, 0.01);
+  ASSERT_TRUE(shaped_ok.success) << shaped_ok.message;
+  EXPECT_FALSE(shaped_ok.trajectory.extra.contains("path_shape_fallback"));
+}
+
 TEST(Plan, ImpossibleGoalEndsNonOptimalWithoutCrash) {
   const auto r = hyq();
   testing::FlatField flat;
