@@ -23,6 +23,12 @@ namespace {
 
 constexpr double kDenseDt = 0.002;  // docs/design.md §6.8: dense checks every 2 ms
 
+// The most iterations a solve with the path-shape rows gets before it is solved again without
+// them. Measured (issue #17, docs/design.md §6.4): the clean shaped plans of the off-path suite
+// and the scenes took 6-74 iterations; the failing ones ended infeasible after 45-99 or stalled
+// after 234-825 (the flat 2.4 s `all` crawl: 825, 41 s, then 86 without the rows).
+constexpr int kShapedMaxIterations = 150;
+
 // The path-shape families whose rows `problem` carries (issue #17), in the order of `all`.
 std::vector<std::string> path_shape_kinds(const SrbdProblem& problem) {
   std::vector<std::string> kinds;
@@ -109,13 +115,17 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   // A warm start continues a plan that was optimised already: stop at its first verified
   // feasible iterate, as without an objective (a start on the plan re-verifies in 0 iterations).
   if (warm.previous) solver_options.stop_at_first_feasible = true;
-  out.solve = solve(*problem, solver_options, ipopt_options);
   // The path-shape rows (monotone_progress, lateral_corridor, swing_apex; issue #17) are
   // preferences on the plan's shape, not feasibility: a solve that fails with them (infeasible,
-  // stalled, ...) is solved once more without them, within what is left of max_time, and
-  // plan.json says so ("path_shape_fallback"; the solver figures cover both solves). Not after a
-  // cancellation, nor when the time limit is spent.
+  // stalled, or past kShapedMaxIterations) is solved once more without them, within what is left
+  // of max_time, and plan.json says so ("path_shape_fallback"; the solver figures cover both
+  // solves). Not after a cancellation, nor when the time limit is spent.
   const std::vector<std::string> shape_kinds = path_shape_kinds(*problem);
+  const int max_iterations = solver_options.max_iterations;
+  if (!shape_kinds.empty())
+    solver_options.max_iterations = std::min(max_iterations, kShapedMaxIterations);
+  out.solve = solve(*problem, solver_options, ipopt_options);
+  solver_options.max_iterations = max_iterations;
   nlohmann::json shape_fallback;
   const double time_left =
       options.max_time > 0.0 ? options.max_time - seconds_since(t_start) : 1.0;
