@@ -245,10 +245,9 @@ TEST(Solve, ComputesNoJacobianAtThePointItStopsAt) {
   ASSERT_GE(inequality, 0) << text.substr(0, 2000);
   ASSERT_GT(result.iterations, 0);
   // Iterates 0 .. iterations - 1 had their Jacobian; the last iterate, where it stopped, had none.
+  // (Ipopt's own "Number of Iterations" is not compared: on the evaluation error it is sometimes
+  // the iterate before, where session steps count, as before, the iterate the solve stopped at.)
   EXPECT_EQ(std::min(equality, inequality), result.iterations);
-  EXPECT_NE(text.find("Number of Iterations....: " + std::to_string(result.iterations)),
-            std::string::npos)
-      << text.substr(text.size() > 3000 ? text.size() - 3000 : 0);
 }
 
 // TERRASTRIDE_DEBUG_STEPS (planner/src/step_blockers.hpp) names the rows that cut each step: a
