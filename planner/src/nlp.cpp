@@ -73,6 +73,25 @@ int SrbdProblem::num_free_variables() const {
 }
 
 void SrbdProblem::add_piece(std::unique_ptr<Piece> piece) {
+  if (!starts_at_rest_) {
+    bool constant = true;
+    for (int v : piece->vars) constant &= !(variables_.lower[v] < variables_.upper[v]);
+    if (constant) {
+      // A fixed variable's initial value is its value (Variables::fix).
+      double xl[kMaxPieceVars];
+      for (std::size_t k = 0; k < piece->vars.size(); ++k) xl[k] = variables_.initial[piece->vars[k]];
+      std::vector<double> g(piece->rows());
+      piece->eval(xl, g.data());
+      double excess = 0.0;
+      for (int r = 0; r < piece->rows(); ++r)
+        excess = std::max({excess, piece->lb[r] - g[r], g[r] - piece->ub[r]});
+      if (excess > 0.0) {
+        double& largest = start_excess_[piece->kind];
+        largest = std::max(largest, excess);
+        return;
+      }
+    }
+  }
   row_offset_.push_back(num_rows_);
   nz_offset_.push_back(nnz_);
   num_rows_ += piece->rows();

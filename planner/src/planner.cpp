@@ -190,6 +190,9 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     out.trajectory.extra["feasibility_settings"] = fs;
   }
   if (!shape_fallback.is_null()) out.trajectory.extra["path_shape_fallback"] = shape_fallback;
+  // A measured start's own violations (rows on it alone, left out of the solve; issue #22).
+  if (!problem->start_excess().empty())
+    out.trajectory.extra["start_excess"] = problem->start_excess();
   DenseCheckLimits lim;
   lim.friction = options.friction;
   lim.max_normal_force = options.max_normal_force_factor * robot.mass * kGravity;

@@ -222,6 +222,8 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   ex["start_time"] = t;
   ex["session"] = {{"step", steps_ + 1}, {"end_time", end}, {"to_goal", to_goal},
                    {"horizon", horizon_}};
+  // The measured start's own violations (rows on it alone, left out of the solve; issue #22).
+  if (!problem->start_excess().empty()) ex["start_excess"] = problem->start_excess();
   if (out.feet_freed)
     ex["session"]["end_feet_freed"] = {{"pinned_status", out.pinned_feet_status},
                                        {"pinned_iterations", out.pinned_feet_iterations}};
@@ -243,6 +245,8 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
       << o.solve.max_violation;
     const auto left = violated_families(*problem, o.solve.x, options_.tolerance);
     if (!left.empty()) m << "; still violated: " << describe_violations(left);
+    for (const auto& [kind, excess] : problem->start_excess())
+      m << "; the measured start exceeds " << kind << " by " << excess;
     m << " (the session keeps its previous plan)";
     o.message = m.str();
     ex["failure"] = o.message;

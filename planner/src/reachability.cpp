@@ -225,7 +225,9 @@ void require_reachable(const SrbdProblem& problem) {
   // there is a constant. Only a violation beyond what Ipopt may still call "acceptable" is
   // rejected.
   constexpr double kStartSlack = kAcceptableViolation;
-  {
+  // A measured start (a re-plan's) is what the robot is in, not a request: its excess is reported
+  // and the rows after it give room back to the box (SrbdProblem::add_piece, start_return.hpp).
+  if (problem.starts_at_rest()) {
     const int b = L.base[0];
     const Eigen::Vector3d r(lb[b], lb[b + 1], lb[b + 2]), e(lb[b + 6], lb[b + 7], lb[b + 8]);
     const Eigen::Matrix3d R = rotation_zyx<double>(e);

@@ -1,13 +1,18 @@
 // End-to-end planning: solves to optimal, reaches the goal, and holds every constraint densely.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 
+#include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
+#include <Eigen/LU>
+
+#include "terrastride/robot/geometry.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "test_terrains.hpp"
 
@@ -164,6 +169,76 @@ TEST(Plan, WarmStartFromAShiftedPlanConvergesFast) {
   EXPECT_NEAR((off.trajectory.samples.front().base.position - measured.position).norm(), 0.0, 1e-9);
   EXPECT_NEAR(off.trajectory.samples.back().base.position.x(), 1.0, 1e-6);
   expect_dense_targets(off.trajectory, r.mass);
+}
+
+// After a push the measured state may lie outside a joint's range and a foot's range-of-motion
+// box (issue #22: "joints by 0.192 on LF at t = 0.00 s"). Pinned at t = 0, those rows were
+// constants no solve could change: the re-plan was infeasible by construction. Now they are left
+// out and reported (plan.json "start_excess"), the rows after the start give room back to the
+// bounds over start_return, and the re-plan succeeds and is back within the joint ranges and the
+// boxes from there on. (With start_return=0, no room, this re-plan stalls after 398 iterations
+// with range_of_motion 0.05 m violated at t = 0.00-0.08 s; 0.1 s: 9 iterations, 0.25: 7, 0.5: 6.)
+TEST(Plan, ReplanFromAStartOutsideJointsAndBoxReturnsWithinThem) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o = options_to_goal(1.0);
+  o.duration = 2.4;
+  o.constraints = {"baseline", "joints"};
+  const PlanOutcome cold = plan_motion(r, flat, flat, o, 0.01);
+  ASSERT_TRUE(cold.success) << cold.message;
+  SrbdProblem::StartState measured = start_state_of(cold.trajectory, 0.5);
+  // Rolled, pushed sideways and down: LF's joints and RF's box exceeded; the feet stay.
+  measured.euler_zyx[2] -= 0.3;
+  measured.position.y() -= 0.05;
+  measured.position.z() -= 0.1;
+  WarmStart warm;
+  warm.previous = &cold.trajectory;
+  warm.shift = 0.5;
+  warm.start = &measured;
+  const PlanOutcome next = plan_motion(r, flat, flat, o, 0.01, warm);
+  ASSERT_TRUE(next.success) << next.message;
+  const auto& excess = next.trajectory.extra.at("start_excess");
+  std::printf("start excess %s; %d iterations\n", excess.dump().c_str(),
+              next.trajectory.solver.iterations);
+  ASSERT_TRUE(excess.contains("joints"));
+  ASSERT_TRUE(excess.contains("range_of_motion"));
+  EXPECT_GT(excess["joints"].get<double>(), 0.01);
+  EXPECT_GT(excess["range_of_motion"].get<double>(), 0.01);
+  EXPECT_NEAR((next.trajectory.samples.front().base.position - measured.position).norm(), 0.0,
+              1e-9);
+  // From start_return on: every joint within its range less the margin, every foot in its box
+  // (to the solver's tolerance); before it, at t = 0, outside (what was measured).
+  const double span = FeasibilityOptions{}.start_return, margin = FeasibilityOptions{}.joint_margin;
+  auto worst_at = [&](const TrajectorySample& s, double* joint, double* box) {
+    const Eigen::Matrix3d R = robot::rotation_zyx<double>(s.base.euler_zyx);
+    *joint = *box = -1.0;
+    for (std::size_t f = 0; f < r.legs.size(); ++f) {
+      const auto& leg = r.legs[f];
+      const Eigen::Vector3d in_base = R.transpose() * (s.feet[f].position - s.base.position);
+      const Eigen::Vector3d q = robot::leg_joint_angles<double>(leg, in_base);
+      for (int j = 0; j < 3; ++j)
+        *joint = std::max({*joint, q[j] - (leg.q_max[j] - margin), (leg.q_min[j] + margin) - q[j]});
+      const Eigen::Vector3d off = in_base - leg.nominal_foot;
+      for (int i = 0; i < 3; ++i) *box = std::max(*box, std::abs(off[i]) - leg.range_of_motion[i]);
+    }
+  };
+  double joint0, box0;
+  worst_at(next.trajectory.samples.front(), &joint0, &box0);
+  EXPECT_GT(joint0, 0.01);
+  EXPECT_GT(box0, 0.01);
+  double joint_after = -1.0, box_after = -1.0;
+  for (const auto& s : next.trajectory.samples) {
+    if (s.t < span) continue;
+    double j, b;
+    worst_at(s, &j, &b);
+    joint_after = std::max(joint_after, j);
+    box_after = std::max(box_after, b);
+  }
+  std::printf("at t = 0: joint %.3f rad, box %.3f m past; from %.2f s on: %.4f rad, %.4f m\n",
+              joint0, box0, span, joint_after, box_after);
+  EXPECT_LE(joint_after, margin);  // within the range: the rows hold at knots, the margin between
+  EXPECT_LE(box_after, 0.005);   // as expect_dense_targets
+  EXPECT_NEAR(next.trajectory.samples.back().base.position.x(), 1.0, 1e-6);
 }
 
 // The paper's flat 2.4 s crawl switches contacts on the 0.01 s sample grid, and its swings are

@@ -18,6 +18,7 @@
 
 #include "feasibility_common.hpp"
 #include "spline_variables.hpp"
+#include "start_return.hpp"
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/nlp.hpp"
 
@@ -69,16 +70,50 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
                                     " of leg " + leg.name);
     }
   }
+  // A measured start outside a joint's range (knot 0 fixed, !starts_at_rest): its excess below /
+  // above each bound, the room the rows after it get (start_return.hpp).
+  const double span = options.start_return;
+  std::vector<std::vector<double>> below(nf, std::vector<double>(3, 0.0)), above = below;
+  for (int f = 0; f < nf; ++f) {
+    const int b = L.base[0], p = L.foot_pos[f][0];
+    if (!fixed_measured_start(problem, {b, b + 1, b + 2, b + 6, b + 7, b + 8, p, p + 1, p + 2}))
+      continue;
+    const auto& x = problem.lower();
+    const Vec3<double> r(x[b], x[b + 1], x[b + 2]), e(x[b + 6], x[b + 7], x[b + 8]);
+    const Vec3<double> foot(x[p], x[p + 1], x[p + 2]);
+    double q[3];
+    joint_angle_rows(problem.robot().legs[f], r, e, foot, q);
+    for (int j = 0; j < 3; ++j) {
+      below[f][j] = std::max(0.0, lo[f][j] - q[j]);
+      above[f][j] = std::max(0.0, q[j] - hi[f][j]);
+    }
+  }
+  // The bounds of foot f's rows at nominal time t > 0 (knot 0's stay: a violated one is a
+  // constant, left out by add_piece).
+  auto widened = [&](int f, double t, std::vector<double>* l, std::vector<double>* u) {
+    *l = lo[f];
+    *u = hi[f];
+    const double w = t > 0.0 ? start_return_weight(t, span) : 0.0;
+    for (int j = 0; j < 3; ++j) {
+      (*l)[j] -= below[f][j] * w;
+      (*u)[j] += above[f][j] * w;
+    }
+    double most = 0.0;  // the merged row's room: its largest value is the largest excess
+    for (int j = 0; j < 3; ++j) most = std::max({most, below[f][j] * w, above[f][j] * w});
+    return most;
+  };
   // Every knot of every foot: one piece each (foot f's knots 0..S, then the next foot's).
   for (int f = 0; f < nf; ++f) {
     const robot::LegModel leg = problem.robot().legs[f];
     for (int k = 0; k <= S; ++k) {
+      std::vector<double> lk, hk;
+      const double room = widened(f, L.nominal_knot_time[k], &lk, &hk);
       LocalVars lv;
       const auto p = lv.add3(L.foot_pos[f][k]);
       const auto r = lv.add3(L.base[k]);
       const auto e = lv.add3(L.base[k] + 6);
       if (t_soft > 0.0) {
-        problem.add_piece(make_piece("joints", lv, {-kInf}, {0.0}, [=](const auto* x, auto* g) {
+        problem.add_piece(make_piece("joints", lv, {-kInf}, {room}, [=](const auto* x, auto* g) {
           using T = std::decay_t<decltype(*g)>;
           T values[6];
           int n = 0;
@@ -88,7 +123,7 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
         }));
         continue;
       }
-      problem.add_piece(make_piece("joints", lv, lo[f], hi[f], [=](const auto* x, auto* g) {
+      problem.add_piece(make_piece("joints", lv, lk, hk, [=](const auto* x, auto* g) {
         joint_angle_rows(leg, gather3(x, r), gather3(x, e), gather3(x, p), g);
       }));
     }
@@ -113,7 +148,9 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
         const HermiteLocal fp = add_foot_position(lv, L, f, s, 0.5, false);
         const int dur = add_segment_duration(lv, L, s);
         const double frac = L.seg_fraction[s];
-        problem.add_piece(make_piece("joints", lv, {-kInf}, {0.0}, [=](const auto* x, auto* g) {
+        std::vector<double> lk, hk;
+        const double room = widened(f, nominal_point_time(L, s, kSwingPoints[0]), &lk, &hk);
+        problem.add_piece(make_piece("joints", lv, {-kInf}, {room}, [=](const auto* x, auto* g) {
           using T = std::decay_t<decltype(*g)>;
           const T h = x[dur] * frac;
           T values[18];
@@ -136,7 +173,9 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
         const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, true);
         const int dur = add_segment_duration(lv, L, s);
         const double frac = L.seg_fraction[s];
-        problem.add_piece(make_piece("joints", lv, lo[f], hi[f], [=](const auto* x, auto* g) {
+        std::vector<double> lk, hk;
+        widened(f, nominal_point_time(L, s, sigma), &lk, &hk);
+        problem.add_piece(make_piece("joints", lv, lk, hk, [=](const auto* x, auto* g) {
           using T = std::decay_t<decltype(*g)>;
           const T h = x[dur] * frac;
           Vec3<T> base, euler, foot;

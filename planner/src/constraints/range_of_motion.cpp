@@ -5,6 +5,8 @@
 #include <vector>
 
 #include "spline_variables.hpp"
+#include "start_return.hpp"
+#include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/constraints.hpp"
 #include "terrastride/planner/nlp.hpp"
 
@@ -17,7 +19,26 @@ void add_range_of_motion(SrbdProblem& problem, int s) {
   const int S = L.num_segments;
   const int nf = static_cast<int>(robot.legs.size());
   const double frac = L.seg_fraction[s];
+  // A measured start outside a foot's box (after a push): its excess as room at the points
+  // after it (start_return.hpp); knot 0's rows keep the box (a violated one is a constant, left
+  // out by add_piece).
+  const double span =
+      problem.starts_at_rest() || L.nominal_knot_time[s] > 2.0
+          ? 0.0
+          : feasibility_options(robot, options.feasibility_settings).start_return;
   for (int f = 0; f < nf; ++f) {
+    const Eigen::Vector3d nom = robot.legs[f].nominal_foot, box = robot.legs[f].range_of_motion;
+    Eigen::Vector3d below = Eigen::Vector3d::Zero(), above = Eigen::Vector3d::Zero();
+    const int b = L.base[0], pv = L.foot_pos[f][0];
+    if (span > 0.0 &&
+        fixed_measured_start(problem, {b, b + 1, b + 2, b + 6, b + 7, b + 8, pv, pv + 1, pv + 2})) {
+      const auto& x = problem.lower();
+      const Eigen::Vector3d r(x[b], x[b + 1], x[b + 2]), e(x[b + 6], x[b + 7], x[b + 8]);
+      const Eigen::Vector3d p(x[pv], x[pv + 1], x[pv + 2]);
+      const Eigen::Vector3d off = rotation_zyx<double>(e).transpose() * (p - r) - nom;
+      below = (-box - off).cwiseMax(0.0);
+      above = (off - box).cwiseMax(0.0);
+    }
     const int nr = std::max(1, options.rom_points) * (L.contact[f][s] ? 1 : 2);
     // The segment's end only in the last segment: the next segment's start covers it.
     for (const double sigma : L.segment_points(s, nr, s == S - 1)) {
@@ -28,8 +49,13 @@ void add_range_of_motion(SrbdProblem& problem, int s) {
       const int dur = rp.needs_duration || ep.needs_duration || fpl.needs_duration
                           ? add_segment_duration(lv, L, s)
                           : -1;
-      const Eigen::Vector3d nom = robot.legs[f].nominal_foot, box = robot.legs[f].range_of_motion;
-      std::vector<double> lo{-box.x(), -box.y(), -box.z()}, hi{box.x(), box.y(), box.z()};
+      const double t = nominal_point_time(L, s, sigma);
+      const double w = t > 0.0 ? start_return_weight(t, span) : 0.0;
+      std::vector<double> lo(3), hi(3);
+      for (int i = 0; i < 3; ++i) {
+        lo[i] = -box[i] - below[i] * w;
+        hi[i] = box[i] + above[i] * w;
+      }
       problem.add_piece(make_piece("range_of_motion", lv, lo, hi, [=](const auto* x, auto* g) {
         using T = std::decay_t<decltype(*g)>;
         const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);

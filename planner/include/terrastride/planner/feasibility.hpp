@@ -110,6 +110,10 @@ struct FeasibilityOptions {
   // clean requests 286 -> 308 (same exit codes, 25/0/11), its trots most (pallet_10 to 1,0.3,0.5
   // 7 -> 13), six 'all' plans 46 -> 54 (0.02 rad: 51). 0: a row per joint and point.
   double joints_softmax = 0.0;
+  // joints, range_of_motion: a re-plan whose measured start lies outside a joint range or a
+  // range-of-motion box (after a push) gets its excess as room at the next knots, shrinking to
+  // nothing over this span (s; constraints/start_return.hpp, docs/design.md §6.7). 0: none.
+  double start_return = 0.25;
   // force_ramp: bound on the rate of change of each contact force within a stance (N/s, the
   // norm of the force vector's change over a segment, divided by the segment's duration; 0 = no
   // bound). The force knots at touch-down and lift-off are zero (no variables, Layout), so a

@@ -88,7 +88,16 @@ class SrbdProblem {
   const ProblemOptions& options() const { return options_; }
   const Layout& layout() const { return layout_; }
 
+  // Adds the piece's rows. A re-plan from a measured state (a start state given) pins knot 0 to
+  // the measurement, so a piece on fixed variables only is a constant there: one the measurement
+  // already violates (e.g. a joint past its range after a push) no solve can repair, and imposed it
+  // made the step infeasible by construction (issue #22). Such a piece is not added: its excess is
+  // recorded in start_excess() instead. Cold plans, and constant pieces within their bounds, are
+  // added as before.
   void add_piece(std::unique_ptr<Piece> piece);
+  // The measured start's own violations, largest per piece kind (rows' units), of the pieces
+  // add_piece left out; empty for a start within every bound.
+  const std::map<std::string, double>& start_excess() const { return start_excess_; }
 
   // The objective (planner/src/costs/): a sum of squares of the rows of its cost pieces,
   // f(x) = sum over pieces and rows of g_r(x)^2 (a cost piece's bounds are unused). Empty when
@@ -145,6 +154,7 @@ class SrbdProblem {
   std::vector<std::unique_ptr<Piece>> cost_pieces_;
   bool starts_at_rest_ = true;
   bool ends_at_rest_ = true;
+  std::map<std::string, double> start_excess_;
   void pin_end_state(const StartState& end);
   std::vector<int> row_offset_, nz_offset_;
   int num_rows_ = 0, nnz_ = 0;

@@ -85,8 +85,10 @@ StanceReach reach_stance(const robot::RobotModel& robot, const terrain::HeightFi
 // or nothing when the goal's x, y or orientation are left free (no goal given).
 std::optional<RestingStance> end_stance(const SrbdProblem& problem);
 
-// Throws UnreachableRequest when the end stance cannot exist, or when a foot of the start state
-// lies outside its range-of-motion box (start values are fixed: no iteration can repair them).
+// Throws UnreachableRequest when the end stance cannot exist, or when a foot of a plan from rest
+// lies outside its range-of-motion box at the start (start values are fixed: no iteration can
+// repair them). A measured start outside it (a re-plan's) is not rejected: the rows after it
+// give it room back to the box (issue #22).
 void require_reachable(const SrbdProblem& problem);
 
 }  // namespace terrastride::planner

@@ -1,0 +1,149 @@
+// A re-plan from a measured state outside a joint's range and a foot's range-of-motion box
+// (SrbdProblem::add_piece, constraints/start_return.hpp; issue #22): the rows on the pinned start
+// alone are left out and reported, the joints and range_of_motion rows after it get the start's
+// excess as room, shrinking to nothing over start_return, and their Jacobians still match central
+// differences. A start within the bounds (and every cold plan) keeps its rows as they were.
+#include <algorithm>
+#include <cmath>
+
+#include "family_test.hpp"
+
+namespace terrastride::planner {
+namespace {
+
+using namespace testing;
+
+struct Replan {
+  SrbdProblem::StartState start;
+  PhaseTimeline timeline;
+};
+
+// The cold crawl's state at 0.5 s, its base rolled by `roll` rad and moved `dy` m sideways (the
+// feet stay where they stand): after a push.
+Replan pushed_start(const robot::RobotModel& r, const terrain::HeightField& terrain, const ProblemOptions& o,
+                    double roll, double dy) {
+  const SrbdProblem cold(r, terrain, crawl_timeline(r), o);
+  Replan p{start_state_of(cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), 0.5)),
+           crawl_timeline(r).cropped(0.5)};
+  p.start.euler_zyx[2] += roll;
+  p.start.position.y() += dy;
+  return p;
+}
+
+ProblemOptions joints_and_box_options() {
+  ProblemOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.4, 0.0, 0.0);
+  o.constraints = {"baseline", "joints"};
+  return o;
+}
+
+// Whether piece `p`'s variables are all fixed in `problem`.
+bool constant(const SrbdProblem& problem, const Piece& p) {
+  for (int v : p.vars)
+    if (problem.lower()[v] < problem.upper()[v]) return false;
+  return true;
+}
+
+TEST(StartReturn, AMeasuredStartsOwnViolationsAreReportedNotImposed) {
+  const auto r = hyq();
+  FlatField flat;
+  const ProblemOptions o = joints_and_box_options();
+  const Replan pushed = pushed_start(r, flat, o, -0.30, -0.05);
+  const SrbdProblem p(r, flat, pushed.timeline, o, &pushed.start);
+  const auto& excess = p.start_excess();
+  ASSERT_TRUE(excess.count("joints")) << "the pushed start should lie outside a joint's range";
+  ASSERT_TRUE(excess.count("range_of_motion")) << "and outside a foot's box";
+  std::printf("start excess: joints %.3f rad, range_of_motion %.3f m\n", excess.at("joints"),
+              excess.at("range_of_motion"));
+  EXPECT_GT(excess.at("joints"), 0.01);
+  EXPECT_GT(excess.at("range_of_motion"), 0.01);
+  // No row left that is a constant outside its bounds.
+  const auto& x = const_cast<SrbdProblem&>(p).initial_guess();
+  for (const auto& piece : p.pieces()) {
+    if (!constant(p, *piece)) continue;
+    const auto g = rows_at(*piece, x);
+    for (int row = 0; row < piece->rows(); ++row) {
+      EXPECT_GE(g[row], piece->lb[row]) << piece->kind;
+      EXPECT_LE(g[row], piece->ub[row]) << piece->kind;
+    }
+  }
+  // The same start unpushed: within every bound, nothing left out, the same rows as before.
+  const Replan on_plan = pushed_start(r, flat, o, 0.0, 0.0);
+  const SrbdProblem q(r, flat, on_plan.timeline, o, &on_plan.start);
+  EXPECT_TRUE(q.start_excess().empty());
+}
+
+// The rows after the start: widened by the excess at first, back to the bound from start_return
+// on; the joints rows' bounds never narrower than the joint range less the margin.
+TEST(StartReturn, RowsAfterTheStartGetTheExcessBackToTheBound) {
+  const auto r = hyq();
+  FlatField flat;
+  const ProblemOptions o = joints_and_box_options();
+  const Replan pushed = pushed_start(r, flat, o, -0.30, -0.05);
+  const SrbdProblem p(r, flat, pushed.timeline, o, &pushed.start);
+  ProblemOptions none = o;
+  none.feasibility_settings = {{"start_return", 0.0}};
+  const SrbdProblem q(r, flat, pushed.timeline, none, &pushed.start);
+  ASSERT_EQ(p.pieces().size(), q.pieces().size());
+  const double span = FeasibilityOptions{}.start_return;
+  const auto& L = p.layout();
+  // Knot k of foot f's joints piece: base knot k's position among its variables.
+  int widened = 0, same_after_span = 0;
+  double largest_room = 0.0;
+  for (std::size_t i = 0; i < p.pieces().size(); ++i) {
+    const Piece &a = *p.pieces()[i], &b = *q.pieces()[i];
+    ASSERT_EQ(a.kind, b.kind);
+    ASSERT_EQ(a.vars, b.vars);
+    if (a.kind != "joints" && a.kind != "range_of_motion") {
+      EXPECT_EQ(a.lb, b.lb) << a.kind;
+      EXPECT_EQ(a.ub, b.ub) << a.kind;
+      continue;
+    }
+    // Which base knot the piece reads first (its time, up to a segment).
+    int knot = -1;
+    for (int k = 0; k <= L.num_segments && knot < 0; ++k)
+      if (std::find(a.vars.begin(), a.vars.end(), L.base[k]) != a.vars.end()) knot = k;
+    ASSERT_GE(knot, 0);
+    bool differs = false;
+    for (int row = 0; row < a.rows(); ++row) {
+      EXPECT_LE(a.lb[row], b.lb[row]);
+      EXPECT_GE(a.ub[row], b.ub[row]);
+      differs |= a.lb[row] != b.lb[row] || a.ub[row] != b.ub[row];
+      largest_room = std::max({largest_room, b.lb[row] - a.lb[row], a.ub[row] - b.ub[row]});
+    }
+    widened += differs;
+    // Pieces whose first knot is at or beyond the span (a segment's points lie after its knot).
+    if (L.nominal_knot_time[knot] >= span) {
+      EXPECT_FALSE(differs) << a.kind << " at knot " << knot << " (t "
+                            << L.nominal_knot_time[knot] << " s)";
+      ++same_after_span;
+    }
+  }
+  EXPECT_GT(widened, 0);
+  EXPECT_GT(same_after_span, 0);
+  // The room never exceeds the start's excess.
+  const double most = std::max(p.start_excess().at("joints"), p.start_excess().at("range_of_motion"));
+  EXPECT_LE(largest_room, most + 1e-12);
+  EXPECT_GT(largest_room, 0.0);
+}
+
+// The changed rows' Jacobians (bounds widened; the rows themselves are the families' own).
+TEST(StartReturn, WidenedRowsJacobianMatchesCentralDifferences) {
+  const auto r = hyq();
+  TanhStep terrain(0.1, 0.5, 0.05, 0.01);
+  ProblemOptions o = joints_and_box_options();
+  o.goal = Eigen::Vector3d(0.4, 0.05, 0.3);
+  const Replan pushed = pushed_start(r, terrain, o, -0.30, -0.05);
+  const SrbdProblem p(r, terrain, pushed.timeline, o, &pushed.start);
+  ASSERT_FALSE(p.start_excess().empty());
+  EXPECT_GT(check_kind_derivatives(p, "joints"), 0);
+  EXPECT_GT(check_kind_derivatives(p, "range_of_motion"), 0);
+  ProblemOptions merged = o;
+  merged.feasibility_settings = {{"joints_softmax", 0.005}};
+  const SrbdProblem m(r, terrain, pushed.timeline, merged, &pushed.start);
+  EXPECT_GT(check_kind_derivatives(m, "joints"), 0);
+}
+
+}  // namespace
+}  // namespace terrastride::planner
