@@ -74,7 +74,8 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
   EXPECT_EQ(feasibility_options({{"replan_path_shape", 1.0}}).replan_path_shape, 1);
   for (const auto& bad : std::vector<std::pair<std::string, double>>{
            {"monotone_progress", 0.5}, {"monotone_progress", 2.0}, {"lateral_corridor", -0.01},
-           {"swing_apex_rise", -0.1}, {"replan_path_shape", 0.5}, {"replan_path_shape", 2.0}}) {
+           {"swing_apex_rise", -0.1}, {"replan_path_shape", 0.5}, {"replan_path_shape", 2.0},
+           {"start_return", -0.1}, {"start_return", 2.5}}) {
     try {
       feasibility_options({bad});
       ADD_FAILURE() << bad.first << " = " << bad.second;
@@ -83,8 +84,9 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
     }
   }
   // force_rate_max (force_ramp) the 17th; monotone_progress, lateral_corridor, swing_apex_rise;
-  // joints_softmax (#18); replan_path_shape (#17)
-  EXPECT_EQ(feasibility_option_names().size(), 22u);
+  // joints_softmax (#18); replan_path_shape (#17); start_return (#22)
+  EXPECT_EQ(feasibility_options({{"start_return", 0.5}}).start_return, 0.5);
+  EXPECT_EQ(feasibility_option_names().size(), 23u);
 }
 
 }  // namespace
