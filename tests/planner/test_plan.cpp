@@ -177,7 +177,8 @@ TEST(Plan, WarmStartFromAShiftedPlanConvergesFast) {
 // out and reported (plan.json "start_excess"), the rows after the start give room back to the
 // bounds over start_return, and the re-plan succeeds and is back within the joint ranges and the
 // boxes from there on. (With start_return=0, no room, this re-plan stalls after 398 iterations
-// with range_of_motion 0.05 m violated at t = 0.00-0.08 s; 0.1 s: 9 iterations, 0.25: 7, 0.5: 6.)
+// with range_of_motion 0.05 m violated at t = 0.00-0.08 s; 0.1 s: 9 iterations, 0.25: 7, 0.5 and
+// 1 (the default): 6.)
 TEST(Plan, ReplanFromAStartOutsideJointsAndBoxReturnsWithinThem) {
   const auto r = hyq();
   testing::FlatField flat;
