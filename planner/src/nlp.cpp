@@ -31,6 +31,13 @@ SrbdProblem::SrbdProblem(const robot::RobotModel& robot, const terrain::HeightFi
   layout_ = make_layout(static_cast<int>(robot_.legs.size()), timeline_, options_, &variables_);
   initialization::build_initial_guess({robot_, terrain_, timeline_, options_, layout_, start_state},
                                       &variables_);
+  // Which variables the measured start fixes, before a pinned horizon end fixes more: add_piece
+  // tells the start's own excess (a piece constant by the start alone) from the end's by them.
+  if (start_state) {
+    fixed_by_start_.resize(variables_.lower.size());
+    for (std::size_t i = 0; i < fixed_by_start_.size(); ++i)
+      fixed_by_start_[i] = !(variables_.lower[i] < variables_.upper[i]);
+  }
   if (end_state) pin_end_state(*end_state);
   add_constraint_sets(*this, options_.constraints);
   // After the guess and before any warm start: the costs take their nominal path from the guess.
@@ -86,8 +93,17 @@ void SrbdProblem::add_piece(std::unique_ptr<Piece> piece) {
       for (int r = 0; r < piece->rows(); ++r)
         excess = std::max({excess, piece->lb[r] - g[r], g[r] - piece->ub[r]});
       if (excess > 0.0) {
-        double& largest = start_excess_[piece->kind];
-        largest = std::max(largest, excess);
+        // Reported above round-off (the verified-feasible tolerance): as the start's when the start
+        // alone fixes every variable of the piece, else as the pinned horizon end's (a stance
+        // foothold the start fixes is shared with the end's knot, whose base the end pins).
+        if (excess > kConstantExcessReportMin) {
+          bool by_start = true;
+          for (int v : piece->vars)
+            by_start = by_start && static_cast<std::size_t>(v) < fixed_by_start_.size() &&
+                       fixed_by_start_[v];
+          double& largest = (by_start ? start_excess_ : end_excess_)[piece->kind];
+          largest = std::max(largest, excess);
+        }
         return;
       }
     }

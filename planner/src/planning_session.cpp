@@ -224,6 +224,7 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
                    {"horizon", horizon_}};
   // The measured start's own violations (rows on it alone, left out of the solve; issue #22).
   if (!problem->start_excess().empty()) ex["start_excess"] = problem->start_excess();
+  if (!problem->end_excess().empty()) ex["session"]["end_excess"] = problem->end_excess();
   if (out.feet_freed)
     ex["session"]["end_feet_freed"] = {{"pinned_status", out.pinned_feet_status},
                                        {"pinned_iterations", out.pinned_feet_iterations}};

@@ -74,6 +74,38 @@ TEST(StartReturn, AMeasuredStartsOwnViolationsAreReportedNotImposed) {
   EXPECT_TRUE(q.start_excess().empty());
 }
 
+// A session step pins its horizon end to the reference too: a row that only the pinned end makes
+// constant, and that the end violates (here an end rolled and moved aside as a push would), is left
+// out like the start's but reported as the end's, not the measured start's, which lies within
+// every bound here.
+TEST(StartReturn, APinnedEndsViolationIsNotReportedAsTheStarts) {
+  const auto r = hyq();
+  FlatField flat;
+  const ProblemOptions o = joints_and_box_options();
+  const Replan on_plan = pushed_start(r, flat, o, 0.0, 0.0);
+  const SrbdProblem cold(r, flat, crawl_timeline(r), o);
+  for (const double t_end : {0.9, 1.5, 2.0}) {
+    SrbdProblem::StartState end =
+        start_state_of(cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), t_end));
+    const PhaseTimeline horizon = crawl_timeline(r, t_end).cropped(0.5);
+    const SrbdProblem unmoved(r, flat, horizon, o, &on_plan.start, &end);
+    EXPECT_TRUE(unmoved.start_excess().empty()) << t_end;
+    end.euler_zyx[2] -= 0.30;
+    end.position.y() -= 0.05;
+    const SrbdProblem p(r, flat, horizon, o, &on_plan.start, &end);
+    EXPECT_TRUE(p.start_excess().empty()) << "the start lies on the plan; end at " << t_end;
+    ASSERT_FALSE(p.end_excess().empty()) << "the moved end should leave a joint range or a box";
+    for (const auto& [kind, excess] : p.end_excess())
+      EXPECT_GT(excess, SrbdProblem::kConstantExcessReportMin) << kind;
+  }
+  // A pushed start with the same moved end: the start's excess is the start's.
+  const Replan pushed = pushed_start(r, flat, o, -0.30, -0.05);
+  SrbdProblem::StartState end =
+      start_state_of(cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), 2.0));
+  const SrbdProblem both(r, flat, crawl_timeline(r, 2.0).cropped(0.5), o, &pushed.start, &end);
+  EXPECT_TRUE(both.start_excess().count("joints"));
+}
+
 // The rows after the start: widened by the excess at first, back to the bound from start_return
 // on; the joints rows' bounds never narrower than the joint range less the margin.
 TEST(StartReturn, RowsAfterTheStartGetTheExcessBackToTheBound) {

@@ -92,12 +92,16 @@ class SrbdProblem {
   // the measurement, so a piece on fixed variables only is a constant there: one the measurement
   // already violates (e.g. a joint past its range after a push) no solve can repair, and imposed it
   // made the step infeasible by construction (issue #22). Such a piece is not added: its excess is
-  // recorded in start_excess() instead. Cold plans, and constant pieces within their bounds, are
-  // added as before.
+  // recorded in start_excess() instead (in end_excess() when only a pinned horizon end makes it
+  // constant). Cold plans, and constant pieces within their bounds, are added as before.
   void add_piece(std::unique_ptr<Piece> piece);
   // The measured start's own violations, largest per piece kind (rows' units), of the pieces
-  // add_piece left out; empty for a start within every bound.
+  // add_piece left out; empty for a start within every bound. Excesses of at most
+  // kConstantExcessReportMin (round-off) are left out without being reported.
   const std::map<std::string, double>& start_excess() const { return start_excess_; }
+  // Likewise for the pieces that are constant only because a session step pins its horizon end.
+  const std::map<std::string, double>& end_excess() const { return end_excess_; }
+  static constexpr double kConstantExcessReportMin = 1e-6;
 
   // The objective (planner/src/costs/): a sum of squares of the rows of its cost pieces,
   // f(x) = sum over pieces and rows of g_r(x)^2 (a cost piece's bounds are unused). Empty when
@@ -154,7 +158,8 @@ class SrbdProblem {
   std::vector<std::unique_ptr<Piece>> cost_pieces_;
   bool starts_at_rest_ = true;
   bool ends_at_rest_ = true;
-  std::map<std::string, double> start_excess_;
+  std::map<std::string, double> start_excess_, end_excess_;
+  std::vector<char> fixed_by_start_;  // per variable: fixed by the start state (re-plans only)
   void pin_end_state(const StartState& end);
   std::vector<int> row_offset_, nz_offset_;
   int num_rows_ = 0, nnz_ = 0;
