@@ -175,8 +175,8 @@ class SrbdTnlp : public Ipopt::TNLP {
   // always asked for right after its constraints), and stops by declining the Jacobian: Ipopt
   // abandons the solve with an evaluation error, and solve() takes the verified point.
   bool stops_at_verified_point(Index n, const Number* x) {
-    if (!stop_before_jacobian_ || improving_ || !(feasibility_tol_ > 0.0) || static_cast<Index>(last_x_.size()) != n ||
-        !std::equal(last_x_.begin(), last_x_.end(), x))
+    if (!stop_before_jacobian_ || improving_ || !(feasibility_tol_ > 0.0) ||
+        static_cast<Index>(last_x_.size()) != n || !std::equal(last_x_.begin(), last_x_.end(), x))
       return false;
     const double violation = p_.max_violation(last_x_, last_g_);
     if (violation > feasibility_tol_) return false;

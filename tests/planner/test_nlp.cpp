@@ -207,6 +207,19 @@ TEST(Solve, StopsAtAVerifiedFeasiblePoint) {
   EXPECT_EQ(early.iterations, early.feasibility_iterations + early.objective_iterations);
 }
 
+// A 2 s crawl 0.2 m ahead over a 5 cm step (TanhStep(0.05, 0.3, 0.08, 0.01)) with every
+// feasibility set: a problem whose solve takes a few cut steps and iterations.
+PlannerOptions all_sets_crawl_over_step() {
+  PlannerOptions o;
+  o.has_goal = true;
+  o.goal = Eigen::Vector3d(0.2, 0.0, 0.0);
+  o.constraints = {"all"};
+  return o;
+}
+PhaseTimeline crawl_2s(const robot::RobotModel& r) {
+  return make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
+}
+
 // Ipopt evaluates the Jacobian at an accepted iterate before its intermediate callback sees the
 // iterate; a solve that stops at a verified feasible point declines that Jacobian instead of
 // computing one it would never use: one Jacobian per iteration, none at the point it stops at
@@ -215,12 +228,8 @@ TEST(Solve, StopsAtAVerifiedFeasiblePoint) {
 TEST(Solve, ComputesNoJacobianAtThePointItStopsAt) {
   const auto r = hyq();
   testing::TanhStep terrain(0.05, 0.3, 0.08, 0.01);
-  PlannerOptions o;
-  o.has_goal = true;
-  o.goal = Eigen::Vector3d(0.2, 0.0, 0.0);
-  o.constraints = {"all"};
-  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
-  SrbdProblem p(r, terrain, tl, o);
+  const PlannerOptions o = all_sets_crawl_over_step();
+  SrbdProblem p(r, terrain, crawl_2s(r), o);
   const std::string log =
       ::testing::TempDir() + "/ipopt_jacobian_count_" + std::to_string(::getpid()) + ".txt";
   std::filesystem::remove(log);
@@ -257,12 +266,8 @@ TEST(Solve, ComputesNoJacobianAtThePointItStopsAt) {
 TEST(Solve, DebugStepsNamesTheRowsThatCutTheStep) {
   const auto r = hyq();
   testing::TanhStep terrain(0.05, 0.3, 0.08, 0.01);
-  PlannerOptions o;
-  o.has_goal = true;
-  o.goal = Eigen::Vector3d(0.2, 0.0, 0.0);
-  o.constraints = {"all"};
-  const PhaseTimeline tl = make_timeline(load_gait(resolve_gait_path("crawl")), feet_of(r), 1, 2.0);
-  SrbdProblem p(r, terrain, tl, o);
+  const PlannerOptions o = all_sets_crawl_over_step();
+  SrbdProblem p(r, terrain, crawl_2s(r), o);
   ::setenv("TERRASTRIDE_DEBUG_STEPS", "1", 1);
   ::testing::internal::CaptureStderr();
   const SolveResult result = solve(p, o);

@@ -75,14 +75,10 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   const double span = options.start_return;
   std::vector<std::vector<double>> below(nf, std::vector<double>(3, 0.0)), above = below;
   for (int f = 0; f < nf; ++f) {
-    const int b = L.base[0], p = L.foot_pos[f][0];
-    if (!fixed_measured_start(problem, {b, b + 1, b + 2, b + 6, b + 7, b + 8, p, p + 1, p + 2}))
-      continue;
-    const auto& x = problem.lower();
-    const Vec3<double> r(x[b], x[b + 1], x[b + 2]), e(x[b + 6], x[b + 7], x[b + 8]);
-    const Vec3<double> foot(x[p], x[p + 1], x[p + 2]);
+    MeasuredFootPose m;
+    if (!measured_foot_pose(problem, f, &m)) continue;
     double q[3];
-    joint_angle_rows(problem.robot().legs[f], r, e, foot, q);
+    joint_angle_rows(problem.robot().legs[f], m.base, m.euler, m.foot, q);
     for (int j = 0; j < 3; ++j) {
       below[f][j] = std::max(0.0, lo[f][j] - q[j]);
       above[f][j] = std::max(0.0, q[j] - hi[f][j]);

@@ -21,7 +21,8 @@ void add_range_of_motion(SrbdProblem& problem, int s) {
   const double frac = L.seg_fraction[s];
   // A measured start outside a foot's box (after a push): its excess as room at the points
   // after it (start_return.hpp); knot 0's rows keep the box (a violated one is a constant, left
-  // out by add_piece).
+  // out by add_piece). Segments from 2 s on (the longest span the start_return setting accepts)
+  // get none, so they skip reading the settings.
   const double span =
       problem.starts_at_rest() || L.nominal_knot_time[s] > 2.0
           ? 0.0
@@ -29,13 +30,10 @@ void add_range_of_motion(SrbdProblem& problem, int s) {
   for (int f = 0; f < nf; ++f) {
     const Eigen::Vector3d nom = robot.legs[f].nominal_foot, box = robot.legs[f].range_of_motion;
     Eigen::Vector3d below = Eigen::Vector3d::Zero(), above = Eigen::Vector3d::Zero();
-    const int b = L.base[0], pv = L.foot_pos[f][0];
-    if (span > 0.0 &&
-        fixed_measured_start(problem, {b, b + 1, b + 2, b + 6, b + 7, b + 8, pv, pv + 1, pv + 2})) {
-      const auto& x = problem.lower();
-      const Eigen::Vector3d r(x[b], x[b + 1], x[b + 2]), e(x[b + 6], x[b + 7], x[b + 8]);
-      const Eigen::Vector3d p(x[pv], x[pv + 1], x[pv + 2]);
-      const Eigen::Vector3d off = rotation_zyx<double>(e).transpose() * (p - r) - nom;
+    MeasuredFootPose m;
+    if (span > 0.0 && measured_foot_pose(problem, f, &m)) {
+      const Eigen::Vector3d off =
+          rotation_zyx<double>(m.euler).transpose() * (m.foot - m.base) - nom;
       below = (-box - off).cwiseMax(0.0);
       above = (off - box).cwiseMax(0.0);
     }

@@ -8,9 +8,10 @@
 // corridor). A start within the bounds has e = 0: rows as before, so do cold plans.
 #pragma once
 
+#include <Eigen/Core>
 #include <algorithm>
-#include <vector>
 
+#include "base_line.hpp"  // all_fixed
 #include "terrastride/planner/nlp.hpp"
 
 namespace terrastride::planner {
@@ -21,12 +22,26 @@ inline double start_return_weight(double t, double span) {
   return std::max(0.0, 1.0 - t / span);
 }
 
-// Whether every variable of `vars` is fixed in `problem` and the problem starts from a given
-// state (only a re-plan from a measured state gets room).
-inline bool fixed_measured_start(const SrbdProblem& problem, const std::vector<int>& vars) {
+// A re-plan's measured start as the rows after it see it: the base position and Euler angles at
+// knot 0 and foot f's position there.
+struct MeasuredFootPose {
+  Eigen::Vector3d base, euler, foot;
+};
+
+// Foot f's measured start pose, when the problem starts from a given state (only a re-plan from a
+// measured state gets room) and pins all of it; false otherwise (a cold plan, a foot whose
+// position at knot 0 is free).
+inline bool measured_foot_pose(const SrbdProblem& problem, int f, MeasuredFootPose* pose) {
   if (problem.starts_at_rest()) return false;
-  for (int v : vars)
-    if (v < 0 || problem.lower()[v] < problem.upper()[v]) return false;
+  const Layout& L = problem.layout();
+  const int b = L.base[0], p = L.foot_pos[f][0];
+  if (p < 0) return false;
+  const auto& x = problem.lower();
+  if (!all_fixed({b, b + 1, b + 2, b + 6, b + 7, b + 8, p, p + 1, p + 2}, x, problem.upper()))
+    return false;
+  pose->base = Eigen::Vector3d(x[b], x[b + 1], x[b + 2]);
+  pose->euler = Eigen::Vector3d(x[b + 6], x[b + 7], x[b + 8]);
+  pose->foot = Eigen::Vector3d(x[p], x[p + 1], x[p + 2]);
   return true;
 }
 
