@@ -147,6 +147,38 @@ PhaseTimeline make_timeline(const Gait& gait, const std::vector<std::string>& fe
   return tl;
 }
 
+Gait with_rest_lead_in(const Gait& gait, const std::vector<std::string>& feet, int cycles,
+                       double duration, double second_lift_off) {
+  const PhaseTimeline tl = make_timeline(gait, feet, cycles, duration);
+  const double tol = 1e-9 * std::max(1.0, tl.duration());
+  std::vector<double> lift_offs;
+  for (std::size_t f = 0; f < feet.size(); ++f)
+    for (const auto& ph : tl.phases(static_cast<int>(f)))
+      if (!ph.contact) lift_offs.push_back(ph.start);
+  std::sort(lift_offs.begin(), lift_offs.end());
+  lift_offs.erase(std::unique(lift_offs.begin(), lift_offs.end(),
+                              [&](double a, double b) { return b - a <= tol; }),
+                  lift_offs.end());
+  if (lift_offs.size() < 2 || lift_offs[1] >= second_lift_off - tol) return gait;
+  // The second lift-off lies a2 cycles after the lead-in; lengthening the lead-in moves every
+  // switch by the same number of cycles, so the same lift-off stays second.
+  const double units = gait.lead_in + cycles + gait.lead_out;
+  const double cycle = tl.duration() / units;
+  const double a2 = lift_offs[1] / cycle - gait.lead_in;
+  double lead_in;
+  if (duration > 0.0) {
+    // (L + a2) * duration / (L + cycles + lead_out) = second_lift_off
+    if (duration <= second_lift_off) return gait;
+    lead_in = (second_lift_off * (cycles + gait.lead_out) - a2 * duration) /
+              (duration - second_lift_off);
+  } else {
+    lead_in = second_lift_off / gait.cycle_duration - a2;
+  }
+  Gait out = gait;
+  out.lead_in = std::max(gait.lead_in, lead_in);
+  return out;
+}
+
 std::vector<PhaseTimeline::Phase> PhaseTimeline::phases(int foot) const {
   std::vector<Phase> out;
   for (int j = 0; j < num_intervals(); ++j) {

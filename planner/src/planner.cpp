@@ -11,6 +11,8 @@
 #include <memory>
 #include <sstream>
 
+#include "terrastride/planner/constraints.hpp"
+#include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/piece_math.hpp"
 #include "terrastride/planner/quality.hpp"
 #include "terrastride/planner/reachability.hpp"
@@ -54,6 +56,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   std::vector<std::string> feet;
   for (const auto& leg : robot.legs) feet.push_back(leg.name);
   PhaseTimeline timeline;
+  nlohmann::json rest_lead_in;  // the lead-in a plan from rest was given (with_rest_lead_in)
   SrbdProblem::StartState start;
   const SrbdProblem::StartState* start_ptr = nullptr;
   if (warm.previous) {
@@ -78,7 +81,23 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     }
     start_ptr = &start;
   } else {
-    const Gait gait = load_gait(resolve_gait_path(options.gait));
+    Gait gait = load_gait(resolve_gait_path(options.gait));
+    // A plan from rest with force ramps: the second foot to lift off may carry half the weight W
+    // at the start (statics puts the crawl's LF on the loaded diagonal once LH has shed its load)
+    // and sheds it at force_rate_max r at most, in W / (2 r); its lift-off comes no earlier than
+    // twice that, W / r (0.41 s for HyQ at 2000 N/s), the gait's lead-in lengthened and the
+    // duration kept. The flat 2.4 s `all` crawl lifted LF off at 0.22 s: LF shed its load at
+    // nearly the full rate onto the right feet alone while LH swung, which threw the base 26.6 cm
+    // to the left, and the path-shape rows could not be met (docs/design.md §6.4 "Path shape").
+    const FeasibilityOptions feasibility = feasibility_options(robot, options.feasibility_settings);
+    if (options.rest_boundaries && feasibility.force_rate_max > 0.0 &&
+        requests_constraint_set(options.constraints, "force_ramp")) {
+      const Gait led = with_rest_lead_in(gait, feet, options.cycles, options.duration,
+                                         robot.mass * kGravity / feasibility.force_rate_max);
+      if (led.lead_in != gait.lead_in)
+        rest_lead_in = {{"gait_lead_in", gait.lead_in}, {"lead_in", led.lead_in}};
+      gait = led;
+    }
     timeline = make_timeline(gait, feet, options.cycles, options.duration);
     // Without a duration the horizon is the gait's period times its cycles (plus lead-in/out).
     check_plan_horizon(timeline.duration(), options.duration > 0.0 ? "duration" : "cycles");
@@ -190,6 +209,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     out.trajectory.extra["feasibility_settings"] = fs;
   }
   if (!shape_fallback.is_null()) out.trajectory.extra["path_shape_fallback"] = shape_fallback;
+  if (!rest_lead_in.is_null()) out.trajectory.extra["rest_lead_in"] = rest_lead_in;
   // A measured start's own violations (rows on it alone, left out of the solve; issue #22).
   if (!problem->start_excess().empty())
     out.trajectory.extra["start_excess"] = problem->start_excess();

@@ -67,6 +67,50 @@ TEST(Gait, CrawlMatchesThePaperSchedule) {
   EXPECT_NEAR(c.duration(), 10.5, 1e-9);
 }
 
+// A plan from rest with force ramps gets a lead-in long enough for its second lift-off (plan_motion:
+// W / force_rate_max, 0.407 s for HyQ at 2000 N/s). The 2.4 s crawl lifts LF off at 0.22 s: its
+// lead-in grows and its cycles shorten, the duration kept; the 11 s crawl (LF at 1.01 s) and the
+// trot (its pairs at 0.2 and 0.6 s) keep theirs; without a duration the cycle is kept instead.
+TEST(Gait, RestLeadInDelaysAnEarlySecondLiftOff) {
+  const auto feet = feet_of(hyq());
+  auto lift_offs = [&](const PhaseTimeline& tl) {
+    std::vector<double> t;
+    for (int f = 0; f < 4; ++f)
+      for (const auto& p : tl.phases(f))
+        if (!p.contact) t.push_back(p.start);
+    std::sort(t.begin(), t.end());
+    return t;
+  };
+  const Gait crawl = load_gait(resolve_gait_path("crawl"));
+  const double second = 0.407;
+  EXPECT_NEAR(lift_offs(make_timeline(crawl, feet, 3, 2.4))[1], 0.22, 1e-9);
+  const Gait led = with_rest_lead_in(crawl, feet, 3, 2.4, second);
+  EXPECT_GT(led.lead_in, 0.25);
+  const PhaseTimeline tl = make_timeline(led, feet, 3, 2.4);
+  EXPECT_NEAR(tl.duration(), 2.4, 1e-12);
+  const auto t = lift_offs(tl);
+  ASSERT_EQ(t.size(), 12u);
+  EXPECT_NEAR(t[1], second, 1e-9);
+  EXPECT_GT(t[0], 0.2);  // LH too: the four feet stand for the first 0.22 s
+  // Each foot still swings three times, one at a time, in the same order.
+  int swings = 0;
+  for (int f = 0; f < 4; ++f)
+    for (const auto& p : tl.phases(f)) swings += !p.contact;
+  EXPECT_EQ(swings, 12);
+  // Late enough already: unchanged.
+  EXPECT_EQ(with_rest_lead_in(crawl, feet, 3, 11.0, second).lead_in, crawl.lead_in);
+  const Gait trot = load_gait(resolve_gait_path("trot"));
+  EXPECT_EQ(with_rest_lead_in(trot, feet, 3, 0.0, second).lead_in, trot.lead_in);
+  // No duration: the gait's cycle is kept and the plan grows by the lead-in.
+  Gait fast = crawl;
+  fast.cycle_duration = 0.8;
+  const PhaseTimeline grown = make_timeline(with_rest_lead_in(fast, feet, 3, 0.0, second), feet, 3, 0.0);
+  EXPECT_NEAR(lift_offs(grown)[1], second, 1e-9);
+  EXPECT_NEAR(grown.duration() - 2.4, second - 0.22, 1e-9);
+  // A duration with no room for it: unchanged.
+  EXPECT_EQ(with_rest_lead_in(crawl, feet, 3, 0.4, second).lead_in, crawl.lead_in);
+}
+
 // A cropped timeline remembers how far into its first interval it starts, and the problem built on
 // it keeps the knots of the uncropped one at the same absolute times (so a warm start can
 // reproduce the previous plan's splines exactly); cropping twice accumulates.

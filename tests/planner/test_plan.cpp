@@ -347,6 +347,41 @@ TEST(Plan, AColdSolveTheShapeRowsMakeFailIsSolvedAgainWithoutThem) {
   EXPECT_FALSE(shaped_ok.trajectory.extra.contains("path_shape_fallback"));
 }
 
+// The flat 2.4 s `all` crawl from rest (issue #17): with LF's lift-off at 0.22 s, LF shed its half
+// of the weight at nearly the force rate bound onto the right feet alone while LH swung, which threw
+// the base 26.6 cm to the left; the path-shape rows could not hold it (150 iterations, then the
+// fallback). With its second lift-off at W / force_rate_max (0.41 s) it is shaped in one solve and
+// sways little without the rows too.
+TEST(Plan, TheFastCrawlFromRestGetsALeadInAndIsShaped) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o = options_to_goal(1.0);
+  o.duration = 2.4;
+  o.constraints = {"all"};
+  const PlanOutcome plain = plan_motion(r, flat, flat, o, 0.01);
+  ASSERT_TRUE(plain.success) << plain.message;
+  ASSERT_TRUE(plain.trajectory.extra.contains("rest_lead_in"));
+  EXPECT_GT(plain.trajectory.extra["rest_lead_in"]["lead_in"].get<double>(), 0.25);
+  EXPECT_NEAR(plain.trajectory.samples.back().t, 2.4, 1e-9);
+  EXPECT_LT(plain.trajectory.extra["quality"]["lateral_sway_m"].get<double>(), 0.1);
+  o.feasibility_settings = {
+      {"monotone_progress", 1.0}, {"lateral_corridor", 0.02}, {"swing_apex_rise", 0.1}};
+  const PlanOutcome shaped = plan_motion(r, flat, flat, o, 0.01);
+  ASSERT_TRUE(shaped.success) << shaped.message;
+  EXPECT_FALSE(shaped.trajectory.extra.contains("path_shape_fallback"))
+      << shaped.trajectory.extra["path_shape_fallback"].dump();
+  const auto& q = shaped.trajectory.extra["quality"];
+  EXPECT_LT(q["lateral_sway_m"].get<double>(), 0.021);
+  EXPECT_LT(q["backward_max_m"].get<double>(), 1e-3);
+  EXPECT_LE(q["force_step_max_N_per_10ms"].get<double>(), 20.0 + 1e-3);
+  // Without force ramps the schedule is the gait's.
+  o.constraints = {"baseline"};
+  o.feasibility_settings.clear();
+  const PlanOutcome baseline = plan_motion(r, flat, flat, o, 0.01);
+  ASSERT_TRUE(baseline.success) << baseline.message;
+  EXPECT_FALSE(baseline.trajectory.extra.contains("rest_lead_in"));
+}
+
 TEST(Plan, ImpossibleGoalEndsNonOptimalWithoutCrash) {
   const auto r = hyq();
   testing::FlatField flat;

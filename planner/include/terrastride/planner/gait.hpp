@@ -67,4 +67,12 @@ struct PhaseTimeline {
 PhaseTimeline make_timeline(const Gait& gait, const std::vector<std::string>& feet, int cycles,
                             double duration);
 
+// The gait with its lead-in lengthened, if need be, so that the timeline's second lift-off (the
+// second distinct time at which a foot lifts off) comes no earlier than `second_lift_off` s; the
+// total `duration` is kept (duration <= 0: the cycle is kept and the plan grows longer). Unchanged
+// when the second lift-off is that late already, or when the duration leaves no room for it.
+// A plan from rest with force ramps needs this (plan_motion; docs/design.md §6.4 "Path shape").
+Gait with_rest_lead_in(const Gait& gait, const std::vector<std::string>& feet, int cycles,
+                       double duration, double second_lift_off);
+
 }  // namespace terrastride::planner
