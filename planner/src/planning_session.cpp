@@ -248,6 +248,8 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
     if (!left.empty()) m << "; still violated: " << describe_violations(left);
     for (const auto& [kind, excess] : problem->start_excess())
       m << "; the measured start exceeds " << kind << " by " << excess;
+    for (const auto& [kind, excess] : problem->end_excess())
+      m << "; the pinned end exceeds " << kind << " by " << excess;
     m << " (the session keeps its previous plan)";
     o.message = m.str();
     ex["failure"] = o.message;

@@ -8,6 +8,7 @@
 
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/planner.hpp"
+#include "terrastride/planner/planning_session.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
 #include <Eigen/LU>
@@ -240,6 +241,54 @@ TEST(Plan, ReplanFromAStartOutsideJointsAndBoxReturnsWithinThem) {
   EXPECT_LE(joint_after, margin);  // within the range: the rows hold at knots, the margin between
   EXPECT_LE(box_after, 0.005);   // as expect_dense_targets
   EXPECT_NEAR(next.trajectory.samples.back().base.position.x(), 1.0, 1e-6);
+}
+
+// A session step pins its horizon end to the reference's base, and a stance the measured start
+// fixes keeps the measured foothold up to that end (issue #22: after a left 300 N push on pallet_15
+// LH had slipped 7 cm, and the pinned end lay 5.7 cm outside LH's box). The end's rows are then
+// constants, left out (session.end_excess), but the rows just before it, whose base must arrive at
+// the pinned pose and velocity, got no room: nine steps in a row failed there, range_of_motion
+// 2.5 cm violated in the last segment. Now they get the end's excess as room, growing over
+// start_return up to the end (start_return.hpp). Here LF, in stance from 1.24 s to 2.04 s of a
+// 4.8 s crawl, has slipped 15 cm back at 1.5 s (still within its box there, 11 cm outside it at
+// the step's end, 2.04 s): the step solves in 4 iterations; without room (start_return 0, as
+// before this) it stalls after 37 iterations and fails again with the end's feet freed (97 in all).
+TEST(Plan, SessionStepWithASlippedFootholdUpToItsPinnedEndSolves) {
+  const auto r = hyq();
+  testing::FlatField flat;
+  PlannerOptions o = options_to_goal(1.0);
+  o.duration = 4.8;
+  o.constraints = {"baseline", "joints"};
+  const PlanOutcome cold = plan_motion(r, flat, flat, o, 0.01);
+  ASSERT_TRUE(cold.success) << cold.message;
+  const double t = 1.5, horizon = 0.5;
+  const int lf = 0;
+  ASSERT_EQ(r.legs[lf].name, "LF");
+  for (const double span : {1.0, 0.0}) {
+    PlannerOptions so = o;
+    so.feasibility_settings = {{"start_return", span}};
+    PlanningSession session(r, flat, flat, so, cold.trajectory, horizon, 0.01);
+    SrbdProblem::StartState measured = session.planned_state(t);
+    measured.foot_position[lf].x() -= 0.15;
+    const SessionStep step = session.step(measured, t);
+    const auto& extra = step.outcome.trajectory.extra;
+    std::printf("start_return %.1f: %s after %d iterations; %s\n", span,
+                step.outcome.solve.status.c_str(), step.outcome.solve.iterations,
+                extra["session"].dump().c_str());
+    EXPECT_NEAR(step.end_time, 2.04, 1e-6);
+    EXPECT_FALSE(extra.contains("start_excess")) << "the slipped foot is within its box at 1.5 s";
+    ASSERT_TRUE(extra["session"].contains("end_excess"));
+    EXPECT_GT(extra["session"]["end_excess"].value("range_of_motion", 0.0), 0.1);
+    if (span > 0.0) {
+      ASSERT_TRUE(step.outcome.success) << step.outcome.message;
+      EXPECT_FALSE(step.feet_freed);
+      // The stance kept its measured foothold to the end.
+      EXPECT_NEAR((step.outcome.trajectory.samples.back().feet[lf].position -
+                   measured.foot_position[lf]).norm(), 0.0, 1e-9);
+    } else {
+      EXPECT_FALSE(step.outcome.success) << "without room the step is infeasible by construction";
+    }
+  }
 }
 
 // The paper's flat 2.4 s crawl switches contacts on the 0.01 s sample grid, and its swings are

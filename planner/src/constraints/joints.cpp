@@ -71,31 +71,41 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
     }
   }
   // A measured start outside a joint's range (knot 0 fixed, !starts_at_rest): its excess below /
-  // above each bound, the room the rows after it get (start_return.hpp).
+  // above each bound, the room the rows after it get (start_return.hpp); likewise a session
+  // step's pinned end (the last knot fixed, !ends_at_rest), the room the rows before it get.
   const double span = options.start_return;
-  std::vector<std::vector<double>> below(nf, std::vector<double>(3, 0.0)), above = below;
-  for (int f = 0; f < nf; ++f) {
-    MeasuredFootPose m;
-    if (!measured_foot_pose(problem, f, &m)) continue;
+  const double t_end = L.nominal_knot_time[S];
+  std::vector<std::vector<double>> below(nf, std::vector<double>(3, 0.0)), above = below,
+                                   below_end = below, above_end = below;
+  auto excess = [&](int f, const MeasuredFootPose& m, std::vector<double>* b,
+                    std::vector<double>* a) {
     double q[3];
     joint_angle_rows(problem.robot().legs[f], m.base, m.euler, m.foot, q);
     for (int j = 0; j < 3; ++j) {
-      below[f][j] = std::max(0.0, lo[f][j] - q[j]);
-      above[f][j] = std::max(0.0, q[j] - hi[f][j]);
+      (*b)[j] = std::max(0.0, lo[f][j] - q[j]);
+      (*a)[j] = std::max(0.0, q[j] - hi[f][j]);
     }
+  };
+  for (int f = 0; f < nf; ++f) {
+    MeasuredFootPose m;
+    if (measured_foot_pose(problem, f, &m)) excess(f, m, &below[f], &above[f]);
+    if (pinned_end_foot_pose(problem, f, &m)) excess(f, m, &below_end[f], &above_end[f]);
   }
-  // The bounds of foot f's rows at nominal time t > 0 (knot 0's stay: a violated one is a
-  // constant, left out by add_piece).
+  // The bounds of foot f's rows at nominal time t > 0 (knot 0's stay, and the end's: a violated
+  // one is a constant, left out by add_piece).
   auto widened = [&](int f, double t, std::vector<double>* l, std::vector<double>* u) {
     *l = lo[f];
     *u = hi[f];
     const double w = t > 0.0 ? start_return_weight(t, span) : 0.0;
-    for (int j = 0; j < 3; ++j) {
-      (*l)[j] -= below[f][j] * w;
-      (*u)[j] += above[f][j] * w;
-    }
+    const double we = end_return_weight(t, t_end, span);
     double most = 0.0;  // the merged row's room: its largest value is the largest excess
-    for (int j = 0; j < 3; ++j) most = std::max({most, below[f][j] * w, above[f][j] * w});
+    for (int j = 0; j < 3; ++j) {
+      const double b = std::max(below[f][j] * w, below_end[f][j] * we);
+      const double a = std::max(above[f][j] * w, above_end[f][j] * we);
+      (*l)[j] -= b;
+      (*u)[j] += a;
+      most = std::max({most, b, a});
+    }
     return most;
   };
   // Every knot of every foot: one piece each (foot f's knots 0..S, then the next foot's).

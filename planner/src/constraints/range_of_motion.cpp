@@ -21,22 +21,29 @@ void add_range_of_motion(SrbdProblem& problem, int s) {
   const double frac = L.seg_fraction[s];
   // A measured start outside a foot's box (after a push): its excess as room at the points
   // after it (start_return.hpp); knot 0's rows keep the box (a violated one is a constant, left
-  // out by add_piece). Segments from 2 s on (the longest span the start_return setting accepts)
-  // get none, so they skip reading the settings.
-  const double span =
-      problem.starts_at_rest() || L.nominal_knot_time[s] > 2.0
-          ? 0.0
-          : feasibility_options(robot, options.feasibility_settings).start_return;
+  // out by add_piece). Likewise a session step's pinned end outside it, as room at the points
+  // before it. Segments more than 2 s (the longest span the start_return setting accepts) from a
+  // measured start or a pinned end get none, so they skip reading the settings.
+  const double t_end = L.nominal_knot_time[S];
+  const bool near_start = !problem.starts_at_rest() && L.nominal_knot_time[s] <= 2.0;
+  const bool near_end = !problem.ends_at_rest() && t_end - L.nominal_knot_time[s + 1] <= 2.0;
+  const double span = near_start || near_end
+                          ? feasibility_options(robot, options.feasibility_settings).start_return
+                          : 0.0;
   for (int f = 0; f < nf; ++f) {
     const Eigen::Vector3d nom = robot.legs[f].nominal_foot, box = robot.legs[f].range_of_motion;
-    Eigen::Vector3d below = Eigen::Vector3d::Zero(), above = Eigen::Vector3d::Zero();
-    MeasuredFootPose m;
-    if (span > 0.0 && measured_foot_pose(problem, f, &m)) {
+    // Below / above the box at the start (s) and at the end (e).
+    Eigen::Vector3d below_s = Eigen::Vector3d::Zero(), above_s = below_s, below_e = below_s,
+                    above_e = below_s;
+    auto excess = [&](const MeasuredFootPose& m, Eigen::Vector3d* below, Eigen::Vector3d* above) {
       const Eigen::Vector3d off =
           rotation_zyx<double>(m.euler).transpose() * (m.foot - m.base) - nom;
-      below = (-box - off).cwiseMax(0.0);
-      above = (off - box).cwiseMax(0.0);
-    }
+      *below = (-box - off).cwiseMax(0.0);
+      *above = (off - box).cwiseMax(0.0);
+    };
+    MeasuredFootPose m;
+    if (span > 0.0 && measured_foot_pose(problem, f, &m)) excess(m, &below_s, &above_s);
+    if (span > 0.0 && pinned_end_foot_pose(problem, f, &m)) excess(m, &below_e, &above_e);
     const int nr = std::max(1, options.rom_points) * (L.contact[f][s] ? 1 : 2);
     // The segment's end only in the last segment: the next segment's start covers it.
     for (const double sigma : L.segment_points(s, nr, s == S - 1)) {
@@ -49,10 +56,11 @@ void add_range_of_motion(SrbdProblem& problem, int s) {
                           : -1;
       const double t = nominal_point_time(L, s, sigma);
       const double w = t > 0.0 ? start_return_weight(t, span) : 0.0;
+      const double we = end_return_weight(t, t_end, span);
       std::vector<double> lo(3), hi(3);
       for (int i = 0; i < 3; ++i) {
-        lo[i] = -box[i] - below[i] * w;
-        hi[i] = box[i] + above[i] * w;
+        lo[i] = -box[i] - std::max(below_s[i] * w, below_e[i] * we);
+        hi[i] = box[i] + std::max(above_s[i] * w, above_e[i] * we);
       }
       problem.add_piece(make_piece("range_of_motion", lv, lo, hi, [=](const auto* x, auto* g) {
         using T = std::decay_t<decltype(*g)>;

@@ -6,6 +6,14 @@
 // start's excess e over the bound, shrinking linearly to nothing over the start-return span,
 // bound + e max(0, 1 - t / span) at nominal time t (as lateral_corridor.cpp's return into its
 // corridor). A start within the bounds has e = 0: rows as before, so do cold plans.
+// A session step's pinned horizon end is the same at the other side: its base is held at the
+// reference's, and a stance foothold the measured start fixes lasts to it after a slip, so the
+// end's rows can be constants outside their bounds (SrbdProblem::end_excess, left out), and the
+// rows just before it, whose base must arrive at the pinned pose and velocity, cannot be within
+// them either (the closed loop's left 300 N push on pallet_15: LH slipped 7 cm, the pinned end
+// 5.7 cm outside LH's box, its last segment's rows 2.5 cm, nine steps in a row failed). They get
+// the end's excess as room, growing over the same span up to the end: bound + e max(0, 1 -
+// (t_end - t) / span). A plan that ends at rest (every cold plan, plan --init) has none.
 #pragma once
 
 #include <Eigen/Core>
@@ -22,19 +30,24 @@ inline double start_return_weight(double t, double span) {
   return std::max(0.0, 1.0 - t / span);
 }
 
-// A re-plan's measured start as the rows after it see it: the base position and Euler angles at
-// knot 0 and foot f's position there.
+// The weight of a pinned end's excess at nominal time t of a step ending at t_end: 0 up to `span`
+// before the end, rising to 1 towards it; 0 at the end itself, whose rows are constants (a
+// violated one is left out by add_piece; one within its bound keeps it).
+inline double end_return_weight(double t, double t_end, double span) {
+  if (!(span > 0.0) || !(t < t_end - 1e-9)) return 0.0;
+  return std::max(0.0, 1.0 - (t_end - t) / span);
+}
+
+// A re-plan's measured start (or a session step's pinned end) as the rows after (before) it see
+// it: the base position and Euler angles at knot 0 (the last knot) and foot f's position there.
 struct MeasuredFootPose {
   Eigen::Vector3d base, euler, foot;
 };
 
-// Foot f's measured start pose, when the problem starts from a given state (only a re-plan from a
-// measured state gets room) and pins all of it; false otherwise (a cold plan, a foot whose
-// position at knot 0 is free).
-inline bool measured_foot_pose(const SrbdProblem& problem, int f, MeasuredFootPose* pose) {
-  if (problem.starts_at_rest()) return false;
+// Foot f's pose at knot k when the problem fixes all of it; false otherwise.
+inline bool fixed_foot_pose(const SrbdProblem& problem, int k, int f, MeasuredFootPose* pose) {
   const Layout& L = problem.layout();
-  const int b = L.base[0], p = L.foot_pos[f][0];
+  const int b = L.base[k], p = L.foot_pos[f][k];
   if (p < 0) return false;
   const auto& x = problem.lower();
   if (!all_fixed({b, b + 1, b + 2, b + 6, b + 7, b + 8, p, p + 1, p + 2}, x, problem.upper()))
@@ -43,6 +56,21 @@ inline bool measured_foot_pose(const SrbdProblem& problem, int f, MeasuredFootPo
   pose->euler = Eigen::Vector3d(x[b + 6], x[b + 7], x[b + 8]);
   pose->foot = Eigen::Vector3d(x[p], x[p + 1], x[p + 2]);
   return true;
+}
+
+// Foot f's measured start pose, when the problem starts from a given state (only a re-plan from a
+// measured state gets room) and pins all of it; false otherwise (a cold plan, a foot whose
+// position at knot 0 is free).
+inline bool measured_foot_pose(const SrbdProblem& problem, int f, MeasuredFootPose* pose) {
+  return !problem.starts_at_rest() && fixed_foot_pose(problem, 0, f, pose);
+}
+
+// Foot f's pose at a session step's pinned end, when the problem pins its end (not at rest) and
+// fixes the foot there (a foothold pinned to the reference's, or a stance the start fixes); false
+// otherwise (a plan that ends at rest, a foot free at the end).
+inline bool pinned_end_foot_pose(const SrbdProblem& problem, int f, MeasuredFootPose* pose) {
+  return !problem.ends_at_rest() &&
+         fixed_foot_pose(problem, problem.layout().num_segments, f, pose);
 }
 
 // The nominal time of the point at fraction sigma of segment s.

@@ -2,7 +2,9 @@
 // (SrbdProblem::add_piece, constraints/start_return.hpp; issue #22): the rows on the pinned start
 // alone are left out and reported, the joints and range_of_motion rows after it get the start's
 // excess as room, shrinking to nothing over start_return, and their Jacobians still match central
-// differences. A start within the bounds (and every cold plan) keeps its rows as they were.
+// differences. A start within the bounds (and every cold plan) keeps its rows as they were. A
+// session step's pinned end outside them likewise: its rows are left out and reported as the
+// end's, and the rows before it get its excess as room, growing over start_return up to the end.
 #include <algorithm>
 #include <cmath>
 
@@ -106,6 +108,95 @@ TEST(StartReturn, APinnedEndsViolationIsNotReportedAsTheStarts) {
   EXPECT_TRUE(both.start_excess().count("joints"));
 }
 
+// The end moved as a push would have moved the robot by then (rolled 0.5 rad, 5 cm aside): a
+// session step's pinned end outside a joint range and a box, from a start on the plan.
+struct MovedEnd {
+  Replan start;
+  SrbdProblem::StartState end;
+  PhaseTimeline horizon;
+};
+MovedEnd moved_end(const robot::RobotModel& r, const terrain::HeightField& terrain,
+                   const ProblemOptions& o, double roll = -0.5, double dy = -0.05) {
+  const SrbdProblem cold(r, terrain, crawl_timeline(r), o);
+  MovedEnd m{pushed_start(r, terrain, o, 0.0, 0.0),
+             start_state_of(cold.evaluate(const_cast<SrbdProblem&>(cold).initial_guess(), 2.0)),
+             crawl_timeline(r, 2.0).cropped(0.5)};
+  m.end.euler_zyx[2] += roll;
+  m.end.position.y() += dy;
+  return m;
+}
+
+// The rows before a pinned end outside its bounds: widened by the end's excess towards the end,
+// as they were up to start_return before it (the step ends at 1.5 s: up to 0.5 s), never by more
+// than the excess, and only the joints and range_of_motion rows. Before this every row kept its
+// bound, and a step whose stance foothold (fixed by the measured start) lay outside its box at
+// the pinned end was infeasible by construction (test_plan.cpp,
+// Plan.SessionStepWithASlippedFootholdUpToItsPinnedEndSolves).
+TEST(StartReturn, RowsBeforeAPinnedEndGetItsExcessBackToTheBound) {
+  const auto r = hyq();
+  FlatField flat;
+  const ProblemOptions o = joints_and_box_options();
+  const MovedEnd m = moved_end(r, flat, o);
+  const SrbdProblem p(r, flat, m.horizon, o, &m.start.start, &m.end);
+  ProblemOptions none = o;
+  none.feasibility_settings = {{"start_return", 0.0}};
+  const SrbdProblem q(r, flat, m.horizon, none, &m.start.start, &m.end);
+  ASSERT_TRUE(p.start_excess().empty());
+  ASSERT_TRUE(p.end_excess().count("joints"));
+  ASSERT_TRUE(p.end_excess().count("range_of_motion"));
+  ASSERT_EQ(p.pieces().size(), q.pieces().size());
+  const double span = FeasibilityOptions{}.start_return;
+  const auto& L = p.layout();
+  const double t_end = L.nominal_knot_time[L.num_segments];
+  EXPECT_NEAR(t_end, 1.5, 1e-9);
+  int widened = 0, same_before_span = 0;
+  double largest_room = 0.0;
+  for (std::size_t i = 0; i < p.pieces().size(); ++i) {
+    const Piece &a = *p.pieces()[i], &b = *q.pieces()[i];
+    ASSERT_EQ(a.kind, b.kind);
+    ASSERT_EQ(a.vars, b.vars);
+    if (a.kind != "joints" && a.kind != "range_of_motion") {
+      EXPECT_EQ(a.lb, b.lb) << a.kind;
+      EXPECT_EQ(a.ub, b.ub) << a.kind;
+      continue;
+    }
+    // The last base knot the piece reads (its time, up to a segment).
+    int knot = -1;
+    for (int k = L.num_segments; k >= 0 && knot < 0; --k)
+      if (std::find(a.vars.begin(), a.vars.end(), L.base[k]) != a.vars.end()) knot = k;
+    ASSERT_GE(knot, 0);
+    bool differs = false;
+    for (int row = 0; row < a.rows(); ++row) {
+      EXPECT_LE(a.lb[row], b.lb[row]);
+      EXPECT_GE(a.ub[row], b.ub[row]);
+      differs |= a.lb[row] != b.lb[row] || a.ub[row] != b.ub[row];
+      largest_room = std::max({largest_room, b.lb[row] - a.lb[row], a.ub[row] - b.ub[row]});
+    }
+    widened += differs;
+    if (L.nominal_knot_time[knot] <= t_end - span + 1e-9) {
+      EXPECT_FALSE(differs) << a.kind << " up to knot " << knot << " (t "
+                            << L.nominal_knot_time[knot] << " s)";
+      ++same_before_span;
+    }
+  }
+  EXPECT_GT(widened, 0);
+  EXPECT_GT(same_before_span, 0);
+  double most = 0.0;
+  for (const auto& [kind, excess] : p.end_excess()) most = std::max(most, excess);
+  EXPECT_LE(largest_room, most + 1e-12);
+  EXPECT_GT(largest_room, 0.0);
+  // The end not moved: within its bounds, every row as without room.
+  const MovedEnd on = moved_end(r, flat, o, 0.0, 0.0);
+  const SrbdProblem u(r, flat, on.horizon, o, &on.start.start, &on.end);
+  const SrbdProblem v(r, flat, on.horizon, none, &on.start.start, &on.end);
+  EXPECT_TRUE(u.end_excess().empty());
+  ASSERT_EQ(u.pieces().size(), v.pieces().size());
+  for (std::size_t i = 0; i < u.pieces().size(); ++i) {
+    EXPECT_EQ(u.pieces()[i]->lb, v.pieces()[i]->lb) << u.pieces()[i]->kind;
+    EXPECT_EQ(u.pieces()[i]->ub, v.pieces()[i]->ub) << u.pieces()[i]->kind;
+  }
+}
+
 // The rows after the start: widened by the excess at first, back to the bound from start_return
 // on; the joints rows' bounds never narrower than the joint range less the margin.
 TEST(StartReturn, RowsAfterTheStartGetTheExcessBackToTheBound) {
@@ -175,6 +266,26 @@ TEST(StartReturn, WidenedRowsJacobianMatchesCentralDifferences) {
   merged.feasibility_settings = {{"joints_softmax", 0.005}};
   const SrbdProblem m(r, terrain, pushed.timeline, merged, &pushed.start);
   EXPECT_GT(check_kind_derivatives(m, "joints"), 0);
+}
+
+// The rows widened before a pinned end: their Jacobians (the rows are the families' own). On flat
+// ground: on the TanhStep of the start's test the horizon problem's joints rows miss central
+// differences by 5e-5 relative at one noisy point, with the end moved or not (room or none).
+TEST(StartReturn, RowsBeforeAPinnedEndJacobianMatchesCentralDifferences) {
+  const auto r = hyq();
+  FlatField terrain;
+  ProblemOptions o = joints_and_box_options();
+  o.goal = Eigen::Vector3d(0.4, 0.05, 0.3);
+  const MovedEnd m = moved_end(r, terrain, o);
+  const SrbdProblem p(r, terrain, m.horizon, o, &m.start.start, &m.end);
+  ASSERT_TRUE(p.end_excess().count("joints"));
+  ASSERT_TRUE(p.end_excess().count("range_of_motion"));
+  EXPECT_GT(check_kind_derivatives(p, "joints"), 0);
+  EXPECT_GT(check_kind_derivatives(p, "range_of_motion"), 0);
+  ProblemOptions merged = o;
+  merged.feasibility_settings = {{"joints_softmax", 0.005}};
+  const SrbdProblem s(r, terrain, m.horizon, merged, &m.start.start, &m.end);
+  EXPECT_GT(check_kind_derivatives(s, "joints"), 0);
 }
 
 }  // namespace

@@ -112,7 +112,9 @@ struct FeasibilityOptions {
   double joints_softmax = 0.0;
   // joints, range_of_motion: a re-plan whose measured start lies outside a joint range or a
   // range-of-motion box (after a push) gets its excess as room at the next knots, shrinking to
-  // nothing over this span (s; constraints/start_return.hpp, docs/design.md §6.7). 0: none.
+  // nothing over this span (s; constraints/start_return.hpp, docs/design.md §6.7). A session
+  // step's pinned end outside them (a foothold slipped in a stance lasting to it) likewise at the
+  // knots before it, growing over the same span up to the end. 0: none.
   // Measured on the pallet_15 `all` closed loop at 10 Hz (issue #22), right push 450 N: 0.1 s
   // falls at 7.2 s, 0.25 s survives with 25 of 109 re-plans failed and 41.7 mm RMS, 0.5 s 18 and
   // 21.4 mm, 1 s 15 and 16.8 mm (left 300 N: 10 failed at each, pass only at 0.1 and 1 s).
