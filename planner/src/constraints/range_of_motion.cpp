@@ -30,6 +30,9 @@ void add_range_of_motion(SrbdProblem& problem, int s) {
   const double span = near_start || near_end
                           ? feasibility_options(robot, options.feasibility_settings).start_return
                           : 0.0;
+  // The base's largest deceleration a start can count on: friction * g with its weight on its
+  // feet (start_return.hpp, unavoidable_excess).
+  const double decel = options.friction * kGravity;
   for (int f = 0; f < nf; ++f) {
     const Eigen::Vector3d nom = robot.legs[f].nominal_foot, box = robot.legs[f].range_of_motion;
     // Below / above the box at the start (s) and at the end (e).
@@ -42,7 +45,16 @@ void add_range_of_motion(SrbdProblem& problem, int s) {
       *above = (off - box).cwiseMax(0.0);
     };
     MeasuredFootPose m;
-    if (span > 0.0 && measured_foot_pose(problem, f, &m)) excess(m, &below_s, &above_s);
+    // A stance foot's offset at the start and its rate there (a start moving out of the box).
+    Eigen::Vector3d off0 = Eigen::Vector3d::Zero(), rate0 = Eigen::Vector3d::Zero();
+    bool moving = false;
+    if (span > 0.0 && measured_foot_pose(problem, f, &m)) {
+      excess(m, &below_s, &above_s);
+      if (measured_stance_offset_rate(problem, f, m, &rate0)) {
+        off0 = rotation_zyx<double>(m.euler).transpose() * (m.foot - m.base) - nom;
+        moving = true;
+      }
+    }
     if (span > 0.0 && pinned_end_foot_pose(problem, f, &m)) excess(m, &below_e, &above_e);
     const int nr = std::max(1, options.rom_points) * (L.contact[f][s] ? 1 : 2);
     // The segment's end only in the last segment: the next segment's start covers it.
@@ -58,9 +70,15 @@ void add_range_of_motion(SrbdProblem& problem, int s) {
       const double w = t > 0.0 ? start_return_weight(t, span) : 0.0;
       const double we = end_return_weight(t, t_end, span);
       std::vector<double> lo(3), hi(3);
+      Eigen::Vector3d below = below_s, above = above_s;  // the start's, at t
+      if (moving && w > 0.0)
+        for (int i = 0; i < 3; ++i) {
+          above[i] = unavoidable_excess(off0[i], rate0[i], box[i], t, decel);
+          below[i] = unavoidable_excess(-off0[i], -rate0[i], box[i], t, decel);
+        }
       for (int i = 0; i < 3; ++i) {
-        lo[i] = -box[i] - std::max(below_s[i] * w, below_e[i] * we);
-        hi[i] = box[i] + std::max(above_s[i] * w, above_e[i] * we);
+        lo[i] = -box[i] - std::max(below[i] * w, below_e[i] * we);
+        hi[i] = box[i] + std::max(above[i] * w, above_e[i] * we);
       }
       problem.add_piece(make_piece("range_of_motion", lv, lo, hi, [=](const auto* x, auto* g) {
         using T = std::decay_t<decltype(*g)>;

@@ -7,8 +7,10 @@
 // end's, and the rows before it get its excess as room, growing over start_return up to the end.
 #include <algorithm>
 #include <cmath>
+#include <set>
 
 #include "family_test.hpp"
+#include "terrastride/planner/piece_math.hpp"
 
 namespace terrastride::planner {
 namespace {
@@ -251,6 +253,85 @@ TEST(StartReturn, RowsAfterTheStartGetTheExcessBackToTheBound) {
   EXPECT_GT(largest_room, 0.0);
 }
 
+// A start sliding sideways out of its feet's boxes (after a push: the base 19 cm aside and moving
+// on at 0.45 m/s, the feet standing): the stance feet's offsets grow at 0.45 m/s from 1 cm inside
+// their boxes' edges, so the rows after the start get what that motion makes unavoidable, the
+// excess at its stop under friction * g (1.1 cm at most here), returning over start_return; before
+// this they had no room (the start is within the boxes) and asked the base to stop in 0.02 s. The
+// bounds the motion leaves keep theirs (a swinging foot would too: it can accelerate as fast as it
+// needs; all four stand at 0.5 s).
+TEST(StartReturn, RowsAfterAStartSlidingOutOfItsBoxGetWhatItsMotionMakesUnavoidable) {
+  const auto r = hyq();
+  FlatField flat;
+  const ProblemOptions o = joints_and_box_options();
+  Replan sliding = pushed_start(r, flat, o, 0.0, -0.19);
+  Replan still = sliding;
+  sliding.start.linear_velocity.y() -= 0.45;
+  const SrbdProblem p(r, flat, sliding.timeline, o, &sliding.start);
+  const SrbdProblem q(r, flat, still.timeline, o, &still.start);
+  ASSERT_TRUE(p.start_excess().empty()) << "the start itself is within every box";
+  ASSERT_EQ(p.pieces().size(), q.pieces().size());
+  const auto& L = p.layout();
+  const double span = FeasibilityOptions{}.start_return, decel = o.friction * kGravity;
+  // The largest unavoidable excess: each stance foot's offset past its box at its stop.
+  double peak = 0.0;
+  for (std::size_t f = 0; f < r.legs.size(); ++f) {
+    if (L.foot_vel[f][0] >= 0) continue;  // swinging at the start
+    const Eigen::Vector3d off =
+        rotation_zyx<double>(sliding.start.euler_zyx).transpose() *
+            (sliding.start.foot_position[f] - sliding.start.position) -
+        r.legs[f].nominal_foot;
+    const double v = 0.45 * std::cos(sliding.start.euler_zyx[0]);  // base frame, about
+    peak = std::max(peak, off.y() + v * v / (2 * decel) - r.legs[f].range_of_motion.y());
+  }
+  std::printf("unavoidable excess at most %.4f m\n", peak);
+  ASSERT_GT(peak, 0.005);
+  int widened = 0, same_after_span = 0;
+  double largest_room = 0.0;
+  std::set<int> widened_feet, stance_feet;
+  for (std::size_t f = 0; f < r.legs.size(); ++f)
+    if (L.foot_vel[f][0] < 0) stance_feet.insert(static_cast<int>(f));
+  ASSERT_GE(stance_feet.size(), 3u);
+  for (std::size_t i = 0; i < p.pieces().size(); ++i) {
+    const Piece &a = *p.pieces()[i], &b = *q.pieces()[i];
+    ASSERT_EQ(a.kind, b.kind);
+    ASSERT_EQ(a.vars, b.vars);
+    if (a.kind != "range_of_motion") {
+      EXPECT_EQ(a.lb, b.lb) << a.kind;
+      EXPECT_EQ(a.ub, b.ub) << a.kind;
+      continue;
+    }
+    int knot = -1;
+    for (int k = 0; k <= L.num_segments && knot < 0; ++k)
+      if (std::find(a.vars.begin(), a.vars.end(), L.base[k]) != a.vars.end()) knot = k;
+    ASSERT_GE(knot, 0);
+    bool differs = false;
+    for (int row = 0; row < a.rows(); ++row) {
+      EXPECT_EQ(a.lb[row], b.lb[row]) << "nothing moves towards a lower bound";
+      EXPECT_GE(a.ub[row], b.ub[row]);
+      differs |= a.ub[row] != b.ub[row];
+      largest_room = std::max(largest_room, a.ub[row] - b.ub[row]);
+    }
+    if (differs) {
+      ++widened;
+      for (std::size_t f = 0; f < r.legs.size(); ++f)
+        for (int k = 0; k <= L.num_segments; ++k)
+          if (L.foot_pos[f][k] >= 0 &&
+              std::find(a.vars.begin(), a.vars.end(), L.foot_pos[f][k]) != a.vars.end())
+            widened_feet.insert(static_cast<int>(f));
+    }
+    if (L.nominal_knot_time[knot] >= span) {
+      EXPECT_FALSE(differs) << "knot " << knot;
+      ++same_after_span;
+    }
+  }
+  EXPECT_GT(widened, 0);
+  EXPECT_GT(same_after_span, 0);
+  EXPECT_GT(largest_room, 0.0);
+  EXPECT_LE(largest_room, peak + 1e-3);
+  EXPECT_EQ(widened_feet, stance_feet);
+}
+
 // The changed rows' Jacobians (bounds widened; the rows themselves are the families' own).
 TEST(StartReturn, WidenedRowsJacobianMatchesCentralDifferences) {
   const auto r = hyq();
@@ -266,6 +347,11 @@ TEST(StartReturn, WidenedRowsJacobianMatchesCentralDifferences) {
   merged.feasibility_settings = {{"joints_softmax", 0.005}};
   const SrbdProblem m(r, terrain, pushed.timeline, merged, &pushed.start);
   EXPECT_GT(check_kind_derivatives(m, "joints"), 0);
+  // A start sliding out of its boxes (the rows' room from its motion).
+  Replan sliding = pushed_start(r, terrain, o, 0.0, -0.19);
+  sliding.start.linear_velocity.y() -= 0.45;
+  const SrbdProblem s(r, terrain, sliding.timeline, o, &sliding.start);
+  EXPECT_GT(check_kind_derivatives(s, "range_of_motion"), 0);
 }
 
 // The rows widened before a pinned end: their Jacobians (the rows are the families' own). On flat
