@@ -341,7 +341,8 @@ void add_plan_command(CLI::App& app) {
                   "foot acceleration bound), joints (joint ranges from IK), force_ramp (contact "
                   "forces zero at touch-down and lift-off, rate bounded), monotone_progress, "
                   "lateral_corridor, swing_apex (the base's and swing feet's path shape, each on "
-                  "when its --feasibility setting is non-zero; plans from rest only unless "
+                  "while its --feasibility setting is non-zero: by default monotone_progress=1, "
+                  "lateral_corridor=0.02, swing_apex_rise=0.1; plans from rest only unless "
                   "replan_path_shape=1; a solve they make fail is solved again without them), all "
                   "(= foot,shin_ik,thigh,trunk,polytope,joints,force_ramp,monotone_progress,"
                   "lateral_corridor,swing_apex)")

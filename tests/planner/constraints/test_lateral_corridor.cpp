@@ -134,11 +134,14 @@ TEST(LateralCorridor, NoConstantRowsWithAPinnedEnd) {
   EXPECT_GT(rows, 20);
 }
 
-TEST(LateralCorridor, OffByDefault) {
+// On by default since session 14 (issue #17); the setting 0 turns it off.
+TEST(LateralCorridor, OnByDefaultOffAtZero) {
   const auto r = hyq();
   FlatField flat;
   ProblemOptions o = turning_crawl_options(false);
   o.constraints = {"lateral_corridor"};
+  EXPECT_GT(count_kinds(SrbdProblem(r, flat, crawl_timeline(r), o)).count("lateral_corridor"), 0u);
+  o.feasibility_settings = {{"lateral_corridor", 0.0}};
   EXPECT_EQ(count_kinds(SrbdProblem(r, flat, crawl_timeline(r), o)).count("lateral_corridor"), 0u);
 }
 

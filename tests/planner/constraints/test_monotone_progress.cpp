@@ -158,11 +158,14 @@ TEST(PathShape, AReplanFromAStateCarriesTheRowsOnlyWhenAsked) {
   }
 }
 
-TEST(MonotoneProgress, OffByDefaultAndWithoutAGoal) {
+// On by default since session 14 (issue #17); the setting 0 turns it off.
+TEST(MonotoneProgress, OnByDefaultOffAtZeroAndWithoutAGoal) {
   const auto r = hyq();
   FlatField flat;
   ProblemOptions o = turning_crawl_options(false);
   o.constraints = {"monotone_progress"};
+  EXPECT_GT(count_kinds(SrbdProblem(r, flat, crawl_timeline(r), o)).count("monotone_progress"), 0u);
+  o.feasibility_settings = {{"monotone_progress", 0.0}};
   EXPECT_EQ(count_kinds(SrbdProblem(r, flat, crawl_timeline(r), o)).count("monotone_progress"), 0u);
   o = with_monotone(o);
   o.has_goal = false;  // the goal is the start: no line

@@ -98,11 +98,14 @@ TEST(SwingApex, RowsAreTheControlPointsHeightsAboveTheHigherEndOrTheTerrainPasse
   }
 }
 
-TEST(SwingApex, OffByDefault) {
+// On by default since session 14 (issue #17); the setting 0 turns it off.
+TEST(SwingApex, OnByDefaultOffAtZero) {
   const auto r = hyq();
   FlatField flat;
   ProblemOptions o = turning_crawl_options(false);
   o.constraints = {"swing_apex"};
+  EXPECT_GT(count_kinds(SrbdProblem(r, flat, crawl_timeline(r), o)).count("swing_apex"), 0u);
+  o.feasibility_settings = {{"swing_apex_rise", 0.0}};
   EXPECT_EQ(count_kinds(SrbdProblem(r, flat, crawl_timeline(r), o)).count("swing_apex"), 0u);
 }
 

@@ -129,12 +129,12 @@ struct FeasibilityOptions {
   // lateral_corridor.cpp, swing_apex.cpp). Each bounds the splines' Bezier control points, so the
   // bound holds along the whole polynomial, not only at knots. 0 = off.
   // monotone_progress: 1 = the base never moves back along the start-to-goal line.
-  int monotone_progress = 0;
+  int monotone_progress = 1;
   // lateral_corridor (m): the base within this distance of the start-to-goal line.
-  double lateral_corridor = 0.0;
+  double lateral_corridor = 0.02;
   // swing_apex_rise (m): a swing foot at most this far above the higher of its lift-off and
   // touch-down points, or of the terrain its guessed path passes where that is higher.
-  double swing_apex_rise = 0.0;
+  double swing_apex_rise = 0.1;
   // replan_path_shape: 1 = the three path-shape families above also shape a problem that starts
   // from a given state (a re-plan: a planning session's step, `plan --init`); 0 = only plans that
   // start at rest (cold plans) carry them. Why (docs/design.md §6.4): a re-plan follows a plan
