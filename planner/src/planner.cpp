@@ -146,10 +146,11 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   out.solve = solve(*problem, solver_options, ipopt_options);
   solver_options.max_iterations = max_iterations;
   nlohmann::json shape_fallback;
-  const double time_left =
-      options.max_time > 0.0 ? options.max_time - seconds_since(t_start) : 1.0;
+  auto time_left = [&] {
+    return options.max_time > 0.0 ? options.max_time - seconds_since(t_start) : 1.0;
+  };
   if (!out.solve.success && !shape_kinds.empty() && out.solve.status != "stopped" &&
-      out.solve.status != "time_limit" && time_left > 0.0 &&
+      out.solve.status != "time_limit" && time_left() > 0.0 &&
       !(options.should_stop && options.should_stop())) {
     const SolveResult shaped = out.solve;
     shape_fallback = {{"dropped", shape_kinds},
@@ -168,11 +169,13 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
       unshaped.feasibility_settings.emplace_back(name, 0.0);
     problem = std::make_unique<SrbdProblem>(robot, plan_terrain, timeline, unshaped, start_ptr);
     if (warm.previous) problem->warm_start_from(*warm.previous, warm.shift);
-    if (options.max_time > 0.0) solver_options.max_time = time_left;
+    // What is left after the rebuild too (a second problem of an 11 s plan takes tens of ms).
+    if (options.max_time > 0.0) solver_options.max_time = std::max(time_left(), 1e-3);
     out.solve = solve(*problem, solver_options, ipopt_options);
     out.solve.iterations += shaped.iterations;
     out.solve.feasibility_iterations += shaped.feasibility_iterations;
     out.solve.objective_iterations += shaped.objective_iterations;
+    out.solve.polish_iterations += shaped.polish_iterations;
     out.solve.wall_s += shaped.wall_s;
   }
   const auto t_after_solve = std::chrono::steady_clock::now();
