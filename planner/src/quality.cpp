@@ -6,6 +6,41 @@
 
 namespace terrastride::planner {
 
+namespace {
+
+// Signed distance of c to the convex hull of `points` (3 or more, in the horizontal plane): the
+// smallest distance to the lines of the hull's edges, positive inside. Andrew's monotone chain
+// over a robot's few feet.
+double support_margin(const Eigen::Vector2d& c, std::vector<Eigen::Vector2d> points) {
+  std::sort(points.begin(), points.end(), [](const auto& a, const auto& b) {
+    return a.x() < b.x() || (a.x() == b.x() && a.y() < b.y());
+  });
+  auto cross = [](const Eigen::Vector2d& o, const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+    return (a - o).x() * (b - o).y() - (a - o).y() * (b - o).x();
+  };
+  std::vector<Eigen::Vector2d> hull(2 * points.size());
+  std::size_t k = 0;
+  for (std::size_t i = 0; i < points.size(); ++i) {  // lower chain
+    while (k >= 2 && cross(hull[k - 2], hull[k - 1], points[i]) <= 0) --k;
+    hull[k++] = points[i];
+  }
+  for (std::size_t i = points.size() - 1, lower = k + 1; i-- > 0;) {  // upper chain
+    while (k >= lower && cross(hull[k - 2], hull[k - 1], points[i]) <= 0) --k;
+    hull[k++] = points[i];
+  }
+  hull.resize(k - 1);  // counter-clockwise, the first point not repeated
+  if (hull.size() < 3) return -INFINITY;  // collinear feet: no area to stand in
+  double margin = INFINITY;
+  for (std::size_t i = 0; i < hull.size(); ++i) {
+    const Eigen::Vector2d& a = hull[i];
+    const Eigen::Vector2d& b = hull[(i + 1) % hull.size()];
+    margin = std::min(margin, cross(a, b, c) / (b - a).norm());
+  }
+  return margin;
+}
+
+}  // namespace
+
 PlanQuality plan_quality(const Trajectory& plan) {
   PlanQuality q;
   const auto& S = plan.samples;
@@ -74,6 +109,20 @@ PlanQuality plan_quality(const Trajectory& plan) {
       q.force_step_max_N = std::max(q.force_step_max_N, step);
     }
   }
+  // Static support margin over the samples with three or more feet down.
+  std::vector<double> margins;
+  for (const auto& s : S) {
+    std::vector<Eigen::Vector2d> down;
+    for (const auto& f : s.feet)
+      if (f.contact) down.push_back(f.position.head<2>());
+    if (down.size() >= 3) margins.push_back(support_margin(s.base.position.head<2>(), down));
+  }
+  if (!margins.empty()) {
+    std::sort(margins.begin(), margins.end());
+    q.has_support_margin = true;
+    q.support_margin_min_m = margins.front();
+    q.support_margin_p10_m = margins[(margins.size() - 1) / 10];
+  }
   q.start_acceleration = S.front().base.linear_acceleration.norm();
   q.end_acceleration = S.back().base.linear_acceleration.norm();
   q.start_angular_acceleration = S.front().base.angular_acceleration.norm();
@@ -128,6 +177,12 @@ nlohmann::json quality_to_json(const PlanQuality& q, const std::vector<std::stri
                       {"swing_rise_max_m", q.swing_rise_max_m},
                       {"swings", swings}};
   if (q.path_ratio > 0) j["path_ratio"] = q.path_ratio;
+  // A collinear stance's -inf is written as null (JSON has no infinity).
+  if (q.has_support_margin) {
+    auto finite_or_null = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); };
+    j["support_margin_min_m"] = finite_or_null(q.support_margin_min_m);
+    j["support_margin_p10_m"] = finite_or_null(q.support_margin_p10_m);
+  }
   return j;
 }
 

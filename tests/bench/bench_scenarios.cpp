@@ -49,6 +49,12 @@ using namespace terrastride;
 
 namespace {
 
+std::string fixed1(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.1f", v);
+  return buf;
+}
+
 struct Scenario {
   std::string name;
   std::string scene;
@@ -335,12 +341,17 @@ int main(int argc, char** argv) {
     auto print_quality = [&] {
       if (json) return;
       std::printf("%-22s quality: path %.3f back %.1f mm sway %.1f mm dz %.1f mm jerk99 %.2f "
-                  "fstep %.1f N/10ms acc0 %.3f accT %.3f ang0 %.3f angT %.3f rise %.1f mm%s\n",
+                  "fstep %.1f N/10ms acc0 %.3f accT %.3f ang0 %.3f angT %.3f rise %.1f mm%s%s\n",
                   "", quality.path_ratio, 1e3 * quality.backward_max_m,
                   1e3 * quality.lateral_sway_m, 1e3 * quality.body_height_variation_m,
                   quality.jerk_p99, quality.force_step_max_N, quality.start_acceleration,
                   quality.end_acceleration, quality.start_angular_acceleration,
                   quality.end_angular_acceleration, 1e3 * quality.swing_rise_max_m,
+                  quality.has_support_margin
+                      ? (" margin min " + fixed1(1e3 * quality.support_margin_min_m) + " p10 " +
+                         fixed1(1e3 * quality.support_margin_p10_m) + " mm")
+                            .c_str()
+                      : "",
                   t.extra.contains("objective")
                       ? (" objective " + std::to_string(t.extra["objective"].get<double>())).c_str()
                       : "");

@@ -87,5 +87,59 @@ TEST(PlanQuality, ForceStepIsPerTenMilliseconds) {
   }
 }
 
+// The static support margin of known stances: three feet at (0, 0), (1, 0), (0, 1) and the base
+// at (0.2, 0.3) is 0.2 from the edge x = 0 (and 0.3 from y = 0, 0.354 from x + y = 1); at
+// (0.7, 0.6) it is outside the hypotenuse by 0.3 / sqrt 2. Four feet on a square add nothing
+// that binds; two feet down (a trot) leave it absent; a foot in the air does not count.
+TEST(PlanQuality, SupportMarginOfKnownStances) {
+  auto sample = [](Eigen::Vector2d base, std::vector<Eigen::Vector2d> feet, int airborne) {
+    TrajectorySample s;
+    s.base.position = Eigen::Vector3d(base.x(), base.y(), 0.5);
+    for (std::size_t i = 0; i < feet.size(); ++i) {
+      FootState f;
+      f.position = Eigen::Vector3d(feet[i].x(), feet[i].y(), 0.0);
+      f.contact = static_cast<int>(i) != airborne;
+      s.feet.push_back(f);
+    }
+    return s;
+  };
+  const std::vector<Eigen::Vector2d> square = {{0, 0}, {1, 0}, {0, 1}, {1, 1}};
+  Trajectory t;
+  t.feet = {"A", "B", "C", "D"};
+  for (int k = 0; k < 10; ++k) {
+    TrajectorySample s = sample({0.2, 0.3}, square, 3);  // D in the air: the triangle
+    s.t = 0.01 * k;
+    t.samples.push_back(s);
+  }
+  PlanQuality q = plan_quality(t);
+  ASSERT_TRUE(q.has_support_margin);
+  EXPECT_NEAR(q.support_margin_min_m, 0.2, 1e-12);
+  EXPECT_NEAR(q.support_margin_p10_m, 0.2, 1e-12);
+  // One sample outside the hypotenuse, nine inside: the minimum is negative, the 10th
+  // percentile (the first of ten) is the outside one too; with a tenth inside sample more, the
+  // percentile moves to the inside value.
+  t.samples[4] = sample({0.7, 0.6}, square, 3);
+  q = plan_quality(t);
+  EXPECT_NEAR(q.support_margin_min_m, -0.3 / std::sqrt(2.0), 1e-12);
+  EXPECT_NEAR(q.support_margin_p10_m, -0.3 / std::sqrt(2.0), 1e-12);
+  t.samples.push_back(sample({0.2, 0.3}, square, 3));
+  EXPECT_NEAR(plan_quality(t).support_margin_p10_m, 0.2, 1e-12);
+  // All four down: the square, 0.2 from its nearest side.
+  Trajectory four = t;
+  for (auto& s : four.samples) s = sample({0.2, 0.5}, square, -1);
+  EXPECT_NEAR(plan_quality(four).support_margin_min_m, 0.2, 1e-12);
+  // The JSON block carries both figures.
+  const auto j = quality_to_json(plan_quality(four), four.feet);
+  EXPECT_NEAR(j.at("support_margin_min_m").get<double>(), 0.2, 1e-12);
+  EXPECT_TRUE(j.contains("support_margin_p10_m"));
+  // Two feet down: no sample counts, the figures are absent.
+  Trajectory trot = t;
+  for (auto& s : trot.samples) {
+    s = sample({0.5, 0.5}, {{0, 0}, {1, 1}}, -1);
+  }
+  EXPECT_FALSE(plan_quality(trot).has_support_margin);
+  EXPECT_FALSE(quality_to_json(plan_quality(trot), {"A", "B"}).contains("support_margin_min_m"));
+}
+
 }  // namespace
 }  // namespace terrastride::planner

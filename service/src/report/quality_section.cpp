@@ -3,6 +3,8 @@
 // file from before the quality block has them too; the energy proxy is the torque check's.
 // Figures beyond the targets are notes, not problems: a plan can be feasible and safe
 // and still move less calmly than it could.
+#include <cmath>
+
 #include "report/sections.hpp"
 #include "terrastride/planner/quality.hpp"
 
@@ -37,6 +39,12 @@ json quality_section(const PlanSections& s) {
                           "range of the base height above the feet in contact"));
   s.summary.push_back(row("base jerk (99th percentile)", num(q.jerk_p99, 3), "m/s^3", "ok",
                           "differences of the sampled accelerations"));
+  if (q.has_support_margin && std::isfinite(q.support_margin_min_m))
+    s.summary.push_back(row("static support margin (min)", num(q.support_margin_min_m, 4), "m",
+                            "ok",
+                            "base against the hull of three or more feet down, positive inside; "
+                            "10th percentile " +
+                                fmt(q.support_margin_p10_m, 3) + " m"));
   if (q.path_ratio > 0)
     s.summary.push_back(row("path length / straight distance", num(q.path_ratio, 4), "", "ok",
                             "horizontal path of the base"));
