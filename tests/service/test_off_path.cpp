@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -33,8 +34,21 @@ TEST_P(OffPath, CleanPlanOrLoudFailure) {
   const std::string args = std::string("--terrain ") + scene + " --gait " + gait +
                            " --constraints all --goal " + goal + " --max-time 30";
   const auto r = run_terrastride("plan " + args + " --json --out " + out.string());
-  // The outcome, for the suite's clean / failed-loudly count (grep OFF_PATH in the test log).
-  std::cout << "OFF_PATH " << scene << " " << gait << " " << goal << " exit " << r.code << "\n";
+  // The outcome, for the suite's clean / failed-loudly count (grep OFF_PATH in the test log), and
+  // a written plan's quality figures (issue #17's targets: mm and N per 10 ms).
+  std::cout << "OFF_PATH " << scene << " " << gait << " " << goal << " exit " << r.code;
+  if ((r.code == 0 || r.code == 4) && fs::exists(out)) {
+    std::ifstream in(out);
+    const json q = json::parse(in, nullptr, false).value("quality", json::object());
+    auto mm = [&](const char* key) {
+      return q.contains(key) && q[key].is_number() ? std::lround(1e3 * q[key].get<double>()) : 0L;
+    };
+    std::cout << " back " << mm("backward_max_m") << " sway " << mm("lateral_sway_m") << " rise "
+              << mm("swing_rise_max_m") << " fstep "
+              << std::lround(q.value("force_step_max_N_per_10ms", 0.0)) << " margin_p10 "
+              << mm("support_margin_p10_m");
+  }
+  std::cout << "\n";
   ASSERT_TRUE(r.code == 0 || r.code == 3 || r.code == 4) << args << ": " << r.all();
   const json summary = json::parse(r.out.substr(0, r.out.find('\n')), nullptr, false);
   ASSERT_FALSE(summary.is_discarded()) << args << ": " << r.all();
