@@ -174,6 +174,13 @@ Gait with_rest_lead_in(const Gait& gait, const std::vector<std::string>& feet, i
   } else {
     lead_in = second_lift_off / gait.cycle_duration - a2;
   }
+  // A duration barely longer than second_lift_off would pack every cycle into what is left
+  // (crawl, 3 cycles in 0.5 s: 7 ms swings instead of 33 ms); such a schedule is not the gait any
+  // more, so a lead-in that would shorten the cycle below half of what it was is not applied.
+  if (duration > 0.0 && lead_in > gait.lead_in) {
+    const double new_cycle = duration / (lead_in + cycles + gait.lead_out);
+    if (new_cycle < 0.5 * cycle) return gait;
+  }
   Gait out = gait;
   out.lead_in = std::max(gait.lead_in, lead_in);
   return out;

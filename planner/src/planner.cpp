@@ -89,14 +89,18 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     // duration kept. The flat 2.4 s `all` crawl lifted LF off at 0.22 s: LF shed its load at
     // nearly the full rate onto the right feet alone while LH swung, which threw the base 26.6 cm
     // to the left, and the path-shape rows could not be met (docs/design.md §6.4 "Path shape").
-    const FeasibilityOptions feasibility = feasibility_options(robot, options.feasibility_settings);
-    if (options.rest_boundaries && feasibility.force_rate_max > 0.0 &&
-        requests_constraint_set(options.constraints, "force_ramp")) {
-      const Gait led = with_rest_lead_in(gait, feet, options.cycles, options.duration,
-                                         robot.mass * kGravity / feasibility.force_rate_max);
-      if (led.lead_in != gait.lead_in)
-        rest_lead_in = {{"gait_lead_in", gait.lead_in}, {"lead_in", led.lead_in}};
-      gait = led;
+    // The robot's feasibility defaults only when force_ramp is asked for: computing them can
+    // throw for a robot whose limits a `baseline` plan never reads (review, session 14).
+    if (options.rest_boundaries && requests_constraint_set(options.constraints, "force_ramp")) {
+      const FeasibilityOptions feasibility =
+          feasibility_options(robot, options.feasibility_settings);
+      if (feasibility.force_rate_max > 0.0) {
+        const Gait led = with_rest_lead_in(gait, feet, options.cycles, options.duration,
+                                           robot.mass * kGravity / feasibility.force_rate_max);
+        if (led.lead_in != gait.lead_in)
+          rest_lead_in = {{"gait_lead_in", gait.lead_in}, {"lead_in", led.lead_in}};
+        gait = led;
+      }
     }
     timeline = make_timeline(gait, feet, options.cycles, options.duration);
     // Without a duration the horizon is the gait's period times its cycles (plus lead-in/out).

@@ -109,13 +109,16 @@ PlanQuality plan_quality(const Trajectory& plan) {
       q.force_step_max_N = std::max(q.force_step_max_N, step);
     }
   }
-  // Static support margin over the samples with three or more feet down.
+  // Static support margin over the samples with a foot in the air and three or more down (all
+  // feet down is a larger polygon that never binds, and a trot's lead-in and lead-out would
+  // otherwise be all it measured).
   std::vector<double> margins;
   for (const auto& s : S) {
     std::vector<Eigen::Vector2d> down;
     for (const auto& f : s.feet)
       if (f.contact) down.push_back(f.position.head<2>());
-    if (down.size() >= 3) margins.push_back(support_margin(s.base.position.head<2>(), down));
+    if (down.size() >= 3 && down.size() < s.feet.size())
+      margins.push_back(support_margin(s.base.position.head<2>(), down));
   }
   if (!margins.empty()) {
     std::sort(margins.begin(), margins.end());

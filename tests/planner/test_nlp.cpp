@@ -109,6 +109,11 @@ TEST(Gait, RestLeadInDelaysAnEarlySecondLiftOff) {
   EXPECT_NEAR(grown.duration() - 2.4, second - 0.22, 1e-9);
   // A duration with no room for it: unchanged.
   EXPECT_EQ(with_rest_lead_in(crawl, feet, 3, 0.4, second).lead_in, crawl.lead_in);
+  // Room, but only by packing the cycles into less than half their length (3 cycles in 0.5 s
+  // would swing for 7 ms instead of 33): unchanged. At 1.0 s the cycle shrinks 0.33 -> 0.22 s,
+  // more than half: changed.
+  EXPECT_EQ(with_rest_lead_in(crawl, feet, 3, 0.5, second).lead_in, crawl.lead_in);
+  EXPECT_GT(with_rest_lead_in(crawl, feet, 3, 1.0, second).lead_in, crawl.lead_in);
 }
 
 // A cropped timeline remembers how far into its first interval it starts, and the problem built on

@@ -407,6 +407,9 @@ TEST(Plan, TheFastCrawlFromRestGetsALeadInAndIsShaped) {
   PlannerOptions o = options_to_goal(1.0);
   o.duration = 2.4;
   o.constraints = {"all"};
+  // The path-shape families off (on by default since session 14): the lead-in alone.
+  o.feasibility_settings = {
+      {"monotone_progress", 0.0}, {"lateral_corridor", 0.0}, {"swing_apex_rise", 0.0}};
   const PlanOutcome plain = plan_motion(r, flat, flat, o, 0.01);
   ASSERT_TRUE(plain.success) << plain.message;
   ASSERT_TRUE(plain.trajectory.extra.contains("rest_lead_in"));

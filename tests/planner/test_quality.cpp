@@ -124,18 +124,28 @@ TEST(PlanQuality, SupportMarginOfKnownStances) {
   EXPECT_NEAR(q.support_margin_p10_m, -0.3 / std::sqrt(2.0), 1e-12);
   t.samples.push_back(sample({0.2, 0.3}, square, 3));
   EXPECT_NEAR(plan_quality(t).support_margin_p10_m, 0.2, 1e-12);
-  // All four down: the square, 0.2 from its nearest side.
-  Trajectory four = t;
-  for (auto& s : four.samples) s = sample({0.2, 0.5}, square, -1);
-  EXPECT_NEAR(plan_quality(four).support_margin_min_m, 0.2, 1e-12);
   // The JSON block carries both figures.
-  const auto j = quality_to_json(plan_quality(four), four.feet);
-  EXPECT_NEAR(j.at("support_margin_min_m").get<double>(), 0.2, 1e-12);
-  EXPECT_TRUE(j.contains("support_margin_p10_m"));
-  // Two feet down: no sample counts, the figures are absent.
-  Trajectory trot = t;
-  for (auto& s : trot.samples) {
-    s = sample({0.5, 0.5}, {{0, 0}, {1, 1}}, -1);
+  const auto j = quality_to_json(plan_quality(t), t.feet);
+  EXPECT_NEAR(j.at("support_margin_min_m").get<double>(), -0.3 / std::sqrt(2.0), 1e-12);
+  EXPECT_NEAR(j.at("support_margin_p10_m").get<double>(), 0.2, 1e-12);
+  // Four of five feet down while the fifth swings: the square, 0.2 from its nearest side.
+  std::vector<Eigen::Vector2d> five = square;
+  five.push_back({2, 2});
+  Trajectory pentapod;
+  pentapod.feet = {"A", "B", "C", "D", "E"};
+  for (int k = 0; k < 5; ++k) pentapod.samples.push_back(sample({0.2, 0.5}, five, 4));
+  EXPECT_NEAR(plan_quality(pentapod).support_margin_min_m, 0.2, 1e-12);
+  // A trot: its lead-in and lead-out stand on four feet, its pairs on two. Neither counts (all
+  // feet down never binds, two feet have no area), so the figures are absent, not the lead-in's.
+  Trajectory trot;
+  trot.feet = t.feet;
+  for (int k = 0; k < 30; ++k) {
+    TrajectorySample s = sample({0.5, 0.5}, square, -1);
+    if (k >= 5 && k < 25) {
+      s.feet[(k / 5) % 2 == 0 ? 1 : 0].contact = false;  // one diagonal pair in the air
+      s.feet[(k / 5) % 2 == 0 ? 2 : 3].contact = false;
+    }
+    trot.samples.push_back(s);
   }
   EXPECT_FALSE(plan_quality(trot).has_support_margin);
   EXPECT_FALSE(quality_to_json(plan_quality(trot), {"A", "B"}).contains("support_margin_min_m"));

@@ -39,13 +39,20 @@ TEST_P(OffPath, CleanPlanOrLoudFailure) {
   std::cout << "OFF_PATH " << scene << " " << gait << " " << goal << " exit " << r.code;
   if ((r.code == 0 || r.code == 4) && fs::exists(out)) {
     std::ifstream in(out);
-    const json q = json::parse(in, nullptr, false).value("quality", json::object());
+    const json doc = json::parse(in, nullptr, false);
+    const json q = doc.is_object() && doc.contains("quality") ? doc["quality"] : json::object();
+    // "-" where a figure is absent (a trot's support margin) or null (collinear feet).
     auto mm = [&](const char* key) {
-      return q.contains(key) && q[key].is_number() ? std::lround(1e3 * q[key].get<double>()) : 0L;
+      return q.contains(key) && q[key].is_number()
+                 ? std::to_string(std::lround(1e3 * q[key].get<double>()))
+                 : std::string("-");
     };
     std::cout << " back " << mm("backward_max_m") << " sway " << mm("lateral_sway_m") << " rise "
               << mm("swing_rise_max_m") << " fstep "
-              << std::lround(q.value("force_step_max_N_per_10ms", 0.0)) << " margin_p10 "
+              << (q.contains("force_step_max_N_per_10ms") && q["force_step_max_N_per_10ms"].is_number()
+                      ? std::to_string(std::lround(q["force_step_max_N_per_10ms"].get<double>()))
+                      : std::string("-"))
+              << " margin_p10 "
               << mm("support_margin_p10_m");
   }
   std::cout << "\n";

@@ -81,7 +81,8 @@ const std::map<std::string, Setting>& settings_table() {
        {[](FeasibilityOptions& o, double v) { o.joint_margin = v; }, 0.0, 0.5, false, "rad"}},
       {"start_return",
        {[](FeasibilityOptions& o, double v) { o.start_return = v; }, 0.0, 2.0, false,
-        "s (0: a measured start outside joints / range_of_motion gets no room)"}},
+        "s (0: a measured start, or a session step's pinned end, outside joints / "
+        "range_of_motion gets no room)"}},
       {"joints_softmax",
        {[](FeasibilityOptions& o, double v) { o.joints_softmax = v; }, 0.0, 0.1, false, "rad"}},
   };

@@ -154,8 +154,12 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
         const HermiteLocal fp = add_foot_position(lv, L, f, s, 0.5, false);
         const int dur = add_segment_duration(lv, L, s);
         const double frac = L.seg_fraction[s];
+        // The largest room of the three points: the start's shrinks (largest at the first), the
+        // pinned end's grows (largest at the last).
         std::vector<double> lk, hk;
-        const double room = widened(f, nominal_point_time(L, s, kSwingPoints[0]), &lk, &hk);
+        double room = 0.0;
+        for (const double sigma : kSwingPoints)
+          room = std::max(room, widened(f, nominal_point_time(L, s, sigma), &lk, &hk));
         problem.add_piece(make_piece("joints", lv, {-kInf}, {room}, [=](const auto* x, auto* g) {
           using T = std::decay_t<decltype(*g)>;
           const T h = x[dur] * frac;

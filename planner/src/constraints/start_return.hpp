@@ -44,9 +44,11 @@ inline double start_return_weight(double t, double span) {
 
 // The weight of a pinned end's excess at nominal time t of a step ending at t_end: 0 up to `span`
 // before the end, rising to 1 towards it; 0 at the end itself, whose rows are constants (a
-// violated one is left out by add_piece; one within its bound keeps it).
+// violated one is left out by add_piece; one within its bound keeps it), and 0 at knot 0, a
+// measured start's constants, which a horizon shorter than `span` would otherwise widen (and
+// so hide part of the start's own excess from start_excess; review, session 14).
 inline double end_return_weight(double t, double t_end, double span) {
-  if (!(span > 0.0) || !(t < t_end - 1e-9)) return 0.0;
+  if (!(span > 0.0) || !(t > 0.0) || !(t < t_end - 1e-9)) return 0.0;
   return std::max(0.0, 1.0 - (t_end - t) / span);
 }
 

@@ -42,7 +42,8 @@ json quality_section(const PlanSections& s) {
   if (q.has_support_margin && std::isfinite(q.support_margin_min_m))
     s.summary.push_back(row("static support margin (min)", num(q.support_margin_min_m, 4), "m",
                             "ok",
-                            "base against the hull of three or more feet down, positive inside; "
+                            "base against the hull of the feet down while one swings (three or more), "
+                            "positive inside; "
                             "10th percentile " +
                                 fmt(q.support_margin_p10_m, 3) + " m"));
   if (q.path_ratio > 0)

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <set>
 
+#include "../../../planner/src/constraints/start_return.hpp"
 #include "family_test.hpp"
 #include "terrastride/planner/piece_math.hpp"
 
@@ -372,6 +373,18 @@ TEST(StartReturn, RowsBeforeAPinnedEndJacobianMatchesCentralDifferences) {
   merged.feasibility_settings = {{"joints_softmax", 0.005}};
   const SrbdProblem s(r, terrain, m.horizon, merged, &m.start.start, &m.end);
   EXPECT_GT(check_kind_derivatives(s, "joints"), 0);
+}
+
+// The end's room grows over `span` up to the end and is nothing at the end itself and at knot 0,
+// whose rows on a measured start are constants: a horizon shorter than `span` (0.5 s against 1 s)
+// must not widen them, or part of the start's own excess would go unreported.
+TEST(StartReturn, EndRoomIsNothingAtKnotZeroAndAtTheEnd) {
+  EXPECT_EQ(end_return_weight(0.0, 0.5, 1.0), 0.0);
+  EXPECT_NEAR(end_return_weight(0.25, 0.5, 1.0), 0.75, 1e-12);
+  EXPECT_EQ(end_return_weight(0.5, 0.5, 1.0), 0.0);
+  EXPECT_EQ(end_return_weight(1.0, 3.0, 1.0), 0.0);  // further from the end than the span
+  EXPECT_NEAR(end_return_weight(2.5, 3.0, 1.0), 0.5, 1e-12);
+  EXPECT_EQ(end_return_weight(0.25, 0.5, 0.0), 0.0);  // start_return 0: no room
 }
 
 }  // namespace

@@ -70,7 +70,10 @@ PhaseTimeline make_timeline(const Gait& gait, const std::vector<std::string>& fe
 // The gait with its lead-in lengthened, if need be, so that the timeline's second lift-off (the
 // second distinct time at which a foot lifts off) comes no earlier than `second_lift_off` s; the
 // total `duration` is kept (duration <= 0: the cycle is kept and the plan grows longer). Unchanged
-// when the second lift-off is that late already, or when the duration leaves no room for it.
+// when the second lift-off is that late already, when the duration leaves no room for it, or
+// when the lead-in would shorten the cycle below half of the gait's (the gait would not be the
+// same gait). With optimised timing this is the initial schedule: the solver may shorten the
+// lead-in's intervals as any other (down to half each, Layout), so the floor is not guaranteed.
 // A plan from rest with force ramps needs this (plan_motion; docs/design.md §6.4 "Path shape").
 Gait with_rest_lead_in(const Gait& gait, const std::vector<std::string>& feet, int cycles,
                        double duration, double second_lift_off);

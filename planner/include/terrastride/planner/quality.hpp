@@ -37,11 +37,11 @@ struct PlanQuality {
   // |r''| and |w'| at the first and the last sample (m/s^2, rad/s^2).
   double start_acceleration = 0.0, end_acceleration = 0.0;
   double start_angular_acceleration = 0.0, end_angular_acceleration = 0.0;
-  // Static support margin: over the samples with three or more feet in contact, the horizontal
-  // position of the base (the single rigid body's centre of mass) against the convex hull of those
-  // feet: the smallest signed distance to the lines of the hull's edges, positive inside (m). Its
-  // minimum and 10th percentile; absent (has_support_margin false) when no sample has three feet
-  // down (a trot). A crawl that sways less has less of it: what a push toward a swinging leg
+  // Static support margin: over the samples with a foot in the air and three or more in contact
+  // (a crawl's three-foot phases), the horizontal position of the base (the single rigid body's
+  // centre of mass) against the convex hull of those feet: the smallest signed distance to the
+  // lines of the hull's edges, positive inside (m). Its minimum and 10th percentile; absent
+  // (has_support_margin false) when no such sample exists (a trot, a pace, a bound). A crawl that sways less has less of it: what a push toward a swinging leg
   // meets (issue #17, docs/design.md §6.4).
   bool has_support_margin = false;
   double support_margin_min_m = 0.0, support_margin_p10_m = 0.0;
