@@ -38,9 +38,12 @@ void add_range_of_motion(SrbdProblem& problem, int s) {
     // Below / above the box at the start (s) and at the end (e).
     Eigen::Vector3d below_s = Eigen::Vector3d::Zero(), above_s = below_s, below_e = below_s,
                     above_e = below_s;
-    auto excess = [&](const MeasuredFootPose& m, Eigen::Vector3d* below, Eigen::Vector3d* above) {
-      const Eigen::Vector3d off =
-          rotation_zyx<double>(m.euler).transpose() * (m.foot - m.base) - nom;
+    // The foot's offset from its nominal position in the base frame, and how far it lies below /
+    // above the box.
+    auto offset_of = [&](const MeasuredFootPose& m) -> Eigen::Vector3d {
+      return rotation_zyx<double>(m.euler).transpose() * (m.foot - m.base) - nom;
+    };
+    auto excess = [&](const Eigen::Vector3d& off, Eigen::Vector3d* below, Eigen::Vector3d* above) {
       *below = (-box - off).cwiseMax(0.0);
       *above = (off - box).cwiseMax(0.0);
     };
@@ -49,13 +52,12 @@ void add_range_of_motion(SrbdProblem& problem, int s) {
     Eigen::Vector3d off0 = Eigen::Vector3d::Zero(), rate0 = Eigen::Vector3d::Zero();
     bool moving = false;
     if (span > 0.0 && measured_foot_pose(problem, f, &m)) {
-      excess(m, &below_s, &above_s);
-      if (measured_stance_offset_rate(problem, f, m, &rate0)) {
-        off0 = rotation_zyx<double>(m.euler).transpose() * (m.foot - m.base) - nom;
-        moving = true;
-      }
+      off0 = offset_of(m);
+      excess(off0, &below_s, &above_s);
+      moving = measured_stance_offset_rate(problem, f, m, &rate0);
     }
-    if (span > 0.0 && pinned_end_foot_pose(problem, f, &m)) excess(m, &below_e, &above_e);
+    if (span > 0.0 && pinned_end_foot_pose(problem, f, &m))
+      excess(offset_of(m), &below_e, &above_e);
     const int nr = std::max(1, options.rom_points) * (L.contact[f][s] ? 1 : 2);
     // The segment's end only in the last segment: the next segment's start covers it.
     for (const double sigma : L.segment_points(s, nr, s == S - 1)) {

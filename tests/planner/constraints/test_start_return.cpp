@@ -50,6 +50,49 @@ bool constant(const SrbdProblem& problem, const Piece& p) {
   return true;
 }
 
+// The first (or last) base knot whose variables piece `a` reads: its time, up to a segment.
+int base_knot_read(const Layout& L, const Piece& a, bool last) {
+  for (int i = 0; i <= L.num_segments; ++i) {
+    const int k = last ? L.num_segments - i : i;
+    if (std::find(a.vars.begin(), a.vars.end(), L.base[k]) != a.vars.end()) return k;
+  }
+  return -1;
+}
+
+// The joints and range_of_motion pieces of `p` (a problem with room) against those of `q` (the
+// same problem without): every other piece keeps its bounds, these are never narrower. Per such
+// piece its kind, the base knot it reads (first or last) and whether a bound moved; and the
+// largest room of any row.
+struct RoomPiece {
+  std::string kind;
+  int knot = -1;
+  bool differs = false;
+};
+void compare_room(const SrbdProblem& p, const SrbdProblem& q, bool last_knot,
+                  std::vector<RoomPiece>* pieces, double* largest_room) {
+  ASSERT_EQ(p.pieces().size(), q.pieces().size());
+  *largest_room = 0.0;
+  for (std::size_t i = 0; i < p.pieces().size(); ++i) {
+    const Piece &a = *p.pieces()[i], &b = *q.pieces()[i];
+    ASSERT_EQ(a.kind, b.kind);
+    ASSERT_EQ(a.vars, b.vars);
+    if (a.kind != "joints" && a.kind != "range_of_motion") {
+      EXPECT_EQ(a.lb, b.lb) << a.kind;
+      EXPECT_EQ(a.ub, b.ub) << a.kind;
+      continue;
+    }
+    RoomPiece r{a.kind, base_knot_read(p.layout(), a, last_knot), false};
+    ASSERT_GE(r.knot, 0);
+    for (int row = 0; row < a.rows(); ++row) {
+      EXPECT_LE(a.lb[row], b.lb[row]);
+      EXPECT_GE(a.ub[row], b.ub[row]);
+      r.differs |= a.lb[row] != b.lb[row] || a.ub[row] != b.ub[row];
+      *largest_room = std::max({*largest_room, b.lb[row] - a.lb[row], a.ub[row] - b.ub[row]});
+    }
+    pieces->push_back(r);
+  }
+}
+
 TEST(StartReturn, AMeasuredStartsOwnViolationsAreReportedNotImposed) {
   const auto r = hyq();
   FlatField flat;
@@ -147,38 +190,20 @@ TEST(StartReturn, RowsBeforeAPinnedEndGetItsExcessBackToTheBound) {
   ASSERT_TRUE(p.start_excess().empty());
   ASSERT_TRUE(p.end_excess().count("joints"));
   ASSERT_TRUE(p.end_excess().count("range_of_motion"));
-  ASSERT_EQ(p.pieces().size(), q.pieces().size());
   const double span = FeasibilityOptions{}.start_return;
   const auto& L = p.layout();
   const double t_end = L.nominal_knot_time[L.num_segments];
   EXPECT_NEAR(t_end, 1.5, 1e-9);
-  int widened = 0, same_before_span = 0;
+  std::vector<RoomPiece> room;
   double largest_room = 0.0;
-  for (std::size_t i = 0; i < p.pieces().size(); ++i) {
-    const Piece &a = *p.pieces()[i], &b = *q.pieces()[i];
-    ASSERT_EQ(a.kind, b.kind);
-    ASSERT_EQ(a.vars, b.vars);
-    if (a.kind != "joints" && a.kind != "range_of_motion") {
-      EXPECT_EQ(a.lb, b.lb) << a.kind;
-      EXPECT_EQ(a.ub, b.ub) << a.kind;
-      continue;
-    }
-    // The last base knot the piece reads (its time, up to a segment).
-    int knot = -1;
-    for (int k = L.num_segments; k >= 0 && knot < 0; --k)
-      if (std::find(a.vars.begin(), a.vars.end(), L.base[k]) != a.vars.end()) knot = k;
-    ASSERT_GE(knot, 0);
-    bool differs = false;
-    for (int row = 0; row < a.rows(); ++row) {
-      EXPECT_LE(a.lb[row], b.lb[row]);
-      EXPECT_GE(a.ub[row], b.ub[row]);
-      differs |= a.lb[row] != b.lb[row] || a.ub[row] != b.ub[row];
-      largest_room = std::max({largest_room, b.lb[row] - a.lb[row], a.ub[row] - b.ub[row]});
-    }
-    widened += differs;
-    if (L.nominal_knot_time[knot] <= t_end - span + 1e-9) {
-      EXPECT_FALSE(differs) << a.kind << " up to knot " << knot << " (t "
-                            << L.nominal_knot_time[knot] << " s)";
+  compare_room(p, q, /*last_knot=*/true, &room, &largest_room);
+  if (HasFatalFailure()) return;
+  int widened = 0, same_before_span = 0;
+  for (const RoomPiece& piece : room) {
+    widened += piece.differs;
+    if (L.nominal_knot_time[piece.knot] <= t_end - span + 1e-9) {
+      EXPECT_FALSE(piece.differs) << piece.kind << " up to knot " << piece.knot << " (t "
+                                  << L.nominal_knot_time[piece.knot] << " s)";
       ++same_before_span;
     }
   }
@@ -211,38 +236,19 @@ TEST(StartReturn, RowsAfterTheStartGetTheExcessBackToTheBound) {
   ProblemOptions none = o;
   none.feasibility_settings = {{"start_return", 0.0}};
   const SrbdProblem q(r, flat, pushed.timeline, none, &pushed.start);
-  ASSERT_EQ(p.pieces().size(), q.pieces().size());
   const double span = FeasibilityOptions{}.start_return;
   const auto& L = p.layout();
-  // Knot k of foot f's joints piece: base knot k's position among its variables.
-  int widened = 0, same_after_span = 0;
+  std::vector<RoomPiece> room;
   double largest_room = 0.0;
-  for (std::size_t i = 0; i < p.pieces().size(); ++i) {
-    const Piece &a = *p.pieces()[i], &b = *q.pieces()[i];
-    ASSERT_EQ(a.kind, b.kind);
-    ASSERT_EQ(a.vars, b.vars);
-    if (a.kind != "joints" && a.kind != "range_of_motion") {
-      EXPECT_EQ(a.lb, b.lb) << a.kind;
-      EXPECT_EQ(a.ub, b.ub) << a.kind;
-      continue;
-    }
-    // Which base knot the piece reads first (its time, up to a segment).
-    int knot = -1;
-    for (int k = 0; k <= L.num_segments && knot < 0; ++k)
-      if (std::find(a.vars.begin(), a.vars.end(), L.base[k]) != a.vars.end()) knot = k;
-    ASSERT_GE(knot, 0);
-    bool differs = false;
-    for (int row = 0; row < a.rows(); ++row) {
-      EXPECT_LE(a.lb[row], b.lb[row]);
-      EXPECT_GE(a.ub[row], b.ub[row]);
-      differs |= a.lb[row] != b.lb[row] || a.ub[row] != b.ub[row];
-      largest_room = std::max({largest_room, b.lb[row] - a.lb[row], a.ub[row] - b.ub[row]});
-    }
-    widened += differs;
+  compare_room(p, q, /*last_knot=*/false, &room, &largest_room);
+  if (HasFatalFailure()) return;
+  int widened = 0, same_after_span = 0;
+  for (const RoomPiece& piece : room) {
+    widened += piece.differs;
     // Pieces whose first knot is at or beyond the span (a segment's points lie after its knot).
-    if (L.nominal_knot_time[knot] >= span) {
-      EXPECT_FALSE(differs) << a.kind << " at knot " << knot << " (t "
-                            << L.nominal_knot_time[knot] << " s)";
+    if (L.nominal_knot_time[piece.knot] >= span) {
+      EXPECT_FALSE(piece.differs) << piece.kind << " at knot " << piece.knot << " (t "
+                                  << L.nominal_knot_time[piece.knot] << " s)";
       ++same_after_span;
     }
   }
@@ -302,9 +308,7 @@ TEST(StartReturn, RowsAfterAStartSlidingOutOfItsBoxGetWhatItsMotionMakesUnavoida
       EXPECT_EQ(a.ub, b.ub) << a.kind;
       continue;
     }
-    int knot = -1;
-    for (int k = 0; k <= L.num_segments && knot < 0; ++k)
-      if (std::find(a.vars.begin(), a.vars.end(), L.base[k]) != a.vars.end()) knot = k;
+    const int knot = base_knot_read(L, a, /*last=*/false);
     ASSERT_GE(knot, 0);
     bool differs = false;
     for (int row = 0; row < a.rows(); ++row) {
