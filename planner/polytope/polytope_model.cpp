@@ -6,6 +6,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <pthread.h>
+
 #include <mutex>
 #include <sstream>
 
@@ -376,6 +378,18 @@ RobotPolytopeModel load_polytope_model(const robot::RobotModel& robot_model,
   return model;
 }
 
+namespace {
+// The cache's lock; a fork (the service's plan processes) takes it and both sides release it, so
+// a child never inherits it taken by a thread it does not have.
+std::mutex& polytope_cache_mutex() {
+  static std::mutex m;
+  static const int atfork =
+      pthread_atfork(+[] { m.lock(); }, +[] { m.unlock(); }, +[] { m.unlock(); });
+  (void)atfork;
+  return m;
+}
+}  // namespace
+
 std::shared_ptr<const RobotPolytopeModel> shared_polytope_model(
     const robot::RobotModel& robot_model) {
   namespace fs = std::filesystem;
@@ -392,8 +406,8 @@ std::shared_ptr<const RobotPolytopeModel> shared_polytope_model(
     std::uintmax_t size = 0;
     std::shared_ptr<const RobotPolytopeModel> model;
   };
-  static std::mutex mu;
   static std::map<std::string, Entry> cache;
+  std::mutex& mu = polytope_cache_mutex();
   if (!ec) {
     std::lock_guard<std::mutex> lock(mu);
     const auto it = cache.find(key);

@@ -1,4 +1,5 @@
 #include "terrastride/planner/solver.hpp"
+#include "terrastride/planner/solver_fork.hpp"
 #include "terrastride/planner/piece_math.hpp"  // kGravity
 #include "step_blockers.hpp"
 
@@ -8,6 +9,7 @@
 #include <pthread.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -303,27 +305,75 @@ class SrbdTnlp : public Ipopt::TNLP {
 // two solves at once in one process crash inside it (the service's two workers: SIGSEGV in 11 of
 // 11 tries). So one solve runs at a time per process, from building the IpoptApplication to
 // destroying it (MUMPS's instance is terminated in its destructor). Concurrency comes from
-// processes: the service runs each plan in a child process (service/src/server/plan_process.cpp).
+// processes: the service runs each plan in a child process (service/src/server/child_process.cpp),
+// forked under a SolverForkGuard so that no solve is half-way through when the child is made.
 std::timed_mutex& solver_mutex() {
   static std::timed_mutex m;
   return m;
 }
 
-// A child forked while another thread of the parent held the lock would inherit it locked, with
-// no thread to release it; the child starts with a fresh one (the lock guards only the solve in
-// progress in the parent, which the child does not continue).
-void reset_solver_mutex_in_child() { new (&solver_mutex()) std::timed_mutex; }
+// Fork guards waiting for the solver: solves about to start give way to them, so a stream of
+// planning-session steps cannot keep a plan process from being forked.
+std::atomic<int>& forks_waiting() {
+  static std::atomic<int> n{0};
+  return n;
+}
 
-// Takes the solver lock, polling `should_stop` while another solve holds it so that a cancelled
-// or expired request does not wait for someone else's solve. Returns an unlocked lock if stopped.
+// The child of a fork made while some thread held the lock (the guard's own thread, or, without a
+// guard, a solve) inherits it locked with no thread to release it: it starts with a fresh one.
+void reset_solver_mutex_in_child() {
+  new (&solver_mutex()) std::timed_mutex;
+  forks_waiting().store(0);
+}
+
+void register_solver_atfork() {
+  static std::once_flag once;
+  std::call_once(once, [] { pthread_atfork(nullptr, nullptr, &reset_solver_mutex_in_child); });
+}
+
+// Takes the solver lock, polling `should_stop` while another solve (or a fork guard) holds it so
+// that a cancelled or expired request does not wait for someone else's solve. Returns an unlocked
+// lock if stopped.
 std::unique_lock<std::timed_mutex> acquire_solver(const SolverOptions& options) {
-  static std::once_flag atfork_once;
-  std::call_once(atfork_once, [] { pthread_atfork(nullptr, nullptr, &reset_solver_mutex_in_child); });
+  register_solver_atfork();
   std::unique_lock<std::timed_mutex> lock(solver_mutex(), std::defer_lock);
-  while (!lock.try_lock_for(std::chrono::milliseconds(5)))
+  for (;;) {
+    if (forks_waiting().load() == 0 && lock.try_lock_for(std::chrono::milliseconds(5))) {
+      if (forks_waiting().load() == 0) break;
+      lock.unlock();  // a fork guard arrived while this solve took the lock: it goes first
+    }
     if (options.should_stop && options.should_stop()) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
   return lock;
 }
+
+}  // namespace
+
+SolverForkGuard::SolverForkGuard(const std::function<bool()>& should_stop)
+    : lock_(solver_mutex(), std::defer_lock) {
+  register_solver_atfork();
+  forks_waiting()++;
+  waiting_ = true;
+  while (!lock_.try_lock_for(std::chrono::milliseconds(5)))
+    if (should_stop && should_stop()) break;
+}
+
+SolverForkGuard::~SolverForkGuard() { release(); }
+
+void SolverForkGuard::release() {
+  if (lock_.owns_lock()) lock_.unlock();
+  if (waiting_) forks_waiting()--;
+  waiting_ = false;
+}
+
+void SolverForkGuard::release_in_child() {
+  // The atfork handler made the mutex and the count fresh; the lock object must not unlock it.
+  lock_.release();
+  waiting_ = false;
+}
+
+namespace {
 
 // The improvement phase (see SolverOptions::objective_max_iterations): from the feasible point
 // of the feasibility phase, Ipopt minimises the objective with the barrier of a warm start

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <iterator>
 #include <map>
+#include <pthread.h>
+
 #include <mutex>
 #include <stdexcept>
 #include <string>
@@ -45,6 +47,11 @@ std::map<std::string, ConstraintSetBuilder>& registry() {
 }
 std::mutex& registry_mutex() {
   static std::mutex m;
+  // A plan process forked while another thread looked a set up would inherit the lock taken, by
+  // a thread it does not have, and wait for ever: a fork takes the lock and both sides release it.
+  static const int atfork =
+      pthread_atfork(+[] { m.lock(); }, +[] { m.unlock(); }, +[] { m.unlock(); });
+  (void)atfork;
   return m;
 }
 

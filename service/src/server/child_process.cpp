@@ -4,6 +4,8 @@
 // "message"}; lengths in host order (both ends are this process image).
 #include "child_process.hpp"
 
+#include "terrastride/planner/solver_fork.hpp"
+
 #include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
@@ -171,6 +173,15 @@ OpResult run_in_child_process(OpContext& ctx, const std::function<OpResult()>& w
     throw ProtocolError(pc::kFailed,
                         std::string("cannot start a plan process: pipe: ") + std::strerror(errno));
   const pid_t parent = ::getpid();
+  // No solve of this process (a planning session's, in another thread) may be half-way through
+  // when the child is made: the child would inherit the solver's state mid-factorisation.
+  planner::SolverForkGuard solver_idle(CancellationToken::as_callback(ctx.token));
+  if (!solver_idle.held()) {
+    ::close(fds[0]);
+    ::close(fds[1]);
+    ctx.check_stop();  // throws cancelled / deadline_exceeded / shutting_down
+    throw ProtocolError(pc::kFailed, "cannot start a plan process: stopped waiting for the solver");
+  }
   const pid_t pid = ::fork();
   if (pid < 0) {
     const int err = errno;
@@ -180,9 +191,11 @@ OpResult run_in_child_process(OpContext& ctx, const std::function<OpResult()>& w
                         std::string("cannot start a plan process: fork: ") + std::strerror(err));
   }
   if (pid == 0) {
+    solver_idle.release_in_child();
     ::close(fds[0]);
     run_child(fds[1], parent, work, limits);
   }
+  solver_idle.release();
   RunningCounter counter(stats);
   ::close(fds[1]);
   const int in = fds[0];
