@@ -35,12 +35,18 @@ struct SmallProblem {
   }
 };
 
-// While a guard is held, no solve starts; it starts once the guard is released.
+// While a guard is held, no solve starts (and a second guard that is asked to stop gives up); the
+// solve starts once the guard is released.
 TEST(SolverForkGuard, HoldsSolvesOffUntilReleased) {
   SmallProblem sp;
   SrbdProblem p(sp.robot, sp.terrain, sp.timeline, sp.options);
   SolverForkGuard guard([] { return false; });
   ASSERT_TRUE(guard.held());
+  {
+    // Another guard asked to stop while this one holds the solver gives up, not held.
+    SolverForkGuard second([] { return true; });
+    EXPECT_FALSE(second.held());
+  }
   std::atomic<bool> done{false};
   SolveResult result;
   std::thread solver([&] {
@@ -54,30 +60,25 @@ TEST(SolverForkGuard, HoldsSolvesOffUntilReleased) {
   EXPECT_TRUE(result.success) << result.status;
 }
 
-// A guard waits for the solve in progress, and reports a stop when asked to stop while waiting.
+// A guard waits for the solve in progress.
+// The solve's iterations call should_stop while it holds the solver; none may come after the
+// guard took it.
 TEST(SolverForkGuard, WaitsForTheSolveInProgressOrStops) {
   SmallProblem sp;
   SrbdProblem p(sp.robot, sp.terrain, sp.timeline, sp.options);
-  std::atomic<bool> solving{false}, done{false};
+  std::atomic<int> iterations{0};
   PlannerOptions o = sp.options;
-  // The solve signals from its first iteration that it holds the solver, then goes on.
   o.should_stop = [&] {
-    solving = true;
+    iterations++;
     return false;
   };
-  std::thread solver([&] {
-    solve(p, o);
-    done = true;
-  });
-  while (!solving.load()) std::this_thread::sleep_for(std::chrono::milliseconds(1));
-  if (!done.load()) {
-    // Asked to stop at once while the solve runs: not held.
-    SolverForkGuard stopped([] { return true; });
-    EXPECT_FALSE(stopped.held() && !done.load());
-  }
+  std::thread solver([&] { solve(p, o); });
+  while (iterations.load() == 0) std::this_thread::sleep_for(std::chrono::milliseconds(1));
   SolverForkGuard guard([] { return false; });
-  EXPECT_TRUE(guard.held());
-  EXPECT_TRUE(done.load()) << "the guard was taken while the solve still ran";
+  ASSERT_TRUE(guard.held());
+  const int at_guard = iterations.load();
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  EXPECT_EQ(iterations.load(), at_guard) << "the solve iterated while the guard was held";
   guard.release();
   solver.join();
 }
