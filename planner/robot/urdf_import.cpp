@@ -20,6 +20,7 @@
 
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
+#include "urdf_checks.hpp"
 
 namespace terrastride::robot {
 namespace {
@@ -225,16 +226,52 @@ std::string joint_list(const std::vector<urdf::JointConstSharedPtr>& joints) {
 
 }  // namespace
 
-UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& options) {
-  UrdfImport out;
-  const auto fail = [&](const std::string& what) -> void {
-    throw UrdfImportError(urdf_path + ": " + what);
-  };
-  if (options.name.empty()) fail("no robot name given");
-  std::ifstream in(urdf_path, std::ios::binary);
-  if (!in) fail("cannot open the file");
-  const std::string xml((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+namespace {
 
+// Every link at q = 0 with the movable joints above it, in depth-first pre-order (children in the
+// URDF's order). Iterative: a tree of kMaxLinks links in one chain must not exhaust the stack;
+// check_tree made it a tree, so each link is visited once.
+std::vector<LinkInfo> walk_tree(const urdf::ModelInterface& model,
+                                const std::function<void(const std::string&)>& fail) {
+  std::vector<LinkInfo> infos;
+  std::vector<LinkInfo> todo(1);
+  todo.back().link = model.getRoot();
+  while (!todo.empty()) {
+    LinkInfo here = std::move(todo.back());
+    todo.pop_back();
+    const auto& joints = here.link->child_joints;
+    for (auto it = joints.rbegin(); it != joints.rend(); ++it) {
+      const urdf::JointConstSharedPtr& joint = *it;
+      const urdf::LinkConstSharedPtr child = model.getLink(joint->child_link_name);
+      if (!child) continue;
+      LinkInfo next;
+      next.link = child;
+      next.frame = here.frame * to_eigen(joint->parent_to_joint_origin_transform);
+      next.movable = here.movable;
+      if (joint->type != urdf::Joint::FIXED) {
+        if (!is_revolute(*joint))
+          fail("joint '" + joint->name + "' is neither revolute nor fixed (a leg has three revolute joints)");
+        next.movable.push_back(joint);
+      }
+      todo.push_back(std::move(next));
+    }
+    infos.push_back(std::move(here));
+  }
+  return infos;
+}
+
+// urdfdom's model of `xml`, after the nesting pre-scan; its tree and numbers checked.
+urdf::ModelInterfaceSharedPtr parse_checked(const std::string& xml,
+                                            const std::function<void(const std::string&)>& fail) {
+  if (xml.size() > UrdfLimits::kMaxBytes)
+    fail(std::to_string(xml.size()) + " bytes, more than the " + std::to_string(UrdfLimits::kMaxBytes) +
+         " a URDF may have");
+  // urdfdom's XML parser recurses once per nested element: refused before it sees the text.
+  const urdf_checks::XmlNesting nesting = urdf_checks::xml_nesting(xml, UrdfLimits::kMaxXmlDepth);
+  if (nesting.depth > UrdfLimits::kMaxXmlDepth)
+    fail("XML elements nested " + std::to_string(nesting.depth) + " deep at line " +
+         std::to_string(nesting.line) + ", more than the limit of " +
+         std::to_string(UrdfLimits::kMaxXmlDepth) + " (a URDF nests some 5 deep)");
   CollectingHandler handler;
   console_bridge::useOutputHandler(&handler);
   urdf::ModelInterfaceSharedPtr model;
@@ -249,32 +286,50 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
     for (const auto& m : handler.messages) why += (why.empty() ? "" : "; ") + m;
     fail("not a valid URDF (urdfdom: " + (why.empty() ? std::string("no reason given") : why) + ")");
   }
-  const urdf::LinkConstSharedPtr root = model->getRoot();
-  if (!root) fail("the URDF has no root link");
+  if (!model->getRoot()) fail("the URDF has no root link");
+  try {
+    urdf_checks::check_tree(*model, UrdfLimits::kMaxLinks, UrdfLimits::kMaxJoints);
+    urdf_checks::check_numbers(*model);
+  } catch (const urdf_checks::Refusal& e) {
+    fail(e.what());
+  }
+  return model;
+}
 
-  // Every link at q = 0 with the movable joints above it.
-  std::vector<LinkInfo> infos;
-  std::function<void(const urdf::LinkConstSharedPtr&, const LinkInfo&)> walk =
-      [&](const urdf::LinkConstSharedPtr& link, const LinkInfo& here) {
-        infos.push_back(here);
-        for (const auto& joint : link->child_joints) {
-          const urdf::LinkConstSharedPtr child = model->getLink(joint->child_link_name);
-          if (!child) continue;
-          LinkInfo next;
-          next.link = child;
-          next.frame = here.frame * to_eigen(joint->parent_to_joint_origin_transform);
-          next.movable = here.movable;
-          if (joint->type != urdf::Joint::FIXED) {
-            if (!is_revolute(*joint))
-              fail("joint '" + joint->name + "' is neither revolute nor fixed (a leg has three revolute joints)");
-            next.movable.push_back(joint);
-          }
-          walk(child, next);
-        }
-      };
-  LinkInfo root_info;
-  root_info.link = root;
-  walk(root, root_info);
+// The file's bytes, refused beyond UrdfLimits::kMaxBytes without reading further (a FIFO or
+// /dev/zero has no size to ask for first).
+std::string read_bounded(const std::string& path, const std::function<void(const std::string&)>& fail) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) fail("cannot open the file");
+  std::string xml(UrdfLimits::kMaxBytes + 1, '\0');
+  in.read(&xml[0], static_cast<std::streamsize>(xml.size()));
+  xml.resize(static_cast<std::size_t>(in.gcount()));
+  if (in.bad()) fail("cannot read the file");
+  if (xml.size() > UrdfLimits::kMaxBytes)
+    fail("more than " + std::to_string(UrdfLimits::kMaxBytes) + " bytes, the most a URDF may have");
+  return xml;
+}
+
+}  // namespace
+
+UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& options) {
+  const auto fail = [&](const std::string& what) -> void {
+    throw UrdfImportError(urdf_path + ": " + what);
+  };
+  if (options.name.empty()) fail("no robot name given");
+  return import_urdf_text(read_bounded(urdf_path, fail), urdf_path, options);
+}
+
+UrdfImport import_urdf_text(const std::string& xml, const std::string& urdf_path,
+                            const UrdfImportOptions& options) {
+  UrdfImport out;
+  const auto fail = [&](const std::string& what) -> void {
+    throw UrdfImportError(urdf_path + ": " + what);
+  };
+  if (options.name.empty()) fail("no robot name given");
+  const urdf::ModelInterfaceSharedPtr model = parse_checked(xml, fail);
+  const urdf::LinkConstSharedPtr root = model->getRoot();
+  const std::vector<LinkInfo> infos = walk_tree(*model, fail);
   out.notes.push_back("base link '" + root->name + "' (the URDF's root)");
 
   // Feet: the named links, or every link three revolute joints down that has a sphere collision.
@@ -403,6 +458,8 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
         used_overrides.insert(j.name);
         if (!(ov->second.first < ov->second.second))
           fail("--joint-range " + j.name + ": min must be below max");
+        if (!(std::abs(ov->second.first) <= 360 && std::abs(ov->second.second) <= 360))
+          fail("--joint-range " + j.name + ": min and max must be within [-360, 360] degrees");
         limits[l].lo[k] = ov->second.first / kRadToDeg;
         limits[l].hi[k] = ov->second.second / kRadToDeg;
         out.notes.push_back("joint '" + j.name + "': range [" + short_num(ov->second.first) + ", " +
@@ -492,7 +549,7 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
   double height = 0.0;
   if (options.nominal_height) {
     height = *options.nominal_height;
-    if (!(height > 0)) fail("--nominal-height must be > 0");
+    if (!(height > 0) || !std::isfinite(height)) fail("--nominal-height must be a finite number > 0");
   } else {
     height = 0.75 * leg_drop;
     out.defaults.push_back("nominal base height " + short_num(height) +
