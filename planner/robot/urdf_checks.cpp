@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <map>
 #include <set>
+#include <string_view>
 #include <vector>
 
 namespace terrastride::robot::urdf_checks {
@@ -29,18 +30,13 @@ std::string num(double v) {
 // TinyXML's element-name start: a letter, '_' or any byte of a multi-byte UTF-8 character.
 bool name_start(unsigned char c) { return std::isalpha(c) || c == '_' || c >= 0x80; }
 
-}  // namespace
-
-XmlNesting xml_nesting(const std::string& xml, int limit) {
-  XmlNesting deepest;
+// Calls on_start(begin, end, depth, empty) for each start tag, by TinyXML's lexical rules: the
+// tag is xml[begin, end) ('<' to '>'), depth 1 the root element, `empty` for <.../>; stops when
+// it returns false.
+template <class OnStart>
+void scan_start_tags(const std::string& xml, OnStart&& on_start) {
   int depth = 0;
-  std::size_t line = 1, counted_to = 0;  // lines counted up to (not including) counted_to
   const std::size_t n = xml.size();
-  const auto line_at = [&](std::size_t pos) {
-    line += static_cast<std::size_t>(std::count(xml.begin() + counted_to, xml.begin() + pos, '\n'));
-    counted_to = pos;
-    return line;
-  };
   // Past the first occurrence of `end` from `from`, or n (an unterminated construct: the XML
   // parser stops there too).
   const auto skip_past = [&](std::size_t from, const char* end) {
@@ -74,11 +70,8 @@ XmlNesting xml_nesting(const std::string& xml, int limit) {
         }
       }
       const bool empty = j < n && xml[j - 1] == '/';
-      if (!empty && ++depth > deepest.depth) {
-        deepest.depth = depth;
-        deepest.line = line_at(i);
-        if (depth > limit) return deepest;
-      }
+      if (!on_start(i, std::min(j + 1, n), depth + 1, empty)) return;
+      if (!empty) ++depth;
       i = j + 1;
     } else {
       // <!DOCTYPE ...>, <?xml ...?> and anything else TinyXML reads as an unknown: to the first
@@ -87,7 +80,120 @@ XmlNesting xml_nesting(const std::string& xml, int limit) {
       i = skip_past(i + 1, ">");
     }
   }
+}
+
+// A start tag's element name.
+std::string tag_name(const std::string& xml, std::size_t begin, std::size_t end) {
+  std::size_t k = begin + 1;
+  while (k < end && !std::isspace(static_cast<unsigned char>(xml[k])) && xml[k] != '/' && xml[k] != '>') ++k;
+  return xml.substr(begin + 1, k - begin - 1);
+}
+
+// The raw (not entity-decoded: names equal as written are equal to urdfdom too) value of
+// attribute `key` in a start tag, "" when absent. Searched within the tag only.
+std::string tag_attribute(const std::string& xml, std::size_t begin, std::size_t end,
+                          const std::string& key) {
+  const std::string_view tag(xml.data() + begin, end - begin);
+  for (std::size_t k = tag.find(key, 1); k != std::string_view::npos; k = tag.find(key, k + 1)) {
+    if (!std::isspace(static_cast<unsigned char>(tag[k - 1]))) continue;
+    std::size_t v = k + key.size();
+    while (v < tag.size() && std::isspace(static_cast<unsigned char>(tag[v]))) ++v;
+    if (v >= tag.size() || tag[v] != '=') continue;
+    ++v;
+    while (v < tag.size() && std::isspace(static_cast<unsigned char>(tag[v]))) ++v;
+    if (v >= tag.size() || (tag[v] != '"' && tag[v] != '\'')) return "";
+    const std::size_t close = tag.find(tag[v], v + 1);
+    if (close == std::string_view::npos) return "";
+    return std::string(tag.substr(v + 1, close - v - 1));
+  }
+  return "";
+}
+
+}  // namespace
+
+XmlNesting xml_nesting(const std::string& xml, int limit) {
+  XmlNesting deepest;
+  std::size_t line = 1, counted_to = 0;  // lines counted up to (not including) counted_to
+  scan_start_tags(xml, [&](std::size_t begin, std::size_t, int depth, bool empty) {
+    if (empty || depth <= deepest.depth) return true;
+    line += static_cast<std::size_t>(std::count(xml.begin() + counted_to, xml.begin() + begin, '\n'));
+    counted_to = begin;
+    deepest = {depth, line};
+    return depth <= limit;
+  });
   return deepest;
+}
+
+void check_joint_cycles(const std::string& xml) {
+  // The root element's <joint> children with their first <parent> and <child> link.
+  struct Edge {
+    std::string joint, child;
+  };
+  std::map<std::string, std::vector<Edge>> children;  // parent link -> its joints
+  std::string joint, parent, child;
+  std::size_t joints = 0;
+  const auto close_joint = [&] {
+    if (!joint.empty() && !parent.empty() && !child.empty()) {
+      if (parent == child)
+        throw Refusal("joint '" + joint + "' connects link '" + child + "' to itself (a URDF is a tree)");
+      children[parent].push_back({joint, child});
+      ++joints;
+    }
+    joint.clear();
+    parent.clear();
+    child.clear();
+  };
+  bool is_robot = false;
+  scan_start_tags(xml, [&](std::size_t begin, std::size_t end, int depth, bool) {
+    const std::string name = tag_name(xml, begin, end);
+    if (depth == 1) is_robot = name == "robot";
+    if (!is_robot) return false;
+    if (depth == 2) close_joint();
+    if (depth == 2 && name == "joint") joint = tag_attribute(xml, begin, end, "name");
+    // urdfdom reads a joint's first <parent> and <child>.
+    if (depth == 3 && !joint.empty() && name == "parent" && parent.empty())
+      parent = tag_attribute(xml, begin, end, "link");
+    if (depth == 3 && !joint.empty() && name == "child" && child.empty())
+      child = tag_attribute(xml, begin, end, "link");
+    return joints <= 100000;
+  });
+  close_joint();
+  // Depth-first from every link, iteratively: a joint to a link on the current path closes a
+  // cycle, named from that link round.
+  std::map<std::string, int> state;  // 1 on the path, 2 done
+  for (const auto& start : children) {
+    if (state[start.first]) continue;
+    std::vector<std::pair<std::string, std::size_t>> path{{start.first, 0}};
+    std::vector<std::string> via;  // via[k]: the joint from path[k] to path[k + 1]
+    state[start.first] = 1;
+    while (!path.empty()) {
+      auto& [link, next] = path.back();
+      const auto it = children.find(link);
+      if (it == children.end() || next >= it->second.size()) {
+        state[link] = 2;
+        path.pop_back();
+        if (!via.empty()) via.pop_back();
+        continue;
+      }
+      const Edge edge = it->second[next++];
+      if (state[edge.child] == 1) {
+        std::size_t k = 0;
+        while (path[k].first != edge.child) ++k;
+        std::string joint_names, link_names = edge.child;
+        for (std::size_t m = k; m < path.size(); ++m) {
+          joint_names += (joint_names.empty() ? "" : ", ") + (m + 1 < path.size() ? via[m] : edge.joint);
+          link_names += " -> " + (m + 1 < path.size() ? path[m + 1].first : edge.child);
+        }
+        throw Refusal("the joints " + joint_names + " form a cycle (links " + link_names +
+                      "): a URDF is a tree");
+      }
+      if (state[edge.child] == 0) {
+        state[edge.child] = 1;
+        via.push_back(edge.joint);
+        path.push_back({edge.child, 0});
+      }
+    }
+  }
 }
 
 void check_tree(const urdf::ModelInterface& model, std::size_t max_links, std::size_t max_joints) {

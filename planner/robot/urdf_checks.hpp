@@ -29,6 +29,13 @@ struct XmlNesting {
 };
 XmlNesting xml_nesting(const std::string& xml, int limit);
 
+// Refuses, naming it, a cycle of joints as the text has them (the root <robot>'s <joint>s, their
+// first <parent> and <child> link, names as written, read by xml_nesting's rules): urdfdom
+// builds its tree out of shared pointers, so a cycle leaks whenever it refuses the file (a cycle
+// through the root link: "No root link found", naming nothing) or the import does. Anything else
+// is left to urdfdom and check_tree.
+void check_joint_cycles(const std::string& xml);
+
 // The joint graph is a tree within the limits: no joint connects a link to itself, no link is
 // the child of two joints, every link is reached from the root (a link off it lies on a cycle or
 // hangs from one), at most `max_links` links and `max_joints` joints. Throws Refusal naming them.

@@ -272,6 +272,11 @@ urdf::ModelInterfaceSharedPtr parse_checked(const std::string& xml,
     fail("XML elements nested " + std::to_string(nesting.depth) + " deep at line " +
          std::to_string(nesting.line) + ", more than the limit of " +
          std::to_string(UrdfLimits::kMaxXmlDepth) + " (a URDF nests some 5 deep)");
+  try {
+    urdf_checks::check_joint_cycles(xml);
+  } catch (const urdf_checks::Refusal& e) {
+    fail(e.what());
+  }
   CollectingHandler handler;
   console_bridge::useOutputHandler(&handler);
   urdf::ModelInterfaceSharedPtr model;
@@ -289,6 +294,16 @@ urdf::ModelInterfaceSharedPtr parse_checked(const std::string& xml,
   if (!model->getRoot()) fail("the URDF has no root link");
   try {
     urdf_checks::check_tree(*model, UrdfLimits::kMaxLinks, UrdfLimits::kMaxJoints);
+  } catch (const urdf_checks::Refusal& e) {
+    // urdfdom's links hold their children by shared_ptr: a cycle it accepted would keep itself
+    // alive (leaked) once the model goes.
+    for (auto& named : model->links_) {
+      named.second->child_links.clear();
+      named.second->child_joints.clear();
+    }
+    fail(e.what());
+  }
+  try {
     urdf_checks::check_numbers(*model);
   } catch (const urdf_checks::Refusal& e) {
     fail(e.what());

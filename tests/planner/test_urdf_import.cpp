@@ -363,20 +363,36 @@ TEST(UrdfImport, JointCyclesAreRefusedByName) {
     chain_loop += joint_xml("c_joint" + std::to_string(k), "c" + std::to_string(k - 1), "c" + std::to_string(k));
   chain_loop += joint_xml("c_back", "c29", "c2", "revolute");
   expect_refused({
-      // The calf's child joint goes back to the hip: the hip then has two parents.
+      // The calf's child joint goes back to the hip.
       {"child_is_ancestor", with_extra(toy, joint_xml("LF_back", "LF_calf", "LF_hip", "revolute")),
-       "link 'LF_hip' is the child of two joints, 'LF_HAA' and 'LF_back'"},
+       "the joints LF_back, LF_HFE, LF_KFE form a cycle (links LF_calf -> LF_hip -> LF_thigh -> LF_calf)"},
       {"two_parents", with_extra(toy, joint_xml("RF_extra", "base", "RH_thigh")),
        "link 'RH_thigh' is the child of two joints"},
       {"self_loop", with_extra(toy, joint_xml("LH_self", "LH_calf", "LH_calf", "revolute")),
        "joint 'LH_self' connects link 'LH_calf' to itself"},
       {"ring_off_the_tree", with_extra(toy, ring), "form a cycle"},
       {"ring_joints_named", with_extra(toy, ring), "ring_joint0, ring_joint1"},
-      {"long_loop", with_extra(toy, chain_loop), "link 'c2' is the child of two joints, 'c_back' and 'c_joint2'"},
-      // Through the root: urdfdom finds no root link.
-      {"through_root", with_extra(toy, joint_xml("back_to_base", "LF_foot", "base")), "No root link found"},
+      {"long_loop", with_extra(toy, chain_loop), "form a cycle (links c2 -> c3 -> c4 -> c5"},
+      {"long_loop_back", with_extra(toy, chain_loop), "c28 -> c29 -> c2)"},
+      // Through the root: named before urdfdom (which finds no root link and leaks the cycle).
+      {"through_root", with_extra(toy, joint_xml("back_to_base", "LF_foot", "base")),
+       "form a cycle (links "},
+      {"through_root_named", with_extra(toy, joint_xml("back_to_base", "LF_foot", "base")),
+       "back_to_base, LF_HAA"},
+      {"two_link_robot", "<robot name=\"r\"><link name=\"a\"/><link name=\"b\"/>" + joint_xml("ab", "a", "b") +
+                             joint_xml("ba", "b", "a") + "</robot>",
+       "the joints ab, ba form a cycle (links a -> b -> a)"},
       {"hanging", with_extra(toy, ring + "<link name=\"hang\"/>" + joint_xml("hang_joint", "ring3", "hang")),
        "form a cycle"},
+      // Off the tree without a cycle: a second root (urdfdom names it).
+      {"unreached", with_extra(toy, "<link name=\"x\"/><link name=\"y\"/>" + joint_xml("xy", "x", "y") +
+                                         joint_xml("base_y", "base", "y")),
+       "Two root links found: [base] and [x]"},
+      // A cycle the import's own checks would have found after urdfdom refused the file for
+      // another reason (a joint without its parent): refused by the cycle, before urdfdom.
+      {"cycle_and_malformed", replaced(with_extra(toy, joint_xml("LH_self", "LH_calf", "LH_calf")),
+                                       "<parent link=\"RF_hip\"/>", "parent link=\"RF_hip\"/>"),
+       "joint 'LH_self' connects link 'LH_calf' to itself"},
   });
 }
 
