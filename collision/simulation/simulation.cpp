@@ -565,7 +565,8 @@ void validate_plan(const robot::RobotModel& model, const planner::Trajectory& pl
   }
   if (plan.samples.size() < 2) throw SimulationError("plan: fewer than two samples");
   const double t0 = plan.samples.front().t, t1 = plan.samples.back().t;
-  if (!(std::abs(t0) <= L::kMaxPlanDuration && t1 - t0 <= L::kMaxPlanDuration))
+  // 1 us of slack: a 120 s plan's sample times summed in steps may end 2e-11 s beyond 120 s.
+  if (!(std::abs(t0) <= L::kMaxPlanDuration && t1 - t0 <= L::kMaxPlanDuration + 1e-6))
     throw SimulationError("plan: samples from t = " + fmt_short(t0) + " to " + fmt_short(t1) +
                           " s; a plan starts within " + fmt_short(L::kMaxPlanDuration) +
                           " s of 0 and lasts at most that long (what the planner plans)");
@@ -599,7 +600,9 @@ void validate_simulation(const robot::RobotModel& model, const planner::Trajecto
 long long simulation_steps(const planner::Trajectory& plan, double dt) {
   if (plan.samples.size() < 2 || !(dt > 0)) return 0;
   const double span = plan.samples.back().t - plan.samples.front().t;
-  return static_cast<long long>(std::ceil(span / dt - 1e-9));
+  // A millionth of a step of slack: times summed in steps carry rounding (120 s of 0.01 s steps
+  // sum to 120.00000000002 s, which is 60000.00000001 steps of 2 ms, not 60001).
+  return static_cast<long long>(std::ceil(span / dt - 1e-6));
 }
 
 TrunkInertia trunk_inertia(const robot::RobotModel& model) {

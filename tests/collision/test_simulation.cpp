@@ -496,6 +496,14 @@ TEST(SimulationLimits, PlansBeyondTheLimitsAreRefused) {
     EXPECT_NE(why.find(c.expect), std::string::npos) << c.what << ": '" << why << "'";
     EXPECT_EQ(why.rfind("plan: ", 0), 0u) << c.what << ": " << why;
   }
+  // A plan of 120 s whose times were summed in 0.01 s steps (120.00000000002 s) is within them.
+  planner::Trajectory long_plan = stand;
+  long_plan.samples.resize(2);
+  long_plan.samples[1].t = 0.0;
+  for (int k = 0; k < 12000; ++k) long_plan.samples[1].t += 0.01;
+  ASSERT_GT(long_plan.samples[1].t, 120.0);
+  EXPECT_EQ(collision::simulation_steps(long_plan, 0.002), 60000);
+  EXPECT_NO_THROW(collision::validate_simulation(model, long_plan, {}));
   // Within the limits, far from the origin: it runs (and stands).
   planner::Trajectory far = stand;
   for (auto& s : far.samples) {
