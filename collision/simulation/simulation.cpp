@@ -19,6 +19,7 @@
 #include <mutex>
 #include <sstream>
 
+#include "terrastride/collision/checks.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 
 namespace terrastride::collision {
@@ -491,12 +492,118 @@ double thread_cpu_seconds() {
   return ts.tv_sec + 1e-9 * ts.tv_nsec;
 }
 
+// MuJoCo 2.2.2 checks each step's positions, velocities and accelerations (mj_checkPos/Vel/Acc):
+// a NaN or a magnitude beyond mjMAXVAL (1e10) is warned about and the state reset to the model's
+// initial one (time 0), so the run would go on from there as if nothing had happened. A control
+// beyond it is warned about and every control zeroed for the step: the robot goes limp.
+bool became_unstable(const mjData* d) {
+  return d->warning[mjWARN_BADQPOS].number + d->warning[mjWARN_BADQVEL].number +
+             d->warning[mjWARN_BADQACC].number + d->warning[mjWARN_BADCTRL].number >
+         0;
+}
+std::string unstable_what(const mjData* d) {
+  if (d->warning[mjWARN_BADQPOS].number > 0) return "position";
+  if (d->warning[mjWARN_BADQVEL].number > 0) return "velocity";
+  if (d->warning[mjWARN_BADQACC].number > 0) return "acceleration";
+  return "joint torque command";
+}
+
+std::string fmt_short(double v) {
+  std::ostringstream s;
+  s.precision(4);
+  s << v;
+  return s.str();
+}
+
 Vector3d terrain_normal(const terrain::HeightField& field, const Vector3d& p) {
   const auto s = field.sample(p.x(), p.y());
   return Vector3d(-s.gradient.x(), -s.gradient.y(), 1.0).normalized();
 }
 
 }  // namespace
+
+namespace {
+
+void validate_options(const SimulationOptions& o) {
+  using L = SimulationLimits;
+  if (!(o.dt >= L::kMinDt && o.dt <= L::kMaxDt))
+    throw SimulationError("dt: must be in [" + fmt(L::kMinDt) + ", " + fmt(L::kMaxDt) + "] s");
+  if (!(o.mass_scale > L::kMinMassScale && o.mass_scale < L::kMaxMassScale))
+    throw SimulationError("mass scale: must be in (" + fmt(L::kMinMassScale) + ", " +
+                          fmt(L::kMaxMassScale) + ")");
+  if (!(o.friction > 0 && o.friction < L::kMaxFriction))
+    throw SimulationError("friction: must be in (0, " + fmt(L::kMaxFriction) + ")");
+  if (o.pushes.size() > L::kMaxPushes)
+    throw SimulationError("pushes: at most " + std::to_string(L::kMaxPushes));
+  for (std::size_t k = 0; k < o.pushes.size(); ++k) {
+    const Push& p = o.pushes[k];
+    const std::string at = "push " + std::to_string(k + 1) + ": ";
+    if (!std::isfinite(p.t)) throw SimulationError(at + "its start time is not finite");
+    if (!(p.duration >= 0 && p.duration <= L::kMaxPushDuration))
+      throw SimulationError(at + "its duration must be in [0, " + fmt(L::kMaxPushDuration) + "] s");
+    if (!(p.force.allFinite() && p.force.stableNorm() <= L::kMaxPushForce))
+      throw SimulationError(at + "its force (" + fmt_short(p.force.stableNorm()) + " N) must be finite and at most " +
+                            fmt_short(L::kMaxPushForce) + " N");
+  }
+  if (!(o.replan_every >= 0 && o.replan_every <= 100))
+    throw SimulationError("replan every: must be within [0, 100] s (0 = open loop)");
+  if (o.replan_every > 0) {
+    if (o.replan_every < o.dt)
+      throw SimulationError("replan every: must be at least the time step (" + fmt(o.dt) + " s)");
+    if (!o.replanner) throw SimulationError("replan every: needs a re-planner");
+    if (!(o.replan_latency >= 0 && o.replan_latency < o.replan_every))
+      throw SimulationError("replan latency: must be within [0, replan every)");
+  }
+}
+
+void validate_plan(const robot::RobotModel& model, const planner::Trajectory& plan) {
+  using L = SimulationLimits;
+  try {
+    validate_trajectory(model, plan);
+  } catch (const TrajectoryError& e) {
+    throw SimulationError(std::string("plan: ") + e.what());
+  }
+  if (plan.samples.size() < 2) throw SimulationError("plan: fewer than two samples");
+  const double t0 = plan.samples.front().t, t1 = plan.samples.back().t;
+  // 1 us of slack: a 120 s plan's sample times summed in steps may end 2e-11 s beyond 120 s.
+  if (!(std::abs(t0) <= L::kMaxPlanDuration && t1 - t0 <= L::kMaxPlanDuration + 1e-6))
+    throw SimulationError("plan: samples from t = " + fmt_short(t0) + " to " + fmt_short(t1) +
+                          " s; a plan starts within " + fmt_short(L::kMaxPlanDuration) +
+                          " s of 0 and lasts at most that long (what the planner plans)");
+  const Vector3d origin = plan.samples.front().base.position;
+  // stableNorm: the squares of 1e300 overflow.
+  if (!(origin.stableNorm() <= L::kMaxPlanOrigin))
+    throw SimulationError("plan: samples[0].base.position is " + fmt_short(origin.stableNorm()) +
+                          " m from the origin, beyond " + fmt_short(L::kMaxPlanOrigin) + " m");
+  const auto reach = [&](const Vector3d& p, std::size_t k, const std::string& what) {
+    if (!((p - origin).stableNorm() <= L::kMaxPlanReach))
+      throw SimulationError("plan: samples[" + std::to_string(k) + "]." + what + " is " +
+                            fmt_short((p - origin).stableNorm()) + " m from the first base position, beyond " +
+                            fmt_short(L::kMaxPlanReach) + " m");
+  };
+  for (std::size_t k = 0; k < plan.samples.size(); ++k) {
+    const auto& s = plan.samples[k];
+    reach(s.base.position, k, "base.position");
+    for (std::size_t f = 0; f < s.feet.size(); ++f)
+      reach(s.feet[f].position, k, "feet[" + std::to_string(f) + "].position");
+  }
+}
+
+}  // namespace
+
+void validate_simulation(const robot::RobotModel& model, const planner::Trajectory& plan,
+                         const SimulationOptions& options) {
+  validate_options(options);
+  validate_plan(model, plan);
+}
+
+long long simulation_steps(const planner::Trajectory& plan, double dt) {
+  if (plan.samples.size() < 2 || !(dt > 0)) return 0;
+  const double span = plan.samples.back().t - plan.samples.front().t;
+  // A millionth of a step of slack: times summed in steps carry rounding (120 s of 0.01 s steps
+  // sum to 120.00000000002 s, which is 60000.00000001 steps of 2 ms, not 60001).
+  return static_cast<long long>(std::ceil(span / dt - 1e-6));
+}
 
 TrunkInertia trunk_inertia(const robot::RobotModel& model) {
   const std::vector<Vector3d> q = nominal_joint_angles(model);
@@ -575,27 +682,8 @@ namespace {
 SimulationReport simulate(const robot::RobotModel& model, const planner::Trajectory& plan,
                           const terrain::HeightField& scene, const TerrainMjcf& terrain,
                           const SimulationOptions& o) {
-  if (!(o.dt >= 1e-4 && o.dt <= 0.01)) throw SimulationError("dt: must be in [0.0001, 0.01] s");
-  if (!(o.mass_scale > 0.1 && o.mass_scale < 10))
-    throw SimulationError("mass scale: must be in (0.1, 10)");
-  if (!(o.friction > 0 && o.friction < 5)) throw SimulationError("friction: must be in (0, 5)");
-  if (!(o.replan_every >= 0 && o.replan_every <= 100))
-    throw SimulationError("replan every: must be within [0, 100] s (0 = open loop)");
-  if (o.replan_every > 0) {
-    if (o.replan_every < o.dt)
-      throw SimulationError("replan every: must be at least the time step (" + fmt(o.dt) + " s)");
-    if (!o.replanner) throw SimulationError("replan every: needs a re-planner");
-    if (!(o.replan_latency >= 0 && o.replan_latency < o.replan_every))
-      throw SimulationError("replan latency: must be within [0, replan every)");
-  }
+  validate_simulation(model, plan, o);
   const int n_legs = static_cast<int>(model.legs.size());
-  if (plan.feet.size() != model.legs.size())
-    throw SimulationError("plan: " + std::to_string(plan.feet.size()) + " feet, robot '" +
-                          model.name + "' has " + std::to_string(n_legs) + " legs");
-  for (int i = 0; i < n_legs; ++i)
-    if (plan.feet[i] != model.legs[i].name)
-      throw SimulationError("plan: foot " + std::to_string(i) + " is '" + plan.feet[i] +
-                            "', the robot's leg is '" + model.legs[i].name + "'");
   for (bool free : model.base_dof_free)
     if (!free)
       throw SimulationError("robot '" + model.name +
@@ -730,7 +818,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
 
   const double t0 = plan.samples.front().t;
   const double t_end = view.t_end();
-  const int n_steps = static_cast<int>(std::ceil((t_end - t0) / o.dt - 1e-9));
+  const int n_steps = static_cast<int>(simulation_steps(plan, o.dt));
   double sq_err_sum = 0.0, saturated_s = 0.0;
   double next_record = t0;
   double next_replan = t0 + o.replan_every;
@@ -1028,6 +1116,17 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
     rep.physics_wall_s +=
         std::chrono::duration<double>(std::chrono::steady_clock::now() - step0).count();
     ++rep.steps;
+    if (became_unstable(d)) {
+      // MuJoCo has reset the state (time 0, the model's initial pose): nothing after t was
+      // simulated, so nothing after it may be judged.
+      rep.unstable = true;
+      rep.unstable_t = t;
+      rep.reasons.push_back("unstable simulation at t = " + fmt_short(t) +
+                            " s: MuJoCo found a non-finite or diverging " + unstable_what(d) +
+                            " (it resets the state or zeroes the controls then); the run stopped "
+                            "there");
+      break;
+    }
     // Impulses of the step just taken (contact forces of the new state times dt).
     for (int k = 0; k < d->ncon; ++k) {
       const mjContact& con = d->contact[k];
@@ -1044,7 +1143,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
   }
   rep.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
   rep.cpu_s = thread_cpu_seconds() - cpu0;
-  rep.duration = d->time;
+  rep.duration = rep.unstable ? rep.unstable_t - t0 : d->time;
   rep.realtime_factor = rep.wall_s > 0 ? rep.duration / rep.wall_s : 0.0;
   if (!rep.replan_wall_s.empty()) {
     median_and_max(rep.replan_wall_s, &rep.replan_wall_median, &rep.replan_wall_max);
@@ -1077,7 +1176,22 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
         limit_joint = model.legs[i].name + " " + kJoints[j];
       }
 
-  // Verdict.
+  // Verdict. An unstable run judges nothing after its instability (stances it never reached,
+  // torques of a limp robot): it fails with that reason alone. Figures that are not finite judge
+  // nothing either: a failed run, never a pass or a warning.
+  const double figures[] = {rep.position_rms, rep.position_max, rep.tilt_max, rep.slip_max,
+                            rep.touchdown_error_max, rep.shin_impulse_max,
+                            rep.joint_limit_impulse_max, rep.trunk_impulse};
+  if (!rep.unstable && !std::all_of(std::begin(figures), std::end(figures),
+                                    [](double x) { return std::isfinite(x); })) {
+    rep.unstable = true;
+    rep.unstable_t = t0 + rep.duration;
+    rep.reasons.push_back("unstable simulation: its tracking or contact figures are not finite");
+  }
+  if (rep.unstable) {
+    rep.verdict = "fail";
+    return rep;
+  }
   const auto& th = o.thresholds;
   std::ostringstream w;
   w.precision(3);
@@ -1178,7 +1292,24 @@ MarginSide search_margin(const std::function<SimulationReport(double)>& run_at, 
   return side;
 }
 
+// The most runs search_margin makes: the doublings from `start` to `ceiling`, then the
+// bisections of a bracket at most half the ceiling wide down to `tolerance`.
+int search_max_runs(double start, double ceiling, double tolerance) {
+  int runs = 1;
+  for (double a = std::min(start, ceiling); a < ceiling; a = std::min(2 * a, ceiling)) ++runs;
+  for (double width = ceiling; width > tolerance; width *= 0.5) ++runs;
+  return runs;
+}
+
 }  // namespace
+
+int margin_max_runs(const MarginOptions& margin) {
+  int runs = 1 + 2 * search_max_runs(100.0, margin.push_force_max, margin.push_tolerance);
+  if (margin.mass)
+    runs += search_max_runs(0.1, margin.mass_scale_max - 1.0, margin.mass_tolerance) +
+            search_max_runs(0.1, 1.0 - margin.mass_scale_min, margin.mass_tolerance);
+  return runs;
+}
 
 MarginReport simulation_margin(const robot::RobotModel& model, const planner::Trajectory& plan,
                                const terrain::HeightField& terrain,
@@ -1200,6 +1331,9 @@ MarginReport simulation_margin(const robot::RobotModel& model, const planner::Tr
   SimulationOptions base = options;
   base.record_dt = 0.0;
   auto run = [&](const SimulationOptions& o) {
+    // Between runs too: a cancelled search must not start another (a run polls every 50 steps).
+    if (o.stop_requested && o.stop_requested())
+      throw SimulationCancelled("margin search stopped after " + std::to_string(r.runs) + " runs");
     ++r.runs;
     return simulate_plan(model, plan, terrain, o);
   };

@@ -17,8 +17,6 @@ void require_finite(const Eigen::Vector3d& v, const std::string& field) {
 
 }  // namespace
 
-namespace detail {
-
 // Shared validation: every check reads the same fields, so they are checked once, here.
 void validate_trajectory(const robot::RobotModel& model, const planner::Trajectory& traj) {
   if (!traj.robot.empty() && traj.robot != model.name)
@@ -58,11 +56,9 @@ void validate_trajectory(const robot::RobotModel& model, const planner::Trajecto
   }
 }
 
-}  // namespace detail
-
 TrajectoryKinematics leg_kinematics(const robot::RobotModel& model,
                                     const planner::Trajectory& traj) {
-  detail::validate_trajectory(model, traj);
+  validate_trajectory(model, traj);
   const size_t n = traj.samples.size();
   const size_t n_legs = model.legs.size();
   TrajectoryKinematics kin;

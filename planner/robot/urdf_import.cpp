@@ -20,6 +20,7 @@
 
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
+#include "urdf_checks.hpp"
 
 namespace terrastride::robot {
 namespace {
@@ -225,16 +226,57 @@ std::string joint_list(const std::vector<urdf::JointConstSharedPtr>& joints) {
 
 }  // namespace
 
-UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& options) {
-  UrdfImport out;
-  const auto fail = [&](const std::string& what) -> void {
-    throw UrdfImportError(urdf_path + ": " + what);
-  };
-  if (options.name.empty()) fail("no robot name given");
-  std::ifstream in(urdf_path, std::ios::binary);
-  if (!in) fail("cannot open the file");
-  const std::string xml((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+namespace {
 
+// Every link at q = 0 with the movable joints above it, in depth-first pre-order (children in the
+// URDF's order). Iterative: a tree of kMaxLinks links in one chain must not exhaust the stack;
+// check_tree made it a tree, so each link is visited once.
+std::vector<LinkInfo> walk_tree(const urdf::ModelInterface& model,
+                                const std::function<void(const std::string&)>& fail) {
+  std::vector<LinkInfo> infos;
+  std::vector<LinkInfo> todo(1);
+  todo.back().link = model.getRoot();
+  while (!todo.empty()) {
+    LinkInfo here = std::move(todo.back());
+    todo.pop_back();
+    const auto& joints = here.link->child_joints;
+    for (auto it = joints.rbegin(); it != joints.rend(); ++it) {
+      const urdf::JointConstSharedPtr& joint = *it;
+      const urdf::LinkConstSharedPtr child = model.getLink(joint->child_link_name);
+      if (!child) continue;
+      LinkInfo next;
+      next.link = child;
+      next.frame = here.frame * to_eigen(joint->parent_to_joint_origin_transform);
+      next.movable = here.movable;
+      if (joint->type != urdf::Joint::FIXED) {
+        if (!is_revolute(*joint))
+          fail("joint '" + joint->name + "' is neither revolute nor fixed (a leg has three revolute joints)");
+        next.movable.push_back(joint);
+      }
+      todo.push_back(std::move(next));
+    }
+    infos.push_back(std::move(here));
+  }
+  return infos;
+}
+
+// urdfdom's model of `xml`, after the nesting pre-scan; its tree and numbers checked.
+urdf::ModelInterfaceSharedPtr parse_checked(const std::string& xml,
+                                            const std::function<void(const std::string&)>& fail) {
+  if (xml.size() > UrdfLimits::kMaxBytes)
+    fail(std::to_string(xml.size()) + " bytes, more than the " + std::to_string(UrdfLimits::kMaxBytes) +
+         " a URDF may have");
+  // urdfdom's XML parser recurses once per nested element: refused before it sees the text.
+  const urdf_checks::XmlNesting nesting = urdf_checks::xml_nesting(xml, UrdfLimits::kMaxXmlDepth);
+  if (nesting.depth > UrdfLimits::kMaxXmlDepth)
+    fail("XML elements nested " + std::to_string(nesting.depth) + " deep at line " +
+         std::to_string(nesting.line) + ", more than the limit of " +
+         std::to_string(UrdfLimits::kMaxXmlDepth) + " (a URDF nests some 5 deep)");
+  try {
+    urdf_checks::check_joint_cycles(xml);
+  } catch (const urdf_checks::Refusal& e) {
+    fail(e.what());
+  }
   CollectingHandler handler;
   console_bridge::useOutputHandler(&handler);
   urdf::ModelInterfaceSharedPtr model;
@@ -249,34 +291,58 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
     for (const auto& m : handler.messages) why += (why.empty() ? "" : "; ") + m;
     fail("not a valid URDF (urdfdom: " + (why.empty() ? std::string("no reason given") : why) + ")");
   }
-  const urdf::LinkConstSharedPtr root = model->getRoot();
-  if (!root) fail("the URDF has no root link");
+  if (!model->getRoot()) fail("the URDF has no root link");
+  try {
+    urdf_checks::check_tree(*model, UrdfLimits::kMaxLinks, UrdfLimits::kMaxJoints);
+  } catch (const urdf_checks::Refusal& e) {
+    // urdfdom's links hold their children by shared_ptr: a cycle it accepted would keep itself
+    // alive (leaked) once the model goes.
+    for (auto& named : model->links_) {
+      named.second->child_links.clear();
+      named.second->child_joints.clear();
+    }
+    fail(e.what());
+  }
+  try {
+    urdf_checks::check_numbers(*model);
+  } catch (const urdf_checks::Refusal& e) {
+    fail(e.what());
+  }
+  return model;
+}
 
-  // Every link at q = 0 with the movable joints above it.
-  std::vector<LinkInfo> infos;
-  std::function<void(const urdf::LinkConstSharedPtr&, const LinkInfo&)> walk =
-      [&](const urdf::LinkConstSharedPtr& link, const LinkInfo& here) {
-        infos.push_back(here);
-        for (const auto& joint : link->child_joints) {
-          const urdf::LinkConstSharedPtr child = model->getLink(joint->child_link_name);
-          if (!child) continue;
-          LinkInfo next;
-          next.link = child;
-          next.frame = here.frame * to_eigen(joint->parent_to_joint_origin_transform);
-          next.movable = here.movable;
-          if (joint->type != urdf::Joint::FIXED) {
-            if (!is_revolute(*joint))
-              fail("joint '" + joint->name + "' is neither revolute nor fixed (a leg has three revolute joints)");
-            next.movable.push_back(joint);
-          }
-          walk(child, next);
-        }
-      };
-  LinkInfo root_info;
-  root_info.link = root;
-  walk(root, root_info);
-  out.notes.push_back("base link '" + root->name + "' (the URDF's root)");
+// The file's bytes, refused beyond UrdfLimits::kMaxBytes without reading further (a FIFO or
+// /dev/zero has no size to ask for first).
+std::string read_bounded(const std::string& path, const std::function<void(const std::string&)>& fail) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) fail("cannot open the file");
+  std::string xml(UrdfLimits::kMaxBytes + 1, '\0');
+  in.read(&xml[0], static_cast<std::streamsize>(xml.size()));
+  xml.resize(static_cast<std::size_t>(in.gcount()));
+  if (in.bad()) fail("cannot read the file");
+  if (xml.size() > UrdfLimits::kMaxBytes)
+    fail("more than " + std::to_string(UrdfLimits::kMaxBytes) + " bytes, the most a URDF may have");
+  return xml;
+}
 
+}  // namespace
+
+UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& options) {
+  const auto fail = [&](const std::string& what) -> void {
+    throw UrdfImportError(urdf_path + ": " + what);
+  };
+  if (options.name.empty()) fail("no robot name given");
+  return import_urdf_text(read_bounded(urdf_path, fail), urdf_path, options);
+}
+
+namespace {
+
+using Fail = std::function<void(const std::string&)>;
+
+// The four leg chains: their joints, frames at q = 0, foot sphere and name (LF, RF, LH, RH, by
+// where the HAA joint sits), in that order.
+std::vector<LegChain> find_legs(const std::vector<LinkInfo>& infos, const UrdfImportOptions& options,
+                                const Fail& fail) {
   // Feet: the named links, or every link three revolute joints down that has a sphere collision.
   const auto sphere_of = [](const urdf::Link& l) -> urdf::CollisionSharedPtr {
     for (const auto& c : l.collision_array)
@@ -355,42 +421,18 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
     return order(a.name) < order(b.name);
   });
 
-  // Links: the base (no revolute joint above) and each leg's three moving links (everything
-  // fixed below joint k, up to the next revolute joint), inertia lumped, collisions kept.
-  Lump base;
-  std::vector<Vector3d> trunk_points;
-  std::vector<std::string> skipped_meshes;
-  for (const LinkInfo& i : infos) {
-    if (i.movable.empty()) {
-      add_link_inertial(&base, i);
-      for (const auto& c : i.link->collision_array) {
-        const auto pts = primitive_points(i.frame, *c);
-        if (pts.empty()) skipped_meshes.push_back(i.link->name);
-        trunk_points.insert(trunk_points.end(), pts.begin(), pts.end());
-      }
-      continue;
-    }
-    bool placed = false;
-    for (LegChain& leg : legs) {
-      if (i.movable[0] != leg.joints[0]) continue;
-      const int k = static_cast<int>(i.movable.size()) - 1;
-      if (k > 2 || (k >= 1 && i.movable[1] != leg.joints[1]) || (k == 2 && i.movable[2] != leg.joints[2]))
-        fail("joint '" + i.movable.back()->name + "' branches off leg " + leg.name +
-             "'s chain: a leg is one chain of three revolute joints");
-      add_link_inertial(&leg.links[k], i);
-      for (const auto& c : i.link->collision_array) leg.collisions[k].push_back({i.frame, c});
-      placed = true;
-    }
-    if (!placed) fail("link '" + i.link->name + "' moves with joint '" + i.movable[0]->name + "', which is not a leg's HAA joint");
-  }
-  if (!(base.mass > 0)) fail("the base link '" + root->name + "' and the links fixed to it have no mass");
+  return legs;
+}
 
+// Per leg, the joints' ranges (overrides applied, placeholders refused), effort and velocity.
+struct JointLimits {
+  std::array<double, 3> lo{}, hi{}, effort{}, velocity{};
+};
+std::vector<JointLimits> read_limits(const std::vector<LegChain>& legs, const UrdfImportOptions& options,
+                                     UrdfImport& out, const Fail& fail) {
   // Joint limits, with overrides; placeholders refused.
   std::set<std::string> used_overrides;
-  struct Limits {
-    std::array<double, 3> lo{}, hi{}, effort{}, velocity{};
-  };
-  std::vector<Limits> limits(legs.size());
+  std::vector<JointLimits> limits(legs.size());
   for (size_t l = 0; l < legs.size(); ++l)
     for (int k = 0; k < 3; ++k) {
       const urdf::Joint& j = *legs[l].joints[k];
@@ -403,6 +445,8 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
         used_overrides.insert(j.name);
         if (!(ov->second.first < ov->second.second))
           fail("--joint-range " + j.name + ": min must be below max");
+        if (!(std::abs(ov->second.first) <= 360 && std::abs(ov->second.second) <= 360))
+          fail("--joint-range " + j.name + ": min and max must be within [-360, 360] degrees");
         limits[l].lo[k] = ov->second.first / kRadToDeg;
         limits[l].hi[k] = ov->second.second / kRadToDeg;
         out.notes.push_back("joint '" + j.name + "': range [" + short_num(ov->second.first) + ", " +
@@ -423,8 +467,15 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
   for (const auto& [name, range] : options.joint_range_deg)
     if (!used_overrides.count(name)) fail("--joint-range names '" + name + "', which is not a leg joint");
 
-  // The legs' geometry: joint origins and axes at q = 0 in the base frame.
+  return limits;
+}
+
+// The legs' general geometry (robot_model.hpp) with their limits and knees; *foot_radius the
+// largest foot sphere.
+std::vector<LegModel> leg_models(const std::vector<LegChain>& legs, const std::vector<JointLimits>& limits,
+                                 UrdfImport& out, const Fail& fail, double* foot_radius_out) {
   std::vector<LegModel> models(legs.size());
+  // The legs' geometry: joint origins and axes at q = 0 in the base frame.
   double foot_radius = 0;
   for (size_t l = 0; l < legs.size(); ++l) {
     const LegChain& c = legs[l];
@@ -467,8 +518,30 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
                         " m); " + (m.shape == LegShape::general ? "general axes (numeric IK)" : "closed-form IK"));
   }
 
+  *foot_radius_out = foot_radius;
+  return models;
+}
+
+// What the robot file is written from.
+struct ImportedRobot {
+  std::vector<LegChain> legs;
+  std::vector<LegModel> models;
+  std::vector<double> thigh_radius, shin_radius;
+  double height = 0.0, foot_radius = 0.0;
+  std::vector<Vector3d> q_nominal;
+  Lump body;
+  Vector3d shift = Vector3d::Zero(), trunk_lo = Vector3d::Zero(), trunk_hi = Vector3d::Zero();
+};
+
+// Link radii from the collision primitives along each link, the nominal stance.
+void radii_and_stance(ImportedRobot& r, const UrdfImportOptions& options, UrdfImport& out, const Fail& fail) {
+  const std::vector<LegChain>& legs = r.legs;
+  std::vector<LegModel>& models = r.models;
   // Link radii from the collision primitives along each link; stated defaults where none.
-  std::vector<double> thigh_radius(legs.size()), shin_radius(legs.size());
+  std::vector<double>& thigh_radius = r.thigh_radius;
+  std::vector<double>& shin_radius = r.shin_radius;
+  thigh_radius.assign(legs.size(), 0.0);
+  shin_radius.assign(legs.size(), 0.0);
   for (size_t l = 0; l < legs.size(); ++l) {
     const LegModel& m = models[l];
     for (int k : {1, 2}) {
@@ -489,10 +562,10 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
   // The nominal stance: each foot under its HFE joint, at the foot's lateral place of q = 0.
   double leg_drop = 0;
   for (const LegModel& m : models) leg_drop = std::max(leg_drop, -(foot_position(m, Vector3d::Zero()) - m.haa_origin).z());
-  double height = 0.0;
+  double& height = r.height;
   if (options.nominal_height) {
     height = *options.nominal_height;
-    if (!(height > 0)) fail("--nominal-height must be > 0");
+    if (!(height > 0) || !std::isfinite(height)) fail("--nominal-height must be a finite number > 0");
   } else {
     height = 0.75 * leg_drop;
     out.defaults.push_back("nominal base height " + short_num(height) +
@@ -500,7 +573,8 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
                            " m; --nominal-height to change)");
   }
   out.defaults.push_back("nominal feet: under the HFE joints at q = 0, at the feet's lateral place of q = 0, z = -nominal height");
-  std::vector<Vector3d> q_nominal(legs.size());
+  std::vector<Vector3d>& q_nominal = r.q_nominal;
+  q_nominal.assign(legs.size(), Vector3d::Zero());
   for (size_t l = 0; l < legs.size(); ++l) {
     LegModel& m = models[l];
     const Vector3d hfe = m.haa_origin + m.joint_offset[0];
@@ -511,36 +585,15 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
     q_nominal[l] = ik.q;
   }
 
-  // The SRBD body: every link, legs at the nominal stance; inertia about the centre of mass.
-  Lump body = base;
-  for (size_t l = 0; l < legs.size(); ++l) {
-    const LegFrames fr = leg_frames(models[l], q_nominal[l]);
-    for (int k = 0; k < 3; ++k) {
-      const Lump& link = legs[l].links[k];
-      if (!(link.mass > 0)) continue;
-      // The link turns with its joint: its inertia about its centre turned by fr.rotation[k].
-      const Vector3d com_q0 = link.com();
-      const Vector3d joint_q0 = k == 0 ? models[l].haa_origin
-                                       : (k == 1 ? Vector3d(models[l].haa_origin + models[l].joint_offset[0])
-                                                 : Vector3d(models[l].haa_origin + models[l].joint_offset[0] + models[l].joint_offset[1]));
-      const Vector3d com_q = fr.origin[k] + fr.rotation[k] * (com_q0 - joint_q0);
-      body.add(link.mass, com_q, fr.rotation[k] * link.inertia_com() * fr.rotation[k].transpose());
-    }
-  }
-  // The SRBD model puts the centre of mass at the base origin (the planner's dynamics and the
-  // simulator's trunk = body - legs both rely on it): the robot file's base frame is the URDF's
-  // base frame moved to the centre of mass at the nominal stance (axes unchanged). On Go2 the
-  // legs are 55 % of the mass, so the difference matters: left in the URDF's frame, the trunk
-  // that makes the body's centre the origin would sit 14 cm up, with an unphysical inertia.
-  const Vector3d shift = body.com();
-  out.base_origin_in_urdf = {shift.x(), shift.y(), shift.z()};
-  out.notes.push_back("SRBD: mass " + short_num(body.mass) + " kg (" + std::to_string(infos.size()) +
-                      " links); its centre of mass at the nominal stance, (" + short_num(shift.x()) + ", " +
-                      short_num(shift.y()) + ", " + short_num(shift.z()) +
-                      ") m in the URDF's base frame, is the robot file's base origin");
+}
 
+// The trunk box: the base's collision primitives' bounding box, or a stated default.
+void trunk_box(ImportedRobot& r, const std::vector<Vector3d>& trunk_points,
+               const std::vector<std::string>& skipped_meshes, UrdfImport& out) {
+  const std::vector<LegModel>& models = r.models;
+  Vector3d& trunk_lo = r.trunk_lo;
+  Vector3d& trunk_hi = r.trunk_hi;
   // The trunk box: the bounding box of the base's collision primitives.
-  Vector3d trunk_lo, trunk_hi;
   if (!trunk_points.empty()) {
     trunk_lo = trunk_hi = trunk_points.front();
     for (const Vector3d& p : trunk_points) {
@@ -560,12 +613,20 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
     out.defaults.push_back("trunk box: the base has no collision primitive: the box spanning the HAA joints, 0.1 m high");
   }
 
-  // Defaults the URDF does not hold: range of motion and the shin model.
-  out.defaults.push_back("range of motion: HyQ's box (0.25, 0.20, 0.10 m for 0.691 m of thigh and shank) scaled by the leg's thigh + shank");
-  out.defaults.push_back("shin model: s = 0.88 x the KFE-foot length (HyQ's 0.30 of 0.341), angle = the shank's angle to the ground at the nominal stance");
-  if (foot_radius != legs[0].foot_radius || foot_radius != legs[3].foot_radius)
-    out.notes.push_back("the feet's sphere radii differ: the largest, " + short_num(foot_radius) + " m, is used");
+}
 
+// The robot file's text.
+std::string robot_yaml(const ImportedRobot& r, const UrdfImport& out, const UrdfImportOptions& options,
+                       const std::string& urdf_path, const std::string& urdf_robot,
+                       const std::string& xml, const Fail& fail) {
+  const std::vector<LegChain>& legs = r.legs;
+  const std::vector<LegModel>& models = r.models;
+  const Lump& body = r.body;
+  const Vector3d& shift = r.shift;
+  const double height = r.height, foot_radius = r.foot_radius;
+  const Vector3d &trunk_lo = r.trunk_lo, &trunk_hi = r.trunk_hi;
+  const std::vector<Vector3d>& q_nominal = r.q_nominal;
+  const std::vector<double> &thigh_radius = r.thigh_radius, &shin_radius = r.shin_radius;
   // The robot file.
   std::ostringstream y;
   y << "# " << options.name << ", imported from a URDF by `terrastride robot import` (docs/design.md §4.1).\n"
@@ -574,7 +635,7 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
   for (const auto& d : out.defaults) y << "#   default: " << d << "\n";
   for (const auto& n : out.notes) y << "#   " << n << "\n";
   y << "name: " << options.name << "\n"
-    << "source: {urdf: \"" << quoted(urdf_path) << "\", urdf_robot: \"" << quoted(model->getName()) << "\", fnv1a64: \"" << fingerprint(xml)
+    << "source: {urdf: \"" << quoted(urdf_path) << "\", urdf_robot: \"" << quoted(urdf_robot) << "\", fnv1a64: \"" << fingerprint(xml)
     << "\", base_origin_in_urdf: " << vec(shift)
     << (options.command.empty() ? "" : ", command: \"" + quoted(options.command) + "\"") << "}\n"
     << "body:\n"
@@ -633,7 +694,103 @@ UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& op
       << "}\n"
       << "    thigh: {radius: " << num(thigh_radius[l]) << "}\n";
   }
-  out.yaml = y.str();
+  return y.str();
+}
+
+}  // namespace
+
+UrdfImport import_urdf_text(const std::string& xml, const std::string& urdf_path,
+                            const UrdfImportOptions& options) {
+  UrdfImport out;
+  const Fail fail = [&](const std::string& what) -> void {
+    throw UrdfImportError(urdf_path + ": " + what);
+  };
+  if (options.name.empty()) fail("no robot name given");
+  const urdf::ModelInterfaceSharedPtr model = parse_checked(xml, fail);
+  const urdf::LinkConstSharedPtr root = model->getRoot();
+  const std::vector<LinkInfo> infos = walk_tree(*model, fail);
+  out.notes.push_back("base link '" + root->name + "' (the URDF's root)");
+
+  ImportedRobot r;
+  r.legs = find_legs(infos, options, fail);
+  std::vector<LegChain>& legs = r.legs;
+
+  // Links: the base (no revolute joint above) and each leg's three moving links (everything
+  // fixed below joint k, up to the next revolute joint), inertia lumped, collisions kept.
+  Lump base;
+  std::vector<Vector3d> trunk_points;
+  std::vector<std::string> skipped_meshes;
+  for (const LinkInfo& i : infos) {
+    if (i.movable.empty()) {
+      add_link_inertial(&base, i);
+      for (const auto& c : i.link->collision_array) {
+        const auto pts = primitive_points(i.frame, *c);
+        if (pts.empty()) skipped_meshes.push_back(i.link->name);
+        trunk_points.insert(trunk_points.end(), pts.begin(), pts.end());
+      }
+      continue;
+    }
+    bool placed = false;
+    for (LegChain& leg : legs) {
+      if (i.movable[0] != leg.joints[0]) continue;
+      const int k = static_cast<int>(i.movable.size()) - 1;
+      if (k > 2 || (k >= 1 && i.movable[1] != leg.joints[1]) || (k == 2 && i.movable[2] != leg.joints[2]))
+        fail("joint '" + i.movable.back()->name + "' branches off leg " + leg.name +
+             "'s chain: a leg is one chain of three revolute joints");
+      add_link_inertial(&leg.links[k], i);
+      for (const auto& c : i.link->collision_array) leg.collisions[k].push_back({i.frame, c});
+      placed = true;
+    }
+    if (!placed) fail("link '" + i.link->name + "' moves with joint '" + i.movable[0]->name + "', which is not a leg's HAA joint");
+  }
+  if (!(base.mass > 0)) fail("the base link '" + root->name + "' and the links fixed to it have no mass");
+
+  const std::vector<JointLimits> limits = read_limits(legs, options, out, fail);
+  r.models = leg_models(legs, limits, out, fail, &r.foot_radius);
+  const std::vector<LegModel>& models = r.models;
+  const double foot_radius = r.foot_radius;
+  radii_and_stance(r, options, out, fail);
+  const std::vector<Vector3d>& q_nominal = r.q_nominal;
+
+  // The SRBD body: every link, legs at the nominal stance; inertia about the centre of mass.
+  Lump& body = r.body;
+  body = base;
+  for (size_t l = 0; l < legs.size(); ++l) {
+    const LegFrames fr = leg_frames(models[l], q_nominal[l]);
+    for (int k = 0; k < 3; ++k) {
+      const Lump& link = legs[l].links[k];
+      if (!(link.mass > 0)) continue;
+      // The link turns with its joint: its inertia about its centre turned by fr.rotation[k].
+      const Vector3d com_q0 = link.com();
+      const Vector3d joint_q0 = k == 0 ? models[l].haa_origin
+                                       : (k == 1 ? Vector3d(models[l].haa_origin + models[l].joint_offset[0])
+                                                 : Vector3d(models[l].haa_origin + models[l].joint_offset[0] + models[l].joint_offset[1]));
+      const Vector3d com_q = fr.origin[k] + fr.rotation[k] * (com_q0 - joint_q0);
+      body.add(link.mass, com_q, fr.rotation[k] * link.inertia_com() * fr.rotation[k].transpose());
+    }
+  }
+  // The SRBD model puts the centre of mass at the base origin (the planner's dynamics and the
+  // simulator's trunk = body - legs both rely on it): the robot file's base frame is the URDF's
+  // base frame moved to the centre of mass at the nominal stance (axes unchanged). On Go2 the
+  // legs are 55 % of the mass, so the difference matters: left in the URDF's frame, the trunk
+  // that makes the body's centre the origin would sit 14 cm up, with an unphysical inertia.
+  r.shift = body.com();
+  const Vector3d& shift = r.shift;
+  out.base_origin_in_urdf = {shift.x(), shift.y(), shift.z()};
+  out.notes.push_back("SRBD: mass " + short_num(body.mass) + " kg (" + std::to_string(infos.size()) +
+                      " links); its centre of mass at the nominal stance, (" + short_num(shift.x()) + ", " +
+                      short_num(shift.y()) + ", " + short_num(shift.z()) +
+                      ") m in the URDF's base frame, is the robot file's base origin");
+
+  trunk_box(r, trunk_points, skipped_meshes, out);
+
+  // Defaults the URDF does not hold: range of motion and the shin model.
+  out.defaults.push_back("range of motion: HyQ's box (0.25, 0.20, 0.10 m for 0.691 m of thigh and shank) scaled by the leg's thigh + shank");
+  out.defaults.push_back("shin model: s = 0.88 x the KFE-foot length (HyQ's 0.30 of 0.341), angle = the shank's angle to the ground at the nominal stance");
+  if (foot_radius != legs[0].foot_radius || foot_radius != legs[3].foot_radius)
+    out.notes.push_back("the feet's sphere radii differ: the largest, " + short_num(foot_radius) + " m, is used");
+
+  out.yaml = robot_yaml(r, out, options, urdf_path, model->getName(), xml, fail);
   // Read back with the robot-file reader: what is written loads.
   try {
     parse_robot(out.yaml, "the imported robot file");

@@ -33,6 +33,12 @@ using nlohmann::json;
 // Exit code when the simulation ran and the plan failed (as `check`: 1 bad input, 2 usage).
 constexpr int kSimulationFailed = 3;
 
+std::string format_number(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
 struct SimulateCliOptions {
   std::string plan;
   std::string terrain;
@@ -187,16 +193,27 @@ void run_simulate(const SimulateCliOptions& o) {
   sim.dt = o.dt;
   sim.mass_scale = o.mass_scale;
   sim.friction = o.friction;
-  if (!std::isfinite(o.dt) || o.dt < 1e-4 || o.dt > 0.01)
+  using Limits = collision::SimulationLimits;
+  if (!(o.dt >= Limits::kMinDt && o.dt <= Limits::kMaxDt))
     throw CommandError("--dt: must be in [0.0001, 0.01] s");
-  if (!std::isfinite(o.mass_scale) || o.mass_scale <= 0.1 || o.mass_scale >= 10)
+  if (!(o.mass_scale > Limits::kMinMassScale && o.mass_scale < Limits::kMaxMassScale))
     throw CommandError("--mass-scale: must be in (0.1, 10)");
-  if (!std::isfinite(o.friction) || o.friction <= 0 || o.friction >= 5)
+  if (!(o.friction > 0 && o.friction < Limits::kMaxFriction))
     throw CommandError("--friction: must be in (0, 5)");
+  if (o.pushes.size() > Limits::kMaxPushes)
+    throw CommandError("--push: at most " + std::to_string(Limits::kMaxPushes) + " pushes");
   for (const auto& text : o.pushes) {
     const Eigen::VectorXd v = parse_numbers(text, 5, "--push");
-    if (v[4] < 0) throw CommandError("--push " + text + ": the duration must not be negative");
-    sim.pushes.push_back({v[0], Eigen::Vector3d(v[1], v[2], v[3]), v[4]});
+    if (v[4] < 0 || v[4] > Limits::kMaxPushDuration)
+      throw CommandError("--push " + text + ": the duration must be within [0, " +
+                         format_number(Limits::kMaxPushDuration) + "] s");
+    const Eigen::Vector3d force(v[1], v[2], v[3]);
+    // MuJoCo's state turns non-finite under absurd forces (1e12 N): refused, not simulated.
+    if (force.stableNorm() > Limits::kMaxPushForce)
+      throw CommandError("--push " + text + ": a force of " + format_number(force.stableNorm()) +
+                         " N, more than the " + format_number(Limits::kMaxPushForce) +
+                         " N a push may have");
+    sim.pushes.push_back({v[0], force, v[4]});
   }
   if (!std::isfinite(o.replan_every) || o.replan_every < 0 || o.replan_every > 100)
     throw CommandError("--replan-every: must be within [0, 100] s (0 = open loop)");

@@ -48,6 +48,8 @@ json simulation_summary_json(const collision::SimulationReport& r, const robot::
           {"fell", r.fell},
           {"heightfield_filled_cells", r.filled_cells},
           {"fall_t", r.fell ? json(r.fall_t) : json()},
+          {"unstable", r.unstable},
+          {"unstable_t", r.unstable ? json(r.unstable_t) : json()},
           {"dt", r.dt},
           {"duration", r.duration},
           {"steps", r.steps},

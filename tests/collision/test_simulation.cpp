@@ -7,6 +7,8 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
+#include <functional>
 #include <iostream>
 #include <map>
 #include <random>
@@ -433,6 +435,210 @@ TEST(Simulation, MarginBracketsTheLargestSurvivedPush) {
   }
   EXPECT_GT(m.mass_heavier.survived, 1.0);
   EXPECT_LT(m.mass_lighter.survived, 1.0);
+}
+
+// What a refused run says, or "" when it ran.
+std::string refusal(const robot::RobotModel& model, const planner::Trajectory& plan,
+                    const collision::SimulationOptions& o = {}) {
+  try {
+    collision::simulate_plan(model, plan, *terrain::make_scene("flat"), o);
+  } catch (const collision::SimulationError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// A plan whose last sample is at t = 1e9 "passed" after 0 simulated steps (the step count
+// overflowed), and a base at 1e300 m at one sample "warned" with an infinite RMS: plans are
+// validated as `check` validates them (collision::validate_trajectory) and within the planner's
+// duration and reach.
+TEST(SimulationLimits, PlansBeyondTheLimitsAreRefused) {
+  const auto model = hyq();
+  const auto stand = stand_plan(model, 1.0);
+  struct Case {
+    std::string what, expect;
+    std::function<void(planner::Trajectory&)> edit;
+  };
+  const std::vector<Case> cases{
+      {"last t 1e9", "samples from t = 0 to 1e+09 s",
+       [](planner::Trajectory& p) { p.samples.back().t = 1e9; }},
+      {"last t 121 s", "lasts at most that long", [](planner::Trajectory& p) { p.samples.back().t = 121; }},
+      {"all times 1e9 later", "a plan starts within 120 s of 0",
+       [](planner::Trajectory& p) {
+         for (auto& s : p.samples) s.t += 1e9;
+       }},
+      {"base 1e300", "samples[50].base.position is 1e+300 m from the first base position",
+       [](planner::Trajectory& p) { p.samples[50].base.position.x() = 1e300; }},
+      {"base 2 km away", "samples[99].base.position is 2000 m",
+       [](planner::Trajectory& p) { p.samples[99].base.position.y() += 2000; }},
+      {"foot 1e300", "samples[7].feet[2].position is 1e+300 m",
+       [](planner::Trajectory& p) { p.samples[7].feet[2].position.z() = -1e300; }},
+      {"whole plan at 1e300", "samples[0].base.position is 1e+300 m from the origin",
+       [](planner::Trajectory& p) {
+         for (auto& s : p.samples) {
+           s.base.position.x() += 1e300;
+           for (auto& f : s.feet) f.position.x() += 1e300;
+         }
+       }},
+      // The shared validator's own refusals.
+      {"NaN base", "samples[3].base.position: not a finite 3-vector",
+       [](planner::Trajectory& p) { p.samples[3].base.position.z() = std::nan(""); }},
+      {"inf force", "samples[4].feet[1].force: not a finite 3-vector",
+       [](planner::Trajectory& p) { p.samples[4].feet[1].force.z() = INFINITY; }},
+      {"times repeat", "samples[10].t: times must increase",
+       [](planner::Trajectory& p) { p.samples[10].t = p.samples[9].t; }},
+      {"other robot", "robot: the plan is for 'go2'", [](planner::Trajectory& p) { p.robot = "go2"; }},
+  };
+  for (const Case& c : cases) {
+    planner::Trajectory plan = stand;
+    c.edit(plan);
+    const std::string why = refusal(model, plan);
+    EXPECT_NE(why.find(c.expect), std::string::npos) << c.what << ": '" << why << "'";
+    EXPECT_EQ(why.rfind("plan: ", 0), 0u) << c.what << ": " << why;
+  }
+  // A plan of 120 s whose times were summed in 0.01 s steps (120.00000000002 s) is within them.
+  planner::Trajectory long_plan = stand;
+  long_plan.samples.resize(2);
+  long_plan.samples[1].t = 0.0;
+  for (int k = 0; k < 12000; ++k) long_plan.samples[1].t += 0.01;
+  ASSERT_GT(long_plan.samples[1].t, 120.0);
+  EXPECT_EQ(collision::simulation_steps(long_plan, 0.002), 60000);
+  EXPECT_NO_THROW(collision::validate_simulation(model, long_plan, {}));
+  // Within the limits, far from the origin: it runs (and stands).
+  planner::Trajectory far = stand;
+  for (auto& s : far.samples) {
+    s.base.position.x() += 5000;
+    for (auto& f : s.feet) f.position.x() += 5000;
+  }
+  EXPECT_EQ(refusal(model, far), "");
+}
+
+// `simulate --push 1,0,1e12,0,0.2` made MuJoCo reset its non-finite state and the verdict was
+// "warn": absurd options are refused before anything is built, naming them.
+TEST(SimulationLimits, AbsurdOptionsAreRefused) {
+  const auto model = hyq();
+  const auto plan = stand_plan(model, 0.5);
+  struct Case {
+    std::string what, expect;
+    collision::Push push;
+  };
+  const std::vector<Case> cases{
+      {"1e12 N", "push 1: its force (1e+12 N) must be finite and at most 1e+05 N",
+       {0.1, Vector3d(0, 1e12, 0), 0.2}},
+      {"1e5 N and a bit", "push 1: its force", {0.1, Vector3d(0, 60000, 80001), 0.2}},
+      {"NaN force", "push 1: its force", {0.1, Vector3d(0, std::nan(""), 0), 0.2}},
+      {"inf start", "push 1: its start time is not finite", {INFINITY, Vector3d(0, 100, 0), 0.2}},
+      {"1e9 s long", "push 1: its duration must be in [0, 120] s", {0.1, Vector3d(0, 100, 0), 1e9}},
+      {"negative duration", "push 1: its duration", {0.1, Vector3d(0, 100, 0), -1}},
+  };
+  for (const Case& c : cases) {
+    collision::SimulationOptions o;
+    o.pushes = {c.push};
+    const std::string why = refusal(model, plan, o);
+    EXPECT_NE(why.find(c.expect), std::string::npos) << c.what << ": '" << why << "'";
+  }
+  collision::SimulationOptions o;
+  o.pushes.assign(101, collision::Push{0.1, Vector3d(0, 1, 0), 0.1});
+  EXPECT_NE(refusal(model, plan, o).find("pushes: at most 100"), std::string::npos);
+  for (const double scale : {0.1, 10.0, std::nan(""), double(INFINITY)}) {
+    o = {};
+    o.mass_scale = scale;
+    EXPECT_NE(refusal(model, plan, o).find("mass scale"), std::string::npos) << scale;
+  }
+  for (const double mu : {0.0, 5.0, -1.0, std::nan("")}) {
+    o = {};
+    o.friction = mu;
+    EXPECT_NE(refusal(model, plan, o).find("friction"), std::string::npos) << mu;
+  }
+  // The largest push allowed runs (and topples HyQ): a verdict, not an error.
+  o = {};
+  o.pushes = {{0.1, Vector3d(0, collision::SimulationLimits::kMaxPushForce, 0), 0.2}};
+  const auto rep = collision::simulate_plan(model, plan, *terrain::make_scene("flat"), o);
+  EXPECT_EQ(rep.verdict, "fail");
+}
+
+// A run whose state MuJoCo finds non-finite fails there: never a warning, nothing after it
+// judged. MuJoCo resets a state whose accelerations pass 1e10 (to the initial pose at time 0) and
+// zeroes controls beyond 1e10 (the robot goes limp): joint gains of 1e15 N m/rad with the torque
+// limits raised to 1e9 N m drive the accelerations there, with them at 1e15 N m the controls.
+TEST(SimulationLimits, UnstableRunFails) {
+  for (const double torque_limit : {1e9, 1e15}) {
+    auto model = hyq();
+    for (auto& leg : model.legs) leg.torque_limit = Vector3d::Constant(torque_limit);
+    collision::SimulationOptions o;
+    collision::ControllerGains g = collision::controller_gains(model);
+    g.kp_stance = g.kp_swing = 1e15;
+    o.controller.gains = g;
+    const auto rep =
+        collision::simulate_plan(model, stand_plan(model, 1.0), *terrain::make_scene("flat"), o);
+    print("unstable stand", rep);
+    EXPECT_EQ(rep.verdict, "fail") << torque_limit;
+    EXPECT_TRUE(rep.unstable) << torque_limit;
+    EXPECT_GE(rep.unstable_t, 0.0) << torque_limit;
+    EXPECT_LT(rep.duration, 1.0) << torque_limit;
+    ASSERT_FALSE(rep.reasons.empty());
+    EXPECT_NE(rep.reasons.back().find("unstable simulation at t = "), std::string::npos)
+        << rep.reasons.back();
+    EXPECT_NE(rep.reasons.back().find(torque_limit < 1e10 ? "acceleration" : "joint torque command"),
+              std::string::npos)
+        << rep.reasons.back();
+  }
+}
+
+// The margin search is bounded up front (margin_max_runs) and stops between and within its
+// runs when asked.
+TEST(SimulationLimits, MarginRunsAreBoundedAndCancellable) {
+  EXPECT_EQ(collision::margin_max_runs({}), 56);
+  collision::MarginOptions no_mass;
+  no_mass.mass = false;
+  EXPECT_EQ(collision::margin_max_runs(no_mass), 33);
+  const auto model = hyq();
+  const auto plan = stand_plan(model, 0.5);
+  const auto scene = terrain::make_scene("flat");
+  // Stop after the third poll: the search ends within the run that polled it.
+  int polls = 0;
+  collision::SimulationOptions o;
+  o.stop_requested = [&polls] { return ++polls > 3; };
+  EXPECT_THROW(collision::simulation_margin(model, plan, *scene, o), collision::SimulationCancelled);
+  EXPECT_EQ(polls, 4);
+  // Uninterrupted, the runs stay within the bound.
+  const auto m = collision::simulation_margin(model, plan, *scene, {});
+  EXPECT_GT(m.runs, 10);
+  EXPECT_LE(m.runs, collision::margin_max_runs({}));
+}
+
+// The CLI: the refusals name the option or the plan's field, exit 1, and nothing is simulated.
+TEST(SimulationLimits, CliRefusesAbsurdPushesAndPlans) {
+  const auto model = hyq();
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("terrastride_sim_limits_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const auto run = [&](const planner::Trajectory& plan, const std::string& args, std::string* err) {
+    const std::string file = (dir / "plan.json").string();
+    planner::write_plan_file(file, plan);
+    const std::string cmd = std::string(TERRASTRIDE_BINARY) + " simulate " + file + " --terrain flat " +
+                            args + " >/dev/null 2>" + (dir / "err.txt").string();
+    const int status = std::system(cmd.c_str());
+    std::ifstream e(dir / "err.txt");
+    err->assign((std::istreambuf_iterator<char>(e)), std::istreambuf_iterator<char>());
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  };
+  std::string err;
+  const auto stand = stand_plan(model, 0.5);
+  EXPECT_EQ(run(stand, "--push 0.1,0,1e12,0,0.2", &err), 1) << err;
+  EXPECT_NE(err.find("--push 0.1,0,1e12,0,0.2: a force of 1e+12 N"), std::string::npos) << err;
+  EXPECT_EQ(run(stand, "--push 0.1,0,1e3,0,1e9", &err), 1) << err;
+  EXPECT_NE(err.find("--push 0.1,0,1e3,0,1e9: the duration"), std::string::npos) << err;
+  auto late = stand;
+  late.samples.back().t = 1e9;
+  EXPECT_EQ(run(late, "", &err), 1) << err;
+  EXPECT_NE(err.find("samples from t = 0 to 1e+09 s"), std::string::npos) << err;
+  auto far = stand;
+  far.samples[20].base.position.x() = 1e300;
+  EXPECT_EQ(run(far, "--json", &err), 1) << err;
+  EXPECT_NE(err.find("samples[20].base.position is 1e+300 m"), std::string::npos) << err;
+  EXPECT_EQ(run(stand, "", &err), 0) << err;
+  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

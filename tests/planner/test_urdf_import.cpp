@@ -258,5 +258,208 @@ TEST(UrdfImport, ErrorsNameTheJointOrLinkAndWriteNothing) {
   fs::remove_all(out.parent_path());
 }
 
+// `urdf_text` with `extra` inserted before its closing </robot>.
+std::string with_extra(const std::string& urdf_text, const std::string& extra) {
+  const size_t end = urdf_text.rfind("</robot>");
+  return urdf_text.substr(0, end) + extra + urdf_text.substr(end);
+}
+
+// `urdf_text` with the first occurrence of `from` replaced by `to`.
+std::string replaced(std::string urdf_text, const std::string& from, const std::string& to) {
+  const size_t at = urdf_text.find(from);
+  EXPECT_NE(at, std::string::npos) << from;
+  if (at != std::string::npos) urdf_text.replace(at, from.size(), to);
+  return urdf_text;
+}
+
+std::string nested(int depth, const std::string& open = "<a>", const std::string& close = "</a>") {
+  std::string x;
+  for (int k = 0; k < depth; ++k) x += open;
+  for (int k = 0; k < depth; ++k) x += close;
+  return x;
+}
+
+struct RefusalCase {
+  std::string tag, urdf, expect;
+};
+
+// Each case: exit status 1, stderr holding `expect` (and the file's name), no robot file.
+void expect_refused(const std::vector<RefusalCase>& cases) {
+  for (const RefusalCase& c : cases) {
+    std::string err;
+    fs::path out;
+    EXPECT_EQ(run_import(c.tag, c.urdf, &err, &out), 1) << c.tag << ": " << err;
+    EXPECT_NE(err.find(c.expect), std::string::npos) << c.tag << ": " << err;
+    EXPECT_NE(err.find("robot.urdf"), std::string::npos) << c.tag << ": " << err;
+    EXPECT_FALSE(fs::exists(out)) << c.tag;
+    fs::remove_all(out.parent_path());
+  }
+}
+
+// urdfdom's XML parser recursed once per element: 5000 nested elements crashed the import
+// (segfault after 9 s). The nesting is measured before urdfdom sees the text.
+TEST(UrdfImport, DeepXmlNestingIsRefusedBeforeParsing) {
+  const std::string toy = quadruped_urdf(4);
+  expect_refused({
+      {"nested_5000", with_extra(toy, nested(5000)), "XML elements nested 101 deep"},
+      {"nested_101", with_extra(toy, nested(100)), "limit of 100"},
+      // Attributes with '>' and '/>' inside quotes do not end a tag early.
+      {"nested_quoted", with_extra(toy, nested(3000, "<a b=\"x/>\" c = '>'>", "</a>")), "limit of 100"},
+      // Unclosed: the opening tags alone are the recursion.
+      {"nested_open", with_extra(toy, nested(10000).substr(0, 3 * 10000)), "limit of 100"},
+      // A document that is only nesting.
+      {"nested_bare", nested(100000, "<robot>", "</robot>"), "at line 1, more than the limit of 100"},
+  });
+  // The same elements in a comment, CDATA or empty tags are no nesting: imported.
+  for (const std::string& extra :
+       {"<!--" + nested(5000) + "-->", "<gazebo><![CDATA[" + nested(5000) + "]]></gazebo>",
+        std::string("<gazebo>") + [] {
+          std::string x;
+          for (int k = 0; k < 5000; ++k) x += "<a b='>'/>";
+          return x;
+        }() + "</gazebo>",
+        nested(90, "<gazebo>", "</gazebo>")}) {
+    std::string err;
+    fs::path out;
+    EXPECT_EQ(run_import("nested_ok", with_extra(toy, extra), &err, &out), 0) << extra.substr(0, 60) << ": " << err;
+    fs::remove_all(out.parent_path());
+  }
+}
+
+TEST(UrdfImport, OversizedFileIsRefused) {
+  // 9 MiB of comment in an otherwise fine URDF: refused by size, before anything is parsed.
+  const std::string big = with_extra(quadruped_urdf(4), "<!--" + std::string(9u << 20, ' ') + "-->");
+  expect_refused({{"oversized", big, "the most a URDF may have"}});
+  UrdfImportOptions o;
+  o.name = "toy";
+  try {
+    import_urdf_text(big, "big.urdf", o);
+    ADD_FAILURE() << "imported";
+  } catch (const UrdfImportError& e) {
+    EXPECT_NE(std::string(e.what()).find("big.urdf: " + std::to_string(big.size()) + " bytes"), std::string::npos)
+        << e.what();
+  }
+}
+
+std::string joint_xml(const std::string& name, const std::string& parent, const std::string& child,
+                      const std::string& type = "fixed") {
+  return "<joint name=\"" + name + "\" type=\"" + type + "\"><parent link=\"" + parent + "\"/><child link=\"" +
+         child + "\"/><origin xyz=\"0 0 0.01\"/><axis xyz=\"0 1 0\"/><limit lower=\"-1\" upper=\"1\" "
+         "effort=\"1\" velocity=\"1\"/></joint>\n";
+}
+
+// A joint cycle made the import's tree walk run until std::bad_alloc (3.2 GB): each shape is
+// refused, naming the joints or links.
+TEST(UrdfImport, JointCyclesAreRefusedByName) {
+  const std::string toy = quadruped_urdf(4);
+  std::string ring;  // a loop of 12 links off the tree
+  for (int k = 0; k < 12; ++k) ring += "<link name=\"ring" + std::to_string(k) + "\"/>";
+  for (int k = 0; k < 12; ++k)
+    ring += joint_xml("ring_joint" + std::to_string(k), "ring" + std::to_string(k), "ring" + std::to_string((k + 1) % 12));
+  std::string chain_loop;  // a chain of 30 links whose last joint goes back to the third
+  for (int k = 0; k < 30; ++k) chain_loop += "<link name=\"c" + std::to_string(k) + "\"/>";
+  chain_loop += joint_xml("c_root", "base", "c0");
+  for (int k = 1; k < 30; ++k)
+    chain_loop += joint_xml("c_joint" + std::to_string(k), "c" + std::to_string(k - 1), "c" + std::to_string(k));
+  chain_loop += joint_xml("c_back", "c29", "c2", "revolute");
+  expect_refused({
+      // The calf's child joint goes back to the hip.
+      {"child_is_ancestor", with_extra(toy, joint_xml("LF_back", "LF_calf", "LF_hip", "revolute")),
+       "the joints LF_back, LF_HFE, LF_KFE form a cycle (links LF_calf -> LF_hip -> LF_thigh -> LF_calf)"},
+      {"two_parents", with_extra(toy, joint_xml("RF_extra", "base", "RH_thigh")),
+       "link 'RH_thigh' is the child of two joints"},
+      {"self_loop", with_extra(toy, joint_xml("LH_self", "LH_calf", "LH_calf", "revolute")),
+       "joint 'LH_self' connects link 'LH_calf' to itself"},
+      {"ring_off_the_tree", with_extra(toy, ring), "form a cycle"},
+      {"ring_joints_named", with_extra(toy, ring), "ring_joint0, ring_joint1"},
+      {"long_loop", with_extra(toy, chain_loop), "form a cycle (links c2 -> c3 -> c4 -> c5"},
+      {"long_loop_back", with_extra(toy, chain_loop), "c28 -> c29 -> c2)"},
+      // Through the root: named before urdfdom (which finds no root link and leaks the cycle).
+      {"through_root", with_extra(toy, joint_xml("back_to_base", "LF_foot", "base")),
+       "form a cycle (links "},
+      {"through_root_named", with_extra(toy, joint_xml("back_to_base", "LF_foot", "base")),
+       "back_to_base, LF_HAA"},
+      {"two_link_robot", "<robot name=\"r\"><link name=\"a\"/><link name=\"b\"/>" + joint_xml("ab", "a", "b") +
+                             joint_xml("ba", "b", "a") + "</robot>",
+       "the joints ab, ba form a cycle (links a -> b -> a)"},
+      {"hanging", with_extra(toy, ring + "<link name=\"hang\"/>" + joint_xml("hang_joint", "ring3", "hang")),
+       "form a cycle"},
+      // Off the tree without a cycle: a second root (urdfdom names it).
+      {"unreached", with_extra(toy, "<link name=\"x\"/><link name=\"y\"/>" + joint_xml("xy", "x", "y") +
+                                         joint_xml("base_y", "base", "y")),
+       "Two root links found: [base] and [x]"},
+      // A cycle the import's own checks would have found after urdfdom refused the file for
+      // another reason (a joint without its parent): refused by the cycle, before urdfdom.
+      {"cycle_and_malformed", replaced(with_extra(toy, joint_xml("LH_self", "LH_calf", "LH_calf")),
+                                       "<parent link=\"RF_hip\"/>", "parent link=\"RF_hip\"/>"),
+       "joint 'LH_self' connects link 'LH_calf' to itself"},
+  });
+}
+
+// A negative base mass imported (Go2 weighed 9.2 kg instead of 16.1 kg), as did infinite or
+// indefinite inertias and zero foot spheres: each refused by link or joint name and field.
+TEST(UrdfImport, NumbersOutOfRangeAreRefusedByLinkOrJoint) {
+  const std::string toy = quadruped_urdf(4);
+  const std::string calf = "<link name=\"LH_calf\"><inertial><mass value=\"0.5\"/>";
+  expect_refused({
+      {"base_mass_negative", replaced(toy, "<mass value=\"5\"/>", "<mass value=\"-5\"/>"),
+       "link 'base' inertial: mass -5 kg"},
+      {"leg_mass_negative", replaced(toy, calf, "<link name=\"LH_calf\"><inertial><mass value=\"-0.5\"/>"),
+       "link 'LH_calf' inertial: mass -0.5 kg"},
+      {"mass_huge", replaced(toy, "<mass value=\"5\"/>", "<mass value=\"1e300\"/>"), "link 'base' inertial: mass 1e+300"},
+      {"inertia_huge", replaced(toy, "ixx=\"0.1\"", "ixx=\"1e308\""), "link 'base' inertial: inertia ixx 1e+308"},
+      {"inertia_indefinite", replaced(toy, "ixx=\"0.1\" ixy=\"0\"", "ixx=\"0.1\" ixy=\"0.5\""),
+       "link 'base' inertial: the inertia is not positive semi-definite"},
+      {"inertia_negative", replaced(toy, "iyy=\"0.2\"", "iyy=\"-0.2\""), "not positive semi-definite"},
+      {"inertial_origin_huge", replaced(toy, "<inertial><mass value=\"5\"/>",
+                                         "<inertial><origin xyz=\"1e300 0 0\"/><mass value=\"5\"/>"),
+       "link 'base' inertial origin: xyz 1e+300"},
+      {"foot_radius_zero", replaced(toy, "<sphere radius=\"0.02\"/>", "<sphere radius=\"0\"/>"),
+       "link 'LF_foot' collision: sphere radius 0 m"},
+      {"foot_radius_negative", replaced(toy, "<sphere radius=\"0.02\"/>", "<sphere radius=\"-0.02\"/>"),
+       "sphere radius -0.02 m"},
+      {"box_zero", replaced(toy, "<box size=\"0.4 0.2 0.1\"/>", "<box size=\"0.4 0 0.1\"/>"),
+       "link 'base' collision: box size y 0 m"},
+      {"joint_origin_huge", replaced(toy, "<origin xyz=\"0 0 -0.2\"/>", "<origin xyz=\"0 0 -1e300\"/>"),
+       "joint 'LF_KFE' origin: xyz -1e+300"},
+      {"joint_axis_zero", replaced(toy, "<axis xyz=\"0 1 0\"/>", "<axis xyz=\"0 0 0\"/>"),
+       "joint 'LF_HFE': axis (0, 0, 0) is not a finite non-zero vector"},
+      {"effort_huge", replaced(toy, "effort=\"20\"", "effort=\"1e300\""), "joint 'LF_HAA': limit effort 1e+300"},
+      {"velocity_huge", replaced(toy, "velocity=\"10\"", "velocity=\"1e300\""), "joint 'LF_HAA': limit velocity 1e+300"},
+  });
+  // Placeholder-range overrides and the nominal height: finite.
+  std::string err;
+  fs::path out;
+  EXPECT_EQ(run_import("override_inf", toy, &err, &out, "--joint-range LF_HFE=-inf:inf"), 1) << err;
+  EXPECT_NE(err.find("--joint-range LF_HFE"), std::string::npos) << err;
+  fs::remove_all(out.parent_path());
+  EXPECT_EQ(run_import("height_inf", toy, &err, &out, "--nominal-height inf"), 1) << err;
+  EXPECT_NE(err.find("--nominal-height"), std::string::npos) << err;
+  EXPECT_FALSE(fs::exists(out));
+  fs::remove_all(out.parent_path());
+}
+
+// The fuzz target's seeds (tests/fuzz/corpus_urdf) go through the import: each either imports
+// or is refused with UrdfImportError, none crashes.
+TEST(UrdfImport, FuzzCorpusReplay) {
+  const fs::path corpus = fs::path(TERRASTRIDE_SOURCE_DIR) / "tests/fuzz/corpus_urdf";
+  ASSERT_TRUE(fs::is_directory(corpus)) << corpus;
+  int files = 0, imported = 0;
+  for (const auto& entry : fs::directory_iterator(corpus)) {
+    std::ifstream in(entry.path(), std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    UrdfImportOptions o;
+    o.name = "fuzz";
+    ++files;
+    try {
+      import_urdf_text(bytes, entry.path().filename().string(), o);
+      ++imported;
+    } catch (const UrdfImportError&) {
+    }
+  }
+  EXPECT_GE(files, 10);
+  EXPECT_GE(imported, 1);  // the toy quadruped
+}
+
 }  // namespace
 }  // namespace terrastride::robot

@@ -78,4 +78,68 @@ TEST(ServerSimulate, ExecutesAPlanAndJudgesIt) {
   EXPECT_EQ(server.stop(SIGTERM), 0) << server.output;
 }
 
+// What the simulation cannot judge is refused, naming the field, before a worker runs it; what
+// cannot finish within the op's wall-time limit is refused up front (`too_large`). A plan ending at
+// t = 1e9 "passed" after 0 steps, a base at 1e300 m "warned" with an infinite RMS, and a 120 s
+// plan at dt 1e-4 ran 301 s until its connection closed without a reply (a margin search on it
+// would have held the worker for an hour).
+TEST(ServerSimulate, RefusesWhatItCannotJudgeOrFinish) {
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--workers", "1", "--queue", "4"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  Client c = Client::connect(server.tcp());
+  const json plan = c.call_ok({{"op", "plan"}, {"terrain", "flat"}, {"duration", 2.4}});
+  ASSERT_TRUE(plan["samples"].is_array());
+  const auto call = [&](const json& p, json extra = json::object()) {
+    json request = {{"op", "simulate"}, {"plan", p}, {"terrain", "flat"}};
+    request.update(extra);
+    return c.call(request);
+  };
+
+  json late = plan;
+  late["samples"].back()["t"] = 1e9;
+  auto m = call(late);
+  EXPECT_EQ(error_code(m), "bad_request") << m.header.dump().substr(0, 400);
+  EXPECT_NE(error_message(m).find("samples from t = 0 to 1e+09 s"), std::string::npos) << error_message(m);
+
+  json far = plan;
+  far["samples"][100]["base"]["position"][0] = 1e300;
+  m = call(far);
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("samples[100].base.position is 1e+300 m"), std::string::npos)
+      << error_message(m);
+
+  m = call(plan, {{"pushes", {{{"t", 1.0}, {"force", {0.0, 5e5, 0.0}}, {"duration", 0.2}}}}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("pushes[0].force: 500000 N, more than the 100000 N"), std::string::npos)
+      << error_message(m);
+  m = call(plan, {{"pushes", {{{"t", 1.0}, {"force", {0.0, 100.0, 0.0}}, {"duration", 500}}}}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("pushes[0].duration"), std::string::npos) << error_message(m);
+
+  // A 120 s plan (its first sample held for 120 s) at dt 1e-4: 1.2 M steps, and with the margin
+  // up to 56 runs of them. Refused before it starts, naming the limit.
+  json held = plan;
+  held["samples"] = json::array({plan["samples"][0], plan["samples"][0]});
+  held["samples"][1]["t"] = 120.0;
+  held["duration"] = 120.0;
+  m = call(held, {{"dt", 1e-4}, {"margin", true}});
+  EXPECT_EQ(error_code(m), "too_large") << m.header.dump().substr(0, 400);
+  EXPECT_NE(error_message(m).find("1200000 steps"), std::string::npos) << error_message(m);
+  EXPECT_NE(error_message(m).find("56 margin runs"), std::string::npos) << error_message(m);
+  EXPECT_NE(error_message(m).find("beyond the 240 s a simulate request may run"), std::string::npos)
+      << error_message(m);
+  // Half as long at twice the step: 300 k steps, 56 runs, 252 s at 15 us a step.
+  held["samples"][1]["t"] = 60.0;
+  held["duration"] = 60.0;
+  m = call(held, {{"dt", 2e-4}, {"margin", true}});
+  EXPECT_EQ(error_code(m), "too_large") << m.header.dump().substr(0, 400);
+  EXPECT_NE(error_message(m).find("300000 steps"), std::string::npos) << error_message(m);
+
+  // The worker is free: the plan itself still runs.
+  const json r = c.call_ok({{"op", "simulate"}, {"plan", plan}, {"terrain", "flat"}});
+  EXPECT_EQ(r["verdict"], "pass") << r["reasons"].dump();
+  EXPECT_FALSE(r["unstable"].get<bool>());
+  EXPECT_EQ(server.stop(SIGTERM), 0) << server.output;
+}
+
 }  // namespace

@@ -62,6 +62,11 @@ struct TrajectoryKinematics {
   std::vector<LegIssue> issues;  // the first few IK failures / joint-limit excursions, with reasons
 };
 
+// Checks `trajectory` against `model` as every check reads it: its robot and feet, finite times
+// that increase, finite base and foot states. Throws TrajectoryError naming the field. Shared by
+// the checks (leg_kinematics) and the simulation (simulation.hpp), so both refuse the same plans.
+void validate_trajectory(const robot::RobotModel& model, const planner::Trajectory& trajectory);
+
 // Validates `trajectory` against `model` (throws TrajectoryError) and runs IK for every leg and
 // sample. Joint velocities come from the foot velocity relative to the base, expressed in the base
 // frame, through J^-1 (exact at each sample, no differencing error; plan.json carries velocities);

@@ -10,6 +10,7 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <cstddef>
 #include <functional>
 #include <optional>
 #include <stdexcept>
@@ -19,6 +20,7 @@
 #include <nlohmann/json.hpp>
 
 #include "terrastride/planner/planning_session.hpp"
+#include "terrastride/planner/request_limits.hpp"
 #include "terrastride/planner/trajectory.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/scenes.hpp"
@@ -44,6 +46,28 @@ struct Push {
   double t = 0.0;
   Eigen::Vector3d force = Eigen::Vector3d::Zero();
   double duration = 0.0;
+};
+
+// What a simulated run accepts, whoever asks (`simulate`, the socket's simulate, the margin
+// search); simulate_plan refuses the rest with SimulationError before it builds anything, and the
+// CLI and the socket name their options by these same bounds.
+struct SimulationLimits {
+  static constexpr double kMinDt = 1e-4, kMaxDt = 0.01;  // s
+  static constexpr double kMinMassScale = 0.1, kMaxMassScale = 10.0;  // exclusive
+  static constexpr double kMaxFriction = 5.0;                        // exclusive, above 0
+  // A push beyond this is no disturbance a legged robot meets (HyQ weighs 0.8 kN; the margin
+  // search's ceiling is bounded by it too): 1e12 N made MuJoCo's state non-finite.
+  static constexpr double kMaxPushForce = 1e5;  // N
+  static constexpr std::size_t kMaxPushes = 100;
+  // A plan lasts at most what the planner plans (planner::PlanLimits::kMaxDuration, 120 s): a
+  // last sample at t = 1e9 overflowed the step count and "passed" after 0 steps. Its base and
+  // feet stay within the planner's goal distance (plus 100 m) of its first base position, and
+  // that within 1e6 m of the origin: a base at 1e300 m made the tracking error infinite.
+  static constexpr double kMaxPlanDuration = planner::PlanLimits::kMaxDuration;
+  static constexpr double kMaxPlanReach = planner::PlanLimits::kMaxGoalDistance + 100.0;  // m
+  static constexpr double kMaxPlanOrigin = 1e6;                                          // m
+  // A push lasts at most a plan's longest duration; it starts at a finite time.
+  static constexpr double kMaxPushDuration = kMaxPlanDuration;  // s
 };
 
 // The verdict's thresholds (issue #16 defaults). Impulses and durations, not step counts, so the
@@ -219,7 +243,11 @@ struct SimulationReport {
 
   bool fell = false;
   double fall_t = -1.0;
-  std::string verdict;               // pass, warn, fail
+  // MuJoCo found its state non-finite or diverging (a bad position, velocity or acceleration;
+  // it resets the state then): the run stopped there and failed. Nothing after it was simulated.
+  bool unstable = false;
+  double unstable_t = -1.0;
+  std::string verdict;               // pass, warn, fail (a fall or an unstable run)
   std::vector<std::string> reasons;  // why (empty for pass)
   SimulationThresholds thresholds;
 
@@ -269,6 +297,17 @@ Eigen::Vector3d mujoco_com(const robot::RobotModel& model, const std::vector<Eig
 
 // Joint angles of the nominal stance (foot spheres' centres at nominal foot + r z).
 std::vector<Eigen::Vector3d> nominal_stance(const robot::RobotModel& model);
+
+// Refuses (SimulationError naming the field) options outside SimulationLimits and a plan the
+// checks would refuse (collision::validate_trajectory: robot, feet, finite increasing times,
+// finite states) or that lasts or reaches beyond SimulationLimits. simulate_plan calls it first.
+void validate_simulation(const robot::RobotModel& model, const planner::Trajectory& plan,
+                         const SimulationOptions& options);
+
+// MuJoCo steps of one run of `plan` at time step `dt` (its duration over dt, rounded up), for
+// callers that bound a run's cost before they start it. The plan must have passed
+// validate_simulation.
+long long simulation_steps(const planner::Trajectory& plan, double dt);
 
 // Runs the plan on `scene` (boxes with exact edges). Throws SimulationError naming the problem.
 SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Trajectory& plan,
@@ -338,8 +377,14 @@ struct MarginReport {
   MarginOptions options;
 };
 
+// The most runs simulation_margin makes with `margin` (the nominal run, each side's doubling and
+// bisection at their longest): with the defaults 56. Its cost is at most this many times
+// simulation_steps.
+int margin_max_runs(const MarginOptions& margin);
+
 // `options` are the simulation's (dt, friction, thresholds, controller; its pushes and mass
-// scale are the nominal state every search adds to). Throws SimulationError as simulate_plan.
+// scale are the nominal state every search adds to). Throws SimulationError as simulate_plan;
+// options.stop_requested is polled within and between the runs (SimulationCancelled).
 MarginReport simulation_margin(const robot::RobotModel& model, const planner::Trajectory& plan,
                                const terrain::HeightField& terrain,
                                const SimulationOptions& options, const MarginOptions& margin = {});

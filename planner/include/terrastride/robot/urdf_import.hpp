@@ -7,6 +7,7 @@
 #pragma once
 
 #include <array>
+#include <cstddef>
 #include <map>
 #include <optional>
 #include <stdexcept>
@@ -41,7 +42,22 @@ struct UrdfImport {
   std::array<double, 3> base_origin_in_urdf{};
 };
 
+// What the import reads at most, refused beyond with the figure and the limit: urdfdom's XML
+// parser recurses once per nested element (thousands deep overflow the stack), and every walk of
+// the tree is bounded by its link count. A real quadruped's URDF is some 30-70 kB, 5 elements
+// deep, 20-50 links.
+struct UrdfLimits {
+  static constexpr std::size_t kMaxBytes = 8u << 20;
+  static constexpr int kMaxXmlDepth = 100;
+  static constexpr std::size_t kMaxLinks = 1000;
+  static constexpr std::size_t kMaxJoints = 1000;
+};
+
 // Reads `urdf_path` and returns the robot file; throws UrdfImportError.
 UrdfImport import_urdf(const std::string& urdf_path, const UrdfImportOptions& options);
+
+// The same from the URDF's text; `urdf_path` names it in errors and in the file's `source`.
+UrdfImport import_urdf_text(const std::string& xml, const std::string& urdf_path,
+                            const UrdfImportOptions& options);
 
 }  // namespace terrastride::robot

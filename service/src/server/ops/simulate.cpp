@@ -2,7 +2,9 @@
 // published map (its planning surface as a heightfield), a scene (exact boxes) or a terrain
 // directory under a --terrain-root (docs/protocol.md, "simulate").
 #include <algorithm>
+#include <chrono>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -17,6 +19,25 @@ using nlohmann::json;
 using protocol::ProtocolError;
 
 namespace {
+
+// The longest a simulate request runs (wall time, the margin search included): a client gets its
+// reply (a `timeout` error) before the 300 s idle and reply timeouts clients commonly use; a 120 s
+// plan at dt 1e-4 ran 301 s and its connection closed without a reply.
+constexpr double kMaxWallSeconds = 240.0;
+// Less than the CPU time one MuJoCo step with the controller has taken (HyQ and Go2 crawls on
+// flat and pallet_15 at dt 2 ms and 0.1 ms: 18.6-24.3 us per step, 44-54 us of wall at load 6):
+// a request whose steps need more than kMaxWallSeconds even at this pace cannot finish and is
+// refused before it starts (`too_large`). One run never is (120 s at dt 0.1 ms: 1.2 M steps,
+// 18 s); a margin search at small steps is (56 runs of them).
+constexpr double kStepSecondsFloor = 15e-6;
+// The error code of a request refused for its size (a run that could not finish in time).
+constexpr const char* kTooLarge = "too_large";
+
+std::string number_text(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
 
 // "pushes": [{"t": s, "force": [fx, fy, fz], "duration": s}, ...] (world frame, on the trunk).
 std::vector<collision::Push> read_pushes(const json& h) {
@@ -41,13 +62,78 @@ std::vector<collision::Push> read_pushes(const json& h) {
     } catch (const ProtocolError& e) {
       throw ProtocolError(pc::kBadRequest, at + ": " + e.what());
     }
-    if (push.duration < 0 || push.duration > 1000)
-      throw ProtocolError(pc::kBadRequest, at + ".duration: must be in [0, 1000] s");
-    if (push.force.norm() > 1e6)
-      throw ProtocolError(pc::kBadRequest, at + ".force: at most 1e6 N");
+    using Limits = collision::SimulationLimits;
+    if (!(push.duration >= 0 && push.duration <= Limits::kMaxPushDuration))
+      throw ProtocolError(pc::kBadRequest, at + ".duration: must be in [0, " +
+                                               number_text(Limits::kMaxPushDuration) + "] s");
+    if (!(push.force.stableNorm() <= Limits::kMaxPushForce))
+      throw ProtocolError(pc::kBadRequest, at + ".force: " + number_text(push.force.stableNorm()) +
+                                               " N, more than the " +
+                                               number_text(Limits::kMaxPushForce) + " N a push may have");
     pushes.push_back(push);
   }
   return pushes;
+}
+
+// The simulation's options from the request: the CLI's flags and limits (SimulationLimits).
+collision::SimulationOptions read_options(const json& h) {
+  using Limits = collision::SimulationLimits;
+  collision::SimulationOptions options;
+  options.dt = protocol::get_number(h, "dt", 0.002);
+  if (!(options.dt >= Limits::kMinDt && options.dt <= Limits::kMaxDt))
+    throw ProtocolError(pc::kBadRequest, "dt: must be in [0.0001, 0.01] s");
+  options.mass_scale = protocol::get_number(h, "mass_scale", 1.0);
+  if (!(options.mass_scale > Limits::kMinMassScale && options.mass_scale < Limits::kMaxMassScale))
+    throw ProtocolError(pc::kBadRequest, "mass_scale: must be in (0.1, 10)");
+  options.friction = protocol::get_number(h, "friction", 0.5);
+  if (!(options.friction > 0 && options.friction < Limits::kMaxFriction))
+    throw ProtocolError(pc::kBadRequest, "friction: must be in (0, 5)");
+  options.pushes = read_pushes(h);
+  return options;
+}
+
+// Refuses (too_large) a request whose steps cannot finish within kMaxWallSeconds even at the
+// fastest pace a step has run: it would hold a worker only to time out.
+void refuse_what_cannot_finish(const planner::Trajectory& plan, double dt, bool margin) {
+  const long long steps = collision::simulation_steps(plan, dt);
+  const int runs = margin ? collision::margin_max_runs({}) : 1;
+  const double least_s = static_cast<double>(steps) * runs * kStepSecondsFloor;
+  if (least_s <= kMaxWallSeconds) return;
+  throw ProtocolError(
+      kTooLarge, "simulate: " + std::to_string(steps) + " steps (the plan's " +
+                     number_text(plan.samples.back().t - plan.samples.front().t) + " s at dt " +
+                     number_text(dt) + " s)" +
+                     (margin ? " times up to " + std::to_string(runs) + " margin runs" : "") +
+                     " take at least " + number_text(least_s) + " s at " +
+                     number_text(kStepSecondsFloor * 1e6) + " us a step, beyond the " +
+                     number_text(kMaxWallSeconds) +
+                     " s a simulate request may run: raise dt, shorten the plan or drop margin");
+}
+
+// The terrain, as `plan` resolves it; a scene (or a published scene) runs on its exact boxes.
+// `keep` holds what the returned field lives in.
+struct SimulatedTerrain {
+  std::shared_ptr<const MapSnapshot> snapshot;
+  std::shared_ptr<const SceneRaster> raster;
+  std::unique_ptr<terrain::TerrainMap> map;
+  const terrain::HeightField* field = nullptr;
+};
+void load_terrain(Backend& backend, const std::string& spec, SimulatedTerrain* t) {
+  try {
+    if (spec == "current") {
+      t->snapshot = backend.map();
+      if (!t->snapshot) throw ProtocolError(pc::kNoMap, "simulate on \"current\": no map loaded");
+      t->field = t->snapshot->field.get();
+    } else if (terrain::is_scene_name(spec)) {
+      t->raster = backend.scene_raster(spec);
+      t->field = t->raster->scene.get();
+    } else {
+      t->map = terrain::load_terrain_dir(backend.terrain_dir_path(spec, "terrain"));
+      t->field = t->map.get();
+    }
+  } catch (const perception::InputError& e) {
+    throw ProtocolError(pc::kBadRequest, "\"terrain\" " + spec + ": " + e.what());
+  }
 }
 
 OpResult simulate(Backend& backend, OpContext& ctx) {
@@ -55,58 +141,40 @@ OpResult simulate(Backend& backend, OpContext& ctx) {
   const RequestPlan plan = read_request_plan(backend, h, "simulate");
   const robot::RobotModel& model = plan.robot;
   const planner::Trajectory& traj = plan.trajectory;
-  // The simulation's options: the CLI's flags and limits.
-  collision::SimulationOptions options;
-  options.dt = protocol::get_number(h, "dt", 0.002);
-  if (!(options.dt >= 1e-4 && options.dt <= 0.01))
-    throw ProtocolError(pc::kBadRequest, "dt: must be in [0.0001, 0.01] s");
-  options.mass_scale = protocol::get_number(h, "mass_scale", 1.0);
-  if (!(options.mass_scale > 0.1 && options.mass_scale < 10))
-    throw ProtocolError(pc::kBadRequest, "mass_scale: must be in (0.1, 10)");
-  options.friction = protocol::get_number(h, "friction", 0.5);
-  if (!(options.friction > 0 && options.friction < 5))
-    throw ProtocolError(pc::kBadRequest, "friction: must be in (0, 5)");
-  options.pushes = read_pushes(h);
+  collision::SimulationOptions options = read_options(h);
   const bool margin = protocol::get_bool(h, "margin", false);
   const bool with_samples = protocol::get_bool(h, "samples", false);
   if (!with_samples) options.record_dt = 0.0;
-  options.stop_requested = CancellationToken::as_callback(ctx.token);
-
-  // The terrain, as `plan` resolves it; a scene (or a published scene) runs on its exact boxes.
-  const std::string spec = protocol::get_string(h, "terrain", std::string("current"));
-  std::shared_ptr<const MapSnapshot> snapshot;
-  std::shared_ptr<const SceneRaster> raster;
-  std::unique_ptr<terrain::TerrainMap> map;
-  const terrain::HeightField* field = nullptr;
   try {
-    if (spec == "current") {
-      snapshot = backend.map();
-      if (!snapshot) throw ProtocolError(pc::kNoMap, "simulate on \"current\": no map loaded");
-      field = snapshot->field.get();
-    } else {
-      if (terrain::is_scene_name(spec)) {
-        raster = backend.scene_raster(spec);
-        field = raster->scene.get();
-      } else {
-        map = terrain::load_terrain_dir(backend.terrain_dir_path(spec, "terrain"));
-        field = map.get();
-      }
-    }
-  } catch (const perception::InputError& e) {
-    throw ProtocolError(pc::kBadRequest, "\"terrain\" " + spec + ": " + e.what());
+    // The plan as `check` reads it, before the terrain is loaded or anything is estimated.
+    collision::validate_simulation(model, traj, options);
+  } catch (const collision::SimulationError& e) {
+    throw ProtocolError(pc::kBadRequest, e.what());
   }
+  refuse_what_cannot_finish(traj, options.dt, margin);
+  // Stops on the request's cancel, deadline or shutdown, and after kMaxWallSeconds.
+  const auto wall_limit = std::chrono::steady_clock::now() +
+                          std::chrono::milliseconds(static_cast<long long>(kMaxWallSeconds * 1e3));
+  options.stop_requested = [token = ctx.token, wall_limit] {
+    return token->stop_requested() || std::chrono::steady_clock::now() >= wall_limit;
+  };
+  SimulatedTerrain terrain;
+  load_terrain(backend, protocol::get_string(h, "terrain", std::string("current")), &terrain);
   ctx.check_stop();
   OpResult r;
   try {
-    const collision::SimulationReport rep = collision::simulate_plan(model, traj, *field, options);
+    const collision::SimulationReport rep =
+        collision::simulate_plan(model, traj, *terrain.field, options);
     r.result = simulation_summary_json(rep, model);
     if (with_samples) r.result["samples"] = simulation_samples_json(rep, model);
     if (margin)
       r.result["margin"] =
-          margin_json(collision::simulation_margin(model, traj, *field, options, {}));
-  } catch (const collision::SimulationCancelled&) {
+          margin_json(collision::simulation_margin(model, traj, *terrain.field, options, {}));
+  } catch (const collision::SimulationCancelled& e) {
     ctx.check_stop();  // the token's reason as the protocol's error
-    throw ProtocolError(pc::kCancelled, "simulation stopped");
+    throw ProtocolError(pc::kTimeout, "simulate: stopped after " + number_text(kMaxWallSeconds) +
+                                          " s, the most a simulate request may run (" + e.what() +
+                                          ")");
   } catch (const collision::SimulationError& e) {
     throw ProtocolError(pc::kBadRequest, e.what());
   }
