@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Throughput of N plans at once on one `terrastride serve` (issue #13: plans run in child processes).
+"""Throughput of N plans at once on one `terrastride serve` (plans run in child processes).
 
     python3 scripts/bench_concurrent_plans.py build/terrastride WORKERS N SCENE [serve flags...]
     e.g. ... build/terrastride 2 2 pallet_15                      (each plan in its own process)

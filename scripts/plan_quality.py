@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Quality figures of plan.json files (as planner/quality.hpp computes them; issue #17), for
+"""Quality figures of plan.json files (as planner/quality.hpp computes them), for
 plans written before the "quality" block existed and as an independent check of it.
 usage: scripts/plan_quality.py PLAN.json [PLAN.json ...]"""
 import json

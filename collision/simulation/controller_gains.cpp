@@ -1,6 +1,6 @@
 // The tracking controller's gains for a robot (simulation.hpp, controller_gains): each PD loop is
 // a natural frequency w and a damping ratio z on the inertia I it moves, kp = I w^2 and
-// kd = 2 z I w. HyQ's hand-tuned absolute gains (issue #16) made a 15 kg Go2 fall in the first
+// kd = 2 z I w. HyQ's hand-tuned absolute gains made a 15 kg Go2 fall in the first
 // second: 150 N m s/rad of trunk orientation damping on Go2's 0.18 kg m^2 roll inertia is
 // kd dt / I = 1.6 per 2 ms step, and 10 N m s/rad of swing damping on its 5e-3 kg m^2 knee is 4:
 // an explicit PD step beyond 1 overshoots and grows. The same frequencies and ratios on each

@@ -26,12 +26,12 @@ namespace {
 constexpr double kDenseDt = 0.002;  // docs/design.md §6.8: dense checks every 2 ms
 
 // The most iterations a solve with the path-shape rows gets before it is solved again without
-// them. Measured (issue #17, docs/design.md §6.4): the clean shaped plans of the off-path suite
+// them. Measured (docs/design.md §6.4): the clean shaped plans of the off-path suite
 // and the scenes took 6-74 iterations; the failing ones ended infeasible after 45-99 or stalled
 // after 234-825 (the flat 2.4 s `all` crawl: 825, 41 s, then 86 without the rows).
 constexpr int kShapedMaxIterations = 150;
 
-// The path-shape families whose rows `problem` carries (issue #17), in the order of `all`.
+// The path-shape families whose rows `problem` carries, in the order of `all`.
 std::vector<std::string> path_shape_kinds(const SrbdProblem& problem) {
   std::vector<std::string> kinds;
   for (const char* kind : {"monotone_progress", "lateral_corridor", "swing_apex"})
@@ -90,7 +90,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     // nearly the full rate onto the right feet alone while LH swung, which threw the base 26.6 cm
     // to the left, and the path-shape rows could not be met (docs/design.md §6.4 "Path shape").
     // The robot's feasibility defaults only when force_ramp is asked for: computing them can
-    // throw for a robot whose limits a `baseline` plan never reads (review, session 14).
+    // throw for a robot whose limits a `baseline` plan never reads.
     if (options.rest_boundaries && requests_constraint_set(options.constraints, "force_ramp")) {
       const FeasibilityOptions feasibility =
           feasibility_options(robot, options.feasibility_settings);
@@ -138,7 +138,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   // A warm start continues a plan that was optimised already: stop at its first verified
   // feasible iterate, as without an objective (a start on the plan re-verifies in 0 iterations).
   if (warm.previous) solver_options.stop_at_first_feasible = true;
-  // The path-shape rows (monotone_progress, lateral_corridor, swing_apex; issue #17) are
+  // The path-shape rows (monotone_progress, lateral_corridor, swing_apex) are
   // preferences on the plan's shape, not feasibility: a solve that fails with them (infeasible,
   // stalled, or past kShapedMaxIterations) is solved once more without them, within what is left
   // of max_time, and plan.json says so ("path_shape_fallback"; the solver figures cover both
@@ -217,7 +217,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   }
   if (!shape_fallback.is_null()) out.trajectory.extra["path_shape_fallback"] = shape_fallback;
   if (!rest_lead_in.is_null()) out.trajectory.extra["rest_lead_in"] = rest_lead_in;
-  // A measured start's own violations (rows on it alone, left out of the solve; issue #22).
+  // A measured start's own violations (rows on it alone, left out of the solve).
   if (!problem->start_excess().empty())
     out.trajectory.extra["start_excess"] = problem->start_excess();
   DenseCheckLimits lim;

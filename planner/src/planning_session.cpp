@@ -152,7 +152,7 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   // down at it has no force variable at the end knot).
   for (const auto& f : interpolate_plan(reference_, end - kEventTol).feet)
     pinned_end.foot_force.push_back(f.contact ? f.force : Eigen::Vector3d::Zero());
-  // A measured state ahead of the reference may return to it (monotone_progress, issue #17).
+  // A measured state ahead of the reference may return to it (monotone_progress).
   ProblemOptions step_problem_options = options_;
   set_start_lead_of(reference_, t, measured, &step_problem_options);
   SrbdProblem::StartState base_end = pinned_end;
@@ -222,7 +222,7 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   ex["start_time"] = t;
   ex["session"] = {{"step", steps_ + 1}, {"end_time", end}, {"to_goal", to_goal},
                    {"horizon", horizon_}};
-  // The measured start's own violations (rows on it alone, left out of the solve; issue #22).
+  // The measured start's own violations (rows on it alone, left out of the solve).
   if (!problem->start_excess().empty()) ex["start_excess"] = problem->start_excess();
   if (!problem->end_excess().empty()) ex["session"]["end_excess"] = problem->end_excess();
   if (out.feet_freed)

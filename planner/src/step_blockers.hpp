@@ -1,4 +1,4 @@
-// TERRASTRIDE_DEBUG_STEPS (planner/src/solver.cpp): which rows cut Ipopt's steps (issue #18).
+// TERRASTRIDE_DEBUG_STEPS (planner/src/solver.cpp): which rows cut Ipopt's steps.
 #pragma once
 
 #include <IpDenseVector.hpp>

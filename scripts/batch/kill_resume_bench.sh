@@ -1,5 +1,5 @@
 #!/bin/bash
-# Issue #21's "must show" at full size: a `report --batch` over 20 scans killed (SIGKILL) at random
+# The kill test at full size: a `report --batch` over 20 scans killed (SIGKILL) at random
 # moments and resumed, TRIALS times, each compared byte for byte (diff -r, hidden files included)
 # with one uninterrupted run; then 4 shards at once over one folder against the same run.
 # The fast version of both is tests/service/test_report_batch.cpp.

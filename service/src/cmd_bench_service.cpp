@@ -47,7 +47,7 @@ struct BenchOptions {
   bool json = false;
   bool json_points = false;
   double rate = 0;  // requests per second per client; 0 = back to back (saturation)
-  // Replan mode (issue #22): a planning session on pallet_15 with every constraint set.
+  // Replan mode: a planning session on pallet_15 with every constraint set.
   int replan_steps = 50;
   double horizon = 1.0;
   std::string replan_scene = "pallet_15";

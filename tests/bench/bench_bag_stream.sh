@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Streaming a bag of at least 1 GB (issue #19): writes one in a scratch folder with the fixture
+# Streaming a bag of at least 1 GB: writes one in a scratch folder with the fixture
 # generator's big_bag.mjs (MCAP, zstd chunks of 4 MB, 64 x 1024 organised clouds at 10 Hz, /tf at
 # 50 Hz), then measures `map --list` (every message read, headers decoded) and `map --every N`
 # (every N-th cloud placed and mapped) with /usr/bin/time: wall time and peak RSS.

@@ -1,4 +1,4 @@
-// Where a constraint Jacobian's time goes (issue #18): builds the pallet_15 11 s crawl problem
+// Where a constraint Jacobian's time goes: builds the pallet_15 11 s crawl problem
 // (exact scene, its 2 cm smoothed map) with the given constraint sets and times, at the initial
 // guess, the whole eval_jacobian (both threads, as Ipopt calls it) and eval_constraints, then each
 // piece kind's Jacobians on one thread.

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Whole-process benchmark of `terrastride plan` and `terrastride map` (issue #18).
+"""Whole-process benchmark of `terrastride plan` and `terrastride map`.
 
 What a user waits for is the process, not the solve: start-up (loading libraries), building the
 problem, the solve, the dense and post-hoc checks and writing plan.json. One row per scenario, from
@@ -37,7 +37,7 @@ import tempfile
 import time
 
 # TOWR's comparable solve process on this machine (3 crawl cycles, 15 cm step, fixed timing),
-# whole process, as measured and quoted in issue #18 ("2.25 s"). Not re-measured here.
+# whole process, as measured ("2.25 s"). Not re-measured here.
 TOWR_PROCESS_S = 2.25
 TOWR_SOURCE = "issue #18: TOWR's comparable solve process, 3 crawl cycles, 15 cm step, fixed timing"
 

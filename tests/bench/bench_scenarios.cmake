@@ -4,7 +4,7 @@ add_executable(bench_scenarios bench_scenarios.cpp)
 target_link_libraries(bench_scenarios PRIVATE terrastride::planner terrastride::terrain
                       terrastride::collision
                       nlohmann_json::nlohmann_json terrastride_warnings)
-# Per-kind Jacobian cost of one problem (issue #18): ./tests/bench/bench_jacobian [--sets all]
+# Per-kind Jacobian cost of one problem: ./tests/bench/bench_jacobian [--sets all]
 add_executable(bench_jacobian bench_jacobian.cpp)
 target_link_libraries(bench_jacobian PRIVATE terrastride::planner terrastride::terrain
                       terrastride_warnings)

@@ -4,18 +4,18 @@
 //                   [--settings NAME=VALUE,...] [--add-sets SET,...]
 // Each row is followed by its quality figures (plan.json "quality", planner/quality.hpp).
 // --objective-scale S plans with the tuned objective weights (ObjectiveWeights{}) times S.
-// --original plans as before issue #17, for before/after comparisons in one binary: no objective,
-// no rest rows at the ends, and "all" without "force_ramp" and the path-shape sets
+// --original plans as the original design did, for before/after comparisons in one binary: no
+// objective, no rest rows at the ends, and "all" without "force_ramp" and the path-shape sets
 // (monotone_progress, lateral_corridor, swing_apex).
 // --settings passes feasibility settings (`terrastride plan --feasibility`) to every row, e.g.
 // monotone_progress=1,lateral_corridor=0.02,swing_apex_rise=0.1; --add-sets adds constraint sets
 // to every row (the standard rows plan with "baseline" alone).
 // --feasibility (or --only naming them) adds the feasibility-variant rows SCENE/SETS (baseline,
-// foot, foot,shin, all on pallet_10 and pallet_15; issue #5) with their own columns: rows and
+// foot, foot,shin, all on pallet_10 and pallet_15) with their own columns: rows and
 // Jacobian nonzeros, iterations, wall and user CPU s, the post-hoc checks on the exact scene
 // (worst joint torque ratio over the whole plan, capsule collisions and minimum distance, unsafe
 // footholds) and the worst quasi-static stance torque ratio max |J_i^T f| / tau_i.
-// Session rows (pallet_15_all_session[_h1|_h2], issue #22): 20 x --repeat re-plans 0.1 s apart
+// Session rows (pallet_15_all_session[_h1|_h2]): 20 x --repeat re-plans 0.1 s apart
 // from states 1 cm and 0.05 m/s off the plan; BENCH_SESSION_DETAIL=1 prints each step on stderr.
 #include <sys/resource.h>
 
@@ -68,7 +68,7 @@ struct Scenario {
   bool feasibility_row = false;  // printed with the feasibility columns; run on request only
   // >= 0: a planning session (planning_session.hpp) with this horizon (0 = to the goal) after the
   // cold plan; `session_steps` steps 0.1 s apart, each from the previous plan's state 1 cm to the
-  // side and 0.05 m/s faster (issue #22's measured state); the row gives the median and p99.
+  // side and 0.05 m/s faster (a stand-in for a measured state); the row gives the median and p99.
   double session_horizon = -1.0;
 };
 
@@ -224,7 +224,7 @@ int main(int argc, char** argv) {
       {"pallet_15_warm_0.1s", "pallet_15", 11.0, false, 0.1},
       {"pallet_15_warm_0.1s_off", "pallet_15", 11.0, false, 0.1, 0.01},
   };
-  // Planning sessions on pallet_15 with every constraint set (issue #22): to the goal, and with
+  // Planning sessions on pallet_15 with every constraint set: to the goal, and with
   // a 2 s receding horizon.
   for (double horizon : {0.0, 2.0, 1.0}) {
     Scenario sc{horizon > 0 ? "pallet_15_all_session_h" + std::to_string(static_cast<int>(horizon))

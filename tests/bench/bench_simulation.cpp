@@ -1,4 +1,4 @@
-// Scenario runner for the simulated execution (issue #16): the paper's experiments judged by
+// Scenario runner for the simulated execution: the paper's experiments judged by
 // MuJoCo (collision::simulate_plan), one row per plan and terrain, and the simulation's speed.
 //   bench_simulation [--only GROUP,...] [--repeat N] [--json]
 // Groups:
@@ -12,7 +12,7 @@
 //           as a heightfield
 //   speed   simulated seconds per wall second at dt 2 ms: the flat crawl on boxes and on a 2 cm
 //           heightfield, median of --repeat runs (wall and CPU), with the machine's load
-//   closed_loop  (only when named; issue #22) pallet_15 `all`: open loop vs re-planning at the
+//   closed_loop  (only when named) pallet_15 `all`: open loop vs re-planning at the
 //           --rates (Hz; default 10,20) over a --horizon (s; default 1) planning session: the
 //           largest lateral push (0.2 s, left and right, bisection to 20 N) survived at mid-climb
 //           (the time the planned base is halfway up), and pass/fail at trunk mass x0.8 and x1.2

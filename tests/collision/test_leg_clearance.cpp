@@ -467,7 +467,7 @@ TEST(LegClearanceVerdict, ExactSceneDecidesVoxelContactsAndNoSolidKeepsTheOldVer
   }
 }
 
-// ---- Depth into occupied voxels beyond what the cell explains (issue #15, item 4) ----
+// ---- Depth into occupied voxels beyond what the cell explains ----
 
 namespace {
 

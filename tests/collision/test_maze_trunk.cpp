@@ -1,6 +1,6 @@
 // The trunk and the legs in the real maze (../shared/scans/anybotics_samples/
 // elevation_mapping_maze.ply, an elevation map of a maze whose walls stand about 1 m tall), end to
-// end through the CLI (issue #15, item 4): `map` at 8 cm cells (the map's own hint for a cloud
+// end through the CLI: `map` at 8 cm cells (the map's own hint for a cloud
 // whose points are 4 cm apart) and the default 5 cm OctoMap; a crawl along the west corridor keeps
 // the trunk and the thighs clear; a crawl pointed at the wall that closes the corridor's east side
 // at x = 3.0 m (its feet still on the floor) drives the trunk 10 cm into it and fails loudly,
@@ -92,7 +92,7 @@ TEST_F(MazeTrunk, ACrawlIntoAWallFailsNamingTheTrunk) {
   // East towards the wall face at x = 3.0 m: the goal's feet stand on the floor before it (front
   // feet at x = 2.91), but the trunk reaches 0.19 m past the front feet, 10 cm into the wall.
   // The planner has no trunk constraint of its own here, so its plan is "optimal"; the post-hoc
-  // trunk check must fail it (before issue #15 this exited 0).
+  // trunk check must fail it (not exit 0).
   const Planned p = plan("--start 1.9,7.0,0 --goal 2.6,7.0,0", "into_wall");
   ASSERT_NE(p.code, 0) << p.output;
   ASSERT_NE(p.code, 1) << p.output;  // not refused: planned, then judged

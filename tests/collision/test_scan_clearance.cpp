@@ -94,7 +94,7 @@ TEST_F(ScanClearance, ShippedPalletScanSeparatesCertainCollisionsFromVoxelQuanti
     EXPECT_EQ(f.get<std::string>().find("leg collides"), std::string::npos) << f;
   EXPECT_GT(scanned["checks"]["shin_contacts_uncertain"].get<double>(), 0.0)
       << "the voxel-only verdict flags this plan (the false alarm this verdict removes)";
-  // Several mm into the voxels (measured 9.7 mm for the shaped plan, 11.8 mm before issue #17's
+  // Several mm into the voxels (measured 9.7 mm for the shaped plan, 11.8 mm without the
   // path-shape rows): not a grazing contact that a verdict could dismiss by rounding.
   EXPECT_LT(scanned["checks"]["shin_min_distance_m"].get<double>(), -0.005);
   EXPECT_FALSE(scanned["clearance"]["certain_solid"].get<std::string>().empty());

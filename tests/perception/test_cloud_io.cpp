@@ -354,7 +354,7 @@ TEST(ReadCloudErrors, NonFiniteOriginArgument) {
       {"scan.xyz", "origin"});
 }
 
-// ---- strict readers (issue #13): a body that disagrees with its header is an error ----
+// ---- strict readers: a body that disagrees with its header is an error ----
 //
 // PCL reads an unparsable ASCII value as 0 (PCD) or NaN (PLY), skips PCD lines with the wrong
 // number of values, and ignores points beyond the header's count. Each case below used to give a

@@ -1,4 +1,4 @@
-// Plans a robot engineer accepts (issue #17), on a short flat crawl solved end to end: at rest at
+// Plans a robot engineer accepts, on a short flat crawl solved end to end: at rest at
 // both ends (zero accelerations, forces balancing gravity), forces that ramp with "all", and the
 // objective's stop (feasible and good enough) still stopping early.
 #include <gtest/gtest.h>

@@ -407,7 +407,7 @@ TEST(Nlp, GoalPitchFollowsTheTerrainUnderTheNominalFeet) {
   EXPECT_NEAR(ps.lower()[gs + 8], 0.0, 1e-9);
 }
 
-// A receding-horizon step (planning sessions, issue #22) holds the end at the reference's state:
+// A receding-horizon step (planning sessions) holds the end at the reference's state:
 // the base, the feet at its foot positions and its forces, so that the next step's guess (this
 // plan, then the reference) agrees across the splice; a stance the start fixes keeps the start's.
 TEST(Nlp, HorizonEndPinsTheBaseAndTheFeet) {

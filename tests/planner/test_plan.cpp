@@ -173,7 +173,7 @@ TEST(Plan, WarmStartFromAShiftedPlanConvergesFast) {
 }
 
 // After a push the measured state may lie outside a joint's range and a foot's range-of-motion
-// box (issue #22: "joints by 0.192 on LF at t = 0.00 s"). Pinned at t = 0, those rows were
+// box (e.g. "joints by 0.192 on LF at t = 0.00 s"). Pinned at t = 0, those rows were
 // constants no solve could change: the re-plan was infeasible by construction. Now they are left
 // out and reported (plan.json "start_excess"), the rows after the start give room back to the
 // bounds over start_return, and the re-plan succeeds and is back within the joint ranges and the
@@ -244,7 +244,7 @@ TEST(Plan, ReplanFromAStartOutsideJointsAndBoxReturnsWithinThem) {
 }
 
 // A session step pins its horizon end to the reference's base, and a stance the measured start
-// fixes keeps the measured foothold up to that end (issue #22: after a left 300 N push on pallet_15
+// fixes keeps the measured foothold up to that end (measured: after a left 300 N push on pallet_15
 // LH had slipped 7 cm, and the pinned end lay 5.7 cm outside LH's box). The end's rows are then
 // constants, left out (session.end_excess), but the rows just before it, whose base must arrive at
 // the pinned pose and velocity, got no room: nine steps in a row failed there, range_of_motion
@@ -366,7 +366,7 @@ TEST(Layout, CroppedFirstSegmentKeepsThePreviousConstraintPoints) {
   EXPECT_TRUE(near(L.segment_points(1, 2, false), {0.0, 0.5}));  // only the first segment
 }
 
-// The path-shape rows are preferences (issue #17): a cold solve they make fail is solved once
+// The path-shape rows are preferences: a cold solve they make fail is solved once
 // more without them, and the plan says so. A swing apex of 1 mm above its ends contradicts the
 // 5 cm swing clearance (infeasible by construction); the crawl itself is feasible.
 TEST(Plan, AColdSolveTheShapeRowsMakeFailIsSolvedAgainWithoutThem) {
@@ -396,7 +396,7 @@ TEST(Plan, AColdSolveTheShapeRowsMakeFailIsSolvedAgainWithoutThem) {
   EXPECT_FALSE(shaped_ok.trajectory.extra.contains("path_shape_fallback"));
 }
 
-// The flat 2.4 s `all` crawl from rest (issue #17): with LF's lift-off at 0.22 s, LF shed its half
+// The flat 2.4 s `all` crawl from rest: with LF's lift-off at 0.22 s, LF shed its half
 // of the weight at nearly the force rate bound onto the right feet alone while LH swung, which threw
 // the base 26.6 cm to the left; the path-shape rows could not hold it (150 iterations, then the
 // fallback). With its second lift-off at W / force_rate_max (0.41 s) it is shaped in one solve and
@@ -407,7 +407,7 @@ TEST(Plan, TheFastCrawlFromRestGetsALeadInAndIsShaped) {
   PlannerOptions o = options_to_goal(1.0);
   o.duration = 2.4;
   o.constraints = {"all"};
-  // The path-shape families off (on by default since session 14): the lead-in alone.
+  // The path-shape families off (on by default): the lead-in alone.
   o.feasibility_settings = {
       {"monotone_progress", 0.0}, {"lateral_corridor", 0.0}, {"swing_apex_rise", 0.0}};
   const PlanOutcome plain = plan_motion(r, flat, flat, o, 0.01);

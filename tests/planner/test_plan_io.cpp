@@ -322,7 +322,7 @@ TEST(StartState, MalformedStatesNameTheField) {
   }
 }
 
-// ProblemOptions::start_lead (issue #17): how far a re-plan's start lies ahead of the plan's state
+// ProblemOptions::start_lead: how far a re-plan's start lies ahead of the plan's state
 // at that time along the options' path line (a diagonal one here); 0 when behind it, beside it,
 // or without a line.
 TEST(StartLead, IsTheStartsLeadOverThePlanAlongThePathLine) {

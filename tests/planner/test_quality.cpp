@@ -1,4 +1,4 @@
-// plan.json's quality figures (planner/quality.hpp; issue #17) on made-up trajectories whose
+// plan.json's quality figures (planner/quality.hpp) on made-up trajectories whose
 // answers are known by construction.
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-// The CLI and the socket give the same answers to the same questions (issue #13): a cloud mapped by
+// The CLI and the socket give the same answers to the same questions: a cloud mapped by
 // `terrastride map` and pushed with map.update is cleaned alike (the service skipped the outlier
 // removal: heights 0.1485 vs 0.1533 for one cloud); a radius without a safety layer and a point
 // outside a scanned map are refused by both; `query --foot-radius -1` is an error, not 0.02; and

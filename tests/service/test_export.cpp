@@ -1,4 +1,4 @@
-// `terrastride export` (issue #21): the MCAP file is read back by an independent reader, @mcap/core
+// `terrastride export`: the MCAP file is read back by an independent reader, @mcap/core
 // (tests/service/mcap_check.js, service/report's Node toolchain), which decodes every message of
 // every channel, checks it against the Foxglove schema the file carries, validates the CRCs and
 // compares the message counts with what the plan and the simulation hold.

@@ -1,4 +1,4 @@
-// Off the benchmark's path (issue #15): every analytic scene x goals with a lateral offset, a yaw,
+// Off the benchmark's path: every analytic scene x goals with a lateral offset, a yaw,
 // a longer reach x crawl and trot, with `--constraints all`. Each request must end as a clean plan
 // (exit 0, every post-hoc check passed on the exact scene) or a clear failure: exit 4 with the
 // failed checks listed, or exit 3 naming the constraint families still violated. Never exit 0 with
@@ -35,7 +35,7 @@ TEST_P(OffPath, CleanPlanOrLoudFailure) {
                            " --constraints all --goal " + goal + " --max-time 30";
   const auto r = run_terrastride("plan " + args + " --json --out " + out.string());
   // The outcome, for the suite's clean / failed-loudly count (grep OFF_PATH in the test log), and
-  // a written plan's quality figures (issue #17's targets: mm and N per 10 ms).
+  // a written plan's quality figures (in the targets' units: mm and N per 10 ms).
   std::cout << "OFF_PATH " << scene << " " << gait << " " << goal << " exit " << r.code;
   if ((r.code == 0 || r.code == 4) && fs::exists(out)) {
     std::ifstream in(out);

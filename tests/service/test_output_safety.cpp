@@ -1,4 +1,4 @@
-// The CLI never destroys or corrupts a user's files (issue #13): output folders that hold anything
+// The CLI never destroys or corrupts a user's files: output folders that hold anything
 // terrastride did not write are refused before any work, --out is checked before the solve, links
 // are followed, and temporaries left by a kill -9 are removed by the next run.
 //

@@ -1,4 +1,4 @@
-// The pipeline's commands share their steps as library calls (issue #14): the report of clouds is
+// The pipeline's commands share their steps as library calls: the report of clouds is
 // the report of their `map` folder, and the demo's plan is the one `plan` makes on the demo's
 // terrain folder. Neither re-enters the command line, so these are what keeps them in step.
 #include <gtest/gtest.h>
@@ -97,7 +97,7 @@ TEST_F(PipelineTest, TheDemoPlansAsPlanDoesOnTheDemosTerrainFolder) {
   ASSERT_TRUE(plan.code == 0 || plan.code == 3 || plan.code == 4) << plan.code << "\n" << plan.err;
   json by_demo = read_json(out / "plan.json"), by_plan = read_json(dir_ / "plan.json");
   // The demo's plan names the terrain folder it is found in, as `plan --terrain DIR` does: never
-  // the temporary folder the demo wrote it in (issue #15).
+  // the temporary folder the demo wrote it in.
   EXPECT_EQ(by_demo["terrain"], (out / "terrain").string());
   EXPECT_EQ(by_demo["post_hoc"]["terrain"], by_plan["post_hoc"]["terrain"]);
   EXPECT_EQ(by_demo.dump().find(".tmp-"), std::string::npos);
@@ -114,7 +114,7 @@ TEST_F(PipelineTest, TheDemoPlansAsPlanDoesOnTheDemosTerrainFolder) {
 }
 
 // A demo whose plan is optimal but fails a post-hoc check exits as `plan` does on it: 4, naming
-// the failed checks (it exited 3, "not optimal", before issue #15).
+// the failed checks (not 3, "not optimal").
 TEST_F(PipelineTest, TheDemoExitsFourWhenItsPlanFailsAPostHocCheck) {
   const fs::path out = dir_ / "demo_baseline";
   const auto demo = run_terrastride("demo --out " + shell_quote(out.string()) +

@@ -1,5 +1,5 @@
 // `terrastride plan` never exits 0 with a plan that fails a post-hoc check, and never plans from a
-// measured stance foot that is off the ground (issue #15, items 3 and 6).
+// measured stance foot that is off the ground.
 #include <gtest/gtest.h>
 #include <unistd.h>
 

@@ -336,7 +336,7 @@ TEST_F(ReportTest, BadInputsNameTheProblemAndWriteNothing) {
   EXPECT_FALSE(fs::exists(html));
 }
 
-// ---- What the report says is true (issue #15, item 8) ----
+// ---- What the report says is true ----
 
 // A 45-degree slope: next to no cell of it is a safe foothold (slope 1 > the 0.6 limit; 1.9 % at
 // its rim for a 2 cm foot). Its terrain rows

@@ -1,4 +1,4 @@
-// `report --batch` at scale (issue #21): scans committed one by one, killed runs resumed to the
+// `report --batch` at scale: scans committed one by one, killed runs resumed to the
 // very bytes of an uninterrupted run, shards running at once over one output folder, the index
 // rebuilt from what exists, exit codes that tell "some scans failed" from "could not run".
 // The 20-scan x 5-trial version of the kill test is scripts/batch/kill_resume_bench.sh.

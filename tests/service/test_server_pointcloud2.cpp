@@ -1,4 +1,4 @@
-// map.update with sensor_msgs/PointCloud2 payloads (issue #19): a robot pushes the bytes its
+// map.update with sensor_msgs/PointCloud2 payloads: a robot pushes the bytes its
 // driver publishes (a uint8 attachment "pointcloud2") with the sensor's pose. Through the socket:
 // the clouds of the bag fixtures (written by @foxglove/rosmsg2-serialization and Debian's
 // python3-rosbag, tests/fixtures/bags/README.md), each pushed with its pose from the bag's /tf,

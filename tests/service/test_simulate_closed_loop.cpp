@@ -1,4 +1,4 @@
-// `terrastride simulate --replan-every` (issue #22): the simulator's measured state re-planned by a
+// `terrastride simulate --replan-every`: the simulator's measured state re-planned by a
 // planning session, in this process or through a server's plan.session.* ops, and each new plan
 // tracked. A push that topples the open-loop run is survived with re-planning; re-plans go
 // through the socket; bad --via input is named.

@@ -1,4 +1,4 @@
-// `terrastride map RUN.mcap|.db3|.bag|RUN_DIR` end to end (issue #19): --list, a map with its bag summary,
+// `terrastride map RUN.mcap|.db3|.bag|RUN_DIR` end to end: --list, a map with its bag summary,
 // and the errors a user meets first.
 #include <gtest/gtest.h>
 

@@ -158,7 +158,7 @@ TEST_F(MapBuildTest, FailuresNameTheirStageAndAbandonTheBuild) {
 
 // Points on cell boundaries (a 0.1 m lattice on a 2 cm grid) find the same cell in a map kept in
 // memory and in the same map read back from its folder: `terrastride query` on a folder and the
-// socket's map.update of the same cloud answer `observed` alike (issue #14).
+// socket's map.update of the same cloud answer `observed` alike.
 TEST_F(MapBuildTest, TheFolderAnswersLikeTheMapInMemoryOnCellBoundaries) {
   const std::string cloud = std::string(TERRASTRIDE_TEST_DATA_DIR) + "/scans/pallet_10.pcd";
   terrain::MapInput input = terrain::read_map_clouds({cloud}, std::nullopt);

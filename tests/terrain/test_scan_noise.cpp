@@ -1,4 +1,4 @@
-// Terrain models that are right on real noise (issue #15, items 1 and 7), built as `terrastride
+// Terrain models that are right on real noise, built as `terrastride
 // map` builds them (build_terrain_map: the default cleaning, no OctoMap): the real noisy floor at
 // 2 and 5 cm, the grated stairs, the maze, the shipped pallet scans, a cloud too sparse or too
 // vertical for a noise figure, and the one safe fraction. Real scans come from ../shared/scans (see

@@ -1,4 +1,4 @@
-// "lateral_corridor" (issue #17; in "all", on when `lateral_corridor` = w > 0): the base stays
+// "lateral_corridor" (in "all", on when `lateral_corridor` = w > 0): the base stays
 // within +-w of the straight line from its start to its goal. The zero-objective solve's first
 // feasible point swayed the base 48-206 mm off that line on the benchmark scenes; a crawl needs
 // its centre of mass inside each support triangle, which a couple of centimetres of sway give.

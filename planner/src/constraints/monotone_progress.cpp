@@ -1,4 +1,4 @@
-// "monotone_progress" (issue #17; in "all", on when `monotone_progress` = 1): the base never moves
+// "monotone_progress" (in "all", on when `monotone_progress` = 1): the base never moves
 // back along the line from its start to its goal. A zero-objective solve takes the first feasible
 // point, and on the pallets that point stepped the base back 28-78 mm (the demo 70 mm) to make
 // room for a foot; a robot engineer reads a walk to a goal ahead that backs up as a fault.

@@ -8,7 +8,7 @@
 // terrain by the capsule radius over the cosine of the shin's actual inclination. The paper's
 // fixed beta is a heuristic: measured on our pallet plans, a hind shin flattens to ~30 deg when
 // the base moves on over a foot planted before the step, and the knee is ~0.33 m from the foot,
-// so the fixed-beta rows hold while the real shin hits the edge (see the issue #5 report).
+// so the fixed-beta rows hold while the real shin hits the edge (docs/design.md §6.4).
 // Imposed at every knot of the base spline (value-only, few columns), in stance and in swing: a
 // foot lifting off beside an edge keeps its shin there for a few hundredths of a second (measured
 // on pallet_15 with stance knots only: the RH shin 0.04 s after lift-off touched the edge). With

@@ -1,4 +1,4 @@
-// A re-plan from a measured state that already lies outside a row's bound (issue #22: after a push
+// A re-plan from a measured state that already lies outside a row's bound (measured after a push:
 // a joint 0.08-0.38 rad past its range, a foot 8 cm outside its range-of-motion box). Its knot 0
 // is pinned to the measurement, so the rows there are constants; SrbdProblem::add_piece leaves the
 // violated ones out and reports them. The same family's rows at the next knots would still ask for
@@ -46,7 +46,7 @@ inline double start_return_weight(double t, double span) {
 // before the end, rising to 1 towards it; 0 at the end itself, whose rows are constants (a
 // violated one is left out by add_piece; one within its bound keeps it), and 0 at knot 0, a
 // measured start's constants, which a horizon shorter than `span` would otherwise widen (and
-// so hide part of the start's own excess from start_excess; review, session 14).
+// so hide part of the start's own excess from start_excess).
 inline double end_return_weight(double t, double t_end, double span) {
   if (!(span > 0.0) || !(t > 0.0) || !(t < t_end - 1e-9)) return 0.0;
   return std::max(0.0, 1.0 - (t_end - t) / span);

@@ -1,4 +1,4 @@
-// "swing_apex" (issue #17; in "all", on when `swing_apex_rise` = h > 0): a swing foot rises at
+// "swing_apex" (in "all", on when `swing_apex_rise` = h > 0): a swing foot rises at
 // most h above the higher of its lift-off and touch-down points. The swing clearance rows bound
 // the foot from below only, and the zero-objective solve's first feasible point lifted feet
 // 103-302 mm above both ends of their swings: wasted time and torque, and a leg a controller

@@ -1,5 +1,5 @@
 // The objective of the SRBD problem: small sums of squares that pick, among the feasible motions,
-// one a robot engineer accepts (issue #17). Each term is one file here, its pieces of kind
+// one a robot engineer accepts. Each term is one file here, its pieces of kind
 // "cost_TERM", added with SrbdProblem::add_cost; the objective is the sum of the squares of their
 // rows (SrbdProblem::eval_objective). Every term is dimensionless and integrated over time, so its
 // weight (ProblemOptions::objective, ObjectiveWeights) says how much it matters:

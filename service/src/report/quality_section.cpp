@@ -1,7 +1,7 @@
-// The plan's quality (issue #17; planner/quality.hpp): how natural the motion is, as rows of the
+// The plan's quality (planner/quality.hpp): how natural the motion is, as rows of the
 // plan's summary table and as the plan's "quality" object. Computed from the samples, so a plan
 // file from before the quality block has them too; the energy proxy is the torque check's.
-// Figures beyond the issue's targets are notes, not problems: a plan can be feasible and safe
+// Figures beyond the quality targets are notes, not problems: a plan can be feasible and safe
 // and still move less calmly than it could.
 #include <cmath>
 

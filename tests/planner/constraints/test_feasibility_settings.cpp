@@ -64,7 +64,7 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
   EXPECT_EQ(leg.leg_clearance_points, 2);
   EXPECT_EQ(leg.thigh_points, 6);
   EXPECT_EQ(feasibility_options({{"trunk_margin", 0.05}}).trunk_margin, 0.05);
-  // The path-shape families' settings (issue #17): off by default, validated.
+  // The path-shape families' settings: off by default, validated.
   const FeasibilityOptions shape = feasibility_options(
       {{"monotone_progress", 1.0}, {"lateral_corridor", 0.02}, {"swing_apex_rise", 0.1}});
   EXPECT_EQ(shape.monotone_progress, 1);
@@ -84,7 +84,7 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
     }
   }
   // force_rate_max (force_ramp) the 17th; monotone_progress, lateral_corridor, swing_apex_rise;
-  // joints_softmax (#18); replan_path_shape (#17); start_return (#22)
+  // joints_softmax; replan_path_shape; start_return
   EXPECT_EQ(feasibility_options({{"start_return", 0.5}}).start_return, 0.5);
   EXPECT_EQ(feasibility_option_names().size(), 23u);
 }

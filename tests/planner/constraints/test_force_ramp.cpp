@@ -1,4 +1,4 @@
-// "force_ramp" (constraints/force_ramp.cpp and the layout's missing force knots; issue #17):
+// "force_ramp" (constraints/force_ramp.cpp and the layout's missing force knots):
 // which force knots the layout leaves out, the rate rows' Jacobian against central differences,
 // and the rows against the force change over each stance segment.
 #include "family_test.hpp"

@@ -1,4 +1,4 @@
-// "lateral_corridor" (constraints/lateral_corridor.cpp; issue #17): Jacobians against central
+// "lateral_corridor" (constraints/lateral_corridor.cpp): Jacobians against central
 // differences (fixed and optimised timing), the rows against the base spline's Bezier control
 // points' offsets across the start-to-goal line (a diagonal one), and no rows when off.
 #include "family_test.hpp"
@@ -134,7 +134,7 @@ TEST(LateralCorridor, NoConstantRowsWithAPinnedEnd) {
   EXPECT_GT(rows, 20);
 }
 
-// On by default since session 14 (issue #17); the setting 0 turns it off.
+// On by default; the setting 0 turns it off.
 TEST(LateralCorridor, OnByDefaultOffAtZero) {
   const auto r = hyq();
   FlatField flat;

@@ -1,4 +1,4 @@
-// "monotone_progress" (constraints/monotone_progress.cpp; issue #17): Jacobians against central
+// "monotone_progress" (constraints/monotone_progress.cpp): Jacobians against central
 // differences (fixed and optimised timing), the rows against the base spline's Bezier control
 // points along the start-to-goal line, and no rows when the setting is off.
 #include "family_test.hpp"
@@ -68,7 +68,7 @@ TEST(MonotoneProgress, RowsAreTheControlPointDifferencesAlongTheGoalLine) {
   }
 }
 
-// A re-plan from a state ahead of its motion (ProblemOptions::start_lead, issue #17): the knots'
+// A re-plan from a state ahead of its motion (ProblemOptions::start_lead): the knots'
 // velocity rows within the first second are bounded by -u instead of 0 and the middle rows carry
 // + h u / 3 (the middle velocity control point >= -u), u = lead / the end time of the last such
 // segment, so the base gives back at most the lead; later rows as without a lead. Derivatives
@@ -128,7 +128,7 @@ TEST(MonotoneProgress, AStartAheadOfItsMotionMayGiveItsLeadBack) {
   EXPECT_GE(n, 3);
 }
 
-// The re-plan rule (FeasibilityOptions::replan_path_shape, issue #17): a problem from a given
+// The re-plan rule (FeasibilityOptions::replan_path_shape): a problem from a given
 // start state (a planning session's step, `plan --init`) carries none of the three path-shape
 // families unless replan_path_shape = 1; a plan from rest carries them whatever that setting.
 TEST(PathShape, AReplanFromAStateCarriesTheRowsOnlyWhenAsked) {
@@ -158,7 +158,7 @@ TEST(PathShape, AReplanFromAStateCarriesTheRowsOnlyWhenAsked) {
   }
 }
 
-// On by default since session 14 (issue #17); the setting 0 turns it off.
+// On by default; the setting 0 turns it off.
 TEST(MonotoneProgress, OnByDefaultOffAtZeroAndWithoutAGoal) {
   const auto r = hyq();
   FlatField flat;

@@ -1,4 +1,4 @@
-// "rest_boundary" (constraints/rest_boundary.cpp; issue #17): Jacobian against central
+// "rest_boundary" (constraints/rest_boundary.cpp): Jacobian against central
 // differences, and the rows against the base's accelerations at the plan's ends as the problem's
 // own solution evaluation gives them; a re-plan from a state gets the end rows only.
 #include "family_test.hpp"

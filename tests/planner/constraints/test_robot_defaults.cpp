@@ -1,4 +1,4 @@
-// The planner defaults that follow the robot (issue #20): the swing set's acceleration bound from
+// The planner defaults that follow the robot: the swing set's acceleration bound from
 // the swing legs' torque budget (feasibility.hpp, robot_swing_acceleration) and the number of
 // gait cycles for a goal (planner.hpp, default_cycles). HyQ's stay what they were.
 #include <gtest/gtest.h>

@@ -1,5 +1,5 @@
 // A re-plan from a measured state outside a joint's range and a foot's range-of-motion box
-// (SrbdProblem::add_piece, constraints/start_return.hpp; issue #22): the rows on the pinned start
+// (SrbdProblem::add_piece, constraints/start_return.hpp): the rows on the pinned start
 // alone are left out and reported, the joints and range_of_motion rows after it get the start's
 // excess as room, shrinking to nothing over start_return, and their Jacobians still match central
 // differences. A start within the bounds (and every cold plan) keeps its rows as they were. A

@@ -1,4 +1,4 @@
-// "swing_apex" (constraints/swing_apex.cpp; issue #17): Jacobians against central differences
+// "swing_apex" (constraints/swing_apex.cpp): Jacobians against central differences
 // (fixed and optimised timing), the rows against the swing foot spline's Bezier control points'
 // heights above the higher end of the swing, and no rows when off.
 #include <algorithm>
@@ -98,7 +98,7 @@ TEST(SwingApex, RowsAreTheControlPointsHeightsAboveTheHigherEndOrTheTerrainPasse
   }
 }
 
-// On by default since session 14 (issue #17); the setting 0 turns it off.
+// On by default; the setting 0 turns it off.
 TEST(SwingApex, OnByDefaultOffAtZero) {
   const auto r = hyq();
   FlatField flat;

@@ -1,4 +1,4 @@
-// The objective's terms (planner/src/costs/; issue #17): each term's Jacobian against central
+// The objective's terms (planner/src/costs/): each term's Jacobian against central
 // differences, its value against an independent evaluation (the integral by fine quadrature of
 // the problem's own solution evaluation, or the deviation it measures), and the objective's
 // gradient against central differences of its value.

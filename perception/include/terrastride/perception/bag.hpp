@@ -1,4 +1,4 @@
-// Robot recordings as input (issue #19): ROS 2 bags (MCAP, sqlite3 .db3) and ROS 1 .bag files,
+// Robot recordings as input: ROS 2 bags (MCAP, sqlite3 .db3) and ROS 1 .bag files,
 // read message by message. The readers stream: an MCAP file is read one record (one chunk) at a
 // time, a .db3 one row at a time, a ROS 1 bag through librosbag_storage's chunked reader; memory
 // holds one chunk, not the file.

@@ -57,7 +57,7 @@ struct FeasibilityOptions {
   // shin: > 0 folds each stance segment's shin values (shin_points at each of its yaw points) into
   // ONE row, their soft minimum at this scale (m; feasibility::soft_min, <= the true minimum, so
   // the row implies every point's; at most scale * log(n) stricter: 7 mm for n = 30 points).
-  // 0: one row per point. Measured (issue #5, pallet_15 "all" on a loaded 2-core machine): rows
+  // 0: one row per point. Measured (pallet_15 "all" on a loaded 2-core machine): rows
   // 21,744 -> 9,968 with polytope_softmax, solve 28 s user / 57 iterations -> 3.6 s / 22.
   double shin_softmin = 0.002;
   // shin_ik, thigh: each point of a link's axis also reads the terrain this far (m) beyond the
@@ -104,7 +104,7 @@ struct FeasibilityOptions {
   // into one, the soft maximum at this scale (rad) of (q_j - q_max_j + margin, q_min_j + margin -
   // q_j): >= the true maximum, so the row implies every joint's bound, and at most scale * log(n)
   // stricter when n values are equally close (a joint's two sides never both are). Off by
-  // default (issue #18, measured): at 0.005 rad pallet_15 'all' has 12,299 rows instead of
+  // default (measured): at 0.005 rad pallet_15 'all' has 12,299 rows instead of
   // 14,035 and MUMPS's factor 0.98 M doubles instead of 1.14 M (-17 % CPU per factorisation;
   // the swing segments' merge is 0.14 M of it), but the iterations rose: the off-path suite's 25
   // clean requests 286 -> 308 (same exit codes, 25/0/11), its trots most (pallet_10 to 1,0.3,0.5
@@ -115,7 +115,7 @@ struct FeasibilityOptions {
   // nothing over this span (s; constraints/start_return.hpp, docs/design.md §6.7). A session
   // step's pinned end outside them (a foothold slipped in a stance lasting to it) likewise at the
   // knots before it, growing over the same span up to the end. 0: none.
-  // Measured on the pallet_15 `all` closed loop at 10 Hz (issue #22), right push 450 N: 0.1 s
+  // Measured on the pallet_15 `all` closed loop at 10 Hz, right push 450 N: 0.1 s
   // falls at 7.2 s, 0.25 s survives with 25 of 109 re-plans failed and 41.7 mm RMS, 0.5 s 18 and
   // 21.4 mm, 1 s 15 and 16.8 mm (left 300 N: 10 failed at each, pass only at 0.1 and 1 s).
   double start_return = 1.0;
@@ -125,7 +125,7 @@ struct FeasibilityOptions {
   // foot loads and unloads at most at this rate: 2000 N/s is 20 N per 10 ms sample, a quarter of
   // HyQ's weight in 0.1 s.
   double force_rate_max = 2000.0;
-  // The shape of the base and swing paths (issue #17; constraints/monotone_progress.cpp,
+  // The shape of the base and swing paths (constraints/monotone_progress.cpp,
   // lateral_corridor.cpp, swing_apex.cpp). Each bounds the splines' Bezier control points, so the
   // bound holds along the whole polynomial, not only at knots. 0 = off.
   // monotone_progress: 1 = the base never moves back along the start-to-goal line.
@@ -164,7 +164,7 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options = 
 // The layout leaves out the force knots at touch-down and lift-off (zero force there); this adds
 // the force rate bound force_rate_max per stance segment (see constraints/force_ramp.cpp).
 void build_force_ramp_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
-// "monotone_progress", "lateral_corridor", "swing_apex" (in "all"; issue #17): the base path's and
+// "monotone_progress", "lateral_corridor", "swing_apex" (in "all"): the base path's and
 // the swing feet's shape, each on when its setting above is non-zero (no rows otherwise).
 void build_monotone_progress_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
 void build_lateral_corridor_set(SrbdProblem& problem, const FeasibilityOptions& options = {});

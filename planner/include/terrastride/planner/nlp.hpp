@@ -91,7 +91,7 @@ class SrbdProblem {
   // Adds the piece's rows. A re-plan from a measured state (a start state given) pins knot 0 to
   // the measurement, so a piece on fixed variables only is a constant there: one the measurement
   // already violates (e.g. a joint past its range after a push) no solve can repair, and imposed it
-  // made the step infeasible by construction (issue #22). Such a piece is not added: its excess is
+  // made the step infeasible by construction. Such a piece is not added: its excess is
   // recorded in start_excess() instead (in end_excess() when only a pinned horizon end makes it
   // constant). Cold plans, and constant pieces within their bounds, are added as before.
   void add_piece(std::unique_ptr<Piece> piece);

@@ -91,7 +91,7 @@ struct ProblemOptions {
   // order over the defaults; feasibility_options() validates them.
   std::vector<std::pair<std::string, double>> feasibility_settings;
   // The straight line the base path is shaped along (monotone_progress, lateral_corridor and the
-  // objective's lateral/progress terms; issue #17): (x, y) of its start and of its end. Unset:
+  // objective's lateral/progress terms): (x, y) of its start and of its end. Unset:
   // the plan's own start-to-goal line (its cold guess's first and last base knots). A re-plan of
   // a motion sets it to the motion's line (planning sessions, warm re-plans: the plan they
   // continue, from its first base position to its goal), so every step follows one line; drawn
@@ -106,7 +106,7 @@ struct ProblemOptions {
   // standing still ahead of its feet. 0 (cold plans, starts on the plan): never back.
   double start_lead = 0.0;
 
-  // ---- Boundary conditions and the objective (issue #17) ----
+  // ---- Boundary conditions and the objective ----
   // A plan that starts from rest (no start state given: the nominal stance) and every plan's end
   // (velocities zero there already) also has zero base linear and Euler accelerations there, so
   // the forces balance gravity at both ends (constraints/rest_boundary.cpp). A re-plan from a
@@ -114,7 +114,7 @@ struct ProblemOptions {
   bool rest_boundaries = true;
   // The objective's weights (planner/src/costs/); 0 leaves a term out, all 0 (the default) gives
   // the zero-objective feasibility problem of the original design. ObjectiveWeights{} are the
-  // weights tuned in issue #17. Off by default because the optimum lies on the constraints'
+  // tuned weights. Off by default because the optimum lies on the constraints'
   // boundaries, which hold at the constraint points only: on pallet_15 "all" the HyQ shin capsule
   // then touched the pallet edge between knots (7 samples, -10.8 mm, post-hoc check), where the
   // feasibility point kept 1.8 mm. The shin_ik margin (or its points) must cover that first.

@@ -1,4 +1,4 @@
-// How natural a planned motion is, as a robot engineer would judge it (issue #17): figures read
+// How natural a planned motion is, as a robot engineer would judge it: figures read
 // from the plan's samples alone, written as plan.json's "quality" block, shown by the report and
 // printed by the scenario benchmark. The energy proxy needs the joint torques, so the post-hoc
 // torque check adds it (collision::TorqueReport::energy_proxy_J, key energy_proxy_J).
@@ -41,8 +41,9 @@ struct PlanQuality {
   // (a crawl's three-foot phases), the horizontal position of the base (the single rigid body's
   // centre of mass) against the convex hull of those feet: the smallest signed distance to the
   // lines of the hull's edges, positive inside (m). Its minimum and 10th percentile; absent
-  // (has_support_margin false) when no such sample exists (a trot, a pace, a bound). A crawl that sways less has less of it: what a push toward a swinging leg
-  // meets (issue #17, docs/design.md §6.4).
+  // (has_support_margin false) when no such sample exists (a trot, a pace, a bound). A crawl
+  // that sways less has less of it: what a push toward a swinging leg meets (docs/design.md
+  // §6.4).
   bool has_support_margin = false;
   double support_margin_min_m = 0.0, support_margin_p10_m = 0.0;
   // Every swing that lifts off and touches down within the plan, and the largest rise.

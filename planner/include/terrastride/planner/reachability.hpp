@@ -88,7 +88,7 @@ std::optional<RestingStance> end_stance(const SrbdProblem& problem);
 // Throws UnreachableRequest when the end stance cannot exist, or when a foot of a plan from rest
 // lies outside its range-of-motion box at the start (start values are fixed: no iteration can
 // repair them). A measured start outside it (a re-plan's) is not rejected: the rows after it
-// give it room back to the box (issue #22).
+// give it room back to the box.
 void require_reachable(const SrbdProblem& problem);
 
 }  // namespace terrastride::planner
