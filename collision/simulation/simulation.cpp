@@ -328,6 +328,10 @@ std::unique_ptr<Model> load_model(const std::string& xml) {
     // milliseconds, so concurrent simulations (the service's workers) load one at a time.
     static std::mutex load_mutex;
     const std::lock_guard<std::mutex> lock(load_mutex);
+    // MuJoCo's default warning handler prints and appends to MUJOCO_LOG.TXT in the working
+    // directory (an unstable run wrote one wherever `simulate` ran). The warnings that matter are
+    // counted in mjData::warning, which the run reads (became_unstable, the contact counts).
+    mju_user_warning = [](const char*) {};
     model->m = mj_loadXML(name, vfs.get(), error, sizeof(error));
   }
   mj_deleteVFS(vfs.get());
@@ -678,6 +682,35 @@ std::vector<Vector3d> nominal_stance(const robot::RobotModel& model) {
 }
 
 namespace {
+
+namespace {
+
+// MuJoCo has reset the state (time 0, the model's initial pose) after a non-finite or diverging
+// step at t: nothing after t was simulated, so nothing after it may be judged.
+void record_instability(const mjData* d, double t, SimulationReport* rep) {
+  rep->unstable = true;
+  rep->unstable_t = t;
+  rep->reasons.push_back("unstable simulation at t = " + fmt_short(t) +
+                         " s: MuJoCo found a non-finite or diverging " + unstable_what(d) +
+                         " (it resets the state or zeroes the controls then); the run stopped "
+                         "there");
+}
+
+// Figures that are not finite judge nothing: the run is unstable (a failure, never a pass or a
+// warning).
+void fail_non_finite_figures(double t0, SimulationReport* rep) {
+  const double figures[] = {rep->position_rms, rep->position_max, rep->tilt_max, rep->slip_max,
+                            rep->touchdown_error_max, rep->shin_impulse_max,
+                            rep->joint_limit_impulse_max, rep->trunk_impulse};
+  if (std::all_of(std::begin(figures), std::end(figures),
+                  [](double x) { return std::isfinite(x); }))
+    return;
+  rep->unstable = true;
+  rep->unstable_t = t0 + rep->duration;
+  rep->reasons.push_back("unstable simulation: its tracking or contact figures are not finite");
+}
+
+}  // namespace
 
 SimulationReport simulate(const robot::RobotModel& model, const planner::Trajectory& plan,
                           const terrain::HeightField& scene, const TerrainMjcf& terrain,
@@ -1117,14 +1150,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
         std::chrono::duration<double>(std::chrono::steady_clock::now() - step0).count();
     ++rep.steps;
     if (became_unstable(d)) {
-      // MuJoCo has reset the state (time 0, the model's initial pose): nothing after t was
-      // simulated, so nothing after it may be judged.
-      rep.unstable = true;
-      rep.unstable_t = t;
-      rep.reasons.push_back("unstable simulation at t = " + fmt_short(t) +
-                            " s: MuJoCo found a non-finite or diverging " + unstable_what(d) +
-                            " (it resets the state or zeroes the controls then); the run stopped "
-                            "there");
+      record_instability(d, t, &rep);
       break;
     }
     // Impulses of the step just taken (contact forces of the new state times dt).
@@ -1177,17 +1203,8 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
       }
 
   // Verdict. An unstable run judges nothing after its instability (stances it never reached,
-  // torques of a limp robot): it fails with that reason alone. Figures that are not finite judge
-  // nothing either: a failed run, never a pass or a warning.
-  const double figures[] = {rep.position_rms, rep.position_max, rep.tilt_max, rep.slip_max,
-                            rep.touchdown_error_max, rep.shin_impulse_max,
-                            rep.joint_limit_impulse_max, rep.trunk_impulse};
-  if (!rep.unstable && !std::all_of(std::begin(figures), std::end(figures),
-                                    [](double x) { return std::isfinite(x); })) {
-    rep.unstable = true;
-    rep.unstable_t = t0 + rep.duration;
-    rep.reasons.push_back("unstable simulation: its tracking or contact figures are not finite");
-  }
+  // torques of a limp robot): it fails with that reason alone.
+  if (!rep.unstable) fail_non_finite_figures(t0, &rep);
   if (rep.unstable) {
     rep.verdict = "fail";
     return rep;

@@ -181,14 +181,9 @@ void print_margin(const json& m) {
               << "                    lighter " << side(m["mass"]["lighter"]) << "\n";
 }
 
-void run_simulate(const SimulateCliOptions& o) {
-  if (!o.out.empty()) {
-    try {
-      perception::check_output_file(o.out);
-    } catch (const perception::InputError& e) {
-      throw CommandError(std::string("--out: ") + e.what());
-    }
-  }
+// The simulation's own options (--dt, --mass-scale, --friction, --push), each checked against the
+// simulator's limits and named when out of them.
+collision::SimulationOptions simulation_options_from(const SimulateCliOptions& o) {
   collision::SimulationOptions sim;
   sim.dt = o.dt;
   sim.mass_scale = o.mass_scale;
@@ -215,6 +210,18 @@ void run_simulate(const SimulateCliOptions& o) {
                          " N a push may have");
     sim.pushes.push_back({v[0], force, v[4]});
   }
+  return sim;
+}
+
+void run_simulate(const SimulateCliOptions& o) {
+  if (!o.out.empty()) {
+    try {
+      perception::check_output_file(o.out);
+    } catch (const perception::InputError& e) {
+      throw CommandError(std::string("--out: ") + e.what());
+    }
+  }
+  collision::SimulationOptions sim = simulation_options_from(o);
   if (!std::isfinite(o.replan_every) || o.replan_every < 0 || o.replan_every > 100)
     throw CommandError("--replan-every: must be within [0, 100] s (0 = open loop)");
   if (o.replan_every > 0 && o.replan_every < o.dt)
