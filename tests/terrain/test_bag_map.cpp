@@ -223,6 +223,29 @@ TEST(BagInput, NotABagAndBrokenBagsFailClearly) {
   }
 }
 
+// ROS 1 bags whose lengths or positions lie (tests/fuzz/make_file_seeds.py writes them): each is
+// an error naming the file and what is wrong, before librosbag sees it (a message length past
+// its chunk made librosbag read gigabytes past its buffer: SIGSEGV; others were read as if
+// whole). The tiny bags they are made from open.
+TEST(BagInput, HostileRos1BagsAreRefusedNamingTheProblem) {
+  const std::string seeds = std::string(TERRASTRIDE_SOURCE_DIR) + "/tests/fuzz/corpus_bag/";
+  for (const char* name : {"tiny_none.bag", "tiny_bz2.bag"})
+    EXPECT_EQ(perception::list_bag(seeds + name).topics.size(), 1u) << name;
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"huge_header_len.bag", "a record header of 4294967280 bytes runs past the end"},
+      {"huge_data_len.bag", "record data of 2147483647 bytes runs past the end"},
+      {"huge_chunk_size.bag", "a chunk claiming 4294967040 bytes uncompressed"},
+      {"chunk_size_mismatch.bag", "an uncompressed chunk of 222 bytes claiming 1048576"},
+      {"index_past_end.bag", "index position 1099511627776 is not the start of a record"},
+      {"chunk_info_past_end.bag", "chunk info naming byte 8589934592, where no chunk starts"},
+      {"index_offset_past_chunk.bag", "index entry 0 points at byte 1073741824 of its chunk"},
+      {"inner_header_len.bag", "a record header runs past the chunk's end"},
+      {"inner_data_len.bag", "record data runs past the chunk's end"},
+      {"fake_bz2.bag", "a bz2 chunk that does not decompress to the 222 bytes"}};
+  for (const auto& [name, problem] : cases)
+    expect_input_error([&] { perception::open_bag(seeds + name); }, {seeds + name, problem});
+}
+
 // SQLite opens a .db3 through a "file:" URI: a name with '?', '#', '%' or a space must still name
 // the file (it used to be cut at the '?' or decoded at the '%').
 TEST(BagInput, Db3WithUriCharactersInItsNameOpens) {
