@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -196,6 +197,70 @@ TEST(BagInput, CorruptChunkIsSkippedAndNamed) {
     // The scribble may also land in a record length: then the file's structure is broken, and
     // the error says where.
     EXPECT_NE(std::string(e.what()).find("bad.mcap"), std::string::npos) << e.what();
+  }
+}
+
+// The chunks of an MCAP file (opcode 0x06): where each starts, and where its CRC and its
+// compressed records lie.
+struct McapChunk {
+  size_t start, crc_at, records_at, records_len;
+};
+std::vector<McapChunk> mcap_chunks(const std::string& bytes) {
+  std::vector<McapChunk> chunks;
+  const auto u64 = [&](size_t at) {
+    uint64_t v;
+    std::memcpy(&v, bytes.data() + at, 8);
+    return static_cast<size_t>(v);
+  };
+  for (size_t pos = 8; pos + 9 <= bytes.size();) {
+    const auto opcode = static_cast<uint8_t>(bytes[pos]);
+    const size_t length = u64(pos + 1);
+    if (opcode == 0x06) {
+      const size_t content = pos + 9, crc_at = content + 24;
+      uint32_t compression_len;
+      std::memcpy(&compression_len, bytes.data() + crc_at + 4, 4);
+      const size_t records_len_at = crc_at + 8 + compression_len;
+      chunks.push_back({pos, crc_at, records_len_at + 8, u64(records_len_at)});
+    }
+    if (opcode == 0x0f || opcode == 0x02) break;  // DataEnd, Footer
+    pos += 9 + length;
+  }
+  return chunks;
+}
+
+// A chunk that fails its CRC, or whose compressed bytes are not zstd / lz4 at all, takes the
+// channels it defines with it: the error says which chunk is corrupt and why, rather than only
+// "no topic /points (PointCloud2 topics: none)".
+TEST(BagInput, CorruptChunksAreNamedWhenTheyHideTheTopics) {
+  ScratchDir dir;
+  for (const std::string fixture_name : {"scan_zstd.mcap", "scan_lz4.mcap"}) {
+    const std::string good = read_bytes(fixture(fixture_name));
+    const std::vector<McapChunk> chunks = mcap_chunks(good);
+    ASSERT_GT(chunks.size(), 2u) << fixture_name;
+    // Every chunk's CRC off by one bit.
+    std::string crc = good;
+    for (const auto& c : chunks) crc[c.crc_at] ^= 1;
+    const std::string crc_path = dir.file("crc_" + fixture_name);
+    std::ofstream(crc_path, std::ios::binary) << crc;
+    expect_input_error([&] { terrain::read_map_bags({crc_path}, both_lidars()); },
+                       {crc_path, "corrupt chunk at byte " + std::to_string(chunks[0].start),
+                        "CRC mismatch", "no topic /points"});
+    // Every chunk's compressed records replaced by bytes that are no compressed stream.
+    std::string fake = good;
+    for (const auto& c : chunks)
+      for (size_t k = 0; k < c.records_len; ++k) fake[c.records_at + k] = static_cast<char>(k * 7);
+    const std::string fake_path = dir.file("fake_" + fixture_name);
+    std::ofstream(fake_path, std::ios::binary) << fake;
+    expect_input_error([&] { terrain::read_map_bags({fake_path}, both_lidars()); },
+                       {fake_path, "corrupt chunk at byte " + std::to_string(chunks[0].start),
+                        "decompression failed", "no topic /points"});
+    // Only the first chunk corrupt (it defines the channels): named all the same.
+    std::string first = good;
+    first[chunks[0].crc_at] ^= 1;
+    const std::string first_path = dir.file("first_" + fixture_name);
+    std::ofstream(first_path, std::ios::binary) << first;
+    expect_input_error([&] { terrain::read_map_bags({first_path}, both_lidars()); },
+                       {first_path, "chunk at byte " + std::to_string(chunks[0].start)});
   }
 }
 
