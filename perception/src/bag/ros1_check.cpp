@@ -201,6 +201,9 @@ class Ros1Walk {
     field(r, "topic", 0);
     std::string bytes;
     if (data == nullptr) {
+      if (data_len > kMaxHeaderBytes)
+        fail(r.start, "a connection header of " + std::to_string(data_len) + " bytes (more than " +
+                          std::to_string(kMaxHeaderBytes) + ")");
       bytes.resize(data_len);
       read_at(data_at, bytes.data(), data_len);
       data = bytes.data();
