@@ -9,6 +9,8 @@
 #include <stdexcept>
 #include <utility>
 
+#include "terrastride/perception/octomap_input.hpp"
+
 namespace terrastride::collision {
 namespace {
 
@@ -210,23 +212,19 @@ std::shared_ptr<octomap::OcTree> voxelise_scene(const terrain::Scene& scene,
 }
 
 std::shared_ptr<octomap::OcTree> read_octomap(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error(path + ": cannot open the OctoMap file");
-  auto tree = std::make_shared<octomap::OcTree>(0.1);
+  // perception's reader walks the body before OctoMap reads it: a corrupt octomap.bt in a terrain
+  // folder is an error naming it, not a stack overflow in OctoMap's recursive reader.
   // OctoMap announces every binary read on std::cerr ("Reading binary octree type OcTree"); our
   // commands keep stderr for their own messages, so its chatter goes nowhere while it reads.
   std::streambuf* const cerr_buffer = std::cerr.rdbuf(nullptr);
-  bool read_ok = false;
+  std::shared_ptr<octomap::OcTree> tree;
   try {
-    read_ok = tree->readBinary(in);
+    tree = perception::read_octomap_file(path);
   } catch (...) {
     std::cerr.rdbuf(cerr_buffer);
     throw;
   }
   std::cerr.rdbuf(cerr_buffer);
-  if (!read_ok)
-    throw std::runtime_error(path + ": not a readable OctoMap binary (.bt) file");
-  if (tree->size() == 0) throw std::runtime_error(path + ": the OctoMap holds no voxels");
   return tree;
 }
 

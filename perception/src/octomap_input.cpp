@@ -9,9 +9,11 @@
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iomanip>
 #include <sstream>
 #include <unordered_map>
 #include <vector>
@@ -42,6 +44,8 @@ struct Header {
   std::string id;
   double res = 0;
   bool has_res = false;
+  uint64_t size = 0;  // the number of nodes the writer counted
+  bool has_size = false;
   size_t data_offset = 0;  // where the body begins
 };
 
@@ -68,6 +72,12 @@ Header parse_header(const std::string& path, const std::string& bytes,
       ls >> h.id;
     } else if (key == "res") {
       h.has_res = static_cast<bool>(ls >> h.res);
+    } else if (key == "size") {
+      std::string count;
+      ls >> count;
+      h.has_size = !count.empty() && count.size() <= 19 &&
+                   std::all_of(count.begin(), count.end(), [](char c) { return c >= '0' && c <= '9'; });
+      if (h.has_size) h.size = std::stoull(count);
     } else if (key == "data") {
       h.data_offset = p;
       return h;
@@ -95,6 +105,123 @@ void check_resolution(const std::string& path, const Header& h) {
                      " is not within [0.001, 10] m");
 }
 
+// OctoMap's readers trust the body: they recurse for as long as the node bits say "children
+// follow" (past the tree's 16 levels, and past the end of the data, where a failed read leaves
+// the last byte's bits in place: a body of 0xFF bytes recurses until the stack overflows), and
+// never check a read. So the body is walked here first, in OctoMap's own layout, and handed to
+// OctoMap only when it is exactly one well-formed tree of the size the header gives.
+constexpr unsigned kTreeDepth = 16;        // OctoMap's fixed depth: the leaves lie at depth 16
+constexpr uint64_t kMaxNodes = 1ull << 25;  // ~1 GB of OcTree nodes
+
+class BodyWalk {
+ public:
+  BodyWalk(const std::string& path, const std::string& bytes, size_t begin)
+      : path_(path), bytes_(bytes), pos_(begin) {}
+
+  // .bt: a node is two bytes of child flags, two bits per child (bit 2i and 2i+1 of byte i/4):
+  // 00 no child, 10 a free leaf, 01 an occupied leaf, 11 an inner node, whose own flags follow
+  // (depth first, after all eight flags of this node).
+  void binary_node(unsigned depth) {
+    need(2, depth);
+    const auto b0 = static_cast<uint8_t>(bytes_[pos_]), b1 = static_cast<uint8_t>(bytes_[pos_ + 1]);
+    const size_t at = pos_;
+    pos_ += 2;
+    bool inner[8] = {};
+    for (unsigned i = 0; i < 8; ++i) {
+      const unsigned bits = ((i < 4 ? b0 : b1) >> (2 * (i % 4))) & 3u;
+      if (bits == 0) continue;
+      add_node();
+      inner[i] = bits == 3;
+      if (inner[i] && depth + 1 >= kTreeDepth) deeper_than_the_tree(at, depth + 1);
+    }
+    for (unsigned i = 0; i < 8; ++i)
+      if (inner[i]) binary_node(depth + 1);
+  }
+
+  // .ot: a node is its data (`data_bytes`: the occupancy's float, a colour's three bytes), then
+  // one byte with a bit per existing child, whose nodes follow depth first.
+  void full_node(unsigned depth, size_t data_bytes) {
+    need(data_bytes + 1, depth);
+    float value;
+    std::memcpy(&value, bytes_.data() + pos_, sizeof value);
+    if (!std::isfinite(value))
+      throw InputError(path_ + ": corrupt OctoMap data at byte " + std::to_string(pos_) +
+                       ": a node's occupancy is not a finite number");
+    const size_t at = pos_ + data_bytes;
+    const auto children = static_cast<uint8_t>(bytes_[at]);
+    pos_ = at + 1;
+    if (children != 0 && depth >= kTreeDepth) deeper_than_the_tree(at, depth + 1);
+    for (unsigned i = 0; i < 8; ++i)
+      if (children & (1u << i)) {
+        add_node();
+        full_node(depth + 1, data_bytes);
+      }
+  }
+
+  // After the root: the body must end where the tree does, with as many nodes as the header says.
+  void finish(const Header& h) const {
+    if (pos_ != bytes_.size())
+      throw InputError(path_ + ": corrupt OctoMap: " + std::to_string(bytes_.size() - pos_) +
+                       " bytes after the end of the tree (at byte " + std::to_string(pos_) +
+                       " of " + std::to_string(bytes_.size()) + ")");
+    if (h.size != nodes_)
+      throw InputError(path_ + ": corrupt OctoMap: the header says " + std::to_string(h.size) +
+                       " nodes, the data holds " + std::to_string(nodes_));
+  }
+
+ private:
+  void need(size_t n, unsigned depth) const {
+    if (n > bytes_.size() - pos_)
+      throw InputError(path_ + ": the OctoMap data is truncated: a node at depth " +
+                       std::to_string(depth) + " needs " + std::to_string(n) + " bytes at byte " +
+                       std::to_string(pos_) + ", the file ends at byte " +
+                       std::to_string(bytes_.size()) + " (" + std::to_string(nodes_) +
+                       " nodes read)");
+  }
+  void add_node() {
+    if (++nodes_ > kMaxNodes)
+      throw InputError(path_ + ": the OctoMap holds more than " + std::to_string(kMaxNodes) +
+                       " nodes (about 1 GB in memory): refused");
+  }
+  [[noreturn]] void deeper_than_the_tree(size_t at, unsigned depth) const {
+    throw InputError(path_ + ": corrupt OctoMap data at byte " + std::to_string(at) +
+                     ": a node at depth " + std::to_string(depth) + " has children, but OctoMap "
+                     "trees are " + std::to_string(kTreeDepth) + " levels deep");
+  }
+
+  const std::string& path_;
+  const std::string& bytes_;
+  size_t pos_;
+  uint64_t nodes_ = 1;  // the root
+};
+
+// The bytes OctoMap reads: a header written here from the checked values (OctoMap parses a
+// header by whitespace-separated tokens, not by lines as parse_header does, so the file's own
+// header could be read differently), then the checked body.
+std::string canonical(const std::string& first_line, const std::string& id, const Header& h,
+                      const std::string& bytes) {
+  std::ostringstream out;
+  out << std::setprecision(17) << first_line << "\nid " << id << "\nsize " << h.size << "\nres "
+      << h.res << "\ndata\n";
+  std::string text = out.str();
+  text.append(bytes, h.data_offset, std::string::npos);
+  return text;
+}
+
+// The node data bytes of a full (.ot) file's tree type (OcTreeDataNode::readData and
+// ColorOcTreeNode::readData: the float log-odds, and a colour's r, g, b).
+size_t full_node_data_bytes(const std::string& id) {
+  return id == "ColorOcTree" ? sizeof(float) + 3 : sizeof(float);
+}
+
+void check_header(const std::string& path, const Header& h) {
+  check_type(path, h.id);
+  check_resolution(path, h);
+  if (!h.has_size)
+    throw InputError(path + ": OctoMap header without a node count ('size' line)");
+  if (h.size == 0) throw InputError(path + ": the OctoMap is empty (no nodes)");
+}
+
 // An occupancy tree of another node type as an OcTree, through OctoMap's binary stream (the
 // occupancy bits every .bt holds, pruned structure included): what octomap.bt keeps anyway.
 template <typename Tree>
@@ -117,39 +244,33 @@ std::unique_ptr<octomap::OcTree> read_octomap_file(const std::string& path) {
   const std::string ext = lower_extension(path);
   if (ext != ".bt" && ext != ".ot")
     throw InputError(path + ": not an OctoMap file name (expected .bt or .ot)");
-  const std::string bytes = read_file(path);
+  return read_octomap_bytes(path, read_file(path), ext == ".bt");
+}
+
+std::unique_ptr<octomap::OcTree> read_octomap_bytes(const std::string& path,
+                                                    const std::string& bytes, bool binary) {
   if (bytes.empty()) throw InputError(path + ": file is empty");
   std::unique_ptr<octomap::OcTree> tree;
-  if (ext == ".bt") {
+  if (binary) {
     const Header h = parse_header(path, bytes, "# Octomap OcTree binary file", "binary (.bt)");
-    check_type(path, h.id);
-    check_resolution(path, h);
-    // The bit stream does not depend on the tree type: read it as an OcTree. Only the header's
-    // id is rewritten, so OctoMap does not warn about a type mismatch.
-    std::string as_octree = "# Octomap OcTree binary file\nid OcTree\n";
-    {
-      // The keys other than id (size, res) as the file gives them.
-      std::istringstream hs(bytes.substr(0, h.data_offset));
-      std::string line;
-      std::getline(hs, line);
-      while (std::getline(hs, line))
-        if (line.rfind("id ", 0) != 0 && line.rfind("data", 0) != 0 && !line.empty() &&
-            line[0] != '#')
-          as_octree += line + "\n";
-    }
-    as_octree += "data\n";
-    as_octree.append(bytes, h.data_offset, std::string::npos);
-    std::istringstream in(as_octree, std::ios::in | std::ios::binary);
+    check_header(path, h);
+    BodyWalk walk(path, bytes, h.data_offset);
+    walk.binary_node(0);
+    walk.finish(h);
+    // The bit stream does not depend on the tree type: read it as an OcTree.
+    std::istringstream in(canonical("# Octomap OcTree binary file", "OcTree", h, bytes),
+                          std::ios::in | std::ios::binary);
     tree = std::make_unique<octomap::OcTree>(h.res);
-    // A truncated body leaves the stream failed (OctoMap returns false, or reads fewer nodes than
-    // the header's size).
     if (!tree->readBinary(in) || in.bad())
       throw InputError(path + ": the OctoMap binary data is truncated or corrupt");
   } else {
     const Header h = parse_header(path, bytes, "# Octomap OcTree file", "(.ot)");
-    check_type(path, h.id);
-    check_resolution(path, h);
-    std::istringstream in(bytes, std::ios::in | std::ios::binary);
+    check_header(path, h);
+    BodyWalk walk(path, bytes, h.data_offset);
+    walk.full_node(0, full_node_data_bytes(h.id));
+    walk.finish(h);
+    std::istringstream in(canonical("# Octomap OcTree file", h.id, h, bytes),
+                          std::ios::in | std::ios::binary);
     std::unique_ptr<octomap::AbstractOcTree> any(octomap::AbstractOcTree::read(in));
     if (!any) throw InputError(path + ": the OctoMap data is truncated or corrupt");
     if (auto* t = dynamic_cast<octomap::OcTree*>(any.get())) {

@@ -125,6 +125,87 @@ pcl::Indices remove_statistical_outliers(const pcl::PointCloud<pcl::PointXYZ>& c
   return kept;
 }
 
+// The bounding box of a PCL cloud.
+void bounds(const pcl::PointCloud<pcl::PointXYZ>& cloud, Eigen::Vector3f* lo, Eigen::Vector3f* hi) {
+  *lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
+  *hi = -*lo;
+  for (const auto& p : cloud.points) {
+    *lo = lo->cwiseMin(p.getVector3fMap());
+    *hi = hi->cwiseMax(p.getVector3fMap());
+  }
+}
+
+// The input point that stretches the cloud furthest along `axis`: the one furthest from the
+// median there (among the points the crop keeps). A grid too fine for the cloud's extent is
+// nearly always one far stray return, and naming it (index in the input, coordinates) tells the
+// user what to crop or clean, where the extent alone does not.
+std::string farthest_point(const PointCloud& cloud, const CloudFilterOptions& options, int axis) {
+  constexpr float kBig = std::numeric_limits<float>::max();
+  const Eigen::Vector3f lo = options.crop_min.value_or(Eigen::Vector3f::Constant(-kBig));
+  const Eigen::Vector3f hi = options.crop_max.value_or(Eigen::Vector3f::Constant(kBig));
+  const auto kept = [&](const Eigen::Vector3f& p) {
+    return p.allFinite() && (p.array() >= lo.array()).all() && (p.array() <= hi.array()).all();
+  };
+  std::vector<float> values;
+  for (const auto& p : cloud.points)
+    if (kept(p)) values.push_back(p[axis]);
+  if (values.empty()) return "";
+  std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
+  const double median = values[values.size() / 2];
+  size_t worst = 0;
+  double worst_distance = -1;
+  for (size_t i = 0; i < cloud.points.size(); ++i)
+    if (kept(cloud.points[i]) && std::abs(cloud.points[i][axis] - median) > worst_distance) {
+      worst = i;
+      worst_distance = std::abs(cloud.points[i][axis] - median);
+    }
+  const Eigen::Vector3f& p = cloud.points[worst];
+  const char axis_name = static_cast<char>('x' + axis);
+  return "point " + std::to_string(worst) + " (" + std::to_string(p.x()) + ", " +
+         std::to_string(p.y()) + ", " + std::to_string(p.z()) + ") lies " +
+         std::to_string(worst_distance) + " m from the cloud's median " + axis_name + " (" +
+         std::to_string(median) + ")";
+}
+
+// VoxelGrid indexes voxels with 32-bit integers and, when they would overflow, only prints a
+// warning and returns the cloud unfiltered; refuse instead so the caller learns about it.
+void check_voxel_grid_extent(const PointCloud& input, const pcl::PointCloud<pcl::PointXYZ>& current,
+                             const CloudFilterOptions& options, const std::string& name) {
+  Eigen::Vector3f lo, hi;
+  bounds(current, &lo, &hi);
+  const Eigen::Array3d cells =
+      ((hi - lo).cast<double>().array() / options.voxel_size).floor() + 1.0;
+  if (cells.prod() <= static_cast<double>(std::numeric_limits<int32_t>::max())) return;
+  int axis = 0;
+  cells.maxCoeff(&axis);
+  throw InputError(name + ": " + farthest_point(input, options, axis) + ": the cloud spans " +
+                   std::to_string(hi.x() - lo.x()) + " x " + std::to_string(hi.y() - lo.y()) +
+                   " x " + std::to_string(hi.z() - lo.z()) + " m, more than the " +
+                   std::to_string(std::numeric_limits<int32_t>::max()) + " voxels of size " +
+                   std::to_string(options.voxel_size) +
+                   " m a voxel grid can index; remove the point, crop, or use a larger voxel");
+}
+
+// PCL octree keys hold 31 levels: each axis spans at most 2^30 cells of the outlier voxel size.
+// Refuse a cloud that wide rather than let PCL fail.
+void check_outlier_octree_extent(const PointCloud& input,
+                                 const pcl::PointCloud<pcl::PointXYZ>& current,
+                                 const CloudFilterOptions& options, const std::string& name) {
+  Eigen::Vector3f lo, hi;
+  bounds(current, &lo, &hi);
+  const Eigen::Array3d cells = (hi - lo).cast<double>().array() / options.outlier_voxel;
+  int axis = 0;
+  if (cells.maxCoeff(&axis) <= double(1 << 30)) return;
+  const char axis_name = static_cast<char>('x' + axis);
+  throw InputError(name + ": " + farthest_point(input, options, axis) + ": the cloud spans " +
+                   std::to_string(hi[axis] - lo[axis]) + " m in " + axis_name +
+                   ", more than the 2^30 cells of the outlier voxel size " +
+                   std::to_string(options.outlier_voxel) + " m (" +
+                   std::to_string(double(1 << 30) * options.outlier_voxel) +
+                   " m) the outlier octree can index; remove the point, crop, or use a larger "
+                   "outlier voxel");
+}
+
 }  // namespace
 
 void filter_with_pcl(const PointCloud& cloud, const CloudFilterOptions& options,
@@ -155,23 +236,7 @@ void filter_with_pcl(const PointCloud& cloud, const CloudFilterOptions& options,
   s.after_crop = current->size();
 
   if (options.voxel_size > 0.0f && !current->empty()) {
-    // VoxelGrid indexes voxels with 32-bit integers and, when they would overflow, only prints a
-    // warning and returns the cloud unfiltered; refuse instead so the caller learns about it.
-    Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
-    Eigen::Vector3f hi = -lo;
-    for (const auto& p : current->points) {
-      lo = lo.cwiseMin(p.getVector3fMap());
-      hi = hi.cwiseMax(p.getVector3fMap());
-    }
-    const Eigen::Array3d cells =
-        ((hi - lo).cast<double>().array() / options.voxel_size).floor() + 1.0;
-    if (cells.prod() > static_cast<double>(std::numeric_limits<int32_t>::max())) {
-      throw InputError(name + ": voxel size " + std::to_string(options.voxel_size) +
-                       " m is too small for a cloud spanning " + std::to_string(hi.x() - lo.x()) +
-                       " x " + std::to_string(hi.y() - lo.y()) + " x " +
-                       std::to_string(hi.z() - lo.z()) +
-                       " m (too many voxels); use a larger voxel or crop first");
-    }
+    check_voxel_grid_extent(cloud, *current, options, name);
     pcl::VoxelGrid<pcl::PointXYZ> grid;
     grid.setLeafSize(options.voxel_size, options.voxel_size, options.voxel_size);
     grid.setInputCloud(current);
@@ -188,17 +253,7 @@ void filter_with_pcl(const PointCloud& cloud, const CloudFilterOptions& options,
     // centroid per occupied cell, and each cell's points are kept or dropped together. SOR then
     // costs per occupied cell instead of per point, and a dense patch near the sensor no longer
     // sets the neighbour-distance statistics for the sparse returns far away.
-    Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
-    Eigen::Vector3f hi = -lo;
-    for (const auto& p : current->points) {
-      lo = lo.cwiseMin(p.getVector3fMap());
-      hi = hi.cwiseMax(p.getVector3fMap());
-    }
-    // Octree keys hold 31 levels; refuse cells that small rather than let PCL fail.
-    if (((hi - lo).cast<double>().array() / options.outlier_voxel).maxCoeff() > double(1 << 30)) {
-      throw InputError(name + ": outlier voxel size " + std::to_string(options.outlier_voxel) +
-                       " m is too small for the cloud's extent");
-    }
+    check_outlier_octree_extent(cloud, *current, options, name);
     pcl::octree::OctreePointCloudPointVector<pcl::PointXYZ> octree(options.outlier_voxel);
     octree.setInputCloud(current);
     octree.addPointsFromInputCloud();

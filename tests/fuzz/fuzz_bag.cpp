@@ -4,6 +4,8 @@
 //   (records, chunks and their zstd/lz4 decompression and CRCs), list_bag and read_bag_clouds
 //   (tf buffer, interpolation, placing clouds).
 // - Input starting with SQLite's header: the same as a .db3 (rosbag2's schema through SQLite).
+// - Input starting with "#ROSBAG V2.0": the same as a ROS 1 .bag: the check of its records
+//   (ros1_check.cpp), then, in the regular suite's replay, librosbag through the module.
 // - Anything else: one message, decoded as sensor_msgs/PointCloud2 and tf2_msgs/TFMessage, in
 //   CDR and in ROS 1 serialisation, and its transforms looked up in a tf buffer.
 // Every failure must be an InputError; a decoded cloud must account for all its points. Build and
@@ -72,8 +74,10 @@ struct ScratchDir {
 
 const std::string& scratch(const char* extension) {
   static const ScratchDir dir;
-  static const std::string mcap = dir.path + "/in.mcap", db3 = dir.path + "/in.db3";
-  return std::strcmp(extension, ".mcap") == 0 ? mcap : db3;
+  static const std::string mcap = dir.path + "/in.mcap", db3 = dir.path + "/in.db3",
+                           bag = dir.path + "/in.bag";
+  if (std::strcmp(extension, ".mcap") == 0) return mcap;
+  return std::strcmp(extension, ".bag") == 0 ? bag : db3;
 }
 
 void exercise_file(std::string_view data, const char* extension) {
@@ -123,6 +127,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     exercise_file(bytes, ".mcap");
   else if (bytes.substr(0, kSqliteMagic.size()) == kSqliteMagic)
     exercise_file(bytes, ".db3");
+  else if (bytes.substr(0, 13) == "#ROSBAG V2.0\n")
+    exercise_file(bytes, ".bag");
   else
     exercise_message(bytes);
   return 0;

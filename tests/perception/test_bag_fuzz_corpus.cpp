@@ -23,7 +23,7 @@ TEST(BagFuzzCorpus, Replay) {
   std::vector<std::filesystem::path> inputs;
   for (const auto& e : std::filesystem::directory_iterator(root / "tests/fuzz/corpus_bag"))
     inputs.push_back(e.path());
-  for (const char* f : {"scan_zstd.mcap", "scan_lz4.mcap", "scan.db3"})
+  for (const char* f : {"scan_zstd.mcap", "scan_lz4.mcap", "scan.db3", "scan.bag"})
     inputs.push_back(root / "tests/fixtures/bags" / f);
   int n = 0;
   for (const auto& path : inputs) {
@@ -42,7 +42,7 @@ TEST(BagFuzzCorpus, Replay) {
     }
     ++n;
   }
-  EXPECT_GE(n, 12);
+  EXPECT_GE(n, 24);
 }
 
 }  // namespace

@@ -153,7 +153,7 @@ TEST(FilterCloud, OutlierRemovalByVoxelDropsFarOutliersKeepsTreads) {
   o.outlier_voxel = -0.01f;
   expect_input_error([&] { filter_cloud(c, o); }, {"outlier voxel"});
   o.outlier_voxel = 1e-12f;
-  expect_input_error([&] { filter_cloud(c, o); }, {"too small"});
+  expect_input_error([&] { filter_cloud(c, o); }, {"outlier voxel size", "from the cloud's median"});
 }
 
 TEST(FilterCloud, StagesChainInOrder) {
@@ -172,6 +172,32 @@ TEST(FilterCloud, StagesChainInOrder) {
   EXPECT_EQ(out.points.size(), s.after_outliers);
 }
 
+// One far stray return in a 1 m patch: the default outlier voxel (1 cm) cannot index a cloud
+// 2e7 m wide. The refusal names that point (input index, coordinates) and the limit it breaks,
+// not only the cloud's extent; so does the voxel grid's.
+TEST(FilterCloud, FarOutlierIsNamedByIndexAndCoordinates) {
+  PointCloud c;
+  c.source = "stray.pcd";
+  for (int i = 0; i < 20; ++i)
+    for (int j = 0; j < 20; ++j) c.points.emplace_back(0.05f * i, 0.05f * j, 0.0f);
+  c.points.insert(c.points.begin() + 7, Eigen::Vector3f(0.1f, 2e7f, 0.0f));  // index 7
+  CloudFilterOptions o = default_map_cleaning();
+  expect_input_error([&] { filter_cloud(c, o); },
+                     {"stray.pcd", "point 7 (0.100000, 20000000.000000, 0.000000)",
+                      "from the cloud's median y", "2^30 cells", "outlier voxel size 0.010000"});
+  // A crop that excludes the stray point leaves a cloud the octree can index.
+  o.crop_max = Eigen::Vector3f(10, 10, 10);
+  EXPECT_NO_THROW(filter_cloud(c, o));
+  // The voxel grid's limit, on a stray point in z (index 0).
+  o = {};
+  o.voxel_size = 1e-4f;
+  c.points[7] = Eigen::Vector3f(0.1f, 0.1f, 0.0f);
+  c.points[0] = Eigen::Vector3f(0.0f, 0.0f, -5e6f);
+  expect_input_error([&] { filter_cloud(c, o); },
+                     {"stray.pcd", "point 0 (0.000000, 0.000000, -5000000.000000)",
+                      "median z", "voxels of size 0.000100"});
+}
+
 TEST(FilterCloud, InvalidOptionsNameTheCloud) {
   PointCloud c;
   c.source = "scan42.pcd";
@@ -183,7 +209,7 @@ TEST(FilterCloud, InvalidOptionsNameTheCloud) {
   expect_input_error([&] { filter_cloud(c, o); }, {"scan42.pcd", "voxel size"});
   o = {};
   o.voxel_size = 1e-5f;  // 1e8 voxels per axis: PCL's int indices would overflow
-  expect_input_error([&] { filter_cloud(c, o); }, {"scan42.pcd", "too small"});
+  expect_input_error([&] { filter_cloud(c, o); }, {"scan42.pcd", "voxels of size"});
   o = {};
   o.crop_min = Eigen::Vector3f(1, 0, 0);
   o.crop_max = Eigen::Vector3f(0, 1, 1);

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -199,6 +200,70 @@ TEST(BagInput, CorruptChunkIsSkippedAndNamed) {
   }
 }
 
+// The chunks of an MCAP file (opcode 0x06): where each starts, and where its CRC and its
+// compressed records lie.
+struct McapChunk {
+  size_t start, crc_at, records_at, records_len;
+};
+std::vector<McapChunk> mcap_chunks(const std::string& bytes) {
+  std::vector<McapChunk> chunks;
+  const auto u64 = [&](size_t at) {
+    uint64_t v;
+    std::memcpy(&v, bytes.data() + at, 8);
+    return static_cast<size_t>(v);
+  };
+  for (size_t pos = 8; pos + 9 <= bytes.size();) {
+    const auto opcode = static_cast<uint8_t>(bytes[pos]);
+    const size_t length = u64(pos + 1);
+    if (opcode == 0x06) {
+      const size_t content = pos + 9, crc_at = content + 24;
+      uint32_t compression_len;
+      std::memcpy(&compression_len, bytes.data() + crc_at + 4, 4);
+      const size_t records_len_at = crc_at + 8 + compression_len;
+      chunks.push_back({pos, crc_at, records_len_at + 8, u64(records_len_at)});
+    }
+    if (opcode == 0x0f || opcode == 0x02) break;  // DataEnd, Footer
+    pos += 9 + length;
+  }
+  return chunks;
+}
+
+// A chunk that fails its CRC, or whose compressed bytes are not zstd / lz4 at all, takes the
+// channels it defines with it: the error says which chunk is corrupt and why, rather than only
+// "no topic /points (PointCloud2 topics: none)".
+TEST(BagInput, CorruptChunksAreNamedWhenTheyHideTheTopics) {
+  ScratchDir dir;
+  for (const std::string fixture_name : {"scan_zstd.mcap", "scan_lz4.mcap"}) {
+    const std::string good = read_bytes(fixture(fixture_name));
+    const std::vector<McapChunk> chunks = mcap_chunks(good);
+    ASSERT_GT(chunks.size(), 2u) << fixture_name;
+    // Every chunk's CRC off by one bit.
+    std::string crc = good;
+    for (const auto& c : chunks) crc[c.crc_at] ^= 1;
+    const std::string crc_path = dir.file("crc_" + fixture_name);
+    std::ofstream(crc_path, std::ios::binary) << crc;
+    expect_input_error([&] { terrain::read_map_bags({crc_path}, both_lidars()); },
+                       {crc_path, "corrupt chunk at byte " + std::to_string(chunks[0].start),
+                        "CRC mismatch", "no topic /points"});
+    // Every chunk's compressed records replaced by bytes that are no compressed stream.
+    std::string fake = good;
+    for (const auto& c : chunks)
+      for (size_t k = 0; k < c.records_len; ++k) fake[c.records_at + k] = static_cast<char>(k * 7);
+    const std::string fake_path = dir.file("fake_" + fixture_name);
+    std::ofstream(fake_path, std::ios::binary) << fake;
+    expect_input_error([&] { terrain::read_map_bags({fake_path}, both_lidars()); },
+                       {fake_path, "corrupt chunk at byte " + std::to_string(chunks[0].start),
+                        "decompression failed", "no topic /points"});
+    // Only the first chunk corrupt (it defines the channels): named all the same.
+    std::string first = good;
+    first[chunks[0].crc_at] ^= 1;
+    const std::string first_path = dir.file("first_" + fixture_name);
+    std::ofstream(first_path, std::ios::binary) << first;
+    expect_input_error([&] { terrain::read_map_bags({first_path}, both_lidars()); },
+                       {first_path, "chunk at byte " + std::to_string(chunks[0].start)});
+  }
+}
+
 TEST(BagInput, NotABagAndBrokenBagsFailClearly) {
   ScratchDir dir;
   for (const std::string name : {"text.mcap", "text.db3", "text.bag"}) {
@@ -221,6 +286,29 @@ TEST(BagInput, NotABagAndBrokenBagsFailClearly) {
   } catch (const perception::InputError& e) {
     EXPECT_NE(std::string(e.what()).find("cut.db3"), std::string::npos) << e.what();
   }
+}
+
+// ROS 1 bags whose lengths or positions lie (tests/fuzz/make_file_seeds.py writes them): each is
+// an error naming the file and what is wrong, before librosbag sees it (a message length past
+// its chunk made librosbag read gigabytes past its buffer: SIGSEGV; others were read as if
+// whole). The tiny bags they are made from open.
+TEST(BagInput, HostileRos1BagsAreRefusedNamingTheProblem) {
+  const std::string seeds = std::string(TERRASTRIDE_SOURCE_DIR) + "/tests/fuzz/corpus_bag/";
+  for (const char* name : {"tiny_none.bag", "tiny_bz2.bag"})
+    EXPECT_EQ(perception::list_bag(seeds + name).topics.size(), 1u) << name;
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"huge_header_len.bag", "a record header of 4294967280 bytes runs past the end"},
+      {"huge_data_len.bag", "record data of 2147483647 bytes runs past the end"},
+      {"huge_chunk_size.bag", "a chunk claiming 4294967040 bytes uncompressed"},
+      {"chunk_size_mismatch.bag", "an uncompressed chunk of 222 bytes claiming 1048576"},
+      {"index_past_end.bag", "index position 1099511627776 is not the start of a record"},
+      {"chunk_info_past_end.bag", "chunk info naming byte 8589934592, where no chunk starts"},
+      {"index_offset_past_chunk.bag", "index entry 0 points at byte 1073741824 of its chunk"},
+      {"inner_header_len.bag", "a record header runs past the chunk's end"},
+      {"inner_data_len.bag", "record data runs past the chunk's end"},
+      {"fake_bz2.bag", "a bz2 chunk that does not decompress to the 222 bytes"}};
+  for (const auto& [name, problem] : cases)
+    expect_input_error([&] { perception::open_bag(seeds + name); }, {seeds + name, problem});
 }
 
 // SQLite opens a .db3 through a "file:" URI: a name with '?', '#', '%' or a space must still name

@@ -4,8 +4,12 @@
 
 #include <unistd.h>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "support/run_command.hpp"
 
@@ -52,6 +56,62 @@ TEST(OctomapCli, PlanOnAnOctomapFile) {
   // the planner's own affair, e.g. a joint at its limit, not the terrain input's).
   EXPECT_TRUE(r.code == 0 || r.code == 4) << r.err;
   if (r.code == 4) EXPECT_NE(r.err.find("post-hoc check"), std::string::npos) << r.err;
+}
+
+// A corrupt OctoMap, given as the map input or as a terrain folder's octomap.bt, is exit 1 with an
+// error naming the file: a body of 0xFF bytes made OctoMap's recursive reader overflow the stack
+// (exit 139) in `map`, and in `plan`, `check`, `report` and `export` with `--terrain DIR`.
+TEST(OctomapCli, CorruptOctomapsAreExitOneNamingTheFile) {
+  const fs::path dir = fs::temp_directory_path() / ("terrastride_octomap_corrupt_" +
+                                                    std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const auto run = [](const std::string& args) {
+    return terrastride::test_support::run_terrastride(args);
+  };
+  auto r = run("map " + fixture() + " --out " + (dir / "map").string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::ifstream in(dir / "map" / "octomap.bt", std::ios::binary);
+  const std::string good((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string head = good.substr(0, good.find("\ndata\n") + 6);
+  std::string random(2000, '\0');
+  for (size_t k = 0; k < random.size(); ++k) random[k] = static_cast<char>((k * 2654435761u) >> 13);
+  r = run("plan --terrain flat --duration 2.4 --goal 0.3,0,0 --out " + (dir / "plan.json").string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string plan = (dir / "plan.json").string();
+  for (const auto& [name, bytes] : std::vector<std::pair<std::string, std::string>>{
+           // 4 MB: OctoMap recursed once per 2 bytes until the stack overflowed (exit 139).
+           {"ff", head + std::string(1 << 22, '\xff')},
+           {"random", head + random},
+           {"cut", good.substr(0, good.size() - 10)},
+           {"trailing", good + "trailing bytes"}}) {  // was read as if whole
+    SCOPED_TRACE(name);
+    const fs::path bt = dir / (name + ".bt");
+    std::ofstream(bt, std::ios::binary) << bytes;
+    r = run("map " + bt.string() + " --out " + (dir / (name + "_map")).string());
+    EXPECT_EQ(r.code, 1) << r.err;
+    EXPECT_NE(r.err.find(bt.string()), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(dir / (name + "_map")));
+    // The same bytes as a terrain folder's octomap.bt.
+    const fs::path terrain = dir / (name + "_terrain");
+    fs::copy(dir / "map", terrain, fs::copy_options::recursive);
+    std::ofstream(terrain / "octomap.bt", std::ios::binary) << bytes;
+    const std::string t = " --terrain " + terrain.string();
+    for (const std::string& command :
+         {"plan" + t + " --start 0.05,0,0 --goal 0.3,0,0 --out " + (dir / "never.json").string(),
+          "check " + plan + t,
+          "report" + t + " --out " + (dir / "never.html").string(),
+          "export" + t + " --out " + (dir / "never.mcap").string()}) {
+      r = run(command);
+      EXPECT_EQ(r.code, 1) << command << "\n" << r.err;
+      EXPECT_NE(r.err.find((terrain / "octomap.bt").string()), std::string::npos)
+          << command << "\n" << r.err;
+    }
+  }
+  EXPECT_FALSE(fs::exists(dir / "never.json"));
+  EXPECT_FALSE(fs::exists(dir / "never.html"));
+  EXPECT_FALSE(fs::exists(dir / "never.mcap"));
+  fs::remove_all(dir);
 }
 
 }  // namespace

@@ -119,6 +119,108 @@ TEST(OctomapInput, RefusesOtherTreesAndBrokenFiles) {
                      {"free.bt", "no occupied voxel"});
 }
 
+std::string slurp(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream whole;
+  whole << in.rdbuf();
+  return whole.str();
+}
+
+// The header of an OctoMap file: its bytes up to and including the "data" line.
+std::string header_of(const std::string& bytes) {
+  const size_t data = bytes.find("\ndata\n");
+  EXPECT_NE(data, std::string::npos);
+  return bytes.substr(0, data + 6);
+}
+
+// OctoMap's readers recurse for as long as the node bits say children follow, past the tree's 16
+// levels and past the end of the file: a body of 0xFF bytes overflowed the stack (SIGSEGV), in
+// `terrastride map X.bt` and wherever a terrain folder's octomap.bt is read. Each corrupt body
+// is now an InputError naming the file (and the byte).
+TEST(OctomapInput, CorruptBinaryBodiesAreRefusedNamingTheFile) {
+  ScratchDir dir;
+  const std::string good = slurp(fixture("pallet_10.bt"));
+  const std::string head = header_of(good);
+  const auto refused = [&](const std::string& name, const std::string& bytes,
+                           std::initializer_list<std::string> needles) {
+    perception::test::write_text(dir.file(name), bytes);
+    expect_input_error([&] { perception::read_octomap_file(dir.file(name)); }, needles);
+  };
+  refused("ff.bt", head + std::string(4096, '\xff'),
+          {"ff.bt", "corrupt OctoMap data at byte", "depth 16 has children"});
+  refused("ff_short.bt", head + std::string(8, '\xff'), {"ff_short.bt", "truncated"});
+  refused("trailing.bt", good + "junk", {"trailing.bt", "4 bytes after the end of the tree"});
+  std::string resized = good;
+  const size_t size_at = resized.find("size ");
+  resized.insert(size_at + 5, "1");  // "size 1NNNN": more nodes than the body holds
+  refused("resized.bt", resized, {"resized.bt", "the header says 1"});
+  std::string unsized = good;
+  unsized.replace(size_at, 4, "siz_");
+  refused("unsized.bt", unsized, {"unsized.bt", "'size' line"});
+  // A 0xFF body of any length, and random bytes after a valid header (seeded), always fail
+  // cleanly.
+  for (const size_t n : {1, 2, 3, 31, 32, 33, 1 << 22})
+    refused("ff" + std::to_string(n) + ".bt", head + std::string(n, '\xff'), {"ff"});
+  std::srand(7);
+  for (int k = 0; k < 50; ++k) {
+    std::string body(static_cast<size_t>(1 + std::rand() % 5000), '\0');
+    for (char& c : body) c = static_cast<char>(std::rand());
+    const std::string name = "random" + std::to_string(k) + ".bt";
+    perception::test::write_text(dir.file(name), head + body);
+    try {
+      perception::read_octomap_file(dir.file(name));
+    } catch (const perception::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(name), std::string::npos) << e.what();
+    }
+  }
+  // Single bytes of the valid body changed: read, or refused naming the file.
+  const size_t body_at = head.size();
+  for (size_t k = 0; k < 200; ++k) {
+    std::string bytes = good;
+    bytes[body_at + (k * 7919) % (good.size() - body_at)] ^= static_cast<char>(1 + k % 255);
+    try {
+      perception::read_octomap_bytes("flip.bt", bytes, true);
+    } catch (const perception::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("flip.bt"), std::string::npos) << e.what();
+    }
+  }
+}
+
+// The full format (.ot) recurses the same way, on one byte of child bits after each node's data.
+TEST(OctomapInput, CorruptFullBodiesAreRefusedNamingTheFile) {
+  ScratchDir dir;
+  const octomap::OcTree tree = floor_block_table();
+  ASSERT_TRUE(tree.write(dir.file("t.ot")));
+  const auto color = floor_block_table<octomap::ColorOcTree>();
+  ASSERT_TRUE(color.write(dir.file("c.ot")));
+  for (const std::string name : {"t.ot", "c.ot"}) {
+    const std::string good = slurp(dir.file(name));
+    const std::string head = header_of(good);
+    const auto refused = [&](const std::string& bad, const std::string& bytes,
+                             std::initializer_list<std::string> needles) {
+      perception::test::write_text(dir.file(bad), bytes);
+      expect_input_error([&] { perception::read_octomap_file(dir.file(bad)); }, needles);
+    };
+    refused("ff_" + name, head + std::string(4096, '\xff'), {"ff_" + name, "corrupt"});
+    refused("cut_" + name, good.substr(0, good.size() - 3), {"cut_" + name, "truncated"});
+    refused("trailing_" + name, good + "x", {"trailing_" + name, "1 bytes after the end"});
+    // A node value that is not a number: the first node's float set to NaN.
+    std::string nan = good;
+    for (size_t k = 0; k < 4; ++k) nan[head.size() + k] = "\x00\x00\xc0\x7f"[k];
+    refused("nan_" + name, nan, {"nan_" + name, "not a finite number"});
+    std::srand(11);
+    for (int k = 0; k < 30; ++k) {
+      std::string body(static_cast<size_t>(1 + std::rand() % 3000), '\0');
+      for (char& c : body) c = static_cast<char>(std::rand());
+      try {
+        perception::read_octomap_bytes("random.ot", head + body, false);
+      } catch (const perception::InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("random.ot"), std::string::npos) << e.what();
+      }
+    }
+  }
+}
+
 // pallet_10.bt is the OctoMap `terrastride map` built from data/scans/pallet_10.pcd
 // (tests/fixtures/octomap/generate.sh). Mapped from the OctoMap alone, the grid's measured cells
 // lie within one voxel of the exact scene.

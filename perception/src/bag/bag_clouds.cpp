@@ -26,6 +26,19 @@ int64_t window_bound(double seconds, int64_t first_ns) {
   return first_ns + static_cast<int64_t>(seconds * 1e9);
 }
 
+// A damaged file's problems (a chunk failing its CRC or its decompression), put before an error
+// they may explain: the channels a corrupt chunk held are unknown, so "no topic" alone would
+// blame the topic name for the file's damage.
+std::string damage_first(const BagDamage& d) {
+  if (!d.damaged()) return "";
+  std::string out = "the file is damaged (";
+  const size_t shown = std::min<size_t>(d.problems.size(), 3);
+  for (size_t k = 0; k < shown; ++k) out += (k ? "; " : "") + d.problems[k];
+  if (d.problems.size() > shown)
+    out += "; and " + std::to_string(d.problems.size() - shown) + " more";
+  return out + "), and so ";
+}
+
 void merge_damage(BagDamage* into, const BagDamage& d) {
   if (into->problems.empty()) *into = d;
 }
@@ -89,8 +102,8 @@ void read_bag_clouds(const std::string& path, const BagCloudOptions& options,
       std::string list;
       for (const auto& [n, t] : by_name)
         if (t.type == kPointCloud2) list += (list.empty() ? "" : ", ") + n;
-      throw InputError(path + ": no topic " + name + " (PointCloud2 topics: " +
-                       (list.empty() ? "none" : list) + ")");
+      throw InputError(path + ": " + damage_first(reader->damage()) + "no topic " + name +
+                       " (PointCloud2 topics: " + (list.empty() ? "none" : list) + ")");
     }
     if (it->second.type != kPointCloud2)
       throw InputError(path + ": topic " + name + " has type " + it->second.type + ", not " +
@@ -169,7 +182,7 @@ void read_bag_clouds(const std::string& path, const BagCloudOptions& options,
     for (const auto& [n, t] : stats.topics)
       why += (why.empty() ? "" : "; ") + n + ": " + std::to_string(t.messages) + " messages, " +
              std::to_string(t.outside_window) + " outside the time window";
-    throw InputError(path + ": no cloud selected (" + why + ")");
+    throw InputError(path + ": " + damage_first(stats.damage) + "no cloud selected (" + why + ")");
   }
   if (stats_out) *stats_out = std::move(stats);
 }

@@ -139,7 +139,7 @@ class McapReader : public BagReader {
       if (schema_id != 0 && s == schemas_.end())
         throw InputError(path_ + ": channel " + t.name + " (byte " + std::to_string(where) +
                          ") names schema " + std::to_string(schema_id) +
-                         " that no earlier Schema record defines");
+                         " that no earlier Schema record defines" + earlier_damage());
       t.type = s == schemas_.end() ? "" : normalise_type(s->second.name);
       channels_[id] = std::move(t);
     } else if (opcode == kMessage) {
@@ -150,7 +150,8 @@ class McapReader : public BagReader {
       auto ch = channels_.find(channel);
       if (ch == channels_.end())
         throw InputError(path_ + ": message at byte " + std::to_string(where) + " on channel " +
-                         std::to_string(channel) + " that no earlier Channel record defines");
+                         std::to_string(channel) + " that no earlier Channel record defines" +
+                         earlier_damage());
       if (want_ && !want_(ch->second)) return;
       BagMessage m;
       m.topic = &ch->second;
@@ -207,7 +208,7 @@ class McapReader : public BagReader {
                          "' (this reader knows none, zstd and lz4)");
       }
       if (!problem.empty()) {
-        corrupt_chunk(where, content.size(), problem);
+        corrupt_chunk(where, content.size(), "decompression failed (" + problem + ")");
         return;
       }
       plain = buffer_;
@@ -230,6 +231,13 @@ class McapReader : public BagReader {
       // The messages before the bad record were delivered.
       corrupt_chunk(where, content.size(), std::string("a record inside it is cut: ") + e.what());
     }
+  }
+
+  // A record naming a schema or channel that no earlier record defines is, after a corrupt chunk,
+  // most likely the victim of that chunk (which held the definition): say so.
+  std::string earlier_damage() const {
+    if (!damage_.damaged()) return "";
+    return " (defined, perhaps, in a chunk skipped before it: " + damage_.problems.front() + ")";
   }
 
   void corrupt_chunk(uint64_t where, uint64_t bytes, const std::string& why) {

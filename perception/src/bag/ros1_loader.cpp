@@ -1,7 +1,9 @@
-// Loading the ROS 1 bag module on first use (ros1_module.hpp, module_loader.hpp).
+// Loading the ROS 1 bag module on first use (ros1_module.hpp, module_loader.hpp), for bags that
+// pass check_ros1_bag.
 #include <mutex>
 
 #include "bag/bag_readers.hpp"
+#include "bag/ros1_check.hpp"
 #include "bag/ros1_module.hpp"
 #include "module_loader.hpp"
 
@@ -20,6 +22,7 @@ std::unique_ptr<BagReader> open_ros1(const std::string& path) {
         {"terrastride_rosbag.so", "terrastride_rosbag_module", "TERRASTRIDE_ROSBAG_MODULE",
          build_path, "the ROS 1 bag module"});
   });
+  check_ros1_bag(path);  // before librosbag trusts its lengths
   return module->open(path);
 }
 

@@ -5,6 +5,9 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <set>
+#include <string>
+#include <vector>
 
 #include "bag/byte_cursor.hpp"
 
@@ -131,6 +134,27 @@ double load(const char* p, bool swap_bytes) {
   return static_cast<double>(v);
 }
 
+// A cloud whose field list is empty or names a field twice is not what its writer meant to
+// send (a reader would pick one of the two 'x' arbitrarily): refused rather than guessed at.
+void check_fields(const std::vector<Field>& fields) {
+  if (fields.empty()) throw InputError("the PointCloud2 declares no fields (field count 0)");
+  std::set<std::string> names;
+  for (const auto& f : fields)
+    if (!names.insert(f.name).second)
+      throw InputError("field '" + f.name + "' is declared twice");
+}
+
+// data holds exactly height rows of row_step bytes (sensor_msgs/PointCloud2's contract): more is
+// bytes of unknown meaning (a writer's bug or a corrupted length), less is a cut cloud.
+void check_data_size(uint32_t height, uint32_t row_step, size_t data_bytes) {
+  const uint64_t expected = static_cast<uint64_t>(height) * row_step;
+  if (data_bytes > expected)
+    throw InputError(std::to_string(data_bytes) + " bytes of data, " +
+                     std::to_string(data_bytes - expected) + " trailing bytes beyond height " +
+                     std::to_string(height) + " x row_step " + std::to_string(row_step) + " = " +
+                     std::to_string(expected));
+}
+
 DecodedCloud decode_cloud(std::string_view data, MessageEncoding encoding, bool header_only) {
   DecodedCloud out;
   try {
@@ -152,6 +176,9 @@ DecodedCloud decode_cloud(std::string_view data, MessageEncoding encoding, bool 
     const uint32_t row_step = w.get<uint32_t>("row_step");
     const uint32_t n_data = w.count("data", 1);
     const std::string_view bytes = w.bytes(n_data, "data");
+
+    check_fields(fields);
+    check_data_size(out.height, row_step, bytes.size());
 
     const Field* xyz[3] = {nullptr, nullptr, nullptr};
     for (const auto& f : fields)

@@ -6,13 +6,16 @@
 #include <sys/file.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include <zlib.h>
 
 #include <algorithm>
 #include <cerrno>
 #include <cstdlib>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <map>
 #include <set>
 
@@ -215,12 +218,69 @@ json read_summary(const fs::path& out, const std::string& name) {
   return s.is_object() ? s : json(nullptr);
 }
 
+// A report file's digest: its size and CRC-32. Recorded in the scan's summary when it is
+// committed, so that a resumed batch notices a report truncated or altered since (a full disk, a
+// copy cut short, a hand edit) instead of trusting any file that exists.
+json file_digest(const fs::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) return nullptr;
+  uLong crc = crc32(0L, Z_NULL, 0);
+  uint64_t bytes = 0;
+  std::vector<char> buffer(1 << 16);
+  while (in) {
+    in.read(buffer.data(), static_cast<std::streamsize>(buffer.size()));
+    const std::streamsize n = in.gcount();
+    if (n <= 0) break;
+    crc = crc32(crc, reinterpret_cast<const Bytef*>(buffer.data()), static_cast<uInt>(n));
+    bytes += static_cast<uint64_t>(n);
+  }
+  if (in.bad()) return nullptr;
+  char hex[9];
+  std::snprintf(hex, sizeof hex, "%08lx", static_cast<unsigned long>(crc));
+  return {{"bytes", bytes}, {"crc32", hex}};
+}
+
+std::vector<std::string> report_file_names(const std::string& name) {
+  return {name + ".html", name + ".json"};
+}
+
+// Why scan `name`'s committed report cannot be trusted, or "" when every file matches the digest
+// recorded at its commit.
+std::string report_damage(const fs::path& out, const std::string& name, const json& summary) {
+  const json digests = summary.value("digests", json(nullptr));
+  if (!digests.is_object()) return "its summary records no file digests";
+  for (const std::string& file : report_file_names(name)) {
+    const json now = file_digest(out / name / file);
+    if (now.is_null()) return file + " is missing";
+    const json recorded = digests.value(file, json(nullptr));
+    if (now != recorded)
+      return file + " is " + now["bytes"].dump() + " bytes with CRC-32 " +
+             now["crc32"].get<std::string>() + ", committed as " +
+             (recorded.is_object() ? recorded.value("bytes", json(nullptr)).dump() + " bytes with "
+                                     "CRC-32 " + recorded.value("crc32", std::string("?"))
+                                   : std::string("nothing"));
+  }
+  return "";
+}
+
+// On --resume: true when scan `name` has a committed report whose files match their digests.
+// A committed report found damaged is said so on stderr and reported again.
 bool is_reported(const fs::path& out, const std::string& name) {
-  const json s = read_summary(out, name);
-  if (s.is_null() || s.contains("error")) return false;
+  const fs::path dir = out / name;
   std::error_code ec;
-  return fs::is_regular_file(out / name / (name + ".html"), ec) &&
-         fs::is_regular_file(out / name / (name + ".json"), ec);
+  if (!fs::is_regular_file(dir / perception::kOutputMarker, ec)) return false;
+  const json s = read_summary(out, name);
+  if (s.is_null()) {
+    std::cerr << "report --batch --resume: " << name << ": its committed summary "
+              << (dir / kSummaryName).string() << " is unreadable: reporting it again\n";
+    return false;
+  }
+  if (s.contains("error")) return false;
+  const std::string damage = report_damage(out, name, s);
+  if (damage.empty()) return true;
+  std::cerr << "report --batch --resume: " << name << ": its committed report is damaged ("
+            << damage << "): reporting it again\n";
+  return false;
 }
 
 json files_json(const BatchScan& scan) {
@@ -257,6 +317,12 @@ std::string report_one_scan(const fs::path& out, const BatchScan& scan, const Ba
       std::error_code ec;  // a report half-made (JSON written, page not) is not kept
       fs::remove(html, ec);
       fs::remove(fs::path(html).replace_extension(".json"), ec);
+    }
+    if (error.empty()) {
+      json digests = json::object();
+      for (const std::string& file : report_file_names(scan.name))
+        digests[file] = file_digest(fs::path(dir.path()) / file);
+      row["digests"] = digests;
     }
     perception::write_file_atomically((fs::path(dir.path()) / kSummaryName).string(),
                                       row.dump(1) + "\n");
@@ -308,6 +374,7 @@ json rebuild_index(const fs::path& out, const std::vector<BatchScan>& scans,
   size_t finished = 0, failed = 0, pending = 0;
   for (const BatchScan& scan : scans) {
     json row = read_summary(out, scan.name);
+    if (row.is_object()) row.erase("digests");  // for resuming, not for the index's readers
     if (row.is_null()) {
       row = {{"scan", scan.name}, {"files", files_json(scan)}, {"pending", true}};
       ++pending;

@@ -22,7 +22,17 @@ bool is_octomap_file(const std::string& path);
 // OcTreeStamped are read (the latter two as their occupancy bits, what a .bt of them holds). Any other tree type (a
 // CountingOcTree, an unknown id) is an InputError naming the type; so are a missing file, a
 // header that is not OctoMap's, a truncated body and an empty tree.
+//
+// OctoMap's readers trust the file (corrupt node bits recurse until the stack overflows), so the
+// body is walked first: node bits within the tree's 16 levels, the body ending where the tree
+// does, as many nodes as the header's size, at most 2^25 nodes; any other body is an InputError
+// naming the file and the byte.
 std::unique_ptr<octomap::OcTree> read_octomap_file(const std::string& path);
+
+// read_octomap_file on bytes already in memory: `binary` for the .bt format, else .ot; `path`
+// names them in errors.
+std::unique_ptr<octomap::OcTree> read_octomap_bytes(const std::string& path,
+                                                    const std::string& bytes, bool binary);
 
 struct OctreeSupportStats {
   size_t occupied_voxels = 0;   // occupied leaves expanded to voxels of the tree's resolution
