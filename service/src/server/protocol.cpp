@@ -178,7 +178,9 @@ std::string encode_frame(const Message& message, std::string_view raw_result) {
   return out;
 }
 
-Message decode_body(std::string_view body) {
+Message decode_body(std::string_view body) { return decode_body(body, kMaxHeaderBytes); }
+
+Message decode_body(std::string_view body, std::size_t max_header_bytes) {
   if (body.size() < 4)
     fail(code::kBadFrame, "frame body of " + std::to_string(body.size()) +
                               " bytes is shorter than its 4-byte header length");
@@ -188,9 +190,9 @@ Message decode_body(std::string_view body) {
     fail(code::kBadFrame, "header length " + std::to_string(header_length) +
                               " exceeds the frame body (" + std::to_string(body.size() - 4) +
                               " bytes after the header length)");
-  if (header_length > kMaxHeaderBytes)
+  if (header_length > max_header_bytes)
     fail(code::kBadFrame, "JSON header of " + std::to_string(header_length) +
-                              " bytes exceeds the limit of " + std::to_string(kMaxHeaderBytes));
+                              " bytes exceeds the limit of " + std::to_string(max_header_bytes));
   Message m;
   const std::string_view text = body.substr(4, header_length);
   m.header = json::parse(text.begin(), text.end(), nullptr, /*allow_exceptions=*/false);
