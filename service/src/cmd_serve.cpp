@@ -133,8 +133,8 @@ void add_quota_options(CLI::App* cmd, ServeOptions* o) {
       ->capture_default_str()
       ->check(CLI::Range(std::size_t{1} << 16, std::numeric_limits<std::size_t>::max()));
   cmd->add_option("--max-unsent-bytes", q.max_unsent_bytes,
-                  "Unsent replies across all connections; beyond, the connection holding the "
-                  "most is dropped (logged on stderr)")
+                  "Unsent replies across all connections; beyond, the connection furthest "
+                  "behind in taking its replies is dropped (logged on stderr)")
       ->capture_default_str()
       ->check(CLI::Range(std::size_t{1} << 20, std::numeric_limits<std::size_t>::max()));
   cmd->add_option("--max-unsent-bytes-per-connection", q.max_write_queue_bytes,

@@ -607,8 +607,8 @@ TEST(ServerInProcess, WorkerRequestsPerConnection) {
 }
 
 // Clients that ask for large replies and never read them: the unsent replies of all connections
-// stay within --max-unsent-bytes (the connection holding the most is dropped), and a client that
-// reads is served meanwhile.
+// stay within --max-unsent-bytes (the connection furthest behind in taking them is dropped), and
+// a client that reads is served meanwhile.
 TEST(ServerInProcess, UnsentRepliesAreBoundedAcrossConnections) {
   constexpr std::size_t kBudget = 32u << 20, kReply = 12u << 20;
   InProcessServer s(2, 8, [](ServerOptions& o) {
@@ -638,4 +638,26 @@ TEST(ServerInProcess, UnsentRepliesAreBoundedAcrossConnections) {
   EXPECT_EQ(code_of(m), "");
   ASSERT_EQ(m.attachments.size(), 1u);
   EXPECT_EQ(m.attachments[0].data.size(), 1u << 20);
+}
+
+// A client that takes none of its replies for --frame-timeout is dropped then, however large
+// they are (at --min-receive-rate, 12 MiB would earn it hours), and their memory is released.
+TEST(ServerInProcess, ClientThatTakesNoRepliesIsDroppedAfterTheFrameTimeout) {
+  InProcessServer s(1, 1, [](ServerOptions& o) {
+    o.frame_timeout_s = 0.5;
+    o.min_receive_rate = 1000;
+    o.idle_timeout_s = 0;
+  });
+  Client silent = Client::connect(s.address);
+  silent.send({{"op", "debug.sleep"}, {"ms", 0}, {"reply_bytes", 12 << 20}});
+  Client monitor = Client::connect(s.address);
+  json st;
+  for (int i = 0; i < 1000; ++i) {
+    st = monitor.call_ok({{"op", "status"}});
+    if (st["connections"]["write_timeouts"] == 1 && st["memory"]["unsent_reply_bytes"] == 0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(st["connections"]["write_timeouts"], 1) << st.dump();
+  EXPECT_EQ(st["memory"]["unsent_reply_bytes"], 0) << st.dump();
+  EXPECT_EQ(st["connections"]["open"], 1) << st.dump();
 }

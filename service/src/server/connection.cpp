@@ -183,8 +183,13 @@ void Connection::evict(double idle_s) {
   uncount();  // its slot is the new client's now, while the reply goes out
 }
 
+double Connection::seconds_behind(Clock::time_point now) const {
+  if (writing.empty()) return 0.0;
+  const double elapsed = std::chrono::duration<double>(now - write_start).count();
+  return elapsed - double(write_done) / server.options.min_receive_rate;
+}
+
 void Connection::drop_unread(const std::string& reason) {
-  server.counters.slow_client_drops++;
   std::fprintf(stderr, "terrastride serve: connection %llu dropped: %s\n",
                static_cast<unsigned long long>(cid), reason.c_str());
   close();
@@ -199,6 +204,7 @@ void Connection::send(std::string frame) {
   out.push_back(std::move(frame));
   if (out_bytes > server.options.max_write_queue_bytes) {
     // A client that does not read its replies: drop it rather than grow without bound.
+    server.counters.slow_client_drops++;
     return drop_unread(std::to_string(out_bytes) + " bytes of replies unsent, beyond " +
                        std::to_string(server.options.max_write_queue_bytes) +
                        " (--max-unsent-bytes-per-connection)");
@@ -231,36 +237,57 @@ void Connection::do_write() {
     if (close_after_flush) linger();
     return;
   }
-  std::vector<asio::const_buffer> bufs;
   while (!out.empty() && writing.size() < 64) {
     writing.push_back(std::move(out.front()));
     out.pop_front();
   }
-  write_bytes = 0;
+  write_bytes = write_done = 0;
+  for (const auto& w : writing) write_bytes += w.size();
+  write_start = write_progress = Clock::now();
+  write_some();
+}
+
+void Connection::write_some() {
+  // The rest of the batch; written piece by piece so the sweep sees whether the client takes
+  // its replies at all (write_progress), not only whether a whole batch is done.
+  std::vector<asio::const_buffer> bufs;
+  std::size_t skip = write_done;
   for (const auto& w : writing) {
-    bufs.emplace_back(asio::buffer(w));
-    write_bytes += w.size();
+    if (skip >= w.size()) {
+      skip -= w.size();
+      continue;
+    }
+    bufs.emplace_back(asio::buffer(w.data() + skip, w.size() - skip));
+    skip = 0;
   }
-  write_start = Clock::now();
   auto self = shared_from_this();
-  asio::async_write(socket, bufs, [self](const asio::error_code& ec, std::size_t) {
-    if (self->write_bytes >= kPauseReadBytes) self->server.trim_pending = true;
-    for (const auto& w : self->writing) {
-      self->out_bytes -= w.size();
-      // close() took a closed connection's bytes off the server's count already.
-      if (!self->closed) self->server.unsent_bytes -= w.size();
+  socket.async_write_some(bufs, [self](const asio::error_code& ec, std::size_t n) {
+    if (!ec && n > 0) {
+      self->write_done += n;
+      self->write_progress = self->last_active = Clock::now();
+      if (self->write_done < self->write_bytes) return self->write_some();
     }
-    self->writing.clear();
-    if (ec) return self->close();
-    self->last_active = Clock::now();
-    if (self->read_paused && self->out_bytes <= kPauseReadBytes / 2) {
-      self->read_paused = false;
-      // The frame clock stopped while the server did not read.
-      if (self->frame_started) self->frame_start = self->last_received = Clock::now();
-      self->process_frames();
-    }
-    self->do_write();
+    self->end_write(ec);
   });
+}
+
+void Connection::end_write(const asio::error_code& ec) {
+  if (write_bytes >= kPauseReadBytes) server.trim_pending = true;
+  for (const auto& w : writing) {
+    out_bytes -= w.size();
+    // close() took a closed connection's bytes off the server's count already.
+    if (!closed) server.unsent_bytes -= w.size();
+  }
+  writing.clear();
+  write_bytes = write_done = 0;
+  if (ec && ec != asio::error::would_block && ec != asio::error::try_again) return close();
+  if (read_paused && out_bytes <= kPauseReadBytes / 2) {
+    read_paused = false;
+    // The frame clock stopped while the server did not read.
+    if (frame_started) frame_start = last_received = Clock::now();
+    process_frames();
+  }
+  do_write();
 }
 
 void Connection::finish_and_close() {
@@ -332,11 +359,20 @@ void Connection::check_timeouts(Clock::time_point now) {
   }
   const ServerOptions& o = server.options;
   if (o.frame_timeout_s <= 0 && o.idle_timeout_s <= 0) return;
-  if (o.frame_timeout_s > 0 && !writing.empty() &&
-      since(write_start) > o.frame_timeout_s + double(write_bytes) / o.min_receive_rate) {
-    // The client does not take its replies: nothing more can reach it, so no error reply.
-    server.counters.write_timeouts++;
-    return close();
+  if (o.frame_timeout_s > 0 && !writing.empty()) {
+    // The client does not take its replies (none of them for --frame-timeout, or not at
+    // --min-receive-rate): nothing more can reach it, so no error reply; the reason on stderr.
+    const bool stalled = since(write_progress) > o.frame_timeout_s;
+    if (stalled ||
+        since(write_start) > o.frame_timeout_s + double(write_bytes) / o.min_receive_rate) {
+      server.counters.write_timeouts++;
+      char text[64];
+      std::snprintf(text, sizeof(text), "%.3g s", since(stalled ? write_progress : write_start));
+      return drop_unread(std::to_string(write_bytes - write_done) + " of " +
+                         std::to_string(out_bytes) + " bytes of replies unsent, " +
+                         (stalled ? "none taken for " : "not taken at --min-receive-rate in ") +
+                         text + " (--frame-timeout)");
+    }
   }
   if (close_after_flush) return;
   if (o.frame_timeout_s > 0 && frame_started && !read_paused) {

@@ -92,7 +92,9 @@ struct Connection : std::enable_shared_from_this<Connection> {
   bool frame_started = false;
   Clock::time_point frame_start;
   Clock::time_point write_start;
-  std::size_t write_bytes = 0;
+  std::size_t write_bytes = 0;  // the batch being written
+  std::size_t write_done = 0;   // of it, written
+  Clock::time_point write_progress;  // the last bytes the client took
   bool lingering = false;
   Clock::time_point linger_until;
   static constexpr double kLingerSeconds = 1.0;
@@ -145,6 +147,11 @@ struct Connection : std::enable_shared_from_this<Connection> {
   void send_error(const nlohmann::json& id, const std::string& code, const std::string& message);
 
   void do_write();
+  void write_some();
+  void end_write(const asio::error_code& ec);
+  // How far behind --min-receive-rate the client is in taking its replies (s; the larger, the
+  // less it reads): whom the unsent-reply budget drops first.
+  double seconds_behind(Clock::time_point now) const;
 
   // After the last reply (an error that ends the connection): stop reading requests, close once
   // it is written.

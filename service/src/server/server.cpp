@@ -61,6 +61,7 @@ void Server::Impl::run_job(std::shared_ptr<Job> job) {
   job->request = Message{};  // free the attachments now
   job->request_bytes.release();
   job->connection_bytes.release();
+  pool->finished();
   asio::post(io, [job, frame = std::move(frame), ok, code]() mutable {
     auto c = job->conn.lock();
     if (job->deadline_timer) job->deadline_timer->cancel();
@@ -118,15 +119,26 @@ std::shared_ptr<Connection> Server::Impl::longest_idle_connection() const {
 }
 
 void Server::Impl::enforce_unsent_budget() {
+  const auto now = Clock::now();
   while (unsent_bytes > options.max_unsent_bytes) {
+    // The client furthest behind in taking its replies (one that does not read at all falls
+    // behind by the second); a client that reads is ahead, and a reply just queued is at 0.
     std::shared_ptr<Connection> victim;
-    for (const auto& c : connections)
-      if (!c->closed && (!victim || c->out_bytes > victim->out_bytes)) victim = c;
-    if (!victim || victim->out_bytes == 0) return;
+    double victim_behind = 0.0;
+    for (const auto& c : connections) {
+      if (c->closed || c->out_bytes == 0) continue;
+      const double behind = c->seconds_behind(now);
+      if (!victim || behind > victim_behind ||
+          (behind == victim_behind && c->out_bytes > victim->out_bytes))
+        victim = c, victim_behind = behind;
+    }
+    if (!victim) return;
     counters.unsent_drops++;
+    char text[64];
+    std::snprintf(text, sizeof(text), "%.3g s", victim_behind);
     victim->drop_unread(std::to_string(victim->out_bytes) +
-                        " bytes of replies unsent, the most of any connection, while all "
-                        "connections' unsent replies (" +
+                        " bytes of replies unsent, the furthest behind in taking them (" + text +
+                        " behind --min-receive-rate), while all connections' unsent replies (" +
                         std::to_string(unsent_bytes) + " bytes) exceed " +
                         std::to_string(options.max_unsent_bytes) + " (--max-unsent-bytes)");
   }

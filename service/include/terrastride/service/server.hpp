@@ -101,11 +101,12 @@ struct ServerOptions {
   // Worker requests one connection may have in the pool (queued or running): a connection cannot
   // take the whole queue and leave every other client `busy`.
   int max_jobs_per_connection = 4;
-  // Unsent replies: one connection's before it is dropped, and all connections' together (past
-  // that the connection holding the most unsent bytes is dropped, with the reason on stderr), so
+  // Unsent replies: one connection's before it is dropped (room for the largest plan reply, 120 s
+  // at 1 ms in JSON, some 230 MB), and all connections' together (past that the connection
+  // furthest behind in taking its replies is dropped), each with the reason on stderr, so
   // clients that never read cannot make the server hold their replies.
-  std::size_t max_write_queue_bytes = std::size_t{128} << 20;
-  std::size_t max_unsent_bytes = std::size_t{256} << 20;
+  std::size_t max_write_queue_bytes = std::size_t{256} << 20;
+  std::size_t max_unsent_bytes = std::size_t{512} << 20;
   double drain_seconds = 5.0;  // on SIGINT/SIGTERM: time running jobs get before cancellation
   bool handle_signals = true;
 
