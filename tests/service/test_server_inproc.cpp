@@ -591,6 +591,7 @@ TEST(ServerInProcess, RequestBytesPerConnection) {
 TEST(ServerInProcess, WorkerRequestsPerConnection) {
   InProcessServer s(1, 2, [](ServerOptions& o) { o.max_jobs_per_connection = 1; });
   Client hog = Client::connect(s.address);
+  EXPECT_EQ(hog.call_ok({{"op", "hello"}})["capabilities"]["max_jobs_per_connection"], 1);
   hog.send({{"op", "debug.sleep"}, {"id", 1}, {"ms", 20000}});
   const p::Message m = hog.call({{"op", "debug.sleep"}, {"id", 2}, {"ms", 20000}});
   EXPECT_EQ(code_of(m), "busy");

@@ -157,7 +157,10 @@ OpResult Connection::hello_result() const {
                 {"max_connections", o.max_connections},
                 {"frame_timeout_s", o.frame_timeout_s},
                 {"min_receive_rate", o.min_receive_rate},
-                {"idle_timeout_s", o.idle_timeout_s}}}};
+                {"idle_timeout_s", o.idle_timeout_s},
+                {"max_jobs_per_connection", o.max_jobs_per_connection},
+                {"max_buffered_bytes_per_connection", o.max_buffered_bytes_per_connection},
+                {"max_unsent_bytes_per_connection", o.max_write_queue_bytes}}}};
   r.result["ops"] = {"hello", "status", "cancel"};
   for (const auto& n : server.registry.names()) r.result["ops"].push_back(n);
   if (server.hello_extra) r.result.update(server.hello_extra());
