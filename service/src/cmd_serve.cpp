@@ -208,7 +208,7 @@ void add_serve_command(CLI::App& app) {
   cmd->add_option("--max-buffered-bytes", o->max_buffered_bytes,
                   "Request bytes the server buffers across all connections (large frames "
                   "arriving, queued worker requests); a frame beyond it gets busy and its "
-                  "connection is closed. Default: 1 GiB or a quarter of the memory if less")
+                  "connection is closed. Default: 512 MiB or a quarter of the memory if less")
       ->capture_default_str()
       ->check(CLI::Range(std::size_t{1} << 16, std::numeric_limits<std::size_t>::max()));
   add_quota_options(cmd, o.get());

@@ -191,10 +191,10 @@ long resident_bytes() {
 }  // namespace
 
 std::size_t default_max_buffered_bytes() {
-  const std::size_t gib = std::size_t{1} << 30;
+  const std::size_t cap = std::size_t{512} << 20;
   const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGESIZE);
-  if (pages <= 0 || page <= 0) return gib;
-  return std::min(gib, static_cast<std::size_t>(pages) * static_cast<std::size_t>(page) / 4);
+  if (pages <= 0 || page <= 0) return cap;
+  return std::min(cap, static_cast<std::size_t>(pages) * static_cast<std::size_t>(page) / 4);
 }
 
 json Server::Impl::status_json() {

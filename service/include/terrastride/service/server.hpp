@@ -87,7 +87,8 @@ class OperationRegistry {
   std::vector<std::function<void(std::uint64_t)>> disconnect_hooks_;
 };
 
-// min(1 GiB, a quarter of the physical memory): the default request-buffer budget.
+// min(512 MiB, a quarter of the physical memory): the default request-buffer budget (8 frames of
+// the largest default size, --max-frame-bytes 64 MiB, arriving or waiting at once).
 std::size_t default_max_buffered_bytes();
 
 struct ServerOptions {
