@@ -262,9 +262,11 @@ void Connection::write_some() {
   }
   auto self = shared_from_this();
   socket.async_write_some(bufs, [self](const asio::error_code& ec, std::size_t n) {
-    if (!ec && n > 0) {
-      self->write_done += n;
-      self->write_progress = self->last_active = Clock::now();
+    if (!ec) {
+      if (n > 0) {
+        self->write_done += n;
+        self->write_progress = self->last_active = Clock::now();
+      }
       if (self->write_done < self->write_bytes) return self->write_some();
     }
     self->end_write(ec);
@@ -280,7 +282,7 @@ void Connection::end_write(const asio::error_code& ec) {
   }
   writing.clear();
   write_bytes = write_done = 0;
-  if (ec && ec != asio::error::would_block && ec != asio::error::try_again) return close();
+  if (ec) return close();
   if (read_paused && out_bytes <= kPauseReadBytes / 2) {
     read_paused = false;
     // The frame clock stopped while the server did not read.
