@@ -1,7 +1,10 @@
 // Faults and abuse of the plan path (issue #13): plans at once on one server (Debian's MUMPS is
 // not re-entrant: two concurrent plans crashed `serve` in 11 of 11 tries), cancelled and
 // crashing plan processes, the request limits shared with `terrastride plan`, and file paths a
-// client names. Loopback only; every wait is bounded.
+// client names; then the fault suite of the limits: session hogs, session requests in order, plans
+// the server wrote sent back, and a soak of clients that never read, stalled huge frames and
+// connection and session hogs after which the server's memory returns to its idle figure.
+// Loopback only; every wait is bounded.
 #include <gtest/gtest.h>
 #include <signal.h>
 

@@ -1,7 +1,8 @@
 // The server in-process (so the sanitizer build covers the transport): operations, pipelining,
 // cancel, busy, deadlines, malformed and oversized frames, the limits against clients that hold
-// memory or connections (frame and idle timeouts, the connection limit, the pre-hello frame cap,
-// the request-byte budget), and a graceful shutdown with replies.
+// memory or connections (frame and idle timeouts, the connection limit and the eviction of the
+// longest idle connection, the pre-hello frame cap, the request-byte budgets, the per-connection
+// quotas, unsent replies and clients that take none), and a graceful shutdown with replies.
 #include <gtest/gtest.h>
 
 #include <functional>
