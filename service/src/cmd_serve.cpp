@@ -1,4 +1,5 @@
 // `terrastride serve`: the socket service (docs/protocol.md).
+#include <algorithm>
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
@@ -26,6 +27,9 @@ struct ServeOptions {
   double idle_timeout_s = 300.0;
   std::uint32_t max_frame_bytes_before_hello = 64u << 10;
   std::size_t max_buffered_bytes = default_max_buffered_bytes();
+  // Quotas and budgets (docs/protocol.md, "Limits"); defaults as ServerOptions/BackendOptions.
+  ServerOptions quotas;
+  BackendOptions sessions;
   std::string robot = "hyq";
   bool debug_ops = false;
   std::vector<std::string> terrain_roots;
@@ -51,6 +55,105 @@ std::string read_token(const std::string& path) {
     throw CommandError("--token-file: the token in '" + path +
                        "' is shorter than 16 characters; use a long random secret");
   return token;
+}
+
+// A token whose hello the server would refuse before hello: nobody could authenticate.
+void check_token_fits(const std::string& token, const std::string& path,
+                      std::uint32_t max_frame_bytes, std::uint32_t max_before_hello) {
+  const std::size_t hello = hello_frame_bytes(token);
+  const std::size_t cap = std::min(max_frame_bytes, max_before_hello);
+  if (hello > cap)
+    throw CommandError("--token-file: the token in '" + path + "' (" +
+                       std::to_string(token.size()) + " characters) makes a hello frame of " +
+                       std::to_string(hello) + " bytes, more than the " + std::to_string(cap) +
+                       " accepted before hello (--max-frame-bytes-before-hello); use a shorter "
+                       "token or raise the cap");
+}
+
+// Starts the server with the parsed options and serves until SIGINT/SIGTERM.
+void serve(const ServeOptions& o) {
+  ServerOptions so;
+  so.listen = o.listen.empty() ? std::vector<std::string>{"tcp://127.0.0.1:7700"} : o.listen;
+  if (!o.token_file.empty()) {
+    so.token = read_token(o.token_file);
+    check_token_fits(*so.token, o.token_file, o.max_frame_bytes,
+                     o.max_frame_bytes_before_hello);
+  }
+  so.max_frame_bytes = o.max_frame_bytes;
+  so.workers = o.workers;
+  so.queue = o.queue;
+  so.max_connections = o.max_connections;
+  so.drain_seconds = o.drain_seconds;
+  so.frame_timeout_s = o.frame_timeout_s;
+  so.min_receive_rate = o.min_receive_rate;
+  so.idle_timeout_s = o.idle_timeout_s;
+  so.max_frame_bytes_before_hello = o.max_frame_bytes_before_hello;
+  so.max_buffered_bytes = o.max_buffered_bytes;
+  so.max_jobs_per_connection = o.quotas.max_jobs_per_connection;
+  so.max_buffered_bytes_per_connection = o.quotas.max_buffered_bytes_per_connection;
+  so.max_unsent_bytes = o.quotas.max_unsent_bytes;
+  so.max_write_queue_bytes = o.quotas.max_write_queue_bytes;
+  OperationRegistry registry;
+  std::shared_ptr<Backend> backend;
+  try {
+    BackendOptions bo = o.sessions;
+    bo.robot = o.robot;
+    bo.debug_ops = o.debug_ops;
+    bo.terrain_roots = o.terrain_roots;
+    bo.plan_memory_bytes = static_cast<std::size_t>(o.plan_memory_mb * 1048576.0);
+    bo.plan_in_child_process = !o.plans_in_process;
+    backend = make_backend(bo, registry);
+  } catch (const robot::RobotFileError& e) {
+    throw CommandError(std::string("--robot: ") + e.what());
+  }
+  Server server(
+      so, std::move(registry), [backend] { return backend_status(*backend); },
+      [backend] { return backend_hello(*backend); });
+  std::vector<std::string> bound;
+  try {
+    bound = server.bind();
+  } catch (const std::runtime_error& e) {
+    throw CommandError(e.what());
+  }
+  for (const auto& b : bound) std::cout << "listening " << b << "\n";
+  std::cout.flush();
+  server.run();
+  std::cerr << "terrastride serve: stopped\n";
+}
+
+void add_quota_options(CLI::App* cmd, ServeOptions* o) {
+  ServerOptions& q = o->quotas;
+  cmd->add_option("--max-jobs-per-connection", q.max_jobs_per_connection,
+                  "Worker requests one connection may have queued or running; beyond: busy")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  cmd->add_option("--max-buffered-bytes-per-connection", q.max_buffered_bytes_per_connection,
+                  "Request bytes one connection may hold (its large frame arriving, its queued "
+                  "and running requests); a frame beyond gets busy and its connection is closed")
+      ->capture_default_str()
+      ->check(CLI::Range(std::size_t{1} << 16, std::numeric_limits<std::size_t>::max()));
+  cmd->add_option("--max-unsent-bytes", q.max_unsent_bytes,
+                  "Unsent replies across all connections; beyond, the connection furthest "
+                  "behind in taking its replies is dropped (logged on stderr)")
+      ->capture_default_str()
+      ->check(CLI::Range(std::size_t{1} << 20, std::numeric_limits<std::size_t>::max()));
+  cmd->add_option("--max-unsent-bytes-per-connection", q.max_write_queue_bytes,
+                  "Unsent replies of one connection; beyond, it is dropped (logged on stderr)")
+      ->capture_default_str()
+      ->check(CLI::Range(std::size_t{1} << 20, std::numeric_limits<std::size_t>::max()));
+  BackendOptions& b = o->sessions;
+  cmd->add_option("--max-sessions", b.max_sessions,
+                  "Planning sessions at once; when full, opening one closes the longest idle")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  cmd->add_option("--max-sessions-per-connection", b.max_sessions_per_connection,
+                  "Planning sessions one connection may hold; beyond: busy")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  cmd->add_option("--session-idle-timeout", b.session_idle_timeout_s,
+                  "Seconds a planning session lives without a step. 0 = off")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1e7));
 }
 
 }  // namespace
@@ -105,9 +208,10 @@ void add_serve_command(CLI::App& app) {
   cmd->add_option("--max-buffered-bytes", o->max_buffered_bytes,
                   "Request bytes the server buffers across all connections (large frames "
                   "arriving, queued worker requests); a frame beyond it gets busy and its "
-                  "connection is closed. Default: 1 GiB or a quarter of the memory if less")
+                  "connection is closed. Default: 512 MiB or a quarter of the memory if less")
       ->capture_default_str()
       ->check(CLI::Range(std::size_t{1} << 16, std::numeric_limits<std::size_t>::max()));
+  add_quota_options(cmd, o.get());
   cmd->add_option("--robot", o->robot, "Robot name or file")->capture_default_str();
   cmd->add_flag("--debug-ops", o->debug_ops, "Enable test operations (debug.sleep)");
   cmd->add_option("--terrain-root", o->terrain_roots,
@@ -129,47 +233,7 @@ void add_serve_command(CLI::App& app) {
   cmd->add_flag("--plans-in-process", o->plans_in_process,
                 "Solve plans in the worker threads, one at a time (default: each plan in its own "
                 "child process, so plans run at once)");
-  cmd->callback([o] {
-    ServerOptions so;
-    so.listen = o->listen.empty() ? std::vector<std::string>{"tcp://127.0.0.1:7700"} : o->listen;
-    if (!o->token_file.empty()) so.token = read_token(o->token_file);
-    so.max_frame_bytes = o->max_frame_bytes;
-    so.workers = o->workers;
-    so.queue = o->queue;
-    so.max_connections = o->max_connections;
-    so.drain_seconds = o->drain_seconds;
-    so.frame_timeout_s = o->frame_timeout_s;
-    so.min_receive_rate = o->min_receive_rate;
-    so.idle_timeout_s = o->idle_timeout_s;
-    so.max_frame_bytes_before_hello = o->max_frame_bytes_before_hello;
-    so.max_buffered_bytes = o->max_buffered_bytes;
-    OperationRegistry registry;
-    std::shared_ptr<Backend> backend;
-    try {
-      BackendOptions bo;
-      bo.robot = o->robot;
-      bo.debug_ops = o->debug_ops;
-      bo.terrain_roots = o->terrain_roots;
-      bo.plan_memory_bytes = static_cast<std::size_t>(o->plan_memory_mb * 1048576.0);
-      bo.plan_in_child_process = !o->plans_in_process;
-      backend = make_backend(bo, registry);
-    } catch (const robot::RobotFileError& e) {
-      throw CommandError(std::string("--robot: ") + e.what());
-    }
-    Server server(
-        so, std::move(registry), [backend] { return backend_status(*backend); },
-        [backend] { return backend_hello(*backend); });
-    std::vector<std::string> bound;
-    try {
-      bound = server.bind();
-    } catch (const std::runtime_error& e) {
-      throw CommandError(e.what());
-    }
-    for (const auto& b : bound) std::cout << "listening " << b << "\n";
-    std::cout.flush();
-    server.run();
-    std::cerr << "terrastride serve: stopped\n";
-  });
+  cmd->callback([o] { serve(*o); });
 }
 
 }  // namespace terrastride::service

@@ -222,7 +222,8 @@ TEST(PlanSession, DisconnectFreesTheSession) {
 // (each session holds its reference and last plans, about 0.1 MiB on the flat crawl at 20 ms
 // samples; the 11 s pallet crawl at 10 ms holds 1.1 MB), and closing them all frees the table.
 TEST(PlanSession, FiftySessionsStayWithinTheMemoryBound) {
-  ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
+  // All on one connection: beyond its default quota of 8.
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--max-sessions-per-connection", "50"});
   ASSERT_FALSE(server.tcp().empty()) << server.output;
   Client c = Client::connect(server.tcp());
   c.call_ok(open_request());  // the first loads the scene, the solver and MuJoCo-free code paths

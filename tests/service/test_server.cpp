@@ -778,6 +778,27 @@ TEST(ServerAuth, TokenFileWhitespaceIsIgnored) {
   std::filesystem::remove(token_file);
 }
 
+// A token whose hello would exceed the pre-hello frame cap: nobody could authenticate, so the
+// server refuses to start, naming the file and the cap.
+TEST(ServerAuth, TokenTooLongForTheFrameCapBeforeHelloIsRefusedAtStart) {
+  const std::string token_file = temp_path("token-long");
+  { std::ofstream(token_file) << std::string(70000, 'k') << "\n"; }
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--token-file", token_file}, 0);
+  EXPECT_EQ(server.wait_exit(), 1) << server.output;
+  EXPECT_NE(server.output.find(token_file), std::string::npos) << server.output;
+  EXPECT_NE(server.output.find("--max-frame-bytes-before-hello"), std::string::npos)
+      << server.output;
+  EXPECT_NE(server.output.find("65536"), std::string::npos) << server.output;
+  // With the cap raised it fits, and its hello authenticates.
+  ServerProcess raised({"--listen", "tcp://127.0.0.1:0", "--token-file", token_file,
+                        "--max-frame-bytes-before-hello", "100000"});
+  ASSERT_FALSE(raised.tcp().empty()) << raised.output;
+  Client c = Client::connect(raised.tcp());
+  EXPECT_EQ(c.call_ok({{"op", "hello"}, {"token", std::string(70000, 'k')}})["protocol"], 1);
+  EXPECT_EQ(raised.stop(SIGTERM), 0);
+  std::filesystem::remove(token_file);
+}
+
 TEST(ServerAuth, NonLoopbackNeedsAToken) {
   ServerProcess server({"--listen", "tcp://0.0.0.0:0"}, 0);
   EXPECT_NE(server.wait_exit(), 0);

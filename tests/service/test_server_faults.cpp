@@ -1,7 +1,10 @@
 // Faults and abuse of the plan path (issue #13): plans at once on one server (Debian's MUMPS is
 // not re-entrant: two concurrent plans crashed `serve` in 11 of 11 tries), cancelled and
 // crashing plan processes, the request limits shared with `terrastride plan`, and file paths a
-// client names. Loopback only; every wait is bounded.
+// client names; then the fault suite of the limits: session hogs, session requests in order, plans
+// the server wrote sent back, and a soak of clients that never read, stalled huge frames and
+// connection and session hogs after which the server's memory returns to its idle figure.
+// Loopback only; every wait is bounded.
 #include <gtest/gtest.h>
 #include <signal.h>
 
@@ -9,6 +12,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -267,3 +271,248 @@ TEST_F(ServerFaults, MisspeltFieldsAreRefusedAndFeasibilitySettingsAreRead) {
 }
 
 }  // namespace
+
+namespace {
+
+// A 2.4 s flat plan with JSON samples: the reference sessions open from (`init`, no solve).
+json flat_reference(const std::string& address) {
+  json r = Client::connect(address, 60.0).call_ok(flat_plan("baseline", "json"));
+  return r;
+}
+
+json open_from(const json& reference) {
+  return {{"op", "plan.session.open"}, {"terrain", "flat"}, {"init", reference}, {"horizon", 1.0}};
+}
+
+json step_at(const std::string& session, double time) {
+  return {{"op", "plan.session.step"}, {"session", session}, {"time", time},
+          {"samples", "attachment"}};
+}
+
+}  // namespace
+
+// A connection holding its quota of planning sessions (8 by default) gets `busy` for another,
+// while a second client opens a session and plans (one connection could take all 64 before).
+TEST_F(ServerFaults, ASessionHogDoesNotKeepOthersOut) {
+  start();
+  const json reference = flat_reference(address_);
+  Client hog = Client::connect(address_, 60.0);
+  for (int i = 0; i < 8; ++i) hog.call_ok(open_from(reference));
+  const p::Message refused = hog.call(open_from(reference));
+  EXPECT_EQ(error_code(refused), "busy");
+  EXPECT_NE(error_message(refused).find("--max-sessions-per-connection"), std::string::npos)
+      << error_message(refused);
+  Client other = Client::connect(address_, 60.0);
+  const std::string mine = other.call_ok(open_from(reference))["session"];
+  EXPECT_EQ(other.call_ok(step_at(mine, 0.1))["solver"]["status"], "optimal");
+  const json st = other.call_ok({{"op", "plan.session.status"}});
+  EXPECT_EQ(st["open"], 9);
+  EXPECT_EQ(st["per_connection"], 8);
+}
+
+// When the server holds --max-sessions, opening one closes the longest idle session (not the
+// one just stepped), and a step on the closed one says why it is gone.
+TEST_F(ServerFaults, AFullSessionTableMakesRoomByClosingTheLongestIdle) {
+  start({"--max-sessions", "4", "--max-sessions-per-connection", "2"});
+  const json reference = flat_reference(address_);
+  Client hog = Client::connect(address_, 60.0);
+  const std::string first = hog.call_ok(open_from(reference))["session"];
+  hog.call_ok(open_from(reference));
+  Client other = Client::connect(address_, 60.0);
+  const std::string mine = other.call_ok(open_from(reference))["session"];
+  Client hog2 = Client::connect(address_, 60.0);
+  hog2.call_ok(open_from(reference));
+  EXPECT_EQ(other.call_ok(step_at(mine, 0.1))["solver"]["status"], "optimal");
+  Client late = Client::connect(address_, 60.0);
+  const std::string late_id = late.call_ok(open_from(reference))["session"];
+  EXPECT_EQ(late.call_ok(step_at(late_id, 0.1))["solver"]["status"], "optimal");
+  const json st = other.call_ok({{"op", "plan.session.status"}});
+  EXPECT_EQ(st["open"], 4);
+  EXPECT_EQ(st["evicted"], 1);
+  const p::Message gone = hog.call(step_at(first, 0.1));
+  EXPECT_EQ(error_code(gone), "bad_request");
+  EXPECT_NE(error_message(gone).find("to make room"), std::string::npos) << error_message(gone);
+  EXPECT_EQ(other.call_ok(step_at(mine, 0.2))["solver"]["status"], "optimal");
+}
+
+// Requests of one session are answered in the order they were sent: a close pipelined after two
+// steps is answered after them (it used to overtake them); a malformed start_state is
+// bad_request in a step as in plan.
+TEST_F(ServerFaults, SessionRequestsAreAnsweredInOrder) {
+  start();
+  const json reference = flat_reference(address_);
+  Client c = Client::connect(address_, 60.0);
+  const std::string id = c.call_ok(open_from(reference))["session"];
+  json a = step_at(id, 0.1), b = step_at(id, 0.2);
+  a["id"] = 1;
+  b["id"] = 2;
+  c.send(a);
+  c.send(b);
+  c.send({{"op", "plan.session.close"}, {"id", 3}, {"session", id}});
+  c.send({{"op", "plan.session.step"}, {"id", 4}, {"session", id}, {"time", 0.3}});
+  std::vector<int> order;
+  std::vector<std::string> codes;
+  for (int i = 0; i < 4; ++i) {
+    const p::Message m = c.receive();
+    order.push_back(m.header["id"].get<int>());
+    codes.push_back(error_code(m));
+  }
+  EXPECT_EQ(order, (std::vector<int>{1, 2, 3, 4}));
+  EXPECT_EQ(codes, (std::vector<std::string>{"", "", "", "bad_request"}));
+
+  const std::string next = c.call_ok(open_from(reference))["session"];
+  for (const json& state : {json{{"base", {{"position", "up"}}}}, json{{"feet", {{"XX", {}}}}},
+                            json{{"base", {{"position", {0, 0}}}}}, json("state")}) {
+    json step = step_at(next, 0.1);
+    step["start_state"] = state;
+    const p::Message stepped = c.call(step);
+    const json replan = {{"op", "plan"},         {"terrain", "flat"},  {"init", reference},
+                         {"start_time", 0.1},     {"start_state", state}};
+    const p::Message planned = c.call(replan);
+    EXPECT_EQ(error_code(stepped), "bad_request") << state.dump() << " " << error_message(stepped);
+    EXPECT_EQ(error_code(planned), "bad_request") << state.dump() << " " << error_message(planned);
+    EXPECT_NE(error_message(stepped).find("start_state"), std::string::npos)
+        << error_message(stepped);
+  }
+  EXPECT_EQ(c.call_ok(step_at(next, 0.1))["solver"]["status"], "optimal");  // still usable
+}
+
+// A plan the server wrote is accepted back: 6 s at 1 ms samples is some 10 MB of JSON, beyond the
+// old 4 MiB header cap, sent back to check, as plan's init and as a session's reference.
+TEST_F(ServerFaults, PlansTheServerWroteAreAcceptedBack) {
+  start();
+  Client c = Client::connect(address_, 120.0);
+  json request = flat_plan("baseline", "json");
+  request["duration"] = 6.0;
+  request["sample_dt"] = 0.001;
+  const json plan = c.call_ok(request);
+  EXPECT_GT(plan.dump().size(), std::size_t{4} << 20);
+  EXPECT_TRUE(c.call_ok({{"op", "check"}, {"plan", plan}, {"terrain", "flat"}})["checks"].is_object());
+  const p::Message replanned = c.call({{"op", "plan"},
+                                        {"terrain", "flat"},
+                                        {"init", plan},
+                                        {"start_time", 0.5},
+                                        {"samples", "attachment"}});
+  EXPECT_EQ(error_code(replanned), "") << error_message(replanned);
+  const json opened = c.call_ok(open_from(plan));
+  EXPECT_EQ(opened["samples"].size(), plan["samples"].size());
+}
+
+namespace {
+
+// A frame prefix announcing `body_bytes`, followed by `have` bytes of it (a frame that stalls).
+std::string half_frame(std::uint32_t body_bytes, std::size_t have) {
+  std::string f(4, '\0');
+  p::write_u32be(body_bytes, reinterpret_cast<unsigned char*>(&f[0]));
+  return f + std::string(have, ' ');
+}
+
+// Polls status (bounded) until `done(status)`; returns the last status.
+json wait_for_status(Client& monitor, const std::function<bool(const json&)>& done) {
+  json st;
+  for (int i = 0; i < 2000; ++i) {
+    st = monitor.call_ok({{"op", "status"}});
+    if (done(st)) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  return st;
+}
+
+// Nothing held for clients any more: only the monitor connected, no request bytes, no unsent
+// replies, no work, no session.
+bool quiet(const json& st) {
+  return st["connections"]["open"] == 1 && st["memory"]["buffered_request_bytes"] == 0 &&
+         st["memory"]["unsent_reply_bytes"] == 0 && st["queue"]["running"] == 0 &&
+         st["queue"]["length"] == 0;
+}
+
+// Clients that ask for 12 MiB replies and never read them, 3 connections x 2 requests.
+void non_readers(const std::string& address, Client& monitor) {
+  const std::uint64_t drops_before =
+      monitor.call_ok({{"op", "status"}})["connections"]["unsent_drops"];
+  std::vector<Client> silent;
+  for (int i = 0; i < 3; ++i) {
+    silent.push_back(Client::connect(address));
+    for (int k = 0; k < 2; ++k)
+      silent.back().send({{"op", "debug.sleep"}, {"ms", 0}, {"reply_bytes", 12 << 20}});
+  }
+  const json st = wait_for_status(monitor, [&](const json& s) {
+    return s["queue"]["running"] == 0 && s["queue"]["length"] == 0 &&
+           s["connections"]["unsent_drops"].get<std::uint64_t>() > drops_before;
+  });
+  EXPECT_GT(st["connections"]["unsent_drops"].get<std::uint64_t>(), drops_before) << st.dump();
+  EXPECT_LE(st["memory"]["unsent_reply_bytes"].get<std::size_t>(), std::size_t{32} << 20);
+}
+
+// Frames of 60 MiB that stop after 24 MiB: closed after the frame timeout, memory released.
+void stalled_frames(const std::string& address) {
+  std::vector<Client> stalled;
+  for (int i = 0; i < 4; ++i) {
+    stalled.push_back(Client::connect(address, 20.0));
+    stalled.back().send_raw(half_frame(60u << 20, 24u << 20));
+  }
+  for (auto& c : stalled) {
+    const p::Message m = c.receive();
+    EXPECT_EQ(error_code(m), "timeout") << m.header.dump();
+  }
+}
+
+// More idle connections than --max-connections (16): the longest idle make room.
+void slot_hogs(const std::string& address, Client& monitor) {
+  std::vector<Client> hogs;
+  for (int i = 0; i < 20; ++i) {
+    hogs.push_back(Client::connect(address));
+    hogs.back().call({{"op", "status"}});
+    monitor.call_ok({{"op", "status"}});  // the monitor is never the longest idle
+  }
+  const json st = monitor.call_ok({{"op", "status"}});
+  EXPECT_LE(st["connections"]["open"].get<int>(), 16);
+  EXPECT_GE(st["connections"]["evicted"].get<int>(), 4);
+}
+
+}  // namespace
+
+// The attacks a hostile or careless client can make, repeated: clients that never read their
+// replies, stalled huge frames, connection and session hogs. The server serves a well-behaved
+// client meanwhile, holds nothing afterwards, logs why it dropped the non-readers, and its
+// resident memory returns to its idle figure.
+TEST_F(ServerFaults, SoakOfHogsAndNonReadersLeavesTheServerAsIdle) {
+  start({"--debug-ops", "--frame-timeout", "1", "--max-connections", "16", "--max-unsent-bytes",
+         std::to_string(32 << 20)});
+  const json reference = flat_reference(address_);
+  Client monitor = Client::connect(address_, 60.0);
+  auto round = [&] {
+    non_readers(address_, monitor);
+    stalled_frames(address_);
+    slot_hogs(address_, monitor);
+    {
+      Client sessions = Client::connect(address_, 60.0);
+      for (int i = 0; i < 8; ++i) sessions.call_ok(open_from(reference));
+    }
+    EXPECT_EQ(monitor.call_ok({{"op", "map.query"}, {"points", {{1.0, 0.0}}}})["results"].size(),
+              1u);
+    const json st = wait_for_status(monitor, quiet);
+    EXPECT_TRUE(quiet(st)) << st.dump();
+    return st["memory"]["rss_bytes"].get<double>();
+  };
+  {
+    Client warm = Client::connect(address_, 60.0);  // a session's code paths, as a round has
+    warm.call_ok(open_from(reference));
+  }
+  const double idle = wait_for_status(monitor, quiet)["memory"]["rss_bytes"].get<double>();
+  double last = idle;
+  for (int i = 0; i < 3; ++i) {
+    last = round();
+    std::fprintf(stderr, "soak: rss after round %d: %.1f MiB\n", i + 1, last / (1 << 20));
+  }
+  const json st = monitor.call_ok({{"op", "status"}});
+  EXPECT_EQ(monitor.call_ok({{"op", "plan.session.status"}})["open"], 0);
+  EXPECT_LT(last, idle + 32.0 * (1 << 20)) << "idle " << idle << " B, after the soak " << last;
+  std::fprintf(stderr, "soak: rss idle %.1f MiB, after %.1f MiB; evicted %d, unsent drops %d\n",
+               idle / (1 << 20), last / (1 << 20), st["connections"]["evicted"].get<int>(),
+               st["connections"]["unsent_drops"].get<int>());
+  ASSERT_EQ(server_->stop(SIGTERM), 0);
+  EXPECT_NE(server_->output.find("dropped: "), std::string::npos) << server_->output;
+  EXPECT_NE(server_->output.find("(--max-unsent-bytes)"), std::string::npos);
+  server_.reset();
+}

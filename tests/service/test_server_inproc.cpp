@@ -1,7 +1,8 @@
 // The server in-process (so the sanitizer build covers the transport): operations, pipelining,
 // cancel, busy, deadlines, malformed and oversized frames, the limits against clients that hold
-// memory or connections (frame and idle timeouts, the connection limit, the pre-hello frame cap,
-// the request-byte budget), and a graceful shutdown with replies.
+// memory or connections (frame and idle timeouts, the connection limit and the eviction of the
+// longest idle connection, the pre-hello frame cap, the request-byte budgets, the per-connection
+// quotas, unsent replies and clients that take none), and a graceful shutdown with replies.
 #include <gtest/gtest.h>
 
 #include <functional>
@@ -307,30 +308,61 @@ TEST(ServerInProcess, IdleConnectionIsClosed) {
 
 // At the connection limit a new client is told `busy` (id null) and the connection is closed
 // cleanly, not reset; once the idle ones time out it gets in.
-TEST(ServerInProcess, ConnectionLimitAnswersBusy) {
+// A full server makes room for a new client by closing the connection idle longest (connections
+// that only keep themselves alive cannot keep new clients out); with every connection busy (a
+// frame arriving), a new client gets `busy` and is closed.
+TEST(ServerInProcess, ConnectionLimitEvictsTheLongestIdleOrAnswersBusy) {
   InProcessServer s(1, 1, [](ServerOptions& o) {
     o.max_connections = 3;
-    o.idle_timeout_s = 0.5;
+    o.idle_timeout_s = 60;
+    o.frame_timeout_s = 60;
   });
   std::vector<Client> idle;
-  for (int i = 0; i < 3; ++i) idle.push_back(Client::connect(s.address));
-  for (auto& c : idle) c.call_ok({{"op", "status"}});  // adopted, and fresh against the timeout
+  for (int i = 0; i < 3; ++i) {
+    idle.push_back(Client::connect(s.address));
+    idle.back().call_ok({{"op", "status"}});  // adopted, in this order of activity
+  }
+  idle[1].call_ok({{"op", "status"}});
+  idle[0].call_ok({{"op", "status"}});  // idle[2] is now the longest idle
   Client late = Client::connect(s.address);
   late.set_timeout(10);
+  EXPECT_EQ(late.call_ok({{"op", "hello"}})["protocol"], 1);
+  idle[2].set_timeout(10);
+  expect_error_then_close(idle[2], "busy", "idle longest");
+  idle[0].call_ok({{"op", "status"}});
+  idle[1].call_ok({{"op", "status"}});
+
+  // Every connection busy (each has a frame arriving): the next one is refused.
+  idle[0].send_raw(half_frame(1000, 10));
+  idle[1].send_raw(half_frame(1000, 10));
+  late.send_raw(half_frame(1000, 10));
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  Client refused = Client::connect(s.address);
+  refused.set_timeout(10);
   // Requests the server never reads: its close must still not be a reset (a reset can destroy
   // the reply before the client reads it, and fails the client's next send).
-  late.send({{"op", "hello"}});
+  refused.send({{"op", "hello"}});
   std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  late.send({{"op", "status"}});
-  expect_error_then_close(late, "busy", "connection limit of 3");
-  for (auto& c : idle) {
-    c.set_timeout(10);
-    expect_error_then_close(c, "timeout", "idle");
+  refused.send({{"op", "status"}});
+  expect_error_then_close(refused, "busy", "connection limit of 3");
+  idle.clear();
+  { Client gone = std::move(late); }
+  json st;
+  for (int i = 0; i < 500; ++i) {  // the closed clients' slots come back
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    Client again = Client::connect(s.address);
+    p::Message m;
+    try {
+      m = again.call({{"op", "status"}});
+    } catch (const ClientError&) {
+      continue;  // refused while the server had not yet seen the others leave
+    }
+    if (!code_of(m).empty()) continue;
+    st = m.header["result"];
+    if (st["connections"]["open"] == 1) break;
   }
-  Client again = Client::connect(s.address);
-  EXPECT_EQ(again.call_ok({{"op", "hello"}})["protocol"], 1);
-  const json st = again.call_ok({{"op", "status"}});
-  EXPECT_EQ(st["connections"]["rejected"], 1);
+  EXPECT_GE(st["connections"]["rejected"], 1);
+  EXPECT_EQ(st["connections"]["evicted"], 1);
   EXPECT_EQ(st["connections"]["open"], 1);
 }
 
@@ -471,3 +503,163 @@ TEST(ServerInProcess, StatusWhileDrainingShowsDraining) {
 }
 
 }  // namespace
+
+// Attachments an operation does not read are refused naming them, rather than silently ignored
+// (a cloud sent as "pointz" would otherwise be a map.update without points).
+TEST(ServerInProcess, UnknownAttachmentNamesAreRefused) {
+  InProcessServer s(1, 1);
+  Client c = Client::connect(s.address);
+  c.call_ok({{"op", "map.update"}, {"scene", "flat"}});
+  const std::vector<float> xy{0.5f, 0.5f};
+  p::Message m = c.call({{"op", "map.query"}, {"points", {{0.5, 0.5}}}},
+                        {p::make_float_attachment("pointz", {1, 2}, xy)});
+  EXPECT_EQ(code_of(m), "bad_request");
+  EXPECT_EQ(m.header["error"].value("message", ""),
+            "attachments[0]: unknown attachment \"pointz\" for op map.query (it takes: points)");
+  m = c.call({{"op", "status"}}, {p::make_float_attachment("extra", {1, 2}, xy)});
+  EXPECT_EQ(code_of(m), "bad_request");
+  EXPECT_NE(m.header["error"].value("message", "").find("\"extra\" for op status (it takes none)"),
+            std::string::npos)
+      << m.header.dump();
+  m = c.call({{"op", "map.update"}, {"mode", "replace"}},
+             {p::make_float_attachment("points", {1, 3}, {0.f, 0.f, 0.f}),
+              p::make_float_attachment("colours", {1, 3}, {0.f, 0.f, 0.f})});
+  EXPECT_NE(m.header["error"].value("message", "").find("attachments[1]: unknown attachment "
+                                                         "\"colours\" for op map.update"),
+            std::string::npos)
+      << m.header.dump();
+  // The connection stays usable, and the named attachment works.
+  EXPECT_EQ(c.call_ok({{"op", "map.query"}}, {p::make_float_attachment("points", {1, 2}, xy)})
+                ["results"]
+                    .size(),
+            1u);
+}
+
+// A large frame that stops arriving is closed after --frame-timeout of silence, however many
+// bytes came before it (at --min-receive-rate they would earn it minutes), and its memory is
+// released.
+TEST(ServerInProcess, StalledLargeFrameIsClosedAfterTheFrameTimeout) {
+  InProcessServer s(1, 1, [](ServerOptions& o) {
+    o.frame_timeout_s = 0.5;
+    o.min_receive_rate = 1000;  // 800 kB received would allow 800 s more
+    o.idle_timeout_s = 0;
+  });
+  Client monitor = Client::connect(s.address);
+  Client c = Client::connect(s.address);
+  c.set_timeout(20);
+  c.send_raw(half_frame(900000, 800000));
+  expect_error_then_close(c, "timeout", "none for the last");
+  json st;
+  for (int i = 0; i < 500; ++i) {
+    st = monitor.call_ok({{"op", "status"}});
+    if (st["memory"]["buffered_request_bytes"] == 0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  EXPECT_EQ(st["memory"]["buffered_request_bytes"], 0);
+  EXPECT_EQ(st["connections"]["frame_timeouts"], 1);
+}
+
+// One connection's request bytes (its frame arriving, its requests waiting) are capped below the
+// server's budget: it cannot take all of it, and other clients' frames still fit.
+TEST(ServerInProcess, RequestBytesPerConnection) {
+  InProcessServer s(1, 1, [](ServerOptions& o) {
+    o.max_buffered_bytes = 4 << 20;
+    o.max_buffered_bytes_per_connection = 300000;
+    o.frame_timeout_s = 30;
+  });
+  std::vector<float> pad(50000, 1.0f);  // 200 kB
+  auto padded_sleep = [&](int id, double ms) {
+    return p::encode_frame(p::Message{{{"v", 1}, {"id", id}, {"op", "debug.sleep"}, {"ms", ms}},
+                                      {p::make_float_attachment("pad", {50000}, pad)}});
+  };
+  Client hog = Client::connect(s.address);
+  hog.set_timeout(10);
+  hog.send_raw(padded_sleep(1, 20000));  // held while it runs
+  Client monitor = Client::connect(s.address);
+  for (int i = 0; i < 500; ++i) {
+    if (monitor.call_ok({{"op", "status"}})["queue"]["running"] == 1) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  hog.send_raw(padded_sleep(2, 0));  // 400 kB in all: beyond its 300 kB
+  expect_error_then_close(hog, "busy", "--max-buffered-bytes-per-connection");
+  Client other = Client::connect(s.address);
+  other.send_raw(padded_sleep(3, 0));
+  EXPECT_EQ(code_of(other.receive()), "");
+}
+
+// One connection cannot take the whole worker queue: beyond its quota of requests queued or
+// running it gets `busy`, and another client's request still finds a place.
+TEST(ServerInProcess, WorkerRequestsPerConnection) {
+  InProcessServer s(1, 2, [](ServerOptions& o) { o.max_jobs_per_connection = 1; });
+  Client hog = Client::connect(s.address);
+  EXPECT_EQ(hog.call_ok({{"op", "hello"}})["capabilities"]["max_jobs_per_connection"], 1);
+  hog.send({{"op", "debug.sleep"}, {"id", 1}, {"ms", 20000}});
+  const p::Message m = hog.call({{"op", "debug.sleep"}, {"id", 2}, {"ms", 20000}});
+  EXPECT_EQ(code_of(m), "busy");
+  EXPECT_NE(m.header["error"].value("message", "").find("--max-jobs-per-connection"),
+            std::string::npos)
+      << m.header.dump();
+  Client other = Client::connect(s.address);
+  other.send({{"op", "debug.sleep"}, {"id", 3}, {"ms", 1}});
+  hog.call_ok({{"op", "cancel"}, {"target", 1}});
+  EXPECT_EQ(code_of(hog.wait_for(1)), "cancelled");
+  EXPECT_EQ(code_of(other.wait_for(3)), "");
+  // The cancelled request's place is free again.
+  EXPECT_EQ(code_of(hog.call({{"op", "debug.sleep"}, {"id", 4}, {"ms", 1}})), "");
+}
+
+// Clients that ask for large replies and never read them: the unsent replies of all connections
+// stay within --max-unsent-bytes (the connection furthest behind in taking them is dropped), and
+// a client that reads is served meanwhile.
+TEST(ServerInProcess, UnsentRepliesAreBoundedAcrossConnections) {
+  constexpr std::size_t kBudget = 32u << 20, kReply = 12u << 20;
+  InProcessServer s(2, 8, [](ServerOptions& o) {
+    o.max_unsent_bytes = kBudget;
+    o.max_write_queue_bytes = 64u << 20;
+  });
+  std::vector<Client> silent;
+  for (int i = 0; i < 3; ++i) {
+    silent.push_back(Client::connect(s.address));
+    for (int k = 0; k < 2; ++k)
+      silent.back().send({{"op", "debug.sleep"}, {"ms", 0}, {"reply_bytes", kReply}});
+  }
+  Client monitor = Client::connect(s.address);
+  json st;
+  for (int i = 0; i < 1000; ++i) {
+    st = monitor.call_ok({{"op", "status"}});
+    if (st["queue"]["running"] == 0 && st["queue"]["length"] == 0 &&
+        st["connections"]["unsent_drops"] >= 1)
+      break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  EXPECT_GE(st["connections"]["unsent_drops"].get<int>(), 1) << st.dump();
+  EXPECT_LE(st["memory"]["unsent_reply_bytes"].get<std::size_t>(), kBudget) << st.dump();
+  EXPECT_EQ(st["memory"]["max_unsent_bytes"], kBudget);
+  Client reader = Client::connect(s.address);
+  const p::Message m = reader.call({{"op", "debug.sleep"}, {"ms", 0}, {"reply_bytes", 1 << 20}});
+  EXPECT_EQ(code_of(m), "");
+  ASSERT_EQ(m.attachments.size(), 1u);
+  EXPECT_EQ(m.attachments[0].data.size(), 1u << 20);
+}
+
+// A client that takes none of its replies for --frame-timeout is dropped then, however large
+// they are (at --min-receive-rate, 12 MiB would earn it hours), and their memory is released.
+TEST(ServerInProcess, ClientThatTakesNoRepliesIsDroppedAfterTheFrameTimeout) {
+  InProcessServer s(1, 1, [](ServerOptions& o) {
+    o.frame_timeout_s = 0.5;
+    o.min_receive_rate = 1000;
+    o.idle_timeout_s = 0;
+  });
+  Client silent = Client::connect(s.address);
+  silent.send({{"op", "debug.sleep"}, {"ms", 0}, {"reply_bytes", 12 << 20}});
+  Client monitor = Client::connect(s.address);
+  json st;
+  for (int i = 0; i < 1000; ++i) {
+    st = monitor.call_ok({{"op", "status"}});
+    if (st["connections"]["write_timeouts"] == 1 && st["memory"]["unsent_reply_bytes"] == 0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(st["connections"]["write_timeouts"], 1) << st.dump();
+  EXPECT_EQ(st["memory"]["unsent_reply_bytes"], 0) << st.dump();
+  EXPECT_EQ(st["connections"]["open"], 1) << st.dump();
+}

@@ -192,7 +192,7 @@ Message Client::receive() {
     return m;
   }
   try {
-    return protocol::decode_body(read_body());
+    return protocol::decode_body(read_body(), max_frame_bytes);
   } catch (const protocol::ProtocolError& e) {
     throw ClientError(std::string("malformed reply: ") + e.what());
   }
@@ -208,7 +208,7 @@ Message Client::wait_for(const json& id) {
   for (;;) {
     Message m;
     try {
-      m = protocol::decode_body(read_body());
+      m = protocol::decode_body(read_body(), max_frame_bytes);
     } catch (const protocol::ProtocolError& e) {
       throw ClientError(std::string("malformed reply: ") + e.what());
     }

@@ -53,11 +53,14 @@ void Connection::on_readable(asio::error_code ec) {
     return close();
   }
   if (lingering || close_after_flush) return read_more();
-  last_active = Clock::now();
+  last_active = last_received = Clock::now();
   if (large.data()) {
     large_have += n;
     large_bytes.add(server.budget, n);
-    if (server.budget->used.load() > server.budget->limit) return refuse_for_budget(large.size());
+    large_own_bytes.add(own_budget, n);
+    if (server.budget->used.load() > server.budget->limit)
+      return refuse_for_budget(large.size(), false);
+    if (own_budget->used.load() > own_budget->limit) return refuse_for_budget(large.size(), true);
   } else {
     in_end += n;
   }
@@ -68,6 +71,7 @@ void Connection::free_large() {
   large.reset();
   large_have = 0;
   large_bytes.release();
+  large_own_bytes.release();
 }
 
 std::uint32_t Connection::frame_cap() const {
@@ -86,7 +90,7 @@ void Connection::process_frames() {
       if (large_have < large.size()) break;
       // Moved out first: whatever dispatch does (even closing), the body stays valid.
       FrameBuffer frame = std::move(large);
-      BudgetHold held = std::move(large_bytes);
+      BudgetHold held = std::move(large_bytes), held_own = std::move(large_own_bytes);
       large_have = 0;
       frame_started = false;
       dispatch(std::string_view(frame.data() + 4, frame.size() - 4));
@@ -135,8 +139,8 @@ void Connection::process_frames() {
 
 bool Connection::start_large(std::size_t total) {
   const std::size_t have = in_end - in_start;
-  if (!server.budget->fits(total)) {
-    refuse_for_budget(total);
+  if (!server.budget->fits(total) || !own_budget->fits(total)) {
+    refuse_for_budget(total, server.budget->fits(total));
     return false;
   }
   if (!large.allocate(total)) {
@@ -148,33 +152,68 @@ bool Connection::start_large(std::size_t total) {
   std::memcpy(large.data(), &inbuf[in_start], have);
   large_have = have;
   large_bytes.add(server.budget, have);
+  large_own_bytes.add(own_budget, have);
   in_start = in_end = 0;
   return true;
 }
 
-void Connection::refuse_for_budget(std::size_t frame_bytes) {
+void Connection::refuse_for_budget(std::size_t frame_bytes, bool own) {
   server.budget->refused++;
   server.counters.busy++;
+  const std::string holder = own ? "this connection holds " : "the server holds ";
+  const ByteBudget& b = own ? *own_budget : *server.budget;
   send_error(nullptr, pc::kBusy,
-             "frame of " + std::to_string(frame_bytes) + " bytes refused: the server holds " +
-                 std::to_string(server.budget->used.load()) +
-                 " bytes of requests and its budget is " + std::to_string(server.budget->limit) +
-                 " (--max-buffered-bytes); connection closed, retry later");
+             "frame of " + std::to_string(frame_bytes) + " bytes refused: " + holder +
+                 std::to_string(b.used.load()) + " bytes of requests and its budget is " +
+                 std::to_string(b.limit) +
+                 (own ? " (--max-buffered-bytes-per-connection)" : " (--max-buffered-bytes)") +
+                 "; connection closed, retry later");
   finish_and_close();
+}
+
+void Connection::evict(double idle_s) {
+  server.counters.evicted_connections++;
+  char text[64];
+  std::snprintf(text, sizeof(text), "%.3g s", idle_s);
+  send_error(nullptr, pc::kBusy,
+             "connection closed for a new client: the server holds " +
+                 std::to_string(server.options.max_connections) +
+                 " connections (--max-connections) and this one was idle longest (" + text + ")");
+  finish_and_close();
+  uncount();  // its slot is the new client's now, while the reply goes out
+}
+
+double Connection::seconds_behind(Clock::time_point now) const {
+  if (writing.empty()) return 0.0;
+  const double elapsed = std::chrono::duration<double>(now - write_start).count();
+  return elapsed - double(write_done) / server.options.min_receive_rate;
+}
+
+void Connection::drop_unread(const std::string& reason) {
+  std::fprintf(stderr, "terrastride serve: connection %llu dropped: %s\n",
+               static_cast<unsigned long long>(cid), reason.c_str());
+  close();
 }
 
 void Connection::send(std::string frame) {
   if (closed || lingering) return;
   server.counters.bytes_out += frame.size();
   out_bytes += frame.size();
+  server.unsent_bytes += frame.size();
+  last_active = Clock::now();
+  out.push_back(std::move(frame));
   if (out_bytes > server.options.max_write_queue_bytes) {
     // A client that does not read its replies: drop it rather than grow without bound.
     server.counters.slow_client_drops++;
-    close();
-    return;
+    return drop_unread(std::to_string(out_bytes) + " bytes of replies unsent, beyond " +
+                       std::to_string(server.options.max_write_queue_bytes) +
+                       " (--max-unsent-bytes-per-connection)");
   }
-  last_active = Clock::now();
-  out.push_back(std::move(frame));
+  if (server.unsent_bytes > server.options.max_unsent_bytes) {
+    auto self = shared_from_this();  // the budget may drop this connection
+    server.enforce_unsent_budget();
+    if (closed) return;
+  }
   if (writing.empty()) do_write();
 }
 
@@ -198,31 +237,59 @@ void Connection::do_write() {
     if (close_after_flush) linger();
     return;
   }
-  std::vector<asio::const_buffer> bufs;
   while (!out.empty() && writing.size() < 64) {
     writing.push_back(std::move(out.front()));
     out.pop_front();
   }
-  write_bytes = 0;
+  write_bytes = write_done = 0;
+  for (const auto& w : writing) write_bytes += w.size();
+  write_start = write_progress = Clock::now();
+  write_some();
+}
+
+void Connection::write_some() {
+  // The rest of the batch; written piece by piece so the sweep sees whether the client takes
+  // its replies at all (write_progress), not only whether a whole batch is done.
+  std::vector<asio::const_buffer> bufs;
+  std::size_t skip = write_done;
   for (const auto& w : writing) {
-    bufs.emplace_back(asio::buffer(w));
-    write_bytes += w.size();
-  }
-  write_start = Clock::now();
-  auto self = shared_from_this();
-  asio::async_write(socket, bufs, [self](const asio::error_code& ec, std::size_t) {
-    for (const auto& w : self->writing) self->out_bytes -= w.size();
-    self->writing.clear();
-    if (ec) return self->close();
-    self->last_active = Clock::now();
-    if (self->read_paused && self->out_bytes <= kPauseReadBytes / 2) {
-      self->read_paused = false;
-      // The frame clock stopped while the server did not read.
-      if (self->frame_started) self->frame_start = Clock::now();
-      self->process_frames();
+    if (skip >= w.size()) {
+      skip -= w.size();
+      continue;
     }
-    self->do_write();
+    bufs.emplace_back(asio::buffer(w.data() + skip, w.size() - skip));
+    skip = 0;
+  }
+  auto self = shared_from_this();
+  socket.async_write_some(bufs, [self](const asio::error_code& ec, std::size_t n) {
+    if (!ec) {
+      if (n > 0) {
+        self->write_done += n;
+        self->write_progress = self->last_active = Clock::now();
+      }
+      if (self->write_done < self->write_bytes) return self->write_some();
+    }
+    self->end_write(ec);
   });
+}
+
+void Connection::end_write(const asio::error_code& ec) {
+  if (write_bytes >= kPauseReadBytes) server.trim_pending = true;
+  for (const auto& w : writing) {
+    out_bytes -= w.size();
+    // close() took a closed connection's bytes off the server's count already.
+    if (!closed) server.unsent_bytes -= w.size();
+  }
+  writing.clear();
+  write_bytes = write_done = 0;
+  if (ec) return close();
+  if (read_paused && out_bytes <= kPauseReadBytes / 2) {
+    read_paused = false;
+    // The frame clock stopped while the server did not read.
+    if (frame_started) frame_start = last_received = Clock::now();
+    process_frames();
+  }
+  do_write();
 }
 
 void Connection::finish_and_close() {
@@ -257,9 +324,10 @@ void Connection::abandon_jobs() {
     job->replied = true;
     job->token->cancel(CancellationToken::Reason::kCancelled);
     if (job->deadline_timer) job->deadline_timer->cancel();
-    server.pool->try_remove(job);
+    if (server.pool->try_remove(job)) leave_pool(job);
   }
   inflight.clear();
+  lanes.clear();
 }
 
 void Connection::close() {
@@ -270,6 +338,12 @@ void Connection::close() {
   asio::error_code ignored;
   socket.shutdown(asio::socket_base::shutdown_both, ignored);
   socket.close(ignored);
+  // Unsent replies leave the server's count now; those not yet handed to the socket are freed
+  // now, those being written when the aborted write ends.
+  server.unsent_bytes -= out_bytes;
+  if (out_bytes > 0) server.trim_pending = true;
+  for (const auto& frame : out) out_bytes -= frame.size();
+  out.clear();
   free_large();
   abandon_jobs();
   server.registry.disconnected(cid);
@@ -287,17 +361,29 @@ void Connection::check_timeouts(Clock::time_point now) {
   }
   const ServerOptions& o = server.options;
   if (o.frame_timeout_s <= 0 && o.idle_timeout_s <= 0) return;
-  if (o.frame_timeout_s > 0 && !writing.empty() &&
-      since(write_start) > o.frame_timeout_s + double(write_bytes) / o.min_receive_rate) {
-    // The client does not take its replies: nothing more can reach it, so no error reply.
-    server.counters.write_timeouts++;
-    return close();
+  if (o.frame_timeout_s > 0 && !writing.empty()) {
+    // The client does not take its replies (none of them for --frame-timeout, or not at
+    // --min-receive-rate): nothing more can reach it, so no error reply; the reason on stderr.
+    const bool stalled = since(write_progress) > o.frame_timeout_s;
+    if (stalled ||
+        since(write_start) > o.frame_timeout_s + double(write_bytes) / o.min_receive_rate) {
+      server.counters.write_timeouts++;
+      char text[64];
+      std::snprintf(text, sizeof(text), "%.3g s", since(stalled ? write_progress : write_start));
+      return drop_unread(std::to_string(write_bytes - write_done) + " of " +
+                         std::to_string(out_bytes) + " bytes of replies unsent, " +
+                         (stalled ? "none taken for " : "not taken at --min-receive-rate in ") +
+                         text + " (--frame-timeout)");
+    }
   }
   if (close_after_flush) return;
   if (o.frame_timeout_s > 0 && frame_started && !read_paused) {
     const std::size_t have = large.data() ? large_have : in_end - in_start;
-    const double allowed = o.frame_timeout_s + double(have) / o.min_receive_rate;
-    if (since(frame_start) > allowed) {
+    double allowed = o.frame_timeout_s + double(have) / o.min_receive_rate;
+    // A frame that stopped arriving: its earlier bytes earn it no more time.
+    const bool stalled = since(last_received) > o.frame_timeout_s;
+    if (stalled) allowed = std::min(allowed, since(frame_start));
+    if (stalled || since(frame_start) > allowed) {
       server.counters.frame_timeouts++;
       char text[64];
       std::snprintf(text, sizeof(text), "%.3g s", allowed);
@@ -306,16 +392,21 @@ void Connection::check_timeouts(Clock::time_point now) {
           : have >= 4  ? 4 + std::size_t(protocol::read_u32be(
                                  reinterpret_cast<const unsigned char*>(&inbuf[in_start])))
                        : 0;
+      char silent[64];
+      std::snprintf(silent, sizeof(silent), "%.3g s", since(last_received));
       send_error(nullptr, pc::kTimeout,
                  "frame incomplete after " + std::string(text) + ": " + std::to_string(have) +
                      (announced ? " of " + std::to_string(announced) : std::string()) +
-                     " bytes received (a frame must arrive within --frame-timeout plus its "
-                     "bytes at --min-receive-rate); connection closed");
+                     " bytes received" +
+                     (stalled ? ", none for the last " + std::string(silent) +
+                                    " (--frame-timeout)"
+                              : std::string(" (a frame must arrive within --frame-timeout plus "
+                                            "its bytes at --min-receive-rate)")) +
+                     "; connection closed");
       return finish_and_close();
     }
   }
-  const bool busy = frame_started || !inflight.empty() || !out.empty() || !writing.empty();
-  if (busy) return;
+  if (!idle()) return;
   // Before hello on a token server, silence is bounded by the frame timeout too.
   double limit = o.idle_timeout_s;
   const bool waiting_for_hello = !authenticated && o.frame_timeout_s > 0;
@@ -336,6 +427,7 @@ void Connection::check_timeouts(Clock::time_point now) {
 void Connection::finish_job(const std::shared_ptr<Job>& job, std::string frame, bool ok,
                             const std::string& code) {
   if (job->deadline_timer) job->deadline_timer->cancel();
+  leave_pool(job);  // the worker is done with it
   const auto it = inflight.find(job->key);
   if (it != inflight.end() && it->second == job) inflight.erase(it);
   if (job->replied) return;  // already answered (cancel, deadline, shutdown) or gone
@@ -345,6 +437,7 @@ void Connection::finish_job(const std::shared_ptr<Job>& job, std::string frame, 
   else
     server.count_error(code);
   send(std::move(frame));
+  job_answered(job);
 }
 
 void Connection::abort_job(const std::shared_ptr<Job>& job, const char* code,
@@ -354,6 +447,13 @@ void Connection::abort_job(const std::shared_ptr<Job>& job, const char* code,
   inflight.erase(job->key);
   job->replied = true;
   send_error(job->id, code, message);
+  job_answered(job);
+}
+
+void Connection::leave_pool(const std::shared_ptr<Job>& job) {
+  if (!job->in_pool) return;
+  job->in_pool = false;
+  pool_jobs--;
 }
 
 }  // namespace terrastride::service

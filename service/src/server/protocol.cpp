@@ -153,32 +153,40 @@ std::string encode_frame(const Message& message, std::string_view raw_result) {
   } else {
     header.erase("attachments");
   }
-  // NaN/inf are not JSON: they become null rather than failing the whole reply.
+  // NaN/inf are not JSON: they become null rather than failing the whole reply. A raw result is
+  // spliced in between the header's other keys and its closing brace, written straight into the
+  // frame: a copy of it in between would double the memory of a large reply (a plan's samples).
+  if (!raw_result.empty()) header.erase("result");
   std::string text = header.dump(-1, ' ', false, json::error_handler_t::replace);
+  std::string_view splice_before;
   if (!raw_result.empty()) {
-    header.erase("result");
-    text = header.dump(-1, ' ', false, json::error_handler_t::replace);
     text.pop_back();  // the closing brace of the object
-    if (text.size() > 1) text += ',';
-    text += "\"result\":";
-    text += raw_result;
-    text += '}';
+    splice_before = text.size() > 1 ? ",\"result\":" : "\"result\":";
   }
-  std::uint64_t body = 4 + text.size();
+  const std::uint64_t header_bytes =
+      text.size() + (raw_result.empty() ? 0 : splice_before.size() + raw_result.size() + 1);
+  std::uint64_t body = 4 + header_bytes;
   for (const auto& a : message.attachments) body += a.data.size();
   if (body > std::numeric_limits<std::uint32_t>::max())
     fail(code::kBadFrame, "frame of " + std::to_string(body) + " bytes exceeds 4 GiB");
   std::string out;
+  out.reserve(4 + body);
   out.resize(8);
   write_u32be(static_cast<std::uint32_t>(body), reinterpret_cast<unsigned char*>(&out[0]));
-  write_u32be(static_cast<std::uint32_t>(text.size()), reinterpret_cast<unsigned char*>(&out[4]));
-  out.reserve(4 + body);
+  write_u32be(static_cast<std::uint32_t>(header_bytes), reinterpret_cast<unsigned char*>(&out[4]));
   out += text;
+  if (!raw_result.empty()) {
+    out += splice_before;
+    out += raw_result;
+    out += '}';
+  }
   for (const auto& a : message.attachments) out += a.data;
   return out;
 }
 
-Message decode_body(std::string_view body) {
+Message decode_body(std::string_view body) { return decode_body(body, kMaxHeaderBytes); }
+
+Message decode_body(std::string_view body, std::size_t max_header_bytes) {
   if (body.size() < 4)
     fail(code::kBadFrame, "frame body of " + std::to_string(body.size()) +
                               " bytes is shorter than its 4-byte header length");
@@ -188,9 +196,9 @@ Message decode_body(std::string_view body) {
     fail(code::kBadFrame, "header length " + std::to_string(header_length) +
                               " exceeds the frame body (" + std::to_string(body.size() - 4) +
                               " bytes after the header length)");
-  if (header_length > kMaxHeaderBytes)
+  if (header_length > max_header_bytes)
     fail(code::kBadFrame, "JSON header of " + std::to_string(header_length) +
-                              " bytes exceeds the limit of " + std::to_string(kMaxHeaderBytes));
+                              " bytes exceeds the limit of " + std::to_string(max_header_bytes));
   Message m;
   const std::string_view text = body.substr(4, header_length);
   m.header = json::parse(text.begin(), text.end(), nullptr, /*allow_exceptions=*/false);

@@ -5,6 +5,7 @@
 // file holds the server's life cycle (bind, accept, run, drain), its jobs and its status.
 #include "terrastride/service/server.hpp"
 
+#include <malloc.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -59,6 +60,8 @@ void Server::Impl::run_job(std::shared_ptr<Job> job) {
   }
   job->request = Message{};  // free the attachments now
   job->request_bytes.release();
+  job->connection_bytes.release();
+  pool->finished();
   asio::post(io, [job, frame = std::move(frame), ok, code]() mutable {
     auto c = job->conn.lock();
     if (job->deadline_timer) job->deadline_timer->cancel();
@@ -71,6 +74,13 @@ void Server::Impl::adopt(asio::generic::stream_protocol::socket sock, bool tcp) 
   counters.connections_total++;
   if (draining) return;
   auto c = std::make_shared<Connection>(*this, std::move(sock), next_conn_id++);
+  if (active_connections >= options.max_connections) {
+    // Full: the connection idle longest makes room, so connections that only keep themselves
+    // alive (a status every few minutes) cannot keep new clients out.
+    if (const auto victim = longest_idle_connection()) {
+      victim->evict(std::chrono::duration<double>(Clock::now() - victim->last_active).count());
+    }
+  }
   if (active_connections >= options.max_connections) {
     counters.connections_rejected++;
     const std::string message = "connection limit of " + std::to_string(options.max_connections) +
@@ -97,6 +107,41 @@ void Server::Impl::adopt(asio::generic::stream_protocol::socket sock, bool tcp) 
   c->counted = true;
   connections.insert(c);
   c->start();
+}
+
+std::shared_ptr<Connection> Server::Impl::longest_idle_connection() const {
+  std::shared_ptr<Connection> victim;
+  for (const auto& c : connections) {
+    if (!c->counted || c->closed || c->close_after_flush || !c->idle()) continue;
+    if (!victim || c->last_active < victim->last_active) victim = c;
+  }
+  return victim;
+}
+
+void Server::Impl::enforce_unsent_budget() {
+  const auto now = Clock::now();
+  while (unsent_bytes > options.max_unsent_bytes) {
+    // The client furthest behind in taking its replies (one that does not read at all falls
+    // behind by the second); a client that reads is ahead, and a reply just queued is at 0.
+    std::shared_ptr<Connection> victim;
+    double victim_behind = 0.0;
+    for (const auto& c : connections) {
+      if (c->closed || c->out_bytes == 0) continue;
+      const double behind = c->seconds_behind(now);
+      if (!victim || behind > victim_behind ||
+          (behind == victim_behind && c->out_bytes > victim->out_bytes))
+        victim = c, victim_behind = behind;
+    }
+    if (!victim) return;
+    counters.unsent_drops++;
+    char text[64];
+    std::snprintf(text, sizeof(text), "%.3g s", victim_behind);
+    victim->drop_unread(std::to_string(victim->out_bytes) +
+                        " bytes of replies unsent, the furthest behind in taking them (" + text +
+                        " behind --min-receive-rate), while all connections' unsent replies (" +
+                        std::to_string(unsent_bytes) + " bytes) exceed " +
+                        std::to_string(options.max_unsent_bytes) + " (--max-unsent-bytes)");
+  }
 }
 
 void Server::Impl::accept_tcp(asio::ip::tcp::acceptor& acc) {
@@ -146,10 +191,10 @@ long resident_bytes() {
 }  // namespace
 
 std::size_t default_max_buffered_bytes() {
-  const std::size_t gib = std::size_t{1} << 30;
+  const std::size_t cap = std::size_t{512} << 20;
   const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGESIZE);
-  if (pages <= 0 || page <= 0) return gib;
-  return std::min(gib, static_cast<std::size_t>(pages) * static_cast<std::size_t>(page) / 4);
+  if (pages <= 0 || page <= 0) return cap;
+  return std::min(cap, static_cast<std::size_t>(pages) * static_cast<std::size_t>(page) / 4);
 }
 
 json Server::Impl::status_json() {
@@ -171,7 +216,9 @@ json Server::Impl::status_json() {
               {"disconnects_mid_request", counters.disconnects_mid_request.load()},
               {"frame_timeouts", counters.frame_timeouts.load()},
               {"idle_timeouts", counters.idle_timeouts.load()},
-              {"write_timeouts", counters.write_timeouts.load()}}},
+              {"write_timeouts", counters.write_timeouts.load()},
+              {"evicted", counters.evicted_connections.load()},
+              {"unsent_drops", counters.unsent_drops.load()}}},
             {"requests",
              {{"total", counters.requests.load()},
               {"ok", counters.replies_ok.load()},
@@ -192,7 +239,11 @@ json Server::Impl::status_json() {
             {"memory",
              {{"buffered_request_bytes", budget->used.load()},
               {"max_buffered_bytes", budget->limit},
-              {"refused_frames", budget->refused.load()}}}};
+              {"max_buffered_bytes_per_connection", options.max_buffered_bytes_per_connection},
+              {"refused_frames", budget->refused.load()},
+              {"unsent_reply_bytes", unsent_bytes},
+              {"max_unsent_bytes", options.max_unsent_bytes},
+              {"max_unsent_bytes_per_connection", options.max_write_queue_bytes}}}};
   if (const long rss = resident_bytes(); rss >= 0) s["memory"]["rss_bytes"] = rss;
   if (status_extra) s.update(status_extra());
   return s;
@@ -210,6 +261,10 @@ void Server::Impl::sweep() {
   const auto now = Clock::now();
   const auto conns = connections;  // check_timeouts may close (erase) connections
   for (const auto& c : conns) c->check_timeouts(now);
+  if (trim_pending && unsent_bytes == 0) {
+    trim_pending = false;
+    ::malloc_trim(0);
+  }
   sweep_timer->expires_after(
       std::chrono::microseconds(static_cast<long long>(sweep_period_s() * 1e6)));
   sweep_timer->async_wait([this](const asio::error_code& ec) {
@@ -286,9 +341,25 @@ Server::~Server() {
   for (const auto& p : impl_->listeners.unix_paths) ::unlink(p.c_str());
 }
 
+std::size_t hello_frame_bytes(const std::string& token) {
+  const json hello = {{"v", 1}, {"id", std::string(20, '9')}, {"op", "hello"}, {"token", token}};
+  return protocol::encode_frame(Message{hello, {}}).size() - protocol::kPrefixBytes;
+}
+
 std::vector<std::string> Server::bind() {
   auto& im = *impl_;
   if (im.options.listen.empty()) throw std::runtime_error("no listen address given");
+  if (im.options.token) {
+    // A token whose hello the server would refuse as too large: nobody could authenticate.
+    const std::size_t hello = hello_frame_bytes(*im.options.token);
+    const std::size_t cap =
+        std::min(im.options.max_frame_bytes, im.options.max_frame_bytes_before_hello);
+    if (hello > cap)
+      throw std::runtime_error("the token's hello frame is " + std::to_string(hello) +
+                               " bytes, more than the " + std::to_string(cap) +
+                               " a token server accepts before hello "
+                               "(--max-frame-bytes-before-hello); use a shorter token");
+  }
   for (const auto& text : im.options.listen)
     listen_on(im.io, text, im.options.token.has_value(), &im.listeners);
   return im.listeners.bound;

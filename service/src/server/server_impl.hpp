@@ -30,7 +30,7 @@ struct Counters {
       requests{0}, replies_ok{0}, replies_error{0}, malformed_frames{0}, busy{0}, bytes_in{0},
       bytes_out{0}, slow_client_drops{0}, disconnects_mid_request{0}, cancelled{0},
       deadline_exceeded{0}, auth_failures{0}, frame_timeouts{0}, idle_timeouts{0},
-      write_timeouts{0};
+      write_timeouts{0}, evicted_connections{0}, unsent_drops{0};
   std::mutex mu;
   std::map<std::string, std::uint64_t> errors_by_code;
   std::map<std::string, std::uint64_t> ops;
@@ -62,6 +62,18 @@ struct Server::Impl {
   // Connections that sent their last reply and wait briefly for the peer's end (see linger()).
   int lingering = 0;
   std::unique_ptr<asio::steady_timer> sweep_timer;
+  // Unsent reply bytes across all connections (ServerOptions::max_unsent_bytes).
+  std::size_t unsent_bytes = 0;
+  // Large replies were freed since the last sweep: the sweep hands the freed heap back to the
+  // system once nothing is unsent (glibc keeps freed blocks of a few MiB in its heap, so the
+  // memory a burst of large replies took would otherwise stay resident).
+  bool trim_pending = false;
+  // When the server holds max_connections: the connection idle longest (nothing in flight), to
+  // close for a new one; null when every connection is busy.
+  std::shared_ptr<Connection> longest_idle_connection() const;
+  // After a send pushed unsent_bytes over max_unsent_bytes: drops the connections holding the
+  // most until it fits again.
+  void enforce_unsent_budget();
 
   void accept_tcp(asio::ip::tcp::acceptor& acc);
   void accept_unix(asio::local::stream_protocol::acceptor& acc);

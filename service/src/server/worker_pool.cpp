@@ -69,10 +69,13 @@ void WorkerPool::loop() {
       queue_.pop_front();
       ++running_;
     }
-    run_(job);
-    std::lock_guard<std::mutex> lock(mu_);
-    --running_;
+    run_(job);  // calls finished() before it hands the reply over
   }
+}
+
+void WorkerPool::finished() {
+  std::lock_guard<std::mutex> lock(mu_);
+  --running_;
 }
 
 }  // namespace terrastride::service

@@ -27,6 +27,10 @@ class WorkerPool {
   bool try_remove(const std::shared_ptr<Job>& job);
   std::vector<std::shared_ptr<Job>> take_all_queued();
   std::size_t queued() const;
+  // The job of the calling worker is done: its place is free. Called by `run` before it hands
+  // the reply to the I/O thread, so a client that has the reply finds the place free (counted
+  // after the hand-over, a request sent at once could be refused `busy`).
+  void finished();
   std::size_t running() const;
   std::size_t workers() const { return threads_.size(); }
   std::size_t capacity() const { return capacity_; }

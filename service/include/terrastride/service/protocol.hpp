@@ -97,6 +97,9 @@ void check_body_length(std::uint32_t body_length, std::uint32_t max_frame_bytes)
 // Decodes a frame body (without the prefix). Throws ProtocolError with code bad_frame (layout),
 // bad_json (header not a JSON object). Attachments are validated against their descriptors.
 Message decode_body(std::string_view body);
+// The same with a header limit other than kMaxHeaderBytes: the server and the client allow a
+// header as large as their frame cap (a plan's JSON samples, sent back as `init`).
+Message decode_body(std::string_view body, std::size_t max_header_bytes);
 
 // Incremental splitter for a byte stream (used by the client and the fuzz target).
 class FrameReader {

@@ -55,6 +55,10 @@ struct Operation {
   // match, "did you mean"), so a misspelt option is an error rather than silently ignored.
   // nullopt: the fields are not checked.
   std::optional<std::vector<std::string>> fields = std::nullopt;
+  // The attachment names the handler reads. The server refuses any other with bad_request naming
+  // it (an attachment under a misspelt name would otherwise be ignored). Default: none.
+  // nullopt: the names are not checked.
+  std::optional<std::vector<std::string>> attachments = std::vector<std::string>{};
 };
 
 class OperationRegistry {
@@ -83,7 +87,8 @@ class OperationRegistry {
   std::vector<std::function<void(std::uint64_t)>> disconnect_hooks_;
 };
 
-// min(1 GiB, a quarter of the physical memory): the default request-buffer budget.
+// min(512 MiB, a quarter of the physical memory): the default request-buffer budget (8 frames of
+// the largest default size, --max-frame-bytes 64 MiB, arriving or waiting at once).
 std::size_t default_max_buffered_bytes();
 
 struct ServerOptions {
@@ -93,8 +98,16 @@ struct ServerOptions {
   int workers = 2;
   int queue = 8;  // jobs waiting for a worker before `busy`
   int max_connections = 512;
-  int max_inflight_per_connection = 64;            // queued + running worker jobs
-  std::size_t max_write_queue_bytes = 256u << 20;  // unsent replies before a client is dropped
+  int max_inflight_per_connection = 64;  // worker requests in flight (queued, running, waiting)
+  // Worker requests one connection may have in the pool (queued or running): a connection cannot
+  // take the whole queue and leave every other client `busy`.
+  int max_jobs_per_connection = 4;
+  // Unsent replies: one connection's before it is dropped (room for the largest plan reply, 120 s
+  // at 1 ms in JSON, some 230 MB), and all connections' together (past that the connection
+  // furthest behind in taking its replies is dropped), each with the reason on stderr, so
+  // clients that never read cannot make the server hold their replies.
+  std::size_t max_write_queue_bytes = std::size_t{256} << 20;
+  std::size_t max_unsent_bytes = std::size_t{512} << 20;
   double drain_seconds = 5.0;  // on SIGINT/SIGTERM: time running jobs get before cancellation
   bool handle_signals = true;
 
@@ -116,7 +129,14 @@ struct ServerOptions {
   // while they arrive, and the decoded requests of queued and running worker jobs. A frame that
   // would exceed it gets `busy` (id null) and its connection is closed.
   std::size_t max_buffered_bytes = default_max_buffered_bytes();
+  // The same, per connection (its frame arriving and its queued and running requests): one
+  // client cannot take the whole budget.
+  std::size_t max_buffered_bytes_per_connection = std::size_t{128} << 20;
 };
+
+// The size of the hello frame carrying `token` (with an id of up to 20 characters): a token server
+// must accept it before hello, so this may not exceed max_frame_bytes_before_hello.
+std::size_t hello_frame_bytes(const std::string& token);
 
 // Parsed listen address.
 struct ListenAddress {
@@ -168,6 +188,12 @@ struct BackendOptions {
   // map.update's "terrain_dir" and plan's "terrain"; empty: clients name none (the server opens
   // no path a client gives, so its errors reveal nothing of the file system).
   std::vector<std::string> terrain_roots;
+  // Planning sessions (plan.session.*): at once per server and per connection, and the idle time
+  // after which a session is closed. When the server holds max_sessions, opening one closes the
+  // longest idle session (not one in the middle of a step).
+  int max_sessions = 64;
+  int max_sessions_per_connection = 8;
+  double session_idle_timeout_s = 300.0;
 };
 class Backend;
 std::shared_ptr<Backend> make_backend(const BackendOptions& options, OperationRegistry& registry);

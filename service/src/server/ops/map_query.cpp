@@ -125,7 +125,8 @@ void add_map_query_operation(Backend& backend, OperationRegistry& registry) {
   registry.add({"map.query", OpKind::kInline,
                 "height, gradient, safety margin for a batch of (x, y) points",
                 [b](OpContext& c) { return map_query(*b, c); },
-                std::vector<std::string>{"points", "foot_radius"}});
+                std::vector<std::string>{"points", "foot_radius"},
+                std::vector<std::string>{"points"}});
 }
 
 }  // namespace terrastride::service

@@ -282,7 +282,8 @@ void add_map_update_operation(Backend& backend, OperationRegistry& registry) {
                 [b](OpContext& c) { return map_update(*b, c); },
                 std::vector<std::string>{"mode", "scene", "terrain_dir", "origin", "pose",
                                          "frame", "encoding", "resolution", "voxel",
-                                         "outlier_neighbours", "outlier_cell", "foot_radii"}});
+                                         "outlier_neighbours", "outlier_cell", "foot_radii"},
+                std::vector<std::string>{"points", "pointcloud2"}});
 }
 
 }  // namespace terrastride::service

@@ -1,12 +1,14 @@
 // plan.session.open / plan.session.step / plan.session.close: planning sessions over the socket
 // (docs/protocol.md, "Planning sessions"). A session is a planner::PlanningSession (the reference
 // plan, the terrain, the previous step's solution) owned by the connection that opened it: it
-// ends on close, when that connection closes, or after kIdleTimeoutS without a step. Steps run in
+// ends on close, when that connection closes, after BackendOptions::session_idle_timeout_s
+// without a step, or when the server is full and it is the longest idle. Steps run in
 // the server process (one solve at a time per process: Debian's MUMPS is not re-entrant), so they
 // pay no process start; a session's steps run one at a time.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <deque>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -29,12 +31,6 @@ using protocol::ProtocolError;
 
 namespace {
 
-// Limits of the session table (docs/protocol.md): sessions at once per server, idle time before
-// a session is closed, and the memory one session may hold (its reference and previous plans).
-constexpr std::size_t kMaxSessions = 64;
-constexpr double kIdleTimeoutS = 300.0;
-constexpr std::size_t kMaxSessionBytes = std::size_t{16} << 20;
-
 using Clock = std::chrono::steady_clock;
 
 struct Session {
@@ -51,28 +47,56 @@ struct Session {
   Clock::time_point last_used = Clock::now();
 };
 
+// The memory one session may hold (its reference and previous plans).
+constexpr std::size_t kMaxSessionBytes = std::size_t{16} << 20;
+// Ids of evicted sessions remembered, so a step on one says why it is gone.
+constexpr std::size_t kEvictedIdsKept = 256;
+
+// The open sessions under the limits of BackendOptions: max_sessions per server (when full, the
+// longest idle session not in a step is closed for a new one: an idle session cannot keep every
+// other client out), max_sessions_per_connection, session_idle_timeout_s.
 class SessionTable {
  public:
-  // Refuses a new session beyond kMaxSessions (after closing the idle ones).
+  explicit SessionTable(const BackendOptions& o)
+      : limit_(static_cast<std::size_t>(o.max_sessions)),
+        per_connection_(static_cast<std::size_t>(o.max_sessions_per_connection)),
+        idle_timeout_s_(o.session_idle_timeout_s) {}
+
+  // Throws busy when `connection` holds its quota already (checked before a reference solve, and
+  // again when the session is added).
+  void check_quota(std::uint64_t connection) {
+    std::lock_guard<std::mutex> lock(mu_);
+    expire_locked();
+    check_quota_locked(connection);
+  }
   void add(std::shared_ptr<Session> s) {
     std::lock_guard<std::mutex> lock(mu_);
     expire_locked();
-    if (sessions_.size() >= kMaxSessions)
-      throw ProtocolError(pc::kBusy, "the server holds " + std::to_string(kMaxSessions) +
-                                         " planning sessions, its limit; close one first");
+    check_quota_locked(s->connection);
+    if (sessions_.size() >= limit_ && !evict_longest_idle_locked())
+      throw ProtocolError(pc::kBusy, "the server holds " + std::to_string(limit_) +
+                                         " planning sessions (--max-sessions), every one in a "
+                                         "step; retry later");
     sessions_[s->id] = std::move(s);
   }
-  // The session `id` of `connection`; not_found-like bad_request otherwise.
+  // The session `id` of `connection`; bad_request naming why it is not there otherwise.
   std::shared_ptr<Session> get(const std::string& id, std::uint64_t connection) {
     std::lock_guard<std::mutex> lock(mu_);
     expire_locked();
     const auto it = sessions_.find(id);
-    if (it == sessions_.end() || it->second->connection != connection)
+    if (it == sessions_.end() || it->second->connection != connection) {
+      if (std::find(evicted_ids_.begin(), evicted_ids_.end(), id) != evicted_ids_.end())
+        throw ProtocolError(pc::kBadRequest,
+                            "session: \"" + id +
+                                "\" was closed to make room for another client's session (the "
+                                "server held --max-sessions and it was the longest idle); open a "
+                                "new one");
       throw ProtocolError(pc::kBadRequest,
                           "session: no open session \"" + id +
                               "\" on this connection (closed, expired after " +
-                              std::to_string(static_cast<int>(kIdleTimeoutS)) +
+                              std::to_string(static_cast<int>(idle_timeout_s_)) +
                               " s idle, or opened on another connection)");
+    }
     it->second->last_used = Clock::now();
     return it->second;
   }
@@ -95,20 +119,51 @@ class SessionTable {
   json status() {
     std::lock_guard<std::mutex> lock(mu_);
     expire_locked();
-    return {{"open", sessions_.size()}, {"limit", kMaxSessions}, {"opened", counter_}};
+    return {{"open", sessions_.size()},          {"limit", limit_},
+            {"per_connection", per_connection_}, {"opened", counter_},
+            {"evicted", evicted_},               {"idle_timeout_s", idle_timeout_s_}};
   }
 
  private:
+  void check_quota_locked(std::uint64_t connection) const {
+    const auto held = std::count_if(sessions_.begin(), sessions_.end(), [&](const auto& entry) {
+      return entry.second->connection == connection;
+    });
+    if (static_cast<std::size_t>(held) >= per_connection_)
+      throw ProtocolError(pc::kBusy, "this connection holds " + std::to_string(held) +
+                                         " planning sessions, its quota "
+                                         "(--max-sessions-per-connection); close one first");
+  }
+  // Closes the session idle longest among those not in a step; false when every one is.
+  bool evict_longest_idle_locked() {
+    auto victim = sessions_.end();
+    for (auto it = sessions_.begin(); it != sessions_.end(); ++it) {
+      std::unique_lock<std::timed_mutex> stepping(it->second->step_mu, std::try_to_lock);
+      if (!stepping.owns_lock()) continue;
+      if (victim == sessions_.end() || it->second->last_used < victim->second->last_used)
+        victim = it;
+    }
+    if (victim == sessions_.end()) return false;
+    evicted_ids_.push_back(victim->first);
+    if (evicted_ids_.size() > kEvictedIdsKept) evicted_ids_.pop_front();
+    evicted_++;
+    sessions_.erase(victim);
+    return true;
+  }
   void expire_locked() {
+    if (idle_timeout_s_ <= 0) return;
     const auto now = Clock::now();
     for (auto it = sessions_.begin(); it != sessions_.end();) {
       const double idle = std::chrono::duration<double>(now - it->second->last_used).count();
-      it = idle > kIdleTimeoutS ? sessions_.erase(it) : std::next(it);
+      it = idle > idle_timeout_s_ ? sessions_.erase(it) : std::next(it);
     }
   }
+  const std::size_t limit_, per_connection_;
+  const double idle_timeout_s_;
   std::mutex mu_;
   std::map<std::string, std::shared_ptr<Session>> sessions_;
-  std::uint64_t counter_ = 0;
+  std::deque<std::string> evicted_ids_;
+  std::uint64_t counter_ = 0, evicted_ = 0;
 };
 
 double number_field(const json& h, const char* key, double fallback) {
@@ -148,6 +203,7 @@ json plan_reply(const planner::Trajectory& t, const Session& s, const planner::S
 }
 
 OpResult open_session(Backend& backend, SessionTable& table, OpContext& ctx) {
+  table.check_quota(ctx.connection);  // before the reference solve it would waste
   json fields = ctx.request.header;
   const double horizon = number_field(fields, "horizon", 0.0);
   if (!(horizon >= 0.0) || horizon > planner::PlanLimits::kMaxDuration)
@@ -274,6 +330,10 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
                    : ps.planned_state(t);
   } catch (const std::invalid_argument& e) {
     throw ProtocolError(pc::kBadRequest, e.what());
+  } catch (const planner::PlanFileError& e) {
+    // A malformed start_state ("start_state: feet.LF.position: must be ..."): the client's
+    // mistake, answered bad_request as `plan` answers the same field.
+    throw ProtocolError(pc::kBadRequest, e.what());
   }
   // The per-step budget: the request's deadline, else the session's max_time.
   planner::PlannerOptions po;
@@ -306,7 +366,7 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
 
 void add_plan_session_operation(Backend& backend, OperationRegistry& registry) {
   Backend* b = &backend;
-  auto table = std::make_shared<SessionTable>();
+  auto table = std::make_shared<SessionTable>(backend.options());
   registry.on_disconnect([table](std::uint64_t connection) { table->close_connection(connection); });
   registry.add({"plan.session.open", OpKind::kWorker,
                 "open a planning session: plan the reference motion, keep it for re-plans",
