@@ -46,6 +46,8 @@ inline constexpr const char* kFailed = "failed";      // the operation ran and f
 inline constexpr const char* kInternal = "internal";  // a bug; the message says what
 // A frame that did not complete in time, or an idle connection (the connection is closed).
 inline constexpr const char* kTimeout = "timeout";
+// A request refused up front because it cannot finish within the server's limit for it.
+inline constexpr const char* kTooLarge = "too_large";
 }  // namespace code
 
 // A protocol-level failure with its reply code.

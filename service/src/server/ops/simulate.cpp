@@ -30,8 +30,6 @@ constexpr double kMaxWallSeconds = 240.0;
 // refused before it starts (`too_large`). One run never is (120 s at dt 0.1 ms: 1.2 M steps,
 // 18 s); a margin search at small steps is (56 runs of them).
 constexpr double kStepSecondsFloor = 15e-6;
-// The error code of a request refused for its size (a run that could not finish in time).
-constexpr const char* kTooLarge = "too_large";
 
 std::string number_text(double v) {
   std::ostringstream s;
@@ -100,7 +98,7 @@ void refuse_what_cannot_finish(const planner::Trajectory& plan, double dt, bool 
   const double least_s = static_cast<double>(steps) * runs * kStepSecondsFloor;
   if (least_s <= kMaxWallSeconds) return;
   throw ProtocolError(
-      kTooLarge, "simulate: " + std::to_string(steps) + " steps (the plan's " +
+      pc::kTooLarge, "simulate: " + std::to_string(steps) + " steps (the plan's " +
                      number_text(plan.samples.back().t - plan.samples.front().t) + " s at dt " +
                      number_text(dt) + " s)" +
                      (margin ? " times up to " + std::to_string(runs) + " margin runs" : "") +
