@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
-#include <iostream>
 #include <limits>
 #include <sstream>
 #include <stdexcept>
@@ -213,19 +212,9 @@ std::shared_ptr<octomap::OcTree> voxelise_scene(const terrain::Scene& scene,
 
 std::shared_ptr<octomap::OcTree> read_octomap(const std::string& path) {
   // perception's reader walks the body before OctoMap reads it: a corrupt octomap.bt in a terrain
-  // folder is an error naming it, not a stack overflow in OctoMap's recursive reader.
-  // OctoMap announces every binary read on std::cerr ("Reading binary octree type OcTree"); our
-  // commands keep stderr for their own messages, so its chatter goes nowhere while it reads.
-  std::streambuf* const cerr_buffer = std::cerr.rdbuf(nullptr);
-  std::shared_ptr<octomap::OcTree> tree;
-  try {
-    tree = perception::read_octomap_file(path);
-  } catch (...) {
-    std::cerr.rdbuf(cerr_buffer);
-    throw;
-  }
-  std::cerr.rdbuf(cerr_buffer);
-  return tree;
+  // folder is an error naming it, not a stack overflow in OctoMap's recursive reader. It also
+  // prints nothing (OctoMap's file readers announce every read on std::cerr).
+  return perception::read_octomap_file(path);
 }
 
 }  // namespace terrastride::collision

@@ -195,17 +195,24 @@ class BodyWalk {
   uint64_t nodes_ = 1;  // the root
 };
 
-// The bytes OctoMap reads: a header written here from the checked values (OctoMap parses a
-// header by whitespace-separated tokens, not by lines as parse_header does, so the file's own
-// header could be read differently), then the checked body.
-std::string canonical(const std::string& first_line, const std::string& id, const Header& h,
-                      const std::string& bytes) {
-  std::ostringstream out;
-  out << std::setprecision(17) << first_line << "\nid " << id << "\nsize " << h.size << "\nres "
-      << h.res << "\ndata\n";
-  std::string text = out.str();
-  text.append(bytes, h.data_offset, std::string::npos);
-  return text;
+// The checked body as a stream for OctoMap's node readers. The file readers (readBinary,
+// AbstractOcTree::read) are not used: they parse the header again, by other rules than
+// parse_header's, and announce every read on std::cerr ("Reading binary octree type OcTree"),
+// which the commands keep for their own messages and the server's threads share.
+std::istringstream checked_body(const Header& h, const std::string& bytes) {
+  return std::istringstream(bytes.substr(h.data_offset), std::ios::in | std::ios::binary);
+}
+
+// A full (.ot) body read into a tree of the file's type.
+template <typename Tree>
+std::unique_ptr<Tree> read_full_body(const std::string& path, const Header& h,
+                                     const std::string& bytes) {
+  auto tree = std::make_unique<Tree>(h.res);
+  std::istringstream in = checked_body(h, bytes);
+  tree->readData(in);
+  if (in.bad() || tree->size() != h.size)
+    throw InputError(path + ": the OctoMap data is truncated or corrupt");
+  return tree;
 }
 
 // The node data bytes of a full (.ot) file's tree type (OcTreeDataNode::readData and
@@ -258,10 +265,10 @@ std::unique_ptr<octomap::OcTree> read_octomap_bytes(const std::string& path,
     walk.binary_node(0);
     walk.finish(h);
     // The bit stream does not depend on the tree type: read it as an OcTree.
-    std::istringstream in(canonical("# Octomap OcTree binary file", "OcTree", h, bytes),
-                          std::ios::in | std::ios::binary);
+    std::istringstream in = checked_body(h, bytes);
     tree = std::make_unique<octomap::OcTree>(h.res);
-    if (!tree->readBinary(in) || in.bad())
+    tree->readBinaryData(in);
+    if (in.bad() || tree->size() != h.size)
       throw InputError(path + ": the OctoMap binary data is truncated or corrupt");
   } else {
     const Header h = parse_header(path, bytes, "# Octomap OcTree file", "(.ot)");
@@ -269,21 +276,12 @@ std::unique_ptr<octomap::OcTree> read_octomap_bytes(const std::string& path,
     BodyWalk walk(path, bytes, h.data_offset);
     walk.full_node(0, full_node_data_bytes(h.id));
     walk.finish(h);
-    std::istringstream in(canonical("# Octomap OcTree file", h.id, h, bytes),
-                          std::ios::in | std::ios::binary);
-    std::unique_ptr<octomap::AbstractOcTree> any(octomap::AbstractOcTree::read(in));
-    if (!any) throw InputError(path + ": the OctoMap data is truncated or corrupt");
-    if (auto* t = dynamic_cast<octomap::OcTree*>(any.get())) {
-      any.release();
-      tree.reset(t);
-    } else if (auto* c = dynamic_cast<octomap::ColorOcTree*>(any.get())) {
-      tree = as_octree(*c);
-    } else if (auto* s = dynamic_cast<octomap::OcTreeStamped*>(any.get())) {
-      tree = as_octree(*s);
-    } else {
-      throw InputError(path + ": an OctoMap of type " + any->getTreeType() +
-                       ", not an occupancy tree");
-    }
+    if (h.id == "ColorOcTree")
+      tree = as_octree(*read_full_body<octomap::ColorOcTree>(path, h, bytes));
+    else if (h.id == "OcTreeStamped")
+      tree = as_octree(*read_full_body<octomap::OcTreeStamped>(path, h, bytes));
+    else
+      tree = read_full_body<octomap::OcTree>(path, h, bytes);
   }
   if (tree->size() == 0) throw InputError(path + ": the OctoMap is empty (no nodes)");
   return tree;
