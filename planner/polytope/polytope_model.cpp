@@ -6,13 +6,12 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
-#include <pthread.h>
-
 #include <mutex>
 #include <sstream>
 
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/planner/polytope_core.hpp"
+#include "terrastride/planner/solver_fork.hpp"
 
 namespace terrastride::planner {
 namespace core = polytope_core;
@@ -379,15 +378,7 @@ RobotPolytopeModel load_polytope_model(const robot::RobotModel& robot_model,
 }
 
 namespace {
-// The cache's lock; a fork (the service's plan processes) takes it and both sides release it, so
-// a child never inherits it taken by a thread it does not have.
-std::mutex& polytope_cache_mutex() {
-  static std::mutex m;
-  static const int atfork =
-      pthread_atfork(+[] { m.lock(); }, +[] { m.unlock(); }, +[] { m.unlock(); });
-  (void)atfork;
-  return m;
-}
+struct PolytopeCacheLock {};
 }  // namespace
 
 std::shared_ptr<const RobotPolytopeModel> shared_polytope_model(
@@ -407,7 +398,7 @@ std::shared_ptr<const RobotPolytopeModel> shared_polytope_model(
     std::shared_ptr<const RobotPolytopeModel> model;
   };
   static std::map<std::string, Entry> cache;
-  std::mutex& mu = polytope_cache_mutex();
+  std::mutex& mu = fork_safe_mutex<PolytopeCacheLock>();
   if (!ec) {
     std::lock_guard<std::mutex> lock(mu);
     const auto it = cache.find(key);

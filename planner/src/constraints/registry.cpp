@@ -3,8 +3,6 @@
 #include <algorithm>
 #include <iterator>
 #include <map>
-#include <pthread.h>
-
 #include <mutex>
 #include <stdexcept>
 #include <string>
@@ -13,6 +11,7 @@
 #include "terrastride/planner/constraints.hpp"
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/nlp.hpp"
+#include "terrastride/planner/solver_fork.hpp"
 
 namespace terrastride::planner {
 
@@ -45,15 +44,10 @@ std::map<std::string, ConstraintSetBuilder>& registry() {
   static std::map<std::string, ConstraintSetBuilder> r = builtin_constraint_sets();
   return r;
 }
-std::mutex& registry_mutex() {
-  static std::mutex m;
-  // A plan process forked while another thread looked a set up would inherit the lock taken, by
-  // a thread it does not have, and wait for ever: a fork takes the lock and both sides release it.
-  static const int atfork =
-      pthread_atfork(+[] { m.lock(); }, +[] { m.unlock(); }, +[] { m.unlock(); });
-  (void)atfork;
-  return m;
-}
+
+struct RegistryLock {};
+// A plan process forked while another thread looked a set up must not inherit the lock held.
+std::mutex& registry_mutex() { return fork_safe_mutex<RegistryLock>(); }
 
 }  // namespace
 

@@ -1,6 +1,8 @@
 // Forking a process that will solve, from a process whose other threads solve.
 #pragma once
 
+#include <pthread.h>
+
 #include <functional>
 #include <mutex>
 
@@ -30,5 +32,17 @@ class SolverForkGuard {
   std::unique_lock<std::timed_mutex> lock_;
   bool waiting_ = false;
 };
+
+// A process-wide mutex (one per Tag type) that every fork takes and both sides release: a child
+// forked from a multi-threaded process (the service's plan processes) never inherits it held by a
+// thread it does not have.
+template <typename Tag>
+std::mutex& fork_safe_mutex() {
+  static std::mutex m;
+  static const int atfork =
+      pthread_atfork(+[] { m.lock(); }, +[] { m.unlock(); }, +[] { m.unlock(); });
+  (void)atfork;
+  return m;
+}
 
 }  // namespace terrastride::planner
