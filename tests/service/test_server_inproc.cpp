@@ -609,7 +609,8 @@ TEST(ServerInProcess, WorkerRequestsPerConnection) {
 }
 
 // Clients that ask for large replies and never read them: the unsent replies of all connections
-// stay within --max-unsent-bytes (the connection furthest behind in taking them is dropped), and
+// stay within --max-unsent-bytes (the connection holding the most, stalled ones first, is dropped:
+// never the monitor, whose status replies are small), and
 // a client that reads is served meanwhile.
 TEST(ServerInProcess, UnsentRepliesAreBoundedAcrossConnections) {
   constexpr std::size_t kBudget = 32u << 20, kReply = 12u << 20;

@@ -121,25 +121,34 @@ std::shared_ptr<Connection> Server::Impl::longest_idle_connection() const {
 void Server::Impl::enforce_unsent_budget() {
   const auto now = Clock::now();
   while (unsent_bytes > options.max_unsent_bytes) {
-    // The client furthest behind in taking its replies (one that does not read at all falls
-    // behind by the second); a client that reads is ahead, and a reply just queued is at 0.
+    // A client stalled in taking its replies (more than kStalledSeconds behind
+    // --min-receive-rate: one that does not read at all falls behind by the second) goes before
+    // one that reads; among them, the one holding the most unsent bytes. Milliseconds behind
+    // mean nothing (a small reply whose write just began), so a reader with a status reply in
+    // flight is never dropped for a silent client's 12 MB.
+    constexpr double kStalledSeconds = 1.0;
     std::shared_ptr<Connection> victim;
     double victim_behind = 0.0;
+    auto ranks_above = [&](const Connection& c, double behind) {
+      const bool stalled = behind > kStalledSeconds;
+      if (stalled != (victim_behind > kStalledSeconds)) return stalled;
+      return c.out_bytes > victim->out_bytes ||
+             (c.out_bytes == victim->out_bytes && behind > victim_behind);
+    };
     for (const auto& c : connections) {
       if (c->closed || c->out_bytes == 0) continue;
       const double behind = c->seconds_behind(now);
-      if (!victim || behind > victim_behind ||
-          (behind == victim_behind && c->out_bytes > victim->out_bytes))
-        victim = c, victim_behind = behind;
+      if (!victim || ranks_above(*c, behind)) victim = c, victim_behind = behind;
     }
     if (!victim) return;
     counters.unsent_drops++;
     char text[64];
     std::snprintf(text, sizeof(text), "%.3g s", victim_behind);
     victim->drop_unread(std::to_string(victim->out_bytes) +
-                        " bytes of replies unsent, the furthest behind in taking them (" + text +
-                        " behind --min-receive-rate), while all connections' unsent replies (" +
-                        std::to_string(unsent_bytes) + " bytes) exceed " +
+                        " bytes of replies unsent, the most of any client (stalled clients "
+                        "first; it is " + text + " behind --min-receive-rate), while all "
+                        "connections' unsent replies (" + std::to_string(unsent_bytes) +
+                        " bytes) exceed " +
                         std::to_string(options.max_unsent_bytes) + " (--max-unsent-bytes)");
   }
 }

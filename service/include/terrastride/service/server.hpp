@@ -104,7 +104,7 @@ struct ServerOptions {
   int max_jobs_per_connection = 4;
   // Unsent replies: one connection's before it is dropped (room for the largest plan reply, 120 s
   // at 1 ms in JSON, some 230 MB), and all connections' together (past that the connection
-  // furthest behind in taking its replies is dropped), each with the reason on stderr, so
+  // holding the most, stalled ones first, is dropped), each with the reason on stderr, so
   // clients that never read cannot make the server hold their replies.
   std::size_t max_write_queue_bytes = std::size_t{256} << 20;
   std::size_t max_unsent_bytes = std::size_t{512} << 20;
