@@ -3,6 +3,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <limits>
 #include <string>
 
 namespace terrastride::terrain {
@@ -37,6 +38,20 @@ class HeightField {
   }
   // Signed foothold-safety margin for a foot of radius `foot_radius` (see docs/design.md §5.4).
   virtual MarginSample safety_margin(double x, double y, double foot_radius) const = 0;
+  // The underside of the lowest overhang above the walkable surface at (x, y) (world z, m): a
+  // shelf, a table top or a ceiling that a robot standing on h(x, y) may pass under, with its
+  // gradient. +infinity (zero gradient) where nothing is overhead. The overhead clearance (free
+  // height above the walkable surface) is overhead(x, y) - h(x, y).
+  virtual double overhead_and_gradient(double x, double y, Eigen::Vector2d* gradient) const {
+    (void)x;
+    (void)y;
+    gradient->setZero();
+    return std::numeric_limits<double>::infinity();
+  }
+  double overhead(double x, double y) const {
+    Eigen::Vector2d gradient;
+    return overhead_and_gradient(x, y, &gradient);
+  }
   // Whether (x, y) was observed (always true for analytic terrains).
   virtual bool observed(double x, double y) const { return true; }
   // Axis-aligned extent where the field is defined: min and max corners.
