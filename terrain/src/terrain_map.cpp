@@ -207,6 +207,27 @@ Eigen::SparseMatrix<double> interpolation_matrix(int n) {
   return a;
 }
 
+// A square (2 r + 1)-cell window's minimum (erode) or "any finite" flag (near) per cell, done as
+// two separable passes.
+std::vector<float> window_min(const GridGeometry& g, const std::vector<float>& v, int r) {
+  std::vector<float> rows(v.size()), out(v.size());
+  for (int i = 0; i < g.nx; ++i)
+    for (int j = 0; j < g.ny; ++j) {
+      float m = std::numeric_limits<float>::infinity();
+      for (int a = std::max(0, i - r); a <= std::min(g.nx - 1, i + r); ++a)
+        m = std::min(m, v[g.index(a, j)]);
+      rows[g.index(i, j)] = m;
+    }
+  for (int i = 0; i < g.nx; ++i)
+    for (int j = 0; j < g.ny; ++j) {
+      float m = std::numeric_limits<float>::infinity();
+      for (int b = std::max(0, j - r); b <= std::min(g.ny - 1, j + r); ++b)
+        m = std::min(m, rows[g.index(i, b)]);
+      out[g.index(i, j)] = m;
+    }
+  return out;
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------
@@ -802,6 +823,43 @@ TerrainMap::TerrainMap(HeightGrid grid, const std::vector<double>& radii, Safety
     l.margin_field = BSplineField(grid_.geometry, l.margin, /*interpolate=*/true);
     layers_.push_back(std::move(l));
   }
+  build_overhead_field();
+}
+
+void TerrainMap::build_overhead_field() {
+  const GridGeometry& g = grid_.geometry;
+  if (grid_.overhead.empty()) return;
+  if (grid_.overhead.size() != g.size())
+    throw InputError("terrain: the overhead layer has " + std::to_string(grid_.overhead.size()) +
+                     " cells, the grid " + std::to_string(g.size()));
+  std::vector<float> capped(g.size());
+  bool any = false;
+  for (size_t k = 0; k < g.size(); ++k) {
+    const float o = grid_.overhead[k];
+    if (std::isnan(o)) throw InputError("terrain: the overhead layer holds NaN");
+    any = any || std::isfinite(o);
+    capped[k] = std::min(o, grid_.elevation[k] + static_cast<float>(kOverheadCap));
+  }
+  if (!any) return;
+  overhead_field_ = BSplineField(g, window_min(g, capped, 2));
+  std::vector<float> finite(g.size());
+  for (size_t k = 0; k < g.size(); ++k)
+    finite[k] = std::isfinite(grid_.overhead[k]) ? 0.0f : 1.0f;
+  const std::vector<float> nearest = window_min(g, finite, 4);
+  near_overhead_.resize(g.size());
+  for (size_t k = 0; k < g.size(); ++k) near_overhead_[k] = nearest[k] == 0.0f;
+}
+
+double TerrainMap::overhead_and_gradient(double x, double y, Eigen::Vector2d* gradient) const {
+  if (near_overhead_.empty()) return HeightField::overhead_and_gradient(x, y, gradient);
+  // Outside the grid the field continues its border cells, as the height field does.
+  const GridGeometry& g = grid_.geometry;
+  const int i = std::clamp(static_cast<int>(std::floor((x - g.origin.x()) / g.resolution)), 0,
+                           g.nx - 1);
+  const int j = std::clamp(static_cast<int>(std::floor((y - g.origin.y()) / g.resolution)), 0,
+                           g.ny - 1);
+  if (!near_overhead_[g.index(i, j)]) return HeightField::overhead_and_gradient(x, y, gradient);
+  return overhead_field_.value_gradient(x, y, gradient);
 }
 
 std::unique_ptr<TerrainMap> TerrainMap::from_scene(const Scene& scene, double resolution,
@@ -905,6 +963,7 @@ nlohmann::json write_terrain_layers(const TerrainMap& map, const std::string& di
   put_u8("observed", g.observed);
   const bool scanned = g.surface.size() == geo.size();
   if (scanned) put_f("surface", g.surface);
+  if (g.overhead.size() == geo.size()) put_f("overhead", g.overhead);
   nlohmann::json safety = nlohmann::json::array();
   for (double r : map.radii()) {
     const SafetyLayer& l = map.layer(r);
@@ -984,6 +1043,7 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
   std::vector<double> radii;
   SafetyOptions opts;
   bool has_surface = false;  // maps of earlier versions have none: the field is the elevation
+  bool has_overhead = false;  // maps without an overhang have none
   try {
     if (meta.at("format").get<std::string>() != "terrastride-terrain")
       throw InputError(meta_path.string() + ": not a terrastride terrain (format field)");
@@ -1010,6 +1070,7 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
     }
     if (meta.contains("notes")) grid.notes = meta.at("notes").get<std::vector<std::string>>();
     has_surface = meta.contains("layers") && meta.at("layers").contains("surface");
+    has_overhead = meta.contains("layers") && meta.at("layers").contains("overhead");
     if (!(geo.resolution > 0) || geo.nx <= 0 || geo.ny <= 0 || !geo.origin.allFinite())
       throw InputError(meta_path.string() + ": invalid grid metadata");
     const auto& sj = meta.at("safety");
@@ -1024,7 +1085,7 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
     throw InputError(meta_path.string() + ": missing or malformed field (" + e.what() + ")");
   }
   const GridGeometry& geo = grid.geometry;
-  auto load = [&](const std::string& name, auto& out) {
+  auto load = [&](const std::string& name, auto& out, bool allow_infinity = false) {
     const std::string path = (fs::path(dir) / "layers" / (name + ".npy")).string();
     const perception::NpyArray a = perception::read_npy(path);
     if (a.shape.size() != 2 || a.rows() != static_cast<size_t>(geo.nx) ||
@@ -1036,7 +1097,8 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
     for (int i = 0; i < geo.nx; ++i)
       for (int j = 0; j < geo.ny; ++j) {
         const double v = a.at(i, j);
-        if (!std::isfinite(v)) throw InputError(path + ": non-finite value in a layer");
+        if (!std::isfinite(v) && !(allow_infinity && v == std::numeric_limits<double>::infinity()))
+          throw InputError(path + ": non-finite value in a layer");
         out[geo.index(i, j)] = static_cast<T>(v);
       }
   };
@@ -1048,6 +1110,7 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
   load("support", grid.support);
   load("observed", grid.observed);
   if (has_surface) load("surface", grid.surface);
+  if (has_overhead) load("overhead", grid.overhead, /*allow_infinity=*/true);
   for (size_t k = 0; k < geo.size(); ++k) {
     if (grid.observed[k] > 2)
       throw InputError(dir + "/layers/observed.npy: values must be 0, 1 or 2");

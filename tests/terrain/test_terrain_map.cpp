@@ -277,3 +277,97 @@ TEST(TerrainDir, WriteThenLoadRoundTrip) {
   EXPECT_THROW(load_terrain_dir((dir / "missing").string()), terrastride::perception::InputError);
   fs::remove_all(dir);
 }
+
+namespace {
+// A flat grid at z = 0 with a 0.6 m shelf over cells i in [15, 25), j in [10, 30).
+HeightGrid grid_with_shelf() {
+  const GridGeometry g = geometry(40, 40);
+  HeightGrid grid;
+  grid.geometry = g;
+  const size_t n = g.size();
+  grid.elevation.assign(n, 0.0f);
+  grid.min = grid.max = grid.elevation;
+  grid.variance.assign(n, 0);
+  grid.count.assign(n, 5);
+  grid.support.assign(n, 5);
+  grid.observed.assign(n, 1);
+  grid.overhead.assign(n, std::numeric_limits<float>::infinity());
+  for (int i = 15; i < 25; ++i)
+    for (int j = 10; j < 30; ++j) grid.overhead[g.index(i, j)] = 0.6f;
+  return grid;
+}
+}  // namespace
+
+TEST(Overhead, FieldNeverRisesIntoTheOverhangAndIsInfiniteFarFromIt) {
+  const HeightGrid grid = grid_with_shelf();
+  const GridGeometry g = grid.geometry;
+  TerrainMap map(grid, {0.02});
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> ux(g.origin.x(), g.max_corner().x()),
+      uy(g.origin.y(), g.max_corner().y());
+  int under = 0, finite_outside = 0;
+  for (int s = 0; s < 5000; ++s) {
+    const double x = ux(rng), y = uy(rng);
+    const double o = map.overhead(x, y);
+    const int k = map.cell_index(x, y);
+    ASSERT_GE(k, 0);
+    // Conservative: never above the raw overhead of the cell the point lies in.
+    EXPECT_LE(o, grid.overhead[k] + 1e-6) << x << " " << y;
+    if (std::isfinite(grid.overhead[k])) {
+      ++under;
+      EXPECT_LE(o, 0.6 + 1e-6);
+    } else if (std::isfinite(o)) {
+      ++finite_outside;
+      EXPECT_GE(o, 0.6 - 1e-6);  // between the shelf's value and the cap
+      EXPECT_LE(o, kOverheadCap + 1e-6);
+    }
+  }
+  EXPECT_GT(under, 500);
+  EXPECT_GT(finite_outside, 0);
+  // Deep under the shelf the field is the shelf; far from it there is nothing overhead.
+  EXPECT_NEAR(map.overhead(g.center(20, 20).x(), g.center(20, 20).y()), 0.6, 1e-6);
+  EXPECT_TRUE(std::isinf(map.overhead(g.center(2, 2).x(), g.center(2, 2).y())));
+  // A map without the layer has nothing overhead anywhere.
+  HeightGrid plain = grid;
+  plain.overhead.clear();
+  EXPECT_TRUE(std::isinf(TerrainMap(plain, {0.02}).overhead(g.center(20, 20).x(), 0.5)));
+}
+
+TEST(Overhead, GradientMatchesFiniteDifferences) {
+  TerrainMap map(grid_with_shelf(), {0.02});
+  const GridGeometry& g = map.grid().geometry;
+  const double h = 1e-6;
+  for (int i = 11; i < 29; i += 3)
+    for (int j = 6; j < 34; j += 5) {
+      const double x = g.center(i, j).x() + 0.003, y = g.center(i, j).y() - 0.004;
+      Eigen::Vector2d grad;
+      const double o = map.overhead_and_gradient(x, y, &grad);
+      if (!std::isfinite(o)) continue;
+      const double dx = (map.overhead(x + h, y) - map.overhead(x - h, y)) / (2 * h);
+      const double dy = (map.overhead(x, y + h) - map.overhead(x, y - h)) / (2 * h);
+      EXPECT_NEAR(grad.x(), dx, 1e-4 * std::max(1.0, std::abs(dx)));
+      EXPECT_NEAR(grad.y(), dy, 1e-4 * std::max(1.0, std::abs(dy)));
+    }
+}
+
+TEST(Overhead, LayerSurvivesWriteAndLoadAndNaNIsRefused) {
+  namespace fs = std::filesystem;
+  HeightGrid grid = grid_with_shelf();
+  TerrainMap map(grid, {0.02});
+  const fs::path dir =
+      fs::temp_directory_path() / ("terrastride_overhead_dir_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  nlohmann::json meta = write_terrain_layers(map, dir.string());
+  EXPECT_TRUE(meta.at("layers").contains("overhead"));
+  { std::ofstream(dir / "terrain.json") << meta.dump(2); }
+  auto loaded = load_terrain_dir(dir.string());
+  ASSERT_EQ(loaded->grid().overhead.size(), grid.overhead.size());
+  for (size_t k = 0; k < grid.overhead.size(); ++k)
+    EXPECT_EQ(loaded->grid().overhead[k], grid.overhead[k]);
+  const GridGeometry& g = grid.geometry;
+  EXPECT_NEAR(loaded->overhead(g.center(20, 20).x(), g.center(20, 20).y()), 0.6, 1e-6);
+  fs::remove_all(dir);
+  grid.overhead[3] = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_THROW(TerrainMap(grid, {0.02}), terrastride::perception::InputError);
+}

@@ -106,6 +106,11 @@ struct HeightGrid {
   // same surface (cells whose heights differ by more than 3 standard errors are not averaged, so
   // steps stay sharp); a cell with no such cell within reach keeps its elevation.
   std::vector<float> surface;
+  // Per cell, the world z of the underside of the lowest overhang above the walkable surface (a
+  // shelf, a table top, a ceiling: a surface with free space beneath it that a robot may pass
+  // under); +infinity where nothing is overhead. Empty: no overhang anywhere (every map before
+  // overhangs were kept, and scenes without one).
+  std::vector<float> overhead;
   double smoothing_length = 0.0;  // m, the Gaussian's standard deviation; 0 = no smoothing
   // Sensor noise (standard deviation of a single surface's heights, m; noise.sigma); the safety
   // criteria allow for it. 0 for rasterised scenes and when it could not be estimated.

@@ -118,6 +118,9 @@ class TerrainMap : public HeightField {
     return height_.value_gradient(x, y, gradient);
   }
   MarginSample safety_margin(double x, double y, double foot_radius) const override;
+  // The C2 field of grid().overhead (see overhead_field below): +infinity farther than four cells
+  // from every overhang; elsewhere never above the raw overhead of the cell holding (x, y).
+  double overhead_and_gradient(double x, double y, Eigen::Vector2d* gradient) const override;
   bool observed(double x, double y) const override;
   bool safe(double x, double y, double foot_radius) const;
   Eigen::Vector2d min_corner() const override { return grid_.geometry.origin; }
@@ -135,15 +138,31 @@ class TerrainMap : public HeightField {
   int cell_index(double x, double y) const;  // -1 outside the grid
 
  private:
+  void build_overhead_field();
+
   HeightGrid grid_;
   SafetyOptions options_;
   BSplineField height_;
+  // Built when grid_.overhead has a finite cell: the B-spline approximant of the overhead eroded by
+  // two cells (a 5 x 5 minimum), each value capped at kOverheadCap above the cell's elevation. A
+  // point's spline value is a convex combination of control points at most two cells from its
+  // cell, each at most that cell's raw overhead, so the field never rises into an overhang at its
+  // edge (it errs low, towards less headroom). near_overhead_ flags cells within four cells of an
+  // overhang, the reach of those control points; elsewhere the field is +infinity.
+  BSplineField overhead_field_;
+  std::vector<uint8_t> near_overhead_;
   mutable std::mutex mutex_;
   mutable std::deque<SafetyLayer> layers_;  // deque: references stay valid as layers are added
 };
 
+// Headroom above which an overhang no longer matters to any robot the planner serves (m): the
+// overhead field is capped this far above the elevation, so a ceiling 3 m up and no ceiling give
+// the same smooth field.
+constexpr double kOverheadCap = 2.0;
+
 // Writes DIR/layers/*.npy (elevation, variance, min, max, count, support, observed, and per radius
-// safe_rXXX and margin_rXXX, XXX the radius in mm) into `dir` (which must exist) and returns the
+// safe_rXXX and margin_rXXX, XXX the radius in mm; overhead when the grid has one, +inf where
+// nothing is overhead) into `dir` (which must exist) and returns the
 // metadata block for terrain.json ("format", "grid", "layers", "safety", "statistics").
 nlohmann::json write_terrain_layers(const TerrainMap& map, const std::string& dir);
 
