@@ -898,7 +898,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
     // No re-plan within the plan's last 0.1 s: a re-plan to rest over that little cannot ramp the
     // forces down (every such step failed force_ramp in its first few ms). The 1 ms slack is for
     // durations that carry rounding: 3 crawl cycles of 3.6667 s end at 11.0001 s, and the step at
-    // 10.9 s, 0.1001 s before that end, failed in every closed-loop run (session 14).
+    // 10.9 s, 0.1001 s before that end, failed in every closed-loop run.
     if (replanner && t >= next_replan - 1e-9 && t < t_end - 0.1 - 1e-3) {
       next_replan += o.replan_every;
       MeasuredState ms;

@@ -1,5 +1,5 @@
 // `terrastride simulate`: executes a plan in MuJoCo with a tracking controller, as an independent
-// judge of the plan (issue #16; collision/include/terrastride/collision/simulation.hpp).
+// judge of the plan (collision/include/terrastride/collision/simulation.hpp).
 #include <unistd.h>
 #include <algorithm>
 #include <cmath>
@@ -51,7 +51,7 @@ struct SimulateCliOptions {
   bool margin = false;
   double margin_push_time = 0.5;
   double margin_push_duration = 0.2;
-  // Closed loop (issue #22).
+  // Closed loop.
   double replan_every = 0.0;
   std::string via = "in-process";
   double horizon = 1.0;

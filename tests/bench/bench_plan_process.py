@@ -39,7 +39,7 @@ import time
 # TOWR's comparable solve process on this machine (3 crawl cycles, 15 cm step, fixed timing),
 # whole process, as measured ("2.25 s"). Not re-measured here.
 TOWR_PROCESS_S = 2.25
-TOWR_SOURCE = "issue #18: TOWR's comparable solve process, 3 crawl cycles, 15 cm step, fixed timing"
+TOWR_SOURCE = "TOWR's comparable solve process, 3 crawl cycles, 15 cm step, fixed timing"
 
 PLAN_SCENARIOS = [
     # name, terrain ("@scan" = the scanned pallet_15 map made below), constraint sets

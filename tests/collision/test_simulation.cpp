@@ -1,4 +1,4 @@
-// MuJoCo execution of plans (issue #16): the generated model matches the planner's kinematics and
+// MuJoCo execution of plans: the generated model matches the planner's kinematics and
 // the SRBD body, a stand holds, the flat crawl executes with a pass, and a broken plan does not.
 #include <gtest/gtest.h>
 
@@ -244,7 +244,7 @@ TEST(Simulation, VerdictDoesNotDependOnTheTimeStep) {
 
 // The paper's terrain experiment: the baseline crawl over the 15 cm pallet rests a hind shin on
 // the pallet's edge (the post-hoc leg check fails it too); with every feasibility constraint the
-// plan executes cleanly (issue #16). Between eab7653 and the rolling foot in shin_ik/thigh
+// plan executes cleanly. Between eab7653 and the rolling foot in shin_ik/thigh
 // (FeasibilityOptions::leg_capsule_margin) the `all` plan brushed the edge in MuJoCo: the RH foot
 // rolled 11 mm towards the pallet during its stance and the shin met the edge for 6.11 N s
 // (warn, limit 5 N s) while the post-hoc capsule check found it 5 mm clear.
@@ -356,8 +356,8 @@ robot::RobotModel shipped(const std::string& name) {
   return robot::load_robot(std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/" + name + ".yaml");
 }
 
-// The controller's gains follow the robot (controller_gains.cpp): HyQ's are the tuned absolute
-// gains of issue #16 to 0.1 %; a 16 kg Go2 stands on its own gains and falls over on HyQ's (150
+// The controller's gains follow the robot (controller_gains.cpp): HyQ's are its tuned absolute
+// gains to 0.1 %; a 16 kg Go2 stands on its own gains and falls over on HyQ's (150
 // N m s/rad of orientation damping on its 0.18 kg m^2 roll inertia: kd dt / I = 1.6 per step).
 TEST(Simulation, ControllerGainsFollowTheRobot) {
   const collision::ControllerGains g = collision::controller_gains(hyq());
@@ -387,7 +387,7 @@ TEST(Simulation, ControllerGainsFollowTheRobot) {
   EXPECT_EQ(falls.verdict, "fail");
 }
 
-// Issue #20: Go2 and ANYmal C with every constraint set at the defaults: the flat 1 m crawl and
+// Go2 and ANYmal C with every constraint set at the defaults: the flat 1 m crawl and
 // the step of a third of thigh + shank (pallet_14 for Go2's 0.426 m, pallet_21 for ANYmal C's
 // 0.632 m) plan optimal with clean post-hoc checks (exit 0) and execute in MuJoCo with a pass.
 TEST(Simulation, Go2AndAnymalCrawlAndStepExecute) {

@@ -1,4 +1,4 @@
-// libFuzzer target for the recording readers (issue #19): everything `terrastride map RUN.mcap`
+// libFuzzer target for the recording readers: everything `terrastride map RUN.mcap`
 // and the server's map.update "pointcloud2" run on untrusted bytes.
 // - Input starting with the MCAP magic: written to a scratch .mcap file and read by open_bag
 //   (records, chunks and their zstd/lz4 decompression and CRCs), list_bag and read_bag_clouds

@@ -1,4 +1,4 @@
-// Planning sessions through the socket (docs/protocol.md, "Planning sessions"; issue #22): steps
+// Planning sessions through the socket (docs/protocol.md, "Planning sessions"): steps
 // warm-started from the previous plan, a failed step leaves the session usable, per-step
 // deadlines, sessions freed on close and on disconnect, 50 sessions within a memory bound.
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-// Faults and abuse of the plan path (issue #13): plans at once on one server (Debian's MUMPS is
+// Faults and abuse of the plan path: plans at once on one server (Debian's MUMPS is
 // not re-entrant: two concurrent plans crashed `serve` in 11 of 11 tries), cancelled and
 // crashing plan processes, the request limits shared with `terrastride plan`, and file paths a
 // client names; then the fault suite of the limits: session hogs, session requests in order, plans

@@ -1,4 +1,4 @@
-// Bags as map input (issue #19): the fixtures of tests/fixtures/bags (written by independent
+// Bags as map input: the fixtures of tests/fixtures/bags (written by independent
 // writers: @mcap/core + @foxglove/rosmsg2-serialization, Python's sqlite3, Debian's
 // python3-rosbag; see tests/fixtures/bags/README.md) give the same map as the same clouds as
 // loose PCD files with their sensor origins; bad bags fail clearly or say what they skipped.

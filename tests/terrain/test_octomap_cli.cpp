@@ -1,4 +1,4 @@
-// `terrastride map X.bt` and `plan --terrain X.bt` (issue #19): an OctoMap is a map input, not the
+// `terrastride map X.bt` and `plan --terrain X.bt`: an OctoMap is a map input, not the
 // circle "run map X.bt" / "unknown point cloud extension".
 #include <gtest/gtest.h>
 

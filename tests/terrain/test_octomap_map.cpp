@@ -1,4 +1,4 @@
-// OctoMap files as map input (issue #19): read_octomap_file's refusals, octree_support_cloud's
+// OctoMap files as map input: read_octomap_file's refusals, octree_support_cloud's
 // surfaces, and the map of a committed OctoMap compared with the exact scene it was scanned from.
 #include <gtest/gtest.h>
 #include <octomap/ColorOcTree.h>

@@ -1,4 +1,4 @@
-// Execution of a plan in MuJoCo as an independent judge (issue #16): the robot model is generated
+// Execution of a plan in MuJoCo as an independent judge: the robot model is generated
 // in memory from the robot file, the terrain from the exact scene, and a tracking controller
 // (leg gravity/Coriolis, planned forces, a trunk PD wrench spread over the stance feet, swing
 // feed-forward and joint PD on the IK of the planned feet) follows the plan. A failure means the
@@ -70,7 +70,7 @@ struct SimulationLimits {
   static constexpr double kMaxPushDuration = kMaxPlanDuration;  // s
 };
 
-// The verdict's thresholds (issue #16 defaults). Impulses and durations, not step counts, so the
+// The verdict's thresholds (the defaults). Impulses and durations, not step counts, so the
 // verdict does not depend on the time step.
 struct SimulationThresholds {
   // Fall (fail): trunk this far below the plan, tilt error above this, or trunk/thigh contact.
