@@ -197,110 +197,25 @@ void run_in_parallel(size_t n, const Task& task) {
   if (error) std::rethrow_exception(error);
 }
 
-}  // namespace
+// The shin and thigh capsule axes of every leg over the samples. The shin starts `exclusions[i]`
+// above the foot (the part of the lower leg the foot's own contact may touch is left out).
+struct LegTracks {
+  std::vector<CapsuleTrack> shin, thigh;
+};
 
-ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planner::Trajectory& traj,
-                                    const TrajectoryKinematics& kin, const octomap::OcTree& octree,
-                                    const ClearanceOptions& options, const CertainSolid* certain) {
-  const size_t n = traj.samples.size();
-  const size_t n_legs = model.legs.size();
-  if (kin.time.size() != n || kin.legs.size() != n_legs)
-    throw TrajectoryError("kinematics do not belong to this trajectory (sample or leg count)");
-  if (!(options.distance_cutoff > 0))
-    throw std::invalid_argument("clearance distance cutoff must be > 0");
-  if (!(options.exact_below >= 0) || !(options.bound_tolerance >= 0) || !(options.piece_length > 0))
-    throw std::invalid_argument(
-        "clearance options: exact_below and bound_tolerance must be >= 0, piece_length > 0");
-
-  ClearanceReport rep;
-  rep.time = kin.time;
-  rep.octree_resolution = octree.getResolution();
-  rep.certain_resolved_below = options.exact_below;
-  const double deep_depth = detail::deep_contact_depth(options, octree);
-  rep.deep_contact_depth = deep_depth;
-  auto exclusion_for = [&](const robot::LegModel& leg) {
-    return options.shin_exclusion >= 0
-               ? options.shin_exclusion
-               : robot::shin_exclusion(model, leg,
-                                       std::max(options.exclusion_margin, octree.getResolution()));
-  };
-  for (const auto& leg : model.legs)
-    rep.shin_exclusion = std::max(rep.shin_exclusion, exclusion_for(leg));
-  rep.shin_min_distance = options.distance_cutoff;
-  rep.thigh_min_distance = options.distance_cutoff;
-  rep.legs.resize(n_legs);
-
-  // fcl::OcTree only reads the octomap tree; the aliasing constructor shares it without a copy or
-  // ownership (the caller keeps `octree` alive for the duration of this call).
-  const std::shared_ptr<const octomap::OcTree> view(std::shared_ptr<const octomap::OcTree>(),
-                                                    &octree);
-  const fcl::OcTree<double> tree(view);
-
-  std::unique_ptr<SolidGeometry> solid;
-  if (certain) {
-    solid = std::make_unique<SolidGeometry>(*certain);
-    rep.certain_source = certain->source;
-  }
-  rep.shin_min_certain_distance = options.distance_cutoff;
-  rep.thigh_min_certain_distance = options.distance_cutoff;
-
-  // Per-capsule summary: minima, voxel contacts, certain collisions and the verdicts.
-  struct Summary {
-    double* min;
-    int* min_sample;
-    double* certain_min;
-    int* collisions;
-    int* certain_collisions;
-    std::vector<ContactVerdict>* verdict;
-  };
-  std::vector<ContactVerdict> shin_worst(n, ContactVerdict::clear),
-      thigh_worst(n, ContactVerdict::clear);
-  auto summarise = [&](const LinkResult& r, const Summary& out, std::vector<ContactVerdict>* worst,
-                       LegClearanceSeries* series) {
-    *out.min = options.distance_cutoff;
-    *out.certain_min = options.distance_cutoff;
-    out.verdict->assign(n, ContactVerdict::clear);
-    for (size_t k = 0; k < n; ++k) {
-      const double d = r.distance[k];
-      if (std::isnan(d)) continue;
-      if (d < *out.min) {
-        *out.min = d;
-        *out.min_sample = static_cast<int>(k);
-      }
-      *out.certain_min = std::min(*out.certain_min, r.certain_distance[k]);
-      const ContactVerdict v = detail::contact_verdict(d, r.certain_distance[k], deep_depth);
-      if (d <= 0 || v == ContactVerdict::certain) {
-        ++*out.collisions;
-        if (series->first_collision_t < 0 || kin.time[k] < series->first_collision_t)
-          series->first_collision_t = kin.time[k];
-      }
-      if (v == ContactVerdict::certain) {
-        ++*out.certain_collisions;
-        if (series->first_certain_collision_t < 0 ||
-            kin.time[k] < series->first_certain_collision_t)
-          series->first_certain_collision_t = kin.time[k];
-      }
-      (*out.verdict)[k] = v;
-      (*worst)[k] = std::max((*worst)[k], v);
-    }
-  };
-
-  // The capsule tracks of every leg first (cheap), then their distances, the FCL queries that are
-  // nearly all of the check's time, as independent tasks (one per piece of each link) on up to
-  // kClearanceThreads threads: each task reads the shared trees and writes only its own result, so
-  // the figures are those of one thread, in the same order. Then the summaries, leg by leg.
-  std::vector<CapsuleTrack> shin_tracks(n_legs), thigh_tracks(n_legs);
-  std::vector<double> exclusions(n_legs);
+LegTracks capsule_tracks(const robot::RobotModel& model, const planner::Trajectory& traj,
+                         const TrajectoryKinematics& kin, const std::vector<double>& exclusions) {
+  const size_t n = traj.samples.size(), n_legs = model.legs.size();
+  LegTracks tracks{std::vector<CapsuleTrack>(n_legs), std::vector<CapsuleTrack>(n_legs)};
   for (size_t i = 0; i < n_legs; ++i) {
     const auto& leg = model.legs[i];
-    const double exclusion = exclusion_for(leg);
-    exclusions[i] = exclusion;
+    const double exclusion = exclusions[i];
     if (!(exclusion < leg.l2))
       throw std::invalid_argument("shin exclusion " + std::to_string(exclusion) +
                                   " m leaves nothing of leg " + leg.name + "'s lower leg (" +
                                   std::to_string(leg.l2) + " m)");
-    CapsuleTrack& shin_track = shin_tracks[i];
-    CapsuleTrack& thigh_track = thigh_tracks[i];
+    CapsuleTrack& shin_track = tracks.shin[i];
+    CapsuleTrack& thigh_track = tracks.thigh[i];
     for (CapsuleTrack* t : {&shin_track, &thigh_track}) {
       t->a.assign(n, Eigen::Vector3d::Zero());
       t->b.assign(n, Eigen::Vector3d::Zero());
@@ -321,8 +236,28 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
       thigh_track.valid[k] = 1;
     }
   }
-  // One task per piece of every link (shins first: they come nearest the ground and cost most),
-  // so that the two cores of a robot computer share the work evenly.
+  return tracks;
+}
+
+// One link's merged distances and the queries they took.
+struct LinkTask {
+  LinkResult result;
+  long queries = 0, certain_queries = 0;
+};
+struct LinkDistances {
+  std::vector<LinkTask> shin, thigh;  // per leg; thigh entries empty without check_thigh
+};
+
+// The FCL queries, nearly all of the check's time, as independent tasks (one per piece of each
+// link, shins first: they come nearest the ground and cost most) on up to kClearanceThreads
+// threads, so that the two cores of a robot computer share the work evenly: each task reads the
+// shared trees and writes only its own result, so the figures are those of one thread, in the
+// same order.
+LinkDistances link_distances(const robot::RobotModel& model, const LegTracks& tracks,
+                             const std::vector<double>& exclusions,
+                             const fcl::OcTree<double>& tree, SolidGeometry* solid,
+                             const ClearanceOptions& options, size_t n) {
+  const size_t n_legs = model.legs.size();
   struct PieceTask {
     size_t leg;
     bool thigh;
@@ -339,29 +274,23 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
       for (int j = 0; j < pieces; ++j) piece_tasks.push_back({i, thigh, j});
     }
   }
-  auto run_task = [&](size_t t) {
+  run_in_parallel(piece_tasks.size(), [&](size_t t) {
     const PieceTask& task = piece_tasks[t];
     const auto& leg = model.legs[task.leg];
     const size_t j = static_cast<size_t>(task.piece);
-    if (task.thigh) {
-      thigh_pieces[task.leg][j] = piece_distances(tree, solid.get(), leg.thigh_radius,
-                                                  thigh_tracks[task.leg], leg.l1, task.piece,
+    if (task.thigh)
+      thigh_pieces[task.leg][j] = piece_distances(tree, solid, leg.thigh_radius,
+                                                  tracks.thigh[task.leg], leg.l1, task.piece,
                                                   options);
-    } else {
-      shin_pieces[task.leg][j] = piece_distances(tree, solid.get(), leg.shin_radius,
-                                                 shin_tracks[task.leg],
-                                                 leg.l2 - exclusions[task.leg], task.piece, options);
-    }
-  };
-  run_in_parallel(piece_tasks.size(), run_task);
-  struct LinkTask {
-    LinkResult result;
-    long queries = 0, certain_queries = 0;
-  };
-  std::vector<LinkTask> shin_tasks(n_legs), thigh_tasks(n_legs);
+    else
+      shin_pieces[task.leg][j] =
+          piece_distances(tree, solid, leg.shin_radius, tracks.shin[task.leg],
+                          leg.l2 - exclusions[task.leg], task.piece, options);
+  });
+  LinkDistances out{std::vector<LinkTask>(n_legs), std::vector<LinkTask>(n_legs)};
   for (size_t i = 0; i < n_legs; ++i) {
-    for (auto [pieces, task] : {std::pair{&shin_pieces[i], &shin_tasks[i]},
-                                std::pair{&thigh_pieces[i], &thigh_tasks[i]}}) {
+    for (auto [pieces, task] : {std::pair{&shin_pieces[i], &out.shin[i]},
+                                std::pair{&thigh_pieces[i], &out.thigh[i]}}) {
       if (pieces->empty()) continue;
       task->result = merge_pieces(*pieces, n);
       for (const PieceResult& p : *pieces) {
@@ -371,49 +300,158 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
       pieces->clear();
     }
   }
+  return out;
+}
 
-  for (size_t i = 0; i < n_legs; ++i) {
-    LegClearanceSeries& series = rep.legs[i];
-    series.leg = model.legs[i].name;
-    LinkResult& shin = shin_tasks[i].result;
-    rep.fcl_queries += shin_tasks[i].queries;
-    rep.certain_queries += shin_tasks[i].certain_queries;
-    summarise(shin,
-              {&series.shin_min, &series.shin_min_sample, &series.shin_certain_min,
-               &series.shin_collision_samples, &series.shin_certain_samples, &series.shin_verdict},
-              &shin_worst, &series);
-    series.shin_distance = std::move(shin.distance);
-    series.shin_exact = std::move(shin.exact);
-    series.shin_certain_distance = std::move(shin.certain_distance);
-    series.thigh_min = options.distance_cutoff;
-    series.thigh_certain_min = options.distance_cutoff;
-    if (options.check_thigh) {
-      LinkResult& thigh = thigh_tasks[i].result;
-      rep.fcl_queries += thigh_tasks[i].queries;
-      rep.certain_queries += thigh_tasks[i].certain_queries;
-      summarise(
-          thigh,
-          {&series.thigh_min, &series.thigh_min_sample, &series.thigh_certain_min,
-           &series.thigh_collision_samples, &series.thigh_certain_samples, &series.thigh_verdict},
-          &thigh_worst, &series);
-      series.thigh_distance = std::move(thigh.distance);
-      series.thigh_exact = std::move(thigh.exact);
-      series.thigh_certain_distance = std::move(thigh.certain_distance);
+// Where one capsule's summary goes: its minima, voxel contacts, certain collisions and verdicts.
+struct LinkSummary {
+  double* min;
+  int* min_sample;
+  double* certain_min;
+  int* collisions;
+  int* certain_collisions;
+  std::vector<ContactVerdict>* verdict;
+};
+
+// Summarises one link's distances into `out` and `series` (first collision times) and raises the
+// per-sample worst verdict over the legs.
+void summarise_link(const LinkResult& r, const LinkSummary& out, const std::vector<double>& time,
+                    const ClearanceOptions& options, double deep_depth,
+                    std::vector<ContactVerdict>* worst, LegClearanceSeries* series) {
+  const size_t n = time.size();
+  *out.min = options.distance_cutoff;
+  *out.certain_min = options.distance_cutoff;
+  out.verdict->assign(n, ContactVerdict::clear);
+  for (size_t k = 0; k < n; ++k) {
+    const double d = r.distance[k];
+    if (std::isnan(d)) continue;
+    if (d < *out.min) {
+      *out.min = d;
+      *out.min_sample = static_cast<int>(k);
     }
-    rep.shin_min_distance = std::min(rep.shin_min_distance, series.shin_min);
-    rep.thigh_min_distance = std::min(rep.thigh_min_distance, series.thigh_min);
-    rep.shin_min_certain_distance =
-        std::min(rep.shin_min_certain_distance, series.shin_certain_min);
-    rep.thigh_min_certain_distance =
-        std::min(rep.thigh_min_certain_distance, series.thigh_certain_min);
-    if (series.first_collision_t >= 0 &&
-        (rep.first_collision_t < 0 || series.first_collision_t < rep.first_collision_t))
-      rep.first_collision_t = series.first_collision_t;
-    if (series.first_certain_collision_t >= 0 &&
-        (rep.first_certain_collision_t < 0 ||
-         series.first_certain_collision_t < rep.first_certain_collision_t))
-      rep.first_certain_collision_t = series.first_certain_collision_t;
+    *out.certain_min = std::min(*out.certain_min, r.certain_distance[k]);
+    const ContactVerdict v = detail::contact_verdict(d, r.certain_distance[k], deep_depth);
+    if (d <= 0 || v == ContactVerdict::certain) {
+      ++*out.collisions;
+      if (series->first_collision_t < 0 || time[k] < series->first_collision_t)
+        series->first_collision_t = time[k];
+    }
+    if (v == ContactVerdict::certain) {
+      ++*out.certain_collisions;
+      if (series->first_certain_collision_t < 0 || time[k] < series->first_certain_collision_t)
+        series->first_certain_collision_t = time[k];
+    }
+    (*out.verdict)[k] = v;
+    (*worst)[k] = std::max((*worst)[k], v);
   }
+}
+
+// Leg i's series (shin, and thigh when checked) from its link distances, folded into the
+// report's minima, first collision times and query counts.
+void summarise_leg(size_t i, const robot::RobotModel& model, LinkDistances& links,
+                   const std::vector<double>& time, const ClearanceOptions& options,
+                   std::vector<ContactVerdict>* shin_worst,
+                   std::vector<ContactVerdict>* thigh_worst, ClearanceReport& rep) {
+  const double deep_depth = rep.deep_contact_depth;
+  LegClearanceSeries& series = rep.legs[i];
+  series.leg = model.legs[i].name;
+  LinkResult& shin = links.shin[i].result;
+  rep.fcl_queries += links.shin[i].queries;
+  rep.certain_queries += links.shin[i].certain_queries;
+  summarise_link(shin,
+                 {&series.shin_min, &series.shin_min_sample, &series.shin_certain_min,
+                  &series.shin_collision_samples, &series.shin_certain_samples,
+                  &series.shin_verdict},
+                 time, options, deep_depth, shin_worst, &series);
+  series.shin_distance = std::move(shin.distance);
+  series.shin_exact = std::move(shin.exact);
+  series.shin_certain_distance = std::move(shin.certain_distance);
+  series.thigh_min = options.distance_cutoff;
+  series.thigh_certain_min = options.distance_cutoff;
+  if (options.check_thigh) {
+    LinkResult& thigh = links.thigh[i].result;
+    rep.fcl_queries += links.thigh[i].queries;
+    rep.certain_queries += links.thigh[i].certain_queries;
+    summarise_link(thigh,
+                   {&series.thigh_min, &series.thigh_min_sample, &series.thigh_certain_min,
+                    &series.thigh_collision_samples, &series.thigh_certain_samples,
+                    &series.thigh_verdict},
+                   time, options, deep_depth, thigh_worst, &series);
+    series.thigh_distance = std::move(thigh.distance);
+    series.thigh_exact = std::move(thigh.exact);
+    series.thigh_certain_distance = std::move(thigh.certain_distance);
+  }
+  rep.shin_min_distance = std::min(rep.shin_min_distance, series.shin_min);
+  rep.thigh_min_distance = std::min(rep.thigh_min_distance, series.thigh_min);
+  rep.shin_min_certain_distance = std::min(rep.shin_min_certain_distance, series.shin_certain_min);
+  rep.thigh_min_certain_distance =
+      std::min(rep.thigh_min_certain_distance, series.thigh_certain_min);
+  if (series.first_collision_t >= 0 &&
+      (rep.first_collision_t < 0 || series.first_collision_t < rep.first_collision_t))
+    rep.first_collision_t = series.first_collision_t;
+  if (series.first_certain_collision_t >= 0 &&
+      (rep.first_certain_collision_t < 0 ||
+       series.first_certain_collision_t < rep.first_certain_collision_t))
+    rep.first_certain_collision_t = series.first_certain_collision_t;
+}
+
+void check_clearance_inputs(const robot::RobotModel& model, const planner::Trajectory& traj,
+                            const TrajectoryKinematics& kin, const ClearanceOptions& options) {
+  if (kin.time.size() != traj.samples.size() || kin.legs.size() != model.legs.size())
+    throw TrajectoryError("kinematics do not belong to this trajectory (sample or leg count)");
+  if (!(options.distance_cutoff > 0))
+    throw std::invalid_argument("clearance distance cutoff must be > 0");
+  if (!(options.exact_below >= 0) || !(options.bound_tolerance >= 0) || !(options.piece_length > 0))
+    throw std::invalid_argument(
+        "clearance options: exact_below and bound_tolerance must be >= 0, piece_length > 0");
+}
+
+}  // namespace
+
+ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planner::Trajectory& traj,
+                                    const TrajectoryKinematics& kin, const octomap::OcTree& octree,
+                                    const ClearanceOptions& options, const CertainSolid* certain) {
+  check_clearance_inputs(model, traj, kin, options);
+  const size_t n = traj.samples.size();
+  const size_t n_legs = model.legs.size();
+  ClearanceReport rep;
+  rep.time = kin.time;
+  rep.octree_resolution = octree.getResolution();
+  rep.certain_resolved_below = options.exact_below;
+  rep.deep_contact_depth = detail::deep_contact_depth(options, octree);
+  std::vector<double> exclusions(n_legs);
+  for (size_t i = 0; i < n_legs; ++i) {
+    exclusions[i] = options.shin_exclusion >= 0
+                        ? options.shin_exclusion
+                        : robot::shin_exclusion(model, model.legs[i],
+                                                std::max(options.exclusion_margin,
+                                                         octree.getResolution()));
+    rep.shin_exclusion = std::max(rep.shin_exclusion, exclusions[i]);
+  }
+  rep.shin_min_distance = options.distance_cutoff;
+  rep.thigh_min_distance = options.distance_cutoff;
+  rep.shin_min_certain_distance = options.distance_cutoff;
+  rep.thigh_min_certain_distance = options.distance_cutoff;
+  rep.legs.resize(n_legs);
+
+  // fcl::OcTree only reads the octomap tree; the aliasing constructor shares it without a copy or
+  // ownership (the caller keeps `octree` alive for the duration of this call).
+  const std::shared_ptr<const octomap::OcTree> view(std::shared_ptr<const octomap::OcTree>(),
+                                                    &octree);
+  const fcl::OcTree<double> tree(view);
+  std::unique_ptr<SolidGeometry> solid;
+  if (certain) {
+    solid = std::make_unique<SolidGeometry>(*certain);
+    rep.certain_source = certain->source;
+  }
+
+  // The capsule tracks of every leg first (cheap), then their distances, then the summaries.
+  const LegTracks tracks = capsule_tracks(model, traj, kin, exclusions);
+  LinkDistances links = link_distances(model, tracks, exclusions, tree, solid.get(), options, n);
+  std::vector<ContactVerdict> shin_worst(n, ContactVerdict::clear),
+      thigh_worst(n, ContactVerdict::clear);
+  for (size_t i = 0; i < n_legs; ++i)
+    summarise_leg(i, model, links, kin.time, options, &shin_worst, &thigh_worst, rep);
   for (size_t k = 0; k < n; ++k) {
     rep.shin_collisions += shin_worst[k] != ContactVerdict::clear;
     rep.thigh_collisions += thigh_worst[k] != ContactVerdict::clear;
