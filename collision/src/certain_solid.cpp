@@ -19,6 +19,7 @@ std::shared_ptr<const CertainSolid> certain_solid_from_grid(const terrain::Heigh
   auto out = std::make_shared<CertainSolid>();
   const double nan = std::numeric_limits<double>::quiet_NaN();
   const double sigma = std::max(0.0, grid.noise_sigma);
+  out->noise_depth = options.noise_factor * sigma;
   const int e = std::max(0, options.erosion_cells);
   if (g.nx <= 0 || g.ny <= 0 || grid.elevation.size() != g.size()) return out;
 

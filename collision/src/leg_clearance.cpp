@@ -418,7 +418,7 @@ ClearanceReport check_leg_clearance(const robot::RobotModel& model, const planne
   rep.time = kin.time;
   rep.octree_resolution = octree.getResolution();
   rep.certain_resolved_below = options.exact_below;
-  rep.deep_contact_depth = detail::deep_contact_depth(options, octree);
+  rep.deep_contact_depth = detail::deep_contact_depth(options, octree, certain);
   std::vector<double> exclusions(n_legs);
   for (size_t i = 0; i < n_legs; ++i) {
     exclusions[i] = options.shin_exclusion >= 0

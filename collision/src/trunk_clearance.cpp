@@ -29,7 +29,7 @@ TrunkClearanceReport check_trunk_clearance(const robot::RobotModel& model,
   const size_t n = traj.samples.size();
 
   TrunkClearanceReport rep;
-  rep.deep_contact_depth = detail::deep_contact_depth(options, octree);
+  rep.deep_contact_depth = detail::deep_contact_depth(options, octree, certain);
   rep.certain_resolved_below = options.exact_below;
   rep.time.resize(n);
   rep.distance.assign(n, std::numeric_limits<double>::quiet_NaN());

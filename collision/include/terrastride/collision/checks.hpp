@@ -150,7 +150,8 @@ struct ClearanceOptions {
   // measured point lies anywhere inside it, so a body may overlap it by up to one voxel edge
   // without touching the surface. A contact deeper than this is a certain collision even where
   // the certain solid has nothing (thin walls, which its one-cell erosion removes at coarse
-  // cells). Negative: the octree's voxel edge.
+  // cells). Negative: the octree's voxel edge plus the depth the map's sensor noise fills with
+  // voxels (CertainSolid::noise_depth, 3 sigma; 0 on exact scenes).
   double deep_contact_depth = -1.0;
 };
 

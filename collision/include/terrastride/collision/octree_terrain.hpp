@@ -66,6 +66,10 @@ std::shared_ptr<octomap::OcTree> voxelise_scene(const terrain::Scene& scene,
 struct CertainSolid {
   std::vector<terrain::Box> boxes;
   std::string source;  // how it was made, for reports
+  // How far above the true surface the map's sensor noise alone puts occupied voxels
+  // (noise_factor sigma of the map it was made from; 0 for exact scenes): a body that deep into
+  // voxels but clear of the solid touches noise, not the terrain (detail::deep_contact_depth).
+  double noise_depth = 0.0;
 };
 
 struct CertainSolidOptions {
