@@ -11,6 +11,7 @@
 #include <pcl/segmentation/sac_segmentation.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <mutex>
@@ -35,6 +36,9 @@ std::string percent(double share) {
   return buf;
 }
 
+SupportPlane estimate(const std::vector<Eigen::Vector3f>& points, const Eigen::Vector3d& sensor,
+                      const SupportPlaneOptions& o);
+
 }  // namespace
 
 SupportPlane support_plane_with_pcl(const std::vector<Eigen::Vector3f>& points,
@@ -42,6 +46,19 @@ SupportPlane support_plane_with_pcl(const std::vector<Eigen::Vector3f>& points,
                                     const SupportPlaneOptions& o) {
   static std::once_flag quiet;
   std::call_once(quiet, [] { pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS); });
+  const auto t0 = std::chrono::steady_clock::now();
+  SupportPlane r = estimate(points, sensor, o);
+  r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return r;
+}
+
+}  // namespace terrastride::perception::detail
+
+namespace terrastride::perception::detail {
+namespace {
+
+SupportPlane estimate(const std::vector<Eigen::Vector3f>& points, const Eigen::Vector3d& sensor,
+                      const SupportPlaneOptions& o) {
   SupportPlane r;
   // A bounded copy first: the voxel grid's cost grows with the points, the estimate does not
   // need them all (a 1 M-point scan keeps 200 k).
@@ -119,4 +136,5 @@ SupportPlane support_plane_with_pcl(const std::vector<Eigen::Vector3f>& points,
   return r;
 }
 
+}  // namespace
 }  // namespace terrastride::perception::detail

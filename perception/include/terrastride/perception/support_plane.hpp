@@ -30,6 +30,7 @@ struct SupportPlane {
   bool sensor_in_plane = false;
   double inlier_share = 0.0;   // of the downsampled points
   size_t points_used = 0;      // downsampled points the estimate saw
+  double seconds = 0.0;        // the estimate's own time (not loading the PCL module)
   Eigen::Vector3d normal() const { return coefficients.head<3>(); }
 };
 
