@@ -136,8 +136,11 @@ TEST_P(Pointcloud2Update, SameMapAsTheEquivalentPcdFiles) {
     for (std::string line; std::getline(list, line);)
       if (!line.empty()) pcds.push_back(fixture("pcd/" + line));
   }
+  // World-frame points with the whole sensor pose as VIEWPOINT: its position only.
+  terrastride::terrain::CloudPoseOptions world_frame;
+  world_frame.viewpoint = terrastride::perception::ViewpointUse::kPosition;
   const terrastride::terrain::MapInput loose =
-      terrastride::terrain::read_map_clouds(pcds, std::nullopt);
+      terrastride::terrain::read_map_clouds(pcds, world_frame);
   ASSERT_EQ(loose.clouds.size(), 18u);
   for (std::size_t k = 0; k < loose.clouds.size(); ++k) {
     const auto& cl = loose.clouds[k];
