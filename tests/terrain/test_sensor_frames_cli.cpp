@@ -270,6 +270,19 @@ TEST_F(SensorFramesCli, CameraFrameWithoutPoseIsRefusedOrLevelled) {
           shell_quote(path("levelled2")));
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("levelled (--up auto)"), std::string::npos) << r.out;
+  // The report of that map says how its up direction was found; a report made from the cloud
+  // itself refuses it as map does, rather than finding no problems.
+  r = run("report --terrain " + shell_quote(path("levelled")) + " --out " +
+          shell_quote(path("levelled.html")));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("terrain input " + path("cam.pcd") + ": levelled by the dominant plane"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("tilted 135."), std::string::npos) << r.out;
+  r = run("report --terrain " + shell_quote(path("cam.pcd")) + " --out " +
+          shell_quote(path("cam.html")));
+  EXPECT_NE(r.code, 0) << r.out;
+  EXPECT_NE(r.err.find("z does not look like up"), std::string::npos) << r.err;
   // --up z maps it as it is, tilted.
   r = map(shell_quote(path("cam.pcd")), "as_is", "--up z");
   ASSERT_EQ(r.code, 0) << r.err;
