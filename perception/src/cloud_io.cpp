@@ -225,9 +225,9 @@ std::optional<FileSensor> file_sensor(const CloudFileRead& file, const std::stri
   const bool rotated = !vp.orientation.isApprox(Eigen::Quaterniond::Identity(), 1e-12);
   std::ostringstream text;
   text.precision(7);  // as stored: float32
-  text << "VIEWPOINT " << vp.position.x() << " " << vp.position.y() << " " << vp.position.z()
-       << " " << vp.orientation.w() << " " << vp.orientation.x() << " " << vp.orientation.y()
-       << " " << vp.orientation.z();
+  text << "VIEWPOINT " << vp.position.x() << " " << vp.position.y() << " " << vp.position.z() << " "
+       << vp.orientation.w() << " " << vp.orientation.x() << " " << vp.orientation.y() << " "
+       << vp.orientation.z();
   // World-frame points: the VIEWPOINT's rotation, if any, is the sensor's and is not applied.
   if (use == ViewpointUse::kPosition)
     return FileSensor{SensorPose{vp.position, Eigen::Quaterniond::Identity()}, false};
@@ -251,10 +251,11 @@ PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> or
   if (origin) {
     cloud.sensor_origin = origin;
   } else if (file.viewpoint && file.viewpoint_marked) {
-    const SensorPose& pose = *file.viewpoint;
-    const Eigen::Matrix3d r = pose.orientation.toRotationMatrix();
-    for (Eigen::Vector3f& p : file.points) p = (r * p.cast<double>() + pose.position).cast<float>();
-    cloud.sensor_origin = pose.position;
+    const size_t dropped = transform_points(file.points, *file.viewpoint);
+    if (stats) stats->non_finite += dropped;
+    if (file.points.empty())
+      throw InputError(path + ": no point is finite once placed by its VIEWPOINT");
+    cloud.sensor_origin = file.viewpoint->position;
   } else if (file.viewpoint) {
     cloud.sensor_origin = file.viewpoint->position;
   }

@@ -598,8 +598,8 @@ void set_viewpoint(RawCloud& raw, const Eigen::Vector4f& origin,
   const bool identity = orientation.w() == 1.0f && orientation.vec().isZero(0.0f);
   raw.has_viewpoint = !(zero && identity);
   raw.viewpoint_position = origin.head<3>().cast<double>();
-  raw.viewpoint_wxyz = Eigen::Vector4d(orientation.w(), orientation.x(), orientation.y(),
-                                       orientation.z());
+  raw.viewpoint_wxyz =
+      Eigen::Vector4d(orientation.w(), orientation.x(), orientation.y(), orientation.z());
 }
 
 #endif

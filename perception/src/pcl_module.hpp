@@ -1,10 +1,11 @@
 // The PCL module: everything that calls PCL (PCD/PLY reading in pcl_io.cpp, the cloud filters in
-// pcl_filters.cpp, the support plane in pcl_plane.cpp) is built into a separate shared object, terrastride_pcl.so, which the
-// perception library loads with dlopen the first time a process reads a PCD/PLY file or filters a
-// cloud. PCL's io library alone pulls in about twenty VTK libraries: linked into the executable,
-// PCL and VTK were loaded and relocated by every process (a plan, a check, the server), about a
-// third of the process's start-up and half of its resident memory, for commands that never read
-// a point cloud. Only `map`, `scan-sim`, `polytopes`... that do read or filter clouds load it now.
+// pcl_filters.cpp, the support plane in pcl_plane.cpp) is built into a separate shared object,
+// terrastride_pcl.so, which the perception library loads with dlopen the first time a process reads
+// a PCD/PLY file or filters a cloud. PCL's io library alone pulls in about twenty VTK libraries:
+// linked into the executable, PCL and VTK were loaded and relocated by every process (a plan, a
+// check, the server), about a third of the process's start-up and half of its resident memory, for
+// commands that never read a point cloud. Only `map`, `scan-sim`, `polytopes`... that do read or
+// filter clouds load it now.
 //
 // Where the module is looked for, in order: $TERRASTRIDE_PCL_MODULE; terrastride_pcl.so beside
 // the running executable (build/ and an installed tree); the build tree's path, compiled in (the

@@ -42,8 +42,7 @@ SupportPlane estimate(const std::vector<Eigen::Vector3f>& points, const Eigen::V
 }  // namespace
 
 SupportPlane support_plane_with_pcl(const std::vector<Eigen::Vector3f>& points,
-                                    const Eigen::Vector3d& sensor,
-                                    const SupportPlaneOptions& o) {
+                                    const Eigen::Vector3d& sensor, const SupportPlaneOptions& o) {
   static std::once_flag quiet;
   std::call_once(quiet, [] { pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS); });
   const auto t0 = std::chrono::steady_clock::now();
@@ -63,9 +62,8 @@ SupportPlane estimate(const std::vector<Eigen::Vector3f>& points, const Eigen::V
   // A bounded copy first: the voxel grid's cost grows with the points, the estimate does not
   // need them all (a 1 M-point scan keeps 200 k).
   auto sample = std::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
-  take_evenly(points.size(), 200000, *sample, [&](size_t i) {
-    return pcl::PointXYZ(points[i].x(), points[i].y(), points[i].z());
-  });
+  take_evenly(points.size(), 200000, *sample,
+              [&](size_t i) { return pcl::PointXYZ(points[i].x(), points[i].y(), points[i].z()); });
   Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
   Eigen::Vector3f hi = -lo;
   for (const auto& p : *sample) {

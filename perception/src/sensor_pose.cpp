@@ -13,7 +13,9 @@
 namespace terrastride::perception {
 namespace {
 
-bool is_separator(char c) { return c == ' ' || c == '\t' || c == ',' || c == '\r'; }
+bool is_separator(char c) {
+  return c == ' ' || c == '\t' || c == ',' || c == '\r';
+}
 
 // The values of "a, b c": each must be a whole finite number.
 std::vector<double> numbers(const std::string& text, const std::string& what) {
@@ -46,7 +48,21 @@ SensorPose pose_from(const std::vector<double>& v, const std::string& what) {
 
 }  // namespace
 
-Eigen::Quaterniond optical_in_body() { return Eigen::Quaterniond(0.5, -0.5, 0.5, -0.5); }
+size_t transform_points(std::vector<Eigen::Vector3f>& points, const SensorPose& pose) {
+  const Eigen::Matrix3d r = pose.orientation.toRotationMatrix();
+  size_t kept = 0;
+  for (const Eigen::Vector3f& p : points) {
+    const Eigen::Vector3f q = (r * p.cast<double>() + pose.position).cast<float>();
+    if (q.allFinite()) points[kept++] = q;
+  }
+  const size_t dropped = points.size() - kept;
+  points.resize(kept);
+  return dropped;
+}
+
+Eigen::Quaterniond optical_in_body() {
+  return Eigen::Quaterniond(0.5, -0.5, 0.5, -0.5);
+}
 
 Eigen::Quaterniond checked_quaternion(double x, double y, double z, double w,
                                       const std::string& what) {

@@ -135,13 +135,15 @@ terrain::CloudPoseOptions pose_options(const MapOptions& o) {
     throw CommandError("--poses " + std::string(e.what()));
   }
   if (p.origin && (p.sensor_pose || !p.poses.empty()))
-    throw CommandError("--origin: world-frame points with a sensor position; it cannot go with "
-                       "--sensor-pose or --poses, which give the pose of the points' frame");
+    throw CommandError(
+        "--origin: world-frame points with a sensor position; it cannot go with "
+        "--sensor-pose or --poses, which give the pose of the points' frame");
   if (p.sensor_pose && !p.poses.empty())
     throw CommandError("--sensor-pose and --poses both give the clouds' poses: use one");
   if (p.origin && p.sensor_frame == perception::SensorFrame::kOptical)
-    throw CommandError("--sensor-frame optical: the points are in a camera's optical frame, but "
-                       "--origin takes them as world-frame; give --sensor-pose instead");
+    throw CommandError(
+        "--sensor-frame optical: the points are in a camera's optical frame, but "
+        "--origin takes them as world-frame; give --sensor-pose instead");
   return p;
 }
 
@@ -261,8 +263,11 @@ void print_placements(const terrain::MapSources& sources) {
               << "dominant plane (" << fmt(100 * p.inlier_share, 0) << " % of the points) "
               << (pl.levelled ? "was " : "is ") << "tilted " << fmt(p.tilt_deg, 1)
               << " deg, the sensor " << fmt(p.sensor_height, 2) << " m "
-              << (pl.levelled ? "from" : p.tilt_deg > 90 ? "below" : "above") << " it"
-              << (pl.position_known ? "" : " (sensor taken at the frame's origin)") << "\n";
+              << (pl.levelled       ? "from"
+                  : p.tilt_deg > 90 ? "below"
+                                    : "above")
+              << " it" << (pl.position_known ? "" : " (sensor taken at the frame's origin)")
+              << "\n";
   }
 }
 
@@ -275,8 +280,9 @@ void run_map_octomap(const MapOptions& o) {
   if (!o.origin.empty())
     throw CommandError("--origin: an OctoMap keeps no rays; the option applies to point clouds");
   if (pose_flags_given(o))
-    throw CommandError("--viewpoint, --sensor-pose, --poses, --sensor-frame, --up and --max-tilt "
-                       "apply to cloud files, not to an OctoMap");
+    throw CommandError(
+        "--viewpoint, --sensor-pose, --poses, --sensor-frame, --up and --max-tilt "
+        "apply to cloud files, not to an OctoMap");
   terrain::OctreeMapInput input;
   try {
     input = terrain::read_map_octomap(o.clouds.front());
@@ -365,8 +371,9 @@ terrain::MapInput read_bags(const MapOptions& o, Progress& progress, json* bag_j
   if (!o.origin.empty())
     throw CommandError("--origin: a bag's clouds take their origins from its tf (--frame)");
   if (pose_flags_given(o))
-    throw CommandError("--viewpoint, --sensor-pose, --poses, --sensor-frame, --up and --max-tilt "
-                       "apply to cloud files; a bag's clouds are placed by its tf (--frame)");
+    throw CommandError(
+        "--viewpoint, --sensor-pose, --poses, --sensor-frame, --up and --max-tilt "
+        "apply to cloud files; a bag's clouds are placed by its tf (--frame)");
   if (o.topics.empty())
     throw CommandError("--topic: which PointCloud2 topic(s) to map? (`terrastride map " +
                        o.clouds.front() + " --list` shows them)");
@@ -441,7 +448,8 @@ void run_map(MapOptions o) {
   // `map --poses FILE` alone maps the clouds the poses file names.
   if (o.clouds.empty() && !o.poses.empty() && !o.list) {
     try {
-      for (const auto& line : perception::read_poses_file(o.poses)) o.clouds.push_back(line.resolved);
+      for (const auto& line : perception::read_poses_file(o.poses))
+        o.clouds.push_back(line.resolved);
     } catch (const perception::InputError& e) {
       throw CommandError("--poses " + std::string(e.what()));
     }

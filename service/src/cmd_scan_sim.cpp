@@ -173,8 +173,9 @@ void run_scan_sim(const ScanSimOptions& o) {
                      {"viewpoint", o.frame != "world" && !o.no_viewpoint},
                      // The pose of the frame the points are in (X,Y,Z,QX,QY,QZ,QW for
                      // `map --sensor-pose`).
-                     {"pose", {frames[k].position.x(), frames[k].position.y(),
-                               frames[k].position.z(), q.x(), q.y(), q.z(), q.w()}},
+                     {"pose",
+                      {frames[k].position.x(), frames[k].position.y(), frames[k].position.z(),
+                       q.x(), q.y(), q.z(), q.w()}},
                      {"pixels", scans[k].pixels},
                      {"dropped", scans[k].dropped},
                      {"mixed_pixels", scans[k].mixed}});

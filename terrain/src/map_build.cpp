@@ -138,7 +138,6 @@ class OctoMapThread {
   std::thread thread_;  // last: starts after every member it uses exists
 };
 
-
 std::string canonical_path(const std::string& path) {
   namespace fs = std::filesystem;
   std::error_code ec;
@@ -182,7 +181,8 @@ void resolve_pose(const perception::CloudFileRead& file, const std::string& path
   }
   if (o.sensor_frame == perception::SensorFrame::kOptical) {
     if (pl.source == "origin" || pl.source == "viewpoint position")
-      throw perception::InputError(path + ": --sensor-frame optical needs the sensor's pose "
+      throw perception::InputError(path +
+                                   ": --sensor-frame optical needs the sensor's pose "
                                    "(the points are in its optical frame), but --origin and "
                                    "--viewpoint origin take the points as world-frame");
     pl.optical = true;
@@ -195,21 +195,23 @@ void resolve_pose(const perception::CloudFileRead& file, const std::string& path
 [[noreturn]] void refuse_unlevel(const std::string& path, const CloudPlacement& pl,
                                  double max_tilt_deg) {
   const perception::SupportPlane& p = *pl.plane;
-  std::string sensor = pl.position_known ? "the sensor" : "the sensor (taken at the frame's "
-                                                          "origin: no position given)";
+  std::string sensor = pl.position_known ? "the sensor"
+                                         : "the sensor (taken at the frame's "
+                                           "origin: no position given)";
   std::string where = p.tilt_deg > 90 ? " below it (looking up at it)" : " above it";
   std::string head = path + ": z does not look like up: the dominant plane (" +
                      fixed(100 * p.inlier_share, 0) + " % of the points) is tilted " +
-                     fixed(p.tilt_deg, 1) + " deg from level (more than " +
-                     fixed(max_tilt_deg, 0) + ") and " + sensor + " is " +
-                     fixed(p.sensor_height, 2) + " m" + where;
+                     fixed(p.tilt_deg, 1) + " deg from level (more than " + fixed(max_tilt_deg, 0) +
+                     ") and " + sensor + " is " + fixed(p.sensor_height, 2) + " m" + where;
   if (pl.source == "viewpoint") {
     // The same plane in the file's own frame: what the points say without the VIEWPOINT.
     const Eigen::Vector3d raw = pl.pose.orientation.inverse() * p.normal();
     const double raw_tilt = std::acos(std::clamp(raw.z(), -1.0, 1.0)) * 180.0 / M_PI;
     throw perception::InputError(
-        head + ", with the rotation of the file's VIEWPOINT applied (PCL's meaning: the points in "
-        "the sensor frame, VIEWPOINT its pose); as written, that plane is " + fixed(raw_tilt, 1) +
+        head +
+        ", with the rotation of the file's VIEWPOINT applied (PCL's meaning: the points in "
+        "the sensor frame, VIEWPOINT its pose); as written, that plane is " +
+        fixed(raw_tilt, 1) +
         " deg from level. If the points are already in the world frame, say --viewpoint origin "
         "(the VIEWPOINT's position is then the sensor's, its rotation not applied); or give the "
         "sensor's pose (--sensor-pose, --poses), or take the VIEWPOINT as it is (--up z)");
@@ -223,24 +225,21 @@ void resolve_pose(const perception::CloudFileRead& file, const std::string& path
 }
 
 // Places a cloud file's points in the world (resolve_pose, then the up check or levelling) and
-// records how in `pl`.
+// records how in `pl`; points a pose carries beyond float's range are dropped and counted in
+// *non_finite.
 perception::PointCloud place_cloud(perception::CloudFileRead file, const std::string& path,
                                    const CloudPoseOptions& o, const perception::PoseLine* line,
-                                   CloudPlacement& pl) {
+                                   CloudPlacement& pl, size_t* non_finite) {
   resolve_pose(file, path, o, line, pl);
   const bool file_marked = file.viewpoint_marked;
   perception::PointCloud cloud;
   cloud.source = path;
   cloud.points = std::move(file.points);
-  const bool identity =
-      pl.pose.orientation.isApprox(Eigen::Quaterniond::Identity(), 0.0) &&
-      pl.pose.position.isZero(0.0);
+  const bool identity = pl.pose.orientation.isApprox(Eigen::Quaterniond::Identity(), 0.0) &&
+                        pl.pose.position.isZero(0.0);
   // --origin and a VIEWPOINT read as a position take the points as they are.
-  if (!identity && pl.source != "origin" && pl.source != "viewpoint position") {
-    const Eigen::Matrix3d r = pl.pose.orientation.toRotationMatrix();
-    for (Eigen::Vector3f& p : cloud.points)
-      p = (r * p.cast<double>() + pl.pose.position).cast<float>();
-  }
+  if (!identity && pl.source != "origin" && pl.source != "viewpoint position")
+    *non_finite += perception::transform_points(cloud.points, pl.pose);
   if (pl.position_known) cloud.sensor_origin = pl.pose.position;
   if (o.up == UpMode::kZ) return cloud;
   // A pose the user gave, or terrastride's writer declared, is trusted. A VIEWPOINT without the
@@ -263,9 +262,11 @@ perception::PointCloud place_cloud(perception::CloudFileRead file, const std::st
   // far as a rotation can, and the sensor stays where it was.
   pl.levelling = Eigen::Quaterniond::FromTwoVectors(plane.normal(), Eigen::Vector3d::UnitZ());
   pl.levelled = true;
-  const Eigen::Matrix3d r = pl.levelling.toRotationMatrix();
-  for (Eigen::Vector3f& p : cloud.points)
-    p = (r * (p.cast<double>() - sensor) + sensor).cast<float>();
+  // About the sensor: p -> L (p - s) + s.
+  *non_finite +=
+      perception::transform_points(cloud.points, {sensor - pl.levelling * sensor, pl.levelling});
+  if (cloud.points.empty())
+    throw perception::InputError(path + ": no point is finite once levelled");
   return cloud;
 }
 
@@ -274,10 +275,9 @@ perception::PointCloud place_cloud(perception::CloudFileRead file, const std::st
 json placement_json(const CloudPlacement& pl) {
   const auto& q = pl.pose.orientation;
   json pose = {{"source", pl.source}};
-  if (pl.position_known) pose["position"] = {pl.pose.position.x(), pl.pose.position.y(),
-                                             pl.pose.position.z()};
-  if (pl.rotation_known || pl.optical)
-    pose["orientation_xyzw"] = {q.x(), q.y(), q.z(), q.w()};
+  if (pl.position_known)
+    pose["position"] = {pl.pose.position.x(), pl.pose.position.y(), pl.pose.position.z()};
+  if (pl.rotation_known || pl.optical) pose["orientation_xyzw"] = {q.x(), q.y(), q.z(), q.w()};
   pose["sensor_frame"] = pl.optical ? "optical" : "body";
   if (pl.source == "poses") pose["poses_line"] = pl.poses_line;
   json up;
@@ -287,7 +287,7 @@ json placement_json(const CloudPlacement& pl) {
     up = {{"from", "z (--up z)"}};
   } else {
     const auto& p = *pl.plane;
-    up = {{"from", pl.levelled       ? "levelled by the dominant plane (--up auto)"
+    up = {{"from", pl.levelled         ? "levelled by the dominant plane (--up auto)"
                    : pl.rotation_known ? "pose, checked against the dominant plane"
                                        : "z, checked against the dominant plane"},
           {"method", "pcl::SACSegmentation (RANSAC, plane model) on a voxel-grid copy"},
@@ -415,12 +415,32 @@ MapInput read_map_clouds(const std::vector<std::string>& paths, const CloudPoseO
     }
     perception::CloudFileRead file = perception::read_cloud_file(paths[k]);
     files[k] = {paths[k], file.stats.points_in_file, file.stats.non_finite, CloudPlacement{}};
-    clouds[k] = place_cloud(std::move(file), paths[k], poses, lines[k], *files[k].placement);
+    clouds[k] = place_cloud(std::move(file), paths[k], poses, lines[k], *files[k].placement,
+                            &files[k].non_finite);
+    if (clouds[k].points.empty())
+      throw perception::InputError(paths[k] + ": no point is finite once placed by its pose");
   });
   input.sources.files = std::move(files);
   input.clouds = std::move(clouds);
   input.sources.read_s = seconds_since(t0);
   return input;
+}
+
+perception::PointCloud place_map_points(std::vector<Eigen::Vector3f> points,
+                                        const std::string& name, const CloudPoseOptions& poses,
+                                        CloudPlacement* placement) {
+  if (poses.origin && poses.sensor_pose)
+    throw perception::InputError(name + ": \"origin\" gives world-frame points, \"pose\" the pose "
+                                 "of the points' frame: give one");
+  perception::CloudFileRead file;
+  file.points = std::move(points);
+  CloudPlacement pl;
+  size_t dropped = 0;
+  perception::PointCloud cloud = place_cloud(std::move(file), name, poses, nullptr, pl, &dropped);
+  if (cloud.points.empty())
+    throw perception::InputError(name + ": no point is finite once placed by its pose");
+  if (placement) *placement = std::move(pl);
+  return cloud;
 }
 
 MapInput read_map_clouds(const std::vector<std::string>& paths,
@@ -532,7 +552,8 @@ BagMapInput read_map_bags(const std::vector<std::string>& paths,
     perception::read_bag_clouds(
         paths[b], options,
         [&](perception::PointCloud&& cloud, const perception::BagCloudInfo& info) {
-          out.input.sources.files.push_back({cloud.source, info.points_in, info.non_finite, std::nullopt});
+          out.input.sources.files.push_back(
+              {cloud.source, info.points_in, info.non_finite, std::nullopt});
           out.input.clouds.push_back(std::move(cloud));
           if (progress) progress(b, out.input.clouds.size());
         },
@@ -621,7 +642,8 @@ StreamedBagInput stream_map_bags(const std::vector<std::string>& paths,
       perception::read_bag_clouds(
           paths[b], options,
           [&](perception::PointCloud&& cloud, const perception::BagCloudInfo& info) {
-            in.input.sources.files.push_back({cloud.source, info.points_in, info.non_finite, std::nullopt});
+            in.input.sources.files.push_back(
+                {cloud.source, info.points_in, info.non_finite, std::nullopt});
             std::unique_lock<std::mutex> lock(mutex);
             changed.wait(lock, [&] { return waiting.size() < 2 || stop; });
             if (clean_error) std::rethrow_exception(clean_error);

@@ -46,6 +46,16 @@ TEST(SensorPose, ParsesRosOrderAndRefusesBadValues) {
   expect_input_error([] { parse_sensor_pose("", "--sensor-pose"); }, {"got 0"});
 }
 
+TEST(SensorPose, TransformDropsPointsThatLeaveFloatRange) {
+  std::vector<Eigen::Vector3f> pts = {{1, 0, 0}, {3e38f, 3e38f, 0}};
+  SensorPose pose;
+  pose.position = Eigen::Vector3d(0, 0, 1);
+  pose.orientation = Eigen::AngleAxisd(M_PI / 4, Eigen::Vector3d::UnitZ());
+  EXPECT_EQ(transform_points(pts, pose), 1u);  // 4.2e38 along y is beyond float
+  ASSERT_EQ(pts.size(), 1u);
+  EXPECT_TRUE(pts[0].isApprox(Eigen::Vector3f(0.70710678f, 0.70710678f, 1), 1e-6f));
+}
+
 TEST(SensorPose, OpticalFrameFollowsRep103) {
   const Eigen::Quaterniond q = optical_in_body();
   // Optical z (depth) is the body's x (forward), optical x (right) is -y, optical y (down) -z.
@@ -72,8 +82,7 @@ TEST(PosesFile, ReadsLinesAndNamesTheBadOne) {
   expect_input_error([&] { read_poses_file(dir.file("short.txt")); },
                      {"short.txt: line 2", "expected a path and 7 numbers", "got 6"});
   write_text(dir.file("nan.txt"), "a.pcd 1 2 3 0 0 0 1\n\nb.pcd 1 nan 3 0 0 0 1\n");
-  expect_input_error([&] { read_poses_file(dir.file("nan.txt")); },
-                     {"nan.txt: line 3", "'nan'"});
+  expect_input_error([&] { read_poses_file(dir.file("nan.txt")); }, {"nan.txt: line 3", "'nan'"});
   write_text(dir.file("quat.txt"), "a.pcd 1 2 3 0 0 0 2\n");
   expect_input_error([&] { read_poses_file(dir.file("quat.txt")); },
                      {"quat.txt: line 1", "norm 2"});
@@ -91,7 +100,8 @@ std::string ascii_pcd(const std::string& viewpoint, const std::vector<Eigen::Vec
                       bool marker = false) {
   std::ostringstream os;
   os << "# .PCD v0.7\n";
-  if (marker) os << "# terrastride: points in the sensor frame, VIEWPOINT = its pose (world = R p + t)\n";
+  if (marker)
+    os << "# terrastride: points in the sensor frame, VIEWPOINT = its pose (world = R p + t)\n";
   os << "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH " << points.size()
      << "\nHEIGHT 1\nVIEWPOINT " << viewpoint << "\nPOINTS " << points.size() << "\nDATA ascii\n";
   for (const auto& p : points) os << p.x() << " " << p.y() << " " << p.z() << "\n";
@@ -131,9 +141,9 @@ TEST(Viewpoint, PositionWithoutRotationIsAmbiguousUnlessMarked) {
   // What the writer of earlier versions wrote: world-frame points, the sensor position.
   write_text(dir.file("old.pcd"), ascii_pcd("-1 0 0.8 1 0 0 0", {{1, 0, 0}}));
   const CloudFileRead file = read_cloud_file(dir.file("old.pcd"));
-  expect_input_error([&] { file_sensor(file, "old.pcd", ViewpointUse::kDefault); },
-                     {"old.pcd", "VIEWPOINT -1 0 0.8 1 0 0 0", "--viewpoint origin",
-                      "--viewpoint pose"});
+  expect_input_error(
+      [&] { file_sensor(file, "old.pcd", ViewpointUse::kDefault); },
+      {"old.pcd", "VIEWPOINT -1 0 0.8 1 0 0 0", "--viewpoint origin", "--viewpoint pose"});
   const auto as_position = file_sensor(file, "old.pcd", ViewpointUse::kPosition);
   ASSERT_TRUE(as_position);
   EXPECT_FALSE(as_position->rotation_known);

@@ -39,8 +39,9 @@ struct Layers {
 
 std::vector<double> as_doubles(const terrastride::perception::NpyArray& a) {
   std::vector<double> v;
-  const size_t n = a.dtype == "<f8" ? a.bytes.size() / 8 : a.dtype == "<f4" ? a.bytes.size() / 4
-                                                                            : a.bytes.size();
+  const size_t n = a.dtype == "<f8"   ? a.bytes.size() / 8
+                   : a.dtype == "<f4" ? a.bytes.size() / 4
+                                      : a.bytes.size();
   for (size_t i = 0; i < n; ++i) {
     if (a.dtype == "<f8") {
       double d;
@@ -61,8 +62,10 @@ Layers load_layers(const fs::path& dir) {
   Layers l;
   std::ifstream in(dir / "terrain.json");
   l.grid = json::parse(in)["grid"];
-  l.elevation = as_doubles(terrastride::perception::read_npy((dir / "layers/elevation.npy").string()));
-  for (double v : as_doubles(terrastride::perception::read_npy((dir / "layers/observed.npy").string())))
+  l.elevation =
+      as_doubles(terrastride::perception::read_npy((dir / "layers/elevation.npy").string()));
+  for (double v :
+       as_doubles(terrastride::perception::read_npy((dir / "layers/observed.npy").string())))
     l.observed.push_back(v != 0);
   return l;
 }
@@ -106,14 +109,16 @@ class SensorFramesCli : public ::testing::Test {
   std::string path(const std::string& name) const { return (dir_ / name).string(); }
 
   // One simulated scan (one pose) of `scene`; returns scan-sim's JSON entry for the file.
-  json scan(const std::string& name, const std::string& args, const std::string& scene = "pallet_10") {
+  json scan(const std::string& name, const std::string& args,
+            const std::string& scene = "pallet_10") {
     const CommandResult r = run("scan-sim --scene " + scene + " --poses 1 --out " +
                                 shell_quote(path(name)) + " --json " + args);
     EXPECT_EQ(r.code, 0) << r.err;
     return json::parse(r.out)["files"][0];
   }
   // `map` into DIR; returns the result.
-  CommandResult map(const std::string& inputs, const std::string& out, const std::string& args = "") {
+  CommandResult map(const std::string& inputs, const std::string& out,
+                    const std::string& args = "") {
     return run("map " + inputs + " --out " + shell_quote(path(out)) + " --json " + args);
   }
   Layers layers(const std::string& out) const { return load_layers(dir_ / out); }
@@ -334,9 +339,9 @@ TEST_F(SensorFramesCli, WallsSensorsBelowAndTooFewPoints) {
   }
   r = map(shell_quote(path("few.xyz")), "few");
   ASSERT_EQ(r.code, 0) << r.err;
-  EXPECT_NE(json::parse(r.out)["inputs"][0]["up"]["problem"].get<std::string>().find(
-                "too few points"),
-            std::string::npos);
+  EXPECT_NE(
+      json::parse(r.out)["inputs"][0]["up"]["problem"].get<std::string>().find("too few points"),
+      std::string::npos);
   r = map(shell_quote(path("few.xyz")), "few_auto", "--up auto");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("--up auto cannot level"), std::string::npos) << r.err;
@@ -395,7 +400,8 @@ TEST_F(SensorFramesCli, BadPosesAreRefusedNamingTheOptionOrLine) {
   for (const Case& c : cases) {
     const CommandResult r = map(in, "out", c.args);
     EXPECT_NE(r.code, 0) << c.args;
-    for (const auto& n : c.needles) EXPECT_NE(r.err.find(n), std::string::npos) << c.args << ": " << r.err;
+    for (const auto& n : c.needles)
+      EXPECT_NE(r.err.find(n), std::string::npos) << c.args << ": " << r.err;
   }
   std::ofstream(path("p1.txt")) << "# header\ns.pcd 0 0 1 0 0 0 1\nother.pcd 0 0 1 0 0\n";
   CommandResult r = map(in, "out", "--poses " + shell_quote(path("p1.txt")));

@@ -43,7 +43,6 @@ struct ReadStats {
 PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> origin,
                       ReadStats* stats);
 
-
 // Writes a binary PCD (x y z float32) of a world-frame cloud, atomically (temp file + rename), as
 // PCL means a VIEWPOINT: the points in the sensor frame, VIEWPOINT its pose (world = R p + t),
 // so that pcl_viewer and read_cloud place them where they are. `frame`, when given, is that pose
@@ -51,8 +50,7 @@ PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> or
 // (VIEWPOINT = origin, no rotation) and one without as it is (PCL's identity-zero VIEWPOINT).
 // A written VIEWPOINT comes with kSensorFrameMarker's header comment. Throws InputError when the
 // directory is not writable or the pose is not finite.
-void write_pcd(const PointCloud& cloud, const std::string& path,
-               const SensorPose* frame = nullptr);
+void write_pcd(const PointCloud& cloud, const std::string& path, const SensorPose* frame = nullptr);
 
 // A cloud as its file holds it: the finite points in the file's own frame, and what the file says
 // of its sensor.

@@ -21,6 +21,10 @@ struct SensorPose {
 // for the body of a camera whose points are in its optical frame is composed with this rotation.
 enum class SensorFrame { kBody, kOptical };
 
+// Applies `pose` to every point (world = R p + t, in double) and drops the points that leave
+// float's range (a coordinate near 3e38 rotated); returns how many were dropped.
+size_t transform_points(std::vector<Eigen::Vector3f>& points, const SensorPose& pose);
+
 // The optical frame's orientation in the body frame (the quaternion x, y, z, w = -0.5, 0.5, -0.5,
 // 0.5 of every ROS camera driver's `*_optical_frame`).
 Eigen::Quaterniond optical_in_body();
@@ -40,7 +44,7 @@ SensorPose parse_sensor_pose(const std::string& text, const std::string& what);
 // commas); '#' starts a comment; blank lines are skipped. A relative PATH is relative to the
 // poses file's folder. Throws InputError naming the file and line.
 struct PoseLine {
-  std::string path;  // as written
+  std::string path;      // as written
   std::string resolved;  // absolute and canonical (fs::weakly_canonical)
   SensorPose pose;
   size_t line = 0;

@@ -19,13 +19,13 @@
 
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/bag_clouds.hpp"
+#include "terrastride/perception/cloud_io.hpp"
 #include "terrastride/perception/filters.hpp"
 #include "terrastride/perception/octomap_fusion.hpp"
 #include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/perception/sensor_pose.hpp"
 #include "terrastride/perception/support_plane.hpp"
-#include "terrastride/perception/cloud_io.hpp"
 #include "terrastride/terrain/height_grid.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
 
@@ -42,8 +42,8 @@ struct CloudPlacement {
   bool rotation_known = false;  // else the up direction was checked or levelled (unless --up z)
   // A VIEWPOINT's rotation is applied, but checked like an unknown one (unless --up z) when the
   // file lacks the writer's marker: `plane` is then set too.
-  bool optical = false;         // --sensor-frame optical: pose is the body's
-  size_t poses_line = 0;        // the poses file's line, for "poses"
+  bool optical = false;   // --sensor-frame optical: pose is the body's
+  size_t poses_line = 0;  // the poses file's line, for "poses"
   // The dominant plane, for a cloud without a known rotation (not with --up z).
   std::optional<perception::SupportPlane> plane;
   bool levelled = false;  // --up auto rotated the cloud about the sensor: plane normal -> +z
@@ -113,6 +113,12 @@ struct CloudPoseOptions {
 // naming the first failing file (and the poses file's line).
 MapInput read_map_clouds(const std::vector<std::string>& paths, const CloudPoseOptions& poses,
                          const std::function<void(size_t)>& before_file = {});
+// Places points held in memory (the socket's `points` attachment) as read_map_clouds places a
+// file's: poses.sensor_pose or poses.origin, poses.sensor_frame and poses.up (a poses file does
+// not apply); `name` names the cloud in errors. Returns the placed cloud and how in *placement.
+perception::PointCloud place_map_points(std::vector<Eigen::Vector3f> points,
+                                        const std::string& name, const CloudPoseOptions& poses,
+                                        CloudPlacement* placement);
 // As above with CloudPoseOptions{.origin = origin}.
 MapInput read_map_clouds(const std::vector<std::string>& paths,
                          const std::optional<Eigen::Vector3d>& origin,
