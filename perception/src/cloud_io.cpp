@@ -163,9 +163,7 @@ detail::RawCloud read_npy_cloud(const std::string& path) {
 
 }  // namespace
 
-PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> origin,
-                      ReadStats* stats) {
-  if (origin && !origin->allFinite()) throw InputError(path + ": sensor origin is not finite");
+CloudFileRead read_cloud_file(const std::string& path) {
   const std::string ext = lower_extension(path);
   const bool known =
       ext == ".pcd" || ext == ".ply" || ext == ".xyz" || ext == ".txt" || ext == ".npy";
@@ -192,9 +190,18 @@ PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> or
   } else {
     raw = read_xyz_text(path);
   }
-  PointCloud cloud;
-  cloud.source = path;
-  cloud.sensor_origin = origin ? origin : raw.origin;
+  CloudFileRead file;
+  if (raw.has_viewpoint) {
+    if (!raw.viewpoint_position.allFinite())
+      throw InputError(path + ": VIEWPOINT position is not finite");
+    const Eigen::Vector4d& q = raw.viewpoint_wxyz;
+    SensorPose pose;
+    pose.position = raw.viewpoint_position;
+    // VIEWPOINT lists the quaternion w first (PCL's order: tx ty tz qw qx qy qz).
+    pose.orientation = checked_quaternion(q[1], q[2], q[3], q[0], path + ": VIEWPOINT");
+    file.viewpoint = pose;
+    file.viewpoint_marked = raw.sensor_frame_marked;
+  }
   const size_t in_file = raw.points.size();
   if (in_file == 0) throw InputError(path + ": contains no points");
   // Compact in place: NaN/inf points carry no geometry (sensors use them for "no return").
@@ -205,11 +212,54 @@ PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> or
     throw InputError(path + ": all " + std::to_string(in_file) +
                      " points are non-finite (NaN or infinite)");
   }
-  if (stats) {
-    stats->points_in_file = in_file;
-    stats->non_finite = in_file - raw.points.size();
+  file.stats.points_in_file = in_file;
+  file.stats.non_finite = in_file - raw.points.size();
+  file.points = std::move(raw.points);
+  return file;
+}
+
+std::optional<FileSensor> file_sensor(const CloudFileRead& file, const std::string& path,
+                                      ViewpointUse use) {
+  if (!file.viewpoint) return std::nullopt;
+  const SensorPose& vp = *file.viewpoint;
+  const bool rotated = !vp.orientation.isApprox(Eigen::Quaterniond::Identity(), 1e-12);
+  std::ostringstream text;
+  text.precision(7);  // as stored: float32
+  text << "VIEWPOINT " << vp.position.x() << " " << vp.position.y() << " " << vp.position.z() << " "
+       << vp.orientation.w() << " " << vp.orientation.x() << " " << vp.orientation.y() << " "
+       << vp.orientation.z();
+  // World-frame points: the VIEWPOINT's rotation, if any, is the sensor's and is not applied.
+  if (use == ViewpointUse::kPosition)
+    return FileSensor{SensorPose{vp.position, Eigen::Quaterniond::Identity()}, false};
+  if (use == ViewpointUse::kDefault && !rotated && !file.viewpoint_marked)
+    throw InputError(
+        path + ": " + text.str() +
+        " gives a sensor position without a rotation, and the file does not say which frame "
+        "its points are in: terrastride's writer of earlier versions put world-frame points "
+        "and the sensor position there (--viewpoint origin reads it so), while PCL means points "
+        "relative to that position in a sensor frame parallel to the world (--viewpoint pose)");
+  return FileSensor{vp, true};
+}
+
+PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> origin,
+                      ReadStats* stats) {
+  if (origin && !origin->allFinite()) throw InputError(path + ": sensor origin is not finite");
+  CloudFileRead file = read_cloud_file(path);
+  PointCloud cloud;
+  cloud.source = path;
+  if (stats) *stats = file.stats;
+  if (origin) {
+    cloud.sensor_origin = origin;
+  } else if (file.viewpoint && file.viewpoint_marked) {
+    const size_t dropped = transform_points(file.points, *file.viewpoint);
+    if (stats) stats->non_finite += dropped;
+    if (file.points.empty())
+      throw InputError(path + ": no point is finite once placed by its VIEWPOINT");
+    cloud.sensor_origin = file.viewpoint->position;
+  } else if (file.viewpoint) {
+    cloud.sensor_origin = file.viewpoint->position;
   }
-  cloud.points = std::move(raw.points);
+  cloud.points = std::move(file.points);
   return cloud;
 }
 
@@ -217,23 +267,42 @@ PointCloud read_cloud(const std::string& path, std::optional<Eigen::Vector3d> or
   return read_cloud(path, origin, nullptr);
 }
 
-void write_pcd(const PointCloud& cloud, const std::string& path) {
+void write_pcd(const PointCloud& cloud, const std::string& path, const SensorPose* frame) {
   // Written by hand (the binary PCD v0.7 layout is a text header plus packed float32 x y z) so the
   // bytes can go through write_file_atomically; PCL reads it back in tests.
-  const Eigen::Vector3d o = cloud.sensor_origin.value_or(Eigen::Vector3d::Zero());
-  if (!o.allFinite()) throw InputError(path + ": sensor origin is not finite");
+  std::optional<SensorPose> pose;
+  if (frame) {
+    pose = *frame;
+  } else if (cloud.sensor_origin) {
+    pose = SensorPose{*cloud.sensor_origin, Eigen::Quaterniond::Identity()};
+  }
+  if (pose && (!pose->position.allFinite() || !pose->orientation.coeffs().allFinite()))
+    throw InputError(path + ": sensor pose is not finite");
+  if (pose) pose->orientation.normalize();
   std::ostringstream h;
   h.precision(9);
   const size_t n = cloud.points.size();
-  h << "# .PCD v0.7 - Point Cloud Data file format\n"
-    << "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
-    << "WIDTH " << n << "\nHEIGHT 1\n"
-    << "VIEWPOINT " << o.x() << " " << o.y() << " " << o.z() << " 1 0 0 0\n"
+  h << "# .PCD v0.7 - Point Cloud Data file format\n";
+  if (pose) h << detail::kSensorFrameMarker << "\n";
+  h << "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+    << "WIDTH " << n << "\nHEIGHT 1\n";
+  const SensorPose vp = pose.value_or(SensorPose{});
+  // PCL's order: tx ty tz qw qx qy qz.
+  h << "VIEWPOINT " << vp.position.x() << " " << vp.position.y() << " " << vp.position.z() << " "
+    << vp.orientation.w() << " " << vp.orientation.x() << " " << vp.orientation.y() << " "
+    << vp.orientation.z() << "\n"
     << "POINTS " << n << "\nDATA binary\n";
   std::string bytes = h.str();
   const size_t header = bytes.size();
   bytes.resize(header + n * 12);
-  for (size_t i = 0; i < n; ++i) std::memcpy(&bytes[header + i * 12], cloud.points[i].data(), 12);
+  // The inverse pose: sensor = R^T (world - t), in double so the round trip loses only the
+  // float rounding of the stored values.
+  const Eigen::Matrix3d rt = vp.orientation.toRotationMatrix().transpose();
+  for (size_t i = 0; i < n; ++i) {
+    Eigen::Vector3f p = cloud.points[i];
+    if (pose) p = (rt * (p.cast<double>() - vp.position)).cast<float>();
+    std::memcpy(&bytes[header + i * 12], p.data(), 12);
+  }
   write_file_atomically(path, bytes);
 }
 

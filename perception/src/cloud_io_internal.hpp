@@ -15,8 +15,18 @@ namespace terrastride::perception::detail {
 // Points as read, non-finite ones included (the caller drops and counts them).
 struct RawCloud {
   std::vector<Eigen::Vector3f> points;
-  std::optional<Eigen::Vector3d> origin;
+  // A PCD's VIEWPOINT as written (unchecked), unless it is PCL's identity-zero default.
+  bool has_viewpoint = false;
+  Eigen::Vector3d viewpoint_position = Eigen::Vector3d::Zero();
+  Eigen::Vector4d viewpoint_wxyz{1, 0, 0, 0};
+  // The header carries kSensorFrameMarker: the points are in the VIEWPOINT's frame.
+  bool sensor_frame_marked = false;
 };
+
+// The comment terrastride's PCD writer puts in the header. A VIEWPOINT with a position and no
+// rotation is ambiguous without it: the writer of earlier versions put world-frame points there.
+inline constexpr const char* kSensorFrameMarker =
+    "# terrastride: points in the sensor frame, VIEWPOINT = its pose (world = R p + t)";
 
 RawCloud read_pcd_with_pcl(const std::string& path);
 RawCloud read_ply_with_pcl(const std::string& path);

@@ -252,6 +252,18 @@ void check_pcd_ascii_body(const std::string& path, const PcdHeader& h, double po
   }
 }
 
+// Whether a header comment (before DATA) is kSensorFrameMarker.
+[[maybe_unused]] bool header_has_marker(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string line;
+  for (int n = 0; n < 1000 && std::getline(in, line); ++n) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line == kSensorFrameMarker) return true;
+    if (line.compare(0, 4, "DATA") == 0) return false;
+  }
+  return false;
+}
+
 void check_pcd(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(path + ": cannot open file: " + std::strerror(errno));
@@ -578,14 +590,16 @@ RawCloud extract_xyz(const std::string& path, const pcl::PCLPointCloud2& blob) {
   return raw;
 }
 
-// "Identity-zero" is PCL's default viewpoint, i.e. no sensor pose recorded in the file.
-std::optional<Eigen::Vector3d> origin_if_recorded(const Eigen::Vector4f& origin,
-                                                  const Eigen::Quaternionf& orientation) {
+// "Identity-zero" is PCL's default viewpoint, i.e. no sensor pose recorded in the file. The
+// values are checked by the caller (cloud_io.cpp), which names the file.
+void set_viewpoint(RawCloud& raw, const Eigen::Vector4f& origin,
+                   const Eigen::Quaternionf& orientation) {
   const bool zero = origin.head<3>().isZero(0.0f);
   const bool identity = orientation.w() == 1.0f && orientation.vec().isZero(0.0f);
-  if (zero && identity) return std::nullopt;
-  if (!origin.head<3>().allFinite()) return std::nullopt;
-  return origin.head<3>().cast<double>();
+  raw.has_viewpoint = !(zero && identity);
+  raw.viewpoint_position = origin.head<3>().cast<double>();
+  raw.viewpoint_wxyz =
+      Eigen::Vector4d(orientation.w(), orientation.x(), orientation.y(), orientation.z());
 }
 
 #endif
@@ -612,7 +626,7 @@ RawCloud read_with_pcl_reader(pcl::FileReader& reader, const std::string& path,
   if (rc < 0)
     throw InputError(path + ": unreadable or corrupt " + format + " file (PCL reader failed)");
   RawCloud raw = extract_xyz(path, blob);
-  raw.origin = origin_if_recorded(origin, orientation);
+  set_viewpoint(raw, origin, orientation);
   return raw;
 }
 #endif
@@ -624,7 +638,9 @@ RawCloud read_pcd_with_pcl(const std::string& path) {
   check_pcd(path);
 #ifdef TERRASTRIDE_HAVE_PCL
   pcl::PCDReader reader;
-  return read_with_pcl_reader(reader, path, "PCD");
+  RawCloud raw = read_with_pcl_reader(reader, path, "PCD");
+  raw.sensor_frame_marked = header_has_marker(path);
+  return raw;
 #else
   throw InputError(path + ": PCD reading needs PCL (built with TERRASTRIDE_WITH_PCL=OFF)");
 #endif

@@ -17,7 +17,7 @@ const PclModule& pcl_module() {
 #endif
     module = &load_module<PclModule, kPclModuleVersion>(
         {"terrastride_pcl.so", "terrastride_pcl_module", "TERRASTRIDE_PCL_MODULE", build_path,
-         "the PCL module (PCD/PLY reading and cloud filters)"});
+         "the PCL module (PCD/PLY reading, cloud filters, support plane)"});
   });
   return *module;
 }

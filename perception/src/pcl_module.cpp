@@ -5,6 +5,6 @@ extern "C" __attribute__((visibility("default"))) const terrastride::perception:
 terrastride_pcl_module() {
   using namespace terrastride::perception::detail;
   static const PclModule module{kPclModuleVersion, &read_pcd_with_pcl, &read_ply_with_pcl,
-                                &filter_with_pcl};
+                                &filter_with_pcl, &support_plane_with_pcl};
   return &module;
 }

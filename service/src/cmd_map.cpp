@@ -18,6 +18,7 @@
 #include "terrastride/perception/bag.hpp"
 #include "terrastride/perception/bag_clouds.hpp"
 #include "terrastride/perception/octomap_input.hpp"
+#include "terrastride/perception/sensor_pose.hpp"
 #include "terrastride/perception/tf_buffer.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/map_build.hpp"
@@ -30,6 +31,13 @@ using nlohmann::json;
 struct MapOptions {
   std::vector<std::string> clouds;
   std::string origin;
+  // Sensor poses and the up direction of cloud files (terrain::CloudPoseOptions).
+  std::string viewpoint;  // "", "pose" or "origin"
+  std::string sensor_pose;
+  std::string poses;
+  std::string sensor_frame = "body";
+  std::string up = "check";
+  double max_tilt = terrain::CloudPoseOptions{}.max_tilt_deg;
   double resolution = terrain::HeightGridOptions{}.resolution;
   std::vector<double> foot_radii = terrain::MapBuildOptions{}.foot_radii;
   double octomap_resolution = terrain::default_map_octomap().resolution;
@@ -80,8 +88,67 @@ std::string fmt(double v, int precision = 3) {
   return os.str();
 }
 
-// Checks every flag before anything is read; returns --origin when it is given.
-std::optional<Eigen::Vector3d> check_flags(const MapOptions& o) {
+bool pose_flags_given(const MapOptions& o) {
+  return !o.viewpoint.empty() || !o.sensor_pose.empty() || !o.poses.empty() ||
+         o.sensor_frame != "body" || o.up != "check" ||
+         o.max_tilt != terrain::CloudPoseOptions{}.max_tilt_deg;
+}
+
+// The pose and up flags of cloud files (the poses file is read here, before any cloud).
+terrain::CloudPoseOptions pose_options(const MapOptions& o) {
+  terrain::CloudPoseOptions p;
+  if (!o.origin.empty()) p.origin = Eigen::Vector3d(parse_numbers(o.origin, 3, "--origin"));
+  if (o.viewpoint == "pose") {
+    p.viewpoint = perception::ViewpointUse::kPose;
+  } else if (o.viewpoint == "origin") {
+    p.viewpoint = perception::ViewpointUse::kPosition;
+  } else if (!o.viewpoint.empty()) {
+    throw CommandError("--viewpoint: '" + o.viewpoint + "' is not 'pose' or 'origin'");
+  }
+  if (o.sensor_frame == "optical") {
+    p.sensor_frame = perception::SensorFrame::kOptical;
+  } else if (o.sensor_frame != "body") {
+    throw CommandError("--sensor-frame: '" + o.sensor_frame + "' is not 'body' or 'optical'");
+  }
+  if (o.up == "auto") {
+    p.up = terrain::UpMode::kAuto;
+  } else if (o.up == "z") {
+    p.up = terrain::UpMode::kZ;
+  } else if (o.up != "check") {
+    throw CommandError("--up: '" + o.up + "' is not 'check', 'auto' or 'z'");
+  }
+  if (!std::isfinite(o.max_tilt) || o.max_tilt < 0 || o.max_tilt > 90)
+    throw CommandError("--max-tilt: must be in [0, 90] degrees");
+  p.max_tilt_deg = o.max_tilt;
+  try {
+    if (!o.sensor_pose.empty())
+      p.sensor_pose = perception::parse_sensor_pose(o.sensor_pose, "--sensor-pose");
+  } catch (const perception::InputError& e) {
+    throw CommandError(e.what());
+  }
+  try {
+    if (!o.poses.empty()) {
+      p.poses = perception::read_poses_file(o.poses);
+      p.poses_file = o.poses;
+    }
+  } catch (const perception::InputError& e) {
+    throw CommandError("--poses " + std::string(e.what()));
+  }
+  if (p.origin && (p.sensor_pose || !p.poses.empty()))
+    throw CommandError(
+        "--origin: world-frame points with a sensor position; it cannot go with "
+        "--sensor-pose or --poses, which give the pose of the points' frame");
+  if (p.sensor_pose && !p.poses.empty())
+    throw CommandError("--sensor-pose and --poses both give the clouds' poses: use one");
+  if (p.origin && p.sensor_frame == perception::SensorFrame::kOptical)
+    throw CommandError(
+        "--sensor-frame optical: the points are in a camera's optical frame, but "
+        "--origin takes them as world-frame; give --sensor-pose instead");
+  return p;
+}
+
+// Checks every flag before anything is read; returns the clouds' pose options.
+terrain::CloudPoseOptions check_flags(const MapOptions& o) {
   if (o.clouds.empty()) throw CommandError("no input clouds given");
   if (!std::isfinite(o.resolution) || o.resolution < 0.002 || o.resolution > 1.0)
     throw CommandError("--resolution: " + std::to_string(o.resolution) +
@@ -103,8 +170,7 @@ std::optional<Eigen::Vector3d> check_flags(const MapOptions& o) {
     throw CommandError("--outlier-voxel: must be >= 0 (0 = judge every point)");
   if (!(o.max_step > 0) || !(o.max_slope > 0))
     throw CommandError("--max-step/--max-slope: must be positive");
-  std::optional<Eigen::Vector3d> origin;
-  if (!o.origin.empty()) origin = Eigen::Vector3d(parse_numbers(o.origin, 3, "--origin"));
+  terrain::CloudPoseOptions poses = pose_options(o);
   if (o.out.empty()) throw CommandError("--out: an output directory is required");
   {
     const std::filesystem::path parent =
@@ -119,7 +185,7 @@ std::optional<Eigen::Vector3d> check_flags(const MapOptions& o) {
   } catch (const perception::InputError& e) {
     throw CommandError("--out: " + std::string(e.what()));
   }
-  return origin;
+  return poses;
 }
 
 // The flags as the map build's options (terrain::MapBuildOptions' defaults are the flags').
@@ -166,6 +232,45 @@ void print_summary(const MapOptions& o, const terrain::MapBuild& build, const js
             << fmt(timings["write_s"]) << " s, total " << fmt(timings["total_s"]) << " s\n";
 }
 
+// One line per cloud file: where its pose came from and how its up direction was found.
+void print_placements(const terrain::MapSources& sources) {
+  for (const auto& f : sources.files) {
+    if (!f.placement) continue;
+    const terrain::CloudPlacement& pl = *f.placement;
+    std::cout << "  " << f.path << ": ";
+    if (pl.source == "none") {
+      std::cout << "no sensor pose";
+    } else {
+      const Eigen::Vector3d& t = pl.pose.position;
+      std::cout << "pose from " << (pl.source == "poses" ? "the poses file" : pl.source)
+                << (pl.optical ? " (optical frame)" : "") << ", sensor at (" << fmt(t.x(), 2)
+                << ", " << fmt(t.y(), 2) << ", " << fmt(t.z(), 2) << ")";
+    }
+    if (pl.rotation_known && !pl.plane) {
+      std::cout << "\n";
+      continue;
+    }
+    if (!pl.plane) {
+      std::cout << "; z taken as up (--up z)\n";
+      continue;
+    }
+    const perception::SupportPlane& p = *pl.plane;
+    if (!p.found) {
+      std::cout << "; up not checked: " << p.problem << "\n";
+      continue;
+    }
+    std::cout << (pl.levelled ? "; levelled (--up auto): its " : "; up checked: ")
+              << "dominant plane (" << fmt(100 * p.inlier_share, 0) << " % of the points) "
+              << (pl.levelled ? "was " : "is ") << "tilted " << fmt(p.tilt_deg, 1)
+              << " deg, the sensor " << fmt(p.sensor_height, 2) << " m "
+              << (pl.levelled       ? "from"
+                  : p.tilt_deg > 90 ? "below"
+                                    : "above")
+              << " it" << (pl.position_known ? "" : " (sensor taken at the frame's origin)")
+              << "\n";
+  }
+}
+
 // `map FILE.bt|FILE.ot`: the OctoMap's support surfaces (terrain::read_map_octomap) and the tree
 // itself as the map's octomap.bt.
 void run_map_octomap(const MapOptions& o) {
@@ -174,6 +279,10 @@ void run_map_octomap(const MapOptions& o) {
                        ") is a whole map: give it alone, not with other inputs");
   if (!o.origin.empty())
     throw CommandError("--origin: an OctoMap keeps no rays; the option applies to point clouds");
+  if (pose_flags_given(o))
+    throw CommandError(
+        "--viewpoint, --sensor-pose, --poses, --sensor-frame, --up and --max-tilt "
+        "apply to cloud files, not to an OctoMap");
   terrain::OctreeMapInput input;
   try {
     input = terrain::read_map_octomap(o.clouds.front());
@@ -261,6 +370,10 @@ terrain::MapInput read_bags(const MapOptions& o, Progress& progress, json* bag_j
                             double* clean_s) {
   if (!o.origin.empty())
     throw CommandError("--origin: a bag's clouds take their origins from its tf (--frame)");
+  if (pose_flags_given(o))
+    throw CommandError(
+        "--viewpoint, --sensor-pose, --poses, --sensor-frame, --up and --max-tilt "
+        "apply to cloud files; a bag's clouds are placed by its tf (--frame)");
   if (o.topics.empty())
     throw CommandError("--topic: which PointCloud2 topic(s) to map? (`terrastride map " +
                        o.clouds.front() + " --list` shows them)");
@@ -331,7 +444,16 @@ void print_bag_summary(const json& bags) {
   }
 }
 
-void run_map(const MapOptions& o) {
+void run_map(MapOptions o) {
+  // `map --poses FILE` alone maps the clouds the poses file names.
+  if (o.clouds.empty() && !o.poses.empty() && !o.list) {
+    try {
+      for (const auto& line : perception::read_poses_file(o.poses))
+        o.clouds.push_back(line.resolved);
+    } catch (const perception::InputError& e) {
+      throw CommandError("--poses " + std::string(e.what()));
+    }
+  }
   const bool any_bag = std::any_of(o.clouds.begin(), o.clouds.end(), perception::is_bag_file);
   if (any_bag && !std::all_of(o.clouds.begin(), o.clouds.end(), perception::is_bag_file))
     throw CommandError("bags (.mcap, .db3, .bag) cannot be mixed with cloud files or OctoMaps");
@@ -349,7 +471,7 @@ void run_map(const MapOptions& o) {
     run_map_octomap(o);
     return;
   }
-  const std::optional<Eigen::Vector3d> origin = check_flags(o);
+  const terrain::CloudPoseOptions poses = check_flags(o);
   size_t file_bytes = 0;
   for (const auto& c : o.clouds) {
     std::error_code ec;
@@ -365,7 +487,7 @@ void run_map(const MapOptions& o) {
     input = read_bags(o, progress, &bags, &bag_clean_s);
   } else {
     try {
-      input = terrain::read_map_clouds(o.clouds, origin, [&](size_t k) {
+      input = terrain::read_map_clouds(o.clouds, poses, [&](size_t k) {
         progress.stage("reading " + o.clouds[k] + " (" + std::to_string(k + 1) + "/" +
                        std::to_string(o.clouds.size()) + ")");
       });
@@ -404,12 +526,22 @@ void run_map(const MapOptions& o) {
 
   json summary = terrain::map_summary(build, meta, o.out);
   if (any_bag) summary["bags"] = bags;
+  if (!any_bag) {
+    json placements = json::array();
+    for (const auto& f : input.sources.files) {
+      json entry = {{"path", f.path}};
+      if (f.placement) entry.update(terrain::placement_json(*f.placement));
+      placements.push_back(entry);
+    }
+    summary["inputs"] = placements;
+  }
   if (o.json) {
     std::cout << summary.dump() << "\n";
     return;
   }
   if (any_bag) print_bag_summary(bags);
   print_summary(o, build, meta, summary);
+  if (!any_bag) print_placements(input.sources);
 }
 
 }  // namespace
@@ -421,9 +553,37 @@ void add_map_command(CLI::App& app) {
       "Build a terrain map from point clouds (PCD, PLY, XYZ, NPY), ROS bags (.mcap, .db3, .bag "
       "or a rosbag2 folder with metadata.yaml: --topic, --frame) or an OctoMap (.bt, .ot): "
       "OctoMap, height grid, smoothed field and foothold-safety layers in DIR");
-  cmd->add_option("clouds", o->clouds, "Input clouds, bags or an OctoMap")->required();
+  cmd->add_option("clouds", o->clouds,
+                  "Input clouds, bags or an OctoMap (clouds may come from --poses instead)");
   cmd->add_option("--origin", o->origin,
-                  "Sensor origin X,Y,Z for all clouds (overrides a PCD VIEWPOINT)");
+                  "Sensor position X,Y,Z for all clouds, whose points are in the world frame "
+                  "(any PCD VIEWPOINT is ignored)");
+  cmd->add_option("--viewpoint", o->viewpoint,
+                  "How a PCD VIEWPOINT is read: 'pose' (PCL's meaning: the points are in the "
+                  "sensor frame, VIEWPOINT is its pose, world = R p + t) or 'origin' (world-frame "
+                  "points, VIEWPOINT the sensor position only: files of terrastride before the "
+                  "sensor-frame writer). Default: pose, but a VIEWPOINT with a position and no "
+                  "rotation in a file without terrastride's marker is refused as ambiguous");
+  cmd->add_option("--sensor-pose", o->sensor_pose,
+                  "The pose of the clouds' frame in the world, X,Y,Z,QX,QY,QZ,QW (ROS tf order: "
+                  "static_transform_publisher's x y z qx qy qz qw; world = R p + t); overrides "
+                  "a VIEWPOINT");
+  cmd->add_option("--poses", o->poses,
+                  "A file of poses, one cloud a line: 'PATH X Y Z QX QY QZ QW' ('#' comments; "
+                  "relative paths from the file's folder); without positional clouds, maps the "
+                  "clouds it names");
+  cmd->add_option("--sensor-frame", o->sensor_frame,
+                  "'optical': the points are in a camera's optical frame (REP 103: z forward, x "
+                  "right, y down) and the pose given is the camera body's (x forward, z up)")
+      ->capture_default_str();
+  cmd->add_option("--up", o->up,
+                  "For clouds whose orientation nobody gave: 'check' refuses one whose dominant "
+                  "plane is more than --max-tilt from level or above the sensor; 'auto' levels "
+                  "it by that plane (PCL RANSAC); 'z' takes z as up unchecked")
+      ->capture_default_str();
+  cmd->add_option("--max-tilt", o->max_tilt,
+                  "--up check: the largest tilt of the dominant plane (degrees)")
+      ->capture_default_str();
   cmd->add_option("--resolution", o->resolution,
                   "Height grid cell size (m); an OctoMap input's default is its voxel size")
       ->capture_default_str();

@@ -8,6 +8,7 @@
 #include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <sstream>
 
 #include "report/batch.hpp"
 #include "report/report.hpp"
@@ -66,6 +67,40 @@ void check_out_html(const std::string& out) {
   }
 }
 
+// One line per cloud input of the terrain (terrain.json's inputs[k].pose and .up): where its pose
+// came from and how its up direction was found, so a map levelled by a guess or left unchecked
+// says so beside "no problems found".
+json terrain_input_notes(const json& info) {
+  json notes = json::array();
+  if (!info.is_object() || !info.contains("inputs")) return notes;
+  const auto fixed = [](const json& v, int digits) {
+    std::ostringstream os;
+    os.setf(std::ios::fixed);
+    os.precision(digits);
+    os << v.get<double>();
+    return os.str();
+  };
+  for (const json& in : info["inputs"]) {
+    if (!in.contains("up") || !in.contains("path")) continue;
+    const json& up = in["up"];
+    std::string text = in["path"].get<std::string>() + ": ";
+    const std::string from = up.value("from", "");
+    if (from == "pose") {
+      text += "posed (" + in["pose"].value("source", "") + ")";
+    } else if (!up.contains("found")) {
+      text += "z taken as up, unchecked (--up z)";
+    } else if (!up["found"].get<bool>()) {
+      text += "up not checked: " + up.value("problem", "");
+    } else {
+      text += from + ": dominant plane tilted " + fixed(up["tilt_deg"], 1) + " deg, sensor " +
+              fixed(up["sensor_height"], 2) + " m from it, " +
+              fixed(json(100 * up["inlier_share"].get<double>()), 0) + " % of the points";
+    }
+    notes.push_back(text);
+  }
+  return notes;
+}
+
 json summary_json(const json& report, const std::string& html, const std::string& json_path) {
   json plans = json::array();
   for (const json& p : report["plans"]) {
@@ -87,6 +122,7 @@ json summary_json(const json& report, const std::string& html, const std::string
           {"safe_fraction", report["terrain"]["safe_fraction"]},
           {"observed_fraction", report["terrain"]["observed_fraction"]},
           {"cells", report["terrain"]["cells"]},
+          {"terrain_inputs", terrain_input_notes(report["terrain"]["info"])},
           {"plans", plans}};
 }
 
@@ -97,6 +133,8 @@ void print_summary(const json& s, bool as_json) {
   }
   std::cout << "safe fraction " << s["safe_fraction"] << " of observed cells (" << s["cells"]
             << " cells)\n";
+  for (const json& note : s["terrain_inputs"])
+    std::cout << "terrain input " << note.get<std::string>() << "\n";
   for (const json& p : s["problems"])
     std::cout << "PROBLEM " << p["plan"].get<std::string>() << ": " << p["text"].get<std::string>()
               << "\n";

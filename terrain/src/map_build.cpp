@@ -138,6 +138,182 @@ class OctoMapThread {
   std::thread thread_;  // last: starts after every member it uses exists
 };
 
+std::string canonical_path(const std::string& path) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const fs::path full = fs::absolute(fs::path(path), ec);
+  if (ec) return path;
+  const fs::path canonical = fs::weakly_canonical(full, ec);
+  return (ec ? full.lexically_normal() : canonical).string();
+}
+
+std::string fixed(double v, int precision) {
+  std::ostringstream os;
+  os.setf(std::ios::fixed);
+  os.precision(precision);
+  os << v;
+  return os.str();
+}
+
+// The pose of a cloud's points (CloudPoseOptions, first that applies): --sensor-pose, its poses
+// line, --origin (position only), the file's VIEWPOINT; --sensor-frame optical composes the
+// optical frame's rotation.
+void resolve_pose(const perception::CloudFileRead& file, const std::string& path,
+                  const CloudPoseOptions& o, const perception::PoseLine* line, CloudPlacement& pl) {
+  if (o.sensor_pose) {
+    pl.source = "sensor-pose";
+    pl.pose = *o.sensor_pose;
+    pl.position_known = pl.rotation_known = true;
+  } else if (line) {
+    pl.source = "poses";
+    pl.pose = line->pose;
+    pl.poses_line = line->line;
+    pl.position_known = pl.rotation_known = true;
+  } else if (o.origin) {
+    pl.source = "origin";
+    pl.pose.position = *o.origin;
+    pl.position_known = true;
+  } else if (const auto sensor = perception::file_sensor(file, path, o.viewpoint)) {
+    pl.source = sensor->rotation_known ? "viewpoint" : "viewpoint position";
+    pl.pose = sensor->pose;
+    pl.position_known = true;
+    pl.rotation_known = sensor->rotation_known;
+  }
+  if (o.sensor_frame == perception::SensorFrame::kOptical) {
+    if (pl.source == "origin" || pl.source == "viewpoint position")
+      throw perception::InputError(path +
+                                   ": --sensor-frame optical needs the sensor's pose "
+                                   "(the points are in its optical frame), but --origin and "
+                                   "--viewpoint origin take the points as world-frame");
+    pl.optical = true;
+    pl.pose.orientation = (pl.pose.orientation * perception::optical_in_body()).normalized();
+  }
+}
+
+// The refusal of a cloud whose dominant plane is not level (UpMode::kCheck, and every cloud
+// placed by an unmarked VIEWPOINT).
+[[noreturn]] void refuse_unlevel(const std::string& path, const CloudPlacement& pl,
+                                 double max_tilt_deg) {
+  const perception::SupportPlane& p = *pl.plane;
+  std::string sensor = pl.position_known ? "the sensor"
+                                         : "the sensor (taken at the frame's "
+                                           "origin: no position given)";
+  std::string where = p.tilt_deg > 90 ? " below it (looking up at it)" : " above it";
+  std::string head = path + ": z does not look like up: the dominant plane (" +
+                     fixed(100 * p.inlier_share, 0) + " % of the points) is tilted " +
+                     fixed(p.tilt_deg, 1) + " deg from level (more than " + fixed(max_tilt_deg, 0) +
+                     ") and " + sensor + " is " + fixed(p.sensor_height, 2) + " m" + where;
+  if (pl.source == "viewpoint") {
+    // The same plane in the file's own frame: what the points say without the VIEWPOINT.
+    const Eigen::Vector3d raw = pl.pose.orientation.inverse() * p.normal();
+    const double raw_tilt = std::acos(std::clamp(raw.z(), -1.0, 1.0)) * 180.0 / M_PI;
+    throw perception::InputError(
+        head +
+        ", with the rotation of the file's VIEWPOINT applied (PCL's meaning: the points in "
+        "the sensor frame, VIEWPOINT its pose); as written, that plane is " +
+        fixed(raw_tilt, 1) +
+        " deg from level. If the points are already in the world frame, say --viewpoint origin "
+        "(the VIEWPOINT's position is then the sensor's, its rotation not applied); or give the "
+        "sensor's pose (--sensor-pose, --poses), or take the VIEWPOINT as it is (--up z)");
+  }
+  throw perception::InputError(
+      head +
+      ". A camera's points are often in its optical frame (z forward, y down). Give the sensor's "
+      "pose (--sensor-pose X,Y,Z,QX,QY,QZ,QW, --poses FILE, or a PCD VIEWPOINT; --sensor-frame "
+      "optical for an optical frame), level the cloud by that plane (--up auto), or take z as up "
+      "anyway (--up z)");
+}
+
+// Places a cloud file's points in the world (resolve_pose, then the up check or levelling) and
+// records how in `pl`; points a pose carries beyond float's range are dropped and counted in
+// *non_finite.
+perception::PointCloud place_cloud(perception::CloudFileRead file, const std::string& path,
+                                   const CloudPoseOptions& o, const perception::PoseLine* line,
+                                   CloudPlacement& pl, size_t* non_finite) {
+  resolve_pose(file, path, o, line, pl);
+  const bool file_marked = file.viewpoint_marked;
+  perception::PointCloud cloud;
+  cloud.source = path;
+  cloud.points = std::move(file.points);
+  const bool identity = pl.pose.orientation.isApprox(Eigen::Quaterniond::Identity(), 0.0) &&
+                        pl.pose.position.isZero(0.0);
+  // --origin and a VIEWPOINT read as a position take the points as they are.
+  if (!identity && pl.source != "origin" && pl.source != "viewpoint position")
+    *non_finite += perception::transform_points(cloud.points, pl.pose);
+  if (pl.position_known) cloud.sensor_origin = pl.pose.position;
+  if (o.up == UpMode::kZ) return cloud;
+  // A pose the user gave, or terrastride's writer declared, is trusted. A VIEWPOINT without the
+  // writer's marker is applied (PCL's meaning) but checked: real files carry VIEWPOINTs that are
+  // not the pose of their points' frame (e.g. world-frame points with the sensor's pose).
+  const bool trusted = pl.rotation_known && !(pl.source == "viewpoint" && !file_marked);
+  if (trusted) return cloud;
+  const Eigen::Vector3d sensor = pl.pose.position;
+  pl.plane = perception::estimate_support_plane(cloud.points, sensor, o.plane);
+  const perception::SupportPlane& plane = *pl.plane;
+  if (o.up == UpMode::kCheck || pl.rotation_known) {
+    if (plane.found && plane.tilt_deg > o.max_tilt_deg) refuse_unlevel(path, pl, o.max_tilt_deg);
+    return cloud;
+  }
+  if (!plane.found)
+    throw perception::InputError(path + ": --up auto cannot level this cloud: " + plane.problem +
+                                 "; give the sensor's pose (--sensor-pose, --poses, a PCD "
+                                 "VIEWPOINT) or take z as up (--up z)");
+  // The smallest rotation taking the plane's normal to +z, about the sensor: heading is kept as
+  // far as a rotation can, and the sensor stays where it was.
+  pl.levelling = Eigen::Quaterniond::FromTwoVectors(plane.normal(), Eigen::Vector3d::UnitZ());
+  pl.levelled = true;
+  // About the sensor: p -> L (p - s) + s.
+  *non_finite +=
+      perception::transform_points(cloud.points, {sensor - pl.levelling * sensor, pl.levelling});
+  if (cloud.points.empty())
+    throw perception::InputError(path + ": no point is finite once levelled");
+  return cloud;
+}
+
+}  // namespace
+
+json placement_json(const CloudPlacement& pl) {
+  const auto& q = pl.pose.orientation;
+  json pose = {{"source", pl.source}};
+  if (pl.position_known)
+    pose["position"] = {pl.pose.position.x(), pl.pose.position.y(), pl.pose.position.z()};
+  if (pl.rotation_known || pl.optical) pose["orientation_xyzw"] = {q.x(), q.y(), q.z(), q.w()};
+  pose["sensor_frame"] = pl.optical ? "optical" : "body";
+  if (pl.source == "poses") pose["poses_line"] = pl.poses_line;
+  json up;
+  if (pl.rotation_known && !pl.plane) {
+    up = {{"from", "pose"}};
+  } else if (!pl.plane) {
+    up = {{"from", "z (--up z)"}};
+  } else {
+    const auto& p = *pl.plane;
+    up = {{"from", pl.levelled         ? "levelled by the dominant plane (--up auto)"
+                   : pl.rotation_known ? "pose, checked against the dominant plane"
+                                       : "z, checked against the dominant plane"},
+          {"method", "pcl::SACSegmentation (RANSAC, plane model) on a voxel-grid copy"},
+          {"found", p.found},
+          {"points_used", p.points_used},
+          {"seconds", p.seconds},
+          {"sensor_at_frame_origin", !pl.position_known}};
+    if (p.found) {
+      up["tilt_deg"] = p.tilt_deg;
+      up["sensor_height"] = p.sensor_height;
+      up["sensor_in_plane"] = p.sensor_in_plane;
+      up["inlier_share"] = p.inlier_share;
+      up["plane"] = {p.coefficients[0], p.coefficients[1], p.coefficients[2], p.coefficients[3]};
+    } else {
+      up["problem"] = p.problem;
+    }
+    if (pl.levelled) {
+      const auto& l = pl.levelling;
+      up["levelling_xyzw"] = {l.x(), l.y(), l.z(), l.w()};
+    }
+  }
+  return {{"pose", pose}, {"up", up}};
+}
+
+namespace {
+
 // The layers' block of terrain.json for a map kept in memory (a report from clouds), which must
 // read as its folder's would. write_terrain_layers is the one description of the layers, and it
 // describes them as it writes them: until terrain_map.hpp offers the description alone, the layers
@@ -180,6 +356,7 @@ void add_build_json(json& meta, const MapBuild& build, const MapSources& sources
     json in{{"path", f.path}, {"points", f.points}, {"non_finite", f.non_finite}};
     const auto& origin = build.clouds[first_new + k].sensor_origin;
     if (origin) in["origin"] = {origin->x(), origin->y(), origin->z()};
+    if (f.placement) in.update(placement_json(*f.placement));
     in["kept"] = build.kept[k];
     inputs.push_back(in);
     points_in += f.points;
@@ -199,30 +376,79 @@ void add_build_json(json& meta, const MapBuild& build, const MapSources& sources
 
 }  // namespace
 
-MapInput read_map_clouds(const std::vector<std::string>& paths,
-                         const std::optional<Eigen::Vector3d>& origin,
+MapInput read_map_clouds(const std::vector<std::string>& paths, const CloudPoseOptions& poses,
                          const std::function<void(size_t)>& before_file) {
+  if (poses.origin && (poses.sensor_pose || !poses.poses.empty()))
+    throw perception::InputError(
+        "--origin gives world-frame points and a position only; it cannot go with --sensor-pose "
+        "or --poses, which give the sensor frame's pose");
+  if (poses.sensor_pose && !poses.poses.empty())
+    throw perception::InputError("--sensor-pose and --poses both give the clouds' poses: use one");
+  if (!(poses.max_tilt_deg >= 0 && poses.max_tilt_deg <= 180))
+    throw perception::InputError("the largest tilt must be in [0, 180] degrees");
   MapInput input;
   const auto t0 = Clock::now();
   input.sources.started = t0;
+  // Each cloud's poses-file line, matched by canonical path before any file is read.
+  std::vector<const perception::PoseLine*> lines(paths.size(), nullptr);
+  if (!poses.poses.empty()) {
+    for (size_t k = 0; k < paths.size(); ++k) {
+      const std::string key = canonical_path(paths[k]);
+      for (const auto& line : poses.poses)
+        if (line.resolved == key) lines[k] = &line;
+      if (!lines[k])
+        throw perception::InputError(paths[k] + ": no pose for it in " + poses.poses_file +
+                                     " (a line 'PATH X Y Z QX QY QZ QW'; relative paths are "
+                                     "relative to the poses file's folder)");
+    }
+  }
   // One file per core at a time: parsing a PCD is CPU-bound (the 1 M-point scan's three files,
   // read_s 0.15 s of the map command one after the other). Each file writes its own slot; the
   // error of the first failing file in the given order is the one thrown, as a loop would.
   std::vector<perception::PointCloud> clouds(paths.size());
-  std::vector<perception::ReadStats> stats(paths.size());
+  std::vector<CloudFile> files(paths.size());
   std::mutex progress_mutex;
   parallel_for(paths.size(), [&](size_t k) {
     if (before_file) {
       std::lock_guard<std::mutex> lock(progress_mutex);
       before_file(k);
     }
-    clouds[k] = perception::read_cloud(paths[k], origin, &stats[k]);
+    perception::CloudFileRead file = perception::read_cloud_file(paths[k]);
+    files[k] = {paths[k], file.stats.points_in_file, file.stats.non_finite, CloudPlacement{}};
+    clouds[k] = place_cloud(std::move(file), paths[k], poses, lines[k], *files[k].placement,
+                            &files[k].non_finite);
+    if (clouds[k].points.empty())
+      throw perception::InputError(paths[k] + ": no point is finite once placed by its pose");
   });
-  for (size_t k = 0; k < paths.size(); ++k)
-    input.sources.files.push_back({paths[k], stats[k].points_in_file, stats[k].non_finite});
+  input.sources.files = std::move(files);
   input.clouds = std::move(clouds);
   input.sources.read_s = seconds_since(t0);
   return input;
+}
+
+perception::PointCloud place_map_points(std::vector<Eigen::Vector3f> points,
+                                        const std::string& name, const CloudPoseOptions& poses,
+                                        CloudPlacement* placement) {
+  if (poses.origin && poses.sensor_pose)
+    throw perception::InputError(name + ": \"origin\" gives world-frame points, \"pose\" the pose "
+                                 "of the points' frame: give one");
+  perception::CloudFileRead file;
+  file.points = std::move(points);
+  CloudPlacement pl;
+  size_t dropped = 0;
+  perception::PointCloud cloud = place_cloud(std::move(file), name, poses, nullptr, pl, &dropped);
+  if (cloud.points.empty())
+    throw perception::InputError(name + ": no point is finite once placed by its pose");
+  if (placement) *placement = std::move(pl);
+  return cloud;
+}
+
+MapInput read_map_clouds(const std::vector<std::string>& paths,
+                         const std::optional<Eigen::Vector3d>& origin,
+                         const std::function<void(size_t)>& before_file) {
+  CloudPoseOptions poses;
+  poses.origin = origin;
+  return read_map_clouds(paths, poses, before_file);
 }
 
 perception::OctoMapOptions default_map_octomap() {
@@ -326,7 +552,8 @@ BagMapInput read_map_bags(const std::vector<std::string>& paths,
     perception::read_bag_clouds(
         paths[b], options,
         [&](perception::PointCloud&& cloud, const perception::BagCloudInfo& info) {
-          out.input.sources.files.push_back({cloud.source, info.points_in, info.non_finite});
+          out.input.sources.files.push_back(
+              {cloud.source, info.points_in, info.non_finite, std::nullopt});
           out.input.clouds.push_back(std::move(cloud));
           if (progress) progress(b, out.input.clouds.size());
         },
@@ -415,7 +642,8 @@ StreamedBagInput stream_map_bags(const std::vector<std::string>& paths,
       perception::read_bag_clouds(
           paths[b], options,
           [&](perception::PointCloud&& cloud, const perception::BagCloudInfo& info) {
-            in.input.sources.files.push_back({cloud.source, info.points_in, info.non_finite});
+            in.input.sources.files.push_back(
+                {cloud.source, info.points_in, info.non_finite, std::nullopt});
             std::unique_lock<std::mutex> lock(mutex);
             changed.wait(lock, [&] { return waiting.size() < 2 || stop; });
             if (clean_error) std::rethrow_exception(clean_error);
@@ -445,7 +673,7 @@ OctreeMapInput read_map_octomap(const std::string& path) {
   input.sources.started = t0;
   input.tree = perception::read_octomap_file(path);
   input.support = perception::octree_support_cloud(*input.tree, path, &input.stats);
-  input.sources.files.push_back({path, input.support.points.size(), 0});
+  input.sources.files.push_back({path, input.support.points.size(), 0, std::nullopt});
   input.sources.read_s = seconds_since(t0);
   return input;
 }

@@ -24,6 +24,9 @@ std::vector<SimulatedScan> simulate_scans(const Scene& scene, const DepthSensorO
           "sensor height must be in [0.1, 5] m");
   require(std::isfinite(o.pitch_deg) && o.pitch_deg >= 0 && o.pitch_deg <= 90,
           "pitch must be in [0, 90] degrees");
+  require(std::isfinite(o.roll_deg) && std::abs(o.roll_deg) <= 180 && std::isfinite(o.yaw_deg) &&
+              std::abs(o.yaw_deg) <= 180,
+          "roll and yaw must be in [-180, 180] degrees");
   require(o.hfov_deg > 0 && o.hfov_deg < 170 && o.vfov_deg > 0 && o.vfov_deg < 170,
           "field of view must be in (0, 170) degrees");
   require(o.columns > 0 && o.rows > 0 && o.columns <= 4096 && o.rows <= 4096,
@@ -37,8 +40,16 @@ std::vector<SimulatedScan> simulate_scans(const Scene& scene, const DepthSensorO
   std::uniform_real_distribution<double> uni(0.0, 1.0);
   std::normal_distribution<double> gauss(0.0, 1.0);
   constexpr double deg = M_PI / 180.0;
-  // Camera frame: x forward (optical axis), y left, z up; pitched down about y.
-  const Eigen::Matrix3d R = Eigen::AngleAxisd(o.pitch_deg * deg, Eigen::Vector3d::UnitY()).matrix();
+  // Camera body frame: x forward (optical axis), y left, z up; pitched down about y.
+  // The pitch alone as its own matrix: the shipped scans' rays, bit for bit.
+  const Eigen::Matrix3d pitch =
+      Eigen::AngleAxisd(o.pitch_deg * deg, Eigen::Vector3d::UnitY()).matrix();
+  const Eigen::Matrix3d R =
+      o.roll_deg == 0 && o.yaw_deg == 0
+          ? pitch
+          : Eigen::Matrix3d(Eigen::AngleAxisd(o.yaw_deg * deg, Eigen::Vector3d::UnitZ()) * pitch *
+                            Eigen::AngleAxisd(o.roll_deg * deg, Eigen::Vector3d::UnitX()));
+  const Eigen::Quaterniond body(R);
   const double tan_h = std::tan(0.5 * o.hfov_deg * deg), tan_v = std::tan(0.5 * o.vfov_deg * deg);
   const double ground = scene.height(0.0, 0.0);  // the robot stands on the ground at the start
 
@@ -48,6 +59,7 @@ std::vector<SimulatedScan> simulate_scans(const Scene& scene, const DepthSensorO
     SimulatedScan scan;
     const Eigen::Vector3d origin(sx, 0.0, ground + o.height);
     scan.cloud.sensor_origin = origin;
+    scan.sensor = {origin, body};
     std::ostringstream src;
     src << "simulated " << scene.name() << " scan from (" << origin.transpose() << ")";
     scan.cloud.source = src.str();

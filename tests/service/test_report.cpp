@@ -347,7 +347,8 @@ TEST_F(ReportTest, TerrainRowsCarryStatusesAgainstStatedThresholds) {
     for (int i = 0; i <= 100; ++i)
       for (int j = 0; j <= 100; ++j) xyz << i * 0.01 << " " << j * 0.01 << " " << i * 0.01 << "\n";
   }
-  const auto mapped = run("map " + shell_quote((dir_ / "slope.xyz").string()) + " --out " +
+  // A world-frame slope: z is up although its dominant plane is 45 deg from level.
+  const auto mapped = run("map " + shell_quote((dir_ / "slope.xyz").string()) + " --up z --out " +
                           shell_quote((dir_ / "slope").string()));
   ASSERT_EQ(mapped.code, 0) << mapped.all();
   const auto r = run("report --terrain " + shell_quote((dir_ / "slope").string()) + " --out " +

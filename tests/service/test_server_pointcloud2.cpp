@@ -136,8 +136,11 @@ TEST_P(Pointcloud2Update, SameMapAsTheEquivalentPcdFiles) {
     for (std::string line; std::getline(list, line);)
       if (!line.empty()) pcds.push_back(fixture("pcd/" + line));
   }
+  // World-frame points with the whole sensor pose as VIEWPOINT: its position only.
+  terrastride::terrain::CloudPoseOptions world_frame;
+  world_frame.viewpoint = terrastride::perception::ViewpointUse::kPosition;
   const terrastride::terrain::MapInput loose =
-      terrastride::terrain::read_map_clouds(pcds, std::nullopt);
+      terrastride::terrain::read_map_clouds(pcds, world_frame);
   ASSERT_EQ(loose.clouds.size(), 18u);
   for (std::size_t k = 0; k < loose.clouds.size(); ++k) {
     const auto& cl = loose.clouds[k];
@@ -152,6 +155,33 @@ TEST_P(Pointcloud2Update, SameMapAsTheEquivalentPcdFiles) {
     EXPECT_EQ(up["stats"][k], stats_pointcloud2[k]) << k;
   const std::vector<json> from_points = sample_map(c);
   ASSERT_EQ(from_points.size(), from_pointcloud2.size());
+
+  // The same points in each cloud's sensor frame, with that frame's pose ("pose", as `map
+  // --sensor-pose`): the same map.
+  for (std::size_t k = 0; k < loose.clouds.size(); ++k) {
+    const auto file = terrastride::perception::read_cloud_file(pcds[k]);
+    ASSERT_TRUE(file.viewpoint.has_value());
+    const terrastride::perception::SensorPose& vp = *file.viewpoint;
+    std::vector<Eigen::Vector3f> local;
+    for (const Eigen::Vector3f& w : loose.clouds[k].points)
+      local.push_back((vp.orientation.inverse() * (w.cast<double>() - vp.position)).cast<float>());
+    const Eigen::Quaterniond& q = vp.orientation;
+    up = c.call_ok({{"op", "map.update"},
+                    {"mode", k == 0 ? "replace" : "add"},
+                    {"pose",
+                     {vp.position.x(), vp.position.y(), vp.position.z(), q.x(), q.y(), q.z(), q.w()}}},
+                   {p::make_points_attachment("points", local)});
+  }
+  EXPECT_EQ(up["stats"]["placement"]["pose"]["source"], "sensor-pose") << up.dump();
+  const std::vector<json> from_posed = sample_map(c);
+  ASSERT_EQ(from_posed.size(), from_points.size());
+  for (std::size_t i = 0; i < from_posed.size(); ++i) {
+    ASSERT_EQ(from_posed[i]["observed"], from_points[i]["observed"]) << i;
+    if (from_posed[i]["observed"].get<bool>())
+      EXPECT_NEAR(from_posed[i]["height"].get<double>(), from_points[i]["height"].get<double>(),
+                  1e-3)
+          << i;
+  }
   int observed = 0;
   for (std::size_t i = 0; i < from_points.size(); ++i) {
     ASSERT_EQ(from_points[i]["observed"], from_pointcloud2[i]["observed"]) << i;
@@ -308,8 +338,16 @@ TEST(Pointcloud2UpdateErrors, BadPayloadsAreRefusedAndTheConnectionStaysUsable) 
        "must be uint8"},
       {"uint8 points", {{"op", "map.update"}, {"origin", {0, 0, 1}}},
        {p::make_bytes_attachment("points", "abc")}, "must be float32"},
-      {"pose with points", base, {p::make_float_attachment("points", {1, 3}, {1, 2, 3})},
-       "go with a \"pointcloud2\""},
+      {"frame with points", with({{"frame", "lidar"}}),
+       {p::make_float_attachment("points", {1, 3}, {1, 2, 3})}, "go with a \"pointcloud2\""},
+      {"pose and origin with points", with({{"origin", {0, 0, 1}}}),
+       {p::make_float_attachment("points", {1, 3}, {1, 2, 3})}, "give one"},
+      {"unknown up", {{"op", "map.update"}, {"up", "sideways"}},
+       {p::make_float_attachment("points", {1, 3}, {1, 2, 3})}, "\"up\" must be"},
+      {"unknown sensor frame", with({{"sensor_frame", "camera"}}),
+       {p::make_float_attachment("points", {1, 3}, {1, 2, 3})}, "\"sensor_frame\" must be"},
+      {"points pose not a rotation", {{"op", "map.update"}, {"pose", {0, 0, 1, 0, 0, 0, 2}}},
+       {p::make_float_attachment("points", {1, 3}, {1, 2, 3})}, "norm 2"},
       {"two sources", base,
        {p::make_bytes_attachment("pointcloud2", good), p::make_float_attachment("points", {1, 3}, {1, 2, 3})},
        "exactly one source"},

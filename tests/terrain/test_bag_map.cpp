@@ -55,7 +55,10 @@ class BagFixture : public ::testing::TestWithParam<std::string> {};
 TEST_P(BagFixture, SameMapAsTheEquivalentPcdFiles) {
   const std::vector<std::string> pcds = pcd_files();
   ASSERT_EQ(pcds.size(), 18u);
-  terrain::MapInput loose = terrain::read_map_clouds(pcds, std::nullopt);
+  // The PCDs hold world-frame points and the whole sensor pose as VIEWPOINT: its position only.
+  terrain::CloudPoseOptions world_frame;
+  world_frame.viewpoint = perception::ViewpointUse::kPosition;
+  terrain::MapInput loose = terrain::read_map_clouds(pcds, world_frame);
   terrain::BagMapInput bag = terrain::read_map_bags({fixture(GetParam())}, both_lidars());
   ASSERT_EQ(bag.input.clouds.size(), loose.clouds.size());
   // Both in one order: /points (lidar_NN.pcd) by stamp, then /points_rear (lidar_rear_NN.pcd).

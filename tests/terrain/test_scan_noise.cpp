@@ -43,7 +43,12 @@ struct Built {
 };
 
 Built build(const std::vector<std::string>& files, double resolution) {
-  terrain::MapInput input = terrain::read_map_clouds(files, std::nullopt);
+  // The shared grid_map sample's points are not in the frame its VIEWPOINT rotation poses (they
+  // are level without it): its VIEWPOINT is read as the sensor position only.
+  terrain::CloudPoseOptions poses;
+  if (files.size() == 1 && files[0].find("grid_map_pcl_input_cloud") != std::string::npos)
+    poses.viewpoint = perception::ViewpointUse::kPosition;
+  terrain::MapInput input = terrain::read_map_clouds(files, poses);
   terrain::MapBuildOptions o;
   o.grid.resolution = resolution;
   o.foot_radii = {kFoot};

@@ -90,8 +90,9 @@ TEST_F(TerrainCli, MapThenQueryAPlaneWithAStep) {
   EXPECT_FALSE(q[2]["safe"].get<bool>());  // on the step edge
   EXPECT_LT(q[2]["margin"].get<double>(), 0.0);
   EXPECT_GT(q[2]["gradient"][0].get<double>(), 0.5);
-  // Human summary names the figures.
-  r = run("map " + cloud + " --out " + out);
+  // Human summary names the figures. Without --origin the sensor is at the frame's origin, below
+  // the plane: these world-frame points need z taken as up.
+  r = run("map " + cloud + " --up z --out " + out);
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("kept after cleaning"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("safe for foot radius"), std::string::npos) << r.out;
@@ -157,7 +158,8 @@ TEST_F(TerrainCli, ParallelStagesAreDeterministic) {
   EXPECT_GE(files, 10u);
   // Every cloud fails to clean (a voxel far too small): the error names the first one.
   const std::string a = plane_xyz(false), b = plane_xyz(true);
-  const CliResult r = run("map " + a + " " + b + " --voxel 1e-7 --out " + (dir_ / "bad").string());
+  const CliResult r =
+      run("map " + a + " " + b + " --up z --voxel 1e-7 --out " + (dir_ / "bad").string());
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.err.find("plane.xyz"), std::string::npos) << r.err;
   EXPECT_EQ(r.err.find("step.xyz"), std::string::npos) << r.err;
@@ -232,7 +234,7 @@ TEST_F(TerrainCli, BadInputFailsCleanlyAndWritesNothing) {
     EXPECT_TRUE(extra.empty()) << c.args << ": left " << extra.front();
   }
   // A failed map must not clobber an existing good one.
-  ASSERT_EQ(run("map " + good + " --out " + out).code, 0);
+  ASSERT_EQ(run("map " + good + " --up z --out " + out).code, 0);  // world frame, z up
   const auto before = fs::last_write_time(fs::path(out) / "terrain.json");
   EXPECT_NE(run("map " + nan + " --out " + out).code, 0);
   EXPECT_EQ(fs::last_write_time(fs::path(out) / "terrain.json"), before);

@@ -110,19 +110,52 @@ FusedMap fuse_cloud(Backend& backend, OpContext& ctx, perception::PointCloud clo
   return fused;
 }
 
-// The float32 attachment "points" (world frame) with an optional "origin".
-perception::PointCloud cloud_from_points(const json& h, const protocol::Attachment& att) {
-  if (h.contains("pose") || h.contains("frame") || h.contains("encoding"))
-    throw ProtocolError(pc::kBadRequest, "\"pose\", \"frame\" and \"encoding\" go with a "
-                                         "\"pointcloud2\" attachment, not with \"points\" "
-                                         "(whose points are in the world frame: use \"origin\")");
-  perception::PointCloud cloud;
-  cloud.points = protocol::read_points(att);  // rejects NaN / infinity, wrong shapes
-  if (cloud.points.empty())
-    throw ProtocolError(pc::kBadRequest, "attachment 'points' holds no points");
+// The float32 attachment "points": world-frame points with an optional "origin", or points in
+// the frame whose pose "pose" [x, y, z, qx, qy, qz, qw] gives ("sensor_frame": "optical" when
+// they are in a camera's optical frame and the pose is its body's); "up" as `terrastride map
+// --up`, "z" by default (the attachment's points have always been world-frame). Placed by
+// terrain::place_map_points, as `map` places a cloud file; *info gets the placement.
+perception::PointCloud cloud_from_points(const json& h, const protocol::Attachment& att,
+                                         json* info) {
+  if (h.contains("frame") || h.contains("encoding"))
+    throw ProtocolError(pc::kBadRequest, "\"frame\" and \"encoding\" go with a \"pointcloud2\" "
+                                         "attachment, not with \"points\"");
+  std::vector<Eigen::Vector3f> points = protocol::read_points(att);  // rejects NaN, bad shapes
+  if (points.empty()) throw ProtocolError(pc::kBadRequest, "attachment 'points' holds no points");
+  terrain::CloudPoseOptions poses;
+  poses.up = terrain::UpMode::kZ;
+  const std::string up = protocol::get_string(h, "up", std::string("z"));
+  if (up == "check") {
+    poses.up = terrain::UpMode::kCheck;
+  } else if (up == "auto") {
+    poses.up = terrain::UpMode::kAuto;
+  } else if (up != "z") {
+    throw ProtocolError(pc::kBadRequest, "\"up\" must be \"z\", \"check\" or \"auto\", got '" +
+                                             up + "'");
+  }
+  const std::string frame = protocol::get_string(h, "sensor_frame", std::string("body"));
+  if (frame != "body" && frame != "optical")
+    throw ProtocolError(pc::kBadRequest,
+                        "\"sensor_frame\" must be \"body\" or \"optical\", got '" + frame + "'");
+  if (frame == "optical") poses.sensor_frame = perception::SensorFrame::kOptical;
   if (h.contains("origin") && !h["origin"].is_null())
-    cloud.sensor_origin = protocol::get_vector(h, "origin", 3);
-  return cloud;
+    poses.origin = protocol::get_vector(h, "origin", 3);
+  try {
+    if (h.contains("pose")) {
+      const Eigen::VectorXd v = protocol::get_vector(h, "pose", 7);  // finite numbers
+      perception::SensorPose pose;
+      pose.position = v.head<3>();
+      pose.orientation = perception::checked_quaternion(v[3], v[4], v[5], v[6], "\"pose\"");
+      poses.sensor_pose = pose;
+    }
+    terrain::CloudPlacement placement;
+    perception::PointCloud cloud =
+        terrain::place_map_points(std::move(points), "attachment 'points'", poses, &placement);
+    *info = terrain::placement_json(placement);
+    return cloud;
+  } catch (const perception::InputError& e) {
+    throw ProtocolError(pc::kBadRequest, e.what());
+  }
 }
 
 // The uint8 attachment "pointcloud2": a sensor_msgs/PointCloud2 as its driver serialised it (ROS
@@ -210,7 +243,7 @@ OpResult map_update(Backend& backend, OpContext& ctx) {
   // up, another update.
   json cloud_info;
   std::optional<perception::PointCloud> cloud;
-  if (points) cloud = cloud_from_points(h, *points);
+  if (points) cloud = cloud_from_points(h, *points, &cloud_info);
   if (pointcloud2) cloud = cloud_from_pointcloud2(h, *pointcloud2, &cloud_info);
   // Updates are serialised; queries never wait.
   std::lock_guard<std::mutex> lock(backend.update_mutex());
@@ -261,6 +294,7 @@ OpResult map_update(Backend& backend, OpContext& ctx) {
     FusedMap fused = fuse_cloud(backend, ctx, std::move(*cloud), mode);
     next->stats = std::move(fused.stats);
     if (pointcloud2) next->stats["pointcloud2"] = std::move(cloud_info);
+    if (points) next->stats["placement"] = std::move(cloud_info);
     next->source = pointcloud2 ? "pointcloud2" : "cloud";
     next->field = std::move(fused.field);
     next->octree = std::move(fused.octree);
@@ -281,7 +315,8 @@ void add_map_update_operation(Backend& backend, OperationRegistry& registry) {
                 "replace or extend the terrain map (scene, terrain dir or point cloud)",
                 [b](OpContext& c) { return map_update(*b, c); },
                 std::vector<std::string>{"mode", "scene", "terrain_dir", "origin", "pose",
-                                         "frame", "encoding", "resolution", "voxel",
+                                         "sensor_frame", "up", "frame", "encoding",
+                                         "resolution", "voxel",
                                          "outlier_neighbours", "outlier_cell", "foot_radii"},
                 std::vector<std::string>{"points", "pointcloud2"}});
 }

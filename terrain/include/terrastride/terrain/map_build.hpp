@@ -7,6 +7,7 @@
 #include <octomap/OcTree.h>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <chrono>
 #include <cstddef>
 #include <functional>
@@ -18,21 +19,47 @@
 
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/bag_clouds.hpp"
+#include "terrastride/perception/cloud_io.hpp"
 #include "terrastride/perception/filters.hpp"
 #include "terrastride/perception/octomap_fusion.hpp"
 #include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/perception/sensor_pose.hpp"
+#include "terrastride/perception/support_plane.hpp"
 #include "terrastride/terrain/height_grid.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
 
 namespace terrastride::terrain {
+
+// How a cloud file was placed in the world (terrain.json: "inputs"[k]["pose"] and ["up"]).
+struct CloudPlacement {
+  // Where the pose came from: "sensor-pose", "poses" (a poses file's line), "viewpoint" (a PCD's
+  // VIEWPOINT as the sensor pose), "viewpoint position" (--viewpoint origin), "origin"
+  // (--origin) or "none".
+  std::string source = "none";
+  perception::SensorPose pose;  // the file's frame -> world, the optical rotation included
+  bool position_known = false;  // else the sensor is taken at the file frame's origin
+  bool rotation_known = false;  // else the up direction was checked or levelled (unless --up z)
+  // A VIEWPOINT's rotation is applied, but checked like an unknown one (unless --up z) when the
+  // file lacks the writer's marker: `plane` is then set too.
+  bool optical = false;   // --sensor-frame optical: pose is the body's
+  size_t poses_line = 0;  // the poses file's line, for "poses"
+  // The dominant plane, for a cloud without a known rotation (not with --up z).
+  std::optional<perception::SupportPlane> plane;
+  bool levelled = false;  // --up auto rotated the cloud about the sensor: plane normal -> +z
+  Eigen::Quaterniond levelling = Eigen::Quaterniond::Identity();
+};
 
 // A cloud file read for a map, as terrain.json lists it under "inputs".
 struct CloudFile {
   std::string path;       // as given
   size_t points = 0;      // points in the file, finite or not
   size_t non_finite = 0;  // of those, dropped because a coordinate was not finite
+  std::optional<CloudPlacement> placement;  // cloud files (not bags or OctoMaps)
 };
+
+// inputs[k]["pose"] and ["up"] of terrain.json for one placement (also in `map --json`).
+nlohmann::json placement_json(const CloudPlacement& placement);
 
 // Where a map's clouds came from, for terrain.json ("inputs", "statistics", "timings").
 struct MapSources {
@@ -47,10 +74,52 @@ struct MapInput {
   MapSources sources;
 };
 
-// Reads cloud files (PCD, PLY, XYZ, NPY) in the order given. `origin`, when given, is every
-// cloud's sensor origin (it overrides a PCD's VIEWPOINT). Files are read on up to one thread per
-// core; `before_file(k)`, when set, is called before file k is read (progress), one call at a
-// time, from the reading thread. Throws perception::InputError naming the first failing file.
+// Which way is up for a cloud whose orientation nobody gave (no --sensor-pose, no poses file line,
+// no VIEWPOINT rotation):
+//   kCheck  the default: the cloud's dominant plane (perception::estimate_support_plane, seen
+//           from the sensor, or from the file frame's origin when no position is known) must be
+//           within max_tilt_deg of level with the sensor above it, else the cloud is refused
+//           naming the tilt, the sensor's height and the options that fix it. A cloud with no
+//           dominant plane (too few points, none holding 15 % of them) is mapped as it is, with
+//           the reason in terrain.json.
+//   kAuto   the cloud is rotated about its sensor so that the plane's normal (towards the
+//           sensor) is +z; a cloud with no dominant plane is refused.
+//   kZ      z is up, unchecked.
+// A cloud placed by a VIEWPOINT that lacks terrastride's marker is checked as under kCheck (also
+// with kAuto; not with kZ): its rotation is applied as PCL means it, and the refusal says what
+// the points look like without it (--viewpoint origin).
+enum class UpMode { kCheck, kAuto, kZ };
+
+// How read_map_clouds places cloud files in the world.
+struct CloudPoseOptions {
+  perception::ViewpointUse viewpoint = perception::ViewpointUse::kDefault;  // --viewpoint
+  // --origin: the points are world-frame, this is every cloud's sensor position (any VIEWPOINT
+  // is ignored). Not with sensor_pose or poses.
+  std::optional<Eigen::Vector3d> origin;
+  std::optional<perception::SensorPose> sensor_pose;  // --sensor-pose: every cloud's pose
+  std::vector<perception::PoseLine> poses;            // --poses: one per cloud, by path
+  std::string poses_file;                             // named in errors
+  perception::SensorFrame sensor_frame = perception::SensorFrame::kBody;  // --sensor-frame
+  UpMode up = UpMode::kCheck;
+  double max_tilt_deg = 20.0;
+  perception::SupportPlaneOptions plane;
+};
+
+// Reads cloud files (PCD, PLY, XYZ, NPY) in the order given and places each in the world: its
+// pose from `poses` (sensor_pose, a poses line, else the VIEWPOINT; --sensor-frame optical
+// composes the optical frame's rotation), then the up check or levelling of `poses.up`. Files
+// are read on up to one thread per core; `before_file(k)`, when set, is called before file k is
+// read (progress), one call at a time, from the reading thread. Throws perception::InputError
+// naming the first failing file (and the poses file's line).
+MapInput read_map_clouds(const std::vector<std::string>& paths, const CloudPoseOptions& poses,
+                         const std::function<void(size_t)>& before_file = {});
+// Places points held in memory (the socket's `points` attachment) as read_map_clouds places a
+// file's: poses.sensor_pose or poses.origin, poses.sensor_frame and poses.up (a poses file does
+// not apply); `name` names the cloud in errors. Returns the placed cloud and how in *placement.
+perception::PointCloud place_map_points(std::vector<Eigen::Vector3f> points,
+                                        const std::string& name, const CloudPoseOptions& poses,
+                                        CloudPlacement* placement);
+// As above with CloudPoseOptions{.origin = origin}.
 MapInput read_map_clouds(const std::vector<std::string>& paths,
                          const std::optional<Eigen::Vector3d>& origin,
                          const std::function<void(size_t)>& before_file = {});

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/perception/sensor_pose.hpp"
 
 namespace terrastride::terrain {
 
@@ -16,6 +17,10 @@ class Scene;
 struct DepthSensorOptions {
   double height = 0.8;      // sensor height above the ground (m)
   double pitch_deg = 40.0;  // optical axis pitched down from the horizontal
+  // The camera body's roll about its optical axis and yaw about the world's z (degrees): the
+  // body's orientation is Rz(yaw) Ry(pitch) Rx(roll), x forward, y left, z up.
+  double roll_deg = 0.0;
+  double yaw_deg = 0.0;
   double hfov_deg = 87.0;   // a RealSense D435-like field of view
   double vfov_deg = 58.0;
   int columns = 200;  // depth image size (downsampled: keeps shipped scans small)
@@ -37,6 +42,9 @@ struct DepthSensorOptions {
 
 struct SimulatedScan {
   perception::PointCloud cloud;  // world frame, sensor_origin set
+  // The camera body's pose (x forward, y left, z up): its frame's points are
+  // sensor.orientation^-1 (p - sensor.position).
+  perception::SensorPose sensor;
   size_t pixels = 0;
   size_t dropped = 0;
   size_t mixed = 0;
