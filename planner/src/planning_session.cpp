@@ -10,6 +10,7 @@
 #include <mutex>
 #include <sstream>
 #include <thread>
+#include <utility>
 
 #include "terrastride/planner/piece_math.hpp"
 #include "terrastride/planner/request_limits.hpp"
@@ -67,7 +68,9 @@ struct StepJob {
   Clock::time_point t0;
   // Cancels the solve at its next iteration (a newer step needs the worker, or the session ends).
   std::atomic<bool> cancel{false};
-  bool done = false, abandoned = false;  // under StepWorker's mutex
+  // Its step answered without it (set under StepWorker's mutex, read by the job as it finishes).
+  std::atomic<bool> abandoned{false};
+  bool done = false;  // under StepWorker's mutex
   SessionStep result;
 };
 
@@ -134,6 +137,9 @@ void run_job(StepJob& job) {
   out.to_goal = job.to_goal;
   out.warm_from_late_solve = job.warm_from_late;
   PlanOutcome& o = out.outcome;
+  // A cancelled solve is of no use to anyone: no samples, no checks (their CPU would be taken
+  // from the step that cancelled it).
+  if (job.cancel.load() && !o.success) return;
   const auto t_after_solve = Clock::now();
   o.trajectory = sample_solution(*problem, o.solve.x, job.sample_dt);
   auto& st = o.trajectory.solver;
@@ -156,12 +162,15 @@ void run_job(StepJob& job) {
   if (out.feet_freed)
     ex["session"]["end_feet_freed"] = {{"pinned_status", out.pinned_feet_status},
                                        {"pinned_iterations", out.pinned_feet_iterations}};
-  DenseCheckLimits lim;
-  lim.friction = job.options.friction;
-  lim.max_normal_force = job.options.max_normal_force_factor * job.robot->mass * kGravity;
-  o.trajectory.checks = dense_checks(*job.robot, *job.check_terrain,
-                                     sample_solution(*problem, o.solve.x, kDenseDt), lim);
-  ex["checks_dt"] = kDenseDt;
+  // A plan whose step has answered without it is only a warm start: no dense checks.
+  if (!job.abandoned.load()) {
+    DenseCheckLimits lim;
+    lim.friction = job.options.friction;
+    lim.max_normal_force = job.options.max_normal_force_factor * job.robot->mass * kGravity;
+    o.trajectory.checks = dense_checks(*job.robot, *job.check_terrain,
+                                       sample_solution(*problem, o.solve.x, kDenseDt), lim);
+    ex["checks_dt"] = kDenseDt;
+  }
   ex["timings"] = {{"build_s", out.build_s},
                    {"solve_s", o.solve.wall_s},
                    {"sample_and_checks_s", seconds_since(t_after_solve)},
@@ -205,7 +214,8 @@ void write_timeline(const PhaseTimeline& tl, nlohmann::json* extra) {
 // until its answer is due; a job still running when the next is submitted is cancelled (through
 // the solver's per-iteration callback), so a step never queues behind a stale solve for longer
 // than that solve's current iteration, and the step's own wait is bounded by its deadline anyway.
-// A job that finishes after its step answered is kept (take_late) as the next step's warm start.
+// A job that finishes with a plan after its step answered is kept (take_late): the session adopts
+// it as its current plan at the next step (the next step's warm start, and its fallback).
 class StepWorker {
  public:
   ~StepWorker() {
@@ -326,8 +336,7 @@ std::size_t PlanningSession::memory_bytes() const {
     const std::size_t per_sample = sizeof(TrajectorySample) + p.feet.size() * sizeof(FootState);
     return sizeof(Trajectory) + p.samples.capacity() * per_sample + p.extra.dump().size();
   };
-  return sizeof(*this) + plan_bytes(reference_) + plan_bytes(previous_) +
-         (late_ ? plan_bytes(*late_) : 0);
+  return sizeof(*this) + plan_bytes(reference_) + plan_bytes(previous_);
 }
 
 PlanningSession::~PlanningSession() = default;
@@ -384,9 +393,10 @@ SessionStep PlanningSession::fallback_step(const StepJob& job, const std::string
 void PlanningSession::adopt_late_solve() {
   if (!worker_) return;
   const std::shared_ptr<StepJob> job = worker_->take_late();
-  if (!job || job->t <= previous_start_ || (late_ && job->t <= late_start_)) return;
-  late_ = std::make_unique<Trajectory>(std::move(job->result.outcome.trajectory));
-  late_start_ = job->t;
+  if (!job || job->t <= previous_start_) return;
+  previous_ = std::move(job->result.outcome.trajectory);
+  previous_start_ = job->t;
+  adopted_late_ = true;
 }
 
 std::shared_ptr<StepJob> PlanningSession::prepare(const SrbdProblem::StartState& measured,
@@ -454,10 +464,8 @@ std::shared_ptr<StepJob> PlanningSession::prepare(const SrbdProblem::StartState&
   job->base_end.foot_position.clear();
   job->base_end.foot_velocity.clear();
   job->base_end.foot_force.clear();
-  // The newest plan there is: the last good one, or a solve that finished after its step.
-  job->warm_from_late = late_ && late_start_ > previous_start_;
-  job->guess = job->warm_from_late ? spliced_guess(*late_, late_start_, reference_)
-                                   : spliced_guess(previous_, previous_start_, reference_);
+  job->warm_from_late = std::exchange(adopted_late_, false);
+  job->guess = spliced_guess(previous_, previous_start_, reference_);
   job->solver_options = options_;
   if (limits.should_stop) job->solver_options.should_stop = limits.should_stop;
   if (limits.max_time > 0.0) job->solver_options.max_time = limits.max_time;
@@ -484,18 +492,27 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
     if (!worker_) worker_ = std::make_unique<StepWorker>();
     const double answer_in = std::max(0.0, limits.budget - limits.reserve);
     worker_->submit(job);
+    // The fallback is made while the solve runs (the other core), so that at the deadline the
+    // step only has to return: on a loaded machine even a millisecond of work at the deadline
+    // becomes several.
+    out = fallback_step(*job, "deadline", "");
     if (!worker_->wait(*job, t0 + std::chrono::duration_cast<Clock::duration>(
                                       std::chrono::duration<double>(answer_in)))) {
       std::ostringstream m;
       m << "the re-plan from t = " << t << " s had not finished " << 1e3 * answer_in
         << " ms into its " << 1e3 * limits.budget << " ms budget; the session's current plan "
         << "from t stands (the solve runs on until the next step as its warm start)";
-      out = fallback_step(*job, "deadline", m.str());
+      out.outcome.message = m.str();
+      out.outcome.trajectory.extra["session"]["fallback_message"] = out.outcome.message;
       out.wall_s = seconds_since(t0);
       return out;
     }
     if (!job->result.outcome.success) {
-      out = fallback_step(*job, "solve_failed", job->result.outcome.message);
+      out.fallback_reason = "solve_failed";
+      out.outcome.message = job->result.outcome.message;
+      auto& session_json = out.outcome.trajectory.extra["session"];
+      session_json["fallback_reason"] = out.fallback_reason;
+      session_json["fallback_message"] = out.outcome.message;
       out.outcome.solve = job->result.outcome.solve;
       out.outcome.trajectory.solver.iterations = job->result.outcome.solve.iterations;
       out.outcome.trajectory.solver.wall_s = job->result.outcome.solve.wall_s;
@@ -511,7 +528,6 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   if (out.outcome.success) {
     previous_ = out.outcome.trajectory;
     previous_start_ = t;
-    if (late_ && late_start_ <= t) late_.reset();
   }
   out.wall_s = seconds_since(t0);
   return out;

@@ -50,10 +50,16 @@ struct BenchOptions {
   // Replan mode: a planning session on pallet_15 with every constraint set.
   int replan_steps = 50;
   double replan_budget_ms = 50.0;  // plan.session.step "budget_ms"
+  // Steps are sent this far apart in wall time (s), as a control loop at 10 Hz sends them (the
+  // session's time advances 0.1 s per step); 0: each as soon as the previous reply arrived.
+  double replan_period = 0.1;
   double horizon = 1.0;
   std::string replan_scene = "pallet_15";
   std::string replan_constraints = "all";
-  std::string replan_samples = "json";  // a step reply's samples: "json" or "attachment"
+  // A step reply's samples: "attachment" (the float32 table a client stepping at 10-20 Hz uses:
+  // 130-220 KB of JSON samples per reply cost 20-30 ms of a loaded machine outside the step) or
+  // "json".
+  std::string replan_samples = "attachment";
   // Hostile mode.
   int slowloris = 32;      // connections per slow-frame case
   double max_wait_s = 15;  // longest wait for the server to close a hostile connection
@@ -795,6 +801,7 @@ struct ReplanTally {
     }
     (*rec)["iterations"] = its;
     (*rec)["solve_ms"] = solve_ms;
+    (*rec)["step_ms"] = r.value("step_ms", 0.0);
     (*rec)["variables"] = r["solver"].value("n_variables", 0);
     (*rec)["constraints"] = r["solver"].value("n_constraints", 0);
     (*rec)["end_time"] = r.value("end_time", 0.0);
@@ -824,6 +831,7 @@ struct ReplanTally {
               {"steps", o.replan_steps},
               {"sessions", sessions},
               {"budget_ms", o.replan_budget_ms},
+              {"period_s", o.replan_period},
               {"failures", failures},
               {"fallbacks", fallbacks},
               {"deadline_fallbacks", deadline_fallbacks},
@@ -887,6 +895,7 @@ json bench_replan(const BenchOptions& o, bool in_process) {
   double current_start = 0.0, session_origin = 0.0;
   const double duration = ref["duration"];
   ReplanTally tally;
+  const auto loop_start = Clock::now();
   for (int k = 1; k <= o.replan_steps; ++k) {
     double t = 0.1 * k - session_origin;
     if (t >= duration - 0.2) {
@@ -901,6 +910,10 @@ json bench_replan(const BenchOptions& o, bool in_process) {
       current = ref;
       current_start = 0.0;
     }
+    if (o.replan_period > 0 && k > 1)
+      std::this_thread::sleep_until(loop_start + std::chrono::duration_cast<Clock::duration>(
+                                                     std::chrono::duration<double>(
+                                                         o.replan_period * (k - 1))));
     const double cpu0 = process_cpu_ms();
     const auto t0 = Clock::now();
     const auto reply = c.call({{"op", "plan.session.step"},
@@ -995,6 +1008,11 @@ void add_bench_service_command(CLI::App& app) {
   cmd->add_option("--budget-ms", o->replan_budget_ms,
                   "Replan mode: each step's budget_ms (0 = wait for every solve)")
       ->capture_default_str();
+  cmd->add_option("--replan-period", o->replan_period,
+                  "Replan mode: seconds between steps sent (a 10 Hz loop: 0.1, the session time "
+                  "per step); 0 = each as soon as the previous reply arrived")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 10.0));
   cmd->add_option("--horizon", o->horizon, "Replan mode: the session's horizon in s (0 = to the goal)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 60.0));

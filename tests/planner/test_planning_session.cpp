@@ -91,7 +91,8 @@ TEST_F(FlatSession, ASlowSolveStillAnswersWithinItsBudgetWithTheFallback) {
 }
 
 // A solve that finishes after its step answered (here its first iteration is held up 0.15 s, past
-// the 0.1 s budget, and the solve may run on to four budgets) becomes the next step's warm start.
+// the 0.1 s budget, and the solve may run on to four budgets) becomes the session's plan when the
+// next step begins: that step's warm start, and its fallback.
 TEST_F(FlatSession, ASolveThatFinishesLateWarmStartsTheNextStep) {
   StepLimits held;
   held.budget = 0.1;
@@ -103,10 +104,23 @@ TEST_F(FlatSession, ASolveThatFinishesLateWarmStartsTheNextStep) {
   };
   const SessionStep a = session->step(measured(0.2), 0.2, held);
   EXPECT_TRUE(a.fallback);
+  EXPECT_EQ(session->previous_start_time(), 0.0);
   std::this_thread::sleep_for(std::chrono::milliseconds(800));
-  const SessionStep b = session->step(measured(0.3), 0.3);
-  ASSERT_TRUE(b.outcome.success) << b.outcome.message;
+  // The next step falls back too (its own solve is held up longer than its budget), but to the
+  // late plan from 0.2 s, which is now the session's plan.
+  StepLimits slow;
+  slow.budget = 0.05;
+  slow.should_stop = [] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    return false;
+  };
+  const SessionStep b = session->step(measured(0.3), 0.3, slow);
+  EXPECT_TRUE(b.fallback);
   EXPECT_TRUE(b.warm_from_late_solve);
+  EXPECT_DOUBLE_EQ(session->previous_start_time(), 0.2);
+  const SessionStep c = session->step(measured(0.4), 0.4);
+  ASSERT_TRUE(c.outcome.success) << c.outcome.message;
+  EXPECT_FALSE(c.warm_from_late_solve);
 }
 
 }  // namespace

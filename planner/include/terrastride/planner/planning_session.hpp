@@ -41,7 +41,9 @@ struct SessionStep {
   // why: "deadline" (the solve had not finished by it) or "solve_failed" (outcome.message).
   bool fallback = false;
   std::string fallback_reason;
-  // The guess came from a solve that finished after its own step had answered with a fallback.
+  // The session's current plan (this step's warm start, and its fallback) came from a solve that
+  // finished after its own step had answered with a fallback: verified, and from a later
+  // measured state than the plan that step fell back to.
   bool warm_from_late_solve = false;
   double wall_s = 0.0;  // the step call, start to return
 };
@@ -78,7 +80,8 @@ class PlanningSession {
   // time outside the reference or a state with the wrong feet. Without a budget, a step whose
   // solve fails returns an outcome with success false (and its message); with one it returns the
   // fallback. Either way the session keeps its last good plan, which the next step warm-starts
-  // from (or from a solve that finished after its step had answered, when that is newer).
+  // from; a solve that finished with a plan after its step had answered becomes that plan when
+  // the next step begins, if it is newer.
   SessionStep step(const SrbdProblem::StartState& measured, double t,
                    const StepLimits& limits = {});
 
@@ -118,10 +121,9 @@ class PlanningSession {
   double sample_dt_;
   Trajectory previous_;
   double previous_start_ = 0.0;
-  // The newest plan a step's solve made after that step had answered (a warm start only: the
-  // robot follows previous_).
-  std::unique_ptr<Trajectory> late_;
-  double late_start_ = 0.0;
+  // previous_ came from a solve that finished after its step had answered with a fallback (it
+  // is still a verified plan, and from a later measured state than the one it replaced).
+  bool adopted_late_ = false;
   int steps_ = 0;
   std::unique_ptr<StepWorker> worker_;  // made by the first budgeted step
 };

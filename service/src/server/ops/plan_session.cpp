@@ -45,9 +45,10 @@ struct Session {
   std::unique_ptr<planner::PlanningSession> planner;
   std::timed_mutex step_mu;  // one step at a time
   Clock::time_point last_used = Clock::now();
-  // The time a step's reply took to encode after the step returned (a decaying maximum): kept
-  // from its budget so that the reply, not only the plan, is ready by it.
-  double reply_s = 0.002;
+  // How long after its answer was due a step's reply was ready (the step's own overshoot, which
+  // on a loaded machine is the scheduler's, plus encoding the reply), a decaying maximum: kept
+  // from the next step's budget so that the reply, not only the plan, is ready by it.
+  double late_s = 0.002;
 };
 
 // A step's default budget (plan.session.step "budget_ms"): a control loop at 10-20 Hz.
@@ -351,7 +352,10 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
   apply_deadline(ctx, &po);
   planner::StepLimits limits{po.should_stop, po.max_time, 1e-3 * budget_ms, 0.0};
   if (limits.budget > 0.0 && po.max_time > 0.0) limits.budget = std::min(limits.budget, po.max_time);
-  if (limits.budget > 0.0) limits.reserve = std::min(s->reply_s, 0.5 * limits.budget);
+  // That lateness, plus 5 ms for the socket and the client's parsing, comes out of the budget,
+  // up to 60 % of it.
+  const auto step_start = Clock::now();
+  if (limits.budget > 0.0) limits.reserve = std::min(s->late_s + 0.005, 0.6 * limits.budget);
   planner::SessionStep step;
   try {
     step = ps.step(measured, t, limits);
@@ -365,7 +369,6 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
                           "session " + s->id + ": " + step.outcome.message);
     throw ProtocolError(pc::kFailed, "session " + s->id + ": " + step.outcome.message);
   }
-  const auto reply_start = Clock::now();
   s->last_used = Clock::now();
   OpResult r;
   // "attachment": a float32 table instead of ~200 KB of JSON samples (a 1 s horizon on pallet_15
@@ -381,8 +384,10 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
   r.result["budget_ms"] = budget_ms;
   r.result["step_ms"] = 1e3 * step.wall_s;
   r.result["warm_from_late_solve"] = step.warm_from_late_solve;
-  s->reply_s = std::max(0.9 * s->reply_s,
-                        std::chrono::duration<double>(Clock::now() - reply_start).count());
+  if (limits.budget > 0.0) {
+    const double ready = std::chrono::duration<double>(Clock::now() - step_start).count();
+    s->late_s = std::max(0.9 * s->late_s, ready - (limits.budget - limits.reserve));
+  }
   (void)backend;
   return r;
 }
