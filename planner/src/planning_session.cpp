@@ -490,7 +490,11 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   SessionStep out;
   if (limits.budget > 0.0) {
     if (!worker_) worker_ = std::make_unique<StepWorker>();
-    const double answer_in = std::max(0.0, limits.budget - limits.reserve);
+    // The step answers its own measured lateness early (how long after its answer was due it
+    // returned, a decaying maximum: on a loaded machine the scheduler's), as well as the
+    // caller's reserve, but gives the solve at least 40 % of the budget.
+    const double answer_in =
+        std::max(0.4 * limits.budget, limits.budget - limits.reserve - late_s_);
     worker_->submit(job);
     // The fallback is made while the solve runs (the other core), so that at the deadline the
     // step only has to return: on a loaded machine even a millisecond of work at the deadline
@@ -505,6 +509,7 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
       out.outcome.message = m.str();
       out.outcome.trajectory.extra["session"]["fallback_message"] = out.outcome.message;
       out.wall_s = seconds_since(t0);
+      late_s_ = std::max(0.9 * late_s_, out.wall_s - answer_in);
       return out;
     }
     if (!job->result.outcome.success) {

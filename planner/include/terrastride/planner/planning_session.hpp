@@ -52,7 +52,7 @@ struct SessionStep {
 // cancellation) and max_time caps the solve (0: the session options' max_time); neither bounds
 // the step's wall time, since one iteration (a factorisation, a restoration phase) can itself be
 // long. A budget does: the solve then runs on the session's worker thread and the step returns
-// by start + budget - reserve whatever the solve does, with the solve's plan if it finished and
+// by start + budget - reserve (less the session's own measured lateness) whatever the solve does, with the solve's plan if it finished and
 // succeeded, else the fallback (SessionStep::fallback). reserve is what the caller needs after
 // the step (e.g. encoding its reply). budget 0: the step waits for its solve.
 struct StepLimits {
@@ -124,6 +124,8 @@ class PlanningSession {
   // previous_ came from a solve that finished after its step had answered with a fallback (it
   // is still a verified plan, and from a later measured state than the one it replaced).
   bool adopted_late_ = false;
+  // How late budgeted steps returned after their answer was due (a decaying maximum, s).
+  double late_s_ = 0.0;
   int steps_ = 0;
   std::unique_ptr<StepWorker> worker_;  // made by the first budgeted step
 };

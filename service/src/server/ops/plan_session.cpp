@@ -45,10 +45,10 @@ struct Session {
   std::unique_ptr<planner::PlanningSession> planner;
   std::timed_mutex step_mu;  // one step at a time
   Clock::time_point last_used = Clock::now();
-  // How long after its answer was due a step's reply was ready (the step's own overshoot, which
-  // on a loaded machine is the scheduler's, plus encoding the reply), a decaying maximum: kept
-  // from the next step's budget so that the reply, not only the plan, is ready by it.
-  double late_s = 0.002;
+  // How long a step's reply took to be ready after the step returned (a decaying maximum): kept
+  // from the next step's budget so that the reply, not only the plan, is ready by it (the
+  // session keeps its own lateness out of the budget too).
+  double reply_s = 0.002;
 };
 
 // A step's default budget (plan.session.step "budget_ms"): a control loop at 10-20 Hz.
@@ -352,16 +352,15 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
   apply_deadline(ctx, &po);
   planner::StepLimits limits{po.should_stop, po.max_time, 1e-3 * budget_ms, 0.0};
   if (limits.budget > 0.0 && po.max_time > 0.0) limits.budget = std::min(limits.budget, po.max_time);
-  // That lateness, plus 5 ms for the socket and the client's parsing, comes out of the budget,
-  // up to 60 % of it.
-  const auto step_start = Clock::now();
-  if (limits.budget > 0.0) limits.reserve = std::min(s->late_s + 0.005, 0.6 * limits.budget);
+  // That time, plus 5 ms for the socket and the client's parsing, comes out of the budget.
+  if (limits.budget > 0.0) limits.reserve = std::min(s->reply_s + 0.005, 0.6 * limits.budget);
   planner::SessionStep step;
   try {
     step = ps.step(measured, t, limits);
   } catch (const std::invalid_argument& e) {
     throw ProtocolError(pc::kBadRequest, e.what());
   }
+  const auto step_returned = Clock::now();
   ctx.check_stop();
   if (!step.outcome.success) {
     if (step.outcome.solve.status == "time_limit")
@@ -384,10 +383,8 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
   r.result["budget_ms"] = budget_ms;
   r.result["step_ms"] = 1e3 * step.wall_s;
   r.result["warm_from_late_solve"] = step.warm_from_late_solve;
-  if (limits.budget > 0.0) {
-    const double ready = std::chrono::duration<double>(Clock::now() - step_start).count();
-    s->late_s = std::max(0.9 * s->late_s, ready - (limits.budget - limits.reserve));
-  }
+  s->reply_s = std::max(0.9 * s->reply_s,
+                        std::chrono::duration<double>(Clock::now() - step_returned).count());
   (void)backend;
   return r;
 }
