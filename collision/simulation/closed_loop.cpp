@@ -36,10 +36,11 @@ ReplannerFactory session_replanner(const robot::RobotModel& robot,
                                    const terrain::HeightField& check_terrain,
                                    const planner::PlannerOptions& options,
                                    const planner::Trajectory& reference, double horizon,
-                                   double sample_dt) {
+                                   double sample_dt, double budget) {
   auto ref = std::make_shared<const planner::Trajectory>(reference);
   const planner::PlannerOptions opts = options;
-  return [&robot, &plan_terrain, &check_terrain, opts, ref, horizon, sample_dt]() -> Replanner {
+  return [&robot, &plan_terrain, &check_terrain, opts, ref, horizon, sample_dt,
+          budget]() -> Replanner {
     std::shared_ptr<planner::PlanningSession> session;
     try {
       session = std::make_shared<planner::PlanningSession>(robot, plan_terrain, check_terrain,
@@ -47,7 +48,7 @@ ReplannerFactory session_replanner(const robot::RobotModel& robot,
     } catch (const std::invalid_argument& e) {
       throw SimulationError(std::string("re-planning session: ") + e.what());
     }
-    return [session](const MeasuredState& ms) {
+    return [session, budget](const MeasuredState& ms) {
       Replan out;
       out.start_time = ms.t;
       const planner::Trajectory& reference = session->reference();
@@ -59,9 +60,13 @@ ReplannerFactory session_replanner(const robot::RobotModel& robot,
         const planner::SrbdProblem::StartState start = planner::start_state_from_json(
             start_state_json(ms, reference.feet), "measured state", from,
             on_previous ? ms.t - t0 : ms.t);
-        planner::SessionStep step = session->step(start, ms.t);
+        planner::StepLimits limits;
+        limits.budget = budget;
+        planner::SessionStep step = session->step(start, ms.t, limits);
         out.success = step.outcome.success;
         out.iterations = step.outcome.solve.iterations;
+        out.fallback = step.fallback;
+        out.fallback_reason = step.fallback_reason;
         out.message = step.outcome.message;
         out.start_time = step.start_time;
         out.plan = std::move(step.outcome.trajectory);

@@ -496,6 +496,19 @@ double thread_cpu_seconds() {
   return ts.tv_sec + 1e-9 * ts.tv_nsec;
 }
 
+// A re-plan's figures: its wall and CPU time, iterations and whether it fell back.
+void record_replan(double t, std::chrono::steady_clock::time_point call0, double call_cpu0,
+                   const Replan& next, SimulationReport* rep) {
+  rep->replan_wall_s.push_back(
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - call0).count());
+  rep->replan_cpu_s.push_back(thread_cpu_seconds() - call_cpu0);
+  ++rep->replans;
+  if (next.iterations >= 0) rep->replan_iterations.push_back(next.iterations);
+  rep->replan_records.push_back({t, rep->replan_wall_s.back(), next.iterations,
+                                 next.fallback ? next.fallback_reason : std::string()});
+  if (next.fallback) ++rep->replan_fallbacks;
+}
+
 // MuJoCo 2.2.2 checks each step's positions, velocities and accelerations (mj_checkPos/Vel/Acc):
 // a NaN or a magnitude beyond mjMAXVAL (1e10) is warned about and the state reset to the model's
 // initial one (time 0), so the run would go on from there as if nothing had happened. A control
@@ -921,11 +934,7 @@ SimulationReport simulate(const robot::RobotModel& model, const planner::Traject
       const auto call0 = std::chrono::steady_clock::now();
       const double call_cpu0 = thread_cpu_seconds();
       Replan next = replanner(ms);
-      rep.replan_wall_s.push_back(
-          std::chrono::duration<double>(std::chrono::steady_clock::now() - call0).count());
-      rep.replan_cpu_s.push_back(thread_cpu_seconds() - call_cpu0);
-      ++rep.replans;
-      if (next.iterations >= 0) rep.replan_iterations.push_back(next.iterations);
+      record_replan(t, call0, call_cpu0, next, &rep);
       if (next.success) {
         try {
           if (next.plan.feet != plan.feet)

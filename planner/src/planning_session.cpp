@@ -2,10 +2,15 @@
 #include "terrastride/planner/planning_session.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <memory>
+#include <mutex>
 #include <sstream>
+#include <thread>
+#include <utility>
 
 #include "terrastride/planner/piece_math.hpp"
 #include "terrastride/planner/request_limits.hpp"
@@ -18,8 +23,10 @@ namespace {
 constexpr double kDenseDt = 0.002;  // as plan_motion: dense checks every 2 ms
 constexpr double kEventTol = 1e-6;
 
-double seconds_since(std::chrono::steady_clock::time_point t) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
 }
 
 // The previous plan on the session's time axis, continued by the reference after its end: the
@@ -42,6 +49,234 @@ Trajectory spliced_guess(const Trajectory& previous, double previous_start,
 }
 
 }  // namespace
+
+// One step's solve with everything it reads copied in, so that it can run on the session's
+// worker thread while the session answers without it (and goes on to later steps).
+struct StepJob {
+  const robot::RobotModel* robot = nullptr;
+  const terrain::HeightField* plan_terrain = nullptr;
+  const terrain::HeightField* check_terrain = nullptr;
+  PlannerOptions options;          // the session's
+  ProblemOptions problem_options;  // this step's (its start lead)
+  SolverOptions solver_options;
+  PhaseTimeline timeline;
+  SrbdProblem::StartState measured, pinned_end, base_end;
+  Trajectory guess;
+  double t = 0.0, end = 0.0, horizon = 0.0, sample_dt = 0.01;
+  bool to_goal = false, warm_from_late = false;
+  int step_number = 0;
+  Clock::time_point t0;
+  // Cancels the solve at its next iteration (a newer step needs the worker, or the session ends).
+  std::atomic<bool> cancel{false};
+  // Its step answered without it (set under StepWorker's mutex, read by the job as it finishes).
+  std::atomic<bool> abandoned{false};
+  bool done = false;  // under StepWorker's mutex
+  SessionStep result;
+};
+
+namespace {
+
+std::unique_ptr<SrbdProblem> build_problem(const StepJob& job,
+                                           const SrbdProblem::StartState* end_state) {
+  auto p = std::make_unique<SrbdProblem>(*job.robot, *job.plan_terrain, job.timeline,
+                                         job.problem_options, &job.measured, end_state);
+  p->warm_start_from(job.guess, job.t);
+  return p;
+}
+
+// The solve of a step: pinned end first, then (it failed, and neither its time nor a stop ended
+// it) with the end's feet free.
+std::unique_ptr<SrbdProblem> solve_job(StepJob& job) {
+  SessionStep& out = job.result;
+  std::unique_ptr<SrbdProblem> problem = build_problem(job, job.to_goal ? nullptr : &job.pinned_end);
+  out.build_s = seconds_since(job.t0);
+  PlanOutcome& o = out.outcome;
+  SolverOptions solver_options = job.solver_options;
+  const auto external_stop = solver_options.should_stop;
+  solver_options.should_stop = [&job, external_stop] {
+    return job.cancel.load() || (external_stop && external_stop());
+  };
+  // As plan_motion's re-plans: a small barrier and bound push keep the warm start.
+  std::vector<std::pair<std::string, std::string>> step_options = {
+      {"mu_init", "1e-4"}, {"bound_push", "1e-5"}, {"bound_frac", "1e-5"},
+      // A step's constraint Jacobian is rank-deficient (Ipopt's first factorisation of every
+      // iteration, without the constraints' regularisation delta_c, failed as singular in MUMPS
+      // after its full set-up, until Ipopt had seen three such iterations): the regularisation
+      // from the first, and no MUMPS scaling (the forces are already scaled to body weights,
+      // SrbdTnlp::get_scaling_parameters), which MUMPS recomputed for every factorisation.
+      {"perturb_always_cd", "yes"}, {"mumps_scaling", "0"}};
+  // TERRASTRIDE_STEP_IPOPT_OPTIONS adds Ipopt options to session steps only (tuning runs;
+  // TERRASTRIDE_IPOPT_OPTIONS would change the reference's cold solve too).
+  for (auto& option : ipopt_options_from_env("TERRASTRIDE_STEP_IPOPT_OPTIONS"))
+    step_options.push_back(std::move(option));
+  const double cap = solver_options.max_time;
+  o.solve = solve(*problem, solver_options, step_options);
+  const bool stopped = o.solve.status == "time_limit" || solver_options.should_stop();
+  if (!o.solve.success && !job.to_goal && !stopped) {
+    const SolveResult pinned = o.solve;
+    out.feet_freed = true;
+    out.pinned_feet_status = pinned.status;
+    out.pinned_feet_iterations = pinned.iterations;
+    problem = build_problem(job, &job.base_end);
+    if (cap > 0.0) solver_options.max_time = std::max(0.001, cap - seconds_since(job.t0));
+    o.solve = solve(*problem, solver_options, step_options);
+    // The step's solver figures cover both solves.
+    o.solve.iterations += pinned.iterations;
+    o.solve.wall_s += pinned.wall_s;
+  }
+  o.success = o.solve.success;
+  return problem;
+}
+
+// The solved step as a plan: samples, solver figures, dense checks, and why it failed.
+void run_job(StepJob& job) {
+  const std::unique_ptr<SrbdProblem> problem = solve_job(job);
+  SessionStep& out = job.result;
+  out.start_time = job.t;
+  out.end_time = job.end;
+  out.to_goal = job.to_goal;
+  out.warm_from_late_solve = job.warm_from_late;
+  PlanOutcome& o = out.outcome;
+  // A cancelled solve is of no use to anyone: no samples, no checks (their CPU would be taken
+  // from the step that cancelled it).
+  if (job.cancel.load() && !o.success) return;
+  const auto t_after_solve = Clock::now();
+  o.trajectory = sample_solution(*problem, o.solve.x, job.sample_dt);
+  auto& st = o.trajectory.solver;
+  st.status = o.solve.status;
+  st.iterations = o.solve.iterations;
+  st.wall_s = o.solve.wall_s;
+  st.n_variables = problem->num_free_variables();
+  st.n_constraints = problem->num_constraints();
+  auto& ex = o.trajectory.extra;
+  ex["solver_max_violation"] = o.solve.max_violation;
+  ex["solver_termination"] = o.solve.termination;
+  ex["constraints"] = job.options.constraints;
+  ex["path_line"] = path_line_json(job.options);
+  ex["start_time"] = job.t;
+  ex["session"] = {{"step", job.step_number}, {"end_time", job.end}, {"to_goal", job.to_goal},
+                   {"horizon", job.horizon}};
+  // The measured start's own violations (rows on it alone, left out of the solve).
+  if (!problem->start_excess().empty()) ex["start_excess"] = problem->start_excess();
+  if (!problem->end_excess().empty()) ex["session"]["end_excess"] = problem->end_excess();
+  if (out.feet_freed)
+    ex["session"]["end_feet_freed"] = {{"pinned_status", out.pinned_feet_status},
+                                       {"pinned_iterations", out.pinned_feet_iterations}};
+  // A plan whose step has answered without it is only a warm start: no dense checks.
+  if (!job.abandoned.load()) {
+    DenseCheckLimits lim;
+    lim.friction = job.options.friction;
+    lim.max_normal_force = job.options.max_normal_force_factor * job.robot->mass * kGravity;
+    o.trajectory.checks = dense_checks(*job.robot, *job.check_terrain,
+                                       sample_solution(*problem, o.solve.x, kDenseDt), lim);
+    ex["checks_dt"] = kDenseDt;
+  }
+  ex["timings"] = {{"build_s", out.build_s},
+                   {"solve_s", o.solve.wall_s},
+                   {"sample_and_checks_s", seconds_since(t_after_solve)},
+                   {"total_s", seconds_since(job.t0)}};
+  if (o.success) return;
+  std::ostringstream m;
+  m << "the re-plan from t = " << job.t << " s ended with status '" << o.solve.status
+    << "' after " << o.solve.iterations << " iterations; largest constraint violation "
+    << o.solve.max_violation;
+  const auto left = violated_families(*problem, o.solve.x, job.options.tolerance);
+  if (!left.empty()) m << "; still violated: " << describe_violations(left);
+  for (const auto& [kind, excess] : problem->start_excess())
+    m << "; the measured start exceeds " << kind << " by " << excess;
+  for (const auto& [kind, excess] : problem->end_excess())
+    m << "; the pinned end exceeds " << kind << " by " << excess;
+  m << " (the session keeps its previous plan)";
+  o.message = m.str();
+  ex["failure"] = o.message;
+}
+
+// A timeline as plan.json writes it ("timeline") and the per-foot phases it implies ("phases").
+void write_timeline(const PhaseTimeline& tl, nlohmann::json* extra) {
+  nlohmann::json contact = nlohmann::json::array(), phases = nlohmann::json::object();
+  for (std::size_t f = 0; f < tl.feet.size(); ++f) {
+    contact.push_back(tl.contact[f]);
+    nlohmann::json list = nlohmann::json::array();
+    for (const auto& ph : tl.phases(static_cast<int>(f)))
+      list.push_back({{"start", ph.start}, {"end", ph.end}, {"contact", ph.contact}});
+    phases[tl.feet[f]] = list;
+  }
+  (*extra)["timeline"] = {{"events", tl.events}, {"contact", contact}};
+  if (tl.first_interval_elapsed > 0.0)
+    (*extra)["timeline"]["first_interval_elapsed"] = tl.first_interval_elapsed;
+  if (!tl.swing_elapsed.empty()) (*extra)["timeline"]["swing_elapsed"] = tl.swing_elapsed;
+  (*extra)["phases"] = phases;
+}
+
+}  // namespace
+
+// The session's solver thread. One solve at a time: a step submits its job and waits for it
+// until its answer is due; a job still running when the next is submitted is cancelled (through
+// the solver's per-iteration callback), so a step never queues behind a stale solve for longer
+// than that solve's current iteration, and the step's own wait is bounded by its deadline anyway.
+// A job that finishes with a plan after its step answered is kept (take_late): the session adopts
+// it as its current plan at the next step (the next step's warm start, and its fallback).
+class StepWorker {
+ public:
+  ~StepWorker() {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      stop_ = true;
+      if (running_) running_->cancel = true;
+    }
+    wake_.notify_all();
+    if (thread_.joinable()) thread_.join();
+  }
+  void submit(std::shared_ptr<StepJob> job) {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (running_) running_->cancel = true;
+    pending_ = std::move(job);  // a job not started yet is dropped: its step has answered
+    if (!thread_.joinable()) thread_ = std::thread([this] { run(); });
+    wake_.notify_all();
+  }
+  // True when `job` finished by `until`; else it is marked abandoned and runs on.
+  bool wait(StepJob& job, Clock::time_point until) {
+    std::unique_lock<std::mutex> lock(mu_);
+    if (done_.wait_until(lock, until, [&] { return job.done; })) return true;
+    job.abandoned = true;
+    return false;
+  }
+  // Cancels the running job and drops a pending one (a step that solves in its own thread).
+  void cancel_all() {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (running_) running_->cancel = true;
+    pending_.reset();
+  }
+  // The newest abandoned job that finished with a plan, once.
+  std::shared_ptr<StepJob> take_late() {
+    std::lock_guard<std::mutex> lock(mu_);
+    return std::move(late_);
+  }
+
+ private:
+  void run() {
+    std::unique_lock<std::mutex> lock(mu_);
+    for (;;) {
+      wake_.wait(lock, [&] { return stop_ || pending_; });
+      if (stop_) return;
+      running_ = std::move(pending_);
+      const std::shared_ptr<StepJob> job = running_;
+      lock.unlock();
+      run_job(*job);
+      lock.lock();
+      job->done = true;
+      running_.reset();
+      if (job->abandoned && job->result.outcome.success) late_ = job;
+      done_.notify_all();
+    }
+  }
+  std::mutex mu_;
+  std::condition_variable wake_, done_;
+  std::shared_ptr<StepJob> pending_, running_, late_;
+  bool stop_ = false;
+  std::thread thread_;
+};
+
 
 PhaseTimeline truncated_timeline(const PhaseTimeline& timeline, double end) {
   PhaseTimeline out = timeline;
@@ -104,9 +339,68 @@ std::size_t PlanningSession::memory_bytes() const {
   return sizeof(*this) + plan_bytes(reference_) + plan_bytes(previous_);
 }
 
-SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, double t,
-                                  const StepLimits& limits) {
-  const auto t0 = std::chrono::steady_clock::now();
+PlanningSession::~PlanningSession() = default;
+
+Trajectory PlanningSession::current_plan_from(double t, double end) const {
+  Trajectory out;
+  out.robot = reference_.robot;
+  out.gait = reference_.gait;
+  out.feet = reference_.feet;
+  out.sample_dt = sample_dt_;
+  const double T = reference_.duration;
+  end = std::min(std::max(end, t), T);
+  out.duration = end - t;
+  const double prev_end = previous_start_ + previous_.duration;
+  const int n = static_cast<int>(std::ceil(out.duration / sample_dt_ - 1e-9));
+  for (int i = 0; i <= n; ++i) {
+    const double tau = std::min(t + i * sample_dt_, end);
+    TrajectorySample s = tau >= previous_start_ && tau <= prev_end
+                             ? interpolate_plan(previous_, tau - previous_start_)
+                             : interpolate_plan(reference_, tau);
+    s.t = tau - t;
+    out.samples.push_back(std::move(s));
+  }
+  PhaseTimeline tl = reference_timeline_.cropped(std::min(t, T - kEventTol));
+  if (end < T - kEventTol) tl = truncated_timeline(tl, end - t);
+  write_timeline(tl, &out.extra);
+  out.extra["start_time"] = t;
+  return out;
+}
+
+SessionStep PlanningSession::fallback_step(const StepJob& job, const std::string& reason,
+                                           const std::string& message) const {
+  SessionStep out;
+  out.start_time = job.t;
+  out.end_time = job.end;
+  out.to_goal = job.to_goal;
+  out.fallback = true;
+  out.fallback_reason = reason;
+  out.warm_from_late_solve = job.warm_from_late;
+  PlanOutcome& o = out.outcome;
+  o.success = true;
+  o.message = message;
+  o.trajectory = current_plan_from(job.t, job.end);
+  o.trajectory.solver.status = "fallback";
+  auto& ex = o.trajectory.extra;
+  ex["constraints"] = options_.constraints;
+  ex["path_line"] = path_line_json(options_);
+  ex["session"] = {{"step", job.step_number}, {"end_time", job.end}, {"to_goal", job.to_goal},
+                   {"horizon", horizon_},     {"fallback", true},      {"fallback_reason", reason},
+                   {"fallback_message", message}};
+  return out;
+}
+
+void PlanningSession::adopt_late_solve() {
+  if (!worker_) return;
+  const std::shared_ptr<StepJob> job = worker_->take_late();
+  if (!job || job->t <= previous_start_) return;
+  previous_ = std::move(job->result.outcome.trajectory);
+  previous_start_ = job->t;
+  adopted_late_ = true;
+}
+
+std::shared_ptr<StepJob> PlanningSession::prepare(const SrbdProblem::StartState& measured,
+                                                  double t, const StepLimits& limits) {
   const double T = reference_.duration;
   // The last 0.1 s of the plan are its final rest: nothing left to re-plan.
   if (!(t >= 0.0) || !(t < T - 0.1))
@@ -121,7 +415,17 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   for (const auto* v : {&measured.position, &measured.euler_zyx, &measured.linear_velocity,
                         &measured.euler_rates})
     if (!v->allFinite()) throw RequestError("start_state", "must hold finite numbers");
-
+  auto job = std::make_shared<StepJob>();
+  job->t0 = Clock::now();
+  job->robot = &robot_;
+  job->plan_terrain = &plan_terrain_;
+  job->check_terrain = &check_terrain_;
+  job->options = options_;
+  job->measured = measured;
+  job->t = t;
+  job->horizon = horizon_;
+  job->sample_dt = sample_dt_;
+  job->step_number = steps_ + 1;
   // Where this step ends: the first contact switch at or after t + H with no foot in mid-swing
   // across it (a swing cut at the horizon would lose its touch-down), else the goal.
   const auto& ev = reference_timeline_.events;
@@ -136,9 +440,10 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
         break;
       }
     }
-  const bool to_goal = end >= T - kEventTol;
-  PhaseTimeline timeline = reference_timeline_.cropped(t);
-  if (!to_goal) timeline = truncated_timeline(timeline, end - t);
+  job->end = end;
+  job->to_goal = end >= T - kEventTol;
+  job->timeline = reference_timeline_.cropped(t);
+  if (!job->to_goal) job->timeline = truncated_timeline(job->timeline, end - t);
 
   // A horizon's end is pinned to the reference as the problem is built, so that the rows of
   // every constraint set see it as fixed (built after, the path-shape rows on it were constants).
@@ -147,116 +452,89 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
   // spanning it has one foothold variable, a knot one force: free, they cost the horizon-end
   // moves 7-11 iterations instead of 3, docs/design.md §6.7). A step that fails so is solved again
   // with the end's feet and forces free: after a push the recovery may need others.
-  SrbdProblem::StartState pinned_end = start_state_of(reference_, end);
+  job->pinned_end = start_state_of(reference_, end);
   // Its forces there: those just before the end (the end is a contact switch; a foot touching
   // down at it has no force variable at the end knot).
   for (const auto& f : interpolate_plan(reference_, end - kEventTol).feet)
-    pinned_end.foot_force.push_back(f.contact ? f.force : Eigen::Vector3d::Zero());
+    job->pinned_end.foot_force.push_back(f.contact ? f.force : Eigen::Vector3d::Zero());
   // A measured state ahead of the reference may return to it (monotone_progress).
-  ProblemOptions step_problem_options = options_;
-  set_start_lead_of(reference_, t, measured, &step_problem_options);
-  SrbdProblem::StartState base_end = pinned_end;
-  base_end.foot_position.clear();
-  base_end.foot_velocity.clear();
-  base_end.foot_force.clear();
-  const Trajectory guess = spliced_guess(previous_, previous_start_, reference_);
-  auto build = [&](const SrbdProblem::StartState* end_state) {
-    auto p = std::make_unique<SrbdProblem>(robot_, plan_terrain_, timeline, step_problem_options,
-                                           &measured, end_state);
-    p->warm_start_from(guess, t);
-    return p;
-  };
-  std::unique_ptr<SrbdProblem> problem = build(to_goal ? nullptr : &pinned_end);
-  SessionStep out;
-  out.start_time = t;
-  out.end_time = end;
-  out.to_goal = to_goal;
-  out.build_s = seconds_since(t0);
-  // As plan_motion's re-plans: a small barrier and bound push keep the warm start.
-  PlanOutcome& o = out.outcome;
-  SolverOptions solver_options = options_;
-  if (limits.should_stop) solver_options.should_stop = limits.should_stop;
-  if (limits.max_time > 0.0) solver_options.max_time = limits.max_time;
-  std::vector<std::pair<std::string, std::string>> step_options = {
-      {"mu_init", "1e-4"}, {"bound_push", "1e-5"}, {"bound_frac", "1e-5"},
-      // A step's constraint Jacobian is rank-deficient (Ipopt's first factorisation of every
-      // iteration, without the constraints' regularisation delta_c, failed as singular in MUMPS
-      // after its full set-up, until Ipopt had seen three such iterations): the regularisation
-      // from the first, and no MUMPS scaling (the forces are already scaled to body weights,
-      // SrbdTnlp::get_scaling_parameters), which MUMPS recomputed for every factorisation.
-      {"perturb_always_cd", "yes"}, {"mumps_scaling", "0"}};
-  // TERRASTRIDE_STEP_IPOPT_OPTIONS adds Ipopt options to session steps only (tuning runs;
-  // TERRASTRIDE_IPOPT_OPTIONS would change the reference's cold solve too).
-  for (auto& option : ipopt_options_from_env("TERRASTRIDE_STEP_IPOPT_OPTIONS"))
-    step_options.push_back(std::move(option));
-  o.solve = solve(*problem, solver_options, step_options);
-  const bool stopped = o.solve.status == "time_limit" ||
-                       (limits.should_stop && limits.should_stop());
-  if (!o.solve.success && !to_goal && !stopped) {
-    const SolveResult pinned = o.solve;
-    out.feet_freed = true;
-    out.pinned_feet_status = pinned.status;
-    out.pinned_feet_iterations = pinned.iterations;
-    problem = build(&base_end);
-    if (limits.max_time > 0.0)
-      solver_options.max_time = std::max(0.001, limits.max_time - seconds_since(t0));
-    o.solve = solve(*problem, solver_options, step_options);
-    // The step's solver figures cover both solves.
-    o.solve.iterations += pinned.iterations;
-    o.solve.wall_s += pinned.wall_s;
+  job->problem_options = options_;
+  set_start_lead_of(reference_, t, measured, &job->problem_options);
+  job->base_end = job->pinned_end;
+  job->base_end.foot_position.clear();
+  job->base_end.foot_velocity.clear();
+  job->base_end.foot_force.clear();
+  job->warm_from_late = std::exchange(adopted_late_, false);
+  job->guess = spliced_guess(previous_, previous_start_, reference_);
+  job->solver_options = options_;
+  if (limits.should_stop) job->solver_options.should_stop = limits.should_stop;
+  if (limits.max_time > 0.0) job->solver_options.max_time = limits.max_time;
+  // With a budget the solve may run on past the step's answer, up to four budgets in all, for a late
+  // plan the next step can start from; the next step's job cancels it sooner.
+  if (limits.budget > 0.0) {
+    const double cap = 4.0 * limits.budget;
+    const double& m = job->solver_options.max_time;
+    job->solver_options.max_time = m > 0.0 ? std::min(m, cap) : cap;
   }
-  o.success = o.solve.success;
-  const auto t_after_solve = std::chrono::steady_clock::now();
-  o.trajectory = sample_solution(*problem, o.solve.x, sample_dt_);
-  auto& st = o.trajectory.solver;
-  st.status = o.solve.status;
-  st.iterations = o.solve.iterations;
-  st.wall_s = o.solve.wall_s;
-  st.n_variables = problem->num_free_variables();
-  st.n_constraints = problem->num_constraints();
-  auto& ex = o.trajectory.extra;
-  ex["solver_max_violation"] = o.solve.max_violation;
-  ex["solver_termination"] = o.solve.termination;
-  ex["constraints"] = options_.constraints;
-  ex["path_line"] = path_line_json(options_);
-  ex["start_time"] = t;
-  ex["session"] = {{"step", steps_ + 1}, {"end_time", end}, {"to_goal", to_goal},
-                   {"horizon", horizon_}};
-  // The measured start's own violations (rows on it alone, left out of the solve).
-  if (!problem->start_excess().empty()) ex["start_excess"] = problem->start_excess();
-  if (!problem->end_excess().empty()) ex["session"]["end_excess"] = problem->end_excess();
-  if (out.feet_freed)
-    ex["session"]["end_feet_freed"] = {{"pinned_status", out.pinned_feet_status},
-                                       {"pinned_iterations", out.pinned_feet_iterations}};
-  DenseCheckLimits lim;
-  lim.friction = options_.friction;
-  lim.max_normal_force = options_.max_normal_force_factor * robot_.mass * kGravity;
-  o.trajectory.checks =
-      dense_checks(robot_, check_terrain_, sample_solution(*problem, o.solve.x, kDenseDt), lim);
-  ex["checks_dt"] = kDenseDt;
-  ex["timings"] = {{"build_s", out.build_s},
-                   {"solve_s", o.solve.wall_s},
-                   {"sample_and_checks_s", seconds_since(t_after_solve)},
-                   {"total_s", seconds_since(t0)}};
+  return job;
+}
+
+SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, double t,
+                                  const StepLimits& limits) {
+  const auto t0 = Clock::now();
+  if (!(limits.budget >= 0.0) || !(limits.reserve >= 0.0) || !std::isfinite(limits.budget))
+    throw RequestError("budget", "must be a finite number of seconds >= 0 (0 = none)");
+  adopt_late_solve();
+  const std::shared_ptr<StepJob> job = prepare(measured, t, limits);
   ++steps_;
-  if (!o.success) {
-    std::ostringstream m;
-    m << "the re-plan from t = " << t << " s ended with status '" << o.solve.status << "' after "
-      << o.solve.iterations << " iterations; largest constraint violation "
-      << o.solve.max_violation;
-    const auto left = violated_families(*problem, o.solve.x, options_.tolerance);
-    if (!left.empty()) m << "; still violated: " << describe_violations(left);
-    for (const auto& [kind, excess] : problem->start_excess())
-      m << "; the measured start exceeds " << kind << " by " << excess;
-    for (const auto& [kind, excess] : problem->end_excess())
-      m << "; the pinned end exceeds " << kind << " by " << excess;
-    m << " (the session keeps its previous plan)";
-    o.message = m.str();
-    ex["failure"] = o.message;
-    return out;
+  SessionStep out;
+  if (limits.budget > 0.0) {
+    if (!worker_) worker_ = std::make_unique<StepWorker>();
+    // The step answers its own measured lateness early (how long after its answer was due it
+    // returned, a decaying maximum: on a loaded machine the scheduler's), as well as the
+    // caller's reserve, but gives the solve at least 40 % of the budget.
+    const double answer_in =
+        std::max(0.4 * limits.budget, limits.budget - limits.reserve - late_s_);
+    worker_->submit(job);
+    // The fallback is made while the solve runs (the other core), so that at the deadline the
+    // step only has to return: on a loaded machine even a millisecond of work at the deadline
+    // becomes several.
+    out = fallback_step(*job, "deadline", "");
+    if (!worker_->wait(*job, t0 + std::chrono::duration_cast<Clock::duration>(
+                                      std::chrono::duration<double>(answer_in)))) {
+      std::ostringstream m;
+      m << "the re-plan from t = " << t << " s had not finished " << 1e3 * answer_in
+        << " ms into its " << 1e3 * limits.budget << " ms budget; the session's current plan "
+        << "from t stands (the solve runs on until the next step as its warm start)";
+      out.outcome.message = m.str();
+      out.outcome.trajectory.extra["session"]["fallback_message"] = out.outcome.message;
+      out.wall_s = seconds_since(t0);
+      late_s_ = std::max(0.9 * late_s_, out.wall_s - answer_in);
+      return out;
+    }
+    if (!job->result.outcome.success) {
+      out.fallback_reason = "solve_failed";
+      out.outcome.message = job->result.outcome.message;
+      auto& session_json = out.outcome.trajectory.extra["session"];
+      session_json["fallback_reason"] = out.fallback_reason;
+      session_json["fallback_message"] = out.outcome.message;
+      out.outcome.solve = job->result.outcome.solve;
+      out.outcome.trajectory.solver.iterations = job->result.outcome.solve.iterations;
+      out.outcome.trajectory.solver.wall_s = job->result.outcome.solve.wall_s;
+      out.wall_s = seconds_since(t0);
+      return out;
+    }
+    out = std::move(job->result);
+  } else {
+    if (worker_) worker_->cancel_all();
+    run_job(*job);
+    out = std::move(job->result);
   }
-  previous_ = o.trajectory;
-  previous_start_ = t;
+  if (out.outcome.success) {
+    previous_ = out.outcome.trajectory;
+    previous_start_ = t;
+  }
+  out.wall_s = seconds_since(t0);
   return out;
 }
 

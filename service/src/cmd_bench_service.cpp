@@ -49,10 +49,17 @@ struct BenchOptions {
   double rate = 0;  // requests per second per client; 0 = back to back (saturation)
   // Replan mode: a planning session on pallet_15 with every constraint set.
   int replan_steps = 50;
+  double replan_budget_ms = 50.0;  // plan.session.step "budget_ms"
+  // Steps are sent this far apart in wall time (s), as a control loop at 10 Hz sends them (the
+  // session's time advances 0.1 s per step); 0: each as soon as the previous reply arrived.
+  double replan_period = 0.1;
   double horizon = 1.0;
   std::string replan_scene = "pallet_15";
   std::string replan_constraints = "all";
-  std::string replan_samples = "json";  // a step reply's samples: "json" or "attachment"
+  // A step reply's samples: "attachment" (the float32 table a client stepping at 10-20 Hz uses:
+  // 130-220 KB of JSON samples per reply cost 20-30 ms of a loaded machine outside the step) or
+  // "json".
+  std::string replan_samples = "attachment";
   // Hostile mode.
   int slowloris = 32;      // connections per slow-frame case
   double max_wait_s = 15;  // longest wait for the server to close a hostile connection
@@ -760,23 +767,8 @@ json samples_from_table(const protocol::Message& reply) {
   return r;
 }
 
-// A planning session (plan.session.open: the cold solve), then steps 0.1 s apart, each from the
-// current plan's state at that time 1 cm to the side and 0.05 m/s faster (a robot's measured
-// state), timed as the client sees them (send to reply). The cold figure is the open's round
-// trip minus nothing: the reference plan's solve and everything around it, as a `plan` would be.
-json bench_replan(const BenchOptions& o, bool in_process) {
-  Client c = connect(o);
-  c.set_timeout(600);
-  const auto t_open = Clock::now();
-  const json ref = c.call_ok({{"op", "plan.session.open"},
-                              {"terrain", o.replan_scene},
-                              {"constraints", o.replan_constraints},
-                              {"horizon", o.horizon}});
-  const double cold_ms = ms_since(t_open);
-  const std::string id = ref["session"];
-  json current = ref;
-  double current_start = 0.0;
-  const double duration = ref["duration"];
+// What the replan mode measures, step by step.
+struct ReplanTally {
   std::vector<double> latencies, solves;
   // Where a step's time goes, from the reply's "timings" (server side): building the problem and
   // its warm start, the solve, sampling and dense checks, and the step in all.
@@ -786,60 +778,36 @@ json bench_replan(const BenchOptions& o, bool in_process) {
   // in-process (load-independent, unlike the wall times), and one record per step for the tail.
   std::vector<double> per_iteration, cpu, outside_server;
   json records = json::array();
-  int failures = 0, iterations = 0;
-  for (int k = 1; k <= o.replan_steps; ++k) {
-    // Wrap round the plan (a new session when it ends), so any number of steps fit.
-    const double t = std::fmod(0.1 * k, duration - 0.2);
-    if (t < current_start) {
-      current = ref;
-      current_start = 0.0;
-    }
-    const json* at = nullptr;
-    for (const json& s : current["samples"])
-      if (s["t"].get<double>() + current_start >= t - 1e-6) {  // float32 times in tables
-        at = &s;
-        break;
-      }
-    if (!at) at = &current["samples"].back();
-    json base = {{"position", (*at)["base"]["position"]},
-                 {"linear_velocity", (*at)["base"]["linear_velocity"]}};
-    base["position"][1] = base["position"][1].get<double>() + 0.01;
-    base["linear_velocity"][0] = base["linear_velocity"][0].get<double>() + 0.05;
-    const double cpu0 = process_cpu_ms();
-    const auto t0 = Clock::now();
-    const auto reply = c.call({{"op", "plan.session.step"},
-                               {"session", id},
-                               {"time", t},
-                               {"start_state", {{"base", base}}},
-                               {"samples", o.replan_samples}});
-    const double latency = ms_since(t0);
-    const double step_cpu = process_cpu_ms() - cpu0;
-    latencies.push_back(latency);
-    json rec = {{"t", t}, {"latency_ms", latency}};
-    if (in_process) {
-      cpu.push_back(step_cpu);
-      rec["cpu_ms"] = step_cpu;
-    }
-    if (!reply.header.value("ok", false)) {
-      ++failures;
-      const json error = reply.header.value("error", json::object());
-      rec["failed"] = error.value("message", std::string());
-      records.push_back(rec);
-      continue;
-    }
+  int failures = 0, iterations = 0, fallbacks = 0, deadline_fallbacks = 0, misses = 0;
+  int late_warm = 0, sessions = 1;
+
+  // A step's reply (ok) into the figures and its record.
+  void add_reply(const protocol::Message& reply, double latency, json* rec) {
     const json& r = reply.header["result"];
+    if (r.value("fallback", false)) {
+      ++fallbacks;
+      const std::string why = r.value("fallback_reason", std::string());
+      deadline_fallbacks += why == "deadline";
+      (*rec)["fallback"] = why;
+    }
+    late_warm += r.value("warm_from_late_solve", false);
     const double solve_ms = 1e3 * r["solver"]["wall_s"].get<double>();
     const int its = r["solver"]["iterations"].get<int>();
-    solves.push_back(solve_ms);
-    if (its > 0) per_iteration.push_back(solve_ms / its);
-    rec["iterations"] = its;
-    rec["solve_ms"] = solve_ms;
-    rec["variables"] = r["solver"].value("n_variables", 0);
-    rec["constraints"] = r["solver"].value("n_constraints", 0);
-    rec["end_time"] = r.value("end_time", 0.0);
+    // A fallback's solver figures are those of no solve (or of a failed one).
+    if (!rec->contains("fallback")) {
+      solves.push_back(solve_ms);
+      if (its > 0) per_iteration.push_back(solve_ms / its);
+      iterations += its;
+    }
+    (*rec)["iterations"] = its;
+    (*rec)["solve_ms"] = solve_ms;
+    (*rec)["step_ms"] = r.value("step_ms", 0.0);
+    (*rec)["variables"] = r["solver"].value("n_variables", 0);
+    (*rec)["constraints"] = r["solver"].value("n_constraints", 0);
+    (*rec)["end_time"] = r.value("end_time", 0.0);
     std::size_t reply_bytes = reply.header.dump().size();
     for (const auto& a : reply.attachments) reply_bytes += a.data.size();
-    rec["reply_bytes"] = reply_bytes;
+    (*rec)["reply_bytes"] = reply_bytes;
     if (r.contains("timings")) {
       const json& tm = r["timings"];
       builds.push_back(1e3 * tm.value("build_s", 0.0));
@@ -848,40 +816,136 @@ json bench_replan(const BenchOptions& o, bool in_process) {
       // The reply's JSON, the socket and the client's parsing: the client's latency minus the
       // step in the server.
       outside_server.push_back(latency - server_totals.back());
-      rec["build_ms"] = builds.back();
-      rec["server_ms"] = server_totals.back();
+      (*rec)["build_ms"] = builds.back();
+      (*rec)["server_ms"] = server_totals.back();
     }
-    records.push_back(rec);
-    iterations += its;
-    current = o.replan_samples == "attachment" ? samples_from_table(reply) : r;
+  }
+  json to_json(const BenchOptions& o, const json& ref, double cold_ms) const {
+    json j = {{"scene", o.replan_scene},
+              {"constraints", o.replan_constraints},
+              {"horizon_s", o.horizon},
+              {"samples", o.replan_samples},
+              {"cold_ms", cold_ms},
+              {"cold_solve_ms", 1e3 * ref["solver"]["wall_s"].get<double>()},
+              {"cold_iterations", ref["solver"]["iterations"]},
+              {"steps", o.replan_steps},
+              {"sessions", sessions},
+              {"budget_ms", o.replan_budget_ms},
+              {"period_s", o.replan_period},
+              {"failures", failures},
+              {"fallbacks", fallbacks},
+              {"deadline_fallbacks", deadline_fallbacks},
+              {"deadline_misses", misses},
+              {"warm_from_late_solve", late_warm},
+              {"iterations_per_step", static_cast<double>(iterations) /
+                                          std::max<std::size_t>(1, solves.size())},
+              {"latency", latency_json(latencies)},
+              {"solve", latency_json(solves)},
+              {"build", latency_json(builds)},
+              {"sample_and_checks", latency_json(checks)},
+              {"server_total", latency_json(server_totals)},
+              {"solve_per_iteration", latency_json(per_iteration)},
+              {"outside_server", latency_json(outside_server)},
+              {"step_records", records}};
+    if (!cpu.empty()) j["cpu"] = latency_json(cpu);
+    if (j["latency"].contains("p50_ms")) {
+      j["median_over_cold"] = j["latency"]["p50_ms"].get<double>() / cold_ms;
+      j["targets"] = {{"median_over_cold_max", 0.05}, {"p99_ms_max", 50.0}, {"max_ms_max", 60.0}};
+    }
+    return j;
+  }
+};
+
+// The measured base a step sends: the current plan's at session time t, 1 cm to the side and
+// 0.05 m/s faster.
+json measured_base(const json& current, double current_start, double t) {
+  const json* at = nullptr;
+  for (const json& s : current["samples"])
+    if (s["t"].get<double>() + current_start >= t - 1e-6) {  // float32 times in tables
+      at = &s;
+      break;
+    }
+  if (!at) at = &current["samples"].back();
+  json base = {{"position", (*at)["base"]["position"]},
+               {"linear_velocity", (*at)["base"]["linear_velocity"]}};
+  base["position"][1] = base["position"][1].get<double>() + 0.01;
+  base["linear_velocity"][0] = base["linear_velocity"][0].get<double>() + 0.05;
+  return base;
+}
+
+// A planning session (plan.session.open: the cold solve), then steps 0.1 s apart, each from the
+// current plan's state at that time 1 cm to the side and 0.05 m/s faster (a robot's measured
+// state), timed as the client sees them (send to reply), each with budget_ms. The cold figure is
+// the open's round trip: the reference plan's solve and everything around it, as a `plan`
+// would be. A motion holds about duration / 0.1 steps; the next session (the same motion as its
+// reference, "init": no solve) begins where the previous one ended, as a robot's next motion would.
+json bench_replan(const BenchOptions& o, bool in_process) {
+  Client c = connect(o);
+  c.set_timeout(600);
+  const auto t_open = Clock::now();
+  const json ref = c.call_ok({{"op", "plan.session.open"},
+                              {"terrain", o.replan_scene},
+                              {"constraints", o.replan_constraints},
+                              {"horizon", o.horizon}});
+  const double cold_ms = ms_since(t_open);
+  std::string id = ref["session"];
+  json init = ref;
+  for (const char* k : {"session", "horizon", "memory_bytes", "success"}) init.erase(k);
+  json current = ref;
+  double current_start = 0.0, session_origin = 0.0;
+  const double duration = ref["duration"];
+  ReplanTally tally;
+  const auto loop_start = Clock::now();
+  for (int k = 1; k <= o.replan_steps; ++k) {
+    double t = 0.1 * k - session_origin;
+    if (t >= duration - 0.2) {
+      c.call_ok({{"op", "plan.session.close"}, {"session", id}});
+      id = c.call_ok({{"op", "plan.session.open"},
+                      {"terrain", o.replan_scene},
+                      {"init", init},
+                      {"horizon", o.horizon}})["session"];
+      ++tally.sessions;
+      session_origin = 0.1 * (k - 1);
+      t = 0.1 * k - session_origin;
+      current = ref;
+      current_start = 0.0;
+    }
+    if (o.replan_period > 0 && k > 1)
+      std::this_thread::sleep_until(loop_start + std::chrono::duration_cast<Clock::duration>(
+                                                     std::chrono::duration<double>(
+                                                         o.replan_period * (k - 1))));
+    const double cpu0 = process_cpu_ms();
+    const auto t0 = Clock::now();
+    const auto reply = c.call({{"op", "plan.session.step"},
+                               {"session", id},
+                               {"time", t},
+                               {"start_state", {{"base", measured_base(current, current_start, t)}}},
+                               {"budget_ms", o.replan_budget_ms},
+                               {"samples", o.replan_samples}});
+    const double latency = ms_since(t0);
+    const double step_cpu = process_cpu_ms() - cpu0;
+    if (o.replan_budget_ms > 0 && latency > o.replan_budget_ms) ++tally.misses;
+    tally.latencies.push_back(latency);
+    json rec = {{"t", t}, {"session_t0", session_origin}, {"latency_ms", latency}};
+    if (in_process) {
+      tally.cpu.push_back(step_cpu);
+      rec["cpu_ms"] = step_cpu;
+    }
+    if (!reply.header.value("ok", false)) {
+      ++tally.failures;
+      const json error = reply.header.value("error", json::object());
+      rec["failed"] = error.value("message", std::string());
+      tally.records.push_back(rec);
+      continue;
+    }
+    tally.add_reply(reply, latency, &rec);
+    tally.records.push_back(rec);
+    current = o.replan_samples == "attachment" ? samples_from_table(reply)
+                                               : reply.header["result"];
     current_start = t;
   }
   c.call_ok({{"op", "plan.session.close"}, {"session", id}});
-  json j = {{"scene", o.replan_scene},
-            {"constraints", o.replan_constraints},
-            {"horizon_s", o.horizon},
-            {"samples", o.replan_samples},
-            {"cold_ms", cold_ms},
-            {"cold_solve_ms", 1e3 * ref["solver"]["wall_s"].get<double>()},
-            {"cold_iterations", ref["solver"]["iterations"]},
-            {"steps", o.replan_steps},
-            {"failures", failures},
-            {"iterations_per_step", static_cast<double>(iterations) /
-                                        std::max<std::size_t>(1, solves.size())},
-            {"latency", latency_json(latencies)},
-            {"solve", latency_json(solves)},
-            {"build", latency_json(builds)},
-            {"sample_and_checks", latency_json(checks)},
-            {"server_total", latency_json(server_totals)},
-            {"solve_per_iteration", latency_json(per_iteration)},
-            {"outside_server", latency_json(outside_server)},
-            {"step_records", records}};
-  if (!cpu.empty()) j["cpu"] = latency_json(cpu);
-  if (j["latency"].contains("p50_ms")) {
-    j["median_over_cold"] = j["latency"]["p50_ms"].get<double>() / cold_ms;
-    j["targets"] = {{"median_over_cold_max", 0.10}, {"p99_ms_max", 50.0}};
-  }
-  return j;
+  return tally.to_json(o, ref, cold_ms);
 }
 
 void print_latency(const std::string& label, const json& j) {
@@ -889,6 +953,35 @@ void print_latency(const std::string& label, const json& j) {
   std::cout << std::fixed << std::setprecision(3) << label << "p50 " << j["p50_ms"].get<double>()
             << " ms, p90 " << j["p90_ms"].get<double>() << " ms, p99 " << j["p99_ms"].get<double>()
             << " ms, max " << j["max_ms"].get<double>() << " ms (" << j["count"] << " samples)\n";
+}
+
+void print_replan(const json& r) {
+  std::cout << std::fixed << std::setprecision(1) << "replan (" << r["scene"].get<std::string>()
+            << ", " << r["constraints"].get<std::string>() << ", horizon "
+            << r["horizon_s"].get<double>() << " s, 1 cm and 0.05 m/s off the plan):\n"
+            << "  cold: session open " << r["cold_ms"].get<double>() << " ms (solve "
+            << r["cold_solve_ms"].get<double>() << " ms, " << r["cold_iterations"]
+            << " iterations)\n";
+  print_latency("  step, client-observed: ", r["latency"]);
+  print_latency("  step solve: ", r["solve"]);
+  print_latency("  step build (problem, warm start): ", r["build"]);
+  print_latency("  step sampling and dense checks: ", r["sample_and_checks"]);
+  print_latency("  step in the server: ", r["server_total"]);
+  print_latency("  step outside the server (reply JSON, socket, client parsing): ",
+                r["outside_server"]);
+  print_latency("  step solve per iteration: ", r["solve_per_iteration"]);
+  if (r.contains("cpu")) print_latency("  step process CPU (in-process server): ", r["cpu"]);
+  std::cout << std::setprecision(3) << "  median / cold = "
+            << r.value("median_over_cold", -1.0) << " (target <= 0.05), p99 "
+            << r["latency"].value("p99_ms", -1.0) << " ms (target <= 50 ms), max "
+            << r["latency"].value("max_ms", -1.0) << " ms (target <= 60 ms); "
+            << std::setprecision(2) << r["iterations_per_step"].get<double>()
+            << " iterations per solved step, " << r["failures"] << " failed steps\n"
+            << std::setprecision(0) << "  budget " << r["budget_ms"].get<double>()
+            << " ms: " << r["deadline_misses"] << " replies after it, " << r["fallbacks"]
+            << " fallbacks (" << r["deadline_fallbacks"] << " at the deadline), "
+            << r["warm_from_late_solve"] << " steps warm-started from a late solve, "
+            << r["sessions"] << " sessions\n";
 }
 
 }  // namespace
@@ -912,6 +1005,14 @@ void add_bench_service_command(CLI::App& app) {
   cmd->add_option("--steps", o->replan_steps, "Replan mode: session steps, 0.1 s apart")
       ->capture_default_str()
       ->check(CLI::Range(1, 100000));
+  cmd->add_option("--budget-ms", o->replan_budget_ms,
+                  "Replan mode: each step's budget_ms (0 = wait for every solve)")
+      ->capture_default_str();
+  cmd->add_option("--replan-period", o->replan_period,
+                  "Replan mode: seconds between steps sent (a 10 Hz loop: 0.1, the session time "
+                  "per step); 0 = each as soon as the previous reply arrived")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 10.0));
   cmd->add_option("--horizon", o->horizon, "Replan mode: the session's horizon in s (0 = to the goal)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 60.0));
@@ -1060,29 +1161,7 @@ void add_bench_service_command(CLI::App& app) {
                       p["planner_outside_solve"]);
       if (p.contains("note")) std::cout << "  note: " << p["note"].get<std::string>() << "\n";
     }
-    if (out.contains("replan")) {
-      const json& r = out["replan"];
-      std::cout << std::fixed << std::setprecision(1) << "replan (" << r["scene"].get<std::string>()
-                << ", " << r["constraints"].get<std::string>() << ", horizon "
-                << r["horizon_s"].get<double>() << " s, 1 cm and 0.05 m/s off the plan):\n"
-                << "  cold: session open " << r["cold_ms"].get<double>() << " ms (solve "
-                << r["cold_solve_ms"].get<double>() << " ms, " << r["cold_iterations"]
-                << " iterations)\n";
-      print_latency("  step, client-observed: ", r["latency"]);
-      print_latency("  step solve: ", r["solve"]);
-      print_latency("  step build (problem, warm start): ", r["build"]);
-      print_latency("  step sampling and dense checks: ", r["sample_and_checks"]);
-      print_latency("  step in the server: ", r["server_total"]);
-      print_latency("  step outside the server (reply JSON, socket, client parsing): ",
-                    r["outside_server"]);
-      print_latency("  step solve per iteration: ", r["solve_per_iteration"]);
-      if (r.contains("cpu")) print_latency("  step process CPU (in-process server): ", r["cpu"]);
-      std::cout << std::setprecision(3) << "  median / cold = "
-                << r.value("median_over_cold", -1.0) << " (target <= 0.10), p99 "
-                << r["latency"].value("p99_ms", -1.0) << " ms (target <= 50 ms); "
-                << std::setprecision(2) << r["iterations_per_step"].get<double>()
-                << " iterations per step, " << r["failures"] << " failed steps\n";
-    }
+    if (out.contains("replan")) print_replan(out["replan"]);
     if (out.contains("hostile")) {
       const json& h = out["hostile"];
       std::cout << "hostile (server limits " << h["server_limits"].dump() << "):\n";

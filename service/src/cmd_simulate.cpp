@@ -56,6 +56,7 @@ struct SimulateCliOptions {
   std::string via = "in-process";
   double horizon = 1.0;
   double replan_latency = 0.0;
+  double replan_budget_ms = 50.0;
   double connect_timeout = 10.0;
   double step_timeout = 120.0;
 };
@@ -75,12 +76,13 @@ collision::ReplannerFactory socket_replanner(const SimulateCliOptions& o,
                                          {"init", *init},
                                          {"horizon", o.horizon}});
     const std::string id = opened.at("session").get<std::string>();
-    return [client, id, feet](const collision::MeasuredState& ms) {
+    return [client, id, feet, budget_ms = o.replan_budget_ms](const collision::MeasuredState& ms) {
       collision::Replan out;
       out.start_time = ms.t;
       const protocol::Message reply = client->call({{"op", "plan.session.step"},
                                                     {"session", id},
                                                     {"time", ms.t},
+                                                    {"budget_ms", budget_ms},
                                                     {"start_state",
                                                      collision::start_state_json(ms, feet)}});
       const std::string error = error_text(reply);
@@ -96,14 +98,35 @@ collision::ReplannerFactory socket_replanner(const SimulateCliOptions& o,
       }
       out.start_time = r.value("start_time", ms.t);
       out.iterations = out.plan.solver.iterations;
+      out.fallback = r.value("fallback", false);
+      out.fallback_reason = r.value("fallback_reason", std::string());
       out.success = true;
       return out;
     };
   };
 }
 
+// The closed loop's steps: how many fell back (and why), how many overran the budget, and the
+// steps that did either.
+void print_replan_steps(const collision::SimulationReport& r, double budget_ms) {
+  int deadline = 0, failed = 0, over = 0;
+  for (const auto& s : r.replan_records) {
+    deadline += s.fallback == "deadline";
+    failed += s.fallback == "solve_failed";
+    over += budget_ms > 0 && 1e3 * s.wall_s > budget_ms;
+  }
+  std::cout << "          steps: " << r.replan_records.size() << ", fallbacks " << r.replan_fallbacks
+            << " (" << deadline << " at the deadline, " << failed << " failed solves), "
+            << over << " answered after the " << budget_ms << " ms budget\n";
+  for (const auto& s : r.replan_records)
+    if (!s.fallback.empty() || (budget_ms > 0 && 1e3 * s.wall_s > budget_ms))
+      std::cout << "            t = " << s.t << " s: " << 1e3 * s.wall_s << " ms, "
+                << s.iterations << " iterations" << (s.fallback.empty() ? "" : ", fallback: ")
+                << s.fallback << "\n";
+}
+
 void print_human(const collision::SimulationReport& r, const robot::RobotModel& model,
-                 const std::string& plan, const std::string& terrain) {
+                 const std::string& plan, const std::string& terrain, double budget_ms) {
   std::cout << std::fixed << std::setprecision(4);
   std::cout << "plan      " << plan << "\nterrain   " << terrain << "\n";
   std::cout << "simulated " << r.duration << " s in " << r.steps << " steps of " << r.dt << " s, "
@@ -139,6 +162,7 @@ void print_human(const collision::SimulationReport& r, const robot::RobotModel& 
               << " m from the original plan\n";
     if (!r.replan_first_failure.empty())
       std::cout << "          first failure: " << r.replan_first_failure << "\n";
+    print_replan_steps(r, budget_ms);
   }
   std::cout << "\n";
   if (r.verdict == "pass") {
@@ -213,15 +237,8 @@ collision::SimulationOptions simulation_options_from(const SimulateCliOptions& o
   return sim;
 }
 
-void run_simulate(const SimulateCliOptions& o) {
-  if (!o.out.empty()) {
-    try {
-      perception::check_output_file(o.out);
-    } catch (const perception::InputError& e) {
-      throw CommandError(std::string("--out: ") + e.what());
-    }
-  }
-  collision::SimulationOptions sim = simulation_options_from(o);
+// The closed loop's options (--replan-every and those it takes).
+void check_closed_loop_options(const SimulateCliOptions& o) {
   if (!std::isfinite(o.replan_every) || o.replan_every < 0 || o.replan_every > 100)
     throw CommandError("--replan-every: must be within [0, 100] s (0 = open loop)");
   if (o.replan_every > 0 && o.replan_every < o.dt)
@@ -233,6 +250,20 @@ void run_simulate(const SimulateCliOptions& o) {
   if (!std::isfinite(o.replan_latency) || o.replan_latency < 0 ||
       (o.replan_every > 0 && o.replan_latency >= o.replan_every))
     throw CommandError("--replan-latency: must be within [0, --replan-every)");
+  if (!(o.replan_budget_ms >= 0 && o.replan_budget_ms <= 60000))
+    throw CommandError("--replan-budget: must be within [0, 60000] ms (0 = wait for each solve)");
+}
+
+void run_simulate(const SimulateCliOptions& o) {
+  if (!o.out.empty()) {
+    try {
+      perception::check_output_file(o.out);
+    } catch (const perception::InputError& e) {
+      throw CommandError(std::string("--out: ") + e.what());
+    }
+  }
+  collision::SimulationOptions sim = simulation_options_from(o);
+  check_closed_loop_options(o);
   const bool via_socket = o.via.rfind("tcp://", 0) == 0 || o.via.rfind("unix:", 0) == 0;
   if (o.via != "in-process" && !via_socket)
     throw CommandError("--via " + o.via + ": must be in-process, tcp://HOST:PORT or unix:PATH");
@@ -293,7 +324,8 @@ void run_simulate(const SimulateCliOptions& o) {
       }
       sim.replanner = collision::session_replanner(model, *replan_terrain->smooth(),
                                                    *replan_terrain->exact(), req.options, traj,
-                                                   o.horizon, req.sample_dt);
+                                                   o.horizon, req.sample_dt,
+                                                   1e-3 * o.replan_budget_ms);
     }
   }
   collision::SimulationReport rep;
@@ -336,7 +368,7 @@ void run_simulate(const SimulateCliOptions& o) {
   if (o.json) {
     std::cout << summary.dump() << "\n";
   } else {
-    print_human(rep, model, o.plan, rep.terrain);
+    print_human(rep, model, o.plan, rep.terrain, o.replan_every > 0 ? o.replan_budget_ms : 0.0);
     if (summary.contains("margin")) print_margin(summary["margin"]);
   }
   std::cout.flush();
@@ -413,6 +445,12 @@ void add_simulate_command(CLI::App& app) {
   cmd->add_option("--replan-latency", opts->replan_latency,
                   "With --replan-every: a re-plan is tracked this much simulated time after the "
                   "state it starts from was measured (s)")
+      ->capture_default_str();
+  cmd->add_option("--replan-budget", opts->replan_budget_ms,
+                  "With --replan-every: each re-plan's wall-clock budget (ms): it answers by then "
+                  "with its new plan or, when the solve has not finished or failed, the current "
+                  "plan from the measured time (a fallback, reported per step); 0 = wait for "
+                  "each solve")
       ->capture_default_str();
   cmd->add_option("--connect-timeout", opts->connect_timeout,
                   "With --via tcp/unix: seconds to wait for the server's connection")

@@ -111,7 +111,19 @@ json simulation_summary_json(const collision::SimulationReport& r, const robot::
                           {"planner_iterations_median", r.replan_iterations_median},
                           {"planner_iterations_max", r.replan_iterations_max},
                           {"failure_times", r.replan_failure_times},
-                          {"reference_position_max_m", r.reference_position_max}};
+                          {"reference_position_max_m", r.reference_position_max},
+                          {"fallbacks", r.replan_fallbacks},
+                          {"steps", [&] {
+                             json steps = json::array();
+                             for (const auto& s : r.replan_records)
+                               steps.push_back({{"t", s.t},
+                                                {"wall_ms", 1e3 * s.wall_s},
+                                                {"iterations", s.iterations},
+                                                {"fallback", s.fallback.empty()
+                                                                 ? json()
+                                                                 : json(s.fallback)}});
+                             return steps;
+                           }()}};
   return out;
 }
 

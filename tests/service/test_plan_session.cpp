@@ -61,30 +61,52 @@ TEST(PlanSession, StepsFromAMeasuredStateThenAFailedStepLeavesItUsable) {
   state["base"]["linear_velocity"] = at["base"]["linear_velocity"];
   state["base"]["linear_velocity"][0] = at["base"]["linear_velocity"][0].get<double>() + 0.05;
   const json step = c.call_ok({{"op", "plan.session.step"}, {"session", id}, {"time", 0.2},
-                               {"start_state", state}});
+                               {"start_state", state}, {"budget_ms", 0}});
+  EXPECT_FALSE(step["fallback"].get<bool>());
   EXPECT_EQ(step["solver"]["status"], "optimal");
   EXPECT_DOUBLE_EQ(step["start_time"].get<double>(), 0.2);
   EXPECT_FALSE(step["to_goal"].get<bool>());
   // The plan starts where the robot is.
   EXPECT_NEAR(step["samples"][0]["base"]["position"][1].get<double>(),
               state["base"]["position"][1].get<double>(), 1e-9);
-  // A state the robot cannot be in (its base 40 cm up and 40 cm aside of its feet): a clear
-  // error, and the session goes on from its last plan.
+  // A state the robot cannot be in (its base 40 cm up and 40 cm aside of its feet): without a
+  // budget a clear error, and the session goes on from its last plan.
   json bad = {{"base", {{"position", {0.3, 0.4, 0.9}}}}};
   const auto failed = c.call({{"op", "plan.session.step"}, {"session", id}, {"time", 0.3},
-                              {"start_state", bad}});
+                              {"start_state", bad}, {"budget_ms", 0}});
   EXPECT_EQ(error_code(failed), "failed") << failed.header.dump();
   EXPECT_NE(failed.header["error"]["message"].get<std::string>().find("still violated"),
             std::string::npos);
-  const json next = c.call_ok({{"op", "plan.session.step"}, {"session", id}, {"time", 0.3}});
+  // With a budget (50 ms by default) the same step answers in time with the current plan from
+  // 0.3 s, marked as the fallback (its solve failed, or had not finished by the deadline).
+  const auto t_fallback = std::chrono::steady_clock::now();
+  const json fallback = c.call_ok({{"op", "plan.session.step"}, {"session", id}, {"time", 0.3},
+                                   {"start_state", bad}});
+  const double fallback_ms = std::chrono::duration<double, std::milli>(
+                                 std::chrono::steady_clock::now() - t_fallback).count();
+  EXPECT_LT(fallback_ms, 50.0 + 250.0) << "generous slack for ASan and a loaded machine";
+  EXPECT_TRUE(fallback["fallback"].get<bool>()) << fallback.dump().substr(0, 400);
+  const std::string reason = fallback.value("fallback_reason", "");
+  EXPECT_TRUE(reason == "solve_failed" || reason == "deadline") << reason;
+  EXPECT_EQ(fallback["solver"]["status"], "fallback");
+  for (int k : {0, 1})
+    EXPECT_NEAR(fallback["samples"][0]["base"]["position"][k].get<double>(),
+                step["samples"][5]["base"]["position"][k].get<double>(), 1e-4)
+        << "the fallback is the last plan (from 0.2 s) shifted by 0.1 s (samples 20 ms apart), "
+           "not a plan from the unreachable state";
+  const json next = c.call_ok({{"op", "plan.session.step"}, {"session", id}, {"time", 0.3},
+                               {"budget_ms", 0}});
   EXPECT_EQ(next["solver"]["status"], "optimal");
   // A deadline applies per step: 1 ms is too short for any solve; the session survives it.
   const auto late = c.call({{"op", "plan.session.step"}, {"session", id}, {"time", 0.4},
-                            {"deadline_ms", 1}});
+                            {"deadline_ms", 1}, {"budget_ms", 0}});
   EXPECT_EQ(error_code(late), "deadline_exceeded") << late.header.dump();
-  EXPECT_EQ(c.call_ok({{"op", "plan.session.step"}, {"session", id}, {"time", 0.4}})["solver"]
-                     ["status"],
+  EXPECT_EQ(c.call_ok({{"op", "plan.session.step"}, {"session", id}, {"time", 0.4},
+                       {"budget_ms", 0}})["solver"]["status"],
             "optimal");
+  EXPECT_EQ(error_code(c.call({{"op", "plan.session.step"}, {"session", id}, {"time", 0.5},
+                               {"budget_ms", -1}})),
+            "bad_request");
   // Bad requests name their field; another connection cannot use the session.
   EXPECT_EQ(error_code(c.call({{"op", "plan.session.step"}, {"session", id}, {"time", 9.0}})),
             "bad_request");
@@ -106,9 +128,9 @@ TEST(PlanSession, StepSamplesAsATable) {
   const std::string as_table = c.call_ok(open_request())["session"];
   const json state = {{"base", {{"position", {0.05, 0.01, 0.55}}}}};
   const json j = c.call_ok({{"op", "plan.session.step"}, {"session", as_json}, {"time", 0.2},
-                            {"start_state", state}});
+                            {"start_state", state}, {"budget_ms", 0}});
   const auto reply = c.call({{"op", "plan.session.step"}, {"session", as_table}, {"time", 0.2},
-                             {"start_state", state}, {"samples", "attachment"}});
+                             {"start_state", state}, {"samples", "attachment"}, {"budget_ms", 0}});
   ASSERT_TRUE(reply.header.value("ok", false)) << reply.header.dump();
   const json& r = reply.header["result"];
   EXPECT_EQ(r["solver"]["iterations"], j["solver"]["iterations"]);
@@ -155,27 +177,27 @@ TEST(PlanSession, TheClientsSessionHelperOpensStepsAndClosesOnScopeExit) {
     ASSERT_FALSE(at.is_null());
     json pos = at["base"]["position"];
     pos[1] = pos[1].get<double>() + 0.01;
-    const json step = s.step(0.2, {{"base", {{"position", pos}}}});
+    const json step = s.step(0.2, {{"base", {{"position", pos}}}}, 0, 0);
     EXPECT_EQ(step["solver"]["status"], "optimal");
     EXPECT_NEAR(step["samples"][0]["base"]["position"][1].get<double>(), pos[1].get<double>(),
                 1e-9);
     // A state the robot cannot be in: ClientError with the code first; the session goes on.
     try {
-      s.step(0.3, {{"base", {{"position", {0.3, 0.4, 0.9}}}}});
+      s.step(0.3, {{"base", {{"position", {0.3, 0.4, 0.9}}}}}, 0, 0);
       ADD_FAILURE() << "an unreachable state was planned";
     } catch (const ClientError& e) {
       const std::string what = e.what();
       EXPECT_EQ(what.rfind("plan.session.step: failed: ", 0), 0u) << what;
       EXPECT_NE(what.find("still violated"), std::string::npos) << what;
     }
-    EXPECT_EQ(s.step(0.3)["solver"]["status"], "optimal");
+    EXPECT_EQ(s.step(0.3, nullptr, 0, 0)["solver"]["status"], "optimal");
     try {
-      s.step(0.4, nullptr, 1);
+      s.step(0.4, nullptr, 1, 0);
       ADD_FAILURE() << "a 1 ms step deadline was met";
     } catch (const ClientError& e) {
       EXPECT_NE(std::string(e.what()).find("deadline_exceeded"), std::string::npos) << e.what();
     }
-    EXPECT_EQ(s.step(0.4)["solver"]["status"], "optimal");
+    EXPECT_EQ(s.step(0.4, nullptr, 0, 0)["solver"]["status"], "optimal");
     // Moved, the session is the new owner's to close.
     PlanningSession moved = std::move(s);
     EXPECT_FALSE(s.is_open());
@@ -235,8 +257,8 @@ TEST(PlanSession, FiftySessionsStayWithinTheMemoryBound) {
   EXPECT_LT(after - before, 100.0 * 1024) << "RSS " << before << " -> " << after << " KiB";
   EXPECT_LT(session_bytes, std::size_t{49} << 20);
   // Each still steps.
-  EXPECT_EQ(c.call_ok({{"op", "plan.session.step"}, {"session", "s50"}, {"time", 0.1}})["solver"]
-                     ["status"],
+  EXPECT_EQ(c.call_ok({{"op", "plan.session.step"}, {"session", "s50"}, {"time", 0.1},
+                       {"budget_ms", 0}})["solver"]["status"],
             "optimal");
   c.close();
   Client watcher = Client::connect(server.tcp());

@@ -79,8 +79,10 @@ TEST(ClosedLoop, PushThatTopplesTheOpenLoopIsSurvivedWithReplanning) {
   EXPECT_EQ(o.value("verdict", ""), "fail") << o.dump();
   EXPECT_FALSE(o.contains("closed_loop"));
 
+  // Without a budget (--replan-budget 0) every step's own solve is tracked: the run does not
+  // depend on the machine's load.
   const auto closed = run_terrastride("simulate " + plan + " --terrain pallet_15 --json " + push +
-                                      " --replan-every 0.1 --horizon 1");
+                                      " --replan-every 0.1 --horizon 1 --replan-budget 0");
   const json c = summary(closed);
   EXPECT_EQ(closed.code, 0) << closed.all();
   EXPECT_NE(c.value("verdict", ""), "fail") << c.dump();
@@ -108,6 +110,15 @@ TEST(ClosedLoop, ReplansGoThroughTheSocket) {
   EXPECT_EQ(s["closed_loop"]["replans"].get<int>(), 11);
   EXPECT_EQ(s["closed_loop"]["replan_failures"].get<int>(), 0)
       << s["closed_loop"]["first_failure"].dump();
+  // Each step reported: when, its wall time, iterations, and whether it fell back (within the
+  // default 50 ms budget it may, on a loaded machine).
+  ASSERT_EQ(s["closed_loop"]["steps"].size(), 11u) << s["closed_loop"].dump();
+  int fallbacks = 0;
+  for (const auto& step : s["closed_loop"]["steps"]) {
+    EXPECT_TRUE(step.contains("wall_ms") && step.contains("iterations")) << step.dump();
+    fallbacks += !step["fallback"].is_null();
+  }
+  EXPECT_EQ(s["closed_loop"]["fallbacks"].get<int>(), fallbacks);
   Client c = Client::connect(server.tcp());
   const json status = c.call_ok({{"op", "plan.session.status"}});
   EXPECT_EQ(status["opened"].get<int>(), 1);

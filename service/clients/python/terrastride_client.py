@@ -257,26 +257,31 @@ class PlanningSession:
         self.reference = client.call("plan.session.open", **fields)
         self.id = self.reference["session"]
 
-    def _step_fields(self, time, start_state, deadline_ms):
+    def _step_fields(self, time, start_state, deadline_ms, budget_ms=None):
         fields = {"session": self.id, "time": time}
         if start_state is not None:
             fields["start_state"] = start_state
         if deadline_ms is not None:
             fields["deadline_ms"] = deadline_ms
+        if budget_ms is not None:
+            fields["budget_ms"] = budget_ms
         return fields
 
-    def step(self, time, start_state=None, deadline_ms=None):
+    def step(self, time, start_state=None, deadline_ms=None, budget_ms=None):
         """The plan from session time `time` (s) and the measured state (plan.json's terms; fields
-        left out are the session's current plan's). Raises ServiceError: `failed` when the solve
-        fails (the session stays usable), `deadline_exceeded` past deadline_ms."""
+        left out are the session's current plan's). The step answers within budget_ms (default
+        the server's, 50 ms) with its plan or the current one ("fallback": true, and
+        "fallback_reason"); budget_ms=0 waits for the solve, and then raises ServiceError `failed`
+        when it fails (the session stays usable). `deadline_exceeded` past deadline_ms."""
         return self.client.call("plan.session.step",
-                                **self._step_fields(time, start_state, deadline_ms))
+                                **self._step_fields(time, start_state, deadline_ms, budget_ms))
 
-    def step_table(self, time, start_state=None, deadline_ms=None):
+    def step_table(self, time, start_state=None, deadline_ms=None, budget_ms=None):
         """As step, with the samples as a float32 table (a step's JSON samples are 100-200 KB on
         pallet_15 with a 1 s horizon): returns (result, columns) as Client.plan_table does."""
         return self.client.table_call("plan.session.step",
-                                      **self._step_fields(time, start_state, deadline_ms))
+                                      **self._step_fields(time, start_state, deadline_ms,
+                                                          budget_ms))
 
     def close(self):
         if self.id is not None:

@@ -203,13 +203,17 @@ def main(address):
             at = next(x for x in ref if abs(x["t"] - 0.2) < 1e-9)["base"]
             pos = list(at["position"])
             pos[1] += 0.01
-            step = s.step(0.2, {"base": {"position": pos}})
+            step = s.step(0.2, {"base": {"position": pos}}, budget_ms=0)
             assert step["start_time"] == 0.2 and step["solver"]["status"] == "optimal", step
             assert abs(step["samples"][0]["base"]["position"][1] - pos[1]) < 1e-9
-            e = expect_error("failed", lambda: s.step(0.3, {"base": {"position": [0.3, 0.4, 0.9]}}))
+            e = expect_error("failed", lambda: s.step(0.3, {"base": {"position": [0.3, 0.4, 0.9]}},
+                                                      budget_ms=0))
             assert "still violated" in e.message, e.message
-            assert s.step(0.3)["solver"]["status"] == "optimal"
-            result, columns = s.step_table(0.4, {"base": {"position": pos}})
+            # With a budget (50 ms by default) the step answers with the current plan instead.
+            fb = s.step(0.3, {"base": {"position": [0.3, 0.4, 0.9]}})
+            assert fb["fallback"] and fb["fallback_reason"] in ("solve_failed", "deadline"), fb
+            assert s.step(0.3, budget_ms=0)["solver"]["status"] == "optimal"
+            result, columns = s.step_table(0.4, {"base": {"position": pos}}, budget_ms=0)
             assert result["start_time"] == 0.4 and result["samples"]["rows"] == len(columns["t"])
             assert abs(columns["base.position.y"][0] - pos[1]) < 1e-6, columns["base.position.y"][0]
         assert c.call("plan.session.status")["open"] == 0

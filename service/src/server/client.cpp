@@ -271,11 +271,13 @@ PlanningSession::~PlanningSession() {
   }
 }
 
-json PlanningSession::step(double time, const json& start_state, int deadline_ms) {
+json PlanningSession::step(double time, const json& start_state, int deadline_ms,
+                          double budget_ms) {
   if (!client_) throw ClientError("plan.session.step: the session " + id_ + " is closed");
   json h = {{"op", "plan.session.step"}, {"session", id_}, {"time", time}};
   if (!start_state.is_null()) h["start_state"] = start_state;
   if (deadline_ms > 0) h["deadline_ms"] = deadline_ms;
+  if (budget_ms >= 0) h["budget_ms"] = budget_ms;
   return client_->call_ok(std::move(h));
 }
 

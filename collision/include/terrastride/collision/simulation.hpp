@@ -149,6 +149,10 @@ struct Replan {
   double start_time = 0.0;
   std::string message;  // why not, when !success
   int iterations = -1;  // the planner's iterations, when it says (-1: unknown)
+  // The planner answered with its current plan instead of a new one (its step's budget ran out,
+  // "deadline", or its solve failed, "solve_failed"): plan is that plan from start_time.
+  bool fallback = false;
+  std::string fallback_reason;
 };
 using Replanner = std::function<Replan(const MeasuredState&)>;
 // Makes a fresh re-planner (a new planning session) for each simulated run, so runs do not share
@@ -271,6 +275,14 @@ struct SimulationReport {
   std::vector<int> replan_iterations;
   int replan_iterations_median = 0, replan_iterations_max = 0;
   std::vector<double> replan_failure_times;
+  // Per re-plan: when, its wall time, iterations (-1 unknown), and a fallback's reason ("" none).
+  struct ReplanRecord {
+    double t = 0.0, wall_s = 0.0;
+    int iterations = -1;
+    std::string fallback;
+  };
+  std::vector<ReplanRecord> replan_records;
+  int replan_fallbacks = 0;
   double reference_position_max = 0.0;
 };
 
@@ -329,13 +341,14 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
 // `reference` (the simulated plan, with its "timeline"; PlanningSession's horizon and sample_dt),
 // each call one session step from the measured state, mapped to the planner's start state as the
 // socket's plan.session.step maps it (start_state_json, then planner::start_state_from_json). The
-// robot and terrains must outlive every run; `options` as the reference was planned with.
+// robot and terrains must outlive every run; `options` as the reference was planned with. Each
+// step has `budget` seconds (planner::StepLimits::budget, as the server's steps; 0 = none).
 ReplannerFactory session_replanner(const robot::RobotModel& robot,
                                    const terrain::HeightField& plan_terrain,
                                    const terrain::HeightField& check_terrain,
                                    const planner::PlannerOptions& options,
                                    const planner::Trajectory& reference, double horizon,
-                                   double sample_dt);
+                                   double sample_dt, double budget = 0.0);
 
 // Robustness margin (`terrastride simulate --margin`): the largest disturbance a plan survives,
 // so two plans can be compared by how much they take. Survives = the verdict is not "fail" (no

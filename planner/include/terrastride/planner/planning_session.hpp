@@ -15,6 +15,7 @@
 // pallet_15 makes each step's problem about five times smaller (docs/design.md §6.7).
 #pragma once
 
+#include <chrono>
 #include <functional>
 #include <memory>
 #include <string>
@@ -34,14 +35,35 @@ struct SessionStep {
   bool feet_freed = false;
   std::string pinned_feet_status;
   int pinned_feet_iterations = 0;
+  // The step's own solve was not used (StepLimits::budget): outcome.trajectory is then the
+  // session's current plan from t (its samples from 0 = t, up to where the solve would have
+  // ended), outcome.success is true (it is a plan the robot can follow), and fallback_reason says
+  // why: "deadline" (the solve had not finished by it) or "solve_failed" (outcome.message).
+  bool fallback = false;
+  std::string fallback_reason;
+  // The session's current plan (this step's warm start, and its fallback) came from a solve that
+  // finished after its own step had answered with a fallback: verified, and from a later
+  // measured state than the plan that step fell back to.
+  bool warm_from_late_solve = false;
+  double wall_s = 0.0;  // the step call, start to return
 };
 
-// What bounds one step's solve (the service's per-step deadline): polled once per iteration, and
-// a wall-clock budget in s (0: the session options' max_time).
+// What bounds one step. should_stop is polled once per solver iteration (the service's
+// cancellation) and max_time caps the solve (0: the session options' max_time); neither bounds
+// the step's wall time, since one iteration (a factorisation, a restoration phase) can itself be
+// long. A budget does: the solve then runs on the session's worker thread and the step returns
+// by start + budget - reserve (less the session's own measured lateness) whatever the solve does, with the solve's plan if it finished and
+// succeeded, else the fallback (SessionStep::fallback). reserve is what the caller needs after
+// the step (e.g. encoding its reply). budget 0: the step waits for its solve.
 struct StepLimits {
   std::function<bool()> should_stop;
   double max_time = 0.0;
+  double budget = 0.0;
+  double reserve = 0.0;
 };
+
+struct StepJob;
+class StepWorker;
 
 class PlanningSession {
  public:
@@ -50,11 +72,16 @@ class PlanningSession {
   PlanningSession(const robot::RobotModel& robot, const terrain::HeightField& plan_terrain,
                   const terrain::HeightField& check_terrain, const PlannerOptions& options,
                   Trajectory reference, double horizon, double sample_dt);
+  ~PlanningSession();
+  PlanningSession(const PlanningSession&) = delete;
+  PlanningSession& operator=(const PlanningSession&) = delete;
 
   // A plan from `measured` at session time t. Throws RequestError("time" or "start_state") for a
-  // time outside the reference or a state with the wrong feet. A step whose solve fails returns
-  // an outcome with success false (and its message) and leaves the session as it was, so the next
-  // step warm-starts from the last good plan.
+  // time outside the reference or a state with the wrong feet. Without a budget, a step whose
+  // solve fails returns an outcome with success false (and its message); with one it returns the
+  // fallback. Either way the session keeps its last good plan, which the next step warm-starts
+  // from; a solve that finished with a plan after its step had answered becomes that plan when
+  // the next step begins, if it is newer.
   SessionStep step(const SrbdProblem::StartState& measured, double t,
                    const StepLimits& limits = {});
 
@@ -73,7 +100,17 @@ class PlanningSession {
   // step; beyond the previous plan's end, the reference).
   SrbdProblem::StartState planned_state(double t) const;
 
+  // The session's current plan from session time t up to `end` (> t), resampled at sample_dt:
+  // the last successful plan, then the reference beyond its end (a budgeted step's fallback).
+  Trajectory current_plan_from(double t, double end) const;
+
  private:
+  std::shared_ptr<StepJob> prepare(const SrbdProblem::StartState& measured, double t,
+                                   const StepLimits& limits);
+  SessionStep fallback_step(const StepJob& job, const std::string& reason,
+                            const std::string& message) const;
+  void adopt_late_solve();
+
   const robot::RobotModel& robot_;
   const terrain::HeightField& plan_terrain_;
   const terrain::HeightField& check_terrain_;
@@ -84,7 +121,13 @@ class PlanningSession {
   double sample_dt_;
   Trajectory previous_;
   double previous_start_ = 0.0;
+  // previous_ came from a solve that finished after its step had answered with a fallback (it
+  // is still a verified plan, and from a later measured state than the one it replaced).
+  bool adopted_late_ = false;
+  // How late budgeted steps returned after their answer was due (a decaying maximum, s).
+  double late_s_ = 0.0;
   int steps_ = 0;
+  std::unique_ptr<StepWorker> worker_;  // made by the first budgeted step
 };
 
 // The part of `timeline` up to `end` (an event time of it): the horizon of a session step.

@@ -69,8 +69,8 @@ std::string error_text(const protocol::Message& reply);
 
 // A planning session on a client's connection (docs/protocol.md, "Planning sessions"): opened by
 // `open`, closed by the destructor (or `close`). Errors are ClientError("plan.session.OP: code:
-// message"), the code first: `failed` for a step whose solve failed and `deadline_exceeded` past
-// its deadline leave the session usable for the next step.
+// message"), the code first: `failed` for a step without a budget whose solve failed and
+// `deadline_exceeded` past its deadline leave the session usable for the next step.
 //   PlanningSession s = PlanningSession::open(client, {{"terrain", "pallet_15"}, {"horizon", 1}});
 //   json plan = s.step(0.1, measured_state);
 class PlanningSession {
@@ -87,9 +87,11 @@ class PlanningSession {
   ~PlanningSession();
 
   // plan.session.step: the plan from session time `time` (s) and the measured state (plan.json's
-  // terms; null: the session's current plan at `time`). deadline_ms > 0 bounds the step.
+  // terms; null: the session's current plan at `time`). deadline_ms > 0 bounds the request;
+  // budget_ms >= 0 is the step's budget (0: wait for the solve; < 0: the server's default), by
+  // which it answers with its plan or the fallback ("fallback": true in the reply).
   nlohmann::json step(double time, const nlohmann::json& start_state = nullptr,
-                      int deadline_ms = 0);
+                      int deadline_ms = 0, double budget_ms = -1);
   // plan.session.close; idempotent.
   void close();
 

@@ -45,7 +45,14 @@ struct Session {
   std::unique_ptr<planner::PlanningSession> planner;
   std::timed_mutex step_mu;  // one step at a time
   Clock::time_point last_used = Clock::now();
+  // How long a step's reply took to be ready after the step returned (a decaying maximum): kept
+  // from the next step's budget so that the reply, not only the plan, is ready by it (the
+  // session keeps its own lateness out of the budget too).
+  double reply_s = 0.002;
 };
+
+// A step's default budget (plan.session.step "budget_ms"): a control loop at 10-20 Hz.
+constexpr double kDefaultStepBudgetMs = 50.0;
 
 // The memory one session may hold (its reference and previous plans).
 constexpr std::size_t kMaxSessionBytes = std::size_t{16} << 20;
@@ -335,15 +342,25 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
     // mistake, answered bad_request as `plan` answers the same field.
     throw ProtocolError(pc::kBadRequest, e.what());
   }
-  // The per-step budget: the request's deadline, else the session's max_time.
+  // The step's budget: it answers by then with its solve's plan or the fallback. The request's
+  // deadline, when shorter, bounds it too (and past it the reply is deadline_exceeded).
+  const double budget_ms = number_field(h, "budget_ms", kDefaultStepBudgetMs);
+  if (!(budget_ms >= 0.0 && budget_ms <= 60000.0))
+    throw ProtocolError(pc::kBadRequest,
+                        "budget_ms: must be within [0, 60000] (0 = no budget: wait for the solve)");
   planner::PlannerOptions po;
   apply_deadline(ctx, &po);
+  planner::StepLimits limits{po.should_stop, po.max_time, 1e-3 * budget_ms, 0.0};
+  if (limits.budget > 0.0 && po.max_time > 0.0) limits.budget = std::min(limits.budget, po.max_time);
+  // That time, plus 5 ms for the socket and the client's parsing, comes out of the budget.
+  if (limits.budget > 0.0) limits.reserve = std::min(s->reply_s + 0.005, 0.6 * limits.budget);
   planner::SessionStep step;
   try {
-    step = ps.step(measured, t, {po.should_stop, po.max_time});
+    step = ps.step(measured, t, limits);
   } catch (const std::invalid_argument& e) {
     throw ProtocolError(pc::kBadRequest, e.what());
   }
+  const auto step_returned = Clock::now();
   ctx.check_stop();
   if (!step.outcome.success) {
     if (step.outcome.solve.status == "time_limit")
@@ -358,6 +375,16 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
   r.result = plan_result(step.outcome.trajectory, samples, &r.attachments,
                          [&](const planner::Trajectory& t) { return plan_reply(t, *s, &step); });
   r.result["success"] = true;
+  r.result["fallback"] = step.fallback;
+  if (step.fallback) {
+    r.result["fallback_reason"] = step.fallback_reason;
+    r.result["message"] = step.outcome.message;
+  }
+  r.result["budget_ms"] = budget_ms;
+  r.result["step_ms"] = 1e3 * step.wall_s;
+  r.result["warm_from_late_solve"] = step.warm_from_late_solve;
+  s->reply_s = std::max(0.9 * s->reply_s,
+                        std::chrono::duration<double>(Clock::now() - step_returned).count());
   (void)backend;
   return r;
 }
@@ -377,7 +404,7 @@ void add_plan_session_operation(Backend& backend, OperationRegistry& registry) {
   registry.add({"plan.session.step", OpKind::kWorker,
                 "re-plan a session from a measured state at a session time",
                 [b, table](OpContext& c) { return step_session(*b, *table, c); },
-                std::vector<std::string>{"session", "time", "start_state", "samples"}});
+                std::vector<std::string>{"session", "time", "start_state", "samples", "budget_ms"}});
   registry.add({"plan.session.close", OpKind::kInline, "close a planning session",
                 [table](OpContext& c) {
                   OpResult r;

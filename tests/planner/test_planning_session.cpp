@@ -1,0 +1,127 @@
+// Planning-session steps under a wall-clock budget (planning_session.hpp, StepLimits::budget):
+// the step answers by its budget with its own plan or the session's current plan (the fallback),
+// whatever the solve does, and a solve that finishes late warm-starts the next step.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <thread>
+
+#include "terrastride/planner/planner.hpp"
+#include "terrastride/planner/planning_session.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "test_terrains.hpp"
+
+namespace terrastride::planner {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+// The flat 2.4 s crawl to x = 0.3 (a cold solve of some 0.1 s) as a session with a 1 s horizon.
+struct FlatSession : ::testing::Test {
+  void SetUp() override {
+    PlannerOptions o;
+    o.has_goal = true;
+    o.goal = Eigen::Vector3d(0.3, 0.0, 0.0);
+    o.duration = 2.4;
+    cold = plan_motion(robot, flat, flat, o, 0.02);
+    ASSERT_TRUE(cold.success) << cold.message;
+    session = std::make_unique<PlanningSession>(robot, flat, flat, o, cold.trajectory, 1.0, 0.02);
+  }
+  // The session's plan at t, 1 cm to the left: a measured state the solve has to move.
+  SrbdProblem::StartState measured(double t) const {
+    SrbdProblem::StartState s = session->planned_state(t);
+    s.position.y() += 0.01;
+    return s;
+  }
+  robot::RobotModel robot = robot::load_robot(robot::resolve_robot_path("hyq"));
+  testing::FlatField flat;
+  PlanOutcome cold;
+  std::unique_ptr<PlanningSession> session;
+};
+
+// Slack for a loaded machine and ASan; the solve below sleeps 0.4 s per iteration, so a step
+// that waited for it would take at least that.
+constexpr double kSlack = 0.2;
+
+// Each solver iteration of the step takes 0.4 s (a test hook in the solver's per-iteration
+// callback, as one long factorisation or restoration phase would): the step still answers within
+// its 50 ms budget, with the session's current plan from t marked as the fallback; so does the
+// next step, although the stale solve is still in its iteration (it is cancelled, not waited
+// for); and a step without a budget afterwards solves as usual.
+TEST_F(FlatSession, ASlowSolveStillAnswersWithinItsBudgetWithTheFallback) {
+  StepLimits slow;
+  slow.budget = 0.05;
+  slow.should_stop = [] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(400));
+    return false;
+  };
+  const SrbdProblem::StartState planned = session->planned_state(0.2);
+  auto t0 = Clock::now();
+  const SessionStep a = session->step(measured(0.2), 0.2, slow);
+  EXPECT_LT(seconds_since(t0), slow.budget + kSlack);
+  EXPECT_TRUE(a.fallback);
+  EXPECT_EQ(a.fallback_reason, "deadline");
+  EXPECT_TRUE(a.outcome.success) << "a fallback is a plan to follow";
+  EXPECT_EQ(a.outcome.trajectory.solver.status, "fallback");
+  EXPECT_TRUE(a.outcome.trajectory.extra["session"]["fallback"].get<bool>());
+  ASSERT_FALSE(a.outcome.trajectory.samples.empty());
+  // The current plan from 0.2 s: it starts where that plan is, not at the measured state.
+  EXPECT_NEAR((a.outcome.trajectory.samples.front().base.position - planned.position).norm(), 0.0,
+              1e-9);
+  EXPECT_NEAR(a.outcome.trajectory.samples.back().t, a.end_time - 0.2, 1e-9);
+  EXPECT_TRUE(a.outcome.trajectory.extra.contains("timeline"));
+
+  StepLimits budget;
+  budget.budget = 0.05;
+  t0 = Clock::now();
+  const SessionStep b = session->step(measured(0.3), 0.3, budget);
+  EXPECT_LT(seconds_since(t0), budget.budget + kSlack) << "the next step waited for a stale solve";
+  EXPECT_TRUE(b.fallback);
+  EXPECT_EQ(b.fallback_reason, "deadline");
+
+  const SrbdProblem::StartState m = measured(0.4);
+  const SessionStep c = session->step(m, 0.4);
+  ASSERT_TRUE(c.outcome.success) << c.outcome.message;
+  EXPECT_FALSE(c.fallback);
+  EXPECT_NEAR(c.outcome.trajectory.samples.front().base.position.y(), m.position.y(), 1e-9);
+}
+
+// A solve that finishes after its step answered (here its first iteration is held up 0.15 s, past
+// the 0.1 s budget, and the solve may run on to four budgets) becomes the session's plan when the
+// next step begins: that step's warm start, and its fallback.
+TEST_F(FlatSession, ASolveThatFinishesLateWarmStartsTheNextStep) {
+  StepLimits held;
+  held.budget = 0.1;
+  auto first = std::make_shared<bool>(true);
+  held.should_stop = [first] {
+    if (*first) std::this_thread::sleep_for(std::chrono::milliseconds(150));
+    *first = false;
+    return false;
+  };
+  const SessionStep a = session->step(measured(0.2), 0.2, held);
+  EXPECT_TRUE(a.fallback);
+  EXPECT_EQ(session->previous_start_time(), 0.0);
+  std::this_thread::sleep_for(std::chrono::milliseconds(800));
+  // The next step falls back too (its own solve is held up longer than its budget), but to the
+  // late plan from 0.2 s, which is now the session's plan.
+  StepLimits slow;
+  slow.budget = 0.05;
+  slow.should_stop = [] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    return false;
+  };
+  const SessionStep b = session->step(measured(0.3), 0.3, slow);
+  EXPECT_TRUE(b.fallback);
+  EXPECT_TRUE(b.warm_from_late_solve);
+  EXPECT_DOUBLE_EQ(session->previous_start_time(), 0.2);
+  const SessionStep c = session->step(measured(0.4), 0.4);
+  ASSERT_TRUE(c.outcome.success) << c.outcome.message;
+  EXPECT_FALSE(c.warm_from_late_solve);
+}
+
+}  // namespace
+}  // namespace terrastride::planner
