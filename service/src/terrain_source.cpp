@@ -154,9 +154,12 @@ PlanWithRobot read_plan_with_robot(const std::string& path) {
   }
   const std::string& name = out.trajectory.robot;
   try {
-    out.robot = robot::load_robot(robot::resolve_robot_path(name.empty() ? "hyq" : name));
+    out.robot = planner::robot_of_plan(out.trajectory, path);
+  } catch (const planner::PlanFileError& e) {
+    throw CommandError(e.what());
   } catch (const robot::RobotFileError& e) {
-    throw CommandError(path + ": robot: '" + name + "' cannot be loaded: " + e.what());
+    throw CommandError(path + ": robot: '" + name + "' cannot be loaded: " + e.what() +
+                       " (the plan carries no robot definition; plans made now carry theirs)");
   }
   return out;
 }
