@@ -31,6 +31,7 @@ constexpr int kChecksFailed = 3;
 
 struct CheckCliOptions {
   std::string plan;
+  std::string robot;  // --robot: for a plan that carries no robot definition
   std::string terrain;
   double resolution = 0.01;
   std::string series;
@@ -69,6 +70,11 @@ json summary_json(const collision::CheckReport& rep, const std::string& plan,
     for (int j = 0; j < 3; ++j)
       if (t.worst_sample[j] >= 0) worst_t[kJoints[j]] = rep.torque.time[t.worst_sample[j]];
     leg["torque_ratio_max_t"] = worst_t;
+    if (rep.torque.velocity_checked) {
+      const auto& v = t.worst_velocity_ratio;
+      leg["velocity_ratio_max"] = {{"HAA", v[0]}, {"HFE", v[1]}, {"KFE", v[2]}};
+      leg["velocity_violations"] = t.velocity_violating_samples;
+    }
     if (rep.clearance) {
       const auto& c = rep.clearance->legs[i];
       leg["shin_min_distance_m"] = c.shin_min;
