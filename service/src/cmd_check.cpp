@@ -239,6 +239,13 @@ void print_human(const collision::CheckReport& rep, const std::string& plan,
     std::cout << "\n";
   }
   std::cout << "\n";
+  if (rep.torque.velocity_worst_sample >= 0)
+    std::cout << "worst speed   " << rep.torque.velocity_ratio_max << " x limit ("
+              << rep.torque.legs[rep.torque.velocity_worst_leg].leg << " "
+              << kJoints[rep.torque.velocity_worst_joint] << " at t = "
+              << rep.torque.time[rep.torque.velocity_worst_sample] << " s)\n";
+  else
+    std::cout << "joint speeds  not checked: the robot file gives no velocity limits\n";
   if (rep.torque.worst_sample >= 0)
     std::cout << "worst torque  " << rep.torque.ratio_max << " x limit ("
               << rep.torque.legs[rep.torque.worst_leg].leg << " " << kJoints[rep.torque.worst_joint]
@@ -308,7 +315,7 @@ void run_check(const CheckCliOptions& o) {
       throw CommandError(std::string("--series: ") + e.what());
     }
   }
-  PlanWithRobot loaded = read_plan_with_robot(o.plan);
+  PlanWithRobot loaded = read_plan_with_robot(o.plan, o.robot);
   const planner::Trajectory& traj = loaded.trajectory;
   const robot::RobotModel& model = loaded.robot;
   const TerrainSource source = load_terrain_source(
@@ -391,6 +398,9 @@ void add_check_command(CLI::App& app) {
   cmd->add_option("plan", opts->plan, "plan.json written by 'terrastride plan'")
       ->required()
       ->check(CLI::ExistingFile);
+  cmd->add_option("--robot", opts->robot,
+                  "Robot name or file, for a plan written before plans carried their robot "
+                  "(a plan that carries one is judged with it)");
   cmd->add_option("--terrain", opts->terrain,
                   "Terrain directory from 'terrastride map' (uses its octomap.bt and safety "
                   "margins), an OctoMap file (.bt, .ot) or a scene name (exact analytic terrain, "
