@@ -545,55 +545,5 @@ TEST(UrdfImport, MeshFeetTakeTheRadiusGiven) {
   fs::remove_all(out.parent_path());
 }
 
-// Import does the whole job: the robot file and its fitted force polytopes beside it, which
-// `polytopes validate` reads back; with --no-fit the hint it prints is a command that works when
-// pasted, and so is the hint of the planner's error for the missing polytopes.
-TEST(UrdfImport, ImportFitsThePolytopesAndItsHintsWork) {
-  std::string err;
-  fs::path out;
-  ASSERT_EQ(run_import("fit", test_support::quadruped_urdf({}), &err, &out), 0) << err;
-  const fs::path polytopes = out.parent_path() / "robot.polytopes.yaml";
-  EXPECT_TRUE(fs::exists(polytopes));
-  const std::string validate = std::string(TERRASTRIDE_BINARY) + " polytopes validate --robot " +
-                               out.string() + " --samples 60 >/dev/null 2>&1";
-  EXPECT_EQ(WEXITSTATUS(std::system(validate.c_str())), 0) << validate;
-  fs::remove_all(out.parent_path());
-
-  // --no-fit: the printed hint, pasted (from the folder the import ran in).
-  const fs::path dir = scratch("hint");
-  std::ofstream(dir / "quad.urdf") << test_support::quadruped_urdf({});
-  const std::string cd = "cd " + dir.string() + " && ";
-  const std::string import = cd + TERRASTRIDE_BINARY + " robot import quad.urdf --out quad.yaml --no-fit";
-  FILE* pipe = ::popen(import.c_str(), "r");
-  ASSERT_NE(pipe, nullptr);
-  std::string printed;
-  char buf[512];
-  while (std::fgets(buf, sizeof buf, pipe)) printed += buf;
-  ASSERT_EQ(WEXITSTATUS(::pclose(pipe)), 0) << printed;
-  const auto hint_of = [](const std::string& text) {
-    const size_t a = text.find("`terrastride ");
-    const size_t b = a == std::string::npos ? a : text.find('`', a + 1);
-    return a == std::string::npos || b == std::string::npos ? std::string()
-                                                            : text.substr(a + 1, b - a - 1);
-  };
-  const std::string hint = hint_of(printed);
-  ASSERT_FALSE(hint.empty()) << printed;
-  // The planner's own error for the missing file names the same fix.
-  const std::string plan = cd + TERRASTRIDE_BINARY +
-                           " plan --robot quad.yaml --terrain flat --goal 0.3,0,0 --constraints all "
-                           "--out plan.json 2>&1";
-  pipe = ::popen(plan.c_str(), "r");
-  ASSERT_NE(pipe, nullptr);
-  std::string plan_err;
-  while (std::fgets(buf, sizeof buf, pipe)) plan_err += buf;
-  EXPECT_NE(WEXITSTATUS(::pclose(pipe)), 0) << plan_err;
-  EXPECT_EQ(hint_of(plan_err), hint) << plan_err;
-  const std::string pasted = cd + hint.substr(std::string("terrastride").size()).insert(0, TERRASTRIDE_BINARY) +
-                             " --samples 200 >/dev/null 2>&1";
-  EXPECT_EQ(WEXITSTATUS(std::system(pasted.c_str())), 0) << pasted;
-  EXPECT_TRUE(fs::exists(dir / "quad.polytopes.yaml"));
-  fs::remove_all(dir);
-}
-
 }  // namespace
 }  // namespace terrastride::robot
