@@ -27,6 +27,10 @@ std::map<std::string, double> CheckReport::keys() const {
   k["torque_ratio_max"] = torque.ratio_max;
   k["torque_violations"] = torque.violating_samples;
   k["energy_proxy_J"] = torque.energy_proxy_J;
+  if (torque.velocity_checked) {
+    k["velocity_ratio_max"] = torque.velocity_ratio_max;
+    k["velocity_violations"] = torque.velocity_violating_samples;
+  }
   k["ik_failures"] = kinematics.unreachable_samples;
   k["joint_limit_violations"] = kinematics.joint_limit_samples;
   if (clearance) {
@@ -90,6 +94,14 @@ std::vector<std::string> CheckReport::failures() const {
                   " samples; worst " + fmt(torque.ratio_max) + " x limit at " + leg.leg + " " +
                   kJointNames[torque.worst_joint] +
                   ", t = " + fmt(torque.time[torque.worst_sample]) + " s");
+  }
+  if (torque.velocity_violating_samples > 0) {
+    const auto& leg = torque.legs[torque.velocity_worst_leg];
+    out.push_back("joint velocity above the limit at " +
+                  std::to_string(torque.velocity_violating_samples) + " samples; worst " +
+                  fmt(torque.velocity_ratio_max) + " x limit at " + leg.leg + " " +
+                  kJointNames[torque.velocity_worst_joint] +
+                  ", t = " + fmt(torque.time[torque.velocity_worst_sample]) + " s");
   }
   if (clearance && clearance->shin_collisions_certain + clearance->thigh_collisions_certain > 0) {
     std::string legs;

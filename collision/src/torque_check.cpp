@@ -1,10 +1,53 @@
 // Joint torques along a trajectory: tau = M q̈ + c + g - J^T f (paper (21)), per leg and sample.
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
 #include "terrastride/collision/checks.hpp"
 
 namespace terrastride::collision {
+namespace {
+
+// |q'_i| / q'_lim_i per leg, joint and sample; q' from the kinematics (the foot velocity relative
+// to the base through J^-1, as the torques use).
+void check_joint_velocities(const robot::RobotModel& model, const TrajectoryKinematics& kin,
+                            const TorqueOptions& options, TorqueReport* rep) {
+  for (const auto& leg : model.legs)
+    if (!(leg.velocity_limit.minCoeff() > 0)) return;  // no limits to check against
+  rep->velocity_checked = true;
+  const size_t n = kin.time.size();
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  std::vector<char> violating(n, 0);
+  for (size_t i = 0; i < model.legs.size(); ++i) {
+    const auto& leg = model.legs[i];
+    LegTorqueSeries& series = rep->legs[i];
+    series.velocity_ratio.assign(n, Eigen::Vector3d::Constant(nan));
+    for (size_t k = 0; k < n; ++k) {
+      const LegSample& ls = kin.legs[i][k];
+      if (!ls.has_q()) continue;
+      const Eigen::Vector3d ratio = ls.qd.cwiseAbs().cwiseQuotient(leg.velocity_limit);
+      series.velocity_ratio[k] = ratio;
+      bool leg_violates = false;
+      for (int j = 0; j < 3; ++j) {
+        series.worst_velocity_ratio[j] = std::max(series.worst_velocity_ratio[j], ratio[j]);
+        if (ratio[j] > 1.0 + options.violation_tolerance) leg_violates = true;
+        if (ratio[j] > rep->velocity_ratio_max || rep->velocity_worst_sample < 0) {
+          rep->velocity_ratio_max = ratio[j];
+          rep->velocity_worst_sample = static_cast<int>(k);
+          rep->velocity_worst_leg = static_cast<int>(i);
+          rep->velocity_worst_joint = j;
+        }
+      }
+      if (leg_violates) {
+        ++series.velocity_violating_samples;
+        violating[k] = 1;
+      }
+    }
+  }
+  for (char v : violating) rep->velocity_violating_samples += v;
+}
+
+}  // namespace
 
 TorqueReport check_joint_torques(const robot::RobotModel& model, const planner::Trajectory& traj,
                                  const TrajectoryKinematics& kin, const TorqueOptions& options) {
@@ -66,6 +109,7 @@ TorqueReport check_joint_torques(const robot::RobotModel& model, const planner::
     }
   }
   for (char v : violating) rep.violating_samples += v;
+  check_joint_velocities(model, kin, options, &rep);
   return rep;
 }
 

@@ -287,7 +287,8 @@ void save_polytope_model(const RobotPolytopeModel& model, const robot::RobotMode
 
 RobotPolytopeModel load_polytope_model(const robot::RobotModel& robot_model,
                                        const std::string& path) {
-  const std::string refit = "; run `terrastride polytopes fit --robot " + robot_model.name + "`";
+  const std::string refit = "; run `terrastride polytopes fit --robot " +
+                            robot::robot_argument(robot_model) + "`";
   if (!std::filesystem::exists(path))
     throw PolytopeFileError("force-polytope parameters " + path + " not found" + refit);
   YAML::Node root;

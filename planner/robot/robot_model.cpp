@@ -5,7 +5,11 @@
 #include <Eigen/Eigenvalues>
 
 #include <cmath>
+#include <cstdint>
+#include <cstdio>
 #include <cstdlib>
+#include <fstream>
+#include <iterator>
 #include <filesystem>
 #include <sstream>
 #include <algorithm>
@@ -209,15 +213,13 @@ RobotModel read_robot(const YAML::Node& root, const std::string& path);
 }  // namespace
 
 RobotModel load_robot(const std::string& path) {
-  YAML::Node root;
-  try {
-    root = YAML::LoadFile(path);
-  } catch (const YAML::BadFile&) {
+  // Read once as text: the model keeps the very bytes it was parsed from (RobotModel::definition).
+  std::ifstream in(path, std::ios::binary);
+  if (!in || std::filesystem::is_directory(path))
     throw RobotFileError(path + ": cannot open robot file");
-  } catch (const YAML::Exception& e) {
-    throw RobotFileError(path + ": not valid YAML: " + e.what());
-  }
-  return read_robot(root, path);
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (in.bad()) throw RobotFileError(path + ": cannot read robot file");
+  return parse_robot(text, path);
 }
 
 RobotModel parse_robot(const std::string& text, const std::string& label) {
@@ -227,7 +229,20 @@ RobotModel parse_robot(const std::string& text, const std::string& label) {
   } catch (const YAML::Exception& e) {
     throw RobotFileError(label + ": not valid YAML: " + e.what());
   }
-  return read_robot(root, label);
+  RobotModel robot = read_robot(root, label);
+  robot.definition = text;
+  return robot;
+}
+
+std::string robot_definition_hash(const std::string& text) {
+  uint64_t h = 1469598103934665603ull;
+  for (unsigned char ch : text) {
+    h ^= ch;
+    h *= 1099511628211ull;
+  }
+  char buf[17];
+  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
+  return buf;
 }
 
 namespace {
@@ -376,6 +391,19 @@ RobotModel read_robot(const YAML::Node& root, const std::string& path) {
 std::string data_dir() {
   if (const char* env = std::getenv("TERRASTRIDE_DATA_DIR"); env && *env) return env;
   return TERRASTRIDE_SOURCE_DATA_DIR;
+}
+
+std::string robot_argument(const RobotModel& model) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const fs::path shipped = fs::path(data_dir()) / "robots" / (model.name + ".yaml");
+  if (fs::equivalent(shipped, model.source_file, ec)) return model.name;
+  // A path the shell passes through as it is: relative paths gain ./ so that they read as paths
+  // (resolve_robot_path takes a bare word for a shipped name).
+  const std::string& p = model.source_file;
+  if (!fs::is_regular_file(p, ec)) return model.name;  // e.g. a definition a plan carries
+  if (p.find('/') == std::string::npos) return "./" + p;
+  return p;
 }
 
 std::string resolve_robot_path(const std::string& name_or_path) {

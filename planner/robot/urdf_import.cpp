@@ -15,6 +15,8 @@
 #include <cstdio>
 #include <fstream>
 #include <functional>
+#include <map>
+#include <optional>
 #include <set>
 #include <sstream>
 
@@ -358,8 +360,9 @@ std::vector<LegChain> find_legs(const std::vector<LinkInfo>& infos, const UrdfIm
       if (it->movable.size() != 3)
         fail("--feet: link '" + name + "' lies " + std::to_string(it->movable.size()) +
              " revolute joints below the base (" + joint_list(it->movable) + "), a leg's foot lies 3");
-      if (!sphere_of(*it->link))
-        fail("foot link '" + name + "' has no sphere collision (the foot sphere's radius and centre come from it)");
+      if (!sphere_of(*it->link) && !options.foot_radius)
+        fail("foot link '" + name + "' has no sphere collision (the foot sphere's radius and centre come from it): "
+             "give the radius with --foot-radius METRES (the link's frame origin is then the sphere's centre)");
       feet.push_back(&*it);
     }
   } else {
@@ -369,11 +372,23 @@ std::vector<LegChain> find_legs(const std::vector<LinkInfo>& infos, const UrdfIm
         feet.push_back(&i);
         chains_with_foot.insert(i.movable[2]->name);
       }
-    // Chains of three revolute joints without any foot sphere below them: named.
+    // Mesh feet with --foot-radius: the chain's leaf link fixed below the KFE joint's link (a
+    // foot frame of its own; the KFE link's own frame sits at the knee).
+    if (options.foot_radius)
+      for (const LinkInfo& i : infos)
+        if (i.movable.size() == 3 && !chains_with_foot.count(i.movable[2]->name) &&
+            i.link->child_joints.empty() && i.link->name != i.movable[2]->child_link_name) {
+          feet.push_back(&i);
+          chains_with_foot.insert(i.movable[2]->name);
+        }
+    // Chains of three revolute joints without any foot below them: named.
     for (const LinkInfo& i : infos)
       if (i.movable.size() == 3 && !chains_with_foot.count(i.movable[2]->name)) {
         fail("the leg chain " + joint_list(i.movable) + " ends without a foot: no link below joint '" +
-             i.movable[2]->name + "' has a sphere collision (name the foot with --feet, or give it a sphere)");
+             i.movable[2]->name + "' has a sphere collision" +
+             (options.foot_radius ? " or is a foot link fixed below it" : "") +
+             " (name the foot links with --foot-link LINK,LINK,LINK,LINK and give --foot-radius METRES "
+             "for feet without a sphere)");
       }
   }
   if (feet.size() != 4) {
@@ -403,8 +418,18 @@ std::vector<LegChain> find_legs(const std::vector<LinkInfo>& infos, const UrdfIm
           leg.joint_frame[k] = i.frame;  // the child's frame is the joint's frame at q = 0
     const urdf::CollisionSharedPtr sphere = sphere_of(*f->link);
     leg.foot_link = f->link->name;
-    leg.foot_center = (f->frame * to_eigen(sphere->origin)).translation();
-    leg.foot_radius = static_cast<const urdf::Sphere&>(*sphere->geometry).radius;
+    if (sphere) {
+      leg.foot_center = (f->frame * to_eigen(sphere->origin)).translation();
+      leg.foot_radius = options.foot_radius ? *options.foot_radius
+                                            : static_cast<const urdf::Sphere&>(*sphere->geometry).radius;
+    } else {
+      // A mesh foot: its link's frame origin is the sphere's centre, the radius is given.
+      leg.foot_center = f->frame.translation();
+      leg.foot_radius = *options.foot_radius;
+      if ((leg.foot_center - leg.joint_frame[2].translation()).norm() < 1e-6)
+        fail("foot link '" + leg.foot_link + "' has its frame at joint '" + leg.joints[2]->name +
+             "' (the knee), not at the foot: name a link whose frame is the foot's centre with --foot-link");
+    }
     const Vector3d haa = leg.joint_frame[0].translation();
     if (haa.x() == 0 || haa.y() == 0)
       fail("joint '" + leg.joints[0]->name + "' sits on the base's x or y axis: cannot tell front/hind and left/right");
@@ -427,19 +452,51 @@ std::vector<LegChain> find_legs(const std::vector<LinkInfo>& infos, const UrdfIm
 // Per leg, the joints' ranges (overrides applied, placeholders refused), effort and velocity.
 struct JointLimits {
   std::array<double, 3> lo{}, hi{}, effort{}, velocity{};
+  std::array<bool, 3> effort_given{}, velocity_given{};  // from --effort / --velocity
 };
+
+// A limit given on the command line for joint `j` (k-th of its leg: haa, hfe, kfe): by the
+// joint's name, else by its kind; *used records which key served.
+std::optional<double> given_limit(const std::map<std::string, double>& given, const urdf::Joint& j,
+                                  int k, std::set<std::string>* used) {
+  static const char* kKinds[3] = {"haa", "hfe", "kfe"};
+  for (const std::string& key : {j.name, std::string(kKinds[k])}) {
+    const auto it = given.find(key);
+    if (it != given.end()) {
+      used->insert(key);
+      return it->second;
+    }
+  }
+  return std::nullopt;
+}
 std::vector<JointLimits> read_limits(const std::vector<LegChain>& legs, const UrdfImportOptions& options,
                                      UrdfImport& out, const Fail& fail) {
   // Joint limits, with overrides; placeholders refused.
-  std::set<std::string> used_overrides;
+  std::set<std::string> used_overrides, used_effort, used_velocity;
   std::vector<JointLimits> limits(legs.size());
   for (size_t l = 0; l < legs.size(); ++l)
     for (int k = 0; k < 3; ++k) {
       const urdf::Joint& j = *legs[l].joints[k];
-      if (!j.limits || !(j.limits->effort > 0))
-        fail("joint '" + j.name + "' has no effort limit (the torque limit of the force polytopes)");
-      limits[l].effort[k] = j.limits->effort;
-      limits[l].velocity[k] = j.limits->velocity > 0 ? j.limits->velocity : 0.0;
+      if (const auto e = given_limit(options.effort, j, k, &used_effort)) {
+        if (!(*e > 0) || !std::isfinite(*e)) fail("--effort " + j.name + ": must be a finite number > 0 (N m)");
+        limits[l].effort[k] = *e;
+        limits[l].effort_given[k] = true;
+      } else if (!j.limits || !(j.limits->effort > 0)) {
+        fail("joint '" + j.name + "' has no effort limit (the torque limit of the force polytopes): give it with --effort " +
+             j.name + "=N_M");
+      } else {
+        limits[l].effort[k] = j.limits->effort;
+      }
+      if (const auto v = given_limit(options.velocity, j, k, &used_velocity)) {
+        if (!(*v > 0) || !std::isfinite(*v)) fail("--velocity " + j.name + ": must be a finite number > 0 (rad/s)");
+        limits[l].velocity[k] = *v;
+        limits[l].velocity_given[k] = true;
+      } else if (!j.limits || !(j.limits->velocity > 0)) {
+        fail("joint '" + j.name + "' has no velocity limit (the joint speed the checks and the planner hold): give it with --velocity " +
+             j.name + "=RAD_PER_S");
+      } else {
+        limits[l].velocity[k] = j.limits->velocity;
+      }
       const auto ov = options.joint_range_deg.find(j.name);
       if (ov != options.joint_range_deg.end()) {
         used_overrides.insert(j.name);
@@ -466,8 +523,45 @@ std::vector<JointLimits> read_limits(const std::vector<LegChain>& legs, const Ur
     }
   for (const auto& [name, range] : options.joint_range_deg)
     if (!used_overrides.count(name)) fail("--joint-range names '" + name + "', which is not a leg joint");
+  for (const auto& [name, value] : options.effort)
+    if (!used_effort.count(name)) fail("--effort names '" + name + "', which is not a leg joint (nor haa, hfe, kfe)");
+  for (const auto& [name, value] : options.velocity)
+    if (!used_velocity.count(name)) fail("--velocity names '" + name + "', which is not a leg joint (nor haa, hfe, kfe)");
 
   return limits;
+}
+
+// Placeholder efforts and velocities (1000 N m, 1000 rad/s are common in research URDFs), judged
+// against the robot's own size: the weight m g and the stretched leg's length L (thigh + shank).
+// Real quadrupeds' joints hold 0.3-0.8 m g L (HyQ 0.26, ANYmal C 0.27, Go2's knee 0.72) and turn
+// the stretched leg's foot at 4-17 m/s (ANYmal C 4.5, Go2's hip 12.8): an effort above
+// kPlaceholderEffort m g L, or a velocity whose foot speed v L exceeds kPlaceholderFootSpeed, is
+// not the motor's. Limits given with --effort / --velocity are taken as they are.
+constexpr double kPlaceholderEffort = 3.0;        // times m g L
+constexpr double kPlaceholderFootSpeed = 25.0;    // m/s
+void refuse_placeholder_limits(const std::vector<LegChain>& legs, const std::vector<JointLimits>& limits,
+                               const std::vector<LegModel>& models, double mass, const Fail& fail) {
+  static const char* kKinds[3] = {"haa", "hfe", "kfe"};
+  for (size_t l = 0; l < legs.size(); ++l) {
+    const double reach = models[l].l1 + models[l].l2;
+    const double effort_cap = kPlaceholderEffort * mass * 9.81 * reach;
+    const double velocity_cap = kPlaceholderFootSpeed / reach;
+    for (int k = 0; k < 3; ++k) {
+      const std::string& name = legs[l].joints[k]->name;
+      if (!limits[l].effort_given[k] && limits[l].effort[k] > effort_cap)
+        fail("joint '" + name + "' has the effort limit " + short_num(limits[l].effort[k]) +
+             " N m, a placeholder: it would hold " + short_num(limits[l].effort[k] / (mass * 9.81 * reach)) +
+             " times the robot's weight (" + short_num(mass) + " kg) at the end of its stretched leg (" +
+             short_num(reach) + " m), more than " + short_num(kPlaceholderEffort) +
+             ": give the motor's with --effort " + name + "=N_M (or --effort " + kKinds[k] + "=N_M for every leg)");
+      if (!limits[l].velocity_given[k] && limits[l].velocity[k] > velocity_cap)
+        fail("joint '" + name + "' has the velocity limit " + short_num(limits[l].velocity[k]) +
+             " rad/s, a placeholder: it would move the stretched leg's foot (" + short_num(reach) + " m) at " +
+             short_num(limits[l].velocity[k] * reach) + " m/s, more than " + short_num(kPlaceholderFootSpeed) +
+             " m/s: give the motor's with --velocity " + name + "=RAD_PER_S (or --velocity " + kKinds[k] +
+             "=RAD_PER_S for every leg)");
+    }
+  }
 }
 
 // The legs' general geometry (robot_model.hpp) with their limits and knees; *foot_radius the
@@ -706,6 +800,8 @@ UrdfImport import_urdf_text(const std::string& xml, const std::string& urdf_path
     throw UrdfImportError(urdf_path + ": " + what);
   };
   if (options.name.empty()) fail("no robot name given");
+  if (options.foot_radius && !(*options.foot_radius > 0 && *options.foot_radius < 1))
+    fail("--foot-radius must be a number of metres in (0, 1)");
   const urdf::ModelInterfaceSharedPtr model = parse_checked(xml, fail);
   const urdf::LinkConstSharedPtr root = model->getRoot();
   const std::vector<LinkInfo> infos = walk_tree(*model, fail);
@@ -774,6 +870,7 @@ UrdfImport import_urdf_text(const std::string& xml, const std::string& urdf_path
   // base frame moved to the centre of mass at the nominal stance (axes unchanged). On Go2 the
   // legs are 55 % of the mass, so the difference matters: left in the URDF's frame, the trunk
   // that makes the body's centre the origin would sit 14 cm up, with an unphysical inertia.
+  refuse_placeholder_limits(legs, limits, models, body.mass, fail);
   r.shift = body.com();
   const Vector3d& shift = r.shift;
   out.base_origin_in_urdf = {shift.x(), shift.y(), shift.z()};

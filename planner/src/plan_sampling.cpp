@@ -30,6 +30,7 @@ Trajectory sample_solution(const SrbdProblem& problem, const std::vector<double>
   Trajectory tr;
   const auto& robot = problem.robot();
   tr.robot = robot.name;
+  tr.robot_definition = robot.definition;
   tr.gait = problem.options().gait;
   tr.duration = problem.duration(x);
   tr.sample_dt = dt;

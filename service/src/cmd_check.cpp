@@ -31,6 +31,7 @@ constexpr int kChecksFailed = 3;
 
 struct CheckCliOptions {
   std::string plan;
+  std::string robot;  // --robot: for a plan that carries no robot definition
   std::string terrain;
   double resolution = 0.01;
   std::string series;
@@ -69,6 +70,11 @@ json summary_json(const collision::CheckReport& rep, const std::string& plan,
     for (int j = 0; j < 3; ++j)
       if (t.worst_sample[j] >= 0) worst_t[kJoints[j]] = rep.torque.time[t.worst_sample[j]];
     leg["torque_ratio_max_t"] = worst_t;
+    if (rep.torque.velocity_checked) {
+      const auto& v = t.worst_velocity_ratio;
+      leg["velocity_ratio_max"] = {{"HAA", v[0]}, {"HFE", v[1]}, {"KFE", v[2]}};
+      leg["velocity_violations"] = t.velocity_violating_samples;
+    }
     if (rep.clearance) {
       const auto& c = rep.clearance->legs[i];
       leg["shin_min_distance_m"] = c.shin_min;
@@ -233,6 +239,13 @@ void print_human(const collision::CheckReport& rep, const std::string& plan,
     std::cout << "\n";
   }
   std::cout << "\n";
+  if (rep.torque.velocity_worst_sample >= 0)
+    std::cout << "worst speed   " << rep.torque.velocity_ratio_max << " x limit ("
+              << rep.torque.legs[rep.torque.velocity_worst_leg].leg << " "
+              << kJoints[rep.torque.velocity_worst_joint] << " at t = "
+              << rep.torque.time[rep.torque.velocity_worst_sample] << " s)\n";
+  else
+    std::cout << "joint speeds  not checked: the robot file gives no velocity limits\n";
   if (rep.torque.worst_sample >= 0)
     std::cout << "worst torque  " << rep.torque.ratio_max << " x limit ("
               << rep.torque.legs[rep.torque.worst_leg].leg << " " << kJoints[rep.torque.worst_joint]
@@ -302,7 +315,7 @@ void run_check(const CheckCliOptions& o) {
       throw CommandError(std::string("--series: ") + e.what());
     }
   }
-  PlanWithRobot loaded = read_plan_with_robot(o.plan);
+  PlanWithRobot loaded = read_plan_with_robot(o.plan, o.robot);
   const planner::Trajectory& traj = loaded.trajectory;
   const robot::RobotModel& model = loaded.robot;
   const TerrainSource source = load_terrain_source(
@@ -385,6 +398,9 @@ void add_check_command(CLI::App& app) {
   cmd->add_option("plan", opts->plan, "plan.json written by 'terrastride plan'")
       ->required()
       ->check(CLI::ExistingFile);
+  cmd->add_option("--robot", opts->robot,
+                  "Robot name or file, for a plan written before plans carried their robot "
+                  "(a plan that carries one is judged with it)");
   cmd->add_option("--terrain", opts->terrain,
                   "Terrain directory from 'terrastride map' (uses its octomap.bt and safety "
                   "margins), an OctoMap file (.bt, .ot) or a scene name (exact analytic terrain, "

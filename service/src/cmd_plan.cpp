@@ -126,13 +126,22 @@ nlohmann::json feasibility_fields(const std::vector<std::string>& items) {
   return settings;
 }
 
-void run_plan(const PlanCliOptions& o) {
-  robot::RobotModel model;
+// The robot to plan with: --robot, or for a re-plan (--init) without it, the robot the previous
+// plan carries.
+robot::RobotModel plan_robot(const PlanCliOptions& o) {
   try {
-    model = robot::load_robot(robot::resolve_robot_path(o.robot));
+    if (!o.given("--robot") && !o.init.empty())
+      return planner::robot_of_plan(planner::read_plan_file(o.init), o.init);
+    return robot::load_robot(robot::resolve_robot_path(o.robot));
+  } catch (const planner::PlanFileError& e) {
+    throw CommandError(std::string("--init: ") + e.what());
   } catch (const robot::RobotFileError& e) {
-    throw CommandError(std::string("--robot: ") + e.what());
+    throw CommandError(std::string(o.given("--robot") ? "--robot: " : "--init: ") + e.what());
   }
+}
+
+void run_plan(const PlanCliOptions& o) {
+  const robot::RobotModel model = plan_robot(o);
   // The flags given become the request's fields, read by the socket's reader (plan_request.hpp):
   // one set of checks, limits and defaults. Flags left out are left out, so a re-plan keeps
   // what --init was planned with.

@@ -22,7 +22,7 @@ using planner::PolytopeQuality;
 
 struct PolytopeOptions {
   std::string robot = "hyq";
-  int samples = 1200;
+  int samples = planner::PolytopeFitOptions().samples;
   uint64_t seed = 1;
   int l_refs = 7;
   int alpha_refs = 3;
@@ -98,18 +98,13 @@ void run_fit(const PolytopeOptions& o) {
   } catch (const std::exception& e) {
     throw CommandError(std::string("polytope fit for robot ") + model.name + ": " + e.what());
   }
-  char summary[160];
-  std::snprintf(summary, sizeof summary,
-                "samples %d per leg, seed %llu, box scale %g, %dx%d references, smoothness %g",
-                o.samples, static_cast<unsigned long long>(o.seed), o.box_scale, o.l_refs,
-                o.alpha_refs, o.smoothness);
-  fitted.fit_summary = summary;
+  fitted.fit_summary = planner::describe_fit(fo);
   try {
     planner::save_polytope_model(fitted, model, path);
   } catch (const planner::PolytopeFileError& e) {
     throw CommandError(e.what());
   }
-  json out{{"robot", model.name}, {"file", path}, {"fit", summary}, {"legs", json::array()}};
+  json out{{"robot", model.name}, {"file", path}, {"fit", fitted.fit_summary}, {"legs", json::array()}};
   for (const auto& r : reports) {
     out["legs"].push_back({{"leg", r.leg},
                            {"samples", r.samples},
@@ -124,7 +119,7 @@ void run_fit(const PolytopeOptions& o) {
     std::cout << out.dump() << "\n";
     return;
   }
-  std::printf("fitted force polytopes of %s (%s) -> %s\n", model.name.c_str(), summary,
+  std::printf("fitted force polytopes of %s (%s) -> %s\n", model.name.c_str(), fitted.fit_summary.c_str(),
               path.c_str());
   for (const auto& r : reports) {
     std::printf("  %-4s %d iterations, cost %.4g -> %.4g, offset scale %.4f, %.2f s\n",

@@ -1,4 +1,7 @@
 // `terrastride robot`: inspect a robot file, forward/inverse kinematics, exact force polytopes.
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
 #include <iostream>
 #include <map>
 #include <sstream>
@@ -7,6 +10,8 @@
 #include <nlohmann/json.hpp>
 
 #include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/planner/polytope_fit.hpp"
+#include "terrastride/planner/polytope_model.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/robot/urdf_import.hpp"
@@ -60,7 +65,30 @@ struct RobotOptions {
   std::string feet;
   double nominal_height = 0.0;
   std::vector<std::string> joint_ranges;
+  std::vector<std::string> efforts, velocities;
+  double foot_radius = 0.0;
+  bool no_fit = false;
 };
+
+// "A,B,C=VALUE" -> each joint's (or joint kind's) value; `flag` and `unit` name it in errors.
+void add_joint_values(const std::string& spec, const std::string& flag, const std::string& unit,
+                      std::map<std::string, double>* values) {
+  const size_t eq = spec.find('=');
+  double v = 0;
+  try {
+    if (eq == std::string::npos || eq == 0) throw std::invalid_argument("no =");
+    size_t used = 0;
+    v = std::stod(spec.substr(eq + 1), &used);
+    if (used != spec.size() - eq - 1) throw std::invalid_argument("trailing");
+  } catch (const std::exception&) {
+    throw CommandError(flag + " '" + spec + "': expected JOINT[,JOINT...]=VALUE (" + unit +
+                       "; JOINT a URDF joint name or haa, hfe, kfe for that joint of every leg)");
+  }
+  std::stringstream names(spec.substr(0, eq));
+  std::string joint;
+  while (std::getline(names, joint, ','))
+    if (!joint.empty()) (*values)[joint] = v;
+}
 
 // "A,B,C=MIN:MAX" (degrees) -> each joint's range.
 void add_joint_ranges(const std::string& spec,
@@ -83,6 +111,96 @@ void add_joint_ranges(const std::string& spec,
   std::string joint;
   while (std::getline(names, joint, ','))
     if (!joint.empty()) (*ranges)[joint] = {lo, hi};
+}
+
+// `robot import`: the robot file from the URDF, then its force polytopes fitted beside it, so
+// the robot is ready for every constraint set. Nothing is written when either fails.
+void run_import(const RobotOptions& opts, bool height_given, bool foot_radius_given) {
+  robot::UrdfImportOptions o;
+  o.name = opts.name;
+  if (o.name.empty()) {
+    std::string base = opts.out.substr(opts.out.find_last_of('/') + 1);
+    if (base.size() > 5 && base.substr(base.size() - 5) == ".yaml") base.resize(base.size() - 5);
+    o.name = base;
+  }
+  if (!opts.feet.empty()) {
+    std::stringstream list(opts.feet);
+    std::string f;
+    while (std::getline(list, f, ','))
+      if (!f.empty()) o.feet.push_back(f);
+  }
+  if (height_given) o.nominal_height = opts.nominal_height;
+  if (foot_radius_given) o.foot_radius = opts.foot_radius;
+  for (const auto& spec : opts.joint_ranges) add_joint_ranges(spec, &o.joint_range_deg);
+  for (const auto& spec : opts.efforts) add_joint_values(spec, "--effort", "N m", &o.effort);
+  for (const auto& spec : opts.velocities)
+    add_joint_values(spec, "--velocity", "rad/s", &o.velocity);
+  o.command = "terrastride robot import " + opts.urdf + " --out " + opts.out;
+  if (!opts.name.empty()) o.command += " --name " + opts.name;
+  if (!opts.feet.empty()) o.command += " --foot-link " + opts.feet;
+  if (o.foot_radius) o.command += " --foot-radius " + std::to_string(*o.foot_radius);
+  if (o.nominal_height) o.command += " --nominal-height " + std::to_string(*o.nominal_height);
+  for (const auto& spec : opts.joint_ranges) o.command += " --joint-range " + spec;
+  for (const auto& spec : opts.efforts) o.command += " --effort " + spec;
+  for (const auto& spec : opts.velocities) o.command += " --velocity " + spec;
+  robot::UrdfImport result;
+  try {
+    result = robot::import_urdf(opts.urdf, o);
+  } catch (const robot::UrdfImportError& e) {
+    throw CommandError(e.what());
+  }
+  // The model as it will load from --out (its polytope file's path derives from that path).
+  robot::RobotModel model;
+  try {
+    model = robot::parse_robot(result.yaml, opts.out);
+  } catch (const robot::RobotFileError& e) {
+    throw CommandError(e.what());
+  }
+  const std::string polytopes = planner::polytope_path_for(model);
+  try {
+    perception::check_output_file(opts.out);
+    if (!opts.no_fit) perception::check_output_file(polytopes);
+  } catch (const perception::InputError& e) {
+    throw CommandError("--out: " + std::string(e.what()));
+  }
+  for (const auto& n : result.notes) std::cout << "read: " << n << "\n";
+  for (const auto& d : result.defaults) std::cout << "default: " << d << "\n";
+  planner::RobotPolytopeModel fitted;
+  std::vector<planner::LegFitReport> reports;
+  const auto t0 = std::chrono::steady_clock::now();
+  if (!opts.no_fit) {
+    try {
+      fitted = planner::fit_robot_polytopes(model, planner::PolytopeFitOptions(), &reports);
+      fitted.fit_summary = planner::describe_fit(planner::PolytopeFitOptions());
+    } catch (const std::exception& e) {
+      throw CommandError("force-polytope fit for robot " + model.name + ": " + e.what() +
+                         " (nothing written)");
+    }
+  }
+  const double fit_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  try {
+    if (!opts.no_fit) planner::save_polytope_model(fitted, model, polytopes);
+    perception::write_file_atomically(opts.out, result.yaml);
+  } catch (const std::exception& e) {
+    throw CommandError("--out " + opts.out + ": " + e.what());
+  }
+  std::cout << "wrote " << opts.out << " (robot " << o.name << ")\n";
+  if (opts.no_fit) {
+    std::cout << "force polytopes not fitted (--no-fit): `plan --constraints all` needs them; run "
+                 "`terrastride polytopes fit --robot "
+              << robot::robot_argument(model) << "`\n";
+    return;
+  }
+  double worst = 0, median = 0;
+  for (const auto& r : reports) {
+    worst = std::max(worst, r.training.rho_out_max);
+    median = std::max(median, r.training.rho_out_median);
+  }
+  std::printf("wrote %s (force polytopes of %zu legs fitted in %.2f s; rho_out median %.4f, max "
+              "%.4f on the training feet; `terrastride polytopes validate --robot %s` measures "
+              "them on held-out feet)\n",
+              polytopes.c_str(), reports.size(), fit_s, median, worst,
+              robot::robot_argument(model).c_str());
 }
 
 }  // namespace
@@ -174,51 +292,32 @@ void add_robot_command(CLI::App& app) {
   import->add_option("--out", opts->out, "The robot file to write (e.g. data/robots/NAME.yaml)")
       ->required();
   import->add_option("--name", opts->name, "The robot's name (default: --out's file name without .yaml)");
-  import->add_option("--feet", opts->feet,
+  import->add_option("--feet,--foot-link", opts->feet,
                      "Foot links, comma-separated (default: every link three revolute joints "
-                     "below the base with a sphere collision)");
+                     "below the base with a sphere collision; with --foot-radius also the leaf "
+                     "link fixed below each leg's last joint)");
+  import->add_option("--foot-radius", opts->foot_radius,
+                     "Foot sphere radius, m, for feet without a sphere collision (mesh feet): the "
+                     "foot link's frame origin is the sphere's centre");
   import->add_option("--nominal-height", opts->nominal_height,
                      "Base height above flat ground in the nominal stance, m (default: 75 % of the "
                      "feet's drop below the HAA joints at q = 0)");
   import->add_option("--joint-range", opts->joint_ranges,
                      "JOINT[,JOINT...]=MIN:MAX in degrees: replaces the URDF's range (required "
                      "for placeholder ranges, e.g. ANYmal C's +-540 deg); repeatable");
-  import->callback([opts, import] {
-    robot::UrdfImportOptions o;
-    o.name = opts->name;
-    if (o.name.empty()) {
-      std::string base = opts->out.substr(opts->out.find_last_of('/') + 1);
-      if (base.size() > 5 && base.substr(base.size() - 5) == ".yaml") base.resize(base.size() - 5);
-      o.name = base;
-    }
-    if (!opts->feet.empty()) {
-      std::stringstream list(opts->feet);
-      std::string f;
-      while (std::getline(list, f, ','))
-        if (!f.empty()) o.feet.push_back(f);
-    }
-    if (import->count("--nominal-height")) o.nominal_height = opts->nominal_height;
-    for (const auto& spec : opts->joint_ranges) add_joint_ranges(spec, &o.joint_range_deg);
-    o.command = "terrastride robot import " + opts->urdf + " --out " + opts->out;
-    if (!opts->name.empty()) o.command += " --name " + opts->name;
-    if (!opts->feet.empty()) o.command += " --feet " + opts->feet;
-    if (o.nominal_height) o.command += " --nominal-height " + std::to_string(*o.nominal_height);
-    for (const auto& spec : opts->joint_ranges) o.command += " --joint-range " + spec;
-    robot::UrdfImport result;
-    try {
-      result = robot::import_urdf(opts->urdf, o);
-    } catch (const robot::UrdfImportError& e) {
-      throw CommandError(e.what());
-    }
-    try {
-      perception::write_file_atomically(opts->out, result.yaml);
-    } catch (const std::exception& e) {
-      throw CommandError("--out " + opts->out + ": " + e.what());
-    }
-    for (const auto& n : result.notes) std::cout << "read: " << n << "\n";
-    for (const auto& d : result.defaults) std::cout << "default: " << d << "\n";
-    std::cout << "wrote " << opts->out << " (robot " << o.name << ")\n";
-  });
+  import->add_option("--effort", opts->efforts,
+                     "JOINT[,JOINT...]=N_M: replaces the URDF's effort limit (required for missing "
+                     "or placeholder efforts, above 3 x weight x stretched leg length); JOINT may "
+                     "be haa, hfe or kfe for that joint of every leg; repeatable");
+  import->add_option("--velocity", opts->velocities,
+                     "JOINT[,JOINT...]=RAD_PER_S: replaces the URDF's velocity limit (required for "
+                     "missing or placeholder velocities, a stretched-leg foot speed above 25 m/s); "
+                     "JOINT may be haa, hfe or kfe; repeatable");
+  import->add_flag("--no-fit", opts->no_fit,
+                   "Do not fit the force polytopes (ROBOT.polytopes.yaml beside --out), which "
+                   "`plan --constraints all` needs");
+  import->callback([opts, import] { run_import(*opts, import->count("--nominal-height") > 0,
+                                               import->count("--foot-radius") > 0); });
 }
 
 }  // namespace terrastride::service

@@ -41,6 +41,7 @@ std::string format_number(double v) {
 
 struct SimulateCliOptions {
   std::string plan;
+  std::string robot;  // --robot: for a plan that carries no robot definition
   std::string terrain;
   double dt = 0.002;
   std::vector<std::string> pushes;
@@ -278,7 +279,7 @@ void run_simulate(const SimulateCliOptions& o) {
       throw CommandError("--via " + o.via + ": " + e.what());
     }
   }
-  PlanWithRobot loaded = read_plan_with_robot(o.plan);
+  PlanWithRobot loaded = read_plan_with_robot(o.plan, o.robot);
   const planner::Trajectory& traj = loaded.trajectory;
   const robot::RobotModel& model = loaded.robot;
   const bool is_scene = terrain::is_scene_name(o.terrain);
@@ -399,6 +400,9 @@ void add_simulate_command(CLI::App& app) {
   cmd->add_option("plan", opts->plan, "plan.json written by 'terrastride plan'")
       ->required()
       ->check(CLI::ExistingFile);
+  cmd->add_option("--robot", opts->robot,
+                  "Robot name or file, for a plan written before plans carried their robot "
+                  "(a plan that carries one is judged with it)");
   cmd->add_option("--terrain", opts->terrain,
                   "Terrain directory from 'terrastride map' (its elevation becomes a heightfield) "
                   "or a scene name (exact boxes: " + terrain::scene_names_text() + ")")

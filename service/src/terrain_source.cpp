@@ -145,7 +145,7 @@ std::vector<std::string> add_post_hoc_checks(const robot::RobotModel& model,
   }
 }
 
-PlanWithRobot read_plan_with_robot(const std::string& path) {
+PlanWithRobot read_plan_with_robot(const std::string& path, const std::string& robot_flag) {
   PlanWithRobot out;
   try {
     out.trajectory = planner::read_plan_file(path);
@@ -153,10 +153,32 @@ PlanWithRobot read_plan_with_robot(const std::string& path) {
     throw CommandError(e.what());
   }
   const std::string& name = out.trajectory.robot;
+  if (!robot_flag.empty()) {
+    try {
+      out.robot = robot::load_robot(robot::resolve_robot_path(robot_flag));
+    } catch (const robot::RobotFileError& e) {
+      throw CommandError(std::string("--robot: ") + e.what());
+    }
+    const std::string& carried = out.trajectory.robot_definition;
+    if (!carried.empty() && carried != out.robot.definition)
+      throw CommandError("--robot " + robot_flag + " (robot '" + out.robot.name + "', hash " +
+                         robot::robot_definition_hash(out.robot.definition) + ") is not the robot " +
+                         path + " was planned with ('" + name + "', hash " +
+                         robot::robot_definition_hash(carried) +
+                         "); leave --robot out to use the plan's own");
+    if (carried.empty() && !name.empty() && name != out.robot.name)
+      throw CommandError("--robot " + robot_flag + " is robot '" + out.robot.name + "', but " +
+                         path + " was planned with robot '" + name + "'");
+    return out;
+  }
   try {
-    out.robot = robot::load_robot(robot::resolve_robot_path(name.empty() ? "hyq" : name));
+    out.robot = planner::robot_of_plan(out.trajectory, path);
+  } catch (const planner::PlanFileError& e) {
+    throw CommandError(e.what());
   } catch (const robot::RobotFileError& e) {
-    throw CommandError(path + ": robot: '" + name + "' cannot be loaded: " + e.what());
+    throw CommandError(path + ": robot: '" + name + "' cannot be loaded: " + e.what() +
+                       " (the plan carries no robot definition, as plans made now do: give its "
+                       "robot file with --robot FILE)");
   }
   return out;
 }

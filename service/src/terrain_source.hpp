@@ -63,12 +63,14 @@ std::vector<std::string> add_post_hoc_checks(const robot::RobotModel& model,
 // The voxel size of the post-hoc leg check on an exact scene (`terrastride check --resolution`).
 constexpr double kPostHocVoxel = 0.01;
 
-// A plan file and the robot it names (hyq when it names none), as `terrastride check PLAN` and
-// `terrastride simulate PLAN` read them. Throws CommandError naming the file.
+// A plan file and its robot (planner::robot_of_plan: the definition it carries, else the shipped
+// robot it names), as `terrastride check PLAN` and `terrastride simulate PLAN` read them.
+// `robot_flag` (--robot, optional) names the robot file of a plan that carries none; for a plan
+// that carries one it must be that very definition. Throws CommandError naming the file.
 struct PlanWithRobot {
   planner::Trajectory trajectory;
   robot::RobotModel robot;
 };
-PlanWithRobot read_plan_with_robot(const std::string& path);
+PlanWithRobot read_plan_with_robot(const std::string& path, const std::string& robot_flag = "");
 
 }  // namespace terrastride::service

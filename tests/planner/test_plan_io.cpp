@@ -349,3 +349,72 @@ TEST(StartLead, IsTheStartsLeadOverThePlanAlongThePathLine) {
   ProblemOptions no_line;
   EXPECT_EQ(lead_of(0.03 * along, no_line), 0.0);
 }
+
+// A plan carries the robot file it was made with ("robot_file": its text and content hash), and
+// robot_of_plan returns that robot, never the shipped file of the same name; plans without one
+// (written before) keep naming a shipped robot.
+TEST(PlanRobot, ThePlanCarriesItsRobotAndNoSameNamedOneReplacesIt) {
+  namespace fs = std::filesystem;
+  const std::string shipped = std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/hyq.yaml";
+  const terrastride::robot::RobotModel hyq = terrastride::robot::load_robot(shipped);
+  ASSERT_FALSE(hyq.definition.empty());
+  // Another robot named hyq: the shipped file 2 kg heavier.
+  std::string text = hyq.definition;
+  const std::size_t at = text.find("mass:");
+  ASSERT_NE(at, std::string::npos);
+  const std::size_t end = text.find('\n', at);
+  const double mass = std::stod(text.substr(at + 5, end - at - 5));
+  text.replace(at, end - at, "mass: " + std::to_string(mass + 2.0));
+  const terrastride::robot::RobotModel heavier = terrastride::robot::parse_robot(text, "heavier");
+  ASSERT_EQ(heavier.name, "hyq");
+
+  Trajectory t = two_sample_plan();
+  t.robot_definition = heavier.definition;
+  const json j = plan_to_json(t);
+  ASSERT_TRUE(j.contains("robot_file"));
+  EXPECT_EQ(j["robot_file"]["hash"], terrastride::robot::robot_definition_hash(text));
+  const Trajectory back = plan_from_json(j, "p.json");
+  EXPECT_EQ(back.robot_definition, text);
+  EXPECT_FALSE(back.extra.contains("robot_file"));
+  const auto carried = robot_of_plan(back, "p.json");
+  EXPECT_DOUBLE_EQ(carried.mass, heavier.mass);
+  EXPECT_NE(carried.mass, hyq.mass);
+
+  // The shipped definition itself is recognised as the shipped file (its polytopes beside it).
+  t.robot_definition = hyq.definition;
+  EXPECT_TRUE(fs::equivalent(robot_of_plan(plan_from_json(plan_to_json(t), "p.json"), "p.json")
+                                 .source_file,
+                             shipped));
+  // A plan written before plans carried their robot: the shipped robot of its name.
+  t.robot_definition.clear();
+  EXPECT_FALSE(plan_to_json(t).contains("robot_file"));
+  EXPECT_DOUBLE_EQ(robot_of_plan(t, "p.json").mass, hyq.mass);
+}
+
+TEST(PlanRobot, AnAlteredOrMismatchedRobotDefinitionIsRefusedByField) {
+  Trajectory t = two_sample_plan();
+  t.robot_definition = terrastride::robot::load_robot(std::string(TERRASTRIDE_TEST_DATA_DIR) +
+                                                      "/robots/go2.yaml")
+                           .definition;
+  json j = plan_to_json(t);
+  json altered = j;
+  altered["robot_file"]["yaml"] = j["robot_file"]["yaml"].get<std::string>() + "# edited\n";
+  EXPECT_NE(error_of(altered).find("p.json: robot_file.hash: is "), std::string::npos)
+      << error_of(altered);
+  // "robot" says hyq, the definition is go2's.
+  try {
+    robot_of_plan(plan_from_json(j, "p.json"), "p.json");
+    ADD_FAILURE() << "a go2 definition under the name hyq was accepted";
+  } catch (const PlanFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("defines robot 'go2'"), std::string::npos) << e.what();
+  }
+  json broken = j;
+  broken["robot_file"]["yaml"] = "name: [";
+  broken["robot_file"]["hash"] = terrastride::robot::robot_definition_hash("name: [");
+  try {
+    robot_of_plan(plan_from_json(broken, "p.json"), "p.json");
+    ADD_FAILURE() << "an invalid robot definition was accepted";
+  } catch (const PlanFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("p.json: robot_file.yaml"), std::string::npos) << e.what();
+  }
+}

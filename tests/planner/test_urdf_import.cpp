@@ -15,6 +15,7 @@
 #include <random>
 #include <string>
 
+#include "support/quadruped_urdf.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/robot/urdf_import.hpp"
@@ -220,7 +221,7 @@ int run_import(const std::string& tag, const std::string& urdf_text, std::string
 TEST(UrdfImport, ToyQuadrupedImportsAndLoads) {
   std::string err;
   fs::path out;
-  EXPECT_EQ(run_import("toy", quadruped_urdf(4), &err, &out), 0) << err;
+  EXPECT_EQ(run_import("toy", quadruped_urdf(4), &err, &out, "--no-fit"), 0) << err;
   const RobotModel r = load_robot(out.string());
   EXPECT_EQ(r.legs.size(), 4u);
   EXPECT_EQ(r.name, "robot");
@@ -253,7 +254,7 @@ TEST(UrdfImport, ErrorsNameTheJointOrLinkAndWriteNothing) {
   std::string err;
   fs::path out;
   EXPECT_EQ(run_import("override", quadruped_urdf(4, -1, true), &err, &out,
-                       "--joint-range LF_HFE,RF_HFE,LH_HFE,RH_HFE=-80:80"), 0) << err;
+                       "--joint-range LF_HFE,RF_HFE,LH_HFE,RH_HFE=-80:80 --no-fit"), 0) << err;
   EXPECT_TRUE(fs::exists(out));
   fs::remove_all(out.parent_path());
 }
@@ -321,7 +322,8 @@ TEST(UrdfImport, DeepXmlNestingIsRefusedBeforeParsing) {
         nested(90, "<gazebo>", "</gazebo>")}) {
     std::string err;
     fs::path out;
-    EXPECT_EQ(run_import("nested_ok", with_extra(toy, extra), &err, &out), 0) << extra.substr(0, 60) << ": " << err;
+    EXPECT_EQ(run_import("nested_ok", with_extra(toy, extra), &err, &out, "--no-fit"), 0)
+        << extra.substr(0, 60) << ": " << err;
     fs::remove_all(out.parent_path());
   }
 }
@@ -459,6 +461,88 @@ TEST(UrdfImport, FuzzCorpusReplay) {
   }
   EXPECT_GE(files, 10);
   EXPECT_GE(imported, 1);  // the toy quadruped
+}
+
+// Limits are real or refused: placeholder and missing efforts and velocities are refused by
+// joint name with the flag that supplies real ones, and the flags (by joint or joint kind) make
+// the import go through. The criteria (urdf_import.cpp): an effort above 3 m g L, a velocity
+// above 25 m/s / L, for the robot's weight m g and its stretched leg's length L.
+TEST(UrdfImport, PlaceholderEffortsAndVelocitiesAreRefusedByJoint) {
+  using test_support::QuadrupedSpec;
+  QuadrupedSpec effort;
+  effort.effort_knee = 1000;  // 15.4 kg, 0.42 m: 1000 N m holds 15.8 times its weight
+  QuadrupedSpec velocity;
+  velocity.velocity_hip = 1000;
+  QuadrupedSpec missing;
+  missing.velocity_knee = 0;  // urdfdom's "not given"
+  const struct {
+    std::string tag, urdf, expect;
+  } cases[] = {
+      {"effort", test_support::quadruped_urdf(effort),
+       "joint 'FL_calf_joint' has the effort limit 1000 N m, a placeholder"},
+      {"effort_fix", test_support::quadruped_urdf(effort), "--effort FL_calf_joint=N_M"},
+      {"velocity", test_support::quadruped_urdf(velocity),
+       "joint 'FL_hip_joint' has the velocity limit 1000 rad/s, a placeholder"},
+      {"velocity_fix", test_support::quadruped_urdf(velocity), "--velocity haa=RAD_PER_S"},
+      {"missing", test_support::quadruped_urdf(missing),
+       "joint 'FL_calf_joint' has no velocity limit"},
+  };
+  for (const auto& c : cases) {
+    std::string err;
+    fs::path out;
+    EXPECT_EQ(run_import(c.tag, c.urdf, &err, &out), 1) << c.tag << ": " << err;
+    EXPECT_NE(err.find(c.expect), std::string::npos) << c.tag << ": " << err;
+    EXPECT_FALSE(fs::exists(out)) << c.tag;
+    fs::remove_all(out.parent_path());
+  }
+  // Given: by kind for every leg, and by name (a name wins over its kind).
+  std::string err;
+  fs::path out;
+  ASSERT_EQ(run_import("effort_given", test_support::quadruped_urdf(effort), &err, &out,
+                       "--effort kfe=45 --effort FL_calf_joint=44 --no-fit"),
+            0)
+      << err;
+  const RobotModel r = load_robot(out.string());
+  EXPECT_DOUBLE_EQ(r.leg("LF").torque_limit[2], 44);
+  EXPECT_DOUBLE_EQ(r.leg("RH").torque_limit[2], 45);
+  EXPECT_DOUBLE_EQ(r.leg("RH").velocity_limit[2], 15.7);
+  fs::remove_all(out.parent_path());
+  EXPECT_EQ(run_import("velocity_given", test_support::quadruped_urdf(missing), &err, &out,
+                       "--velocity FL_calf_joint,FR_calf_joint,RL_calf_joint,RR_calf_joint=15 --no-fit"),
+            0)
+      << err;
+  EXPECT_DOUBLE_EQ(load_robot(out.string()).leg("LH").velocity_limit[2], 15);
+  fs::remove_all(out.parent_path());
+  EXPECT_EQ(run_import("bad_kind", test_support::quadruped_urdf(effort), &err, &out, "--effort knee=45"), 1);
+  EXPECT_NE(err.find("--effort names 'knee'"), std::string::npos) << err;
+  fs::remove_all(out.parent_path());
+}
+
+// Mesh feet (no sphere collision): refused with the flag that names the radius; with
+// --foot-radius the foot links' frames are the spheres' centres, found without naming them, or
+// named with --foot-link.
+TEST(UrdfImport, MeshFeetTakeTheRadiusGiven) {
+  test_support::QuadrupedSpec mesh;
+  mesh.mesh_feet = true;
+  const std::string urdf = test_support::quadruped_urdf(mesh);
+  std::string err;
+  fs::path out;
+  EXPECT_EQ(run_import("mesh", urdf, &err, &out), 1) << err;
+  EXPECT_NE(err.find("--foot-radius METRES"), std::string::npos) << err;
+  EXPECT_NE(err.find("FL_calf_joint"), std::string::npos) << err;
+  fs::remove_all(out.parent_path());
+  for (const std::string extra :
+       {"--foot-radius 0.023", "--foot-radius 0.023 --foot-link FL_foot,FR_foot,RL_foot,RR_foot"}) {
+    ASSERT_EQ(run_import("mesh_r", urdf, &err, &out, extra + " --no-fit"), 0) << extra << ": " << err;
+    const RobotModel r = load_robot(out.string());
+    EXPECT_DOUBLE_EQ(r.foot_radius, 0.023);
+    // The foot sphere's centre is the foot link's origin, 0.21 m below the knee at q = 0.
+    EXPECT_NEAR(r.leg("LF").joint_offset[2].norm(), 0.21, 1e-9) << extra;
+    fs::remove_all(out.parent_path());
+  }
+  EXPECT_EQ(run_import("mesh_bad", urdf, &err, &out, "--foot-radius 0"), 1);
+  EXPECT_NE(err.find("--foot-radius must be"), std::string::npos) << err;
+  fs::remove_all(out.parent_path());
 }
 
 }  // namespace

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <iterator>
 #include <limits>
 #include <thread>
 #include <tuple>
@@ -285,6 +286,35 @@ TEST_F(ServerTest, PlanOnAScannedMapRunsTheLegAndTrunkChecks) {
   const json chk = c.call_ok({{"op", "check"}, {"plan", plan}});
   EXPECT_FALSE(chk["passed"].get<bool>()) << chk.dump();
   EXPECT_EQ(chk["checks"]["shin_collisions"], plan["checks"]["shin_collisions"]);
+}
+
+// A plan made with a robot the server does not have (Go2's file named go2_other, in a folder of
+// its own, deleted before the request) is checked with the robot it carries: its velocity keys
+// show (the server's HyQ has no velocity limits) and agree with the plan's own post-hoc check.
+TEST_F(ServerTest, APlanIsCheckedWithTheRobotItCarries) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("terrastride_server_robot_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string data = std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/";
+  const auto read = [](const fs::path& path) {
+    std::ifstream in(path);
+    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  };
+  std::string robot = read(data + "go2.yaml");
+  robot.replace(robot.find("name: go2\n"), 10, "name: go2_other\n");
+  std::ofstream(dir / "go2_other.yaml") << robot;
+  const std::string cmd = std::string(TERRASTRIDE_BINARY) + " plan --robot " + (dir / "go2_other.yaml").string() +
+                          " --terrain flat --goal 0.3,0,0 --out " + (dir / "plan.json").string() +
+                          " > /dev/null 2>&1";
+  ASSERT_EQ(WEXITSTATUS(std::system(cmd.c_str())), 0) << cmd;
+  const json plan = json::parse(read(dir / "plan.json"));
+  fs::remove_all(dir);
+  ASSERT_TRUE(plan.contains("robot_file"));
+  Client c = Client::connect(address_);
+  const json chk = c.call_ok({{"op", "check"}, {"plan", plan}, {"terrain", "flat"}});
+  ASSERT_TRUE(chk["checks"].contains("velocity_ratio_max")) << chk.dump().substr(0, 2000);
+  EXPECT_DOUBLE_EQ(chk["checks"]["velocity_ratio_max"].get<double>(),
+                   plan["checks"]["velocity_ratio_max"].get<double>());
 }
 
 // A re-plan from the robot's measured state, as `terrastride plan --init --start-time

@@ -31,7 +31,11 @@ std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets() {
           {"trunk", [=](SrbdProblem& p) { build_trunk_set(p, options(p)); }},
           {"polytope", [=](SrbdProblem& p) { build_polytope_set(p, options(p)); }},
           {"swing", [=](SrbdProblem& p) { build_swing_set(p, options(p)); }},
-          {"joints", [=](SrbdProblem& p) { build_joints_set(p, options(p)); }},
+          {"joints",
+           [=](SrbdProblem& p) {
+             build_joints_set(p, options(p));
+             build_joint_velocity_rows(p);
+           }},
           {"force_ramp", [=](SrbdProblem& p) { build_force_ramp_set(p, options(p)); }},
           {"monotone_progress",
            [=](SrbdProblem& p) { build_monotone_progress_set(p, options(p)); }},

@@ -6,6 +6,7 @@
 
 #include "json_reader.hpp"
 #include "terrastride/planner/plan_io.hpp"
+#include "terrastride/robot/robot_model.hpp"
 
 namespace terrastride::planner {
 namespace {
@@ -17,8 +18,8 @@ json vec3(const Eigen::Vector3d& v) {
   return json::array({v.x(), v.y(), v.z()});
 }
 
-const char* const kKnownKeys[] = {"robot", "gait",    "duration", "sample_dt",
-                                  "feet",  "samples", "solver",   "checks"};
+const char* const kKnownKeys[] = {"robot",   "robot_file", "gait",   "duration", "sample_dt",
+                                  "feet",    "samples",    "solver", "checks"};
 
 }  // namespace
 
@@ -52,6 +53,9 @@ json plan_document(const Trajectory& t, bool with_samples) {
   // Extra keys first so the standard keys below always win.
   for (const auto& [key, value] : t.extra.items()) out[key] = value;
   out["robot"] = t.robot;
+  if (!t.robot_definition.empty())
+    out["robot_file"] = {{"hash", robot::robot_definition_hash(t.robot_definition)},
+                         {"yaml", t.robot_definition}};
   out["gait"] = t.gait;
   out["duration"] = t.duration;
   out["sample_dt"] = t.sample_dt;
@@ -116,6 +120,16 @@ Trajectory plan_from_json(const json& j, const std::string& source) {
   const Reader top(source, j, "");
   Trajectory t;
   t.robot = top.text("robot");
+  if (top.has("robot_file")) {
+    // The robot the plan was made with; its hash guards against an edited or truncated copy.
+    const Reader rf = top.sub("robot_file");
+    t.robot_definition = rf.text("yaml");
+    const std::string hash = rf.text("hash");
+    const std::string actual = robot::robot_definition_hash(t.robot_definition);
+    if (hash != actual)
+      rf.fail("hash", "is " + hash + " but the robot file text hashes to " + actual +
+                          " (the plan's robot definition was altered)");
+  }
   t.gait = top.has("gait") ? top.text("gait") : "";
   t.duration = top.number("duration");
   t.sample_dt = top.number("sample_dt");

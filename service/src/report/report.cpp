@@ -10,6 +10,7 @@
 #include "report/sections.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/collision/simulation.hpp"
+#include "terrastride/planner/plan_io.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/cli.hpp"
 
@@ -122,7 +123,10 @@ json build_report(const TerrainView& terrain, const std::vector<PlanInput>& plan
     robot_name = plans.front().trajectory.robot;
   robot::RobotModel model;
   try {
-    model = robot::load_robot(robot::resolve_robot_path(robot_name));
+    // A plan that carries its robot is reported with that definition (planner::robot_of_plan).
+    model = !plans.empty() && !plans.front().trajectory.robot_definition.empty()
+                ? planner::robot_of_plan(plans.front().trajectory, plans.front().path)
+                : robot::load_robot(robot::resolve_robot_path(robot_name));
   } catch (const std::exception& e) {
     throw CommandError(std::string("robot '") + robot_name + "': " + e.what());
   }
@@ -138,9 +142,11 @@ json build_report(const TerrainView& terrain, const std::vector<PlanInput>& plan
   json plan_list = json::array();
   for (const PlanInput& p : plans) {
     robot::RobotModel plan_model = model;
-    if (!p.trajectory.robot.empty() && p.trajectory.robot != model.name) {
+    if (!p.trajectory.robot_definition.empty() ? p.trajectory.robot_definition != model.definition
+                                               : !p.trajectory.robot.empty() &&
+                                                     p.trajectory.robot != model.name) {
       try {
-        plan_model = robot::load_robot(robot::resolve_robot_path(p.trajectory.robot));
+        plan_model = planner::robot_of_plan(p.trajectory, p.path);
       } catch (const std::exception& e) {
         throw CommandError(p.path + ": robot '" + p.trajectory.robot + "': " + e.what());
       }

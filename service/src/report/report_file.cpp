@@ -39,7 +39,15 @@ json make_report_file(const std::vector<std::string>& terrain_inputs,
     }
     plans.push_back(std::move(p));
   }
-  if (!plans.empty() && !plans.front().trajectory.robot.empty()) {
+  if (!plans.empty() && !plans.front().trajectory.robot_definition.empty()) {
+    options.robot = plans.front().trajectory.robot;
+    try {
+      terrain_options.foot_radius =
+          planner::robot_of_plan(plans.front().trajectory, plans.front().path).foot_radius;
+    } catch (const std::exception& e) {
+      throw CommandError(std::string("--plan ") + e.what());
+    }
+  } else if (!plans.empty() && !plans.front().trajectory.robot.empty()) {
     options.robot = plans.front().trajectory.robot;
     terrain_options.foot_radius = robot_foot_radius(options.robot);
   }
@@ -48,8 +56,10 @@ json make_report_file(const std::vector<std::string>& terrain_inputs,
   for (const PlanInput& p : plans) {
     robot::RobotModel model;
     try {
-      model = robot::load_robot(robot::resolve_robot_path(
-          p.trajectory.robot.empty() ? options.robot : p.trajectory.robot));
+      model = !p.trajectory.robot_definition.empty()
+                  ? planner::robot_of_plan(p.trajectory, p.path)
+                  : robot::load_robot(robot::resolve_robot_path(
+                        p.trajectory.robot.empty() ? options.robot : p.trajectory.robot));
     } catch (const std::exception& e) {
       throw CommandError(p.path + ": " + e.what());
     }

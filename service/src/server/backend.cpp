@@ -199,7 +199,14 @@ RequestPlan read_request_plan(const Backend& backend, const json& header, const 
     throw ProtocolError(pc::kBadRequest, e.what());
   }
   const std::string& name = r.trajectory.robot;
-  if (!name.empty() && name != backend.robot().name) {
+  if (!r.trajectory.robot_definition.empty()) {
+    // The plan carries its robot: judged with that definition, whatever the server's robot is.
+    try {
+      r.robot = planner::robot_of_plan(r.trajectory, "plan");
+    } catch (const std::exception& e) {
+      throw ProtocolError(pc::kBadRequest, e.what());
+    }
+  } else if (!name.empty() && name != backend.robot().name) {
     // A robot name from the data folder, never a path a client names (see gait_name).
     if (!is_plain_name(name))
       throw ProtocolError(pc::kBadRequest, "plan.robot: a robot name (e.g. " +

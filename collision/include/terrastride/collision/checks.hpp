@@ -95,6 +95,10 @@ struct LegTorqueSeries {
   Eigen::Vector3d worst_ratio = Eigen::Vector3d::Zero();  // per joint HAA HFE KFE
   Eigen::Vector3i worst_sample = Eigen::Vector3i::Constant(-1);
   int violating_samples = 0;  // samples where a joint of this leg exceeds its limit
+  // Joint speeds |q'_i| / q'_lim_i (legs whose robot file gives velocity limits; NaN elsewhere).
+  std::vector<Eigen::Vector3d> velocity_ratio;
+  Eigen::Vector3d worst_velocity_ratio = Eigen::Vector3d::Zero();
+  int velocity_violating_samples = 0;
 };
 
 struct TorqueReport {
@@ -106,6 +110,12 @@ struct TorqueReport {
   // Energy proxy (J): the integral over the plan of sum over legs and joints of |tau_j q'_j|, the
   // mechanical work the motors do with no recuperation (samples where IK failed left out).
   double energy_proxy_J = 0.0;
+  // Joint velocities against the robot file's velocity limits, beside the torques: checked only
+  // when every leg has them (an imported robot always does; HyQ's file gives none).
+  bool velocity_checked = false;
+  double velocity_ratio_max = 0.0;  // worst |q'|/q'_lim
+  int velocity_worst_sample = -1, velocity_worst_leg = -1, velocity_worst_joint = -1;
+  int velocity_violating_samples = 0;
 };
 
 TorqueReport check_joint_torques(const robot::RobotModel& model,
@@ -305,7 +315,8 @@ struct CheckReport {
   std::optional<FootholdReport> footholds;
   double wall_s = 0.0;
 
-  // plan.json "checks" keys: torque_ratio_max, torque_violations, shin_min_distance_m,
+  // plan.json "checks" keys: torque_ratio_max, torque_violations, velocity_ratio_max and
+  // velocity_violations (robots with velocity limits), shin_min_distance_m,
   // shin_collisions, unsafe_footholds, plus thigh_min_distance_m, thigh_collisions,
   // foothold_margin_min_m, ik_failures, joint_limit_violations; and the resolution-aware split of
   // the capsule contacts: shin_collisions_certain, shin_contacts_uncertain,

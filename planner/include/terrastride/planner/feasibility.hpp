@@ -160,6 +160,19 @@ void build_swing_set(SrbdProblem& problem, const FeasibilityOptions& options = {
 // "joints" (in "all"; beyond the paper): joint angles from IK within the joint ranges at every
 // knot of the base spline (see constraints/joints.cpp).
 void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options = {});
+// Part of "joints" for a robot whose every leg has velocity limits (has_velocity_limits): the
+// joint velocities within them at every knot and swing quarter point (piece kind
+// "joint_velocity", constraints/joint_velocity.cpp); build_joints_set adds them.
+bool has_velocity_limits(const robot::RobotModel& robot);
+void build_joint_velocity_rows(SrbdProblem& problem);
+// The joint velocities those rows bound, for a base (position, velocity, ZYX Euler angles and
+// their rates) and a foot (position, velocity), all in the world frame.
+template <class T>
+Eigen::Matrix<T, 3, 1> joint_velocity_rows(
+    const robot::LegModel& leg, const Eigen::Matrix<T, 3, 1>& base,
+    const Eigen::Matrix<T, 3, 1>& base_vel, const Eigen::Matrix<T, 3, 1>& euler,
+    const Eigen::Matrix<T, 3, 1>& euler_rate, const Eigen::Matrix<T, 3, 1>& foot,
+    const Eigen::Matrix<T, 3, 1>& foot_vel);
 // "force_ramp" (in "all"; beyond the paper): contact forces that load and unload continuously.
 // The layout leaves out the force knots at touch-down and lift-off (zero force there); this adds
 // the force rate bound force_rate_max per stance segment (see constraints/force_ramp.cpp).

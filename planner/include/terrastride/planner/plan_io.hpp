@@ -9,6 +9,7 @@
 
 #include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/trajectory.hpp"
+#include "terrastride/robot/robot_model.hpp"
 
 namespace terrastride::planner {
 
@@ -46,6 +47,14 @@ Trajectory plan_from_json(const nlohmann::json& json, const std::string& source)
 void write_plan_file(const std::string& path, const Trajectory& trajectory,
                      const SerialisedSamples* samples = nullptr);
 Trajectory read_plan_file(const std::string& path);
+
+// The robot a plan was made with: the definition it carries ("robot_file"), or, for a plan that
+// carries none (written before plans carried their robot), the shipped robot it names (hyq when
+// it names none). A carried definition is never looked up by name, so two robots of one name are
+// never confused. Throws PlanFileError (a carried definition that is not a valid robot file, or
+// whose name differs from "robot") or robot::RobotFileError (an unknown name); `source` names the
+// plan in messages.
+robot::RobotModel robot_of_plan(const Trajectory& trajectory, const std::string& source);
 
 // A robot's measured state to re-plan from `previous` at `start_time` (`terrastride plan
 // --start-state`, the service's "start_state"), in plan.json's conventions (world frame):

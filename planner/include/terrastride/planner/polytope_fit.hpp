@@ -20,7 +20,9 @@
 namespace terrastride::planner {
 
 struct PolytopeFitOptions {
-  int samples = 1200;  // training foot positions per leg
+  // Training foot positions per leg. 600 fit as well as 1200 on held-out positions (Go2:
+  // worst rho_out 1.0098 vs 1.0078, rho_in median 0.988 both) in half the time.
+  int samples = 600;
   uint64_t seed = 1;
   double box_scale = 1.25;  // sample the range-of-motion box scaled by this around the nominal
   int l_refs = 7;           // reference leg lengths (>= 2)
@@ -37,8 +39,13 @@ struct PolytopeFitOptions {
   double max_training_rho_out = 1.01;
   int max_iterations = 60;  // Ceres iterations per round
   int rounds = 2;           // re-assign samples to grid cells after the hip moved
-  int num_threads = 1;
+  // Threads: legs are fitted in parallel, one leg per thread (fit_robot_polytopes); a single
+  // leg's fit gives them to Ceres' Jacobian evaluation.
+  int num_threads = 2;
 };
+
+// The fit's settings as one line, recorded in the polytope file ("fit").
+std::string describe_fit(const PolytopeFitOptions& options);
 
 // Uniform samples in the scaled range-of-motion box whose inverse kinematics lies within the
 // joint limits. Throws std::runtime_error naming the leg when too few positions are feasible.

@@ -42,6 +42,9 @@ struct SolverStats {
 
 struct Trajectory {
   std::string robot;
+  // The robot file's text the plan was made with (plan.json "robot_file", with its content hash);
+  // empty in plans written before plans carried their robot, which name a shipped robot.
+  std::string robot_definition;
   std::string gait;
   double duration = 0.0;
   double sample_dt = 0.01;

@@ -107,6 +107,10 @@ struct RobotModel {
   // Where the robot's numbers come from when the file says (`source:`, e.g. an imported URDF's
   // path, repository and commit), as one line of flow YAML; empty otherwise.
   std::string source;
+  // The robot file's text as read, byte for byte: a plan carries it (plan.json "robot_file"), so
+  // the plan is judged and simulated with the robot it was planned with. Empty for a robot built
+  // in code.
+  std::string definition;
   double mass = 0.0;                                  // total mass used by the SRBD model
   Eigen::Matrix3d inertia = Eigen::Matrix3d::Zero();  // base frame, about the CoM
   double foot_radius = 0.0;
@@ -129,9 +133,17 @@ RobotModel load_robot(const std::string& path);
 // The same for a robot file's text; errors name `label` as the file.
 RobotModel parse_robot(const std::string& text, const std::string& label);
 
+// A content hash of a robot file's text (64-bit FNV-1a, 16 hex digits): names one definition in
+// plan.json and in messages. Identity only; the plan carries the text itself.
+std::string robot_definition_hash(const std::string& text);
+
 // Finds data/robots/<name>.yaml: TERRASTRIDE_DATA_DIR if set, otherwise the data folder of the
 // source tree the binary was built from. `name_or_path` may also be a path to a .yaml file.
 std::string resolve_robot_path(const std::string& name_or_path);
+
+// What to pass as --robot to name this robot in a command a user pastes: the name of a shipped
+// robot (its file is data/robots/NAME.yaml), else the path of the file it was read from.
+std::string robot_argument(const RobotModel& model);
 
 // The shipped data folder (see resolve_robot_path).
 std::string data_dir();

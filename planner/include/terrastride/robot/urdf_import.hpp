@@ -30,6 +30,14 @@ struct UrdfImportOptions {
   // Joint ranges that replace the URDF's (by URDF joint name, degrees): required where the URDF's
   // are placeholders (a range wider than a full turn, or a continuous joint).
   std::map<std::string, std::pair<double, double>> joint_range_deg;
+  // Effort (N m) and velocity (rad/s) limits that replace the URDF's, keyed by URDF joint name or
+  // by joint kind ("haa", "hfe", "kfe": that joint of every leg; a joint's own name wins):
+  // required where the URDF's are missing or placeholders (urdf_import.cpp, kPlaceholder*).
+  std::map<std::string, double> effort;
+  std::map<std::string, double> velocity;
+  // The foot sphere's radius (m) for feet without a sphere collision (mesh feet): the foot link's
+  // frame origin is then the sphere's centre. Also replaces the radius of sphere feet.
+  std::optional<double> foot_radius;
   std::string command;  // how the file was made (recorded in its `source`)
 };
 
