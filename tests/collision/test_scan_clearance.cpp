@@ -127,8 +127,10 @@ TEST_F(ScanClearance, NoisyRealFloorIsWalkableAndItsNoiseIsNoCertainCollision) {
                          "grid_map_pcl_input_cloud.pcd";
   if (!fs::exists(cloud)) GTEST_SKIP() << "no " << cloud << " (the shared scans are not beside this clone)";
   const fs::path map = dir_ / "floor";
-  const auto mapped = run_terrastride("map " + shell_quote(cloud.string()) + " --out " +
-                                      shell_quote(map.string()));
+  // Its VIEWPOINT holds a rotation that, read as PCL reads it, turns the level floor into a
+  // wall; the points are in the world frame (map refuses the file without this option).
+  const auto mapped = run_terrastride("map " + shell_quote(cloud.string()) +
+                                      " --viewpoint origin --out " + shell_quote(map.string()));
   ASSERT_EQ(mapped.code, 0) << mapped.all();
   const fs::path out = dir_ / "floor_plan.json";
   const auto planned = run_terrastride(
