@@ -1,5 +1,6 @@
-// Perception benchmarks: cloud reading speed per format and OctoMap insertion of OctoMap's own
-// laser scan (88,206 points, sensor at the origin). Figures are items (points) per second.
+// Perception benchmarks: cloud reading speed per format, OctoMap insertion of OctoMap's own
+// laser scan (88,206 points, sensor at the origin) and the dominant-plane estimate of `map`'s up
+// check. Figures are items (points) per second.
 #include <benchmark/benchmark.h>
 
 #include <cmath>
@@ -9,6 +10,7 @@
 #include "terrastride/perception/cloud_io.hpp"
 #include "terrastride/perception/filters.hpp"
 #include "terrastride/perception/octomap_fusion.hpp"
+#include "terrastride/perception/support_plane.hpp"
 
 namespace tp = terrastride::perception;
 
@@ -46,6 +48,26 @@ BENCHMARK(BM_ReadPcdBinary)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ReadPlyBinary)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ReadNpyFloat32)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ReadXyzText)->Unit(benchmark::kMillisecond);
+
+// The up check of `map` on a cloud nobody posed (voxel grid + PCL's RANSAC plane), sensor at the
+// origin; the PCL module is loaded before timing.
+void plane_bench(benchmark::State& state, const std::string& file) {
+  const tp::PointCloud c = tp::read_cloud(scan(file));
+  tp::SupportPlane p = tp::estimate_support_plane(c.points, Eigen::Vector3d::Zero());
+  for (auto _ : state) {
+    p = tp::estimate_support_plane(c.points, Eigen::Vector3d::Zero());
+    benchmark::DoNotOptimize(p.coefficients.data());
+  }
+  state.SetItemsProcessed(static_cast<int64_t>(state.iterations() * c.points.size()));
+  state.counters["points"] = static_cast<double>(c.points.size());
+  state.counters["tilt_deg"] = p.tilt_deg;
+}
+void BM_SupportPlaneScanXyz(benchmark::State& s) { plane_bench(s, "octomap/scan.xyz"); }
+void BM_SupportPlaneMaze(benchmark::State& s) {
+  plane_bench(s, "anybotics_samples/elevation_mapping_maze.ply");
+}
+BENCHMARK(BM_SupportPlaneScanXyz)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_SupportPlaneMaze)->Unit(benchmark::kMillisecond);
 
 // Args: resolution in mm, discretize (0/1). Ray casting from the origin, as docs/design.md §5.1
 // requires.
