@@ -405,8 +405,25 @@ Trajectory PlanningSession::current_plan_from(double t, double end) const {
     s.t = tau - t;
     out.samples.push_back(std::move(s));
   }
-  PhaseTimeline tl = reference_timeline_.cropped(std::min(t, T - kEventTol));
-  if (end < T - kEventTol) tl = truncated_timeline(tl, end - t);
+  // The schedule of the plans the samples come from: the last plan's (it may have added a
+  // touch-down) up to its end, which is an event of the reference's, then the reference's.
+  PhaseTimeline tl;
+  if (t >= previous_start_ && t < prev_end - kEventTol && previous_.extra.contains("timeline")) {
+    tl = timeline_of(previous_).cropped(t - previous_start_);
+    if (end < prev_end - kEventTol) {
+      tl = truncated_timeline(tl, end - t);
+    } else if (end > prev_end + kEventTol) {
+      const PhaseTimeline rest =
+          truncated_timeline(reference_timeline_.cropped(prev_end), end - prev_end);
+      for (int j = 0; j < rest.num_intervals(); ++j) {
+        tl.events.push_back(prev_end - t + rest.events[j + 1]);
+        for (std::size_t f = 0; f < tl.feet.size(); ++f) tl.contact[f].push_back(rest.contact[f][j]);
+      }
+    }
+  } else {
+    tl = reference_timeline_.cropped(std::min(t, T - kEventTol));
+    if (end < T - kEventTol) tl = truncated_timeline(tl, end - t);
+  }
   write_timeline(tl, &out.extra);
   out.extra["start_time"] = t;
   return out;

@@ -160,6 +160,21 @@ TEST_F(FlatSession, AFootMeasuredInTheAirWhereThePlanHasAStanceTouchesDown) {
       down = true;
     }
   EXPECT_TRUE(down);
+  // A step that falls back 0.05 s later keeps that schedule (the last plan's, not the
+  // reference's): the foot still swings at its start.
+  StepLimits slow;
+  slow.budget = 0.05;
+  slow.should_stop = [] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    return false;
+  };
+  const SessionStep fb = session->step(session->planned_state(t + 0.05), t + 0.05, slow);
+  ASSERT_TRUE(fb.fallback);
+  const PhaseTimeline ftl = timeline_of(fb.outcome.trajectory);
+  const auto phases = ftl.phases(foot);
+  ASSERT_FALSE(phases.empty());
+  EXPECT_FALSE(phases[0].contact);
+  EXPECT_NEAR(phases[0].end, 0.15, 0.03 + 1e-6);  // an event within 0.03 s of 0.2 s is reused
 }
 
 }  // namespace
