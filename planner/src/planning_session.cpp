@@ -22,6 +22,13 @@ namespace {
 
 constexpr double kDenseDt = 0.002;  // as plan_motion: dense checks every 2 ms
 constexpr double kEventTol = 1e-6;
+// A foot measured this high above the terrain where the schedule has it in stance is in the air
+// (a push lifted it or it slipped off): the stance would hold its foothold there, in mid-air.
+constexpr double kLiftedHeight = 0.03;
+// Such a foot becomes a swing that touches down this long after the step's start (a foot some
+// 5-10 cm up needs 0.15-0.2 s to come down), if its stance lasts 0.1 s beyond that; a stance
+// ending sooner is left as it is (the foot is about to lift off anyway).
+constexpr double kTouchdownAfter = 0.2;
 
 using Clock = std::chrono::steady_clock;
 
@@ -65,6 +72,7 @@ struct StepJob {
   double t = 0.0, end = 0.0, horizon = 0.0, sample_dt = 0.01;
   bool to_goal = false, warm_from_late = false;
   int step_number = 0;
+  std::vector<std::string> touchdowns;  // feet in the air turned from stance to a swing
   Clock::time_point t0;
   // Cancels the solve at its next iteration (a newer step needs the worker, or the session ends).
   std::atomic<bool> cancel{false};
@@ -156,6 +164,9 @@ void run_job(StepJob& job) {
   ex["start_time"] = job.t;
   ex["session"] = {{"step", job.step_number}, {"end_time", job.end}, {"to_goal", job.to_goal},
                    {"horizon", job.horizon}};
+  out.touchdowns = job.touchdowns;
+  if (!job.touchdowns.empty())
+    ex["session"]["touchdowns"] = {{"feet", job.touchdowns}, {"after_s", kTouchdownAfter}};
   // The measured start's own violations (rows on it alone, left out of the solve).
   if (!problem->start_excess().empty()) ex["start_excess"] = problem->start_excess();
   if (!problem->end_excess().empty()) ex["session"]["end_excess"] = problem->end_excess();
@@ -206,6 +217,40 @@ void write_timeline(const PhaseTimeline& tl, nlohmann::json* extra) {
     (*extra)["timeline"]["first_interval_elapsed"] = tl.first_interval_elapsed;
   if (!tl.swing_elapsed.empty()) (*extra)["timeline"]["swing_elapsed"] = tl.swing_elapsed;
   (*extra)["phases"] = phases;
+}
+
+
+// `tl` (a step's timeline, from 0) with each foot of `lifted` (in stance in its first interval)
+// swinging until kTouchdownAfter, an event added there if none is within 0.03 s. Returns the
+// feet it changed.
+std::vector<int> add_touchdowns(const std::vector<int>& lifted, PhaseTimeline* tl) {
+  std::vector<int> changed;
+  double td = kTouchdownAfter;
+  int split = -1;  // the interval containing td
+  for (int j = 0; j < tl->num_intervals(); ++j)
+    if (tl->events[j + 1] > td - 0.03) {
+      split = j;
+      break;
+    }
+  if (split < 0 || tl->duration() < td + 0.1) return changed;
+  if (std::abs(tl->events[split + 1] - td) <= 0.03) {
+    td = tl->events[split + 1];
+  } else {
+    tl->events.insert(tl->events.begin() + split + 1, td);
+    for (auto& c : tl->contact) c.insert(c.begin() + split, static_cast<bool>(c[split]));
+  }
+  for (int f : lifted) {
+    // The stance must last past td + 0.1 s.
+    bool stance = true;
+    for (int j = 0; j < tl->num_intervals() && tl->events[j] < td + 0.1; ++j)
+      stance = stance && tl->contact[f][j];
+    if (!stance) continue;
+    for (int j = 0; j <= split; ++j) tl->contact[f][j] = false;
+    if (tl->swing_elapsed.size() != tl->feet.size()) tl->swing_elapsed.assign(tl->feet.size(), 0.0);
+    tl->swing_elapsed[f] = 0.0;
+    changed.push_back(f);
+  }
+  return changed;
 }
 
 }  // namespace
@@ -360,8 +405,25 @@ Trajectory PlanningSession::current_plan_from(double t, double end) const {
     s.t = tau - t;
     out.samples.push_back(std::move(s));
   }
-  PhaseTimeline tl = reference_timeline_.cropped(std::min(t, T - kEventTol));
-  if (end < T - kEventTol) tl = truncated_timeline(tl, end - t);
+  // The schedule of the plans the samples come from: the last plan's (it may have added a
+  // touch-down) up to its end, which is an event of the reference's, then the reference's.
+  PhaseTimeline tl;
+  if (t >= previous_start_ && t < prev_end - kEventTol && previous_.extra.contains("timeline")) {
+    tl = timeline_of(previous_).cropped(t - previous_start_);
+    if (end < prev_end - kEventTol) {
+      tl = truncated_timeline(tl, end - t);
+    } else if (end > prev_end + kEventTol) {
+      const PhaseTimeline rest =
+          truncated_timeline(reference_timeline_.cropped(prev_end), end - prev_end);
+      for (int j = 0; j < rest.num_intervals(); ++j) {
+        tl.events.push_back(prev_end - t + rest.events[j + 1]);
+        for (std::size_t f = 0; f < tl.feet.size(); ++f) tl.contact[f].push_back(rest.contact[f][j]);
+      }
+    }
+  } else {
+    tl = reference_timeline_.cropped(std::min(t, T - kEventTol));
+    if (end < T - kEventTol) tl = truncated_timeline(tl, end - t);
+  }
   write_timeline(tl, &out.extra);
   out.extra["start_time"] = t;
   return out;
@@ -444,6 +506,18 @@ std::shared_ptr<StepJob> PlanningSession::prepare(const SrbdProblem::StartState&
   job->to_goal = end >= T - kEventTol;
   job->timeline = reference_timeline_.cropped(t);
   if (!job->to_goal) job->timeline = truncated_timeline(job->timeline, end - t);
+  // A foot measured in the air where the schedule has a stance swings and touches down.
+  std::vector<int> lifted;
+  for (std::size_t f = 0; f < robot_.legs.size(); ++f) {
+    const Eigen::Vector3d& p = measured.foot_position[f];
+    Eigen::Vector2d gradient;
+    if (job->timeline.contact[f][0] &&
+        p.z() - plan_terrain_.height_and_gradient(p.x(), p.y(), &gradient) > kLiftedHeight)
+      lifted.push_back(static_cast<int>(f));
+  }
+  if (!lifted.empty())
+    for (int f : add_touchdowns(lifted, &job->timeline))
+      job->touchdowns.push_back(robot_.legs[f].name);
 
   // A horizon's end is pinned to the reference as the problem is built, so that the rows of
   // every constraint set see it as fixed (built after, the path-shape rows on it were constants).

@@ -123,5 +123,59 @@ TEST_F(FlatSession, ASolveThatFinishesLateWarmStartsTheNextStep) {
   EXPECT_FALSE(c.warm_from_late_solve);
 }
 
+
+// A foot the measured state has 6 cm in the air where the schedule has it in stance (a push
+// lifted it): the step swings it and touches it down 0.2 s later on the terrain, and the rest of
+// its stance stays as scheduled; the plan holds the planner's constraints (it solved).
+TEST_F(FlatSession, AFootMeasuredInTheAirWhereThePlanHasAStanceTouchesDown) {
+  // A time at which some foot is in stance for at least the next 0.4 s.
+  const PhaseTimeline tl = timeline_of(cold.trajectory);
+  double t = -1.0;
+  int foot = -1;
+  for (double c = 0.2; c < 1.6 && foot < 0; c += 0.1)
+    for (std::size_t f = 0; f < tl.feet.size() && foot < 0; ++f) {
+      bool stance = true;
+      for (double u = c; u <= c + 0.4; u += 0.01)
+        stance = stance && interpolate_plan(cold.trajectory, u).feet[f].contact;
+      if (stance) {
+        t = c;
+        foot = static_cast<int>(f);
+      }
+    }
+  ASSERT_GE(foot, 0);
+  SrbdProblem::StartState lifted = session->planned_state(t);
+  const double ground = lifted.foot_position[foot].z();
+  lifted.foot_position[foot].z() += 0.06;
+  const SessionStep step = session->step(lifted, t);
+  ASSERT_TRUE(step.outcome.success) << step.outcome.message;
+  EXPECT_EQ(step.touchdowns, std::vector<std::string>{tl.feet[foot]});
+  const auto& samples = step.outcome.trajectory.samples;
+  EXPECT_FALSE(samples.front().feet[foot].contact) << "the lifted foot swings";
+  EXPECT_NEAR(samples.front().feet[foot].position.z(), ground + 0.06, 1e-6);
+  bool down = false;
+  for (const auto& smp : samples)
+    if (smp.t >= 0.2 + 1e-9 && smp.t <= 0.3) {
+      EXPECT_TRUE(smp.feet[foot].contact) << "at " << smp.t;
+      EXPECT_NEAR(smp.feet[foot].position.z(), ground, 0.005) << "at " << smp.t;
+      down = true;
+    }
+  EXPECT_TRUE(down);
+  // A step that falls back 0.05 s later keeps that schedule (the last plan's, not the
+  // reference's): the foot still swings at its start.
+  StepLimits slow;
+  slow.budget = 0.05;
+  slow.should_stop = [] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    return false;
+  };
+  const SessionStep fb = session->step(session->planned_state(t + 0.05), t + 0.05, slow);
+  ASSERT_TRUE(fb.fallback);
+  const PhaseTimeline ftl = timeline_of(fb.outcome.trajectory);
+  const auto phases = ftl.phases(foot);
+  ASSERT_FALSE(phases.empty());
+  EXPECT_FALSE(phases[0].contact);
+  EXPECT_NEAR(phases[0].end, 0.15, 0.03 + 1e-6);  // an event within 0.03 s of 0.2 s is reused
+}
+
 }  // namespace
 }  // namespace terrastride::planner

@@ -19,6 +19,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "terrastride/planner/planner.hpp"
 
@@ -46,6 +47,9 @@ struct SessionStep {
   // measured state than the plan that step fell back to.
   bool warm_from_late_solve = false;
   double wall_s = 0.0;  // the step call, start to return
+  // Feet measured in the air (3 cm above the terrain) where the schedule had a stance: this plan
+  // swings them and touches them down 0.2 s after t (the rest of their stance as scheduled).
+  std::vector<std::string> touchdowns;
 };
 
 // What bounds one step. should_stop is polled once per solver iteration (the service's

@@ -63,6 +63,10 @@ constexpr std::size_t kEvictedIdsKept = 256;
 // longest idle session not in a step is closed for a new one: an idle session cannot keep every
 // other client out), max_sessions_per_connection, session_idle_timeout_s.
 class SessionTable {
+  // Sessions taken out of the table, destroyed after its lock is released: a session's
+  // destructor joins its solver thread, which may be within one long iteration.
+  using Graveyard = std::vector<std::shared_ptr<Session>>;
+
  public:
   explicit SessionTable(const BackendOptions& o)
       : limit_(static_cast<std::size_t>(o.max_sessions)),
@@ -72,15 +76,17 @@ class SessionTable {
   // Throws busy when `connection` holds its quota already (checked before a reference solve, and
   // again when the session is added).
   void check_quota(std::uint64_t connection) {
+    Graveyard closed;
     std::lock_guard<std::mutex> lock(mu_);
-    expire_locked();
+    expire_locked(&closed);
     check_quota_locked(connection);
   }
   void add(std::shared_ptr<Session> s) {
+    Graveyard closed;
     std::lock_guard<std::mutex> lock(mu_);
-    expire_locked();
+    expire_locked(&closed);
     check_quota_locked(s->connection);
-    if (sessions_.size() >= limit_ && !evict_longest_idle_locked())
+    if (sessions_.size() >= limit_ && !evict_longest_idle_locked(&closed))
       throw ProtocolError(pc::kBusy, "the server holds " + std::to_string(limit_) +
                                          " planning sessions (--max-sessions), every one in a "
                                          "step; retry later");
@@ -88,8 +94,9 @@ class SessionTable {
   }
   // The session `id` of `connection`; bad_request naming why it is not there otherwise.
   std::shared_ptr<Session> get(const std::string& id, std::uint64_t connection) {
+    Graveyard closed;
     std::lock_guard<std::mutex> lock(mu_);
-    expire_locked();
+    expire_locked(&closed);
     const auto it = sessions_.find(id);
     if (it == sessions_.end() || it->second->connection != connection) {
       if (std::find(evicted_ids_.begin(), evicted_ids_.end(), id) != evicted_ids_.end())
@@ -108,24 +115,34 @@ class SessionTable {
     return it->second;
   }
   bool close(const std::string& id, std::uint64_t connection) {
+    Graveyard closed;
     std::lock_guard<std::mutex> lock(mu_);
     const auto it = sessions_.find(id);
     if (it == sessions_.end() || it->second->connection != connection) return false;
+    closed.push_back(std::move(it->second));
     sessions_.erase(it);
     return true;
   }
   void close_connection(std::uint64_t connection) {
+    Graveyard closed;
     std::lock_guard<std::mutex> lock(mu_);
-    for (auto it = sessions_.begin(); it != sessions_.end();)
-      it = it->second->connection == connection ? sessions_.erase(it) : std::next(it);
+    for (auto it = sessions_.begin(); it != sessions_.end();) {
+      if (it->second->connection != connection) {
+        ++it;
+        continue;
+      }
+      closed.push_back(std::move(it->second));
+      it = sessions_.erase(it);
+    }
   }
   std::string next_id() {
     std::lock_guard<std::mutex> lock(mu_);
     return "s" + std::to_string(++counter_);
   }
   json status() {
+    Graveyard closed;
     std::lock_guard<std::mutex> lock(mu_);
-    expire_locked();
+    expire_locked(&closed);
     return {{"open", sessions_.size()},          {"limit", limit_},
             {"per_connection", per_connection_}, {"opened", counter_},
             {"evicted", evicted_},               {"idle_timeout_s", idle_timeout_s_}};
@@ -142,7 +159,7 @@ class SessionTable {
                                          "(--max-sessions-per-connection); close one first");
   }
   // Closes the session idle longest among those not in a step; false when every one is.
-  bool evict_longest_idle_locked() {
+  bool evict_longest_idle_locked(Graveyard* closed) {
     auto victim = sessions_.end();
     for (auto it = sessions_.begin(); it != sessions_.end(); ++it) {
       std::unique_lock<std::timed_mutex> stepping(it->second->step_mu, std::try_to_lock);
@@ -154,15 +171,21 @@ class SessionTable {
     evicted_ids_.push_back(victim->first);
     if (evicted_ids_.size() > kEvictedIdsKept) evicted_ids_.pop_front();
     evicted_++;
+    closed->push_back(std::move(victim->second));
     sessions_.erase(victim);
     return true;
   }
-  void expire_locked() {
+  void expire_locked(Graveyard* closed) {
     if (idle_timeout_s_ <= 0) return;
     const auto now = Clock::now();
     for (auto it = sessions_.begin(); it != sessions_.end();) {
       const double idle = std::chrono::duration<double>(now - it->second->last_used).count();
-      it = idle > idle_timeout_s_ ? sessions_.erase(it) : std::next(it);
+      if (!(idle > idle_timeout_s_)) {
+        ++it;
+        continue;
+      }
+      closed->push_back(std::move(it->second));
+      it = sessions_.erase(it);
     }
   }
   const std::size_t limit_, per_connection_;
