@@ -10,6 +10,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <nlohmann/json.hpp>
 
 #include "export/mcap_writer.hpp"
@@ -328,7 +329,10 @@ ExportSummary export_foxglove(const ExportOptions& o) {
   {
     std::map<std::string, std::string> meta{{"source", view.source}, {"kind", view.kind}};
     const uint16_t ch = channel("/terrain/grid", "foxglove.Grid", meta);
-    const size_t nfields = 1 + view.radii.size();
+    // The overhead layer (the underside of the lowest overhang, world z; NaN where none, which
+    // Foxglove leaves uncoloured) follows the margins when the terrain has overhangs.
+    const bool has_overhead = view.overhead.size() == view.height.size();
+    const size_t nfields = 1 + view.radii.size() + (has_overhead ? 1 : 0);
     const size_t cell_stride = 4 * nfields;
     json fields = json::array();
     fields.push_back({{"name", "height"}, {"offset", 0}, {"type", 7}});  // FLOAT32
@@ -337,6 +341,8 @@ ExportSummary export_foxglove(const ExportOptions& o) {
       std::snprintf(name, sizeof name, "margin_r%.3f", view.radii[r]);
       fields.push_back({{"name", name}, {"offset", 4 * (r + 1)}, {"type", 7}});
     }
+    if (has_overhead)
+      fields.push_back({{"name", "overhead"}, {"offset", 4 * (nfields - 1)}, {"type", 7}});
     // Foxglove's grid: row-major, rows along +y, columns along +x (the view is x-major).
     std::string data(static_cast<size_t>(view.nx) * view.ny * cell_stride, '\0');
     for (int j = 0; j < view.ny; ++j)
@@ -349,6 +355,11 @@ ExportSummary export_foxglove(const ExportOptions& o) {
           float m = view.margin[r][k];
           std::memcpy(cell + 4 * (r + 1), &m, 4);
         }
+        if (has_overhead) {
+          const float o = std::isfinite(view.overhead[k]) ? view.overhead[k]
+                                                          : std::numeric_limits<float>::quiet_NaN();
+          std::memcpy(cell + 4 * (nfields - 1), &o, 4);
+        }
       }
     json grid{{"timestamp", stamp(0)},
               {"frame_id", kMapFrame},
@@ -360,6 +371,25 @@ ExportSummary export_foxglove(const ExportOptions& o) {
               {"fields", fields},
               {"data", base64(data)}};
     publish(ch, 0, grid);
+  }
+  if (view.overhead.size() == view.height.size()) {
+    // Overhangs in 3-D: a thin violet tile per cell at the overhang's underside.
+    const uint16_t ch = channel("/terrain/overhangs", "foxglove.SceneUpdate");
+    json e = entity(0, "overhangs");
+    e["cubes"] = json::array();
+    size_t tiles = 0;
+    for (int i = 0; i < view.nx; ++i)
+      for (int j = 0; j < view.ny; ++j) {
+        const float z = view.overhead[view.index(i, j)];
+        if (!std::isfinite(z) || tiles >= o.max_voxels) continue;
+        const Eigen::Vector2d c = view.center(i, j);
+        e["cubes"].push_back({{"pose", pose(Eigen::Vector3d(c.x(), c.y(), z))},
+                              {"size", size3(view.resolution, view.resolution, 0.01)},
+                              {"color", color(0.48, 0.17, 0.75, 0.6)}});
+        ++tiles;
+      }
+    e["metadata"].push_back({{"key", "overhang_cells"}, {"value", std::to_string(tiles)}});
+    publish(ch, 0, scene_update(json::array({e})));
   }
   if (view.octree) {
     const uint16_t ch = channel("/terrain/voxels", "foxglove.SceneUpdate");
