@@ -624,6 +624,39 @@ void add_notes(HeightGrid& grid) {
   }
 }
 
+// The xy bounding box of the finite points and of the overhangs; throws when no point is finite.
+void points_extent(const std::vector<PointBatch>& batches, Eigen::Vector2d* lo_out,
+                   Eigen::Vector2d* hi_out) {
+  Eigen::Vector2d& lo = *lo_out;
+  Eigen::Vector2d& hi = *hi_out;
+  float mnx = std::numeric_limits<float>::infinity(), mny = mnx, mxx = -mnx, mxy = -mnx;
+  size_t finite = 0;
+  for (const auto& b : batches) {
+    for (size_t i = 0; i < b.size; ++i) {
+      const Eigen::Vector3f& p = b.points[i];
+      if (!std::isfinite(p.x()) || !std::isfinite(p.y()) || !std::isfinite(p.z())) continue;
+      ++finite;
+      mnx = std::min(mnx, p.x());
+      mxx = std::max(mxx, p.x());
+      mny = std::min(mny, p.y());
+      mxy = std::max(mxy, p.y());
+    }
+    // Overhangs widen the extent: a ceiling over a floor never scanned still has cells, which
+    // say that no walkable ground is known there.
+    for (size_t i = 0; i < b.overhang_count; ++i) {
+      const Eigen::Vector3f& p = b.overhangs[i];
+      if (!p.allFinite()) continue;
+      mnx = std::min(mnx, p.x());
+      mxx = std::max(mxx, p.x());
+      mny = std::min(mny, p.y());
+      mxy = std::max(mxy, p.y());
+    }
+  }
+  if (finite == 0) throw InputError("no finite points to build a height grid from");
+  lo = Eigen::Vector2d(mnx, mny);
+  hi = Eigen::Vector2d(mxx, mxy);
+}
+
 }  // namespace
 
 HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const HeightGridOptions& o) {
@@ -642,32 +675,7 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
     if (!(hi.x() > lo.x() && hi.y() > lo.y()) || !lo.allFinite() || !hi.allFinite())
       throw InputError("height grid: the extent's max corner must exceed its min corner");
   } else {
-    float mnx = std::numeric_limits<float>::infinity(), mny = mnx, mxx = -mnx, mxy = -mnx;
-    size_t finite = 0;
-    for (const auto& b : batches) {
-      for (size_t i = 0; i < b.size; ++i) {
-        const Eigen::Vector3f& p = b.points[i];
-        if (!std::isfinite(p.x()) || !std::isfinite(p.y()) || !std::isfinite(p.z())) continue;
-        ++finite;
-        mnx = std::min(mnx, p.x());
-        mxx = std::max(mxx, p.x());
-        mny = std::min(mny, p.y());
-        mxy = std::max(mxy, p.y());
-      }
-      // Overhangs widen the extent: a ceiling over a floor never scanned still has cells, which
-      // say that no walkable ground is known there.
-      for (size_t i = 0; i < b.overhang_count; ++i) {
-        const Eigen::Vector3f& p = b.overhangs[i];
-        if (!p.allFinite()) continue;
-        mnx = std::min(mnx, p.x());
-        mxx = std::max(mxx, p.x());
-        mny = std::min(mny, p.y());
-        mxy = std::max(mxy, p.y());
-      }
-    }
-    if (finite == 0) throw InputError("no finite points to build a height grid from");
-    lo = Eigen::Vector2d(mnx, mny);
-    hi = Eigen::Vector2d(mxx, mxy);
+    points_extent(batches, &lo, &hi);
   }
   grid.geometry = make_geometry(lo, hi, o.resolution, o.max_cells);
   allocate(grid);
