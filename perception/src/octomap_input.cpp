@@ -321,14 +321,16 @@ std::vector<SupportColumn> occupied_columns(const octomap::OcTree& tree, const s
 // was seen beneath (a floor, a table top never seen from below).
 constexpr double kMaxFreeScan = 5.0;  // m
 
-void classify_runs(const octomap::OcTree& tree, unsigned need, SupportColumn& c,
-                   OctreeSupportStats* st) {
+void classify_runs(const octomap::OcTree& tree, unsigned need, unsigned lowest_key,
+                   SupportColumn& c, OctreeSupportStats* st) {
   const unsigned scan = static_cast<unsigned>(std::ceil(kMaxFreeScan / tree.getResolution()));
   bool above_overhang = false;
   for (size_t r = 0; r < c.runs.size(); ++r) {
     SupportRun& run = c.runs[r];
+    // Nothing lies below the tree's lowest key (a floor at the bottom of the map scans nothing).
     const unsigned below =
-        r > 0 ? c.runs[r - 1].top + 1u : (run.bottom > scan ? run.bottom - scan : 0u);
+        r > 0 ? c.runs[r - 1].top + 1u
+              : std::max<unsigned>(lowest_key, run.bottom > scan ? run.bottom - scan : 0u);
     const unsigned room = run.bottom - below;
     unsigned free = 0;
     bool right_beneath = false;
@@ -425,7 +427,10 @@ PointCloud octree_support_cloud(const octomap::OcTree& tree, const std::string& 
   // The overhang free height in whole voxels.
   const unsigned need =
       static_cast<unsigned>(std::max(1.0, std::ceil(overhang_free_height / res - 1e-9)));
-  for (SupportColumn& c : columns) classify_runs(tree, need, c, &st);
+  double x0, y0, z0;
+  tree.getMetricMin(x0, y0, z0);
+  const unsigned lowest_key = tree.coordToKey(z0 + 0.5 * res);
+  for (SupportColumn& c : columns) classify_runs(tree, need, lowest_key, c, &st);
   PointCloud cloud;
   cloud.source = source;
   for (const SupportColumn& c : columns) {
