@@ -663,6 +663,8 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
   validate_resolution(o.resolution);
   if (!(o.cluster_gap > 0) || !(o.min_support_fraction >= 0 && o.min_support_fraction <= 1))
     throw InputError("height grid: cluster_gap must be > 0 and min_support_fraction in [0, 1]");
+  if (!(o.overhang_free_height > 0) || !std::isfinite(o.overhang_free_height))
+    throw InputError("height grid: the overhang free height must be a positive number of metres");
   HeightGrid grid;
   size_t total = 0;
   for (const auto& b : batches) total += b.size;

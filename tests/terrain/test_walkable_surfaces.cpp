@@ -231,5 +231,16 @@ TEST(WalkableClouds, NoOverhangNoOverheadLayer) {
   EXPECT_EQ(g.overhang_cells, 0u);
 }
 
+TEST(WalkableClouds, BadOverhangFreeHeightIsAnError) {
+  terrain::HeightGridOptions o;
+  o.overhang_free_height = -1.0;
+  const std::vector<perception::PointCloud> clouds{grid_points(0, 1, 0, 1, 0, 0.05)};
+  EXPECT_THROW(terrain::build_height_grid(clouds, o), perception::InputError);
+  octomap::OcTree tree(kRes);
+  tree.updateNode(octomap::point3d(0.1f, 0.1f, 0.1f), true);
+  EXPECT_THROW(perception::octree_support_cloud(tree, "t", nullptr, 1000, std::nan("")),
+               perception::InputError);
+}
+
 }  // namespace
 }  // namespace terrastride
