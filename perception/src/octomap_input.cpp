@@ -240,6 +240,135 @@ std::unique_ptr<octomap::OcTree> as_octree(const Tree& from) {
   return to;
 }
 
+// ---- octree_support_cloud's columns and runs -----------------------------------------------
+
+// A vertical run of occupied voxels (z keys bottom..top) and what it is.
+struct SupportRun {
+  enum Kind : uint8_t { kSupport, kOverhang, kUnseenTop };
+  uint16_t bottom = 0, top = 0;
+  Kind kind = kSupport;
+};
+
+struct SupportColumn {
+  uint16_t kx = 0, ky = 0;
+  std::vector<SupportRun> runs;  // bottom to top
+};
+
+// The occupied voxels as columns of runs, in key order (so the cloud, and what is built from it,
+// does not depend on hashing).
+std::vector<SupportColumn> occupied_columns(const octomap::OcTree& tree, const std::string& source,
+                                            size_t max_voxels, OctreeSupportStats* st) {
+  const unsigned max_depth = tree.getTreeDepth();
+  // Columns keyed by (kx, ky); each holds the z keys of its occupied voxels.
+  std::unordered_map<uint32_t, std::vector<uint16_t>> columns;
+  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
+    if (!tree.isNodeOccupied(*it)) {
+      st->free_leaves += 1;
+      continue;
+    }
+    const unsigned depth = it.getDepth();
+    const octomap::OcTreeKey center = it.getKey();
+    // A leaf at depth d spans 2^(max_depth - d) voxels per axis; its key is that of its centre,
+    // so its voxels are the keys [c - half, c + half).
+    const unsigned span = 1u << (max_depth - depth);
+    const unsigned half = span / 2;
+    const size_t n = static_cast<size_t>(span) * span * span;
+    st->occupied_voxels += n;
+    if (st->occupied_voxels > max_voxels)
+      throw InputError(source + ": more than " + std::to_string(max_voxels) +
+                       " occupied voxels once coarse leaves are expanded");
+    for (unsigned dx = 0; dx < span; ++dx)
+      for (unsigned dy = 0; dy < span; ++dy) {
+        const uint32_t kx = center[0] - half + dx, ky = center[1] - half + dy;
+        auto& col = columns[(kx << 16) | (ky & 0xffffu)];
+        for (unsigned dz = 0; dz < span; ++dz)
+          col.push_back(static_cast<uint16_t>(center[2] - half + dz));
+      }
+  }
+  if (columns.empty())
+    throw InputError(source + ": the OctoMap has no occupied voxel (nothing to build a map from)");
+  st->columns = columns.size();
+  std::vector<std::pair<uint32_t, std::vector<uint16_t>>> ordered(
+      std::make_move_iterator(columns.begin()), std::make_move_iterator(columns.end()));
+  columns.clear();
+  std::sort(ordered.begin(), ordered.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::vector<SupportColumn> out(ordered.size());
+  for (size_t c = 0; c < ordered.size(); ++c) {
+    auto& zs = ordered[c].second;
+    std::sort(zs.begin(), zs.end());
+    zs.erase(std::unique(zs.begin(), zs.end()), zs.end());
+    out[c].kx = static_cast<uint16_t>(ordered[c].first >> 16);
+    out[c].ky = static_cast<uint16_t>(ordered[c].first & 0xffffu);
+    for (size_t r = 0; r < zs.size();) {
+      size_t top = r;
+      while (top + 1 < zs.size() && zs[top + 1] == zs[top] + 1) ++top;
+      out[c].runs.push_back({zs[r], zs[top], SupportRun::kSupport});
+      r = top + 1;
+    }
+    st->runs += out[c].runs.size();
+  }
+  return out;
+}
+
+// A run is an overhang when the sensor saw enough beneath it: known-free voxels (search() answers
+// for coarse free leaves too) between it and the run below adding up to `need` voxels, or, with a
+// run below, any free voxel and `need` voxels of room (a table top whose underside was seen in
+// part); the lowest run of a column needs `need` free voxels within kMaxFreeScan beneath it (a
+// floor never has any: rays reach it from above). So is a run with some free space seen beneath
+// and none seen above it (seen from beneath only), and every run above an overhang (a ceiling over
+// a duct, a lamp over a table). Less room beneath (a pallet deck) is support; so is a run nothing
+// was seen beneath (a floor, a table top never seen from below).
+constexpr double kMaxFreeScan = 5.0;  // m
+
+void classify_runs(const octomap::OcTree& tree, unsigned need, unsigned lowest_key,
+                   SupportColumn& c, OctreeSupportStats* st) {
+  const unsigned scan = static_cast<unsigned>(std::ceil(kMaxFreeScan / tree.getResolution()));
+  bool above_overhang = false;
+  for (size_t r = 0; r < c.runs.size(); ++r) {
+    SupportRun& run = c.runs[r];
+    // Nothing lies below the tree's lowest key (a floor at the bottom of the map scans nothing).
+    const unsigned below =
+        r > 0 ? c.runs[r - 1].top + 1u
+              : std::max<unsigned>(lowest_key, run.bottom > scan ? run.bottom - scan : 0u);
+    const unsigned room = run.bottom - below;
+    unsigned free = 0;
+    bool right_beneath = false;
+    for (unsigned z = run.bottom; free < need && z > below; --z) {
+      const octomap::OcTreeNode* node =
+          tree.search(octomap::OcTreeKey(c.kx, c.ky, static_cast<uint16_t>(z - 1)));
+      if (node == nullptr || tree.isNodeOccupied(node)) continue;
+      right_beneath |= z == run.bottom;
+      ++free;
+    }
+    st->seen_beneath += right_beneath;
+    // Less free space seen beneath than an overhang's, and none seen above the run's top: it was
+    // seen from beneath only (a ceiling lit by rays grazing under it); a surface stood on is seen
+    // from above.
+    bool only_from_beneath = false;
+    if (free < need && !above_overhang) {
+      const unsigned above = r + 1 < c.runs.size() ? c.runs[r + 1].bottom : 0xffffu;
+      only_from_beneath = true;
+      for (unsigned z = run.top + 1u; only_from_beneath && z < above && z <= run.top + need; ++z) {
+        const octomap::OcTreeNode* node =
+            tree.search(octomap::OcTreeKey(c.kx, c.ky, static_cast<uint16_t>(z)));
+        only_from_beneath = node == nullptr || tree.isNodeOccupied(node);
+      }
+    }
+    if (above_overhang || free >= need || (free > 0 && only_from_beneath) ||
+        (r > 0 && free > 0 && room >= need)) {
+      run.kind = SupportRun::kOverhang;
+      above_overhang = true;
+    } else {
+      // Seen neither from above nor from beneath (the edge of a ceiling lit from the side), in a
+      // tree that knows free space (built from rays): its top is no surface the sensor saw, and
+      // the column gives no point for it. A tree without free leaves says nothing either way.
+      run.kind = only_from_beneath && st->free_leaves > 0 ? SupportRun::kUnseenTop
+                                                           : SupportRun::kSupport;
+    }
+  }
+}
+
 }  // namespace
 
 bool is_octomap_file(const std::string& path) {
@@ -288,74 +417,43 @@ std::unique_ptr<octomap::OcTree> read_octomap_bytes(const std::string& path,
 }
 
 PointCloud octree_support_cloud(const octomap::OcTree& tree, const std::string& source,
-                                OctreeSupportStats* stats, size_t max_voxels) {
+                                OctreeSupportStats* stats, size_t max_voxels,
+                                double overhang_free_height) {
+  if (!(overhang_free_height > 0) || !std::isfinite(overhang_free_height))
+    throw InputError(source + ": the overhang free height must be a positive number of metres");
   OctreeSupportStats st;
-  const unsigned max_depth = tree.getTreeDepth();
-  // Columns keyed by (kx, ky); each holds the z keys of its occupied voxels.
-  std::unordered_map<uint32_t, std::vector<uint16_t>> columns;
-  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
-    if (!tree.isNodeOccupied(*it)) continue;
-    const unsigned depth = it.getDepth();
-    const octomap::OcTreeKey center = it.getKey();
-    // A leaf at depth d spans 2^(max_depth - d) voxels per axis; its key is that of its centre,
-    // so its voxels are the keys [c - half, c + half).
-    const unsigned span = 1u << (max_depth - depth);
-    const unsigned half = span / 2;
-    const size_t n = static_cast<size_t>(span) * span * span;
-    st.occupied_voxels += n;
-    if (st.occupied_voxels > max_voxels)
-      throw InputError(source + ": more than " + std::to_string(max_voxels) +
-                       " occupied voxels once coarse leaves are expanded");
-    for (unsigned dx = 0; dx < span; ++dx)
-      for (unsigned dy = 0; dy < span; ++dy) {
-        const uint32_t kx = center[0] - half + dx, ky = center[1] - half + dy;
-        auto& col = columns[(kx << 16) | (ky & 0xffffu)];
-        for (unsigned dz = 0; dz < span; ++dz)
-          col.push_back(static_cast<uint16_t>(center[2] - half + dz));
-      }
-  }
-  if (columns.empty())
-    throw InputError(source + ": the OctoMap has no occupied voxel (nothing to build a map from)");
-  st.columns = columns.size();
-  // In key order, so the cloud (and what is built from it) does not depend on hashing.
-  std::vector<std::pair<uint32_t, std::vector<uint16_t>>> ordered(
-      std::make_move_iterator(columns.begin()), std::make_move_iterator(columns.end()));
-  columns.clear();
-  std::sort(ordered.begin(), ordered.end(),
-            [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::vector<SupportColumn> columns = occupied_columns(tree, source, max_voxels, &st);
+  const double res = tree.getResolution();
+  // The overhang free height in whole voxels.
+  const unsigned need =
+      static_cast<unsigned>(std::max(1.0, std::ceil(overhang_free_height / res - 1e-9)));
+  double x0, y0, z0;
+  tree.getMetricMin(x0, y0, z0);
+  const unsigned lowest_key = tree.coordToKey(z0 + 0.5 * res);
+  for (SupportColumn& c : columns) classify_runs(tree, need, lowest_key, c, &st);
   PointCloud cloud;
   cloud.source = source;
-  for (auto& [xy, zs] : ordered) {
-    std::sort(zs.begin(), zs.end());
-    zs.erase(std::unique(zs.begin(), zs.end()), zs.end());
-    const uint16_t kx = static_cast<uint16_t>(xy >> 16), ky = static_cast<uint16_t>(xy & 0xffffu);
-    size_t r = 0;
-    while (r < zs.size()) {
-      size_t top = r;
-      while (top + 1 < zs.size() && zs[top + 1] == zs[top] + 1) ++top;
-      ++st.runs;
-      // Only a run with a lower run in its column can be an overhang: a lowest run with free space
-      // under it is a surface on a voxel boundary that a grazing ray passed under (or a ceiling
-      // over unseen ground, kept as a conservatively high surface).
-      bool seen_beneath = false;
-      if (r > 0) {
-        const octomap::OcTreeNode* below =
-            tree.search(octomap::OcTreeKey(kx, ky, static_cast<uint16_t>(zs[r] - 1)));
-        seen_beneath = below != nullptr && !tree.isNodeOccupied(below);
-      }
-      if (seen_beneath) {
-        ++st.seen_beneath;
+  for (const SupportColumn& c : columns) {
+    bool support = false, overhang = false;
+    for (const SupportRun& run : c.runs) {
+      if (run.kind == SupportRun::kOverhang) {
+        ++st.overhangs;
+        overhang = true;
+        const octomap::point3d p = tree.keyToCoord(octomap::OcTreeKey(c.kx, c.ky, run.bottom));
+        cloud.overhangs.emplace_back(p.x(), p.y(), static_cast<float>(p.z() - 0.5 * res));
+      } else if (run.kind == SupportRun::kUnseenTop) {
+        ++st.unseen_tops;
       } else {
-        const octomap::point3d c = tree.keyToCoord(octomap::OcTreeKey(kx, ky, zs[top]));
-        cloud.points.emplace_back(c.x(), c.y(), c.z());
+        support = true;
+        const octomap::point3d p = tree.keyToCoord(octomap::OcTreeKey(c.kx, c.ky, run.top));
+        cloud.points.emplace_back(p.x(), p.y(), p.z());
       }
-      r = top + 1;
     }
+    st.overhang_only_columns += overhang && !support;
   }
   if (cloud.points.empty())
-    throw InputError(source +
-                     ": every occupied voxel of the OctoMap has free space beneath it "
-                     "(no support surface)");
+    throw InputError(source + ": every run of occupied voxels of the OctoMap was seen from "
+                              "beneath (overhangs only, no support surface)");
   if (stats) *stats = st;
   return cloud;
 }

@@ -224,6 +224,10 @@ void print_summary(const MapOptions& o, const terrain::MapBuild& build, const js
     std::cout << "  safe for foot radius " << s["radius"].get<double>()
               << " m: " << fmt(100.0 * s["safe_fraction"].get<double>(), 1)
               << " % of observed cells\n";
+  if (g.overhang_cells > 0)
+    std::cout << "  overhangs (overhead clearance layer): " << g.overhang_cells << " cells, "
+              << g.overhang_unobserved_cells
+              << " of them over unobserved ground (not walkable, not counted above)\n";
   if (summary.contains("notes"))
     for (const auto& note : summary["notes"]) std::cout << "  note: " << note.get<std::string>() << "\n";
   std::cout << "  time: read " << fmt(timings["read_s"]) << " s, clean " << fmt(timings["filter_s"])
@@ -309,15 +313,18 @@ void run_map_octomap(const MapOptions& o) {
   summary["octomap_input"] = {{"occupied_voxels", input.stats.occupied_voxels},
                               {"columns", input.stats.columns},
                               {"runs", input.stats.runs},
-                              {"seen_beneath", input.stats.seen_beneath}};
+                              {"seen_beneath", input.stats.seen_beneath},
+                              {"overhangs", input.stats.overhangs},
+                              {"overhang_only_columns", input.stats.overhang_only_columns}};
   if (o.json) {
     std::cout << summary.dump() << "\n";
     return;
   }
   std::cout << "OctoMap " << o.clouds.front() << ": " << input.stats.occupied_voxels
             << " occupied voxels in " << input.stats.columns << " columns, "
-            << input.stats.runs << " vertical runs, " << input.stats.seen_beneath
-            << " of them with free space beneath (not support)\n";
+            << input.stats.runs << " vertical runs, " << input.stats.overhangs
+            << " of them overhangs with free space beneath (not support; "
+            << input.stats.overhang_only_columns << " columns hold nothing else)\n";
   print_summary(o, build, meta, summary);
 }
 

@@ -56,19 +56,22 @@ void run_query(const QueryOptions& o) {
     points.push_back(p);
   }
   std::ostringstream out;
+  const auto finite_or_null = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nullptr; };
   for (const auto& p : points) {
-    const auto s = map->sample(p.x(), p.y());
-    const auto m = map->safety_margin(p.x(), p.y(), r);
-    out << nlohmann::json{{"x", p.x()},
-                          {"y", p.y()},
-                          {"height", s.height},
-                          {"gradient", {s.gradient.x(), s.gradient.y()}},
-                          {"safe", map->safe(p.x(), p.y(), r)},
-                          {"margin", m.margin},
-                          {"observed", map->observed(p.x(), p.y())},
-                          {"foot_radius", r}}
-               .dump()
-        << "\n";
+    const terrain::PointAnswer a = map->answer(p.x(), p.y(), r);
+    nlohmann::json line{{"x", p.x()},
+                        {"y", p.y()},
+                        {"height", a.ground.height},
+                        {"gradient", {a.ground.gradient.x(), a.ground.gradient.y()}},
+                        {"safe", a.safe},
+                        {"margin", a.margin},
+                        {"field_margin", a.field_margin},
+                        {"observed", a.observed},
+                        {"overhead", finite_or_null(a.overhead)},
+                        {"free_height", finite_or_null(a.free_height)},
+                        {"foot_radius", r}};
+    if (!a.safe) line["unsafe_because"] = a.unsafe_because;
+    out << line.dump() << "\n";
   }
   std::cout << out.str();
 }
@@ -78,7 +81,7 @@ void run_query(const QueryOptions& o) {
 void add_query_command(CLI::App& app) {
   auto o = std::make_shared<QueryOptions>();
   CLI::App* cmd = app.add_subcommand(
-      "query", "Query a terrain map: one JSON object per point with height, gradient and safety");
+      "query", "Query a terrain map: one JSON object per point with height, gradient, safety and overhead");
   cmd->add_option("dir", o->dir, "Terrain directory written by `terrastride map`")->required();
   cmd->add_option("--at", o->at, "Query point X,Y (repeat for several)")->required();
   cmd->add_option("--foot-radius", o->foot_radius,

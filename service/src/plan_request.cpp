@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/level_reach.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/request_limits.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
@@ -269,6 +270,9 @@ nlohmann::json settle_stance_feet(PlanRequest* request, const terrain::HeightFie
 void check_stances_on_terrain(const PlanRequest& request, const robot::RobotModel& robot,
                               const terrain::HeightField& terrain) {
   if (request.replan) return;
+  // First the level: a goal on a ceiling or a cupboard top is named as such, with its height and
+  // the start's, rather than as ground that was not observed or is not safe.
+  planner::check_level_reach(terrain, robot, request.options.start, request.options.goal);
   const auto* grid = dynamic_cast<const terrain::TerrainMap*>(&terrain);
   const Eigen::Vector2d lo = terrain.min_corner(), hi = terrain.max_corner();
   auto check = [&](const char* field, const Eigen::Vector3d& pose, bool need_safe) {

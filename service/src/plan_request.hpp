@@ -58,7 +58,9 @@ nlohmann::json settle_stance_feet(PlanRequest* request, const terrain::HeightFie
 
 // A fresh plan's start and goal stances on the terrain it is planned on: the robot's nominal feet
 // at `start` (where the plan puts them) must lie on the map, observed and safe for the foot; at
-// `goal` (where the planner may still move them) on the map and observed. Throws
+// `goal` (where the planner may still move them) on the map and observed; first, the goal's feet
+// on ground reachable from the start's level (planner::check_level_reach: not a ceiling, not a
+// cupboard top). Throws
 // RequestFieldError("start" or "goal") naming the foot and the place, before any solve (a start
 // off the recorded floor used to plan "optimal" with 16 of 16 footholds unsafe). No-op for
 // re-plans (their start is the robot's state, and the goal init's).

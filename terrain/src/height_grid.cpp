@@ -15,9 +15,16 @@ using perception::InputError;
 
 constexpr uint32_t kOutside = std::numeric_limits<uint32_t>::max();
 
+// A cell with an overhang and no support surface beneath it (a ceiling over a floor never
+// scanned): not ground, and no sampling gap of the ground around it either.
+bool no_ground(const HeightGrid& grid, size_t k) {
+  return !grid.overhead.empty() && grid.support[k] == 0 && std::isfinite(grid.overhead[k]);
+}
+
 struct Entry {
   float z;
-  float z_entry;  // height at which the ray entered the cell's column; +inf when unknown
+  float z_entry;   // height at which the ray entered the cell's column; +inf when unknown
+  float z_origin;  // height of the ray's origin (the sensor); +inf when unknown
 };
 
 std::string fmt(double v) {
@@ -97,6 +104,21 @@ bool seen_beneath(const Entry* e, const Range& c, double vote) {
   return beneath > 0 && beneath > vote * (beneath + pierced);
 }
 
+// True when the cluster was seen only from beneath: most of its points were hit by rays rising
+// into them from a sensor at least the overhang free height below the cluster, and the cluster is
+// thin (a wall seen from a sensor below its top is hit by rising rays too, but spans its height).
+bool hit_from_beneath(const Entry* e, const Range& c, const HeightGridOptions& o) {
+  const float bottom = e[c.b].z;
+  if (e[c.e - 1].z - bottom > 2.0 * o.cluster_gap) return false;
+  size_t rising = 0, known = 0;
+  for (size_t i = c.b; i < c.e; ++i) {
+    if (!std::isfinite(e[i].z_origin)) continue;
+    ++known;
+    rising += e[i].z_entry < e[i].z && e[i].z_origin <= bottom - o.overhang_free_height;
+  }
+  return rising > 0 && rising > o.overhang_vote * known;
+}
+
 void write_stats(const Entry* e, const Range& r, HeightGrid& grid, size_t k) {
   const size_t m = r.size();
   double sum = 0, sum2 = 0;
@@ -139,8 +161,14 @@ bool process_cell(const Entry* e, size_t n, const HeightGridOptions& o, HeightGr
       }
     }
   }
+  // Step down past overhangs: surfaces the sensor saw beneath with the overhang free height or more
+  // between them and the next lower surface. One seen only from beneath with no surface below is a
+  // ceiling over ground the sensor did not see.
   bool overhang = false;
   for (;;) {
+    const bool under_it = seen_beneath(e, clusters[s], o.overhang_vote);
+    const bool from_beneath = !under_it && hit_from_beneath(e, clusters[s], o);
+    if (!under_it && !from_beneath) break;
     int lower = -1;
     for (int c = s - 1; c >= 0; --c) {
       if (substantial(c)) {
@@ -148,7 +176,13 @@ bool process_cell(const Entry* e, size_t n, const HeightGridOptions& o, HeightGr
         break;
       }
     }
-    if (lower < 0 || !seen_beneath(e, clusters[s], o.overhang_vote)) break;
+    if (lower < 0) {
+      if (!from_beneath) break;
+      grid.overhead[k] = e[clusters[s].b].z;  // no ground: the cell stays unobserved
+      return false;
+    }
+    if (e[clusters[s].b].z - e[clusters[lower].e - 1].z < o.overhang_free_height) break;
+    grid.overhead[k] = e[clusters[s].b].z;
     s = lower;
     overhang = true;
   }
@@ -159,9 +193,7 @@ bool process_cell(const Entry* e, size_t n, const HeightGridOptions& o, HeightGr
     grid.observed[k] = 0;
     return false;
   }
-  if (overhang) {
-    ++grid.overhang_cells;
-  } else if (clusters[s].b > 0) {
+  if (!overhang && clusters[s].b > 0) {
     ++grid.see_through_cells;
   }
   return !overhang && s + 1 < static_cast<int>(nc);
@@ -561,6 +593,22 @@ double smoothing_length(const NoiseEstimate& noise, const HeightGridOptions& o) 
   return std::min(length, std::max(0.0, o.max_smoothing_length));
 }
 
+// The input's own overhangs (an OctoMap's runs with free space beneath): per cell, the lowest
+// underside above the support's top, or over a cell without support, is its overhead.
+void add_input_overhangs(const std::vector<PointBatch>& batches, HeightGrid& grid) {
+  const GridGeometry& g = grid.geometry;
+  const double inv = 1.0 / g.resolution;
+  for (const auto& b : batches)
+    for (size_t i = 0; i < b.overhang_count; ++i) {
+      const Eigen::Vector3f& p = b.overhangs[i];
+      const double fx = (p.x() - g.origin.x()) * inv, fy = (p.y() - g.origin.y()) * inv;
+      if (!(fx >= 0 && fy >= 0 && fx < g.nx && fy < g.ny && std::isfinite(p.z()))) continue;
+      const size_t k = g.index(static_cast<int>(fx), static_cast<int>(fy));
+      if (grid.support[k] > 0 && !(p.z() > grid.max[k])) continue;  // below the surface
+      grid.overhead[k] = std::min(grid.overhead[k], p.z());
+    }
+}
+
 void add_notes(HeightGrid& grid) {
   const double res = grid.geometry.resolution;
   if (!grid.noise.estimated) grid.notes.push_back(grid.noise.note);
@@ -576,12 +624,47 @@ void add_notes(HeightGrid& grid) {
   }
 }
 
+// The xy bounding box of the finite points and of the overhangs; throws when no point is finite.
+void points_extent(const std::vector<PointBatch>& batches, Eigen::Vector2d* lo_out,
+                   Eigen::Vector2d* hi_out) {
+  Eigen::Vector2d& lo = *lo_out;
+  Eigen::Vector2d& hi = *hi_out;
+  float mnx = std::numeric_limits<float>::infinity(), mny = mnx, mxx = -mnx, mxy = -mnx;
+  size_t finite = 0;
+  for (const auto& b : batches) {
+    for (size_t i = 0; i < b.size; ++i) {
+      const Eigen::Vector3f& p = b.points[i];
+      if (!std::isfinite(p.x()) || !std::isfinite(p.y()) || !std::isfinite(p.z())) continue;
+      ++finite;
+      mnx = std::min(mnx, p.x());
+      mxx = std::max(mxx, p.x());
+      mny = std::min(mny, p.y());
+      mxy = std::max(mxy, p.y());
+    }
+    // Overhangs widen the extent: a ceiling over a floor never scanned still has cells, which
+    // say that no walkable ground is known there.
+    for (size_t i = 0; i < b.overhang_count; ++i) {
+      const Eigen::Vector3f& p = b.overhangs[i];
+      if (!p.allFinite()) continue;
+      mnx = std::min(mnx, p.x());
+      mxx = std::max(mxx, p.x());
+      mny = std::min(mny, p.y());
+      mxy = std::max(mxy, p.y());
+    }
+  }
+  if (finite == 0) throw InputError("no finite points to build a height grid from");
+  lo = Eigen::Vector2d(mnx, mny);
+  hi = Eigen::Vector2d(mxx, mxy);
+}
+
 }  // namespace
 
 HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const HeightGridOptions& o) {
   validate_resolution(o.resolution);
   if (!(o.cluster_gap > 0) || !(o.min_support_fraction >= 0 && o.min_support_fraction <= 1))
     throw InputError("height grid: cluster_gap must be > 0 and min_support_fraction in [0, 1]");
+  if (!(o.overhang_free_height > 0) || !std::isfinite(o.overhang_free_height))
+    throw InputError("height grid: the overhang free height must be a positive number of metres");
   HeightGrid grid;
   size_t total = 0;
   for (const auto& b : batches) total += b.size;
@@ -594,25 +677,11 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
     if (!(hi.x() > lo.x() && hi.y() > lo.y()) || !lo.allFinite() || !hi.allFinite())
       throw InputError("height grid: the extent's max corner must exceed its min corner");
   } else {
-    float mnx = std::numeric_limits<float>::infinity(), mny = mnx, mxx = -mnx, mxy = -mnx;
-    size_t finite = 0;
-    for (const auto& b : batches) {
-      for (size_t i = 0; i < b.size; ++i) {
-        const Eigen::Vector3f& p = b.points[i];
-        if (!std::isfinite(p.x()) || !std::isfinite(p.y()) || !std::isfinite(p.z())) continue;
-        ++finite;
-        mnx = std::min(mnx, p.x());
-        mxx = std::max(mxx, p.x());
-        mny = std::min(mny, p.y());
-        mxy = std::max(mxy, p.y());
-      }
-    }
-    if (finite == 0) throw InputError("no finite points to build a height grid from");
-    lo = Eigen::Vector2d(mnx, mny);
-    hi = Eigen::Vector2d(mxx, mxy);
+    points_extent(batches, &lo, &hi);
   }
   grid.geometry = make_geometry(lo, hi, o.resolution, o.max_cells);
   allocate(grid);
+  grid.overhead.assign(grid.geometry.size(), std::numeric_limits<float>::infinity());
   const GridGeometry& g = grid.geometry;
   const size_t ncell = g.size();
 
@@ -670,7 +739,7 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
         }
         ze = o3.z() + std::min(tin, 1.0f) * d.z();
       }
-      entries[fill[k]++] = Entry{p.z(), ze};
+      entries[fill[k]++] = Entry{p.z(), ze, has_origin ? o3.z() : ze};
     }
   }
   cell.clear();
@@ -711,6 +780,7 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
   std::vector<uint8_t> sample(ncell, 0);
   for (size_t k = 0; k < ncell; ++k) sample[k] = grid.support[k] > 0;
   promote_sparse_surfaces(entries, start, candidate, eff, grid, sample);
+  add_input_overhangs(batches, grid);
   for (size_t k = 0; k < ncell; ++k) grid.observed_cells += grid.observed[k] == 1;
   // Sampling gaps at the scale of the point spacing (1.5 cells for dense clouds, as before), then
   // the see-through openings: in that order, a sparse cloud's surface is whole before the pits
@@ -723,6 +793,8 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
   fill_holes_around(grid, o.min_cell_points, bridged);
   grid.smoothing_length = smoothing_length(grid.noise, o);
   smooth_surface(grid, grid.smoothing_length);
+  count_overhangs(grid);
+  if (grid.overhang_cells == 0) grid.overhead.clear();
   add_notes(grid);
   return grid;
 }
@@ -731,8 +803,19 @@ HeightGrid build_height_grid(const std::vector<perception::PointCloud>& clouds,
                              const HeightGridOptions& options) {
   std::vector<PointBatch> batches;
   for (const auto& c : clouds)
-    batches.push_back({c.points.data(), c.points.size(), c.sensor_origin});
+    batches.push_back({c.points.data(), c.points.size(), c.sensor_origin, c.overhangs.data(),
+                       c.overhangs.size()});
   return build_height_grid(batches, options);
+}
+
+void count_overhangs(HeightGrid& grid) {
+  grid.overhang_cells = grid.overhang_unobserved_cells = 0;
+  if (grid.overhead.size() != grid.geometry.size()) return;
+  for (size_t k = 0; k < grid.overhead.size(); ++k) {
+    if (!std::isfinite(grid.overhead[k])) continue;
+    ++grid.overhang_cells;
+    grid.overhang_unobserved_cells += grid.observed[k] == 0;
+  }
 }
 
 void fill_sampling_gaps(HeightGrid& grid, const std::vector<uint8_t>& sample, double radius) {
@@ -769,7 +852,7 @@ void fill_sampling_gaps(HeightGrid& grid, const std::vector<uint8_t>& sample, do
       const size_t k = g.index(i, j);
       // Candidates: no points, or no cluster of min_cell_points (lone returns, kept as its sample);
       // cells whose points were judged not to be ground (uncertain, bridged) stay holes.
-      if (grid.observed[k] || (grid.count[k] > 0 && !sample[k])) continue;
+      if (grid.observed[k] || (grid.count[k] > 0 && !sample[k]) || no_ground(grid, k)) continue;
       float lo = std::numeric_limits<float>::infinity(), hi = -lo;
       if (sample[k]) lo = hi = grid.elevation[k];
       unsigned sectors = 0;
@@ -905,7 +988,9 @@ void fill_holes_around(HeightGrid& grid, int min_points, const std::vector<uint8
   for (int i = 1; i + 1 < g.nx; ++i)
     for (int j = 1; j + 1 < g.ny; ++j) {
       const size_t k = g.index(i, j);
-      if (grid.observed[k] || grid.count[k] >= static_cast<uint32_t>(min_points)) continue;
+      if (grid.observed[k] || grid.count[k] >= static_cast<uint32_t>(min_points) ||
+          no_ground(grid, k))
+        continue;
       float lo = std::numeric_limits<float>::infinity(), hi = -lo;
       bool all = true;
       for (int di = -1; di <= 1 && all; ++di)

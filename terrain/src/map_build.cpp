@@ -744,6 +744,8 @@ json map_summary(const MapBuild& build, const json& terrain, const std::string& 
                   // (measured or interpolated) cells.
                   {"safe_fraction_of", "observed_cells + interpolated_cells"},
                   {"safe", safe},
+                  {"overhang_cells", g.overhang_cells},
+                  {"overhang_cells_over_unobserved_ground", g.overhang_unobserved_cells},
                   {"timings", terrain["timings"]}};
   if (!g.notes.empty()) summary["notes"] = g.notes;  // the noise note first when there is one
   return summary;

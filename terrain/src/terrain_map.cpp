@@ -911,6 +911,39 @@ bool TerrainMap::safe(double x, double y, double foot_radius) const {
   return k >= 0 && layer(foot_radius).safe[k];
 }
 
+PointAnswer TerrainMap::answer(double x, double y, double foot_radius) const {
+  PointAnswer a;
+  a.ground = sample(x, y);
+  a.field_margin = safety_margin(x, y, foot_radius).margin;
+  const int k = cell_index(x, y);
+  if (k < 0) {
+    a.margin = -std::numeric_limits<double>::infinity();
+    a.unsafe_because = "outside the map";
+    return a;
+  }
+  const SafetyLayer& l = layer(foot_radius);
+  a.observed = grid_.observed[k] != 0;
+  a.safe = l.safe[k] != 0;
+  a.margin = l.margin[k];
+  if (grid_.overhead.size() == grid_.geometry.size()) a.overhead = grid_.overhead[k];
+  a.overhang_only = !a.observed && grid_.support[k] == 0 && std::isfinite(a.overhead);
+  if (a.observed && std::isfinite(a.overhead)) a.free_height = a.overhead - grid_.elevation[k];
+  std::ostringstream why;
+  if (a.overhang_only) {
+    why << "no walkable ground: only an overhang was seen here (a ceiling, a table top seen from "
+           "beneath; its underside at z "
+        << a.overhead << " m), not the ground beneath it";
+  } else if (!a.observed) {
+    why << "not observed: the map holds no measured ground here";
+  } else if (!a.safe) {
+    why << "not a safe foothold for the " << foot_radius
+        << " m foot: an edge, a step, a slope or roughness within reach (margin " << a.margin
+        << " m)";
+  }
+  a.unsafe_because = why.str();
+  return a;
+}
+
 std::string TerrainMap::describe() const {
   const GridGeometry& g = grid_.geometry;
   std::ostringstream os;
@@ -1010,8 +1043,9 @@ nlohmann::json write_terrain_layers(const TerrainMap& map, const std::string& di
         {"max_rms", o.max_rms},
         {"max_slope", o.max_slope},
         {"safe_fraction_definition",
-         "safe cells / observed cells (measured or interpolated); hole-filled, bridged and "
-         "uncertain cells are not observed"},
+         "safe cells / observed cells (measured or interpolated): walkable ground only; "
+         "hole-filled, bridged and uncertain cells, and cells whose only surface is an overhang, "
+         "are not observed"},
         {"radii", safety}}},
       {"statistics",
        {{"points_in_grid", g.points_in_grid},
@@ -1022,7 +1056,8 @@ nlohmann::json write_terrain_layers(const TerrainMap& map, const std::string& di
         {"interpolated_cells", g.interpolated_cells},
         {"see_through_cells", g.see_through_cells},
         {"uncertain_cells", g.uncertain_cells},
-        {"overhang_cells", g.overhang_cells}}}};
+        {"overhang_cells", g.overhang_cells},
+        {"overhang_cells_over_unobserved_ground", g.overhang_unobserved_cells}}}};
   if (!g.notes.empty()) meta["notes"] = g.notes;
   return meta;
 }
@@ -1118,6 +1153,7 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
     grid.interpolated_cells += grid.observed[k] == 2;
   }
   grid.filled_cells = geo.size() - grid.observed_cells - grid.interpolated_cells;
+  count_overhangs(grid);
   return std::make_unique<TerrainMap>(std::move(grid), radii, opts);
 }
 

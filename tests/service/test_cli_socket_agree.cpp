@@ -14,6 +14,8 @@
 #include <string>
 #include <vector>
 
+#include <octomap/OcTree.h>
+
 #include "support/run_command.hpp"
 #include "terrastride/perception/cloud_io.hpp"
 #include "terrastride/service/client.hpp"
@@ -51,6 +53,57 @@ class CliSocketAgree : public ::testing::Test {
   static fs::path dir_, cloud_, map_;
 };
 fs::path CliSocketAgree::dir_, CliSocketAgree::cloud_, CliSocketAgree::map_;
+
+// Over a ceiling whose floor was never scanned both answer not safe, with the overhang's height and
+// why; over the floor beneath a ceiling both give the overhead and the free height.
+TEST_F(CliSocketAgree, OverhangsAreAnsweredAlike) {
+  const fs::path root = dir_ / "root";
+  fs::create_directories(root);
+  octomap::OcTree tree(0.05);
+  for (double x = 0.025; x < 2.0; x += 0.05)
+    for (double y = 0.025; y < 1.0; y += 0.05) {
+      if (x < 1.0) {  // a floor seen from above
+        tree.updateNode(octomap::point3d(x, y, 0.025), true);
+      }
+      for (double z = x < 1.0 ? 0.075 : 1.025; z < 2.45; z += 0.05)
+        tree.updateNode(octomap::point3d(x, y, z), false);
+      tree.updateNode(octomap::point3d(x, y, 2.475), true);  // the ceiling
+    }
+  ASSERT_TRUE(tree.writeBinaryConst((dir_ / "room.bt").string()));
+  const fs::path map = root / "room";
+  auto r = run_terrastride("map " + (dir_ / "room.bt").string() + " --out " + map.string());
+  ASSERT_EQ(r.code, 0) << r.all();
+  r = run_terrastride("query " + map.string() + " --at 0.5,0.5 --at 1.5,0.5");
+  ASSERT_EQ(r.code, 0) << r.all();
+  std::istringstream lines(r.out);
+  std::string line;
+  std::vector<json> cli;
+  while (std::getline(lines, line)) cli.push_back(json::parse(line));
+  ASSERT_EQ(cli.size(), 2u);
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--terrain-root", root.string()});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  Client c = Client::connect(server.tcp(), 60.0);
+  c.call_ok({{"op", "map.update"}, {"terrain_dir", "room"}});
+  const json sock =
+      c.call_ok({{"op", "map.query"}, {"points", {{0.5, 0.5}, {1.5, 0.5}}}})["results"];
+  ASSERT_EQ(sock.size(), 2u);
+  for (size_t k = 0; k < 2; ++k)
+    for (const char* key : {"safe", "observed", "overhead", "free_height", "margin"}) {
+      if (sock[k][key].is_number() && cli[k][key].is_number()) {  // the socket rounds to 1 nm
+        EXPECT_NEAR(sock[k][key].get<double>(), cli[k][key].get<double>(), 1e-8) << key << k;
+      } else {
+        EXPECT_EQ(sock[k][key], cli[k][key]) << key << " " << k;
+      }
+    }
+  EXPECT_TRUE(cli[0]["safe"].get<bool>());
+  EXPECT_NEAR(cli[0]["overhead"].get<double>(), 2.45, 1e-6);
+  EXPECT_NEAR(cli[0]["free_height"].get<double>(), 2.425, 1e-6);
+  EXPECT_FALSE(sock[1]["safe"].get<bool>());
+  EXPECT_TRUE(sock[1]["free_height"].is_null());
+  EXPECT_NE(sock[1]["unsafe_because"].get<std::string>().find("no walkable ground"),
+            std::string::npos);
+  EXPECT_EQ(sock[1]["unsafe_because"], cli[1]["unsafe_because"]);
+}
 
 TEST_F(CliSocketAgree, ACloudIsCleanedAndAnsweredAlike) {
   const auto cloud = terrastride::perception::read_cloud(cloud_.string());

@@ -26,7 +26,8 @@ std::string fixture(const std::string& name) {
 }
 
 // A floor at z = 0 (5 cm voxels over 1 x 1 m), a 20 cm block standing on it, and a table top at
-// 0.5 m whose underside the sensor saw (free voxels between it and the floor).
+// 0.5 m whose underside the sensor saw (free voxels between it and the floor); every top surface
+// seen from above (free voxels over it).
 template <typename Tree = octomap::OcTree>
 Tree floor_block_table() {
   Tree tree(0.05);
@@ -35,13 +36,18 @@ Tree floor_block_table() {
       tree.updateNode(octomap::point3d(x, y, 0.025), true);
       const bool block = x < 0.3 && y < 0.3;
       const bool table = x > 0.6 && y > 0.6;
-      if (block)
+      double top = 0.05;
+      if (block) {
         for (double z = 0.075; z < 0.2; z += 0.05) tree.updateNode(octomap::point3d(x, y, z), true);
+        top = 0.2;
+      }
       if (table) {
         for (double z = 0.075; z < 0.45; z += 0.05)
           tree.updateNode(octomap::point3d(x, y, z), false);
         tree.updateNode(octomap::point3d(x, y, 0.475), true);
+        top = 0.5;
       }
+      tree.updateNode(octomap::point3d(x, y, top + 0.025), false);
     }
   return tree;
 }

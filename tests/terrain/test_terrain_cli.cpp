@@ -98,6 +98,34 @@ TEST_F(TerrainCli, MapThenQueryAPlaneWithAStep) {
   EXPECT_NE(r.out.find("safe for foot radius"), std::string::npos) << r.out;
 }
 
+// Across a safe/unsafe border `query` says margin > 0 exactly where it says safe (the cell's
+// margin; the planner's interpolated one is field_margin), for points 1 mm apart over 20 cm.
+TEST_F(TerrainCli, QueryMarginAgreesWithSafeAcrossCellBorders) {
+  const std::string out = (dir_ / "map").string();
+  CliResult r = run("map " + plane_xyz(true) + " --foot-radius 0.02 --out " + out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::string at;
+  for (int k = 0; k <= 200; ++k) at += " --at " + std::to_string(0.4 + 0.001 * k) + ",0.5013";
+  r = run("query " + out + at);
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::istringstream lines(r.out);
+  std::string line;
+  int points = 0, unsafe = 0;
+  while (std::getline(lines, line)) {
+    const auto q = nlohmann::json::parse(line);
+    ++points;
+    unsafe += !q["safe"].get<bool>();
+    EXPECT_EQ(q["margin"].get<double>() > 0.0, q["safe"].get<bool>()) << line;
+    if (!q["safe"].get<bool>()) {
+      EXPECT_TRUE(q.contains("unsafe_because")) << line;
+    }
+    EXPECT_TRUE(q.contains("field_margin") && q.contains("overhead")) << line;
+    EXPECT_TRUE(q["overhead"].is_null()) << line;  // nothing overhead on a plane
+  }
+  EXPECT_EQ(points, 201);
+  EXPECT_GT(unsafe, 0);
+}
+
 TEST_F(TerrainCli, OctoMapMaxRangeCutsLongRays) {
   // Sensor 1.2 m above the middle of the plane: the plane's corners are ~1.39 m away.
   const std::string cloud = plane_xyz(false);

@@ -10,6 +10,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <nlohmann/json.hpp>
 
 #include "export/mcap_writer.hpp"
@@ -220,6 +221,72 @@ Drawn draw(const robot::RobotModel& model, const std::vector<int>& leg_of_foot,
   return d;
 }
 
+// The terrain as one foxglove.Grid: heights, the safety margin per radius and, with overhangs,
+// the overhead layer.
+json terrain_grid(const report::TerrainView& view) {
+  // The overhead layer (the underside of the lowest overhang, world z; NaN where none, which
+  // Foxglove leaves uncoloured) follows the margins when the terrain has overhangs.
+  const bool has_overhead = view.overhead.size() == view.height.size();
+  const size_t nfields = 1 + view.radii.size() + (has_overhead ? 1 : 0);
+  const size_t cell_stride = 4 * nfields;
+  json fields = json::array();
+  fields.push_back({{"name", "height"}, {"offset", 0}, {"type", 7}});  // FLOAT32
+  for (size_t r = 0; r < view.radii.size(); ++r) {
+    char name[64];
+    std::snprintf(name, sizeof name, "margin_r%.3f", view.radii[r]);
+    fields.push_back({{"name", name}, {"offset", 4 * (r + 1)}, {"type", 7}});
+  }
+  if (has_overhead)
+    fields.push_back({{"name", "overhead"}, {"offset", 4 * (nfields - 1)}, {"type", 7}});
+  // Foxglove's grid: row-major, rows along +y, columns along +x (the view is x-major).
+  std::string data(static_cast<size_t>(view.nx) * view.ny * cell_stride, '\0');
+  for (int j = 0; j < view.ny; ++j)
+    for (int i = 0; i < view.nx; ++i) {
+      char* cell = data.data() + (static_cast<size_t>(j) * view.nx + i) * cell_stride;
+      const size_t k = view.index(i, j);
+      float h = view.height[k];
+      std::memcpy(cell, &h, 4);
+      for (size_t r = 0; r < view.radii.size(); ++r) {
+        float m = view.margin[r][k];
+        std::memcpy(cell + 4 * (r + 1), &m, 4);
+      }
+      if (has_overhead) {
+        const float o = std::isfinite(view.overhead[k]) ? view.overhead[k]
+                                                        : std::numeric_limits<float>::quiet_NaN();
+        std::memcpy(cell + 4 * (nfields - 1), &o, 4);
+      }
+    }
+  json grid{{"timestamp", stamp(0)},
+            {"frame_id", kMapFrame},
+            {"pose", pose(Eigen::Vector3d(view.origin.x(), view.origin.y(), 0.0))},
+            {"column_count", view.nx},
+            {"cell_size", {{"x", view.resolution}, {"y", view.resolution}}},
+            {"row_stride", view.nx * cell_stride},
+            {"cell_stride", cell_stride},
+            {"fields", fields},
+            {"data", base64(data)}};
+  return grid;
+}
+
+// A thin violet tile per cell at the overhang's underside (at most `max_tiles`).
+json overhang_entity(const report::TerrainView& view, size_t max_tiles) {
+  json e = entity(0, "overhangs");
+  e["cubes"] = json::array();
+  size_t tiles = 0;
+  for (int i = 0; i < view.nx; ++i)
+    for (int j = 0; j < view.ny; ++j) {
+      const float z = view.overhead[view.index(i, j)];
+      if (!std::isfinite(z) || tiles >= max_tiles) continue;
+      const Eigen::Vector2d c = view.center(i, j);
+      e["cubes"].push_back({{"pose", pose(Eigen::Vector3d(c.x(), c.y(), z))},
+                            {"size", size3(view.resolution, view.resolution, 0.01)},
+                            {"color", color(0.48, 0.17, 0.75, 0.6)}});
+      ++tiles;
+    }
+  e["metadata"].push_back({{"key", "overhang_cells"}, {"value", std::to_string(tiles)}});
+  return e;
+}
+
 }  // namespace
 
 ExportSummary export_foxglove(const ExportOptions& o) {
@@ -328,39 +395,11 @@ ExportSummary export_foxglove(const ExportOptions& o) {
   {
     std::map<std::string, std::string> meta{{"source", view.source}, {"kind", view.kind}};
     const uint16_t ch = channel("/terrain/grid", "foxglove.Grid", meta);
-    const size_t nfields = 1 + view.radii.size();
-    const size_t cell_stride = 4 * nfields;
-    json fields = json::array();
-    fields.push_back({{"name", "height"}, {"offset", 0}, {"type", 7}});  // FLOAT32
-    for (size_t r = 0; r < view.radii.size(); ++r) {
-      char name[64];
-      std::snprintf(name, sizeof name, "margin_r%.3f", view.radii[r]);
-      fields.push_back({{"name", name}, {"offset", 4 * (r + 1)}, {"type", 7}});
-    }
-    // Foxglove's grid: row-major, rows along +y, columns along +x (the view is x-major).
-    std::string data(static_cast<size_t>(view.nx) * view.ny * cell_stride, '\0');
-    for (int j = 0; j < view.ny; ++j)
-      for (int i = 0; i < view.nx; ++i) {
-        char* cell = data.data() + (static_cast<size_t>(j) * view.nx + i) * cell_stride;
-        const size_t k = view.index(i, j);
-        float h = view.height[k];
-        std::memcpy(cell, &h, 4);
-        for (size_t r = 0; r < view.radii.size(); ++r) {
-          float m = view.margin[r][k];
-          std::memcpy(cell + 4 * (r + 1), &m, 4);
-        }
-      }
-    json grid{{"timestamp", stamp(0)},
-              {"frame_id", kMapFrame},
-              {"pose", pose(Eigen::Vector3d(view.origin.x(), view.origin.y(), 0.0))},
-              {"column_count", view.nx},
-              {"cell_size", {{"x", view.resolution}, {"y", view.resolution}}},
-              {"row_stride", view.nx * cell_stride},
-              {"cell_stride", cell_stride},
-              {"fields", fields},
-              {"data", base64(data)}};
-    publish(ch, 0, grid);
+    publish(ch, 0, terrain_grid(view));
   }
+  if (view.overhead.size() == view.height.size())  // overhangs in 3-D
+    publish(channel("/terrain/overhangs", "foxglove.SceneUpdate"), 0,
+            scene_update(json::array({overhang_entity(view, o.max_voxels)})));
   if (view.octree) {
     const uint16_t ch = channel("/terrain/voxels", "foxglove.SceneUpdate");
     json e = entity(0, "occupied_voxels");

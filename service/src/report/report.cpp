@@ -109,6 +109,14 @@ json overall_summary(const json& terrain, double resolution, json& problems) {
                             std::to_string(terrain["cells"].get<size_t>()) + " cells of " +
                             fmt(resolution, 3) + " m; a note below " +
                             fmt(100 * kObservedNote, 0) + " %"));
+  const size_t overhangs = terrain["overhang_cells"].get<size_t>();
+  if (overhangs > 0)
+    summary.push_back(row("overhang cells", overhangs, "cells", "ok",
+                          std::to_string(terrain["overhang_cells_over_unobserved_ground"]
+                                             .get<size_t>()) +
+                              " of them over ground never observed (no walkable ground there, not "
+                              "in the safe fraction); the others have ground beneath with the "
+                              "overhang's clearance above it"));
   return summary;
 }
 

@@ -39,6 +39,9 @@ struct TerrainView {
   // Per radius, a map's SafetyLayer::safe_fraction() (`map`'s figure: safe over observed cells);
   // empty for a scene, whose fraction the report counts on its own grid the same way.
   std::vector<double> safe_fraction;
+  // Per cell, the underside of the lowest overhang above the ground (world z; a ceiling, a table
+  // top, a shelf), +infinity where none; empty when nothing is overhead anywhere.
+  std::vector<float> overhead;
   // The terrain as the planner and the checks see it (heights and margins at any point); footholds
   // and profiles are queried here rather than on the coarser display grid.
   std::shared_ptr<const terrain::HeightField> field;

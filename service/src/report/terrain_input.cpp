@@ -33,6 +33,7 @@ void fill_from_map(TerrainView& view, std::shared_ptr<const terrain::TerrainMap>
   // unknown (a gap), not as ground that was seen.
   for (size_t k = 0; k < cells; ++k)
     if (grid.observed[k]) view.height[k] = grid.elevation[k];
+  view.overhead = grid.overhead;
   view.radii = radii;
   view.margin.clear();
   view.safe_fraction.clear();
@@ -75,6 +76,7 @@ void rasterize_field(TerrainView& view, const terrain::HeightField& field,
   const size_t cells = static_cast<size_t>(view.nx) * view.ny;
   view.height.assign(cells, std::numeric_limits<float>::quiet_NaN());
   view.observed.assign(cells, 0);
+  view.overhead.clear();
   view.radii = radii;
   view.margin.assign(radii.size(),
                      std::vector<float>(cells, std::numeric_limits<float>::quiet_NaN()));
@@ -84,6 +86,12 @@ void rasterize_field(TerrainView& view, const terrain::HeightField& field,
       const size_t k = view.index(i, j);
       view.height[k] = static_cast<float>(field.height(c.x(), c.y()));
       view.observed[k] = field.observed(c.x(), c.y()) ? 1 : 0;
+      const double overhead = field.overhead(c.x(), c.y());
+      if (std::isfinite(overhead)) {
+        if (view.overhead.empty())
+          view.overhead.assign(cells, std::numeric_limits<float>::infinity());
+        view.overhead[k] = static_cast<float>(overhead);
+      }
       for (size_t r = 0; r < radii.size(); ++r)
         view.margin[r][k] = static_cast<float>(field.safety_margin(c.x(), c.y(), radii[r]).margin);
     }

@@ -36,26 +36,36 @@ json terrain_section(const TerrainView& t, const ReportOptions& options, double 
   for (int j = 0; j < t.ny; j += stride) ys.push_back(num(t.center(0, j).y(), 4));
   // Plotly heatmaps take z[row = y][col = x].
   json height = json::array();
+  // The overhang overlay: the underside's z where something is overhead (null elsewhere).
+  const bool has_overhead = t.overhead.size() == t.height.size();
+  json overhead = json::array();
   std::vector<json> margins(t.radii.size(), json::array());
   for (int j = 0; j < t.ny; j += stride) {
-    json hrow = json::array();
+    json hrow = json::array(), orow = json::array();
     std::vector<json> mrows(t.radii.size(), json::array());
     for (int i = 0; i < t.nx; i += stride) {
       const size_t k = t.index(i, j);
       hrow.push_back(num(t.height[k], 4));
+      if (has_overhead)
+        orow.push_back(std::isfinite(t.overhead[k]) ? num(t.overhead[k], 3) : json(nullptr));
       for (size_t r = 0; r < t.radii.size(); ++r) {
         const double m = t.margin[r][k];
         mrows[r].push_back(num(std::isfinite(m) ? std::min(m, kMarginDisplayCap) : m, 3));
       }
     }
     height.push_back(std::move(hrow));
+    if (has_overhead) overhead.push_back(std::move(orow));
     for (size_t r = 0; r < t.radii.size(); ++r) margins[r].push_back(std::move(mrows[r]));
   }
 
-  size_t observed = 0;
+  size_t observed = 0, overhang = 0, overhang_unobserved = 0;
   double hmin = std::numeric_limits<double>::infinity(), hmax = -hmin;
   for (size_t k = 0; k < t.height.size(); ++k) {
     if (t.observed[k]) ++observed;
+    if (has_overhead && std::isfinite(t.overhead[k])) {
+      ++overhang;
+      overhang_unobserved += !t.observed[k];
+    }
     if (std::isfinite(t.height[k])) {
       hmin = std::min<double>(hmin, t.height[k]);
       hmax = std::max<double>(hmax, t.height[k]);
@@ -87,6 +97,9 @@ json terrain_section(const TerrainView& t, const ReportOptions& options, double 
       {"cells", t.height.size()},
       {"observed_cells", observed},
       {"observed_fraction", num(t.height.empty() ? 0.0 : double(observed) / t.height.size(), 4)},
+      {"overhang_cells", overhang},
+      {"overhang_cells_over_unobserved_ground", overhang_unobserved},
+      {"overhead", std::move(overhead)},
       {"height_min_m", num(hmin)},
       {"height_max_m", num(hmax)},
       {"has_octomap", static_cast<bool>(t.octree)},

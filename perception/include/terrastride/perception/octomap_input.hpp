@@ -38,22 +38,33 @@ struct OctreeSupportStats {
   size_t occupied_voxels = 0;   // occupied leaves expanded to voxels of the tree's resolution
   size_t columns = 0;           // distinct (x, y) voxel columns with an occupied voxel
   size_t runs = 0;              // vertical runs of occupied voxels
-  size_t seen_beneath = 0;      // of those, dropped: above another run, with free space right below
+  size_t seen_beneath = 0;      // of those, with a known-free voxel right beneath
+  size_t overhangs = 0;         // of those, with the overhang free height beneath: not support
+  size_t overhang_only_columns = 0;  // columns whose every run is an overhang (no ground seen)
+  size_t unseen_tops = 0;       // runs seen neither from above nor from beneath: no point
+  size_t free_leaves = 0;       // free leaves of the tree (none: a tree without rays)
 };
 
 // The support surfaces of an occupancy tree as a cloud: per (x, y) column of voxels, one point at
 // the centre of the top voxel of every vertical run of occupied voxels (the surface a foot stands
-// on; the run's lower voxels are its side), except runs above another run with a known-free voxel
-// directly beneath them: the sensor saw under those (a ceiling, a table top, an overhang) and the
-// lower run is the support, as the height grid's overhang rule judges rays from beneath. (The
-// lowest run of a column is always kept: free space right under it is a grazing ray under a
-// surface that lies on a voxel boundary, or a ceiling over unseen ground, a conservatively high
-// surface.) Unknown space stays unknown: columns without occupied
-// voxels give no point. The cloud has no sensor origin (the tree keeps no rays). Throws InputError
-// when the tree holds no occupied voxel, or more than `max_voxels` once its coarse occupied
-// leaves are expanded.
+// on; the run's lower voxels are its side), except overhangs: runs with known-free voxels beneath
+// them adding up to at least `overhang_free_height` (between the run and the run below, or within
+// 5 m below the lowest run; unknown voxels between them do not count either way; coarse free
+// leaves count voxel by voxel), and every run above such a run in its column (a ceiling over a duct seen from beneath, a
+// lamp over a table). The sensor saw under those (a ceiling, a table top, a shelf): they are not
+// ground, and go into the cloud's `overhangs` as their underside (the bottom face of the run's
+// lowest voxel).
+// A column whose runs are all overhangs (a ceiling over a floor never scanned) gives no support
+// point. Nor does a run with no free voxel within the overhang free height above its top and
+// below its bottom, in a tree that holds free leaves: no ray saw its top (the edge of a ceiling
+// lit from the side); a ground surface is seen from above. A run with less free space beneath (a pallet deck, a grazing ray under a surface on a
+// voxel boundary) or unknown space beneath (a floor, a table top never seen from below) is support.
+// Unknown space stays unknown: columns without occupied voxels give no point. The cloud has no
+// sensor origin (the tree keeps no rays). Throws InputError when the tree holds no occupied voxel,
+// more than `max_voxels` once its coarse occupied leaves are expanded, or no support point.
 PointCloud octree_support_cloud(const octomap::OcTree& tree, const std::string& source,
                                 OctreeSupportStats* stats = nullptr,
-                                size_t max_voxels = 200'000'000);
+                                size_t max_voxels = 200'000'000,
+                                double overhang_free_height = kOverhangFreeHeight);
 
 }  // namespace terrastride::perception

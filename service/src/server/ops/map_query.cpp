@@ -17,6 +17,43 @@ namespace {
 
 constexpr std::size_t kMaxQueryPoints = 10000;
 
+// One point's answer as a JSON object, appended to `text`.
+void append_answer(std::string& text, double x, double y, const terrain::PointAnswer& a) {
+  text += "{\"x\":";
+  protocol::append_json_number(text, x);
+  text += ",\"y\":";
+  protocol::append_json_number(text, y);
+  text += ",\"height\":";
+  protocol::append_json_number(text, a.ground.height);
+  text += ",\"gradient\":[";
+  protocol::append_json_number(text, a.ground.gradient.x());
+  text += ',';
+  protocol::append_json_number(text, a.ground.gradient.y());
+  text += "],\"safe\":";
+  text += a.safe ? "true" : "false";
+  text += ",\"margin\":";
+  protocol::append_json_number(text, a.margin);
+  text += ",\"field_margin\":";
+  protocol::append_json_number(text, a.field_margin);
+  text += ",\"observed\":";
+  text += a.observed ? "true" : "false";
+  // JSON has no infinity: nothing overhead is null.
+  text += ",\"overhead\":";
+  if (std::isfinite(a.overhead)) {
+    protocol::append_json_number(text, a.overhead);
+  } else {
+    text += "null";
+  }
+  text += ",\"free_height\":";
+  if (std::isfinite(a.free_height)) {
+    protocol::append_json_number(text, a.free_height);
+  } else {
+    text += "null";
+  }
+  if (!a.safe) text += ",\"unsafe_because\":" + json(a.unsafe_because).dump();
+  text += '}';
+}
+
 OpResult map_query(Backend& backend, OpContext& ctx) {
   const json& h = ctx.request.header;
   const double foot_radius = protocol::get_number(h, "foot_radius", backend.robot().foot_radius);
@@ -91,26 +128,20 @@ OpResult map_query(Backend& backend, OpContext& ctx) {
   text += "{\"generation\":" + std::to_string(m->generation) + ",\"results\":[";
   for (std::size_t i = 0; i + 1 < xy.size(); i += 2) {
     const double x = xy[i], y = xy[i + 1];
-    const auto s = m->field->sample(x, y);
-    const auto mg = m->field->safety_margin(x, y, foot_radius);
-    const bool observed = m->field->observed(x, y);
-    const bool safe = grid_map ? grid_map->safe(x, y, foot_radius) : (observed && mg.margin > 0.0);
-    text += i ? ",{\"x\":" : "{\"x\":";
-    protocol::append_json_number(text, x);
-    text += ",\"y\":";
-    protocol::append_json_number(text, y);
-    text += ",\"height\":";
-    protocol::append_json_number(text, s.height);
-    text += ",\"gradient\":[";
-    protocol::append_json_number(text, s.gradient.x());
-    text += ',';
-    protocol::append_json_number(text, s.gradient.y());
-    text += "],\"safe\":";
-    text += safe ? "true" : "false";
-    text += ",\"margin\":";
-    protocol::append_json_number(text, mg.margin);
-    text += ",\"observed\":";
-    text += observed ? "true}" : "false}";
+    terrain::PointAnswer a;
+    if (grid_map) {
+      a = grid_map->answer(x, y, foot_radius);
+    } else {
+      a.ground = m->field->sample(x, y);
+      a.margin = a.field_margin = m->field->safety_margin(x, y, foot_radius).margin;
+      a.observed = m->field->observed(x, y);
+      a.safe = a.observed && a.margin > 0.0;
+      a.overhead = m->field->overhead(x, y);
+      if (std::isfinite(a.overhead)) a.free_height = a.overhead - a.ground.height;
+      if (!a.safe) a.unsafe_because = a.observed ? "not a safe foothold" : "not observed";
+    }
+    if (i) text += ',';
+    append_answer(text, x, y, a);
   }
   text += "]}";
   backend.count_query(xy.size() / 2);

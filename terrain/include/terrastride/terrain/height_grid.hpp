@@ -11,8 +11,14 @@
 // neighbouring cell's support lies at its height; narrow pits are bridged), unless the sensor saw
 // beneath it: when most rays that reached a lower cluster entered the cell's column below that
 // cluster (they came from the side, under a table top) it is an overhang and the next lower
-// substantial cluster is the support. That second test needs the sensor origin; clouds without one
-// get the see-through interpretation only. A sparse cluster above the support that neither a
+// substantial cluster is the support, provided the free height between the two is at least
+// `overhang_free_height` (less: a deck seen from the side, which is ground). A thin cluster whose
+// own rays rose into it from a sensor that free height or more below it was seen only from beneath
+// (a ceiling over a floor the sensor did not see): the cell has no walkable ground. Those tests
+// need the sensor origin; clouds without one get the see-through interpretation only, and inputs
+// that know free space (an OctoMap) hand their overhangs in directly (PointBatch::overhangs).
+// Overhangs are kept as the overhead layer: the underside of the lowest one above the support, or
+// over a cell without ground, which is then unobserved (never interpolated, never safe). A sparse cluster above the support that neither a
 // neighbour corroborates (promotion) nor the sensor saw beneath (overhang) makes the cell
 // uncertain: something stands above the lower surface there (a grating tread seen by few rays), so
 // the lower surface is not offered as ground and the cell is unobserved.
@@ -58,6 +64,8 @@ struct HeightGridOptions {
   int min_support_points = 2;         // ...and at least this many to count as a surface
   int min_cell_points = 2;            // fewer points in the support: the cell stays unobserved
   double overhang_vote = 0.5;         // share of "seen from beneath" rays that marks an overhang
+  // Free height beneath a surface that makes it an overhang (m); see perception::kOverhangFreeHeight.
+  double overhang_free_height = perception::kOverhangFreeHeight;
   // Pits up to 2 * bridge_cells wide and deeper than cluster_gap are bridged as see-through
   // openings of the surface around them (and flagged unobserved); 0 = off.
   int bridge_cells = 2;
@@ -128,7 +136,8 @@ struct HeightGrid {
   size_t observed_cells = 0;
   size_t see_through_cells = 0;   // cells where lower returns were ignored as see-through
   size_t uncertain_cells = 0;     // lower surface under an uncorroborated upper one: unobserved
-  size_t overhang_cells = 0;      // cells where an upper surface was ignored as overhang
+  size_t overhang_cells = 0;      // cells with an overhang (finite overhead)
+  size_t overhang_unobserved_cells = 0;  // of those, without observed ground beneath (unobserved)
   size_t bridged_cells = 0;       // narrow see-through pits bridged (then filled, unobserved)
   size_t interpolated_cells = 0;  // single-cell sampling gaps (observed = 2)
   size_t filled_cells = 0;
@@ -139,6 +148,11 @@ struct PointBatch {
   const Eigen::Vector3f* points = nullptr;
   size_t size = 0;
   std::optional<Eigen::Vector3d> origin;
+  // Overhang undersides known to the input (perception::PointCloud::overhangs): not support; the
+  // lowest above a cell's support is its overhead, and a cell with overhangs and no point has no
+  // walkable ground.
+  const Eigen::Vector3f* overhangs = nullptr;
+  size_t overhang_count = 0;
 };
 
 // Builds the grid from several batches (all in the world frame). Throws perception::InputError when
@@ -149,6 +163,10 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches,
                              const HeightGridOptions& options = {});
 HeightGrid build_height_grid(const std::vector<perception::PointCloud>& clouds,
                              const HeightGridOptions& options = {});
+
+// Sets overhang_cells and overhang_unobserved_cells from `overhead` and `observed` (a grid built
+// or read back from its layers).
+void count_overhangs(HeightGrid& grid);
 
 // Sampling-gap interpolation at the scale of the point spacing (HeightGrid::gap_radius). `sample`
 // flags cells whose support is a surface sample (it may be a lone point: a sparse cloud's surface

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <limits>
 #include <cstdint>
 #include <deque>
 #include <memory>
@@ -101,6 +102,24 @@ struct Clearance {
   Eigen::Vector3d at;  // where it is attained
 };
 
+// What `terrastride query` and the socket's map.query answer at a point of a map.
+struct PointAnswer {
+  HeightSample ground;   // the planner's height field
+  bool observed = false;
+  bool safe = false;     // the cell's safety mask for the foot radius
+  // The cell's safety margin (the layer's distance-transform value, m): > 0 exactly where `safe`.
+  double margin = 0.0;
+  // The C2 margin field the planner's foothold rows use; it interpolates the cells' margins, so
+  // within half a cell of a safe/unsafe border its sign may differ from the cell's.
+  double field_margin = 0.0;
+  // The underside of the lowest overhang above the ground in the cell (world z), +infinity where
+  // none; the free height is overhead - the cell's elevation where the ground was observed.
+  double overhead = std::numeric_limits<double>::infinity();
+  double free_height = std::numeric_limits<double>::infinity();
+  bool overhang_only = false;  // an overhang and no walkable ground beneath it was seen
+  std::string unsafe_because;  // why the point is not safe ground; empty when safe
+};
+
 class TerrainMap : public HeightField {
  public:
   // Computes the safety layers for `radii` up front; other radii are computed on first use.
@@ -123,6 +142,8 @@ class TerrainMap : public HeightField {
   double overhead_and_gradient(double x, double y, Eigen::Vector2d* gradient) const override;
   bool observed(double x, double y) const override;
   bool safe(double x, double y, double foot_radius) const;
+  // The query's answer at (x, y), inside the grid (min_corner() to max_corner()).
+  PointAnswer answer(double x, double y, double foot_radius) const;
   Eigen::Vector2d min_corner() const override { return grid_.geometry.origin; }
   Eigen::Vector2d max_corner() const override { return grid_.geometry.max_corner(); }
   std::string describe() const override;

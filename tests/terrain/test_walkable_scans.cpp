@@ -1,0 +1,123 @@
+// Walkable surfaces on the shared real OctoMaps (skipped without ../shared): geb079's ceilings over
+// rooms whose floor was never scanned are overhangs, not safe ground, and a plan there is refused
+// while the corridor crawl still plans; freiburg1_360's floor and table tops are separate levels.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <string>
+
+#include "perception/test_util.hpp"
+#include "support/run_command.hpp"
+#include "terrastride/planner/level_reach.hpp"
+#include "terrastride/planner/request_limits.hpp"
+#include "terrastride/terrain/map_build.hpp"
+
+namespace terrastride {
+namespace {
+
+terrain::MapBuild map_octomap(const std::string& name) {
+  terrain::OctreeMapInput input = terrain::read_map_octomap(perception::test::scan("octomap/" + name));
+  terrain::MapBuildOptions options;
+  options.grid.resolution = 0;
+  options.foot_radii = {0.02};
+  return terrain::build_terrain_map_from_octree(input, options);
+}
+
+struct Levels {
+  size_t observed = 0, safe = 0, observed_high = 0, safe_high = 0;
+};
+
+// Observed and safe cells, and those `above` m or more over `floor`.
+Levels levels(const terrain::TerrainMap& map, double floor, double above) {
+  const terrain::HeightGrid& g = map.grid();
+  const terrain::SafetyLayer& l = map.layer(0.02);
+  Levels v;
+  for (size_t k = 0; k < g.geometry.size(); ++k) {
+    const bool high = g.elevation[k] - floor >= above;
+    v.observed += g.observed[k] != 0;
+    v.safe += l.safe[k] != 0;
+    v.observed_high += g.observed[k] != 0 && high;
+    v.safe_high += l.safe[k] != 0 && high;
+  }
+  return v;
+}
+
+TEST(WalkableScans, Geb079CeilingsAreOverhangsNotGround) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
+  const terrain::MapBuild build = map_octomap("geb079.bt");
+  const terrain::TerrainMap& map = *build.map;
+  const double floor = map.grid().elevation[map.cell_index(6.2, -0.36)];  // the corridor's
+  EXPECT_NEAR(floor, -0.04, 0.01);
+  const Levels v = levels(map, floor, 1.5);
+  // Before: 5602 of 21432 observed cells and 2702 of 15629 safe ones 1.5 m or more above the
+  // corridor floor. What is left are tops seen from above (partitions, cupboards): levels of
+  // their own, which the reach check refuses.
+  EXPECT_LT(v.observed_high, v.observed / 20) << v.observed_high << " of " << v.observed;
+  EXPECT_LT(v.safe_high, v.safe / 50) << v.safe_high << " of " << v.safe;
+  EXPECT_GT(map.grid().overhang_cells, 20000u);
+  EXPECT_GT(map.grid().overhang_unobserved_cells, 10000u);
+  EXPECT_TRUE(map.safe(6.2, -0.36, 0.02));
+  // A ceiling over a room never scanned: no walkable ground, refused with its height.
+  const terrain::PointAnswer a = map.answer(0.51, -4.15, 0.02);
+  EXPECT_FALSE(a.safe);
+  EXPECT_TRUE(a.overhang_only);
+  EXPECT_NEAR(a.overhead, 2.64, 0.05);
+  const auto hyq = robot::load_robot(robot::resolve_robot_path("hyq"));
+  try {
+    planner::check_level_reach(map, hyq, {6.2, -0.36, 0}, {0.2, -4.44, 0});
+    ADD_FAILURE() << "a goal on the ceiling was accepted";
+  } catch (const planner::RequestError& e) {
+    EXPECT_EQ(e.field(), "goal");
+    EXPECT_NE(std::string(e.what()).find("no walkable ground"), std::string::npos) << e.what();
+  }
+  EXPECT_NO_THROW(planner::check_level_reach(map, hyq, {6.2, -0.36, 0}, {7.2, -0.36, 0}));
+}
+
+TEST(WalkableScans, Geb079CorridorCrawlStillPlansAndCeilingStartIsRefused) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
+  perception::test::ScratchDir dir;
+  const std::string out = dir.file("geb079");
+  auto r = test_support::run_terrastride("map " + perception::test::scan("octomap/geb079.bt") +
+                                         " --out " + out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("overhangs (overhead clearance layer)"), std::string::npos) << r.out;
+  r = test_support::run_terrastride("plan --terrain " + out +
+                                    " --start 6.2,-0.36,0 --goal 7.2,-0.36,0 --constraints all "
+                                    "--out " + dir.file("crawl.json"));
+  EXPECT_EQ(r.code, 0) << r.all();
+  EXPECT_NE(r.out.find("optimal"), std::string::npos) << r.out;
+  r = test_support::run_terrastride("plan --terrain " + out +
+                                    " --start 0.2,-4.44,0 --goal 1,-4.44,0 --out " +
+                                    dir.file("ceiling.json"));
+  EXPECT_EQ(r.code, 1) << r.all();
+  EXPECT_NE(r.err.find("--start: [0.2, -4.44, 0]"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("no walkable ground"), std::string::npos) << r.err;
+  EXPECT_FALSE(std::filesystem::exists(dir.file("ceiling.json")));
+}
+
+TEST(WalkableScans, Freiburg360FloorAndTableTopsAreSeparateLevels) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
+  const terrain::MapBuild build = map_octomap("freiburg1_360.bt");
+  const terrain::TerrainMap& map = *build.map;
+  const terrain::HeightGrid& g = map.grid();
+  const terrain::SafetyLayer& l = map.layer(0.02);
+  size_t floor_safe = 0, table_level = 0, table_overhead = 0, ceiling_safe = 0;
+  for (size_t k = 0; k < g.geometry.size(); ++k) {
+    const float z = g.elevation[k];
+    floor_safe += l.safe[k] && std::abs(z) < 0.1;
+    table_level += g.observed[k] && z > 0.65 && z < 0.95;
+    // A table top seen from beneath, with the floor walkable under it.
+    table_overhead += g.observed[k] && std::abs(z) < 0.1 && g.overhead.size() == g.geometry.size() &&
+                      g.overhead[k] > 0.5 && g.overhead[k] < 0.9;
+    ceiling_safe += l.safe[k] && z > 2.2;
+  }
+  // Before: the floor 18,380 safe cells, the ceiling 3,038 safe cells above 2.2 m.
+  EXPECT_GT(floor_safe, 18000u);
+  EXPECT_GT(table_level, 5000u);     // table tops seen from above only: a level of their own
+  EXPECT_GT(table_overhead, 2000u);  // seen from beneath: overhangs with their clearance
+  EXPECT_LT(ceiling_safe, 50u);
+}
+
+}  // namespace
+}  // namespace terrastride

@@ -1,0 +1,246 @@
+// Walkable surfaces, not the top of every column: overhangs (ceilings, shelves, table tops seen
+// from beneath) are kept apart as the overhead layer, from an OctoMap's free voxels and from the
+// rays of clouds with sensor origins; a column whose only surface is an overhang has no walkable
+// ground; a surface with less than the overhang free height beneath it (a pallet deck) is ground.
+#include <gtest/gtest.h>
+#include <octomap/OcTree.h>
+
+#include <cmath>
+#include <functional>
+#include <vector>
+
+#include "terrastride/perception/octomap_input.hpp"
+#include "terrastride/terrain/map_build.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
+
+namespace terrastride {
+namespace {
+
+constexpr double kRes = 0.05;
+
+// A 2 x 2 m OctoMap of 5 cm voxels, filled column by column: `column(x, y, tree)` marks the
+// column's voxels (voxel centres at odd multiples of 2.5 cm).
+octomap::OcTree make_tree(const std::function<void(double, double, octomap::OcTree&)>& column) {
+  octomap::OcTree tree(kRes);
+  for (double x = 0.025; x < 2.0; x += kRes)
+    for (double y = 0.025; y < 2.0; y += kRes) column(x, y, tree);
+  return tree;
+}
+
+void occupied(octomap::OcTree& t, double x, double y, double z) {
+  t.updateNode(octomap::point3d(x, y, z), true);
+}
+// A top surface seen from above: occupied, with a free voxel over it.
+void top_surface(octomap::OcTree& t, double x, double y, double z) {
+  occupied(t, x, y, z);
+  t.updateNode(octomap::point3d(x, y, z + kRes), false);
+}
+void free_from_to(octomap::OcTree& t, double x, double y, double z0, double z1) {
+  for (double z = z0; z < z1 - 1e-6; z += kRes) t.updateNode(octomap::point3d(x, y, z), false);
+}
+
+terrain::MapBuild map_of(const octomap::OcTree& tree) {
+  terrain::OctreeMapInput input;
+  input.tree = std::make_unique<octomap::OcTree>(tree);
+  input.support = perception::octree_support_cloud(*input.tree, "synthetic", &input.stats);
+  terrain::MapBuildOptions options;
+  options.grid.resolution = 0;
+  options.foot_radii = {0.02};
+  return terrain::build_terrain_map_from_octree(input, options);
+}
+
+size_t cell(const terrain::HeightGrid& g, double x, double y) {
+  return g.geometry.index(static_cast<int>((x - g.geometry.origin.x()) / g.geometry.resolution),
+                          static_cast<int>((y - g.geometry.origin.y()) / g.geometry.resolution));
+}
+
+TEST(WalkableOctomap, ShelfOverAFloorIsAnOverheadNotTheGround) {
+  // A floor, and a shelf board at 0.6 m over x in [0.5, 1.0) seen from beneath (free voxels).
+  const auto tree = make_tree([](double x, double y, octomap::OcTree& t) {
+    top_surface(t, x, y, 0.025);
+    if (x > 0.5 && x < 1.0) {
+      free_from_to(t, x, y, 0.075, 0.625);
+      occupied(t, x, y, 0.625);
+    }
+  });
+  perception::OctreeSupportStats st;
+  const auto cloud = perception::octree_support_cloud(tree, "shelf", &st);
+  EXPECT_EQ(st.overhangs, 400u);
+  EXPECT_EQ(st.overhang_only_columns, 0u);
+  ASSERT_EQ(cloud.overhangs.size(), 400u);
+  for (const auto& o : cloud.overhangs) EXPECT_NEAR(o.z(), 0.6, 1e-5);
+  for (const auto& p : cloud.points) EXPECT_NEAR(p.z(), 0.025, 1e-5);
+
+  const auto build = map_of(tree);
+  const terrain::HeightGrid& g = build.map->grid();
+  ASSERT_EQ(g.overhead.size(), g.geometry.size());
+  EXPECT_EQ(g.overhang_cells, 400u);
+  EXPECT_EQ(g.overhang_unobserved_cells, 0u);
+  const size_t under = cell(g, 0.75, 1.0);
+  EXPECT_EQ(g.observed[under], 1);
+  EXPECT_NEAR(g.elevation[under], 0.025, 1e-5);
+  EXPECT_NEAR(g.overhead[under], 0.6, 1e-5);
+  EXPECT_TRUE(build.map->safe(0.75, 1.0, 0.02));
+  const terrain::PointAnswer a = build.map->answer(0.75, 1.0, 0.02);
+  EXPECT_TRUE(a.safe);
+  EXPECT_NEAR(a.free_height, 0.575, 1e-5);
+  EXPECT_FALSE(std::isfinite(g.overhead[cell(g, 1.5, 1.0)]));
+}
+
+TEST(WalkableOctomap, CeilingOverUnobservedFloorIsNotGround) {
+  // x < 1: a floor under a ceiling at 2.45-2.5 m; x >= 1: the ceiling alone, free space seen
+  // beneath it down to 1 m (rays from a sensor elsewhere) and nothing known below.
+  const auto tree = make_tree([](double x, double y, octomap::OcTree& t) {
+    if (x < 1.0) {
+      top_surface(t, x, y, 0.025);
+      free_from_to(t, x, y, 0.075, 2.475);
+    } else {
+      free_from_to(t, x, y, 1.025, 2.475);
+    }
+    occupied(t, x, y, 2.475);
+  });
+  perception::OctreeSupportStats st;
+  const auto cloud = perception::octree_support_cloud(tree, "ceiling", &st);
+  EXPECT_EQ(st.overhang_only_columns, 800u);
+  const auto build = map_of(tree);
+  const terrain::HeightGrid& g = build.map->grid();
+  const terrain::SafetyLayer& safe = build.map->layer(0.02);
+  size_t high_observed = 0, high_safe = 0;
+  for (size_t k = 0; k < g.geometry.size(); ++k) {
+    high_observed += g.observed[k] && g.elevation[k] > 1.5;
+    high_safe += safe.safe[k] && g.elevation[k] > 1.5;
+  }
+  EXPECT_EQ(high_observed, 0u);
+  EXPECT_EQ(high_safe, 0u);
+  EXPECT_EQ(g.overhang_cells, 1600u);
+  EXPECT_EQ(g.overhang_unobserved_cells, 800u);
+  // Over the unobserved floor: not observed, not interpolated, never safe; the ceiling overhead.
+  const size_t k = cell(g, 1.5, 1.0);
+  EXPECT_EQ(g.observed[k], 0);
+  EXPECT_NEAR(g.overhead[k], 2.45, 1e-5);
+  const terrain::PointAnswer a = build.map->answer(1.5, 1.0, 0.02);
+  EXPECT_FALSE(a.safe);
+  EXPECT_TRUE(a.overhang_only);
+  EXPECT_NE(a.unsafe_because.find("no walkable ground"), std::string::npos) << a.unsafe_because;
+  // The safe fraction counts the floor only.
+  EXPECT_EQ(safe.observed_cells, 800u);
+}
+
+TEST(WalkableOctomap, PalletDeckWithLittleRoomBeneathIsGround) {
+  // A deck 10 cm up (one free voxel beneath it): less than the overhang free height, so it is
+  // the surface a foot stands on, not something to walk under.
+  const auto tree = make_tree([](double x, double y, octomap::OcTree& t) {
+    top_surface(t, x, y, 0.025);
+    if (x > 0.5 && x < 1.0) top_surface(t, x, y, 0.125);
+  });
+  perception::OctreeSupportStats st;
+  const auto cloud = perception::octree_support_cloud(tree, "deck", &st);
+  EXPECT_EQ(st.overhangs, 0u);
+  EXPECT_EQ(st.seen_beneath, 400u);
+  const auto build = map_of(tree);
+  const terrain::HeightGrid& g = build.map->grid();
+  EXPECT_NEAR(g.elevation[cell(g, 0.75, 1.0)], 0.125, 1e-5);
+  EXPECT_TRUE(g.overhead.empty());
+}
+
+TEST(WalkableOctomap, CupboardTopIsItsOwnLevelOfGround) {
+  // A solid cupboard 2 m high: its top has no free space beneath, so it stays ground (a level the
+  // planner's reach check tells apart from the floor's).
+  const auto tree = make_tree([](double x, double y, octomap::OcTree& t) {
+    top_surface(t, x, y, 0.025);
+    if (x > 0.5 && x < 1.0 && y > 0.5 && y < 1.0) {
+      for (double z = 0.075; z < 1.95; z += kRes) occupied(t, x, y, z);
+      top_surface(t, x, y, 1.975);
+    }
+  });
+  const auto build = map_of(tree);
+  const terrain::HeightGrid& g = build.map->grid();
+  EXPECT_NEAR(g.elevation[cell(g, 0.75, 0.75)], 1.975, 1e-5);
+  EXPECT_EQ(g.observed[cell(g, 0.75, 0.75)], 1);
+  EXPECT_TRUE(g.overhead.empty());
+}
+
+// ---- clouds with sensor origins: the height grid's ray rule.
+perception::PointCloud grid_points(double x0, double x1, double y0, double y1, double z,
+                                   double step) {
+  perception::PointCloud c;
+  for (double x = x0 + 0.5 * step; x < x1; x += step)
+    for (double y = y0 + 0.5 * step; y < y1; y += step)
+      c.points.emplace_back(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z));
+  return c;
+}
+
+terrain::HeightGrid grid_of(perception::PointCloud cloud, const Eigen::Vector3d& origin) {
+  cloud.sensor_origin = origin;
+  terrain::HeightGridOptions o;
+  o.resolution = 0.04;
+  return terrain::build_height_grid(std::vector<perception::PointCloud>{cloud}, o);
+}
+
+TEST(WalkableClouds, TableSeenFromTheSideKeepsTheFloorAndTheTableAsOverhead) {
+  // The floor, and a table top 0.7 m up over x in [0, 1], seen from a sensor 1.5 m to its side.
+  perception::PointCloud cloud = grid_points(-1.0, 2.0, 0.0, 1.0, 0.0, 0.01);
+  const perception::PointCloud top = grid_points(0.0, 1.0, 0.2, 0.8, 0.7, 0.01);
+  cloud.points.insert(cloud.points.end(), top.points.begin(), top.points.end());
+  const terrain::HeightGrid g = grid_of(cloud, Eigen::Vector3d(-1.5, 0.5, 1.2));
+  ASSERT_EQ(g.overhead.size(), g.geometry.size());
+  const size_t under = cell(g, 0.5, 0.5);
+  EXPECT_EQ(g.observed[under], 1);
+  EXPECT_NEAR(g.elevation[under], 0.0, 1e-6);
+  EXPECT_NEAR(g.overhead[under], 0.7, 1e-5);
+  EXPECT_GE(g.overhang_cells, 300u);
+  EXPECT_EQ(g.overhang_unobserved_cells, 0u);
+  EXPECT_FALSE(std::isfinite(g.overhead[cell(g, 1.5, 0.5)]));
+}
+
+TEST(WalkableClouds, DeckSeenFromTheSideIsGround) {
+  // A deck 10 cm over the floor, seen from the side: rays reach the floor beneath it, but 10 cm
+  // is no room to walk under: the deck is the ground.
+  perception::PointCloud cloud = grid_points(-1.0, 2.0, 0.0, 1.0, 0.0, 0.01);
+  const perception::PointCloud deck = grid_points(0.0, 1.0, 0.2, 0.8, 0.1, 0.01);
+  cloud.points.insert(cloud.points.end(), deck.points.begin(), deck.points.end());
+  const terrain::HeightGrid g = grid_of(cloud, Eigen::Vector3d(-1.5, 0.5, 1.2));
+  EXPECT_NEAR(g.elevation[cell(g, 0.5, 0.5)], 0.1, 1e-6);
+  EXPECT_TRUE(g.overhead.empty());
+}
+
+TEST(WalkableClouds, CeilingSeenOnlyFromBeneathIsNotGround) {
+  // A room scanned from its middle, 1 m up: the ceiling at 2.5 m everywhere, the floor only where
+  // x < 0 (the rest hidden). Over x > 0 the ceiling was seen from beneath only.
+  perception::PointCloud cloud = grid_points(-2.0, 0.0, -1.0, 1.0, 0.0, 0.01);
+  const perception::PointCloud ceiling = grid_points(-2.0, 2.0, -1.0, 1.0, 2.5, 0.01);
+  cloud.points.insert(cloud.points.end(), ceiling.points.begin(), ceiling.points.end());
+  const terrain::HeightGrid g = grid_of(cloud, Eigen::Vector3d(0.0, 0.0, 1.0));
+  ASSERT_EQ(g.overhead.size(), g.geometry.size());
+  size_t high_observed = 0;
+  for (size_t k = 0; k < g.geometry.size(); ++k) high_observed += g.observed[k] && g.elevation[k] > 1.5;
+  EXPECT_EQ(high_observed, 0u);
+  const size_t over_floor = cell(g, -1.0, 0.5), over_nothing = cell(g, 1.0, 0.5);
+  EXPECT_EQ(g.observed[over_floor], 1);
+  EXPECT_NEAR(g.overhead[over_floor], 2.5, 1e-5);
+  EXPECT_EQ(g.observed[over_nothing], 0);
+  EXPECT_NEAR(g.overhead[over_nothing], 2.5, 1e-5);
+  EXPECT_GT(g.overhang_unobserved_cells, 1000u);
+}
+
+TEST(WalkableClouds, NoOverhangNoOverheadLayer) {
+  // A plane seen from above: nothing changes for maps without overhangs.
+  const terrain::HeightGrid g =
+      grid_of(grid_points(-1.0, 1.0, -1.0, 1.0, 0.0, 0.01), Eigen::Vector3d(0.0, 0.0, 1.5));
+  EXPECT_TRUE(g.overhead.empty());
+  EXPECT_EQ(g.overhang_cells, 0u);
+}
+
+TEST(WalkableClouds, BadOverhangFreeHeightIsAnError) {
+  terrain::HeightGridOptions o;
+  o.overhang_free_height = -1.0;
+  const std::vector<perception::PointCloud> clouds{grid_points(0, 1, 0, 1, 0, 0.05)};
+  EXPECT_THROW(terrain::build_height_grid(clouds, o), perception::InputError);
+  octomap::OcTree tree(kRes);
+  tree.updateNode(octomap::point3d(0.1f, 0.1f, 0.1f), true);
+  EXPECT_THROW(perception::octree_support_cloud(tree, "t", nullptr, 1000, std::nan("")),
+               perception::InputError);
+}
+
+}  // namespace
+}  // namespace terrastride
