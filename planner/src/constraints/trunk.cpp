@@ -22,8 +22,9 @@
 // terrain without overhangs are what they were. A wall (or board) thinner than the grid spacing
 // (minus the smoothing's spread) could pass between two points; the post-hoc trunk check judges
 // the box itself.
-// Before any row, a robot that cannot fit under an overhang on its path is refused
-// (UnreachableRequest, naming the trunk and the overhang): see require_trunk_fits below.
+// Before any row, a robot that cannot fit under an overhang on its path, or whose fixed start
+// pose already stands in one, is refused (UnreachableRequest, naming the trunk and the overhang):
+// see require_start_clear and require_trunk_fits below.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -178,6 +179,32 @@ void require_trunk_fits(SrbdProblem& problem, const FeasibilityOptions& options,
   }
 }
 
+// Refuses a start whose trunk already stands in or too close under an overhang: a fixed start
+// pose (a plan from rest, a measured state) is no variable, so no solve could move it out.
+void require_start_clear(SrbdProblem& problem, const FeasibilityOptions& options,
+                         const std::vector<Eigen::Vector3d>& top) {
+  const int b = problem.layout().base[0];
+  for (int i : {0, 1, 2, 6, 7, 8})
+    if (problem.lower()[b + i] < problem.upper()[b + i]) return;
+  const std::vector<double>& x0 = problem.initial_guess();
+  const terrain::HeightField& field = problem.terrain();
+  const Eigen::Vector3d r0(x0[b], x0[b + 1], x0[b + 2]), e0(x0[b + 6], x0[b + 7], x0[b + 8]);
+  const Eigen::Matrix3d R0 = rotation_zyx<double>(e0);
+  const double need = options.trunk_margin - kAcceptableViolation;
+  for (const Eigen::Vector3d& q : top) {
+    const Eigen::Vector3d p = r0 + R0 * q;
+    const double o = field.overhead(p.x(), p.y());
+    if (o - p.z() >= need) continue;
+    throw UnreachableRequest(
+        "trunk: at the start " + problem.robot().name + "'s trunk box's top stands at z = " +
+        fmt2(p.z()) + " m at (" + fmt2(p.x()) + ", " + fmt2(p.y()) +
+        "), under the overhang there whose underside is at z = " + fmt2(o) + " m, " +
+        fmt2(o - field.height(p.x(), p.y())) +
+        " m above the walkable surface: the trunk rows need it " + fmt2(need) +
+        " m below (trunk_margin less the solver slack), and the start is fixed");
+  }
+}
+
 // Whether, around the guess's trunk at the knot, the terrain rises within kTrunkTallBelow of the
 // bottom face (below) or an overhang comes down within it of the top face (above).
 void near_knot(const terrain::HeightField& field, const robot::TrunkBox& box,
@@ -257,7 +284,11 @@ void build_trunk_set(SrbdProblem& problem, const FeasibilityOptions& options) {
     above[k] = hi;
     any_above = any_above || hi;
   }
-  if (any_above) require_trunk_fits(problem, options, top);
+  if (any_above) {
+    // The robot's own limit first: it says why no start height would do.
+    require_trunk_fits(problem, options, top);
+    require_start_clear(problem, options, top);
+  }
   for (int k = 0; k <= L.num_segments; ++k) {
     if (below[k]) add_face_rows(problem, options, L.base[k], bottom, -1.0);
     if (above[k]) add_face_rows(problem, options, L.base[k], top, 1.0);

@@ -173,11 +173,31 @@ TEST(Trunk, ARobotTooTallForTheOverhangIsRefused) {
   }
   SrbdProblem q(small, low, crawl_timeline(small), turning_crawl_options());
   EXPECT_FALSE(pieces_added_by(q, [&] { build_trunk_set(q, {}); }).empty());
-  const Ceiling at_limit(0.36, 0.0, -1e9, 0.0), below(0.35, 0.0, -1e9, 0.0);
+  // Ahead of its start (which stands at its nominal height, the top 0.377 m up).
+  const Ceiling at_limit(0.36, 0.0, 0.4, 0.0), below(0.35, 0.0, 0.4, 0.0);
   SrbdProblem a(small, at_limit, crawl_timeline(small), turning_crawl_options());
   EXPECT_NO_THROW(build_trunk_set(a, {}));
   SrbdProblem b(small, below, crawl_timeline(small), turning_crawl_options());
   EXPECT_THROW(build_trunk_set(b, {}), UnreachableRequest);
+}
+
+// HyQ's fixed start (base 0.58 m up, the box's top 0.68 m) under a 0.66 m ceiling: low enough
+// for its crouch (0.62 m), but the start stands in it and no solve can move the start.
+TEST(Trunk, AStartInsideAnOverhangIsRefused) {
+  const auto r = hyq();
+  const Ceiling ceiling(0.66, 0.0, -1e9, 0.0);
+  SrbdProblem p(r, ceiling, crawl_timeline(r), turning_crawl_options());
+  try {
+    build_trunk_set(p, {});
+    FAIL() << "a start inside the overhang was not refused";
+  } catch (const UnreachableRequest& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("at the start"), std::string::npos) << what;
+    EXPECT_NE(what.find("0.66 m above the walkable surface"), std::string::npos) << what;
+  }
+  const Ceiling high(0.72, 0.0, -1e9, 0.0);
+  SrbdProblem q(r, high, crawl_timeline(r), turning_crawl_options());
+  EXPECT_FALSE(pieces_added_by(q, [&] { build_trunk_set(q, {}); }).empty());
 }
 
 }  // namespace
