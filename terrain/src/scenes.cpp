@@ -276,8 +276,10 @@ std::string scene_names_text() {
 
 namespace {
 
-// The overhang scenes: a 4 cm slab whose underside is `u` m up over [x0, x1] x [y0, y1], on
-// supports that stand outside every robot's corridor (|y| >= 0.72: HyQ's feet reach 0.49).
+// The overhang scenes: a 4 cm slab whose underside is `u` m up, on supports that stand outside
+// every robot's corridor (|y| >= 0.72: HyQ's feet reach 0.49). The shelves begin at x = 0.4,
+// ahead of Go2's trunk at the start (its front at 0.34 m), so Go2 walks in under them; HyQ's
+// 1 m trunk reaches 0.5 m ahead of its base and is under one from the start.
 std::unique_ptr<Scene> overhang_scene(const std::string& name, double u, const Eigen::Vector2d& lo,
                                       const Eigen::Vector2d& hi) {
   char height[16];
@@ -287,16 +289,16 @@ std::unique_ptr<Scene> overhang_scene(const std::string& name, double u, const E
   std::string what;
   if (name.rfind("shelf_", 0) == 0) {
     // Four legs at the slab's corners.
-    b.push_back(box(0.3, 0.8, -0.8, 0.8, u, u + kSlab));
-    for (const double x : {0.3, 0.72})
+    b.push_back(box(0.4, 0.9, -0.8, 0.8, u, u + kSlab));
+    for (const double x : {0.4, 0.82})
       for (const double y : {-0.8, 0.72}) b.push_back(box(x, x + 0.08, y, y + 0.08, 0.0, u));
-    what = "shelf across the path, x in [0.30, 0.80], y in [-0.80, 0.80], " + under +
+    what = "shelf across the path, x in [0.40, 0.90], y in [-0.80, 0.80], " + under +
            ", on four legs at |y| >= 0.72";
   } else if (name.rfind("half_shelf_", 0) == 0) {
     // Cantilevered from a wall on the left: it covers the path's left half only.
-    b.push_back(box(0.3, 0.8, 0.0, 0.8, u, u + kSlab));
-    b.push_back(box(0.3, 0.8, 0.72, 0.8, 0.0, u));
-    what = "shelf over the path's left half, x in [0.30, 0.80], y in [0, 0.80], " + under +
+    b.push_back(box(0.4, 0.9, 0.0, 0.8, u, u + kSlab));
+    b.push_back(box(0.4, 0.9, 0.72, 0.8, 0.0, u));
+    what = "shelf over the path's left half, x in [0.40, 0.90], y in [0, 0.80], " + under +
            ", cantilevered from a wall at y in [0.72, 0.80]";
   } else {
     // A flight's tread overhead: the robot starts beneath it and walks out.

@@ -656,14 +656,14 @@ CheckReport checks_on_named_scene(const robot::RobotModel& model, const planner:
 
 }  // namespace
 
-// HyQ standing at its nominal 0.58 m under shelf_60 (underside 0.6 m up over x in [0.3, 0.8]):
+// HyQ standing at its nominal 0.58 m under shelf_60 (underside 0.6 m up over x in [0.4, 0.9]):
 // the box's top, 0.68 m up, is 8 cm into the shelf. The check finds it (the voxelised scene and
 // the certain solid hold the shelf), and its message names the trunk and the overhang. Go2,
 // standing at its nominal height there, is clear of it.
 TEST(TrunkClearance, ATrunkDrivenIntoAShelfIsCaughtAndTheOverhangNamed) {
   const auto model = hyq();
   const auto shelf = terrain::make_scene("shelf_60");
-  const auto traj = standing(model, 0.02, 0.002, Eigen::Vector3d(0.55, 0.0, 0.58));
+  const auto traj = standing(model, 0.02, 0.002, Eigen::Vector3d(0.65, 0.0, 0.58));
   const CheckReport hit = checks_on_named_scene(model, traj, *shelf);
   ASSERT_TRUE(hit.trunk);
   EXPECT_EQ(hit.trunk->collisions_certain, static_cast<int>(traj.samples.size()));
@@ -678,7 +678,7 @@ TEST(TrunkClearance, ATrunkDrivenIntoAShelfIsCaughtAndTheOverhangNamed) {
       << why;
 
   const auto go2 = robot::load_robot(std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/go2.yaml");
-  const auto small = standing(go2, 0.02, 0.002, Eigen::Vector3d(0.55, 0.0, go2.nominal_base_height));
+  const auto small = standing(go2, 0.02, 0.002, Eigen::Vector3d(0.65, 0.0, go2.nominal_base_height));
   const CheckReport clear = checks_on_named_scene(go2, small, *shelf);
   ASSERT_TRUE(clear.trunk);
   EXPECT_EQ(clear.trunk->collisions, 0);

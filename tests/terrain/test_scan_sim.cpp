@@ -140,7 +140,7 @@ TEST(ScanSim, AShelfScanSeesTheSlabAndTheGroundBeneathIt) {
   size_t top = 0, under = 0, inside = 0;
   for (const auto& s : scans)
     for (const auto& p : s.cloud.points) {
-      const bool over = p.x() > 0.31 && p.x() < 0.79 && std::abs(p.y()) < 0.7;
+      const bool over = p.x() > 0.41 && p.x() < 0.89 && std::abs(p.y()) < 0.7;
       top += over && std::abs(p.z() - 0.64f) < 0.01f;
       under += over && std::abs(p.z()) < 0.01f;
       inside += over && p.z() > 0.61f && p.z() < 0.625f;

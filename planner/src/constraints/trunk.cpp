@@ -184,8 +184,7 @@ void require_trunk_fits(SrbdProblem& problem, const FeasibilityOptions& options,
 void require_start_clear(SrbdProblem& problem, const FeasibilityOptions& options,
                          const std::vector<Eigen::Vector3d>& top) {
   const int b = problem.layout().base[0];
-  for (int i : {0, 1, 2, 6, 7, 8})
-    if (problem.lower()[b + i] < problem.upper()[b + i]) return;
+  if (!all_fixed({b, b + 1, b + 2, b + 6, b + 7, b + 8}, problem.lower(), problem.upper())) return;
   const std::vector<double>& x0 = problem.initial_guess();
   const terrain::HeightField& field = problem.terrain();
   const Eigen::Vector3d r0(x0[b], x0[b + 1], x0[b + 2]), e0(x0[b + 6], x0[b + 7], x0[b + 8]);
@@ -291,7 +290,11 @@ void build_trunk_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   }
   for (int k = 0; k <= L.num_segments; ++k) {
     if (below[k]) add_face_rows(problem, options, L.base[k], bottom, -1.0);
-    if (above[k]) add_face_rows(problem, options, L.base[k], top, 1.0);
+    // A fixed knot's top rows would be constants (require_start_clear has judged the start).
+    const int b = L.base[k];
+    if (above[k] && !all_fixed({b, b + 1, b + 2, b + 6, b + 7, b + 8}, problem.lower(),
+                               problem.upper()))
+      add_face_rows(problem, options, b, top, 1.0);
   }
 }
 

@@ -112,7 +112,7 @@ std::unique_ptr<Scene> make_scene(const std::string& name);
 // lists the two HyQ's benchmarks use.
 int pallet_height_cm(const std::string& name);
 // The underside height in cm of an overhang scene name, 0 for any other name: shelf_NN (a shelf
-// across the path, x in [0.3, 0.8]), half_shelf_NN (one covering the path's left half, y >= 0),
+// across the path, x in [0.4, 0.9]), half_shelf_NN (one covering the path's left half, y >= 0),
 // tread_NN (a stair tread overhead above the start, x in [-0.7, 0.25]); NN from 25 to 150, no
 // leading zero.
 int overhang_height_cm(const std::string& name);
