@@ -206,8 +206,8 @@ TerrainMjcf scene_mjcf(const terrain::Scene& scene) {
   for (size_t i = 0; i < scene.boxes().size(); ++i) {
     const auto& b = scene.boxes()[i];
     const Vector3d c = 0.5 * (b.lo + b.hi), h = 0.5 * (b.hi - b.lo);
-    const std::string name =
-        scene.is_overhang(i) ? "overhang" + std::to_string(overhead++) : "box" + std::to_string(k++);
+    const std::string name = scene.is_overhang(i) ? "overhang" + std::to_string(overhead++)
+                                                  : "box" + std::to_string(k++);
     x << "<geom name=\"" << name << "\" type=\"box\" pos=\"" << fmt(c) << "\" size=\"" << fmt(h)
       << "\" " << kTerrainGeom << "/>\n";
   }

@@ -4,9 +4,9 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <memory>
-#include <cstdio>
 #include <stdexcept>
 #include <string>
 
@@ -136,9 +136,9 @@ void name_trunk_overhang(const robot::RobotModel& model, const planner::Trajecto
   double under = 0.0;
   for (int i = 0; i < nx; ++i)
     for (int j = 0; j < ny; ++j) {
-      const Eigen::Vector3d q = box.center + Eigen::Vector3d(-h.x() + box.size.x() * i / (nx - 1),
-                                                             -h.y() + box.size.y() * j / (ny - 1),
-                                                             h.z());
+      const Eigen::Vector3d q =
+          box.center + Eigen::Vector3d(-h.x() + box.size.x() * i / (nx - 1),
+                                       -h.y() + box.size.y() * j / (ny - 1), h.z());
       const Eigen::Vector3d p = base.position + R * q;
       const double o = field.overhead(p.x(), p.y());
       if (std::isfinite(o) && o - p.z() < least) {

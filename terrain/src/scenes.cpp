@@ -258,8 +258,8 @@ int overhang_height_cm(const std::string& name) {
 
 bool is_scene_name(const std::string& name) {
   const auto names = scene_names();
-  return std::find(names.begin(), names.end(), name) != names.end() ||
-         pallet_height_cm(name) > 0 || overhang_height_cm(name) > 0;
+  return std::find(names.begin(), names.end(), name) != names.end() || pallet_height_cm(name) > 0 ||
+         overhang_height_cm(name) > 0;
 }
 
 std::vector<std::string> scene_names() {

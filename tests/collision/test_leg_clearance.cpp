@@ -678,7 +678,8 @@ TEST(TrunkClearance, ATrunkDrivenIntoAShelfIsCaughtAndTheOverhangNamed) {
       << why;
 
   const auto go2 = robot::load_robot(std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/go2.yaml");
-  const auto small = standing(go2, 0.02, 0.002, Eigen::Vector3d(0.65, 0.0, go2.nominal_base_height));
+  const auto small =
+      standing(go2, 0.02, 0.002, Eigen::Vector3d(0.65, 0.0, go2.nominal_base_height));
   const CheckReport clear = checks_on_named_scene(go2, small, *shelf);
   ASSERT_TRUE(clear.trunk);
   EXPECT_EQ(clear.trunk->collisions, 0);

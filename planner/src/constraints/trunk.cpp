@@ -68,11 +68,11 @@ inline double overhead_clearance(const terrain::HeightField& f, double x, double
   const double o = f.overhead(x, y);
   return o - z < kOverheadFar ? o - z : kOverheadFar;
 }
-inline Ad overhead_clearance(const terrain::HeightField& f, const Ad& x, const Ad& y,
-                             const Ad& z) {
+inline Ad overhead_clearance(const terrain::HeightField& f, const Ad& x, const Ad& y, const Ad& z) {
   Eigen::Vector2d g;
   const double o = f.overhead_and_gradient(x.value(), y.value(), &g);
-  if (!(o - z.value() < kOverheadFar)) return Ad(kOverheadFar, AdVector::Zero(z.derivatives().size()));
+  if (!(o - z.value() < kOverheadFar))
+    return Ad(kOverheadFar, AdVector::Zero(z.derivatives().size()));
   return Ad(o, chain2(g.x(), x.derivatives(), g.y(), y.derivatives())) - z;
 }
 
@@ -85,8 +85,8 @@ std::string fmt2(double v) {
 // The lowest base height above the walkable surface the robot holds with a foot in the air at
 // the swing's knot: the range-of-motion box's top (-(nominal_z + b_z) below the base) under that
 // foot, plus the height the swing clearance rows demand of it there, less the violation an
-// "acceptable" solve may keep on each of the two. A level trunk (the guess's pose): pitching could lower one end,
-// which the rows and the post-hoc check judge.
+// "acceptable" solve may keep on each of the two. A level trunk (the guess's pose): pitching could
+// lower one end, which the rows and the post-hoc check judge.
 struct SwingKnot {
   int knot = 0, foot = 0;
   double lift = 0.0;  // m, the clearance demanded of the swing foot at the knot
@@ -99,7 +99,8 @@ std::vector<SwingKnot> swing_knots(const SrbdProblem& problem) {
     const double t0 = L.nominal_knot_time[sw.first_seg];
     const double T = L.nominal_knot_time[sw.last_seg + 1] - t0;
     const double tau = std::min(o.clearance_ramp, 0.5 * T);
-    if (sw.first_seg == 0) continue;  // a swing under way at a re-plan's start: its lift-off is earlier
+    // A swing under way at a re-plan's start lifted off before it: its profile is unknown here.
+    if (sw.first_seg == 0) continue;
     for (int k = sw.first_seg + 1; k <= sw.last_seg; ++k) {
       const double edge = std::min(L.nominal_knot_time[k] - t0, T - (L.nominal_knot_time[k] - t0));
       // clearance_profile of swing_clearance.cpp: sin^2 ramp over tau, 1 between.
@@ -141,7 +142,8 @@ void require_trunk_fits(SrbdProblem& problem, const FeasibilityOptions& options,
     Eigen::Vector3d worst_p = Eigen::Vector3d::Zero();
     double worst_o = 0.0;
     for (const double shift : {-reach, 0.0, reach}) {
-      const Eigen::Vector2d d = line.defined ? Eigen::Vector2d(shift * line.across) : Eigen::Vector2d::Zero();
+      const Eigen::Vector2d d =
+          line.defined ? Eigen::Vector2d(shift * line.across) : Eigen::Vector2d::Zero();
       double least = std::numeric_limits<double>::infinity();
       Eigen::Vector3d at = Eigen::Vector3d::Zero();
       double at_o = 0.0;
@@ -166,8 +168,8 @@ void require_trunk_fits(SrbdProblem& problem, const FeasibilityOptions& options,
     const double surface = field.height(worst_p.x(), worst_p.y());
     throw UnreachableRequest(
         "trunk: " + robot.name + "'s trunk box cannot pass under the overhang at (" +
-        fmt2(worst_p.x()) + ", " + fmt2(worst_p.y()) + "): its underside is at z = " +
-        fmt2(worst_o) + " m, " + fmt2(worst_o - surface) +
+        fmt2(worst_p.x()) + ", " + fmt2(worst_p.y()) +
+        "): its underside is at z = " + fmt2(worst_o) + " m, " + fmt2(worst_o - surface) +
         " m above the walkable surface, and the box's top stands at least " +
         fmt2(worst_p.z() - surface) + " m up there while the " + leg.name +
         " foot swings (t = " + fmt2(L.nominal_knot_time[sk.knot]) + " s): the lowest base height " +
@@ -195,9 +197,9 @@ void require_start_clear(SrbdProblem& problem, const FeasibilityOptions& options
     const double o = field.overhead(p.x(), p.y());
     if (o - p.z() >= need) continue;
     throw UnreachableRequest(
-        "trunk: at the start " + problem.robot().name + "'s trunk box's top stands at z = " +
-        fmt2(p.z()) + " m at (" + fmt2(p.x()) + ", " + fmt2(p.y()) +
-        "), under the overhang there whose underside is at z = " + fmt2(o) + " m, " +
+        "trunk: at the start " + problem.robot().name +
+        "'s trunk box's top stands at z = " + fmt2(p.z()) + " m at (" + fmt2(p.x()) + ", " +
+        fmt2(p.y()) + "), under the overhang there whose underside is at z = " + fmt2(o) + " m, " +
         fmt2(o - field.height(p.x(), p.y())) +
         " m above the walkable surface: the trunk rows need it " + fmt2(need) +
         " m below (trunk_margin less the solver slack), and the start is fixed");
@@ -292,8 +294,8 @@ void build_trunk_set(SrbdProblem& problem, const FeasibilityOptions& options) {
     if (below[k]) add_face_rows(problem, options, L.base[k], bottom, -1.0);
     // A fixed knot's top rows would be constants (require_start_clear has judged the start).
     const int b = L.base[k];
-    if (above[k] && !all_fixed({b, b + 1, b + 2, b + 6, b + 7, b + 8}, problem.lower(),
-                               problem.upper()))
+    if (above[k] &&
+        !all_fixed({b, b + 1, b + 2, b + 6, b + 7, b + 8}, problem.lower(), problem.upper()))
       add_face_rows(problem, options, b, top, 1.0);
   }
 }

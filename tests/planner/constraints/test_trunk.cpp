@@ -78,7 +78,8 @@ TEST(Trunk, RowsAreTheBoxCornersAboveTheTerrain) {
 }
 
 // Flat ground under a smooth ceiling: o = U + A tanh((x - x0) / w) + a small ripple in x and y
-// (every derivative path exercised; amplitude `ripple`), for x >= x_from (+infinity before: nothing overhead there).
+// (every derivative path exercised; amplitude `ripple`), for x >= x_from (+infinity before: nothing
+// overhead there).
 class Ceiling : public FlatField {
  public:
   Ceiling(double U, double A = 0.0, double x_from = -1e9, double ripple = 0.01)
@@ -97,7 +98,9 @@ class Ceiling : public FlatField {
   double U_, A_, from_, r_;
 };
 
-robot::RobotModel go2() { return robot::load_robot(robot::resolve_robot_path("go2")); }
+robot::RobotModel go2() {
+  return robot::load_robot(robot::resolve_robot_path("go2"));
+}
 
 // The top face's rows where something is overhead (0.8 m +- 5 cm over HyQ's 0.68 m top): the
 // pieces hold the base position and orientation, and their Jacobians match central differences.

@@ -116,8 +116,8 @@ int pallet_height_cm(const std::string& name);
 // tread_NN (a stair tread overhead above the start, x in [-0.7, 0.25]); NN from 25 to 150, no
 // leading zero.
 int overhang_height_cm(const std::string& name);
-// A name make_scene makes: one of scene_names(), a pallet_NN or an overhang scene. The one test every caller that
-// takes "a scene name or something else" (CLI, socket operations, report) asks.
+// A name make_scene makes: one of scene_names(), a pallet_NN or an overhang scene. The one test
+// every caller that takes "a scene name or something else" (CLI, socket operations, report) asks.
 bool is_scene_name(const std::string& name);
 // Every scene name for help texts and errors: "flat, pallet_10, ..., gap, pallet_NN (a box NN cm
 // high, 1 to 60), shelf_NN, ...".
