@@ -200,15 +200,21 @@ TerrainMjcf scene_mjcf(const terrain::Scene& scene) {
   std::ostringstream x;
   x << "<geom name=\"ground\" type=\"plane\" size=\"0 0 1\" pos=\"0 0 " << fmt(scene.ground_z())
     << "\" " << kTerrainGeom << "/>\n";
-  int k = 0;
-  for (const auto& b : scene.boxes()) {
+  // Every box, overhangs (shelves, treads overhead) too: a trunk driven into one meets it. Their
+  // geoms are named apart so a contact report says which is which.
+  int k = 0, overhead = 0;
+  for (size_t i = 0; i < scene.boxes().size(); ++i) {
+    const auto& b = scene.boxes()[i];
     const Vector3d c = 0.5 * (b.lo + b.hi), h = 0.5 * (b.hi - b.lo);
-    x << "<geom name=\"box" << k++ << "\" type=\"box\" pos=\"" << fmt(c) << "\" size=\"" << fmt(h)
+    const std::string name = scene.is_overhang(i) ? "overhang" + std::to_string(overhead++)
+                                                  : "box" + std::to_string(k++);
+    x << "<geom name=\"" << name << "\" type=\"box\" pos=\"" << fmt(c) << "\" size=\"" << fmt(h)
       << "\" " << kTerrainGeom << "/>\n";
   }
   t.geoms = x.str();
   t.description =
-      "scene " + scene.name() + " (" + std::to_string(scene.boxes().size()) + " boxes on a plane)";
+      "scene " + scene.name() + " (" + std::to_string(scene.boxes().size()) + " boxes on a plane" +
+      (overhead > 0 ? ", " + std::to_string(overhead) + " of them overhead)" : std::string(")"));
   return t;
 }
 

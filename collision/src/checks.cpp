@@ -133,6 +133,7 @@ std::vector<std::string> CheckReport::failures() const {
       how = "; deepest at t = " + fmt(trunk->time[trunk->min_sample]) + " s, base at (" +
             fmt(trunk->min_base.x()) + ", " + fmt(trunk->min_base.y()) + ", " +
             fmt(trunk->min_base.z()) + ")";
+    if (!trunk->overhang.empty()) how += "; " + trunk->overhang;
     out.push_back("trunk collides with the terrain at " +
                   std::to_string(trunk->collisions_certain) + " samples, first at t = " +
                   fmt(trunk->first_certain_collision_t) + " s" + how);
@@ -168,6 +169,8 @@ CheckReport run_checks(const robot::RobotModel& model, const planner::Trajectory
     if (model.trunk && options.clearance.check_trunk)
       rep.trunk = check_trunk_clearance(model, trajectory, *terrain.octree, options.clearance,
                                         certain.get());
+    if (rep.trunk && terrain.field)
+      name_trunk_overhang(model, trajectory, *terrain.field, &*rep.trunk);
   }
   if (terrain.field) rep.footholds = check_footholds(trajectory, *terrain.field, model.foot_radius);
   rep.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

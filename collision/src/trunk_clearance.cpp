@@ -4,9 +4,11 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <memory>
 #include <stdexcept>
+#include <string>
 
 #include "fcl_distance.hpp"
 #include "terrastride/collision/checks.hpp"
@@ -116,6 +118,43 @@ TrunkClearanceReport check_trunk_clearance(const robot::RobotModel& model,
     }
   }
   return rep;
+}
+
+void name_trunk_overhang(const robot::RobotModel& model, const planner::Trajectory& traj,
+                         const terrain::HeightField& field, TrunkClearanceReport* report) {
+  constexpr double kNear = 0.02;  // m, two voxels of the default check
+  if (!model.trunk || report->min_sample < 0) return;
+  const robot::TrunkBox& box = *model.trunk;
+  const auto& base = traj.samples[report->min_sample].base;
+  const Eigen::Matrix3d R = robot::rotation_zyx<double>(base.euler_zyx);
+  const Eigen::Vector3d h = box.half_size();
+  // The top face on a 5 cm grid: the overhang's clearance at each point.
+  const int nx = 1 + static_cast<int>(std::ceil(box.size.x() / 0.05)),
+            ny = 1 + static_cast<int>(std::ceil(box.size.y() / 0.05));
+  double least = std::numeric_limits<double>::infinity();
+  Eigen::Vector3d at = Eigen::Vector3d::Zero();
+  double under = 0.0;
+  for (int i = 0; i < nx; ++i)
+    for (int j = 0; j < ny; ++j) {
+      const Eigen::Vector3d q =
+          box.center + Eigen::Vector3d(-h.x() + box.size.x() * i / (nx - 1),
+                                       -h.y() + box.size.y() * j / (ny - 1), h.z());
+      const Eigen::Vector3d p = base.position + R * q;
+      const double o = field.overhead(p.x(), p.y());
+      if (std::isfinite(o) && o - p.z() < least) {
+        least = o - p.z();
+        at = p;
+        under = o;
+      }
+    }
+  if (!(least < kNear)) return;
+  char text[256];
+  std::snprintf(text, sizeof text,
+                "the box's top reaches z = %.3f m under the overhang at (%.2f, %.2f) whose "
+                "underside is at z = %.3f m, %.3f m above the walkable surface (t = %.2f s)",
+                at.z(), at.x(), at.y(), under, under - field.height(at.x(), at.y()),
+                report->time[report->min_sample]);
+  report->overhang = text;
 }
 
 }  // namespace terrastride::collision

@@ -1107,6 +1107,17 @@ HeightGrid rasterize_scene(const Scene& scene, double resolution, std::optional<
     }
   }
   grid.observed_cells = g.size();
+  // Overhangs: a cell's overhead is the lowest underside over any part of it (conservative at the
+  // overhang's border). Scenes without one leave the layer empty, as before.
+  if (scene.has_overhangs()) {
+    grid.overhead.resize(g.size());
+    for (int i = 0; i < g.nx; ++i)
+      for (int j = 0; j < g.ny; ++j) {
+        const Eigen::Vector2d c0 = g.origin + resolution * Eigen::Vector2d(i, j);
+        grid.overhead[g.index(i, j)] = static_cast<float>(
+            scene.lowest_overhead(c0, c0 + Eigen::Vector2d::Constant(resolution)));
+      }
+  }
   return grid;
 }
 

@@ -38,14 +38,21 @@ Scene::Scene(std::string name, std::string description, double ground_z, std::ve
       boxes_(std::move(boxes)),
       lo_(lo),
       hi_(hi) {
+  for (const Box& b : boxes_) overhang_.push_back(b.lo.z() - ground_z_ > kOverhangGap ? 1 : 0);
   compute_edges();
+}
+
+bool Scene::has_overhangs() const {
+  return std::any_of(overhang_.begin(), overhang_.end(), [](char o) { return o != 0; });
 }
 
 HeightSample Scene::sample(double x, double y) const {
   HeightSample s;
   double h = ground_z_;
   // Closed footprints: on an edge the higher side wins (the foot would rest on the corner).
-  for (const Box& b : boxes_) {
+  for (size_t i = 0; i < boxes_.size(); ++i) {
+    const Box& b = boxes_[i];
+    if (overhang_[i]) continue;  // the robot walks beneath it
     if (x >= b.lo.x() && x <= b.hi.x() && y >= b.lo.y() && y <= b.hi.y()) h = std::max(h, b.hi.z());
   }
   s.height = h;
@@ -56,8 +63,12 @@ void Scene::compute_edges() {
   // Candidate lines are the box footprint borders. Each is split at every other box border that
   // crosses it; a piece is an edge when the height differs on its two sides. Pieces hidden under
   // a taller box or shared by boxes of equal height drop out this way.
+  // Overhangs are no part of the walkable surface: their borders are no candidates.
+  std::vector<Box> ground;
+  for (size_t i = 0; i < boxes_.size(); ++i)
+    if (!overhang_[i]) ground.push_back(boxes_[i]);
   std::vector<double> xs, ys;
-  for (const Box& b : boxes_) {
+  for (const Box& b : ground) {
     xs.push_back(b.lo.x());
     xs.push_back(b.hi.x());
     ys.push_back(b.lo.y());
@@ -80,7 +91,7 @@ void Scene::compute_edges() {
     }
     edges_.push_back(EdgeSegment{a, b, std::abs(h1 - h2)});
   };
-  for (const Box& b : boxes_) {
+  for (const Box& b : ground) {
     for (double y : {b.lo.y(), b.hi.y()}) {  // lines along x
       std::vector<double> cuts{b.lo.x()};
       for (double x : xs)
@@ -132,6 +143,23 @@ MarginSample Scene::safety_margin(double x, double y, double foot_radius) const 
   return m;
 }
 
+double Scene::overhead_and_gradient(double x, double y, Eigen::Vector2d* gradient) const {
+  gradient->setZero();
+  return lowest_overhead(Eigen::Vector2d(x, y), Eigen::Vector2d(x, y));
+}
+
+double Scene::lowest_overhead(const Eigen::Vector2d& lo, const Eigen::Vector2d& hi) const {
+  double z = std::numeric_limits<double>::infinity();
+  for (size_t i = 0; i < boxes_.size(); ++i) {
+    const Box& b = boxes_[i];
+    if (overhang_[i] && hi.x() >= b.lo.x() && lo.x() <= b.hi.x() && hi.y() >= b.lo.y() &&
+        lo.y() <= b.hi.y())
+      z = std::min(z, b.lo.z());
+  }
+  return z;
+}
+
+// Ray casts meet every box, overhangs included: a depth sensor sees a shelf.
 std::optional<RayHit> Scene::ray_cast(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir,
                                       double max_range) const {
   const double len = dir.norm();
@@ -184,8 +212,10 @@ std::optional<RayHit> Scene::ray_cast(const Eigen::Vector3d& origin, const Eigen
 
 std::string Scene::describe() const {
   std::ostringstream os;
-  os << "scene " << name_ << ": " << description_ << " (" << boxes_.size() << " boxes, "
-     << edges_.size() << " edge segments)";
+  os << "scene " << name_ << ": " << description_ << " (" << boxes_.size() << " boxes, ";
+  if (const auto n = std::count(overhang_.begin(), overhang_.end(), 1); n > 0)
+    os << n << " of them overhead, ";
+  os << edges_.size() << " edge segments)";
   return os.str();
 }
 
@@ -200,9 +230,36 @@ int pallet_height_cm(const std::string& name) {
   return cm >= 1 && cm <= 60 ? cm : 0;
 }
 
+namespace {
+
+// NN of PREFIX + "NN" for NN in [lo, hi] spelt without a leading zero, else 0.
+int height_suffix_cm(const std::string& name, const std::string& prefix, int lo, int hi) {
+  if (name.size() <= prefix.size() || name.size() > prefix.size() + 3 ||
+      name.compare(0, prefix.size(), prefix) != 0 || name[prefix.size()] == '0')
+    return 0;
+  int cm = 0;
+  for (size_t i = prefix.size(); i < name.size(); ++i) {
+    if (name[i] < '0' || name[i] > '9') return 0;
+    cm = 10 * cm + (name[i] - '0');
+  }
+  return cm >= lo && cm <= hi ? cm : 0;
+}
+
+constexpr int kOverheadMinCm = 25, kOverheadMaxCm = 150;
+constexpr double kSlab = 0.04;  // m, the overhang's board thickness
+
+}  // namespace
+
+int overhang_height_cm(const std::string& name) {
+  for (const char* prefix : {"shelf_", "half_shelf_", "tread_"})
+    if (const int cm = height_suffix_cm(name, prefix, kOverheadMinCm, kOverheadMaxCm)) return cm;
+  return 0;
+}
+
 bool is_scene_name(const std::string& name) {
   const auto names = scene_names();
-  return std::find(names.begin(), names.end(), name) != names.end() || pallet_height_cm(name) > 0;
+  return std::find(names.begin(), names.end(), name) != names.end() || pallet_height_cm(name) > 0 ||
+         overhang_height_cm(name) > 0;
 }
 
 std::vector<std::string> scene_names() {
@@ -212,8 +269,48 @@ std::vector<std::string> scene_names() {
 std::string scene_names_text() {
   std::string text;
   for (const auto& n : scene_names()) text += (text.empty() ? "" : ", ") + n;
-  return text + ", pallet_NN (a box NN cm high, 1 to 60)";
+  return text +
+         ", pallet_NN (a box NN cm high, 1 to 60), shelf_NN, half_shelf_NN, tread_NN (an overhang "
+         "whose underside is NN cm up, 25 to 150)";
 }
+
+namespace {
+
+// The overhang scenes: a 4 cm slab whose underside is `u` m up, on supports that stand outside
+// every robot's corridor (|y| >= 0.72: HyQ's feet reach 0.49). The shelves begin at x = 0.4,
+// ahead of Go2's trunk at the start (its front at 0.34 m), so Go2 walks in under them; HyQ's
+// 1 m trunk reaches 0.5 m ahead of its base and is under one from the start.
+std::unique_ptr<Scene> overhang_scene(const std::string& name, double u, const Eigen::Vector2d& lo,
+                                      const Eigen::Vector2d& hi) {
+  char height[16];
+  std::snprintf(height, sizeof height, "%.2f", u);
+  const std::string under = "underside " + std::string(height) + " m up";
+  std::vector<Box> b;
+  std::string what;
+  if (name.rfind("shelf_", 0) == 0) {
+    // Four legs at the slab's corners.
+    b.push_back(box(0.4, 0.9, -0.8, 0.8, u, u + kSlab));
+    for (const double x : {0.4, 0.82})
+      for (const double y : {-0.8, 0.72}) b.push_back(box(x, x + 0.08, y, y + 0.08, 0.0, u));
+    what = "shelf across the path, x in [0.40, 0.90], y in [-0.80, 0.80], " + under +
+           ", on four legs at |y| >= 0.72";
+  } else if (name.rfind("half_shelf_", 0) == 0) {
+    // Cantilevered from a wall on the left: it covers the path's left half only.
+    b.push_back(box(0.4, 0.9, 0.0, 0.8, u, u + kSlab));
+    b.push_back(box(0.4, 0.9, 0.72, 0.8, 0.0, u));
+    what = "shelf over the path's left half, x in [0.40, 0.90], y in [0, 0.80], " + under +
+           ", cantilevered from a wall at y in [0.72, 0.80]";
+  } else {
+    // A flight's tread overhead: the robot starts beneath it and walks out.
+    b.push_back(box(-0.7, 0.25, -0.8, 0.8, u, u + kSlab));
+    for (const double y : {-0.8, 0.72}) b.push_back(box(-0.7, -0.62, y, y + 0.08, 0.0, u));
+    what = "stair tread overhead above the start, x in [-0.70, 0.25], y in [-0.80, 0.80], " +
+           under + ", on two legs at x = -0.70, |y| >= 0.72";
+  }
+  return std::make_unique<Scene>(name, what, 0.0, std::move(b), lo, hi);
+}
+
+}  // namespace
 
 std::unique_ptr<Scene> make_scene(const std::string& name) {
   // The region of interest: the robot (hind feet near x = -0.31) to beyond its goal (front feet
@@ -231,6 +328,8 @@ std::unique_ptr<Scene> make_scene(const std::string& name) {
         name, "solid box " + std::string(height) + " m high, x in [0.55, 1.75], y in [-0.6, 0.6]",
         0.0, std::vector<Box>{box(0.55, 1.75, -0.6, 0.6, 0.0, h)}, lo, hi);
   }
+  if (const int cm = overhang_height_cm(name); cm > 0)
+    return overhang_scene(name, cm / 100.0, lo, hi);
   if (name == "eur_pallet") {
     // EUR pallet (EN 13698-1), 1.2 m along x, 0.8 m across: three bottom boards, nine blocks,
     // three stringer boards across and five top deck boards along x with 41 mm gaps between them.

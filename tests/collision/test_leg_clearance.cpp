@@ -639,3 +639,49 @@ TEST(TrunkClearance, ARobotWithoutATrunkIsNotChecked) {
   const auto tree = voxelise_boxes(0.0, {}, lo, hi);
   EXPECT_THROW(check_trunk_clearance(model, traj, *tree), std::invalid_argument);
 }
+
+namespace {
+
+CheckReport checks_on_named_scene(const robot::RobotModel& model, const planner::Trajectory& traj,
+                                  const terrain::Scene& scene) {
+  Eigen::Vector2d lo, hi;
+  trajectory_extent(model, traj, 0.1, &lo, &hi);
+  VoxeliseOptions vo;
+  vo.resolution = kRes;
+  CheckTerrain terrain;
+  terrain.field = &scene;
+  terrain.octree = voxelise_scene(scene, lo, hi, vo);
+  return run_checks(model, traj, terrain);
+}
+
+}  // namespace
+
+// HyQ standing at its nominal 0.58 m under shelf_60 (underside 0.6 m up over x in [0.4, 0.9]):
+// the box's top, 0.68 m up, is 8 cm into the shelf. The check finds it (the voxelised scene and
+// the certain solid hold the shelf), and its message names the trunk and the overhang. Go2,
+// standing at its nominal height there, is clear of it.
+TEST(TrunkClearance, ATrunkDrivenIntoAShelfIsCaughtAndTheOverhangNamed) {
+  const auto model = hyq();
+  const auto shelf = terrain::make_scene("shelf_60");
+  const auto traj = standing(model, 0.02, 0.002, Eigen::Vector3d(0.65, 0.0, 0.58));
+  const CheckReport hit = checks_on_named_scene(model, traj, *shelf);
+  ASSERT_TRUE(hit.trunk);
+  EXPECT_EQ(hit.trunk->collisions_certain, static_cast<int>(traj.samples.size()));
+  EXPECT_NEAR(hit.trunk->min_certain_distance, -0.08, 2e-3);
+  EXPECT_EQ(hit.clearance->shin_collisions + hit.clearance->thigh_collisions, 0);
+  ASSERT_FALSE(hit.passed());
+  const std::string why = hit.failures().front();
+  EXPECT_NE(why.find("trunk collides"), std::string::npos) << why;
+  EXPECT_NE(why.find("overhang"), std::string::npos) << why;
+  EXPECT_NE(why.find("underside is at z = 0.600 m, 0.600 m above the walkable surface"),
+            std::string::npos)
+      << why;
+
+  const auto go2 = robot::load_robot(std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/go2.yaml");
+  const auto small =
+      standing(go2, 0.02, 0.002, Eigen::Vector3d(0.65, 0.0, go2.nominal_base_height));
+  const CheckReport clear = checks_on_named_scene(go2, small, *shelf);
+  ASSERT_TRUE(clear.trunk);
+  EXPECT_EQ(clear.trunk->collisions, 0);
+  EXPECT_TRUE(clear.passed()) << clear.failures().front();
+}

@@ -130,3 +130,22 @@ TEST(ScanSim, OtherScenesMapToTheirHeights) {
     EXPECT_GE(double(ok) / n, 0.97) << name;
   }
 }
+
+// A scan of shelf_60 sees the shelf: its top (z = 0.64) from the pose nearest it, and the ground
+// beneath it (under the slab, between its legs); hardly any point lies inside the 4 cm slab.
+TEST(ScanSim, AShelfScanSeesTheSlabAndTheGroundBeneathIt) {
+  const auto scene = make_scene("shelf_60");
+  const auto scans = simulate_scans(*scene, DepthSensorOptions{});
+  ASSERT_EQ(scans.size(), 3u);
+  size_t top = 0, under = 0, inside = 0;
+  for (const auto& s : scans)
+    for (const auto& p : s.cloud.points) {
+      const bool over = p.x() > 0.41 && p.x() < 0.89 && std::abs(p.y()) < 0.7;
+      top += over && std::abs(p.z() - 0.64f) < 0.01f;
+      under += over && std::abs(p.z()) < 0.01f;
+      inside += over && p.z() > 0.61f && p.z() < 0.625f;
+    }
+  EXPECT_GT(top, 1000u);
+  EXPECT_GT(under, 1000u);
+  EXPECT_LT(inside, top / 20);  // range noise and mixed pixels only
+}

@@ -254,6 +254,9 @@ struct TrunkClearanceReport {
   std::string certain_source;
   double certain_resolved_below = 0.0;
   long fcl_queries = 0, certain_queries = 0;
+  // The overhang the box's top meets at the worst sample, for messages ("" when it meets none):
+  // see name_trunk_overhang.
+  std::string overhang;
 };
 
 // Throws std::invalid_argument when `model` has no trunk (robot file `trunk: none`). Uses
@@ -264,6 +267,12 @@ TrunkClearanceReport check_trunk_clearance(const robot::RobotModel& model,
                                            const octomap::OcTree& octree,
                                            const ClearanceOptions& options = {},
                                            const CertainSolid* certain = nullptr);
+
+// Sets report->overhang when, at the worst sample, the top face of the trunk box stands within
+// 2 cm of (or above) the underside of an overhang of `field` (HeightField::overhead): where, how
+// high above the walkable surface, and how high the box's top reaches there.
+void name_trunk_overhang(const robot::RobotModel& model, const planner::Trajectory& trajectory,
+                         const terrain::HeightField& field, TrunkClearanceReport* report);
 
 // ---- Stance footholds against the foothold-safety margin ----
 

@@ -198,7 +198,8 @@ void fill_holes_around(HeightGrid& grid, int min_points, const std::vector<uint8
 class Scene;
 // Rasterises an analytic scene into the same grid: elevation = exact height at the cell centre,
 // min / max = the lowest / highest exact height over the cell's footprint (so sharp edges show as
-// raw steps), variance 0, every cell observed.
+// raw steps), variance 0, every cell observed; overhead = the lowest underside of the scene's
+// overhangs over any part of the cell (left empty for a scene without one).
 HeightGrid rasterize_scene(const Scene& scene, double resolution,
                            std::optional<Eigen::Vector2d> lo = std::nullopt,
                            std::optional<Eigen::Vector2d> hi = std::nullopt);
