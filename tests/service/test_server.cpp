@@ -582,7 +582,9 @@ TEST_F(ServerTest, MapUpdatesAreAtomicForConcurrentQueries) {
     });
   }
   Client w = Client::connect(address_);
-  for (int i = 0; i < 60; ++i)
+  // At least 60 updates, and on until the readers have queried between them (updates of a scene
+  // can all be done before a reader's first query arrives).
+  for (int i = 0; i < 60 || (queries.load() < 40 && i < 20000); ++i)
     w.call_ok({{"op", "map.update"}, {"scene", i % 2 ? "pallet_10" : "pallet_15"}});
   stop = true;
   for (auto& t : readers) t.join();

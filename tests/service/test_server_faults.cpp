@@ -235,6 +235,13 @@ TEST_F(ServerFaults, ClientsCannotNameFilesOutsideTheDataFolders) {
   json plan = Client::connect(address_).call_ok(flat_plan("baseline", "json"));
   EXPECT_EQ(error_code(c.call({{"op", "check"}, {"plan", plan}})), "");
   plan["robot"] = "/etc/shadow";
+  // A plan carries its robot file: a name that disagrees with it is refused, nothing is read.
+  const p::Message carried = c.call({{"op", "check"}, {"plan", plan}});
+  EXPECT_EQ(error_code(carried), "bad_request");
+  EXPECT_NE(error_message(carried).find("robot_file it carries"), std::string::npos)
+      << error_message(carried);
+  // Without it (an older plan), the name is looked up among the shipped robots only.
+  plan.erase("robot_file");
   const p::Message m = c.call({{"op", "check"}, {"plan", plan}});
   EXPECT_EQ(error_code(m), "bad_request");
   EXPECT_NE(error_message(m).find("robot name"), std::string::npos) << error_message(m);

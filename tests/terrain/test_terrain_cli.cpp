@@ -102,7 +102,7 @@ TEST_F(TerrainCli, MapThenQueryAPlaneWithAStep) {
 // margin; the planner's interpolated one is field_margin), for points 1 mm apart over 20 cm.
 TEST_F(TerrainCli, QueryMarginAgreesWithSafeAcrossCellBorders) {
   const std::string out = (dir_ / "map").string();
-  CliResult r = run("map " + plane_xyz(true) + " --foot-radius 0.02 --out " + out);
+  CliResult r = run("map " + plane_xyz(true) + " --up z --foot-radius 0.02 --out " + out);
   ASSERT_EQ(r.code, 0) << r.err;
   std::string at;
   for (int k = 0; k <= 200; ++k) at += " --at " + std::to_string(0.4 + 0.001 * k) + ",0.5013";

@@ -85,6 +85,9 @@ const std::map<std::string, Setting>& settings_table() {
         "range_of_motion gets no room)"}},
       {"joints_softmax",
        {[](FeasibilityOptions& o, double v) { o.joints_softmax = v; }, 0.0, 0.1, false, "rad"}},
+      {"joint_velocity",
+       {[](FeasibilityOptions& o, double v) { o.joint_velocity = v; }, 0.0, 1.0, false,
+        "(1: joints also bounds joint velocities, for robots with velocity limits)"}},
   };
   return t;
 }

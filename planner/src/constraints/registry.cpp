@@ -34,7 +34,7 @@ std::map<std::string, ConstraintSetBuilder> builtin_constraint_sets() {
           {"joints",
            [=](SrbdProblem& p) {
              build_joints_set(p, options(p));
-             build_joint_velocity_rows(p);
+             if (options(p).joint_velocity > 0) build_joint_velocity_rows(p);
            }},
           {"force_ramp", [=](SrbdProblem& p) { build_force_ramp_set(p, options(p)); }},
           {"monotone_progress",
