@@ -222,9 +222,7 @@ TEST(AnyQuadruped, FastTrotVelocityIsCaughtByTheCheckAndHeldByAll) {
   EXPECT_EQ(r.code, 3) << r.all();
   EXPECT_NE(r.all().find("joint velocity above the limit"), std::string::npos) << r.all();
   EXPECT_NE(r.all().find("KFE"), std::string::npos) << r.all();
-  // The velocity rows are opt-in (FeasibilityOptions::joint_velocity: on by default they made
-  // Go2's pallet_14 crawl infeasible).
-  r = run_in(dir, trot + "--constraints all --feasibility joint_velocity=1 --out all.json");
+  r = run_in(dir, trot + "--constraints all --out all.json");
   ASSERT_EQ(r.code, 0) << r.all();
   r = run_in(dir, "check all.json --terrain flat --json");
   EXPECT_EQ(r.code, 0) << r.all();

@@ -84,9 +84,11 @@ TEST(FeasibilitySettings, ReachTheSetsAndBadOnesAreNamed) {
     }
   }
   // force_rate_max (force_ramp) the 17th; monotone_progress, lateral_corridor, swing_apex_rise;
-  // joints_softmax; replan_path_shape; start_return
+  // joints_softmax; replan_path_shape; start_return; joint_velocity
   EXPECT_EQ(feasibility_options({{"start_return", 0.5}}).start_return, 0.5);
-  EXPECT_EQ(feasibility_option_names().size(), 23u);
+  EXPECT_EQ(feasibility_options({{"joint_velocity", 0.0}}).joint_velocity, 0.0);
+  EXPECT_EQ(feasibility_options({}).joint_velocity, 1.0);
+  EXPECT_EQ(feasibility_option_names().size(), 24u);
 }
 
 }  // namespace

@@ -111,10 +111,10 @@ struct FeasibilityOptions {
   // 7 -> 13), six 'all' plans 46 -> 54 (0.02 rad: 51). 0: a row per joint and point.
   double joints_softmax = 0.0;
   // joints: the joint-velocity rows (build_joint_velocity_rows) for a robot with velocity limits;
-  // 1 on, 0 off. Off by default: with them Go2's 1 m crawl over pallet_14 with `all` ends
-  // infeasible (a foothold pushed onto the pallet's edge, 254 iterations) although its joint
-  // velocities stay at 0.9 of the limits; the post-hoc check reports velocities either way.
-  double joint_velocity = 0.0;
+  // 1 on, 0 off. On: without them the imported robots' pallet_10 crawls exceed their URDF limits
+  // by 3-11 % in swing. They do not yet serve every step: Go2's 1 m crawl over pallet_14 with
+  // them ends infeasible (a foothold pushed onto the edge), without them at 1.05x the LH KFE limit.
+  double joint_velocity = 1.0;
   // joints, range_of_motion: a re-plan whose measured start lies outside a joint range or a
   // range-of-motion box (after a push) gets its excess as room at the next knots, shrinking to
   // nothing over this span (s; constraints/start_return.hpp, docs/design.md §6.7). A session
