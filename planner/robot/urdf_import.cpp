@@ -187,17 +187,6 @@ Vector3d snap_axis(Vector3d a) {
   return a / a.norm();
 }
 
-// FNV-1a 64 of the URDF's bytes: which file the robot file was made from.
-std::string fingerprint(const std::string& bytes) {
-  uint64_t h = 1469598103934665603ull;
-  for (unsigned char ch : bytes) {
-    h ^= ch;
-    h *= 1099511628211ull;
-  }
-  char buf[24];
-  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
-  return buf;
-}
 
 // Text for a double-quoted YAML scalar.
 std::string quoted(std::string s) {
@@ -729,7 +718,7 @@ std::string robot_yaml(const ImportedRobot& r, const UrdfImport& out, const Urdf
   for (const auto& d : out.defaults) y << "#   default: " << d << "\n";
   for (const auto& n : out.notes) y << "#   " << n << "\n";
   y << "name: " << options.name << "\n"
-    << "source: {urdf: \"" << quoted(urdf_path) << "\", urdf_robot: \"" << quoted(urdf_robot) << "\", fnv1a64: \"" << fingerprint(xml)
+    << "source: {urdf: \"" << quoted(urdf_path) << "\", urdf_robot: \"" << quoted(urdf_robot) << "\", fnv1a64: \"" << robot_definition_hash(xml)
     << "\", base_origin_in_urdf: " << vec(shift)
     << (options.command.empty() ? "" : ", command: \"" + quoted(options.command) + "\"") << "}\n"
     << "body:\n"
