@@ -20,7 +20,9 @@ targets=(
 )
 per_target=$(( seconds / ${#targets[@]} > 0 ? seconds / ${#targets[@]} : 1 ))
 CC=clang CXX=clang++ cmake -S tests/fuzz -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
-cmake --build build-fuzz >/dev/null
+# The build's log is kept and shown when it fails: a link error must not end CI silently.
+mkdir -p build-fuzz
+cmake --build build-fuzz >build-fuzz/build.log 2>&1 || { tail -n 60 build-fuzz/build.log >&2; exit 1; }
 mkdir -p build-fuzz/artifacts build-fuzz/tmp
 for entry in "${targets[@]}"; do
   read -r target corpus max_len <<<"$entry"
