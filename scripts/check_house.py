@@ -22,7 +22,7 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BASELINE = os.path.join(ROOT, "scripts", "house_baseline.json")
-PRODUCT_DIRS = ["perception", "terrain", "planner", "collision", "service"]
+PRODUCT_DIRS = ["perception", "terrain", "planner", "collision", "simulation", "service"]
 MAX_FUNCTION_LINES = 120
 HISTORY = re.compile(r"\b[Ss]ession \d+\b|\b[Ii]ssues? ?#\d+|\(#\d+(?:, ?#\d+)*\)")
 # Files the history rule does not read: binary data, vendored assets, and this script's own

@@ -20,7 +20,7 @@ esac
 packages=(
   build-essential cmake ninja-build pkg-config ccache git
   libeigen3-dev libpcl-dev liboctomap-dev libfcl-dev libceres-dev coinor-libipopt-dev
-  # MuJoCo 2.2.2: `terrastride simulate` executes plans in it (collision/simulation).
+  # MuJoCo 2.2.2: `terrastride simulate` executes plans in it (simulation/).
   libmujoco-dev
   # Ipopt's MUMPS spends ~80 % of a plan in dense BLAS kernels; Debian's default generic ATLAS
   # is ~25 % slower there than OpenBLAS, which takes over libblas.so.3 by alternatives priority.

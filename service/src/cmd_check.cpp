@@ -343,7 +343,7 @@ void run_check(const CheckCliOptions& o) {
   planner::Trajectory simulated = traj;
   if (o.simulate) {
     const auto sim =
-        add_simulation_check(model, *source.exact(), collision::SimulationOptions{}, &simulated);
+        add_simulation_check(model, *source.exact(), simulation::SimulationOptions{}, &simulated);
     failures.insert(failures.end(), sim.begin(), sim.end());
   }
   const json sim_summary =

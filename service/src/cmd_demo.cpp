@@ -23,7 +23,7 @@
 #include "solver_heap.hpp"
 #include "terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
-#include "terrastride/collision/simulation.hpp"
+#include "terrastride/simulation/simulation.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/nlp.hpp"
@@ -396,10 +396,10 @@ void run_demo(const DemoOptions& o) {
   // 5. simulate: the plan executed in MuJoCo on the map's planning surface (a heightfield), its
   // verdict added to plan.json as `plan --simulate` adds it.
   progress.start("simulate", "MuJoCo, the plan on the map's surface as a heightfield");
-  auto simulation = std::make_shared<collision::SimulationReport>();
+  auto simulation = std::make_shared<simulation::SimulationReport>();
   std::vector<std::string> sim_failures;
   try {
-    sim_failures = add_simulation_check(model, *map.map, collision::SimulationOptions{}, &traj,
+    sim_failures = add_simulation_check(model, *map.map, simulation::SimulationOptions{}, &traj,
                                         simulation.get());
     perception::write_file_atomically((work / "plan.json").string(),
                                       planner::plan_to_json(traj).dump(1) + "\n");

@@ -252,7 +252,7 @@ void run_plan(const PlanCliOptions& o) {
   // --simulate: MuJoCo executes the plan on the exact terrain (a scene's boxes, a map's planning
   // surface); a "fail" verdict is a post-hoc failure (exit 4), a "warn" is reported only.
   if (o.simulate && useful && !out.trajectory.samples.empty()) {
-    const auto sim = add_simulation_check(model, *terrains.exact(), collision::SimulationOptions{},
+    const auto sim = add_simulation_check(model, *terrains.exact(), simulation::SimulationOptions{},
                                           &out.trajectory);
     failures.insert(failures.end(), sim.begin(), sim.end());
   }

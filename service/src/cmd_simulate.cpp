@@ -1,5 +1,5 @@
 // `terrastride simulate`: executes a plan in MuJoCo with a tracking controller, as an independent
-// judge of the plan (collision/include/terrastride/collision/simulation.hpp).
+// judge of the plan (collision/include/terrastride/simulation/simulation.hpp).
 #include <unistd.h>
 #include <algorithm>
 #include <cmath>
@@ -12,7 +12,7 @@
 
 #include "simulation_run.hpp"
 #include "terrain_source.hpp"
-#include "terrastride/collision/simulation.hpp"
+#include "terrastride/simulation/simulation.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/planner/plan_io.hpp"
@@ -64,12 +64,12 @@ struct SimulateCliOptions {
 
 // --via tcp://HOST:PORT or unix:PATH: each run opens a planning session on the server with the
 // simulated plan as its reference ("init") and sends each measured state as plan.session.step's
-// start_state (collision::start_state_json: the terms the in-process re-planner reads back the
+// start_state (simulation::start_state_json: the terms the in-process re-planner reads back the
 // same way). The session ends with the connection (the server frees it on disconnect).
-collision::ReplannerFactory socket_replanner(const SimulateCliOptions& o,
+simulation::ReplannerFactory socket_replanner(const SimulateCliOptions& o,
                                              const planner::Trajectory& plan) {
   auto init = std::make_shared<const json>(planner::plan_to_json(plan));
-  return [o, init, feet = plan.feet]() -> collision::Replanner {
+  return [o, init, feet = plan.feet]() -> simulation::Replanner {
     auto client = std::make_shared<Client>(Client::connect(o.via, o.connect_timeout));
     client->set_timeout(o.step_timeout);
     const json opened = client->call_ok({{"op", "plan.session.open"},
@@ -77,15 +77,15 @@ collision::ReplannerFactory socket_replanner(const SimulateCliOptions& o,
                                          {"init", *init},
                                          {"horizon", o.horizon}});
     const std::string id = opened.at("session").get<std::string>();
-    return [client, id, feet, budget_ms = o.replan_budget_ms](const collision::MeasuredState& ms) {
-      collision::Replan out;
+    return [client, id, feet, budget_ms = o.replan_budget_ms](const simulation::MeasuredState& ms) {
+      simulation::Replan out;
       out.start_time = ms.t;
       const protocol::Message reply = client->call({{"op", "plan.session.step"},
                                                     {"session", id},
                                                     {"time", ms.t},
                                                     {"budget_ms", budget_ms},
                                                     {"start_state",
-                                                     collision::start_state_json(ms, feet)}});
+                                                     simulation::start_state_json(ms, feet)}});
       const std::string error = error_text(reply);
       if (!error.empty()) {
         out.message = error;
@@ -109,7 +109,7 @@ collision::ReplannerFactory socket_replanner(const SimulateCliOptions& o,
 
 // The closed loop's steps: how many fell back (and why), how many overran the budget, and the
 // steps that did either.
-void print_replan_steps(const collision::SimulationReport& r, double budget_ms) {
+void print_replan_steps(const simulation::SimulationReport& r, double budget_ms) {
   int deadline = 0, failed = 0, over = 0;
   for (const auto& s : r.replan_records) {
     deadline += s.fallback == "deadline";
@@ -126,7 +126,7 @@ void print_replan_steps(const collision::SimulationReport& r, double budget_ms) 
                 << s.fallback << "\n";
 }
 
-void print_human(const collision::SimulationReport& r, const robot::RobotModel& model,
+void print_human(const simulation::SimulationReport& r, const robot::RobotModel& model,
                  const std::string& plan, const std::string& terrain, double budget_ms) {
   std::cout << std::fixed << std::setprecision(4);
   std::cout << "plan      " << plan << "\nterrain   " << terrain << "\n";
@@ -208,12 +208,12 @@ void print_margin(const json& m) {
 
 // The simulation's own options (--dt, --mass-scale, --friction, --push), each checked against the
 // simulator's limits and named when out of them.
-collision::SimulationOptions simulation_options_from(const SimulateCliOptions& o) {
-  collision::SimulationOptions sim;
+simulation::SimulationOptions simulation_options_from(const SimulateCliOptions& o) {
+  simulation::SimulationOptions sim;
   sim.dt = o.dt;
   sim.mass_scale = o.mass_scale;
   sim.friction = o.friction;
-  using Limits = collision::SimulationLimits;
+  using Limits = simulation::SimulationLimits;
   if (!(o.dt >= Limits::kMinDt && o.dt <= Limits::kMaxDt))
     throw CommandError("--dt: must be in [0.0001, 0.01] s");
   if (!(o.mass_scale > Limits::kMinMassScale && o.mass_scale < Limits::kMaxMassScale))
@@ -263,7 +263,7 @@ void run_simulate(const SimulateCliOptions& o) {
       throw CommandError(std::string("--out: ") + e.what());
     }
   }
-  collision::SimulationOptions sim = simulation_options_from(o);
+  simulation::SimulationOptions sim = simulation_options_from(o);
   check_closed_loop_options(o);
   const bool via_socket = o.via.rfind("tcp://", 0) == 0 || o.via.rfind("unix:", 0) == 0;
   if (o.via != "in-process" && !via_socket)
@@ -323,16 +323,16 @@ void run_simulate(const SimulateCliOptions& o) {
       } catch (const RequestFieldError& e) {
         throw CommandError(o.plan + ": as a re-planning session's reference: " + e.what());
       }
-      sim.replanner = collision::session_replanner(model, *replan_terrain->smooth(),
+      sim.replanner = simulation::session_replanner(model, *replan_terrain->smooth(),
                                                    *replan_terrain->exact(), req.options, traj,
                                                    o.horizon, req.sample_dt,
                                                    1e-3 * o.replan_budget_ms);
     }
   }
-  collision::SimulationReport rep;
+  simulation::SimulationReport rep;
   try {
-    rep = collision::simulate_plan(model, traj, *terrain, sim);
-  } catch (const collision::SimulationError& e) {
+    rep = simulation::simulate_plan(model, traj, *terrain, sim);
+  } catch (const simulation::SimulationError& e) {
     throw CommandError(o.plan + ": " + e.what());
   } catch (const ClientError& e) {
     throw CommandError("--via " + o.via + ": " + e.what());
@@ -341,14 +341,14 @@ void run_simulate(const SimulateCliOptions& o) {
   summary["plan"] = o.plan;
   if (o.margin) {
     // The margin's runs repeat the plan some 50 times (bisections on the verdict).
-    collision::MarginOptions mo;
+    simulation::MarginOptions mo;
     mo.push_time_fraction = o.margin_push_time;
     mo.push_duration = o.margin_push_duration;
     const bool tty = isatty(STDERR_FILENO) && !o.json;
     if (tty) std::cerr << "searching the robustness margin (about 50 runs) ..." << std::flush;
     try {
-      summary["margin"] = margin_json(collision::simulation_margin(model, traj, *terrain, sim, mo));
-    } catch (const collision::SimulationError& e) {
+      summary["margin"] = margin_json(simulation::simulation_margin(model, traj, *terrain, sim, mo));
+    } catch (const simulation::SimulationError& e) {
       if (tty) std::cerr << "\n";
       throw CommandError("--margin: " + std::string(e.what()));
     } catch (const ClientError& e) {

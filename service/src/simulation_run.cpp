@@ -11,7 +11,7 @@ json vec(const Eigen::Vector3d& v) {
   return json::array({v.x(), v.y(), v.z()});
 }
 
-json side_json(const collision::MarginSide& s, const char* unit) {
+json side_json(const simulation::MarginSide& s, const char* unit) {
   json out = {{"survived", s.survived}, {"unit", unit}};
   out["failed"] = s.failed >= 0 ? json(s.failed) : json();
   if (!s.failure.empty()) out["failure"] = s.failure;
@@ -20,7 +20,7 @@ json side_json(const collision::MarginSide& s, const char* unit) {
 
 }  // namespace
 
-json simulation_summary_json(const collision::SimulationReport& r, const robot::RobotModel& model) {
+json simulation_summary_json(const simulation::SimulationReport& r, const robot::RobotModel& model) {
   const auto& th = r.thresholds;
   json legs = json::array();
   for (size_t i = 0; i < model.legs.size() && i < r.torque_max.size(); ++i)
@@ -127,7 +127,7 @@ json simulation_summary_json(const collision::SimulationReport& r, const robot::
   return out;
 }
 
-json simulation_samples_json(const collision::SimulationReport& r, const robot::RobotModel& model) {
+json simulation_samples_json(const simulation::SimulationReport& r, const robot::RobotModel& model) {
   json out = json::array();
   for (const auto& s : r.samples) {
     json feet = json::array();
@@ -150,7 +150,7 @@ json simulation_samples_json(const collision::SimulationReport& r, const robot::
   return out;
 }
 
-json margin_json(const collision::MarginReport& m) {
+json margin_json(const simulation::MarginReport& m) {
   json out = {{"nominal_verdict", m.nominal_verdict},
               {"criterion", "survives = simulation verdict not 'fail'"},
               {"push",
@@ -186,16 +186,16 @@ double verdict_code(const std::string& verdict) {
 
 std::vector<std::string> add_simulation_check(const robot::RobotModel& model,
                                               const terrain::HeightField& terrain,
-                                              const collision::SimulationOptions& options,
+                                              const simulation::SimulationOptions& options,
                                               planner::Trajectory* traj,
-                                              collision::SimulationReport* report) {
+                                              simulation::SimulationReport* report) {
   json& post_hoc = traj->extra["post_hoc"];
   if (!post_hoc.is_object()) post_hoc = json::object();
   if (!post_hoc.contains("failures")) post_hoc["failures"] = json::array();
-  collision::SimulationReport rep;
+  simulation::SimulationReport rep;
   try {
-    rep = collision::simulate_plan(model, *traj, terrain, options);
-  } catch (const collision::SimulationError& e) {
+    rep = simulation::simulate_plan(model, *traj, terrain, options);
+  } catch (const simulation::SimulationError& e) {
     const std::string failure = std::string("the simulation could not run the plan: ") + e.what();
     post_hoc["simulation"] = {{"error", e.what()}};
     post_hoc["failures"].push_back(failure);

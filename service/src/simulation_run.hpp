@@ -1,4 +1,4 @@
-// The MuJoCo execution of a plan (collision/simulation.hpp) as the service's callers use it:
+// The MuJoCo execution of a plan (terrastride/simulation/simulation.hpp) as the service's callers use it:
 // `simulate`, `plan --simulate`, `check --simulate`, the report's "Simulated execution" section,
 // the demo and the socket's `simulate`. One JSON form of its results and one way its verdict
 // joins a plan's checks, so they all say the same thing.
@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "terrastride/collision/simulation.hpp"
+#include "terrastride/simulation/simulation.hpp"
 #include "terrastride/planner/trajectory.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/height_field.hpp"
@@ -17,16 +17,16 @@ namespace terrastride::service {
 
 // The run's summary: verdict and reasons, tracking, torques, contacts, per-leg and per-stance
 // figures, speed and the thresholds (docs/design.md, "Simulation"; `simulate --json`).
-nlohmann::json simulation_summary_json(const collision::SimulationReport& report,
+nlohmann::json simulation_summary_json(const simulation::SimulationReport& report,
                                        const robot::RobotModel& model);
 
 // The per-sample series (`simulate --out`): actual vs planned base, joint torques, per-foot
 // contact and force, shin/thigh/trunk contact forces.
-nlohmann::json simulation_samples_json(const collision::SimulationReport& report,
+nlohmann::json simulation_samples_json(const simulation::SimulationReport& report,
                                        const robot::RobotModel& model);
 
 // The robustness margin (`simulate --margin`).
-nlohmann::json margin_json(const collision::MarginReport& margin);
+nlohmann::json margin_json(const simulation::MarginReport& margin);
 
 // The verdict's numeric code in plan.json's `checks` (a map of numbers): 0 pass, 1 warn, 2 fail.
 double verdict_code(const std::string& verdict);
@@ -40,8 +40,8 @@ double verdict_code(const std::string& verdict);
 // failure too, with extra["post_hoc"]["simulation"] = {"error"}. `report` receives the run.
 std::vector<std::string> add_simulation_check(const robot::RobotModel& model,
                                               const terrain::HeightField& terrain,
-                                              const collision::SimulationOptions& options,
+                                              const simulation::SimulationOptions& options,
                                               planner::Trajectory* trajectory,
-                                              collision::SimulationReport* report = nullptr);
+                                              simulation::SimulationReport* report = nullptr);
 
 }  // namespace terrastride::service

@@ -1,5 +1,5 @@
 // Scenario runner for the simulated execution: the paper's experiments judged by
-// MuJoCo (collision::simulate_plan), one row per plan and terrain, and the simulation's speed.
+// MuJoCo (simulation::simulate_plan), one row per plan and terrain, and the simulation's speed.
 //   bench_simulation [--only GROUP,...] [--repeat N] [--json]
 // Groups:
 //   flat    flat 1 m crawl in 2.4 s, `baseline` vs `polytope` (torque saturation, tracking error)
@@ -35,7 +35,7 @@
 #include <string>
 #include <vector>
 
-#include "terrastride/collision/simulation.hpp"
+#include "terrastride/simulation/simulation.hpp"
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/map_build.hpp"
@@ -50,7 +50,7 @@ namespace {
 struct Row {
   std::string group, plan, terrain;
   std::string status;  // solver
-  collision::SimulationReport sim;
+  simulation::SimulationReport sim;
 };
 
 std::vector<std::string> split(const std::string& s) {
@@ -98,26 +98,26 @@ void closed_loop_row(const robot::RobotModel& robot, const planner::Trajectory& 
                      const terrain::Scene& scene, const terrain::HeightField& smooth,
                      const planner::PlannerOptions& options, double rate_hz, double horizon,
                      nlohmann::json* rows, bool json) {
-  collision::SimulationOptions sim;
+  simulation::SimulationOptions sim;
   sim.record_dt = 0.0;
   if (rate_hz > 0) {
     sim.replan_every = 1.0 / rate_hz;
     sim.replanner =
-        collision::session_replanner(robot, smooth, scene, options, plan, horizon, 0.01);
+        simulation::session_replanner(robot, smooth, scene, options, plan, horizon, 0.01);
   }
-  collision::MarginOptions mo;
+  simulation::MarginOptions mo;
   mo.push_time_fraction = mid_climb_fraction(plan);
   mo.push_tolerance = 20.0;
   mo.mass = false;
   const double cpu0 = static_cast<double>(std::clock()) / CLOCKS_PER_SEC;
   const auto wall0 = std::chrono::steady_clock::now();
-  const auto nominal = collision::simulate_plan(robot, plan, scene, sim);
-  const auto margin = collision::simulation_margin(robot, plan, scene, sim, mo);
+  const auto nominal = simulation::simulate_plan(robot, plan, scene, sim);
+  const auto margin = simulation::simulation_margin(robot, plan, scene, sim, mo);
   auto verdict_at = [&](double mass_scale, double friction) {
-    collision::SimulationOptions o = sim;
+    simulation::SimulationOptions o = sim;
     o.mass_scale = mass_scale;
     o.friction = friction;
-    const auto r = collision::simulate_plan(robot, plan, scene, o);
+    const auto r = simulation::simulate_plan(robot, plan, scene, o);
     return r.verdict + (r.fell ? " (fall " + std::to_string(r.fall_t).substr(0, 5) + " s)" : "") +
            (r.replans > 0 ? " [" + std::to_string(r.replan_failures) + "/" +
                                 std::to_string(r.replans) + " re-plans failed]"
@@ -129,7 +129,7 @@ void closed_loop_row(const robot::RobotModel& robot, const planner::Trajectory& 
   const double cpu = static_cast<double>(std::clock()) / CLOCKS_PER_SEC - cpu0;
   const std::string config =
       rate_hz > 0 ? "re-plan " + std::to_string(static_cast<int>(rate_hz)) + " Hz" : "open loop";
-  auto side = [](const collision::MarginSide& s) {
+  auto side = [](const simulation::MarginSide& s) {
     std::ostringstream o;
     o << s.survived << (s.failed < 0 ? "+" : "");
     return o.str();
@@ -299,14 +299,14 @@ int main(int argc, char** argv) {
     }
     rows.push_back(row_json(r));
   };
-  collision::SimulationOptions sim;  // defaults: dt 2 ms, mu 0.5, the thresholds
+  simulation::SimulationOptions sim;  // defaults: dt 2 ms, mu 0.5, the thresholds
 
   if (want("flat")) {
     auto flat = scene("flat");
     for (const char* sets : {"baseline", "polytope"}) {
       const auto plan = plan_on(robot, *flat.smooth, *flat.scene, flat.scene->goal(), 2.4, sets);
       emit({"flat", std::string("flat_2.4s/") + sets, "scene flat (boxes)", plan.solver.status,
-            collision::simulate_plan(robot, plan, *flat.scene, sim)});
+            simulation::simulate_plan(robot, plan, *flat.scene, sim)});
     }
   }
   std::unique_ptr<planner::Trajectory> p15_all;
@@ -322,7 +322,7 @@ int main(int argc, char** argv) {
           p15_all = std::make_unique<planner::Trajectory>(plan);
         if (want("pallet"))
           emit({"pallet", std::string(name) + "/" + sets, std::string("scene ") + name + " (boxes)",
-                plan.solver.status, collision::simulate_plan(robot, plan, *sc.scene, sim)});
+                plan.solver.status, simulation::simulate_plan(robot, plan, *sc.scene, sim)});
       }
     }
   }
@@ -330,13 +330,13 @@ int main(int argc, char** argv) {
     for (const char* name : {"flat", "pallet_10"}) {
       auto sc = scene(name);
       emit({"wrong", "pallet_15/all", std::string("scene ") + name + " (wrong terrain)",
-            p15_all->solver.status, collision::simulate_plan(robot, *p15_all, *sc.scene, sim)});
+            p15_all->solver.status, simulation::simulate_plan(robot, *p15_all, *sc.scene, sim)});
     }
     auto flat = scene("flat");
     const auto plan = plan_on(robot, *flat.smooth, *flat.scene, flat.scene->goal(), 11.0, "all");
     auto p15 = scene("pallet_15");
     emit({"wrong", "flat_11s/all", "scene pallet_15 (wrong terrain)", plan.solver.status,
-          collision::simulate_plan(robot, plan, *p15.scene, sim)});
+          simulation::simulate_plan(robot, plan, *p15.scene, sim)});
   }
   if (want("scenes")) {
     for (const char* name : {"stairs", "eur_pallet", "gap"}) {
@@ -344,7 +344,7 @@ int main(int argc, char** argv) {
       for (const char* sets : {"baseline", "all"}) {
         const auto plan = plan_on(robot, *sc.smooth, *sc.scene, sc.scene->goal(), 11.0, sets);
         emit({"scenes", std::string(name) + "/" + sets, std::string("scene ") + name + " (boxes)",
-              plan.solver.status, collision::simulate_plan(robot, plan, *sc.scene, sim)});
+              plan.solver.status, simulation::simulate_plan(robot, plan, *sc.scene, sim)});
       }
     }
   }
@@ -370,11 +370,11 @@ int main(int argc, char** argv) {
                                                          ? " scan/all (demo)"
                                                          : " scan/all");
       emit({"scans", label, std::string("map of data/scans/") + name + "*.pcd (hfield)",
-            plan.solver.status, collision::simulate_plan(robot, plan, map, sim)});
+            plan.solver.status, simulation::simulate_plan(robot, plan, map, sim)});
       // The same plan on the exact scene it was scanned from.
       auto sc = scene(name);
       emit({"scans", label, std::string("scene ") + name + " (boxes)", plan.solver.status,
-            collision::simulate_plan(robot, plan, *sc.scene, sim)});
+            simulation::simulate_plan(robot, plan, *sc.scene, sim)});
     }
   }
   if (std::find(only.begin(), only.end(), "closed_loop") != only.end()) {
@@ -393,15 +393,15 @@ int main(int argc, char** argv) {
     auto flat = scene("flat");
     const auto plan = plan_on(robot, *flat.smooth, *flat.scene, flat.scene->goal(), 2.4, "baseline");
     const auto hfield = terrain::TerrainMap::from_scene(*flat.scene, 0.02, {0.02});
-    collision::SimulationOptions fast = sim;
+    simulation::SimulationOptions fast = sim;
     fast.record_dt = 0.0;  // the judge's own cost, not the recording's
     for (const char* kind : {"boxes", "heightfield 2 cm"}) {
       std::vector<double> wall_x, cpu_x;
       const double load_before = load1();
       for (int r = 0; r < repeat; ++r) {
         const auto rep = std::string(kind) == "boxes"
-                             ? collision::simulate_plan(robot, plan, *flat.scene, fast)
-                             : collision::simulate_plan(robot, plan, *hfield, fast);
+                             ? simulation::simulate_plan(robot, plan, *flat.scene, fast)
+                             : simulation::simulate_plan(robot, plan, *hfield, fast);
         wall_x.push_back(rep.realtime_factor);
         cpu_x.push_back(rep.duration / rep.cpu_s);
       }

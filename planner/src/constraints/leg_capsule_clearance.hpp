@@ -84,7 +84,7 @@ inline CapsuleRows capsule_rows(const std::string& family, double link_radius, b
 // The foot rolls. A foot is a sphere fixed to the shin: while the shin turns during a stance the
 // sphere rolls, and its centre and contact point move along the ground by r_foot times the
 // shin's turn, which the planner's fixed foothold does not show. Measured in MuJoCo
-// (collision::simulate_plan) on the 11 s pallet_15 crawl with `all`: the RH contact point crept
+// (simulation::simulate_plan) on the 11 s pallet_15 crawl with `all`: the RH contact point crept
 // 11 mm towards the pallet over its 2.6 s stance (no sliding: the material point's slip was
 // 1.6 mm; the report's "centre drift" is this roll, 17 mm at worst over the plan), and the shin,
 // 5 mm clear of the edge in the plan, met it for 6.1 N s. So in stance the link rows use the foot

@@ -9,7 +9,7 @@
 
 #include "report/sections.hpp"
 #include "terrastride/collision/checks.hpp"
-#include "terrastride/collision/simulation.hpp"
+#include "terrastride/simulation/simulation.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/cli.hpp"
@@ -37,14 +37,14 @@ json plan_json(const PlanInput& input, const TerrainView& terrain, const robot::
       input.checks ? *input.checks : collision::run_checks(model, traj, check_terrain);
 
   // The simulated execution: the caller's (demo), or run here on the terrain when asked.
-  std::shared_ptr<const collision::SimulationReport> simulation = input.simulation;
+  std::shared_ptr<const simulation::SimulationReport> simulation = input.simulation;
   std::string simulation_error;
   if (!simulation && options.simulate) {
     try {
-      if (!terrain.field) throw collision::SimulationError("the terrain has no height field");
-      simulation = std::make_shared<const collision::SimulationReport>(
-          collision::simulate_plan(model, traj, *terrain.field, collision::SimulationOptions{}));
-    } catch (const collision::SimulationError& e) {
+      if (!terrain.field) throw simulation::SimulationError("the terrain has no height field");
+      simulation = std::make_shared<const simulation::SimulationReport>(
+          simulation::simulate_plan(model, traj, *terrain.field, simulation::SimulationOptions{}));
+    } catch (const simulation::SimulationError& e) {
       simulation_error = e.what();
     }
   }

@@ -17,8 +17,10 @@ class OcTree;
 }
 namespace terrastride::collision {
 struct CheckReport;
-struct SimulationReport;
 }  // namespace terrastride::collision
+namespace terrastride::simulation {
+struct SimulationReport;
+}  // namespace terrastride::simulation
 
 namespace terrastride::service::report {
 
@@ -68,7 +70,7 @@ struct PlanInput {
   std::shared_ptr<const collision::CheckReport> checks;
   // The plan's execution in MuJoCo on this terrain (demo, `report --simulate`); null: the
   // "Simulated execution" section shows the verdict plan.json recorded (`plan --simulate`), if any.
-  std::shared_ptr<const collision::SimulationReport> simulation;
+  std::shared_ptr<const terrastride::simulation::SimulationReport> simulation;
 };
 
 struct ReportOptions {

@@ -69,7 +69,7 @@ struct PlanSections {
   nlohmann::json& summary;               // rows of the plan's summary table
   nlohmann::json& problems;              // the report's problems
   // The plan's simulated execution on `terrain` (null: not simulated) or why it could not run.
-  const collision::SimulationReport* simulation = nullptr;
+  const simulation::SimulationReport* simulation = nullptr;
   std::string simulation_error;
 };
 

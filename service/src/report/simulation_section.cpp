@@ -1,5 +1,5 @@
 // The report's "Simulated execution" section (sections.hpp): the plan run in MuJoCo by
-// collision::simulate_plan, as tracking error over time, torques against the limits, contact
+// simulation::simulate_plan, as tracking error over time, torques against the limits, contact
 // events and the verdict.
 #include <algorithm>
 #include <cmath>
@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "report/sections.hpp"
-#include "terrastride/collision/simulation.hpp"
+#include "terrastride/simulation/simulation.hpp"
 
 namespace terrastride::service::report {
 namespace {
@@ -16,7 +16,7 @@ namespace {
 using nlohmann::json;
 
 constexpr const char* kSource =
-    "collision::simulate_plan (MuJoCo, model generated from the robot file, tracking controller)";
+    "simulation::simulate_plan (MuJoCo, model generated from the robot file, tracking controller)";
 
 // Contact events from the recorded samples: maximal runs of samples with force on one part.
 struct Event {
@@ -24,7 +24,7 @@ struct Event {
   double t_start, t_end, peak_N;
 };
 
-void collect_events(const std::vector<collision::SimulationSample>& samples, double dt,
+void collect_events(const std::vector<simulation::SimulationSample>& samples, double dt,
                     const std::string& part, const std::function<double(size_t)>& force,
                     std::vector<Event>* events) {
   bool open = false;
@@ -57,7 +57,7 @@ void verdict_rows(const PlanSections& s, const std::string& verdict,
 }  // namespace
 
 json simulation_section(const PlanSections& s) {
-  const collision::SimulationReport* sim = s.simulation;
+  const simulation::SimulationReport* sim = s.simulation;
   if (!s.simulation_error.empty())
     s.summary.push_back(
         row("simulated execution (MuJoCo)", "not run", "", "note", s.simulation_error));
@@ -80,7 +80,7 @@ json simulation_section(const PlanSections& s) {
              "the plan was not simulated (run 'terrastride report --simulate', or plan with "
              "--simulate)"}};
   }
-  const collision::SimulationReport& r = *sim;
+  const simulation::SimulationReport& r = *sim;
   const robot::RobotModel& model = s.model;
   const size_t n_legs = model.legs.size();
   const size_t stride = std::max<size_t>(1, r.samples.size() / 1500);

@@ -68,7 +68,7 @@ struct FeasibilityOptions {
   // shin_ik, thigh: the capsules the rows keep clear are the links' grown by this much (m), so the
   // margin is a distance from the link's surface, whatever its inclination (a vertical margin
   // shrinks to margin * cos(inclination) across a 55-degree hind shin). Why: executed in MuJoCo
-  // (collision::simulate_plan), a foot is a sphere that rolls as its shin turns during a stance,
+  // (simulation::simulate_plan), a foot is a sphere that rolls as its shin turns during a stance,
   // so the shin is not where the planner's point foot puts it. Measured on the 11 s pallet_15
   // crawl with `all` and no growth: the RH foot's contact point crept 11 mm towards the pallet
   // over its 2.6 s stance (9 mm at the end, centre drift 17 mm at worst over the plan), and its

@@ -10,7 +10,7 @@
 
 #include "server/backend.hpp"
 #include "simulation_run.hpp"
-#include "terrastride/collision/simulation.hpp"
+#include "terrastride/simulation/simulation.hpp"
 
 namespace terrastride::service {
 
@@ -38,8 +38,8 @@ std::string number_text(double v) {
 }
 
 // "pushes": [{"t": s, "force": [fx, fy, fz], "duration": s}, ...] (world frame, on the trunk).
-std::vector<collision::Push> read_pushes(const json& h) {
-  std::vector<collision::Push> pushes;
+std::vector<simulation::Push> read_pushes(const json& h) {
+  std::vector<simulation::Push> pushes;
   const auto it = h.find("pushes");
   if (it == h.end()) return pushes;
   if (!it->is_array() || it->size() > 100)
@@ -52,7 +52,7 @@ std::vector<collision::Push> read_pushes(const json& h) {
     for (const auto& [key, value] : p.items())
       if (key != "t" && key != "force" && key != "duration")
         throw ProtocolError(pc::kBadRequest, at + ": unknown field \"" + key + "\"");
-    collision::Push push;
+    simulation::Push push;
     try {
       push.t = protocol::get_number(p, "t", std::nullopt);
       push.force = protocol::get_vector(p, "force", 3);
@@ -60,7 +60,7 @@ std::vector<collision::Push> read_pushes(const json& h) {
     } catch (const ProtocolError& e) {
       throw ProtocolError(pc::kBadRequest, at + ": " + e.what());
     }
-    using Limits = collision::SimulationLimits;
+    using Limits = simulation::SimulationLimits;
     if (!(push.duration >= 0 && push.duration <= Limits::kMaxPushDuration))
       throw ProtocolError(pc::kBadRequest, at + ".duration: must be in [0, " +
                                                number_text(Limits::kMaxPushDuration) + "] s");
@@ -74,9 +74,9 @@ std::vector<collision::Push> read_pushes(const json& h) {
 }
 
 // The simulation's options from the request: the CLI's flags and limits (SimulationLimits).
-collision::SimulationOptions read_options(const json& h) {
-  using Limits = collision::SimulationLimits;
-  collision::SimulationOptions options;
+simulation::SimulationOptions read_options(const json& h) {
+  using Limits = simulation::SimulationLimits;
+  simulation::SimulationOptions options;
   options.dt = protocol::get_number(h, "dt", 0.002);
   if (!(options.dt >= Limits::kMinDt && options.dt <= Limits::kMaxDt))
     throw ProtocolError(pc::kBadRequest, "dt: must be in [0.0001, 0.01] s");
@@ -93,8 +93,8 @@ collision::SimulationOptions read_options(const json& h) {
 // Refuses (too_large) a request whose steps cannot finish within kMaxWallSeconds even at the
 // fastest pace a step has run: it would hold a worker only to time out.
 void refuse_what_cannot_finish(const planner::Trajectory& plan, double dt, bool margin) {
-  const long long steps = collision::simulation_steps(plan, dt);
-  const int runs = margin ? collision::margin_max_runs({}) : 1;
+  const long long steps = simulation::simulation_steps(plan, dt);
+  const int runs = margin ? simulation::margin_max_runs({}) : 1;
   const double least_s = static_cast<double>(steps) * runs * kStepSecondsFloor;
   if (least_s <= kMaxWallSeconds) return;
   throw ProtocolError(
@@ -139,14 +139,14 @@ OpResult simulate(Backend& backend, OpContext& ctx) {
   const RequestPlan plan = read_request_plan(backend, h, "simulate");
   const robot::RobotModel& model = plan.robot;
   const planner::Trajectory& traj = plan.trajectory;
-  collision::SimulationOptions options = read_options(h);
+  simulation::SimulationOptions options = read_options(h);
   const bool margin = protocol::get_bool(h, "margin", false);
   const bool with_samples = protocol::get_bool(h, "samples", false);
   if (!with_samples) options.record_dt = 0.0;
   try {
     // The plan as `check` reads it, before the terrain is loaded or anything is estimated.
-    collision::validate_simulation(model, traj, options);
-  } catch (const collision::SimulationError& e) {
+    simulation::validate_simulation(model, traj, options);
+  } catch (const simulation::SimulationError& e) {
     throw ProtocolError(pc::kBadRequest, e.what());
   }
   refuse_what_cannot_finish(traj, options.dt, margin);
@@ -161,19 +161,19 @@ OpResult simulate(Backend& backend, OpContext& ctx) {
   ctx.check_stop();
   OpResult r;
   try {
-    const collision::SimulationReport rep =
-        collision::simulate_plan(model, traj, *terrain.field, options);
+    const simulation::SimulationReport rep =
+        simulation::simulate_plan(model, traj, *terrain.field, options);
     r.result = simulation_summary_json(rep, model);
     if (with_samples) r.result["samples"] = simulation_samples_json(rep, model);
     if (margin)
       r.result["margin"] =
-          margin_json(collision::simulation_margin(model, traj, *terrain.field, options, {}));
-  } catch (const collision::SimulationCancelled& e) {
+          margin_json(simulation::simulation_margin(model, traj, *terrain.field, options, {}));
+  } catch (const simulation::SimulationCancelled& e) {
     ctx.check_stop();  // the token's reason as the protocol's error
     throw ProtocolError(pc::kTimeout, "simulate: stopped after " + number_text(kMaxWallSeconds) +
                                           " s, the most a simulate request may run (" + e.what() +
                                           ")");
-  } catch (const collision::SimulationError& e) {
+  } catch (const simulation::SimulationError& e) {
     throw ProtocolError(pc::kBadRequest, e.what());
   }
   return r;

@@ -26,7 +26,7 @@
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
 
-namespace terrastride::collision {
+namespace terrastride::simulation {
 
 // A plan or option the simulation cannot run (the message names the input), or MuJoCo refusing
 // the generated model.
@@ -402,4 +402,4 @@ MarginReport simulation_margin(const robot::RobotModel& model, const planner::Tr
                                const terrain::HeightField& terrain,
                                const SimulationOptions& options, const MarginOptions& margin = {});
 
-}  // namespace terrastride::collision
+}  // namespace terrastride::simulation

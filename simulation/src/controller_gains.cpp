@@ -10,10 +10,10 @@
 #include <cmath>
 #include <limits>
 
-#include "terrastride/collision/simulation.hpp"
+#include "terrastride/simulation/simulation.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 
-namespace terrastride::collision {
+namespace terrastride::simulation {
 namespace {
 
 // HyQ's tuned gains as frequencies (rad/s) and damping ratios, on its 83 kg, the smallest principal
@@ -80,4 +80,4 @@ ControllerGains controller_gains(const robot::RobotModel& model) {
   return g;
 }
 
-}  // namespace terrastride::collision
+}  // namespace terrastride::simulation

@@ -15,7 +15,7 @@
 #include <string>
 #include <utility>
 
-#include "terrastride/collision/simulation.hpp"
+#include "terrastride/simulation/simulation.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
@@ -45,7 +45,7 @@ TEST(Simulation, GeneratedModelForwardKinematicsEqualsThePlanners) {
     }
     configs.push_back(q);
   }
-  const auto feet = collision::mujoco_foot_positions(model, configs);
+  const auto feet = simulation::mujoco_foot_positions(model, configs);
   double worst = 0.0;
   for (size_t k = 0; k < configs.size(); ++k)
     for (size_t i = 0; i < model.legs.size(); ++i)
@@ -58,12 +58,12 @@ TEST(Simulation, GeneratedModelForwardKinematicsEqualsThePlanners) {
 
 TEST(Simulation, WholeRobotHasTheSrbdMassAndCentreOfMass) {
   const auto model = hyq();
-  const auto trunk = collision::trunk_inertia(model);
+  const auto trunk = simulation::trunk_inertia(model);
   double legs = 0.0;
   for (const auto& leg : model.legs)
     for (const auto& link : leg.links) legs += link.mass;
   EXPECT_NEAR(trunk.mass + legs, model.mass, 1e-12);
-  const Vector3d com = collision::mujoco_com(model, collision::nominal_stance(model));
+  const Vector3d com = simulation::mujoco_com(model, simulation::nominal_stance(model));
   EXPECT_LT(com.norm(), 1e-9) << com.transpose();
 }
 
@@ -95,8 +95,8 @@ planner::Trajectory stand_plan(const robot::RobotModel& model, double duration) 
 TEST(Simulation, StandHoldsFiveSeconds) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("flat");
-  collision::SimulationOptions o;
-  const auto rep = collision::simulate_plan(model, stand_plan(model, 5.0), *scene, o);
+  simulation::SimulationOptions o;
+  const auto rep = simulation::simulate_plan(model, stand_plan(model, 5.0), *scene, o);
   std::cout << "stand 5 s: base error max " << rep.position_max << " m, RMS " << rep.position_rms
             << " m, slip max " << rep.slip_max << " m, " << rep.realtime_factor << "x real time\n";
   EXPECT_EQ(rep.verdict, "pass");
@@ -134,7 +134,7 @@ const planner::Trajectory& flat_crawl() {
   return cached_plan("--terrain flat --duration 2.4");
 }
 
-void print(const std::string& what, const collision::SimulationReport& r) {
+void print(const std::string& what, const simulation::SimulationReport& r) {
   std::cout << what << ": " << r.verdict << ", base error RMS " << r.position_rms << " m, max "
             << r.position_max << " m, saturation " << 100 * r.saturation_fraction << " %, slip max "
             << r.slip_max << " m, centre drift max " << r.centre_drift_max
@@ -148,7 +148,7 @@ void print(const std::string& what, const collision::SimulationReport& r) {
 TEST(Simulation, FlatCrawlPasses) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("flat");
-  const auto rep = collision::simulate_plan(model, flat_crawl(), *scene, {});
+  const auto rep = simulation::simulate_plan(model, flat_crawl(), *scene, {});
   print("flat crawl 2.4 s", rep);
   EXPECT_EQ(rep.verdict, "pass");
   EXPECT_FALSE(rep.fell);
@@ -161,7 +161,7 @@ TEST(Simulation, HalvedForcesDoNotPass) {
   auto plan = flat_crawl();
   for (auto& s : plan.samples)
     for (auto& f : s.feet) f.force *= 0.5;
-  const auto rep = collision::simulate_plan(model, plan, *scene, {});
+  const auto rep = simulation::simulate_plan(model, plan, *scene, {});
   print("flat crawl, forces x 0.5", rep);
   EXPECT_NE(rep.verdict, "pass");
 }
@@ -183,7 +183,7 @@ TEST(Simulation, FeetShiftedUpDoNotPass) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("flat");
   const auto rep =
-      collision::simulate_plan(model, shifted_feet(flat_crawl(), Vector3d(0, 0, 0.05)), *scene, {});
+      simulation::simulate_plan(model, shifted_feet(flat_crawl(), Vector3d(0, 0, 0.05)), *scene, {});
   print("flat crawl, footholds 5 cm up", rep);
   EXPECT_NE(rep.verdict, "pass");
   EXPECT_GT(rep.touchdown_error_max, 0.03);
@@ -196,7 +196,7 @@ TEST(Simulation, FeetShiftedSidewaysStillExecute) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("flat");
   const auto rep =
-      collision::simulate_plan(model, shifted_feet(flat_crawl(), Vector3d(0, 0.05, 0)), *scene, {});
+      simulation::simulate_plan(model, shifted_feet(flat_crawl(), Vector3d(0, 0.05, 0)), *scene, {});
   print("flat crawl, footholds 5 cm sideways", rep);
   EXPECT_FALSE(rep.fell);
 }
@@ -208,16 +208,16 @@ TEST(Simulation, FeetShiftedSidewaysStillExecute) {
 TEST(Simulation, ControllerTermsOnTheFlatCrawl) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("flat");
-  collision::SimulationOptions full, no_wrench, no_forces, pd_only;
+  simulation::SimulationOptions full, no_wrench, no_forces, pd_only;
   no_wrench.controller.trunk_wrench = false;
   no_forces.controller.planned_forces = false;  // the trunk wrench then carries the weight
   pd_only.controller.planned_forces = false;
   pd_only.controller.trunk_wrench = false;
   pd_only.controller.swing_feedforward = false;
-  const auto r_full = collision::simulate_plan(model, flat_crawl(), *scene, full);
-  const auto r_no_wrench = collision::simulate_plan(model, flat_crawl(), *scene, no_wrench);
-  const auto r_no_forces = collision::simulate_plan(model, flat_crawl(), *scene, no_forces);
-  const auto r_pd = collision::simulate_plan(model, flat_crawl(), *scene, pd_only);
+  const auto r_full = simulation::simulate_plan(model, flat_crawl(), *scene, full);
+  const auto r_no_wrench = simulation::simulate_plan(model, flat_crawl(), *scene, no_wrench);
+  const auto r_no_forces = simulation::simulate_plan(model, flat_crawl(), *scene, no_forces);
+  const auto r_pd = simulation::simulate_plan(model, flat_crawl(), *scene, pd_only);
   print("all terms", r_full);
   print("without the trunk wrench", r_no_wrench);
   print("without the planned forces", r_no_forces);
@@ -231,10 +231,10 @@ TEST(Simulation, ControllerTermsOnTheFlatCrawl) {
 TEST(Simulation, VerdictDoesNotDependOnTheTimeStep) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("flat");
-  collision::SimulationOptions fine;
+  simulation::SimulationOptions fine;
   fine.dt = 0.001;
-  const auto a = collision::simulate_plan(model, flat_crawl(), *scene, {});
-  const auto b = collision::simulate_plan(model, flat_crawl(), *scene, fine);
+  const auto a = simulation::simulate_plan(model, flat_crawl(), *scene, {});
+  const auto b = simulation::simulate_plan(model, flat_crawl(), *scene, fine);
   print("dt 2 ms", a);
   print("dt 1 ms", b);
   EXPECT_EQ(a.verdict, b.verdict);
@@ -252,11 +252,11 @@ TEST(Simulation, Pallet15BaselineHitsTheShinAndAllConstraintsPass) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("pallet_15");
   const auto base =
-      collision::simulate_plan(model, cached_plan("--terrain pallet_15"), *scene, {});
+      simulation::simulate_plan(model, cached_plan("--terrain pallet_15"), *scene, {});
   print("pallet_15 baseline", base);
   EXPECT_NE(base.verdict, "pass");
   EXPECT_GE(base.shin_impulse_max, 5.0);
-  const auto all = collision::simulate_plan(
+  const auto all = simulation::simulate_plan(
       model, cached_plan("--terrain pallet_15 --constraints all"), *scene, {});
   print("pallet_15 --constraints all", all);
   EXPECT_EQ(all.verdict, "pass");
@@ -269,8 +269,8 @@ TEST(Simulation, Pallet15BaselineHitsTheShinAndAllConstraintsPass) {
 TEST(Simulation, FlatCrawlBaselineAndPolytopeBothExecute) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("flat");
-  const auto base = collision::simulate_plan(model, flat_crawl(), *scene, {});
-  const auto poly = collision::simulate_plan(
+  const auto base = simulation::simulate_plan(model, flat_crawl(), *scene, {});
+  const auto poly = simulation::simulate_plan(
       model, cached_plan("--terrain flat --duration 2.4 --constraints polytope"), *scene, {});
   print("flat 2.4 s baseline", base);
   print("flat 2.4 s polytope", poly);
@@ -284,18 +284,18 @@ TEST(Simulation, FlatCrawlBaselineAndPolytopeBothExecute) {
 // falls; the flat plan walks into the 15 cm pallet and falls).
 TEST(Simulation, Pallet10AllPassesAndPlansOnTheWrongTerrainFail) {
   const auto model = hyq();
-  const auto p10 = collision::simulate_plan(
+  const auto p10 = simulation::simulate_plan(
       model, cached_plan("--terrain pallet_10 --constraints all"), *terrain::make_scene("pallet_10"),
       {});
   print("pallet_10 --constraints all", p10);
   EXPECT_EQ(p10.verdict, "pass");
   const auto on_flat =
-      collision::simulate_plan(model, cached_plan("--terrain pallet_15 --constraints all"),
+      simulation::simulate_plan(model, cached_plan("--terrain pallet_15 --constraints all"),
                                *terrain::make_scene("flat"), {});
   print("pallet_15 --constraints all on flat ground", on_flat);
   EXPECT_EQ(on_flat.verdict, "fail");
   const auto into_pallet =
-      collision::simulate_plan(model, flat_crawl(), *terrain::make_scene("pallet_15"), {});
+      simulation::simulate_plan(model, flat_crawl(), *terrain::make_scene("pallet_15"), {});
   print("flat crawl on pallet_15", into_pallet);
   EXPECT_EQ(into_pallet.verdict, "fail");
 }
@@ -305,14 +305,14 @@ TEST(Simulation, Pallet10AllPassesAndPlansOnTheWrongTerrainFail) {
 TEST(Simulation, HeightfieldOfAMapCarriesThePlans) {
   const auto model = hyq();
   const auto flat = terrain::TerrainMap::from_scene(*terrain::make_scene("flat"), 0.02, {0.02});
-  const auto crawl = collision::simulate_plan(model, flat_crawl(), *flat, {});
+  const auto crawl = simulation::simulate_plan(model, flat_crawl(), *flat, {});
   print("flat crawl on a heightfield", crawl);
   std::cout << "  " << crawl.terrain << "\n";
   EXPECT_EQ(crawl.verdict, "pass");
   EXPECT_EQ(crawl.filled_cells, 0);
   const auto pallet =
       terrain::TerrainMap::from_scene(*terrain::make_scene("pallet_15"), 0.02, {0.02});
-  const auto all = collision::simulate_plan(
+  const auto all = simulation::simulate_plan(
       model, cached_plan("--terrain pallet_15 --constraints all"), *pallet, {});
   print("pallet_15 --constraints all on a heightfield", all);
   EXPECT_NE(all.verdict, "fail");
@@ -328,7 +328,7 @@ TEST(Simulation, HeightfieldIsTheMapsPlanningSurface) {
   grid.surface = grid.elevation;
   for (float& e : grid.elevation) e += 0.04f;
   const terrain::TerrainMap map(std::move(grid), {0.02});
-  const auto rep = collision::simulate_plan(model, stand_plan(model, 1.0), map, {});
+  const auto rep = simulation::simulate_plan(model, stand_plan(model, 1.0), map, {});
   print("stand 1 s on a map whose elevation is 4 cm above its surface", rep);
   std::cout << "  " << rep.terrain << "\n";
   EXPECT_NE(rep.terrain.find("smoothed surface"), std::string::npos) << rep.terrain;
@@ -342,11 +342,11 @@ TEST(Simulation, HeightFieldOverloadDispatchesByTerrainType) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("flat");
   const terrain::HeightField& as_field = *scene;
-  const auto rep = collision::simulate_plan(model, stand_plan(model, 0.5), as_field, {});
+  const auto rep = simulation::simulate_plan(model, stand_plan(model, 0.5), as_field, {});
   EXPECT_NE(rep.terrain.find("boxes"), std::string::npos) << rep.terrain;
   const auto map = terrain::TerrainMap::from_scene(*scene, 0.02, {0.02});
   const terrain::HeightField& map_field = *map;
-  const auto rep_map = collision::simulate_plan(model, stand_plan(model, 0.5), map_field, {});
+  const auto rep_map = simulation::simulate_plan(model, stand_plan(model, 0.5), map_field, {});
   EXPECT_NE(rep_map.terrain.find("heightfield"), std::string::npos) << rep_map.terrain;
 }
 
@@ -360,7 +360,7 @@ robot::RobotModel shipped(const std::string& name) {
 // gains to 0.1 %; a 16 kg Go2 stands on its own gains and falls over on HyQ's (150
 // N m s/rad of orientation damping on its 0.18 kg m^2 roll inertia: kd dt / I = 1.6 per step).
 TEST(Simulation, ControllerGainsFollowTheRobot) {
-  const collision::ControllerGains g = collision::controller_gains(hyq());
+  const simulation::ControllerGains g = simulation::controller_gains(hyq());
   EXPECT_NEAR(g.kp_position, 6000.0, 6.0);
   EXPECT_NEAR(g.kd_position, 1200.0, 1.2);
   EXPECT_NEAR(g.kp_orientation, 1500.0, 1.5);
@@ -370,19 +370,19 @@ TEST(Simulation, ControllerGainsFollowTheRobot) {
   EXPECT_NEAR(g.kp_stance, 150.0, 0.15);
   EXPECT_NEAR(g.kd_stance, 5.0, 0.005);
   const auto go2 = shipped("go2");
-  const collision::ControllerGains small = collision::controller_gains(go2);
+  const simulation::ControllerGains small = simulation::controller_gains(go2);
   EXPECT_NEAR(small.kp_position / g.kp_position, go2.mass / 83.0, 1e-3);
   EXPECT_LT(small.kd_orientation, 0.1 * g.kd_orientation);
   EXPECT_LT(small.kd_swing, 0.2 * g.kd_swing);
   const auto flat = terrain::make_scene("flat");
-  collision::SimulationOptions own;
-  const auto stand = collision::simulate_plan(go2, stand_plan(go2, 3.0), *flat, own);
+  simulation::SimulationOptions own;
+  const auto stand = simulation::simulate_plan(go2, stand_plan(go2, 3.0), *flat, own);
   print("go2 stand 3 s, its own gains", stand);
   EXPECT_EQ(stand.verdict, "pass");
   EXPECT_NEAR(stand.gains.kd_swing, small.kd_swing, 1e-12);
-  collision::SimulationOptions hyq_gains;
+  simulation::SimulationOptions hyq_gains;
   hyq_gains.controller.gains = g;
-  const auto falls = collision::simulate_plan(go2, stand_plan(go2, 3.0), *flat, hyq_gains);
+  const auto falls = simulation::simulate_plan(go2, stand_plan(go2, 3.0), *flat, hyq_gains);
   print("go2 stand 3 s, HyQ's gains", falls);
   EXPECT_EQ(falls.verdict, "fail");
 }
@@ -416,7 +416,7 @@ TEST(Simulation, Go2AndAnymalCrawlAndStepExecute) {
                     std::string::npos)
               << robot << " on " << scene << ": " << failure;
       }
-      const auto rep = collision::simulate_plan(model, plan, *terrain::make_scene(scene), {});
+      const auto rep = simulation::simulate_plan(model, plan, *terrain::make_scene(scene), {});
       print(robot + " on " + scene + " --constraints all", rep);
       EXPECT_EQ(rep.verdict, "pass") << robot << " on " << scene;
     }
@@ -426,10 +426,10 @@ TEST(Simulation, Go2AndAnymalCrawlAndStepExecute) {
 TEST(Simulation, MarginBracketsTheLargestSurvivedPush) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("flat");
-  collision::MarginOptions mo;
+  simulation::MarginOptions mo;
   mo.push_tolerance = 20.0;
   mo.mass_tolerance = 0.05;
-  const auto m = collision::simulation_margin(model, flat_crawl(), *scene, {}, mo);
+  const auto m = simulation::simulation_margin(model, flat_crawl(), *scene, {}, mo);
   std::cout << "flat crawl margin: push left " << m.push_left.survived << " N (fails at "
             << m.push_left.failed << " N: " << m.push_left.failure << "), right "
             << m.push_right.survived << " N (fails at " << m.push_right.failed << " N), mass scale "
@@ -443,12 +443,12 @@ TEST(Simulation, MarginBracketsTheLargestSurvivedPush) {
     ASSERT_GT(side->failed, 0.0);  // a 4 kN push for 0.2 s topples HyQ
     EXPECT_LE(side->failed - side->survived, mo.push_tolerance + 1e-9);
     // Re-run at both ends: the bracket is what the verdict says.
-    collision::SimulationOptions at;
+    simulation::SimulationOptions at;
     at.pushes.push_back(
         {m.push_t, side->survived * (side == &m.push_left ? 1 : -1) * m.left, mo.push_duration});
-    EXPECT_NE(collision::simulate_plan(model, flat_crawl(), *scene, at).verdict, "fail");
+    EXPECT_NE(simulation::simulate_plan(model, flat_crawl(), *scene, at).verdict, "fail");
     at.pushes.back().force = side->failed * (side == &m.push_left ? 1 : -1) * m.left;
-    EXPECT_EQ(collision::simulate_plan(model, flat_crawl(), *scene, at).verdict, "fail");
+    EXPECT_EQ(simulation::simulate_plan(model, flat_crawl(), *scene, at).verdict, "fail");
   }
   EXPECT_GT(m.mass_heavier.survived, 1.0);
   EXPECT_LT(m.mass_lighter.survived, 1.0);
@@ -456,10 +456,10 @@ TEST(Simulation, MarginBracketsTheLargestSurvivedPush) {
 
 // What a refused run says, or "" when it ran.
 std::string refusal(const robot::RobotModel& model, const planner::Trajectory& plan,
-                    const collision::SimulationOptions& o = {}) {
+                    const simulation::SimulationOptions& o = {}) {
   try {
-    collision::simulate_plan(model, plan, *terrain::make_scene("flat"), o);
-  } catch (const collision::SimulationError& e) {
+    simulation::simulate_plan(model, plan, *terrain::make_scene("flat"), o);
+  } catch (const simulation::SimulationError& e) {
     return e.what();
   }
   return "";
@@ -519,8 +519,8 @@ TEST(SimulationLimits, PlansBeyondTheLimitsAreRefused) {
   long_plan.samples[1].t = 0.0;
   for (int k = 0; k < 12000; ++k) long_plan.samples[1].t += 0.01;
   ASSERT_GT(long_plan.samples[1].t, 120.0);
-  EXPECT_EQ(collision::simulation_steps(long_plan, 0.002), 60000);
-  EXPECT_NO_THROW(collision::validate_simulation(model, long_plan, {}));
+  EXPECT_EQ(simulation::simulation_steps(long_plan, 0.002), 60000);
+  EXPECT_NO_THROW(simulation::validate_simulation(model, long_plan, {}));
   // Within the limits, far from the origin: it runs (and stands).
   planner::Trajectory far = stand;
   for (auto& s : far.samples) {
@@ -537,7 +537,7 @@ TEST(SimulationLimits, AbsurdOptionsAreRefused) {
   const auto plan = stand_plan(model, 0.5);
   struct Case {
     std::string what, expect;
-    collision::Push push;
+    simulation::Push push;
   };
   const std::vector<Case> cases{
       {"1e12 N", "push 1: its force (1e+12 N) must be finite and at most 1e+05 N",
@@ -549,13 +549,13 @@ TEST(SimulationLimits, AbsurdOptionsAreRefused) {
       {"negative duration", "push 1: its duration", {0.1, Vector3d(0, 100, 0), -1}},
   };
   for (const Case& c : cases) {
-    collision::SimulationOptions o;
+    simulation::SimulationOptions o;
     o.pushes = {c.push};
     const std::string why = refusal(model, plan, o);
     EXPECT_NE(why.find(c.expect), std::string::npos) << c.what << ": '" << why << "'";
   }
-  collision::SimulationOptions o;
-  o.pushes.assign(101, collision::Push{0.1, Vector3d(0, 1, 0), 0.1});
+  simulation::SimulationOptions o;
+  o.pushes.assign(101, simulation::Push{0.1, Vector3d(0, 1, 0), 0.1});
   EXPECT_NE(refusal(model, plan, o).find("pushes: at most 100"), std::string::npos);
   for (const double scale : {0.1, 10.0, std::nan(""), double(INFINITY)}) {
     o = {};
@@ -569,8 +569,8 @@ TEST(SimulationLimits, AbsurdOptionsAreRefused) {
   }
   // The largest push allowed runs (and topples HyQ): a verdict, not an error.
   o = {};
-  o.pushes = {{0.1, Vector3d(0, collision::SimulationLimits::kMaxPushForce, 0), 0.2}};
-  const auto rep = collision::simulate_plan(model, plan, *terrain::make_scene("flat"), o);
+  o.pushes = {{0.1, Vector3d(0, simulation::SimulationLimits::kMaxPushForce, 0), 0.2}};
+  const auto rep = simulation::simulate_plan(model, plan, *terrain::make_scene("flat"), o);
   EXPECT_EQ(rep.verdict, "fail");
 }
 
@@ -583,12 +583,12 @@ TEST(SimulationLimits, UnstableRunFails) {
   for (const double torque_limit : {1e9, 1e15}) {
     auto model = hyq();
     for (auto& leg : model.legs) leg.torque_limit = Vector3d::Constant(torque_limit);
-    collision::SimulationOptions o;
-    collision::ControllerGains g = collision::controller_gains(model);
+    simulation::SimulationOptions o;
+    simulation::ControllerGains g = simulation::controller_gains(model);
     g.kp_stance = g.kp_swing = 1e15;
     o.controller.gains = g;
     const auto rep =
-        collision::simulate_plan(model, stand_plan(model, 1.0), *terrain::make_scene("flat"), o);
+        simulation::simulate_plan(model, stand_plan(model, 1.0), *terrain::make_scene("flat"), o);
     print("unstable stand", rep);
     EXPECT_EQ(rep.verdict, "fail") << torque_limit;
     EXPECT_TRUE(rep.unstable) << torque_limit;
@@ -608,23 +608,23 @@ TEST(SimulationLimits, UnstableRunFails) {
 // The margin search is bounded up front (margin_max_runs) and stops between and within its
 // runs when asked.
 TEST(SimulationLimits, MarginRunsAreBoundedAndCancellable) {
-  EXPECT_EQ(collision::margin_max_runs({}), 56);
-  collision::MarginOptions no_mass;
+  EXPECT_EQ(simulation::margin_max_runs({}), 56);
+  simulation::MarginOptions no_mass;
   no_mass.mass = false;
-  EXPECT_EQ(collision::margin_max_runs(no_mass), 33);
+  EXPECT_EQ(simulation::margin_max_runs(no_mass), 33);
   const auto model = hyq();
   const auto plan = stand_plan(model, 0.5);
   const auto scene = terrain::make_scene("flat");
   // Stop after the third poll: the search ends within the run that polled it.
   int polls = 0;
-  collision::SimulationOptions o;
+  simulation::SimulationOptions o;
   o.stop_requested = [&polls] { return ++polls > 3; };
-  EXPECT_THROW(collision::simulation_margin(model, plan, *scene, o), collision::SimulationCancelled);
+  EXPECT_THROW(simulation::simulation_margin(model, plan, *scene, o), simulation::SimulationCancelled);
   EXPECT_EQ(polls, 4);
   // Uninterrupted, the runs stay within the bound.
-  const auto m = collision::simulation_margin(model, plan, *scene, {});
+  const auto m = simulation::simulation_margin(model, plan, *scene, {});
   EXPECT_GT(m.runs, 10);
-  EXPECT_LE(m.runs, collision::margin_max_runs({}));
+  EXPECT_LE(m.runs, simulation::margin_max_runs({}));
 }
 
 // The CLI: the refusals name the option or the plan's field, exit 1, and nothing is simulated.

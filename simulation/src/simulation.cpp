@@ -1,5 +1,5 @@
-// Plan execution in MuJoCo (collision/include/terrastride/collision/simulation.hpp).
-#include "terrastride/collision/simulation.hpp"
+// Plan execution in MuJoCo (collision/include/terrastride/simulation/simulation.hpp).
+#include "terrastride/simulation/simulation.hpp"
 
 #include <mujoco/mujoco.h>
 
@@ -22,7 +22,7 @@
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 
-namespace terrastride::collision {
+namespace terrastride::simulation {
 namespace {
 
 using Eigen::Matrix3d;
@@ -582,8 +582,8 @@ void validate_options(const SimulationOptions& o) {
 void validate_plan(const robot::RobotModel& model, const planner::Trajectory& plan) {
   using L = SimulationLimits;
   try {
-    validate_trajectory(model, plan);
-  } catch (const TrajectoryError& e) {
+    collision::validate_trajectory(model, plan);
+  } catch (const collision::TrajectoryError& e) {
     throw SimulationError(std::string("plan: ") + e.what());
   }
   if (plan.samples.size() < 2) throw SimulationError("plan: fewer than two samples");
@@ -1419,4 +1419,4 @@ MarginReport simulation_margin(const robot::RobotModel& model, const planner::Tr
   return r;
 }
 
-}  // namespace terrastride::collision
+}  // namespace terrastride::simulation

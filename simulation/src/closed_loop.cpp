@@ -1,13 +1,13 @@
-// The closed loop's pieces that do not touch MuJoCo (collision/simulation.hpp): the measured
+// The closed loop's pieces that do not touch MuJoCo (terrastride/simulation/simulation.hpp): the measured
 // state in plan.json's start-state terms, and the in-process re-planner over a PlanningSession.
 #include <memory>
 #include <stdexcept>
 
-#include "terrastride/collision/simulation.hpp"
+#include "terrastride/simulation/simulation.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planning_session.hpp"
 
-namespace terrastride::collision {
+namespace terrastride::simulation {
 
 namespace {
 
@@ -80,4 +80,4 @@ ReplannerFactory session_replanner(const robot::RobotModel& robot,
   };
 }
 
-}  // namespace terrastride::collision
+}  // namespace terrastride::simulation
