@@ -380,28 +380,32 @@ LegPolytopeModel paper_polytope_model(const robot::LegModel& leg, const std::vec
   return m;
 }
 
-LegPolytopeModel fit_leg_polytope(const robot::LegModel& leg, const std::vector<Vector3d>& feet,
-                                  const PolytopeFitOptions& opt, LegFitReport* report) {
-  const auto t0 = std::chrono::steady_clock::now();
+namespace {
+
+void check_fit_request(const robot::LegModel& leg, std::size_t samples,
+                       const PolytopeFitOptions& opt) {
   if (opt.l_refs < 2) throw std::invalid_argument("l_refs must be at least 2");
   if (opt.alpha_refs < 1) throw std::invalid_argument("alpha_refs must be at least 1");
   const int min_samples = 4 * opt.l_refs * opt.alpha_refs;
-  if (static_cast<int>(feet.size()) < min_samples)
-    throw std::invalid_argument("leg " + leg.name + ": " + std::to_string(feet.size()) +
+  if (static_cast<int>(samples) < min_samples)
+    throw std::invalid_argument("leg " + leg.name + ": " + std::to_string(samples) +
                                 " samples are too few to fit " + std::to_string(opt.l_refs) + "x" +
                                 std::to_string(opt.alpha_refs) + " reference polytopes (need " +
                                 std::to_string(min_samples) + ")");
+}
+
+// The model before the fit: the grid of references over the sampled range and each node the
+// exact polytope of the sample nearest to it; `centre_node` is the centre sample's node (the
+// offsets' scale and the poles come from it).
+LegPolytopeModel initial_model(const robot::LegModel& leg, const std::vector<Vector3d>& feet,
+                               const std::vector<robot::ForcePolytope>& exact,
+                               const PolytopeFitOptions& opt, std::vector<double>* centre_node) {
   LegPolytopeModel m;
   m.leg_name = leg.name;
   m.use_roll = true;
   // Start from the HAA axis and the HAA->HFE offset; the fit moves them if that helps.
   m.hip = leg.haa_origin;
   m.hip_offset = leg.l0;
-
-  std::vector<robot::ForcePolytope> exact;
-  exact.reserve(feet.size());
-  for (const Vector3d& p : feet) exact.push_back(exact_at(leg, p));
-
   // Grid of references over the sampled range: leg lengths Chebyshev-spaced (denser at the ends,
   // where the knee's facets turn fastest near full extension), tilts evenly spaced.
   std::vector<LegCoordinates> coords;
@@ -439,75 +443,100 @@ LegPolytopeModel fit_leg_polytope(const robot::LegModel& leg, const std::vector<
   };
   const size_t centre = nearest(m.l_knots[opt.l_refs / 2], m.alpha_knots[opt.alpha_refs / 2]);
   m.poles = choose_poles(coords[centre], exact[centre]);
-  std::vector<double> centre_node(kNodeSize);
+  centre_node->assign(kNodeSize, 0.0);
   {
     LegPolytopeModel tmp = m;
     set_node_from_exact(&tmp, 0, 0, coords[centre], exact[centre], nullptr);
-    std::copy(tmp.node(0, 0), tmp.node(0, 0) + kNodeSize, centre_node.begin());
+    std::copy(tmp.node(0, 0), tmp.node(0, 0) + kNodeSize, centre_node->begin());
   }
   for (int i = 0; i < opt.l_refs; ++i) {
     for (int a = 0; a < opt.alpha_refs; ++a) {
       const size_t s = nearest(m.l_knots[i], m.alpha_knots[a]);
-      set_node_from_exact(&m, i, a, coords[s], exact[s], centre_node.data());
+      set_node_from_exact(&m, i, a, coords[s], exact[s], centre_node->data());
     }
   }
+  return m;
+}
 
+// One round of the least-squares fit of `m`'s nodes (and the hip point, unless held) to the
+// samples. The grid cell of each sample depends on the hip point, so the problem is rebuilt per
+// round.
+ceres::Solver::Summary fit_round(const std::vector<Vector3d>& feet,
+                                 const std::vector<robot::ForcePolytope>& exact,
+                                 const std::vector<double>& centre_node,
+                                 const PolytopeFitOptions& opt, double* hip,
+                                 LegPolytopeModel* model) {
+  LegPolytopeModel& m = *model;
+  ceres::Problem::Options popts;
+  ceres::Problem problem(popts);
+  problem.AddParameterBlock(hip, 4);
+  for (int i = 0; i < opt.l_refs; ++i)
+    for (int a = 0; a < opt.alpha_refs; ++a) problem.AddParameterBlock(m.node(i, a), kNodeSize);
+  m.hip = Vector3d(hip[0], hip[1], hip[2]);
+  m.hip_offset = hip[3];
+  for (size_t s = 0; s < feet.size(); ++s) {
+    const LegCoordinates c = m.coordinates(feet[s]);
+    const int cl = core::locate(m.l_knots, c.l);
+    const int ca = core::locate(m.alpha_knots, c.alpha);
+    Matrix3d scaled_jt = exact[s].jacobian.transpose();
+    for (int i = 0; i < 3; ++i) scaled_jt.row(i) /= exact[s].torque_limit[i];
+    if (opt.alpha_refs == 1) {
+      problem.AddResidualBlock(
+          new SampleCost<2>(&m, feet[s], scaled_jt, cl, 0, opt.overshoot_weight), nullptr, hip,
+          m.node(cl, 0), m.node(cl + 1, 0));
+    } else {
+      problem.AddResidualBlock(
+          new SampleCost<4>(&m, feet[s], scaled_jt, cl, ca, opt.overshoot_weight), nullptr, hip,
+          m.node(cl, ca), m.node(cl + 1, ca), m.node(cl, ca + 1), m.node(cl + 1, ca + 1));
+    }
+  }
+  std::array<double, kNodeSize> inv_scale;
+  for (int k = 0; k < kNodeSize; ++k)
+    inv_scale[k] = (k % 3 == 2) ? 1.0 / std::abs(centre_node[k]) : 1.0;
+  const double reg = opt.smoothness * std::sqrt(static_cast<double>(feet.size()));
+  for (int a = 0; a < opt.alpha_refs; ++a)
+    add_smoothness(&problem, m.l_knots, reg, inv_scale, [&](int i) { return m.node(i, a); });
+  for (int i = 0; i < opt.l_refs; ++i)
+    add_smoothness(&problem, m.alpha_knots, reg, inv_scale, [&](int a) { return m.node(i, a); });
+  if (!opt.fit_hip) problem.SetParameterBlockConstant(hip);
+  // A node that no residual touches (no sample nearby and no smoothness prior) would make the
+  // normal equations singular: hold it at its initial exact polytope.
+  for (int i = 0; i < opt.l_refs; ++i) {
+    for (int a = 0; a < opt.alpha_refs; ++a) {
+      std::vector<ceres::ResidualBlockId> blocks;
+      problem.GetResidualBlocksForParameterBlock(m.node(i, a), &blocks);
+      if (blocks.empty()) problem.SetParameterBlockConstant(m.node(i, a));
+    }
+  }
+  ceres::Solver::Options sopts;
+  sopts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  sopts.max_num_iterations = opt.max_iterations;
+  sopts.num_threads = std::max(1, opt.num_threads);
+  sopts.logging_type = ceres::SILENT;
+  sopts.minimizer_progress_to_stdout = false;
+  sopts.function_tolerance = 1e-7;
+  ceres::Solver::Summary summary;
+  ceres::Solve(sopts, &problem, &summary);
+  return summary;
+}
+
+}  // namespace
+
+LegPolytopeModel fit_leg_polytope(const robot::LegModel& leg, const std::vector<Vector3d>& feet,
+                                  const PolytopeFitOptions& opt, LegFitReport* report) {
+  const auto t0 = std::chrono::steady_clock::now();
+  check_fit_request(leg, feet.size(), opt);
+  std::vector<robot::ForcePolytope> exact;
+  exact.reserve(feet.size());
+  for (const Vector3d& p : feet) exact.push_back(exact_at(leg, p));
+  std::vector<double> centre_node;
+  LegPolytopeModel m = initial_model(leg, feet, exact, opt, &centre_node);
   double hip[4] = {m.hip.x(), m.hip.y(), m.hip.z(), m.hip_offset};
   LegFitReport rep;
   rep.leg = leg.name;
   rep.samples = static_cast<int>(feet.size());
   for (int round = 0; round < std::max(1, opt.rounds); ++round) {
-    // The grid cell of each sample depends on the hip point, so the problem is rebuilt per round.
-    ceres::Problem::Options popts;
-    ceres::Problem problem(popts);
-    problem.AddParameterBlock(hip, 4);
-    for (int i = 0; i < opt.l_refs; ++i)
-      for (int a = 0; a < opt.alpha_refs; ++a) problem.AddParameterBlock(m.node(i, a), kNodeSize);
-    m.hip = Vector3d(hip[0], hip[1], hip[2]);
-    m.hip_offset = hip[3];
-    for (size_t s = 0; s < feet.size(); ++s) {
-      const LegCoordinates c = m.coordinates(feet[s]);
-      const int cl = core::locate(m.l_knots, c.l);
-      const int ca = core::locate(m.alpha_knots, c.alpha);
-      Matrix3d scaled_jt = exact[s].jacobian.transpose();
-      for (int i = 0; i < 3; ++i) scaled_jt.row(i) /= exact[s].torque_limit[i];
-      if (opt.alpha_refs == 1) {
-        problem.AddResidualBlock(
-            new SampleCost<2>(&m, feet[s], scaled_jt, cl, 0, opt.overshoot_weight), nullptr, hip,
-            m.node(cl, 0), m.node(cl + 1, 0));
-      } else {
-        problem.AddResidualBlock(
-            new SampleCost<4>(&m, feet[s], scaled_jt, cl, ca, opt.overshoot_weight), nullptr, hip,
-            m.node(cl, ca), m.node(cl + 1, ca), m.node(cl, ca + 1), m.node(cl + 1, ca + 1));
-      }
-    }
-    std::array<double, kNodeSize> inv_scale;
-    for (int k = 0; k < kNodeSize; ++k)
-      inv_scale[k] = (k % 3 == 2) ? 1.0 / std::abs(centre_node[k]) : 1.0;
-    const double reg = opt.smoothness * std::sqrt(static_cast<double>(feet.size()));
-    for (int a = 0; a < opt.alpha_refs; ++a)
-      add_smoothness(&problem, m.l_knots, reg, inv_scale, [&](int i) { return m.node(i, a); });
-    for (int i = 0; i < opt.l_refs; ++i)
-      add_smoothness(&problem, m.alpha_knots, reg, inv_scale, [&](int a) { return m.node(i, a); });
-    if (!opt.fit_hip) problem.SetParameterBlockConstant(hip);
-    // A node that no residual touches (no sample nearby and no smoothness prior) would make the
-    // normal equations singular: hold it at its initial exact polytope.
-    for (int i = 0; i < opt.l_refs; ++i) {
-      for (int a = 0; a < opt.alpha_refs; ++a) {
-        std::vector<ceres::ResidualBlockId> blocks;
-        problem.GetResidualBlocksForParameterBlock(m.node(i, a), &blocks);
-        if (blocks.empty()) problem.SetParameterBlockConstant(m.node(i, a));
-      }
-    }
-    ceres::Solver::Options sopts;
-    sopts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-    sopts.max_num_iterations = opt.max_iterations;
-    sopts.num_threads = std::max(1, opt.num_threads);
-    sopts.logging_type = ceres::SILENT;
-    sopts.minimizer_progress_to_stdout = false;
-    sopts.function_tolerance = 1e-7;
-    ceres::Solver::Summary summary;
-    ceres::Solve(sopts, &problem, &summary);
+    const ceres::Solver::Summary summary = fit_round(feet, exact, centre_node, opt, hip, &m);
     if (round == 0) rep.initial_cost = summary.initial_cost;
     rep.final_cost = summary.final_cost;
     rep.iterations += static_cast<int>(summary.iterations.size()) - 1;

@@ -25,20 +25,23 @@ std::vector<double> Layout::segment_points(int s, int n, bool with_end) const {
   return sigmas;
 }
 
-Layout make_layout(int num_feet, const PhaseTimeline& timeline, const ProblemOptions& options,
-                   Variables* variables) {
-  Layout L;
-  const int nf = num_feet;
-  const bool force_ramps = requests_constraint_set(options.constraints, "force_ramp");
-  auto add = [&](int n, double lo, double hi) {
-    const int first = variables->size();
-    for (int i = 0; i < n; ++i) {
-      variables->lower.push_back(lo);
-      variables->upper.push_back(hi);
-    }
-    return first;
-  };
-  // Intervals and their segments.
+namespace {
+
+// n variables within [lo, hi]; the index of the first.
+int add_variables(Variables* variables, int n, double lo, double hi) {
+  const int first = variables->size();
+  for (int i = 0; i < n; ++i) {
+    variables->lower.push_back(lo);
+    variables->upper.push_back(hi);
+  }
+  return first;
+}
+
+// Intervals (a duration variable each) and their segments, and the segments' nominal knot times.
+void add_intervals_and_segments(const PhaseTimeline& timeline, const ProblemOptions& options,
+                                Variables* variables, Layout* layout) {
+  Layout& L = *layout;
+  auto add = [&](int n, double lo, double hi) { return add_variables(variables, n, lo, hi); };
   const int ni = timeline.num_intervals();
   for (int j = 0; j < ni; ++j) {
     const double d = timeline.events[j + 1] - timeline.events[j];
@@ -86,23 +89,13 @@ Layout make_layout(int num_feet, const PhaseTimeline& timeline, const ProblemOpt
   for (int s = 0; s < S; ++s)
     L.nominal_knot_time[s + 1] =
         L.nominal_knot_time[s] + L.interval_nominal[L.seg_interval[s]] * L.seg_fraction[s];
-  // Base knots.
-  for (int k = 0; k <= S; ++k) L.base.push_back(add(12, -kInf, kInf));
-  // Contact per segment.
-  L.contact.assign(nf, std::vector<bool>(S));
-  for (int f = 0; f < nf; ++f)
-    for (int s = 0; s < S; ++s) L.contact[f][s] = timeline.contact[f][L.seg_interval[s]];
-  // Knots where force ramps apply: those that some foot's stance passes through. A gait without
-  // such a foot at a contact switch (a trot whose diagonal pairs swap at one instant) would have
-  // no force at all there, a free fall the dynamics cannot follow (every trot with 'all' stalled):
-  // its switch knots keep their force variables, as without ramps.
-  std::vector<bool> ramp_knot(S + 1, false);
-  if (force_ramps)
-    for (int k = 1; k < S; ++k)
-      for (int f = 0; f < nf; ++f)
-        if (L.contact[f][k - 1] && L.contact[f][k]) ramp_knot[k] = true;
+}
 
-  // Feet.
+// Each foot's position, velocity and force variables per knot, its stances and its swings.
+void add_feet(int nf, const std::vector<bool>& ramp_knot, Variables* variables, Layout* layout) {
+  Layout& L = *layout;
+  const int S = L.num_segments;
+  auto add = [&](int n, double lo, double hi) { return add_variables(variables, n, lo, hi); };
   L.foot_pos.assign(nf, std::vector<int>(S + 1, -1));
   L.foot_vel.assign(nf, std::vector<int>(S + 1, -1));
   L.force.assign(nf, std::vector<std::array<int, 2>>(S, {-1, -1}));
@@ -146,6 +139,35 @@ Layout make_layout(int num_feet, const PhaseTimeline& timeline, const ProblemOpt
           L.swings.push_back({f, s, s});
       }
   }
+}
+
+}  // namespace
+
+Layout make_layout(int num_feet, const PhaseTimeline& timeline, const ProblemOptions& options,
+                   Variables* variables) {
+  Layout L;
+  const int nf = num_feet;
+  const bool force_ramps = requests_constraint_set(options.constraints, "force_ramp");
+  add_intervals_and_segments(timeline, options, variables, &L);
+  const int S = L.num_segments;
+  // Base knots.
+  for (int k = 0; k <= S; ++k) L.base.push_back(add_variables(variables, 12, -kInf, kInf));
+  // Contact per segment.
+  L.contact.assign(nf, std::vector<bool>(S));
+  for (int f = 0; f < nf; ++f)
+    for (int s = 0; s < S; ++s) L.contact[f][s] = timeline.contact[f][L.seg_interval[s]];
+  // Knots where force ramps apply: those that some foot's stance passes through. A gait without
+  // such a foot at a contact switch (a trot whose diagonal pairs swap at one instant) would have
+  // no force at all there, a free fall the dynamics cannot follow (every trot with 'all' stalled):
+  // its switch knots keep their force variables, as without ramps.
+  std::vector<bool> ramp_knot(S + 1, false);
+  if (force_ramps)
+    for (int k = 1; k < S; ++k)
+      for (int f = 0; f < nf; ++f)
+        if (L.contact[f][k - 1] && L.contact[f][k]) ramp_knot[k] = true;
+
+  // Feet.
+  add_feet(nf, ramp_knot, variables, &L);
   return L;
 }
 

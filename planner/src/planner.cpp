@@ -43,6 +43,215 @@ std::vector<std::string> path_shape_kinds(const SrbdProblem& problem) {
   return kinds;
 }
 
+// The timeline a request plans over and the start it plans from: a re-plan continues its
+// previous plan's timeline from `warm.shift` (from the measured start, else the plan's state
+// there); a fresh plan makes one from the gait, with a lead-in long enough for the force ramps.
+struct PlanSetup {
+  PhaseTimeline timeline;
+  nlohmann::json rest_lead_in;  // the lead-in a plan from rest was given (with_rest_lead_in)
+  SrbdProblem::StartState start;
+  bool has_start = false;
+  const SrbdProblem::StartState* start_ptr() const { return has_start ? &start : nullptr; }
+};
+
+PlanSetup replan_setup(const robot::RobotModel& robot, const std::vector<std::string>& feet,
+                       const WarmStart& warm) {
+  PlanSetup setup;
+  const Trajectory& prev = *warm.previous;
+  if (prev.feet != feet)
+    throw RequestError("init.feet", "the plan's feet differ from robot " + robot.name + "'s");
+  check_plan_horizon(prev.duration, "init.duration");
+  if (!(warm.shift >= 0.0 && warm.shift < prev.duration))
+    throw RequestError("start_time", "must be within [0, " + std::to_string(prev.duration) +
+                                         ") s, the duration of the plan it continues");
+  setup.timeline = timeline_of(prev);
+  if (warm.shift > 0.0) setup.timeline = setup.timeline.cropped(warm.shift);
+  if (warm.start) {
+    if (warm.start->foot_position.size() != feet.size() ||
+        warm.start->foot_velocity.size() != feet.size())
+      throw std::invalid_argument(
+          "warm-start state has " + std::to_string(warm.start->foot_position.size()) +
+          " feet, robot " + robot.name + " has " + std::to_string(feet.size()));
+    setup.start = *warm.start;
+  } else {
+    setup.start = start_state_of(prev, warm.shift);
+  }
+  setup.has_start = true;
+  return setup;
+}
+
+PlanSetup fresh_setup(const robot::RobotModel& robot, const std::vector<std::string>& feet,
+                      const PlannerOptions& options) {
+  PlanSetup setup;
+  Gait gait = load_gait(resolve_gait_path(options.gait));
+  // A plan from rest with force ramps: the second foot to lift off may carry half the weight W
+  // at the start (statics puts the crawl's LF on the loaded diagonal once LH has shed its load)
+  // and sheds it at force_rate_max r at most, in W / (2 r); its lift-off comes no earlier than
+  // twice that, W / r (0.41 s for HyQ at 2000 N/s), the gait's lead-in lengthened and the
+  // duration kept. The flat 2.4 s `all` crawl lifted LF off at 0.22 s: LF shed its load at
+  // nearly the full rate onto the right feet alone while LH swung, which threw the base 26.6 cm
+  // to the left, and the path-shape rows could not be met (docs/design.md §6.4 "Path shape").
+  // The robot's feasibility defaults only when force_ramp is asked for: computing them can
+  // throw for a robot whose limits a `baseline` plan never reads.
+  if (options.rest_boundaries && requests_constraint_set(options.constraints, "force_ramp")) {
+    const FeasibilityOptions feasibility =
+        feasibility_options(robot, options.feasibility_settings);
+    if (feasibility.force_rate_max > 0.0) {
+      const Gait led = with_rest_lead_in(gait, feet, options.cycles, options.duration,
+                                         robot.mass * kGravity / feasibility.force_rate_max);
+      if (led.lead_in != gait.lead_in)
+        setup.rest_lead_in = {{"gait_lead_in", gait.lead_in}, {"lead_in", led.lead_in}};
+      gait = led;
+    }
+  }
+  setup.timeline = make_timeline(gait, feet, options.cycles, options.duration);
+  // Without a duration the horizon is the gait's period times its cycles (plus lead-in/out).
+  check_plan_horizon(setup.timeline.duration(), options.duration > 0.0 ? "duration" : "cycles");
+  return setup;
+}
+
+double seconds_since(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+// What a solve of `problem` starts with: a re-plan's Ipopt options and first-feasible stop.
+std::vector<std::pair<std::string, std::string>> warm_ipopt_options(bool warm) {
+  if (!warm) return {};
+  // The shifted previous plan is feasible already when the start lies on it: its knots are
+  // kept (PhaseTimeline::first_interval_elapsed) and so are its constraint points
+  // (Layout::segment_points), so the check at iteration 0 returns it verified (pallet_15
+  // shifted by 0.1, 0.37 or 2.5 s: 0 iterations; by 1 s: 2). Ipopt's defaults would push the
+  // slacks 1 % away from their bounds and start the barrier at mu = 0.1; a small barrier and
+  // push keep the warm start when it needs iterations. The barrier stays adaptive: a monotone
+  // one, from a measured start 1 cm beside the plan and 0.05 m/s faster, ended infeasible after
+  // 102 iterations (6.7 s); adaptive: optimal in 3 (offsets of 3 mm to 4 cm: 3-5).
+  return {{"mu_init", "1e-4"}, {"bound_push", "1e-5"}, {"bound_frac", "1e-5"}};
+}
+
+// The solve, and when it fails with the path-shape rows (monotone_progress, lateral_corridor,
+// swing_apex: preferences on the plan's shape, not feasibility; infeasible, stalled, or past
+// kShapedMaxIterations) once more without them, within what is left of max_time; `problem` is
+// then the unshaped one. Returns plan.json's "path_shape_fallback" (null: none). Not after a
+// cancellation, nor when the time limit is spent.
+nlohmann::json solve_with_shape_fallback(std::unique_ptr<SrbdProblem>* problem,
+                                         const robot::RobotModel& robot,
+                                         const terrain::HeightField& plan_terrain,
+                                         const PlanSetup& setup,
+                                         const PlannerOptions& problem_options,
+                                         const PlannerOptions& options, const WarmStart& warm,
+                                         std::chrono::steady_clock::time_point t_start,
+                                         SolveResult* result) {
+  const auto ipopt_options = warm_ipopt_options(warm.previous != nullptr);
+  SolverOptions solver_options = options;
+  // A warm start continues a plan that was optimised already: stop at its first verified
+  // feasible iterate, as without an objective (a start on the plan re-verifies in 0 iterations).
+  if (warm.previous) solver_options.stop_at_first_feasible = true;
+  const std::vector<std::string> shape_kinds = path_shape_kinds(**problem);
+  const int max_iterations = solver_options.max_iterations;
+  if (!shape_kinds.empty())
+    solver_options.max_iterations = std::min(max_iterations, kShapedMaxIterations);
+  *result = solve(**problem, solver_options, ipopt_options);
+  solver_options.max_iterations = max_iterations;
+  auto time_left = [&] {
+    return options.max_time > 0.0 ? options.max_time - seconds_since(t_start) : 1.0;
+  };
+  if (result->success || shape_kinds.empty() || result->status == "stopped" ||
+      result->status == "time_limit" || time_left() <= 0.0 ||
+      (options.should_stop && options.should_stop()))
+    return nullptr;
+  const SolveResult shaped = *result;
+  nlohmann::json shape_fallback = {{"dropped", shape_kinds},
+                                   {"shaped_status", shaped.status},
+                                   {"shaped_iterations", shaped.iterations},
+                                   {"shaped_max_violation", shaped.max_violation}};
+  const auto left = violated_families(**problem, shaped.x, options.tolerance);
+  if (!left.empty()) shape_fallback["shaped_violated"] = describe_violations(left);
+  if (options.verbose)
+    std::fprintf(stderr,
+                 "plan: the solve with the path-shape rows ended '%s' after %d iterations; "
+                 "solving again without them\n",
+                 shaped.status.c_str(), shaped.iterations);
+  PlannerOptions unshaped = problem_options;
+  for (const char* name : {"monotone_progress", "lateral_corridor", "swing_apex_rise"})
+    unshaped.feasibility_settings.emplace_back(name, 0.0);
+  *problem = std::make_unique<SrbdProblem>(robot, plan_terrain, setup.timeline, unshaped,
+                                           setup.start_ptr());
+  if (warm.previous) (*problem)->warm_start_from(*warm.previous, warm.shift);
+  // What is left after the rebuild too (a second problem of an 11 s plan takes tens of ms).
+  if (options.max_time > 0.0) solver_options.max_time = std::max(time_left(), 1e-3);
+  *result = solve(**problem, solver_options, ipopt_options);
+  result->iterations += shaped.iterations;
+  result->feasibility_iterations += shaped.feasibility_iterations;
+  result->objective_iterations += shaped.objective_iterations;
+  result->polish_iterations += shaped.polish_iterations;
+  result->wall_s += shaped.wall_s;
+  return shape_fallback;
+}
+
+// plan.json's solver and request figures (solver, objective and its phases, the request's
+// options, the line followed, the fallbacks and the measured start's own violations).
+void record_solve(const SrbdProblem& problem, const PlanOutcome& out,
+                  const PlannerOptions& options, const PlannerOptions& problem_options,
+                  const nlohmann::json& shape_fallback, const nlohmann::json& rest_lead_in,
+                  Trajectory* traj) {
+  auto& st = traj->solver;
+  st.status = out.solve.status;
+  st.iterations = out.solve.iterations;
+  st.wall_s = out.solve.wall_s;
+  st.n_variables = problem.num_free_variables();
+  st.n_constraints = problem.num_constraints();
+  auto& extra = traj->extra;
+  extra["solver_max_violation"] = out.solve.max_violation;
+  extra["solver_termination"] = out.solve.termination;
+  if (problem.has_objective()) {
+    extra["objective"] = problem.eval_objective(out.solve.x.data());
+    // The two phases of the solve (SolverOptions::objective_max_iterations).
+    extra["solver_phases"] = {{"feasibility_iterations", out.solve.feasibility_iterations},
+                              {"objective_iterations", out.solve.objective_iterations},
+                              {"polish_iterations", out.solve.polish_iterations},
+                              {"objective_at_feasible_point", out.solve.objective_start}};
+  }
+  extra["cycles"] = options.cycles;
+  extra["optimize_timing"] = options.optimize_timing;
+  extra["constraints"] = options.constraints;
+  // A re-plan records the line it followed, so that a re-plan of it follows the same one.
+  if (problem_options.has_path_line) extra["path_line"] = path_line_json(problem_options);
+  if (!options.feasibility_settings.empty()) {
+    nlohmann::json fs = nlohmann::json::object();
+    for (const auto& [k, v] : options.feasibility_settings) fs[k] = v;
+    extra["feasibility_settings"] = fs;
+  }
+  if (!shape_fallback.is_null()) extra["path_shape_fallback"] = shape_fallback;
+  if (!rest_lead_in.is_null()) extra["rest_lead_in"] = rest_lead_in;
+  // A measured start's own violations (rows on it alone, left out of the solve).
+  if (!problem.start_excess().empty()) extra["start_excess"] = problem.start_excess();
+}
+
+// A failed solve's message (status, iterations, the shaped attempt, the largest violation and
+// which constraints stay violated, on which feet and when: what a user can change — the goal,
+// the duration, the gait, a constraint set — depends on it); plan.json keeps what is the plan's
+// (no wall-clock figure): the status and what is violated.
+void record_failure(const SrbdProblem& problem, const PlannerOptions& options,
+                    const nlohmann::json& shape_fallback, PlanOutcome* out) {
+  std::ostringstream m;
+  m << "the optimiser ended with status '" << out->solve.status << "' after "
+    << out->solve.iterations << " iterations (" << out->solve.wall_s << " s)";
+  if (!shape_fallback.is_null())
+    m << ", solved again without the path-shape rows after "
+      << shape_fallback["shaped_iterations"].get<int>() << " with them ended '"
+      << shape_fallback["shaped_status"].get<std::string>() << "'";
+  m << "; largest constraint violation " << out->solve.max_violation;
+  if (out->solve.status == "stalled")
+    m << ", no 1 % reduction of it in the last " << options.stall_iterations << " iterations";
+  const std::vector<FamilyViolation> left =
+      violated_families(problem, out->solve.x, options.tolerance);
+  const std::string violated = left.empty() ? "" : "still violated: " + describe_violations(left);
+  if (!left.empty()) m << "; " << violated;
+  out->message = m.str();
+  out->trajectory.extra["failure"] =
+      "status '" + out->solve.status + "'" + (violated.empty() ? "" : "; " + violated);
+}
+
 }  // namespace
 
 PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightField& plan_terrain,
@@ -50,71 +259,19 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
                         double sample_dt, const WarmStart& warm) {
   check_plan_request(options, sample_dt);
   const auto t_start = std::chrono::steady_clock::now();
-  auto seconds_since = [](std::chrono::steady_clock::time_point t) {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
-  };
   std::vector<std::string> feet;
   for (const auto& leg : robot.legs) feet.push_back(leg.name);
-  PhaseTimeline timeline;
-  nlohmann::json rest_lead_in;  // the lead-in a plan from rest was given (with_rest_lead_in)
-  SrbdProblem::StartState start;
-  const SrbdProblem::StartState* start_ptr = nullptr;
-  if (warm.previous) {
-    const Trajectory& prev = *warm.previous;
-    if (prev.feet != feet)
-      throw RequestError("init.feet", "the plan's feet differ from robot " + robot.name + "'s");
-    check_plan_horizon(prev.duration, "init.duration");
-    if (!(warm.shift >= 0.0 && warm.shift < prev.duration))
-      throw RequestError("start_time", "must be within [0, " + std::to_string(prev.duration) +
-                                           ") s, the duration of the plan it continues");
-    timeline = timeline_of(prev);
-    if (warm.shift > 0.0) timeline = timeline.cropped(warm.shift);
-    if (warm.start) {
-      if (warm.start->foot_position.size() != feet.size() ||
-          warm.start->foot_velocity.size() != feet.size())
-        throw std::invalid_argument(
-            "warm-start state has " + std::to_string(warm.start->foot_position.size()) +
-            " feet, robot " + robot.name + " has " + std::to_string(feet.size()));
-      start = *warm.start;
-    } else {
-      start = start_state_of(prev, warm.shift);
-    }
-    start_ptr = &start;
-  } else {
-    Gait gait = load_gait(resolve_gait_path(options.gait));
-    // A plan from rest with force ramps: the second foot to lift off may carry half the weight W
-    // at the start (statics puts the crawl's LF on the loaded diagonal once LH has shed its load)
-    // and sheds it at force_rate_max r at most, in W / (2 r); its lift-off comes no earlier than
-    // twice that, W / r (0.41 s for HyQ at 2000 N/s), the gait's lead-in lengthened and the
-    // duration kept. The flat 2.4 s `all` crawl lifted LF off at 0.22 s: LF shed its load at
-    // nearly the full rate onto the right feet alone while LH swung, which threw the base 26.6 cm
-    // to the left, and the path-shape rows could not be met (docs/design.md §6.4 "Path shape").
-    // The robot's feasibility defaults only when force_ramp is asked for: computing them can
-    // throw for a robot whose limits a `baseline` plan never reads.
-    if (options.rest_boundaries && requests_constraint_set(options.constraints, "force_ramp")) {
-      const FeasibilityOptions feasibility =
-          feasibility_options(robot, options.feasibility_settings);
-      if (feasibility.force_rate_max > 0.0) {
-        const Gait led = with_rest_lead_in(gait, feet, options.cycles, options.duration,
-                                           robot.mass * kGravity / feasibility.force_rate_max);
-        if (led.lead_in != gait.lead_in)
-          rest_lead_in = {{"gait_lead_in", gait.lead_in}, {"lead_in", led.lead_in}};
-        gait = led;
-      }
-    }
-    timeline = make_timeline(gait, feet, options.cycles, options.duration);
-    // Without a duration the horizon is the gait's period times its cycles (plus lead-in/out).
-    check_plan_horizon(timeline.duration(), options.duration > 0.0 ? "duration" : "cycles");
-  }
+  const PlanSetup setup =
+      warm.previous ? replan_setup(robot, feet, warm) : fresh_setup(robot, feet, options);
   // A re-plan follows the line of the plan it continues (ProblemOptions::path_line).
   PlannerOptions problem_options = options;
   if (warm.previous && !problem_options.has_path_line)
     set_path_line_of(*warm.previous, &problem_options);
   // A measured start ahead of the plan may return to it (monotone_progress).
   if (warm.previous && warm.start)
-    set_start_lead_of(*warm.previous, warm.shift, start, &problem_options);
-  auto problem =
-      std::make_unique<SrbdProblem>(robot, plan_terrain, timeline, problem_options, start_ptr);
+    set_start_lead_of(*warm.previous, warm.shift, setup.start, &problem_options);
+  auto problem = std::make_unique<SrbdProblem>(robot, plan_terrain, setup.timeline,
+                                               problem_options, setup.start_ptr());
   // An unreachable goal stance otherwise costs seconds of iterations before "infeasible".
   const auto t_reach = std::chrono::steady_clock::now();
   require_reachable(*problem);
@@ -122,104 +279,16 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   if (warm.previous) problem->warm_start_from(*warm.previous, warm.shift);
   const double build_s = seconds_since(t_start);
   PlanOutcome out;
-  std::vector<std::pair<std::string, std::string>> ipopt_options;
-  if (warm.previous) {
-    // The shifted previous plan is feasible already when the start lies on it: its knots are
-    // kept (PhaseTimeline::first_interval_elapsed) and so are its constraint points
-    // (Layout::segment_points), so the check at iteration 0 returns it verified (pallet_15
-    // shifted by 0.1, 0.37 or 2.5 s: 0 iterations; by 1 s: 2). Ipopt's defaults would push the
-    // slacks 1 % away from their bounds and start the barrier at mu = 0.1; a small barrier and
-    // push keep the warm start when it needs iterations. The barrier stays adaptive: a monotone
-    // one, from a measured start 1 cm beside the plan and 0.05 m/s faster, ended infeasible after
-    // 102 iterations (6.7 s); adaptive: optimal in 3 (offsets of 3 mm to 4 cm: 3-5).
-    ipopt_options = {{"mu_init", "1e-4"}, {"bound_push", "1e-5"}, {"bound_frac", "1e-5"}};
-  }
-  SolverOptions solver_options = options;
-  // A warm start continues a plan that was optimised already: stop at its first verified
-  // feasible iterate, as without an objective (a start on the plan re-verifies in 0 iterations).
-  if (warm.previous) solver_options.stop_at_first_feasible = true;
-  // The path-shape rows (monotone_progress, lateral_corridor, swing_apex) are
-  // preferences on the plan's shape, not feasibility: a solve that fails with them (infeasible,
-  // stalled, or past kShapedMaxIterations) is solved once more without them, within what is left
-  // of max_time, and plan.json says so ("path_shape_fallback"; the solver figures cover both
-  // solves). Not after a cancellation, nor when the time limit is spent.
-  const std::vector<std::string> shape_kinds = path_shape_kinds(*problem);
-  const int max_iterations = solver_options.max_iterations;
-  if (!shape_kinds.empty())
-    solver_options.max_iterations = std::min(max_iterations, kShapedMaxIterations);
-  out.solve = solve(*problem, solver_options, ipopt_options);
-  solver_options.max_iterations = max_iterations;
-  nlohmann::json shape_fallback;
-  auto time_left = [&] {
-    return options.max_time > 0.0 ? options.max_time - seconds_since(t_start) : 1.0;
-  };
-  if (!out.solve.success && !shape_kinds.empty() && out.solve.status != "stopped" &&
-      out.solve.status != "time_limit" && time_left() > 0.0 &&
-      !(options.should_stop && options.should_stop())) {
-    const SolveResult shaped = out.solve;
-    shape_fallback = {{"dropped", shape_kinds},
-                      {"shaped_status", shaped.status},
-                      {"shaped_iterations", shaped.iterations},
-                      {"shaped_max_violation", shaped.max_violation}};
-    const auto left = violated_families(*problem, shaped.x, options.tolerance);
-    if (!left.empty()) shape_fallback["shaped_violated"] = describe_violations(left);
-    if (options.verbose)
-      std::fprintf(stderr,
-                   "plan: the solve with the path-shape rows ended '%s' after %d iterations; "
-                   "solving again without them\n",
-                   shaped.status.c_str(), shaped.iterations);
-    PlannerOptions unshaped = problem_options;
-    for (const char* name : {"monotone_progress", "lateral_corridor", "swing_apex_rise"})
-      unshaped.feasibility_settings.emplace_back(name, 0.0);
-    problem = std::make_unique<SrbdProblem>(robot, plan_terrain, timeline, unshaped, start_ptr);
-    if (warm.previous) problem->warm_start_from(*warm.previous, warm.shift);
-    // What is left after the rebuild too (a second problem of an 11 s plan takes tens of ms).
-    if (options.max_time > 0.0) solver_options.max_time = std::max(time_left(), 1e-3);
-    out.solve = solve(*problem, solver_options, ipopt_options);
-    out.solve.iterations += shaped.iterations;
-    out.solve.feasibility_iterations += shaped.feasibility_iterations;
-    out.solve.objective_iterations += shaped.objective_iterations;
-    out.solve.polish_iterations += shaped.polish_iterations;
-    out.solve.wall_s += shaped.wall_s;
-  }
+  const nlohmann::json shape_fallback = solve_with_shape_fallback(
+      &problem, robot, plan_terrain, setup, problem_options, options, warm, t_start, &out.solve);
   const auto t_after_solve = std::chrono::steady_clock::now();
   out.success = out.solve.success;
   if (std::getenv("TERRASTRIDE_DEBUG_CHECKS"))
     for (const auto& [k, v] : problem->violation_by_kind(out.solve.x))
       std::fprintf(stderr, "final violation %s %g\n", k.c_str(), v);
   out.trajectory = sample_solution(*problem, out.solve.x, sample_dt);
-  auto& st = out.trajectory.solver;
-  st.status = out.solve.status;
-  st.iterations = out.solve.iterations;
-  st.wall_s = out.solve.wall_s;
-  st.n_variables = problem->num_free_variables();
-  st.n_constraints = problem->num_constraints();
-  out.trajectory.extra["solver_max_violation"] = out.solve.max_violation;
-  out.trajectory.extra["solver_termination"] = out.solve.termination;
-  if (problem->has_objective()) {
-    out.trajectory.extra["objective"] = problem->eval_objective(out.solve.x.data());
-    // The two phases of the solve (SolverOptions::objective_max_iterations).
-    out.trajectory.extra["solver_phases"] = {
-        {"feasibility_iterations", out.solve.feasibility_iterations},
-        {"objective_iterations", out.solve.objective_iterations},
-        {"polish_iterations", out.solve.polish_iterations},
-        {"objective_at_feasible_point", out.solve.objective_start}};
-  }
-  out.trajectory.extra["cycles"] = options.cycles;
-  out.trajectory.extra["optimize_timing"] = options.optimize_timing;
-  out.trajectory.extra["constraints"] = options.constraints;
-  // A re-plan records the line it followed, so that a re-plan of it follows the same one.
-  if (problem_options.has_path_line) out.trajectory.extra["path_line"] = path_line_json(problem_options);
-  if (!options.feasibility_settings.empty()) {
-    nlohmann::json fs = nlohmann::json::object();
-    for (const auto& [k, v] : options.feasibility_settings) fs[k] = v;
-    out.trajectory.extra["feasibility_settings"] = fs;
-  }
-  if (!shape_fallback.is_null()) out.trajectory.extra["path_shape_fallback"] = shape_fallback;
-  if (!rest_lead_in.is_null()) out.trajectory.extra["rest_lead_in"] = rest_lead_in;
-  // A measured start's own violations (rows on it alone, left out of the solve).
-  if (!problem->start_excess().empty())
-    out.trajectory.extra["start_excess"] = problem->start_excess();
+  record_solve(*problem, out, options, problem_options, shape_fallback, setup.rest_lead_in,
+               &out.trajectory);
   DenseCheckLimits lim;
   lim.friction = options.friction;
   lim.max_normal_force = options.max_normal_force_factor * robot.mass * kGravity;
@@ -235,28 +304,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
                                      {"solve_s", out.solve.wall_s},
                                      {"sample_and_checks_s", seconds_since(t_after_solve)},
                                      {"total_s", seconds_since(t_start)}};
-  if (!out.success) {
-    std::ostringstream m;
-    m << "the optimiser ended with status '" << out.solve.status << "' after "
-      << out.solve.iterations << " iterations (" << out.solve.wall_s << " s)";
-    if (!shape_fallback.is_null())
-      m << ", solved again without the path-shape rows after " << shape_fallback["shaped_iterations"].get<int>()
-        << " with them ended '" << shape_fallback["shaped_status"].get<std::string>() << "'";
-    m << "; largest constraint violation " << out.solve.max_violation;
-    if (out.solve.status == "stalled")
-      m << ", no 1 % reduction of it in the last " << options.stall_iterations << " iterations";
-
-    // Which constraints stay violated, on which feet and when: what a user can change (the goal,
-    // the duration, the gait, a constraint set) depends on it.
-    const std::vector<FamilyViolation> left =
-        violated_families(*problem, out.solve.x, options.tolerance);
-    const std::string violated = left.empty() ? "" : "still violated: " + describe_violations(left);
-    if (!left.empty()) m << "; " << violated;
-    out.message = m.str();
-    // plan.json keeps what is the plan's (no wall-clock figure): the status and what is violated.
-    out.trajectory.extra["failure"] =
-        "status '" + out.solve.status + "'" + (violated.empty() ? "" : "; " + violated);
-  }
+  if (!out.success) record_failure(*problem, options, shape_fallback, &out);
   return out;
 }
 

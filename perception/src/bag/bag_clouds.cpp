@@ -12,9 +12,8 @@ namespace {
 constexpr const char* kPointCloud2 = "sensor_msgs/PointCloud2";
 constexpr const char* kTfMessage = "tf2_msgs/TFMessage";
 
-std::string strip_slash(std::string f) {
-  if (!f.empty() && f.front() == '/') f.erase(0, 1);
-  return f;
+std::string strip_slash(const std::string& f) {
+  return !f.empty() && f.front() == '/' ? f.substr(1) : f;
 }
 
 std::string where(const std::string& path, const BagMessage& m) {
@@ -43,26 +42,17 @@ void merge_damage(BagDamage* into, const BagDamage& d) {
   if (into->problems.empty()) *into = d;
 }
 
-}  // namespace
-
-void read_bag_clouds(const std::string& path, const BagCloudOptions& options,
-                     const std::function<void(PointCloud&&, const BagCloudInfo&)>& on_cloud,
-                     BagCloudStats* stats_out) {
-  if (options.topics.empty()) throw InputError(path + ": no cloud topic given");
-  if (options.fixed_frame.empty()) throw InputError(path + ": no fixed frame given");
-  if (options.every < 1) throw InputError(path + ": every must be >= 1");
-  const std::string fixed = strip_slash(options.fixed_frame);
-  BagCloudStats stats;
-  std::unique_ptr<BagReader> reader = open_bag(path);
-  stats.format = reader->format();
-  const std::set<std::string> wanted(options.topics.begin(), options.topics.end());
-
-  // Pass 1: the transforms, and the first log time (the window's zero).
-  TfBuffer tf;
+// Pass 1 over the bag: its transforms into `tf` and the first log time (the time window's zero)
+// into stats->first_log_ns. Returns the latest /tf stamp.
+int64_t read_transforms(const std::string& path, const BagCloudOptions& options,
+                        BagReader& reader, const std::set<std::string>& wanted, TfBuffer* tf_out,
+                        BagCloudStats* stats_out) {
+  TfBuffer& tf = *tf_out;
+  BagCloudStats& stats = *stats_out;
   int64_t first = std::numeric_limits<int64_t>::max();
   int64_t tf_end = std::numeric_limits<int64_t>::min();  // the latest /tf stamp
   std::set<std::string> seen_topics;
-  reader->read(
+  reader.read(
       [&](const BagTopic& t) {
         seen_topics.insert(t.name);
         if (t.name == options.tf_topic || t.name == options.tf_static_topic) {
@@ -93,16 +83,21 @@ void read_bag_clouds(const std::string& path, const BagCloudOptions& options,
         }
       });
   stats.first_log_ns = first == std::numeric_limits<int64_t>::max() ? 0 : first;
-  // The topics: present, and clouds.
+  return tf_end;
+}
+
+// The cloud topics asked for: present, PointCloud2, in an encoding that is read.
+void check_cloud_topics(const std::string& path, const BagCloudOptions& options,
+                        BagReader& reader, BagCloudStats* stats) {
   std::map<std::string, BagTopic> by_name;
-  for (const auto& t : reader->topics()) by_name[t.name] = t;
+  for (const auto& t : reader.topics()) by_name[t.name] = t;
   for (const auto& name : options.topics) {
     auto it = by_name.find(name);
     if (it == by_name.end()) {
       std::string list;
       for (const auto& [n, t] : by_name)
         if (t.type == kPointCloud2) list += (list.empty() ? "" : ", ") + n;
-      throw InputError(path + ": " + damage_first(reader->damage()) + "no topic " + name +
+      throw InputError(path + ": " + damage_first(reader.damage()) + "no topic " + name +
                        " (PointCloud2 topics: " + (list.empty() ? "none" : list) + ")");
     }
     if (it->second.type != kPointCloud2)
@@ -111,8 +106,49 @@ void read_bag_clouds(const std::string& path, const BagCloudOptions& options,
     if (it->second.encoding == MessageEncoding::kOther)
       throw InputError(path + ": topic " + name + " is encoded as '" + it->second.encoding_name +
                        "' (CDR and ROS 1 are read)");
-    stats.topics[name];
+    stats->topics[name];
   }
+}
+
+// The damage and skipped clouds joined into the figures; no cloud at all is an error saying why.
+void finish_bag_stats(const std::string& path, const BagDamage& first_damage,
+                      const BagDamage& second_damage, BagCloudStats* stats_out) {
+  BagCloudStats& stats = *stats_out;
+  stats.damage = second_damage;
+  merge_damage(&stats.damage, first_damage);
+  for (const auto& [name, t] : stats.topics)
+    if (t.after_last_transform > 0)
+      stats.damage.problems.push_back(name + ": " + std::to_string(t.after_last_transform) +
+                                      " clouds stamped after the last readable transform skipped");
+  size_t used = 0;
+  for (const auto& [n, t] : stats.topics) used += t.used;
+  if (used == 0) {
+    std::string why;
+    for (const auto& [n, t] : stats.topics)
+      why += (why.empty() ? "" : "; ") + n + ": " + std::to_string(t.messages) + " messages, " +
+             std::to_string(t.outside_window) + " outside the time window";
+    throw InputError(path + ": " + damage_first(stats.damage) + "no cloud selected (" + why + ")");
+  }
+}
+
+}  // namespace
+
+void read_bag_clouds(const std::string& path, const BagCloudOptions& options,
+                     const std::function<void(PointCloud&&, const BagCloudInfo&)>& on_cloud,
+                     BagCloudStats* stats_out) {
+  if (options.topics.empty()) throw InputError(path + ": no cloud topic given");
+  if (options.fixed_frame.empty()) throw InputError(path + ": no fixed frame given");
+  if (options.every < 1) throw InputError(path + ": every must be >= 1");
+  const std::string fixed = strip_slash(options.fixed_frame);
+  BagCloudStats stats;
+  std::unique_ptr<BagReader> reader = open_bag(path);
+  stats.format = reader->format();
+  const std::set<std::string> wanted(options.topics.begin(), options.topics.end());
+
+  // Pass 1: the transforms, and the first log time (the window's zero).
+  TfBuffer tf;
+  const int64_t tf_end = read_transforms(path, options, *reader, wanted, &tf, &stats);
+  check_cloud_topics(path, options, *reader, &stats);
   const int64_t lo = options.start ? window_bound(*options.start, stats.first_log_ns)
                                    : std::numeric_limits<int64_t>::min();
   const int64_t hi = options.end ? window_bound(*options.end, stats.first_log_ns)
@@ -169,21 +205,7 @@ void read_bag_clouds(const std::string& path, const BagCloudOptions& options,
                                    d.non_finite};
                  on_cloud(std::move(cloud), info);
                });
-  stats.damage = reader->damage();
-  merge_damage(&stats.damage, first_damage);
-  for (const auto& [name, t] : stats.topics)
-    if (t.after_last_transform > 0)
-      stats.damage.problems.push_back(name + ": " + std::to_string(t.after_last_transform) +
-                                      " clouds stamped after the last readable transform skipped");
-  size_t used = 0;
-  for (const auto& [n, t] : stats.topics) used += t.used;
-  if (used == 0) {
-    std::string why;
-    for (const auto& [n, t] : stats.topics)
-      why += (why.empty() ? "" : "; ") + n + ": " + std::to_string(t.messages) + " messages, " +
-             std::to_string(t.outside_window) + " outside the time window";
-    throw InputError(path + ": " + damage_first(stats.damage) + "no cloud selected (" + why + ")");
-  }
+  finish_bag_stats(path, first_damage, reader->damage(), &stats);
   if (stats_out) *stats_out = std::move(stats);
 }
 

@@ -52,53 +52,27 @@ void joint_excess_values(const robot::LegModel& leg, const Vec3<T>& base, const 
 
 }  // namespace
 
-void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
-  const Layout& L = problem.layout();
-  const int S = L.num_segments;
-  const double margin = options.joint_margin;
-  const double t_soft = options.joints_softmax;
-  const int nf = static_cast<int>(problem.robot().legs.size());
-  std::vector<std::vector<double>> lo(nf, std::vector<double>(3)), hi = lo;
-  for (int f = 0; f < nf; ++f) {
-    const robot::LegModel& leg = problem.robot().legs[f];
-    for (int j = 0; j < 3; ++j) {
-      lo[f][j] = leg.q_min[j] + margin;
-      hi[f][j] = leg.q_max[j] - margin;
-      if (!(lo[f][j] < hi[f][j]))
-        throw std::invalid_argument("joint margin " + std::to_string(margin) +
-                                    " rad leaves no range for joint " + std::to_string(j) +
-                                    " of leg " + leg.name);
-    }
-  }
+namespace {
+
+// The joints' bounds: each range shrunk by the margin, then widened near a measured start or a
+// pinned end that lies outside it.
+struct JointBounds {
+  std::vector<std::vector<double>> lo, hi;
   // A measured start outside a joint's range (knot 0 fixed, !starts_at_rest): its excess below /
   // above each bound, the room the rows after it get (start_return.hpp); likewise a session
   // step's pinned end (the last knot fixed, !ends_at_rest), the room the rows before it get.
-  const double span = options.start_return;
-  const double t_end = L.nominal_knot_time[S];
-  std::vector<std::vector<double>> below(nf, std::vector<double>(3, 0.0)), above = below,
-                                   below_end = below, above_end = below;
-  auto excess = [&](int f, const MeasuredFootPose& m, std::vector<double>* b,
-                    std::vector<double>* a) {
-    double q[3];
-    joint_angle_rows(problem.robot().legs[f], m.base, m.euler, m.foot, q);
-    for (int j = 0; j < 3; ++j) {
-      (*b)[j] = std::max(0.0, lo[f][j] - q[j]);
-      (*a)[j] = std::max(0.0, q[j] - hi[f][j]);
-    }
-  };
-  for (int f = 0; f < nf; ++f) {
-    MeasuredFootPose m;
-    if (measured_foot_pose(problem, f, &m)) excess(f, m, &below[f], &above[f]);
-    if (pinned_end_foot_pose(problem, f, &m)) excess(f, m, &below_end[f], &above_end[f]);
-  }
+  std::vector<std::vector<double>> below, above, below_end, above_end;
+  double span = 0.0, t_end = 0.0;
+
   // The bounds of foot f's rows at nominal time t > 0 (knot 0's stay, and the end's: a violated
-  // one is a constant, left out by add_piece).
-  auto widened = [&](int f, double t, std::vector<double>* l, std::vector<double>* u) {
+  // one is a constant, left out by add_piece). Returns the merged row's room: its largest value
+  // is the largest excess.
+  double widened(int f, double t, std::vector<double>* l, std::vector<double>* u) const {
     *l = lo[f];
     *u = hi[f];
     const double w = t > 0.0 ? start_return_weight(t, span) : 0.0;
     const double we = end_return_weight(t, t_end, span);
-    double most = 0.0;  // the merged row's room: its largest value is the largest excess
+    double most = 0.0;
     for (int j = 0; j < 3; ++j) {
       const double b = std::max(below[f][j] * w, below_end[f][j] * we);
       const double a = std::max(above[f][j] * w, above_end[f][j] * we);
@@ -107,13 +81,58 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
       most = std::max({most, b, a});
     }
     return most;
+  }
+};
+
+JointBounds joint_bounds(const SrbdProblem& problem, const FeasibilityOptions& options) {
+  const Layout& L = problem.layout();
+  const double margin = options.joint_margin;
+  const int nf = static_cast<int>(problem.robot().legs.size());
+  JointBounds jb;
+  jb.lo.assign(nf, std::vector<double>(3));
+  jb.hi = jb.lo;
+  for (int f = 0; f < nf; ++f) {
+    const robot::LegModel& leg = problem.robot().legs[f];
+    for (int j = 0; j < 3; ++j) {
+      jb.lo[f][j] = leg.q_min[j] + margin;
+      jb.hi[f][j] = leg.q_max[j] - margin;
+      if (!(jb.lo[f][j] < jb.hi[f][j]))
+        throw std::invalid_argument("joint margin " + std::to_string(margin) +
+                                    " rad leaves no range for joint " + std::to_string(j) +
+                                    " of leg " + leg.name);
+    }
+  }
+  jb.span = options.start_return;
+  jb.t_end = L.nominal_knot_time[L.num_segments];
+  jb.below.assign(nf, std::vector<double>(3, 0.0));
+  jb.above = jb.below_end = jb.above_end = jb.below;
+  auto excess = [&](int f, const MeasuredFootPose& m, std::vector<double>* b,
+                    std::vector<double>* a) {
+    double q[3];
+    joint_angle_rows(problem.robot().legs[f], m.base, m.euler, m.foot, q);
+    for (int j = 0; j < 3; ++j) {
+      (*b)[j] = std::max(0.0, jb.lo[f][j] - q[j]);
+      (*a)[j] = std::max(0.0, q[j] - jb.hi[f][j]);
+    }
   };
-  // Every knot of every foot: one piece each (foot f's knots 0..S, then the next foot's).
+  for (int f = 0; f < nf; ++f) {
+    MeasuredFootPose m;
+    if (measured_foot_pose(problem, f, &m)) excess(f, m, &jb.below[f], &jb.above[f]);
+    if (pinned_end_foot_pose(problem, f, &m)) excess(f, m, &jb.below_end[f], &jb.above_end[f]);
+  }
+  return jb;
+}
+
+// Every knot of every foot: one piece each (foot f's knots 0..S, then the next foot's).
+void add_knot_joint_rows(SrbdProblem& problem, const JointBounds& jb, double t_soft) {
+  const Layout& L = problem.layout();
+  const int nf = static_cast<int>(problem.robot().legs.size());
   for (int f = 0; f < nf; ++f) {
     const robot::LegModel leg = problem.robot().legs[f];
-    for (int k = 0; k <= S; ++k) {
+    const std::vector<double> lo = jb.lo[f], hi = jb.hi[f];
+    for (int k = 0; k <= L.num_segments; ++k) {
       std::vector<double> lk, hk;
-      const double room = widened(f, L.nominal_knot_time[k], &lk, &hk);
+      const double room = jb.widened(f, L.nominal_knot_time[k], &lk, &hk);
       LocalVars lv;
       const auto p = lv.add3(L.foot_pos[f][k]);
       const auto r = lv.add3(L.base[k]);
@@ -123,8 +142,8 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
           using T = std::decay_t<decltype(*g)>;
           T values[6];
           int n = 0;
-          joint_excess_values(leg, gather3(x, r), gather3(x, e), gather3(x, p), lo[f], hi[f],
-                              values, &n);
+          joint_excess_values(leg, gather3(x, r), gather3(x, e), gather3(x, p), lo, hi, values,
+                              &n);
           g[0] = feasibility::soft_max(values, n, t_soft);
         }));
         continue;
@@ -134,69 +153,92 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
       }));
     }
   }
-  // Swing feet move fast between knots (the flat crawl's 0.33 m steps take 0.16 s): points
-  // inside each swing segment as well, a quarter of it apart. Measured on pallet_15 baseline,joints
-  // without these rows: a swinging RF foot passed 0.17 deg beyond HFE's limit between two knots;
-  // with the middle only, the pallet_15 trot to 1.5,0,0 with `all` put a landing LH foot 0.9 deg
-  // beyond HFE's limit at 0.91-0.92 s, between the middle and the end of its last swing segment
-  // (off-path suite, exit 4).
-  constexpr double kSwingPoints[3] = {0.25, 0.5, 0.75};
-  for (int f = 0; f < nf; ++f) {
-    const robot::LegModel leg = problem.robot().legs[f];
-    for (int s = 0; s < S; ++s) {
-      if (L.contact[f][s]) continue;
-      if (t_soft > 0.0) {
-        // Merged: the three points share the segment's Hermite variables, so one piece and one
-        // row hold them all (its clique is each point's).
-        LocalVars lv;
-        const HermiteLocal rp = add_base_position(lv, L, s, 0.5, false);
-        const HermiteLocal ep = add_base_euler(lv, L, s, 0.5, false);
-        const HermiteLocal fp = add_foot_position(lv, L, f, s, 0.5, false);
-        const int dur = add_segment_duration(lv, L, s);
-        const double frac = L.seg_fraction[s];
-        // The largest room of the three points: the start's shrinks (largest at the first), the
-        // pinned end's grows (largest at the last).
-        std::vector<double> lk, hk;
-        double room = 0.0;
-        for (const double sigma : kSwingPoints)
-          room = std::max(room, widened(f, nominal_point_time(L, s, sigma), &lk, &hk));
-        problem.add_piece(make_piece("joints", lv, {-kInf}, {room}, [=](const auto* x, auto* g) {
-          using T = std::decay_t<decltype(*g)>;
-          const T h = x[dur] * frac;
-          T values[18];
-          int n = 0;
-          for (const double sigma : kSwingPoints) {
-            Vec3<T> base, euler, foot;
-            hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
-            hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
-            hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
-            joint_excess_values(leg, base, euler, foot, lo[f], hi[f], values, &n);
-          }
-          g[0] = feasibility::soft_max(values, n, t_soft);
-        }));
-        continue;
-      }
-      for (const double sigma : kSwingPoints) {
-        LocalVars lv;
-        const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
-        const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
-        const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, true);
-        const int dur = add_segment_duration(lv, L, s);
-        const double frac = L.seg_fraction[s];
-        std::vector<double> lk, hk;
-        widened(f, nominal_point_time(L, s, sigma), &lk, &hk);
-        problem.add_piece(make_piece("joints", lv, lk, hk, [=](const auto* x, auto* g) {
-          using T = std::decay_t<decltype(*g)>;
-          const T h = x[dur] * frac;
-          Vec3<T> base, euler, foot;
-          hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
-          hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
-          hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
-          joint_angle_rows(leg, base, euler, foot, g);
-        }));
-      }
+}
+
+// Swing feet move fast between knots (the flat crawl's 0.33 m steps take 0.16 s): points
+// inside each swing segment as well, a quarter of it apart. Measured on pallet_15 baseline,joints
+// without these rows: a swinging RF foot passed 0.17 deg beyond HFE's limit between two knots;
+// with the middle only, the pallet_15 trot to 1.5,0,0 with `all` put a landing LH foot 0.9 deg
+// beyond HFE's limit at 0.91-0.92 s, between the middle and the end of its last swing segment
+// (off-path suite, exit 4).
+constexpr double kSwingPoints[3] = {0.25, 0.5, 0.75};
+
+// Merged: the three points of a swing segment share its Hermite variables, so one piece and one
+// row hold them all (its clique is each point's).
+void add_merged_swing_joint_row(SrbdProblem& problem, const JointBounds& jb, int f, int s,
+                                double t_soft) {
+  const Layout& L = problem.layout();
+  const robot::LegModel leg = problem.robot().legs[f];
+  const std::vector<double> lo = jb.lo[f], hi = jb.hi[f];
+  LocalVars lv;
+  const HermiteLocal rp = add_base_position(lv, L, s, 0.5, false);
+  const HermiteLocal ep = add_base_euler(lv, L, s, 0.5, false);
+  const HermiteLocal fp = add_foot_position(lv, L, f, s, 0.5, false);
+  const int dur = add_segment_duration(lv, L, s);
+  const double frac = L.seg_fraction[s];
+  // The largest room of the three points: the start's shrinks (largest at the first), the
+  // pinned end's grows (largest at the last).
+  std::vector<double> lk, hk;
+  double room = 0.0;
+  for (const double sigma : kSwingPoints)
+    room = std::max(room, jb.widened(f, nominal_point_time(L, s, sigma), &lk, &hk));
+  problem.add_piece(make_piece("joints", lv, {-kInf}, {room}, [=](const auto* x, auto* g) {
+    using T = std::decay_t<decltype(*g)>;
+    const T h = x[dur] * frac;
+    T values[18];
+    int n = 0;
+    for (const double sigma : kSwingPoints) {
+      Vec3<T> base, euler, foot;
+      hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
+      hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
+      hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
+      joint_excess_values(leg, base, euler, foot, lo, hi, values, &n);
     }
+    g[0] = feasibility::soft_max(values, n, t_soft);
+  }));
+}
+
+// One piece per swing point, three rows each (the joints' angles within their widened bounds).
+void add_swing_point_joint_rows(SrbdProblem& problem, const JointBounds& jb, int f, int s) {
+  const Layout& L = problem.layout();
+  const robot::LegModel leg = problem.robot().legs[f];
+  for (const double sigma : kSwingPoints) {
+    LocalVars lv;
+    const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
+    const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
+    const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, true);
+    const int dur = add_segment_duration(lv, L, s);
+    const double frac = L.seg_fraction[s];
+    std::vector<double> lk, hk;
+    jb.widened(f, nominal_point_time(L, s, sigma), &lk, &hk);
+    problem.add_piece(make_piece("joints", lv, lk, hk, [=](const auto* x, auto* g) {
+      using T = std::decay_t<decltype(*g)>;
+      const T h = x[dur] * frac;
+      Vec3<T> base, euler, foot;
+      hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
+      hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
+      hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
+      joint_angle_rows(leg, base, euler, foot, g);
+    }));
   }
+}
+
+}  // namespace
+
+void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
+  const JointBounds jb = joint_bounds(problem, options);
+  const double t_soft = options.joints_softmax;
+  add_knot_joint_rows(problem, jb, t_soft);
+  const Layout& L = problem.layout();
+  const int nf = static_cast<int>(problem.robot().legs.size());
+  for (int f = 0; f < nf; ++f)
+    for (int s = 0; s < L.num_segments; ++s) {
+      if (L.contact[f][s]) continue;
+      if (t_soft > 0.0)
+        add_merged_swing_joint_row(problem, jb, f, s, t_soft);
+      else
+        add_swing_point_joint_rows(problem, jb, f, s);
+    }
 }
 
 }  // namespace terrastride::planner
