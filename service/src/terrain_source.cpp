@@ -10,43 +10,26 @@
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/terrain/map_build.hpp"
+#include "terrastride/terrain/terrain_open.hpp"
 #include "terrastride/service/cli.hpp"
 
 namespace terrastride::service {
 
 TerrainSource load_terrain_source(const std::string& spec, bool smooth_scene,
                                   const std::string& file_hint) {
-  namespace fs = std::filesystem;
+  terrain::TerrainOpenOptions options;
+  options.smooth_scene = smooth_scene;
+  options.file_hint = file_hint;
+  options.folder_octomap = false;
   TerrainSource t;
   t.spec = spec;
   try {
-    if (fs::is_directory(spec)) {
-      t.map = terrain::load_terrain_dir(spec);
-      return t;
-    }
-    if (perception::is_octomap_file(spec) && fs::exists(spec)) {
-      // Built in memory with `terrastride map`'s defaults for an OctoMap (its own resolution).
-      terrain::OctreeMapInput input = terrain::read_map_octomap(spec);
-      terrain::MapBuildOptions options;
-      options.grid.resolution = 0;
-      terrain::MapBuild build = terrain::build_terrain_map_from_octree(input, options);
-      t.map = std::move(build.map);
-      t.octree = std::shared_ptr<const octomap::OcTree>(std::move(build.octree));
-      return t;
-    }
-    if (fs::exists(spec)) throw CommandError("--terrain " + spec + ": " + file_hint);
-    if (!terrain::is_scene_name(spec)) {
-      throw CommandError("--terrain " + spec +
-                         ": neither a terrain directory nor a scene name (scenes: " +
-                         terrain::scene_names_text() + ")");
-    }
-    t.scene = terrain::make_scene(spec);
-    // A 2 cm C2 B-spline of the rasterised scene for the optimiser; checks on the exact scene.
-    if (smooth_scene) t.map = terrain::TerrainMap::from_scene(*t.scene, 0.02, {});
-  } catch (const perception::InputError& e) {
-    throw CommandError(std::string("--terrain ") + spec + ": " + e.what());
-  } catch (const std::invalid_argument& e) {
-    throw CommandError(std::string("--terrain ") + spec + ": " + e.what());
+    terrain::OpenedTerrain opened = terrain::open_terrain({spec}, options);
+    t.scene = std::move(opened.scene);
+    t.map = std::move(opened.map);
+    t.octree = std::move(opened.octree);
+  } catch (const terrain::TerrainOpenError& e) {
+    throw CommandError(std::string("--terrain ") + e.what());
   }
   return t;
 }

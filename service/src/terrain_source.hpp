@@ -18,8 +18,8 @@ namespace terrastride::service {
 
 struct TerrainSource {
   std::string spec;
-  std::unique_ptr<terrain::Scene> scene;     // SCENE: the exact terrain
-  std::unique_ptr<terrain::TerrainMap> map;  // DIR: its map; SCENE: the 2 cm B-spline (if asked)
+  std::shared_ptr<const terrain::Scene> scene;     // SCENE: the exact terrain
+  std::shared_ptr<const terrain::TerrainMap> map;  // DIR: its map; SCENE: the 2 cm B-spline (if asked)
   // FILE.bt|FILE.ot: the OctoMap itself (the map is built from it in memory); null otherwise (a
   // DIR's octomap.bt is read by check_terrain_for).
   std::shared_ptr<const octomap::OcTree> octree;
@@ -31,8 +31,9 @@ struct TerrainSource {
   std::string kind() const { return scene ? "scene" : "map"; }
 };
 
-// Throws CommandError naming "--terrain SPEC". `smooth_scene`: also build a scene's smooth map
-// (for planning). `file_hint`: the advice given when SPEC is an existing file.
+// terrain::open_terrain for one spec (no clouds; a folder's octomap.bt is read by
+// check_terrain_for). Throws CommandError naming "--terrain SPEC". `smooth_scene`: also build a
+// scene's smooth map (for planning). `file_hint`: the advice given when SPEC is an existing file.
 TerrainSource load_terrain_source(const std::string& spec, bool smooth_scene,
                                   const std::string& file_hint);
 
