@@ -19,7 +19,7 @@
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/robot/geometry.hpp"
 #include "terrastride/service/cli.hpp"
-#include "terrain_source.hpp"
+#include "common/terrain_source.hpp"
 
 namespace terrastride::service::foxglove {
 

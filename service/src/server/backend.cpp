@@ -10,7 +10,7 @@
 #include <cmath>
 #include <filesystem>
 
-#include "terrain_source.hpp"
+#include "common/terrain_source.hpp"
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/plan_io.hpp"
 

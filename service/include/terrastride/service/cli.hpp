@@ -37,7 +37,7 @@ Eigen::VectorXd parse_numbers(const std::string& text, int n, const std::string&
 // Runs the command line; returns the process exit code. Never throws.
 int run_cli(int argc, char** argv);
 
-// Subcommands: each service/src/cmd_NAME.cpp defines `void add_NAME_command(CLI::App& app)`,
+// Subcommands: each service/src/cli/cmd_NAME.cpp defines `void add_NAME_command(CLI::App& app)`,
 // registered automatically from the file name (see service/CMakeLists.txt).
 
 }  // namespace terrastride::service

@@ -6,7 +6,7 @@
 
 #include "server/backend.hpp"
 #include "terrastride/collision/checks.hpp"
-#include "terrain_source.hpp"
+#include "common/terrain_source.hpp"
 
 namespace terrastride::service {
 

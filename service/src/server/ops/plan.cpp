@@ -6,10 +6,10 @@
 #include <string>
 #include <vector>
 
-#include "plan_request.hpp"
+#include "common/plan_request.hpp"
 #include "server/backend.hpp"
 #include "server/samples_table.hpp"
-#include "terrain_source.hpp"
+#include "common/terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"

@@ -15,10 +15,10 @@
 #include <string>
 #include <vector>
 
-#include "plan_request.hpp"
+#include "common/plan_request.hpp"
 #include "server/backend.hpp"
 #include "server/samples_table.hpp"
-#include "terrain_source.hpp"
+#include "common/terrain_source.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planning_session.hpp"
 #include "terrastride/planner/request_limits.hpp"

@@ -9,7 +9,7 @@
 #include <vector>
 
 #include "server/backend.hpp"
-#include "simulation_run.hpp"
+#include "common/simulation_run.hpp"
 #include "terrastride/simulation/simulation.hpp"
 
 namespace terrastride::service {

@@ -1,4 +1,4 @@
-#include "plan_request.hpp"
+#include "common/plan_request.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -10,7 +10,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
-#include "report/batch.hpp"
+#include "batch/batch.hpp"
 #include "report/report.hpp"
 #include "report/report_file.hpp"
 #include "report/terrain_input.hpp"

@@ -16,12 +16,12 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
-#include "plan_request.hpp"
+#include "common/plan_request.hpp"
 #include "report/report.hpp"
 #include "report/terrain_input.hpp"
-#include "simulation_run.hpp"
-#include "solver_heap.hpp"
-#include "terrain_source.hpp"
+#include "common/simulation_run.hpp"
+#include "common/solver_heap.hpp"
+#include "common/terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/simulation/simulation.hpp"
 #include "terrastride/perception/atomic_output.hpp"

@@ -1,4 +1,4 @@
-#include "terrain_source.hpp"
+#include "common/terrain_source.hpp"
 
 #include <algorithm>
 #include <filesystem>

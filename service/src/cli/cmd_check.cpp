@@ -9,8 +9,8 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
-#include "simulation_run.hpp"
-#include "terrain_source.hpp"
+#include "common/simulation_run.hpp"
+#include "common/terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/collision/octree_terrain.hpp"
 #include "terrastride/perception/atomic_output.hpp"

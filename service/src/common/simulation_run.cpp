@@ -1,4 +1,4 @@
-#include "simulation_run.hpp"
+#include "common/simulation_run.hpp"
 
 #include <cmath>
 

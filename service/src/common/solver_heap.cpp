@@ -1,4 +1,4 @@
-#include "solver_heap.hpp"
+#include "common/solver_heap.hpp"
 
 #include <malloc.h>
 

@@ -11,10 +11,10 @@
 #include <set>
 #include <sstream>
 
-#include "plan_request.hpp"
-#include "simulation_run.hpp"
-#include "solver_heap.hpp"
-#include "terrain_source.hpp"
+#include "common/plan_request.hpp"
+#include "common/simulation_run.hpp"
+#include "common/solver_heap.hpp"
+#include "common/terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/planner/feasibility.hpp"

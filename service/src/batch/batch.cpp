@@ -1,6 +1,6 @@
 // `report --batch`: one report per scan, each committed on its own, any number of processes over
 // one output folder (batch.hpp describes the folder).
-#include "report/batch.hpp"
+#include "batch/batch.hpp"
 
 #include <fcntl.h>
 #include <sys/file.h>

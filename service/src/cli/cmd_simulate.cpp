@@ -10,14 +10,14 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
-#include "simulation_run.hpp"
-#include "terrain_source.hpp"
+#include "common/simulation_run.hpp"
+#include "common/terrain_source.hpp"
 #include "terrastride/simulation/simulation.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/robot/robot_model.hpp"
-#include "plan_request.hpp"
+#include "common/plan_request.hpp"
 #include "terrastride/planner/request_limits.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/service/client.hpp"

@@ -8,7 +8,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
-#include "terrain_source.hpp"
+#include "common/terrain_source.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/cli.hpp"

@@ -6,7 +6,7 @@
 
 namespace terrastride::service {
 
-// One declaration per service/src/cmd_NAME.cpp (see service/CMakeLists.txt).
+// One declaration per service/src/cli/cmd_NAME.cpp (see service/CMakeLists.txt).
 #define TERRASTRIDE_COMMAND(name) void add_##name##_command(CLI::App& app);
 #include "terrastride_commands.inc"
 #undef TERRASTRIDE_COMMAND
