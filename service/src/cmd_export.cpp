@@ -31,6 +31,16 @@ void add_export_command(CLI::App& app) {
   cmd->add_option("--foot-radius", *radii, "Safety-margin layers, e.g. 0.02,0.05");
   cmd->add_option("--compression", o->compression, "Chunk compression: zstd or none")
       ->capture_default_str();
+  cmd->add_option("--start-time", o->start_time,
+                  "Unix time (s) of t = 0 (default: a bag-built map's first cloud stamp, else "
+                  "2025-01-01T00:00:00Z)");
+  cmd->add_option("--layout", o->layout,
+                  "The Foxglove layout file to write (default: beside --out, NAME.layout.json)");
+  cmd->add_option("--bag-frame", o->bag_frame,
+                  "Draw the clouds of the bags a map folder was built from, placed in this fixed "
+                  "frame (the `map --frame` it was built with)");
+  cmd->add_option("--max-points", o->max_points, "Input-cloud points drawn at most")
+      ->capture_default_str();
   cmd->add_flag("--json", *as_json, "Print the summary as one JSON object");
   cmd->callback([o, radii, as_json] {
     if (!radii->empty()) {
@@ -45,7 +55,16 @@ void add_export_command(CLI::App& app) {
                                   {"messages", s.messages}, {"chunks", s.chunks},
                                   {"topics", topics},      {"voxels", s.voxels},
                                   {"footholds", s.footholds}, {"shin_contacts", s.shin_contacts},
-                                  {"duration_s", s.duration_s}}
+                                  {"duration_s", s.duration_s},
+                                  {"voxel_messages", s.voxel_messages},
+                                  {"relief_triangles", s.relief_triangles},
+                                  {"relief_cells", s.relief_cells},
+                                  {"grid_decimation", s.grid_decimation},
+                                  {"points", s.points}, {"points_in", s.points_in},
+                                  {"logs", s.logs},
+                                  {"largest_message", s.largest_message},
+                                  {"largest_topic", s.largest_topic},
+                                  {"epoch_s", s.epoch_s}, {"layout", s.layout}}
                        .dump()
                 << "\n";
       return;
@@ -53,7 +72,8 @@ void add_export_command(CLI::App& app) {
     for (const auto& [topic, n] : s.messages_per_topic)
       std::cout << "  " << topic << ": " << n << " messages\n";
     std::cout << s.messages << " messages in " << s.chunks << " chunks, " << s.bytes
-              << " bytes: " << o->out << "\n";
+              << " bytes: " << o->out << " (largest message " << s.largest_message
+              << " bytes, " << s.largest_topic << "); layout " << s.layout << "\n";
   });
 }
 

@@ -3,8 +3,13 @@
 // indexes) and once as a stream (every record in order, CRCs of chunks, data section and summary
 // validated), every message decoded as JSON and checked against its channel's schema (the
 // published Foxglove JSON schema the file carries), and the counts per topic compared.
+// The frames: every scene entity, grid and point cloud is in `map` or in a frame /tf defines, and
+// /tf's frames form a tree (one parent each). It also counts what the terrain topics hold (cubes,
+// triangles, points) and finds the largest message.
 //   node tests/service/mcap_check.js FILE.mcap ['{"topic": count, ...}']
-// Prints one JSON line: {ok, errors, topics: {topic: count}, statistics, chunks, compression}.
+// Prints one JSON line: {ok, errors, topics: {topic: count}, statistics, chunks, compression,
+// largest: {bytes, topic}, cubes: {topic: n}, triangles: {topic: n}, points: {topic: n},
+// frames: [child frames of /tf], schemas: {topic: schema name}}.
 'use strict';
 const fs = require('fs');
 const path = require('path');
@@ -76,6 +81,10 @@ async function main() {
     topics[ch.topic] = 0;
   }
   let messages = 0;
+  const largest = { bytes: 0, topic: '' };
+  const cubes = {}, triangles = {}, points = {}, schemas = {};
+  const parentOf = {}, framesUsed = new Set();
+  for (const [, ch] of reader.channelsById) schemas[ch.topic] = reader.schemasById.get(ch.schemaId).name;
   for await (const m of reader.readMessages()) {
     const ch = reader.channelsById.get(m.channelId);
     topics[ch.topic]++;
@@ -89,6 +98,36 @@ async function main() {
     const errs = [];
     validate(schemaOf[m.channelId], value, ch.topic + '#' + m.sequence, errs);
     errors.push(...errs.slice(0, 3));
+    if (m.data.length > largest.bytes) { largest.bytes = m.data.length; largest.topic = ch.topic; }
+    const schemaName = schemas[ch.topic];
+    if (schemaName === 'foxglove.SceneUpdate') {
+      for (const e of value.entities || []) {
+        framesUsed.add(e.frame_id);
+        cubes[ch.topic] = (cubes[ch.topic] || 0) + (e.cubes || []).length;
+        for (const t of e.triangles || [])
+          triangles[ch.topic] = (triangles[ch.topic] || 0) + (t.indices.length || t.points.length) / 3;
+      }
+    } else if (schemaName === 'foxglove.PointCloud') {
+      framesUsed.add(value.frame_id);
+      points[ch.topic] = (points[ch.topic] || 0) + Buffer.from(value.data, 'base64').length / value.point_stride;
+    } else if (schemaName === 'foxglove.Grid') {
+      framesUsed.add(value.frame_id);
+    } else if (schemaName === 'foxglove.FrameTransforms') {
+      for (const t of value.transforms || []) {
+        if (parentOf[t.child_frame_id] !== undefined && parentOf[t.child_frame_id] !== t.parent_frame_id)
+          errors.push('/tf: frame ' + t.child_frame_id + ' has two parents');
+        parentOf[t.child_frame_id] = t.parent_frame_id;
+        const q = t.rotation, n = Math.hypot(q.x, q.y, q.z, q.w);
+        if (Math.abs(n - 1) > 1e-3) errors.push('/tf: rotation of ' + t.child_frame_id + ' is not a unit quaternion');
+      }
+    }
+  }
+  for (const f of framesUsed)
+    if (f !== 'map' && parentOf[f] === undefined) errors.push('frame ' + f + ' is used but /tf never defines it');
+  for (const f of Object.keys(parentOf)) {  // every frame reaches map without a cycle
+    let g = f, steps = 0;
+    while (g !== 'map' && parentOf[g] !== undefined && steps++ < 100) g = parentOf[g];
+    if (g !== 'map') { errors.push('frame ' + f + ' does not reach map'); break; }
   }
   const stats = reader.statistics;
   if (!stats) errors.push('no statistics record');
@@ -120,6 +159,7 @@ async function main() {
   console.log(JSON.stringify({
     ok: errors.length === 0, errors, topics, messages,
     chunks: reader.chunkIndexes.length, compression: [...compression],
+    largest, cubes, triangles, points, frames: Object.keys(parentOf).sort(), schemas,
     statistics: stats ? { messageCount: Number(stats.messageCount), channelCount: stats.channelCount } : null,
   }));
   process.exit(errors.length === 0 ? 0 : 1);
