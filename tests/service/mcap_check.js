@@ -57,6 +57,17 @@ function validate(schema, value, where, errors) {
   }
 }
 
+// The range of every numeric field of a message of our own schemas, by path
+// ("/plan/joints.LF.kfe.torque": [min, max]), as Foxglove's Plot panel addresses them.
+function collectNumbers(prefix, value, out) {
+  for (const [k, v] of Object.entries(value)) {
+    if (k === 'timestamp') continue;
+    const p = prefix + '.' + k;
+    if (typeof v === 'number') out[p] = out[p] ? [Math.min(out[p][0], v), Math.max(out[p][1], v)] : [v, v];
+    else if (v && typeof v === 'object') collectNumbers(p, v, out);
+  }
+}
+
 async function main() {
   const file = process.argv[2];
   const expected = process.argv[3] ? JSON.parse(process.argv[3]) : null;
@@ -84,6 +95,7 @@ async function main() {
   const largest = { bytes: 0, topic: '' };
   const cubes = {}, triangles = {}, points = {}, schemas = {};
   const parentOf = {}, framesUsed = new Set();
+  const numbers = {}, logs = [];
   for (const [, ch] of reader.channelsById) schemas[ch.topic] = reader.schemasById.get(ch.schemaId).name;
   for await (const m of reader.readMessages()) {
     const ch = reader.channelsById.get(m.channelId);
@@ -107,6 +119,10 @@ async function main() {
         for (const t of e.triangles || [])
           triangles[ch.topic] = (triangles[ch.topic] || 0) + (t.indices.length || t.points.length) / 3;
       }
+    } else if (schemaName.startsWith('terrastride.')) {
+      collectNumbers(ch.topic, value, numbers);
+    } else if (schemaName === 'foxglove.Log') {
+      logs.push({ level: value.level, message: value.message, t: value.timestamp.sec + 1e-9 * value.timestamp.nsec });
     } else if (schemaName === 'foxglove.PointCloud') {
       framesUsed.add(value.frame_id);
       points[ch.topic] = (points[ch.topic] || 0) + Buffer.from(value.data, 'base64').length / value.point_stride;
@@ -159,7 +175,8 @@ async function main() {
   console.log(JSON.stringify({
     ok: errors.length === 0, errors, topics, messages,
     chunks: reader.chunkIndexes.length, compression: [...compression],
-    largest, cubes, triangles, points, frames: Object.keys(parentOf).sort(), schemas,
+    largest, cubes, triangles, points, frames: Object.keys(parentOf).sort(), schemas, numbers, logs,
+    start_ns: stats ? String(stats.messageStartTime) : null, end_ns: stats ? String(stats.messageEndTime) : null,
     statistics: stats ? { messageCount: Number(stats.messageCount), channelCount: stats.channelCount } : null,
   }));
   process.exit(errors.length === 0 ? 0 : 1);

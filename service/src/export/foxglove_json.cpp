@@ -61,7 +61,9 @@ std::string base64(const std::string& bytes) {
 }
 
 double rounded(double v, double step) {
-  return std::isfinite(v) ? std::round(v / step) * step : 0.0;
+  // Divided by the inverse step (an integer): 0.3601, not 0.36010000000000003.
+  const double inverse = std::round(1.0 / step);
+  return std::isfinite(v) ? std::round(v * inverse) / inverse : 0.0;
 }
 json vec3(const Eigen::Vector3d& v) {
   return {{"x", rounded(v.x())}, {"y", rounded(v.y())}, {"z", rounded(v.z())}};

@@ -153,7 +153,9 @@ json foot_state(const robot::RobotModel& model, size_t l, const Eigen::Vector3d&
     const double fn = force.dot(n), ft = (force - fn * n).norm();
     set_finite(s, "normal_force", fn);
     if (contact) set_finite(s, "friction_margin", friction * fn - ft);
-    set_finite(s, "foothold_margin", field->safety_margin(foot.x(), foot.y(), model.foot_radius).margin);
+    // Capped at 1 m: far from any unsafe cell the margin reads 1e9, which flattens a plot.
+    set_finite(s, "foothold_margin",
+               std::min(1.0, field->safety_margin(foot.x(), foot.y(), model.foot_radius).margin));
   }
   if (contact) {
     const robot::ForcePolytope poly = robot::exact_force_polytope(model.legs[l], p.q[l]);
@@ -187,7 +189,7 @@ void add_robot_schemas(Publisher& pub, const robot::RobotModel& model) {
        {"normal_force", number_schema("N, along the terrain normal under the foot")},
        {"friction_margin", number_schema("N, mu f_n - |f_t| (< 0: outside the friction cone)")},
        {"polytope_margin", number_schema("1 - max_i |J_i^T f| / tau_lim_i (< 0: beyond a torque limit)")},
-       {"foothold_margin", number_schema("m, the terrain's safety margin under the foot")},
+       {"foothold_margin", number_schema("m, the terrain's safety margin under the foot (at most 1)")},
        {"contact", number_schema("1 in contact, 0 in swing")},
        {"planned_contact", number_schema("sim: 1 where the plan has contact")},
        {"shin_force", number_schema("sim: N, contact force on the shin")}});
