@@ -201,8 +201,12 @@ ExportSummary export_foxglove(const ExportOptions& o) {
   const std::vector<SensorInput> sensors = sensor_inputs(view.info);
   std::vector<std::string> clouds;
   if (view.kind == "clouds") clouds = o.terrain;
-  if (view.kind == "map" && !o.bag_frame.empty())
-    for (const auto& s : sensors) clouds.push_back(s.path);
+  if (view.kind == "map")  // files still on disk; a bag's clouds given the frame to place them in
+    for (const auto& s : sensors) {
+      std::error_code ec;
+      if (s.has_stamp ? !o.bag_frame.empty() : fs::is_regular_file(s.path, ec))
+        clouds.push_back(s.path);
+    }
   const Clock clock = make_clock(o, sensors);
 
   Publisher pub(o.compression);

@@ -294,6 +294,13 @@ std::vector<SensorInput> sensor_inputs(const nlohmann::json& info) {
       s.has_origin = true;
       for (int a = 0; a < 3; ++a) s.origin[a] = in["origin"][a].get<double>();
     }
+    const json* q = in.contains("pose") && in["pose"].is_object() && in["pose"].contains("orientation_xyzw")
+                        ? &in["pose"]["orientation_xyzw"]
+                        : nullptr;
+    if (q && q->is_array() && q->size() == 4)
+      s.orientation = Eigen::Quaterniond((*q)[3].get<double>(), (*q)[0].get<double>(),
+                                         (*q)[1].get<double>(), (*q)[2].get<double>())
+                          .normalized();
     out.push_back(s);
   }
   std::stable_sort(out.begin(), out.end(), [](const SensorInput& a, const SensorInput& b) {
@@ -344,14 +351,15 @@ std::vector<perception::PointCloud> read_clouds(const std::vector<std::string>& 
 void publish_clouds(Publisher& pub, const Clock& clock, const std::vector<std::string>& clouds,
                     const std::string& bag_frame, const std::vector<SensorInput>& sensors,
                     size_t max_points, TerrainTopicStats* stats) {
-  // The sensor poses (origins; terrain.json keeps no orientation) as frames sensor_<i>, and a
+  // The sensor poses (origins, and orientations where terrain.json has them) as frames
+  // sensor_<i>, and a
   // frame `sensor` that moves to each cloud's origin at its stamp.
   json frames = json::array();
   std::vector<std::pair<uint64_t, Eigen::Vector3d>> moving;
   for (size_t i = 0; i < sensors.size(); ++i) {
     if (!sensors[i].has_origin) continue;
     frames.push_back(transform(clock, 0, kMapFrame, "sensor_" + std::to_string(i),
-                               sensors[i].origin, Eigen::Quaterniond::Identity()));
+                               sensors[i].origin, sensors[i].orientation));
     if (sensors[i].has_stamp) moving.emplace_back(sensors[i].stamp_ns, sensors[i].origin);
   }
   if (!frames.empty()) {

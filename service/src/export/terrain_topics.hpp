@@ -41,6 +41,7 @@ struct SensorInput {
   uint64_t stamp_ns = 0;
   bool has_origin = false;
   Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();  // "pose" when recorded
 };
 std::vector<SensorInput> sensor_inputs(const nlohmann::json& terrain_info);
 
