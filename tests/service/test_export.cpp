@@ -162,8 +162,11 @@ TEST_F(ExportTest, TerrainAloneFromAMapFolder) {
   ASSERT_EQ(r.code, 0) << r.all();
   const json check = read_back(out, {{"/terrain/grid", 1}, {"/terrain/relief", 1}});
   EXPECT_TRUE(check["ok"].get<bool>()) << check.dump(1);
-  EXPECT_EQ(check["topics"].size(), 4u) << check["topics"];
-  EXPECT_EQ(check["frames"], json::array({"sensor_0"}));  // where the cloud was taken from
+  // The grid, the relief, the voxels, the cloud the map was built from (its file is still there)
+  // and the frame of the sensor that took it.
+  EXPECT_EQ(check["topics"].size(), 5u) << check["topics"];
+  EXPECT_EQ(check["frames"], json::array({"sensor_0"}));
+  EXPECT_GT(check["points"]["/terrain/points"].get<int>(), 1000);
   EXPECT_GT(check["topics"]["/terrain/voxels"].get<int>(), 0);
   // The flat scan's relief: merged into far fewer triangles than two per cell, and all there.
   const json summary = json::parse(run_terrastride("export --terrain " + q(terrain) + " --json --out " + q(out)).out);
