@@ -9,6 +9,8 @@
 //   node tests/service/mcap_check.js FILE.mcap ['{"topic": count, ...}']
 // Prints one JSON line: {ok, errors, topics: {topic: count}, statistics, chunks, compression,
 // largest: {bytes, topic}, cubes: {topic: n}, triangles: {topic: n}, points: {topic: n},
+// robot_spheres: {topic: [[x, y, z, diameter]]} (the first message of each .../robot topic, its
+// spheres placed in map through /tf at that time), numbers: {path: [min, max]}, logs,
 // frames: [child frames of /tf], schemas: {topic: schema name}}.
 'use strict';
 const fs = require('fs');
@@ -68,6 +70,24 @@ function collectNumbers(prefix, value, out) {
   }
 }
 
+// Rotates v by the unit quaternion q.
+function rotate(q, v) {
+  const { x, y, z, w } = q;
+  const tx = 2 * (y * v.z - z * v.y), ty = 2 * (z * v.x - x * v.z), tz = 2 * (x * v.y - y * v.x);
+  return { x: v.x + w * tx + (y * tz - z * ty), y: v.y + w * ty + (z * tx - x * tz), z: v.z + w * tz + (x * ty - y * tx) };
+}
+// A point of `frame` in map, through the transforms of one /tf message (child -> transform).
+function toMap(transforms, frame, p) {
+  for (let steps = 0; frame !== 'map' && steps < 20; steps++) {
+    const t = transforms[frame];
+    if (!t) return null;
+    const r = rotate(t.rotation, p);
+    p = { x: r.x + t.translation.x, y: r.y + t.translation.y, z: r.z + t.translation.z };
+    frame = t.parent_frame_id;
+  }
+  return frame === 'map' ? p : null;
+}
+
 async function main() {
   const file = process.argv[2];
   const expected = process.argv[3] ? JSON.parse(process.argv[3]) : null;
@@ -96,6 +116,8 @@ async function main() {
   const cubes = {}, triangles = {}, points = {}, schemas = {};
   const parentOf = {}, framesUsed = new Set();
   const numbers = {}, logs = [];
+  // The first message of each robot topic, its spheres placed in map by /tf at its time.
+  const tfAt = new Map(), firstRobot = {};
   for (const [, ch] of reader.channelsById) schemas[ch.topic] = reader.schemasById.get(ch.schemaId).name;
   for await (const m of reader.readMessages()) {
     const ch = reader.channelsById.get(m.channelId);
@@ -112,6 +134,8 @@ async function main() {
     errors.push(...errs.slice(0, 3));
     if (m.data.length > largest.bytes) { largest.bytes = m.data.length; largest.topic = ch.topic; }
     const schemaName = schemas[ch.topic];
+    if (schemaName === 'foxglove.SceneUpdate' && ch.topic.endsWith('/robot') && !firstRobot[ch.topic])
+      firstRobot[ch.topic] = { t: m.logTime, value };
     if (schemaName === 'foxglove.SceneUpdate') {
       for (const e of value.entities || []) {
         framesUsed.add(e.frame_id);
@@ -133,10 +157,23 @@ async function main() {
         if (parentOf[t.child_frame_id] !== undefined && parentOf[t.child_frame_id] !== t.parent_frame_id)
           errors.push('/tf: frame ' + t.child_frame_id + ' has two parents');
         parentOf[t.child_frame_id] = t.parent_frame_id;
+        if (!tfAt.has(m.logTime)) tfAt.set(m.logTime, {});
+        tfAt.get(m.logTime)[t.child_frame_id] = t;
         const q = t.rotation, n = Math.hypot(q.x, q.y, q.z, q.w);
         if (Math.abs(n - 1) > 1e-3) errors.push('/tf: rotation of ' + t.child_frame_id + ' is not a unit quaternion');
       }
     }
+  }
+  const robotSpheres = {};
+  for (const [topic, { t, value }] of Object.entries(firstRobot)) {
+    const transforms = tfAt.get(t) || {};
+    robotSpheres[topic] = [];
+    for (const e of value.entities)
+      for (const sp of e.spheres) {
+        const p = toMap(transforms, e.frame_id, sp.pose.position);
+        if (p) robotSpheres[topic].push([p.x, p.y, p.z, sp.size.x]);
+        else errors.push(topic + ': entity ' + e.id + ' in frame ' + e.frame_id + ' has no /tf at its time');
+      }
   }
   for (const f of framesUsed)
     if (f !== 'map' && parentOf[f] === undefined) errors.push('frame ' + f + ' is used but /tf never defines it');
@@ -175,7 +212,7 @@ async function main() {
   console.log(JSON.stringify({
     ok: errors.length === 0, errors, topics, messages,
     chunks: reader.chunkIndexes.length, compression: [...compression],
-    largest, cubes, triangles, points, frames: Object.keys(parentOf).sort(), schemas, numbers, logs,
+    largest, cubes, triangles, points, frames: Object.keys(parentOf).sort(), schemas, numbers, logs, robot_spheres: robotSpheres,
     start_ns: stats ? String(stats.messageStartTime) : null, end_ns: stats ? String(stats.messageEndTime) : null,
     statistics: stats ? { messageCount: Number(stats.messageCount), channelCount: stats.channelCount } : null,
   }));

@@ -10,6 +10,7 @@
 #include <string>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdlib>
 #include <octomap/OcTree.h>
 
@@ -131,6 +132,19 @@ TEST_F(ExportTest, PlanAndSimulationDecodeOnEveryChannelWithTheRightCounts) {
         const json& frames = check["frames"];
         EXPECT_NE(std::find(frames.begin(), frames.end(), leg + link), frames.end()) << leg + link;
         EXPECT_NE(std::find(frames.begin(), frames.end(), "sim_" + leg + link), frames.end());
+      }
+    // The links placed by /tf: each planned foot's sphere (in its shin's frame) lands on the
+    // plan's first foot positions, and the simulated robot's on the simulation's.
+    const json first_plan = read_json(plan_)["samples"][0]["feet"];
+    const json first_sim = read_json(sim_)["samples"][0]["feet"];
+    for (const auto& [topic, feet] : {std::pair{"/plan/robot", first_plan}, {"/sim/robot", first_sim}})
+      for (const json& foot : feet) {
+        double nearest = 1e9;
+        for (const json& sp : check["robot_spheres"][topic])
+          nearest = std::min(nearest, std::hypot(sp[0].get<double>() - foot["position"][0].get<double>(),
+                                                 sp[1].get<double>() - foot["position"][1].get<double>(),
+                                                 sp[2].get<double>() - foot["position"][2].get<double>()));
+        EXPECT_LT(nearest, 1e-3) << topic << " " << foot["position"];
       }
     // The numbers: the joints' worst torque ratio is the checks' torque_ratio_max; forces and
     // margins are there for every foot; the clock starts at the stated epoch.
