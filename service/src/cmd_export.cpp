@@ -16,9 +16,10 @@ void add_export_command(CLI::App& app) {
   CLI::App* cmd = app.add_subcommand(
       "export",
       "A terrain, optionally a plan and its simulated execution, as one MCAP file that Foxglove "
-      "and Lichtblick open and play: height grid with safety-margin layers, occupied voxels, the "
-      "planned robot over time, contact forces, footholds coloured by margin, shin contacts, the "
-      "simulated robot beside the plan (docs/export.md)");
+      "and Lichtblick open and play, and a layout for them: the relief coloured by safety margin, "
+      "height grid, occupied voxels, the input clouds, the robot's links on /tf frames, contact "
+      "forces, joint and foot numbers to plot, the checks' and the simulation's findings as log "
+      "messages (docs/export.md)");
   cmd->add_option("--terrain", o->terrain,
                   "A folder written by `terrastride map`, point-cloud files, an OctoMap (.bt, .ot) "
                   "or a scene name")
