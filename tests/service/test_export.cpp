@@ -193,6 +193,37 @@ TEST_F(ExportTest, TerrainAloneFromAMapFolder) {
   EXPECT_TRUE(layout["configById"].contains("Log!log"));
 }
 
+// A plan whose forces the legs cannot hold: the checks' findings are log messages at their time
+// (a warning at the first sample each joint passes its limit, errors for the failed checks) and
+// the verdict topic says it failed.
+TEST_F(ExportTest, FindingsAreLogMessagesAtTheirTime) {
+  json plan = read_json(plan_);
+  for (json& s : plan["samples"])
+    for (json& f : s["feet"])
+      for (json& c : f["force"]) c = 4.0 * c.get<double>();
+  const fs::path heavy = dir_->path() / "heavy_plan.json", out = dir_->path() / "heavy.mcap";
+  std::ofstream(heavy) << plan.dump();
+  const CommandResult r = run_terrastride("export --terrain flat --plan " + q(heavy) + " --out " + q(out));
+  ASSERT_EQ(r.code, 0) << r.all();
+  const json check = read_back(out, json::object());
+  ASSERT_TRUE(check["ok"].get<bool>()) << check.dump(1);
+  EXPECT_EQ(check["numbers"]["/plan/verdict.passed"], json::array({0, 0}));
+  int over_limit = 0, errors = 0;
+  const double start = 1735689600.0, end = start + plan["samples"].back()["t"].get<double>();
+  for (const json& log : check["logs"]) {
+    const std::string text = log["message"];
+    if (text.find("x its limit") != std::string::npos) {
+      ++over_limit;
+      EXPECT_EQ(log["level"], 3);
+      EXPECT_GE(log["t"].get<double>(), start);
+      EXPECT_LE(log["t"].get<double>(), end + 1e-6);
+    }
+    if (log["level"] == 4) ++errors;
+  }
+  EXPECT_GT(over_limit, 0) << check["logs"];
+  EXPECT_GT(errors, 0) << check["logs"];  // the failed torque check
+}
+
 // A plan's layout plots fields that exist in the file.
 TEST_F(ExportTest, LayoutPlotsFieldsTheFileHolds) {
   const fs::path out = dir_->path() / "layout.mcap", layout = dir_->path() / "my_layout.json";

@@ -215,15 +215,15 @@ ExportSummary export_foxglove(const ExportOptions& o) {
   TerrainTopicStats cs = ts;
   publish_clouds(pub, clock, clouds, o.bag_frame, sensors, o.max_points, &cs);
   ExportSummary summary;
+  const double friction = plan ? plan_friction(plan->trajectory) : 0.0;
   if (plan) {
-    const RobotTopicStats ps = publish_plan(pub, clock, model, plan->trajectory, checks, view,
-                                            plan_friction(plan->trajectory));
+    const RobotTopicStats ps = publish_plan(pub, clock, model, plan->trajectory, checks, view, friction);
     summary.footholds = ps.footholds;
     summary.shin_contacts = ps.shin_contacts;
     summary.logs += ps.logs;
     summary.duration_s = plan->trajectory.samples.empty() ? 0.0 : plan->trajectory.samples.back().t;
   }
-  if (!sim.is_null()) summary.logs += publish_simulation(pub, clock, model, sim, o.sim).logs;
+  if (!sim.is_null()) summary.logs += publish_simulation(pub, clock, model, sim, o.sim, view.field.get(), friction).logs;
 
   const std::string bytes = pub.writer().finish();
   summary.messages_per_topic = pub.messages_per_topic();

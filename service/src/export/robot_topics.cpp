@@ -2,6 +2,7 @@
 #include "export/robot_topics.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 
@@ -469,7 +470,8 @@ void publish_sim_verdict(Publisher& pub, const Clock& clock, const json& sim, do
 
 RobotTopicStats publish_simulation(Publisher& pub, const Clock& clock,
                                    const robot::RobotModel& model, const json& sim,
-                                   const std::string& path) {
+                                   const std::string& path, const terrain::HeightField* field,
+                                   double friction) {
   RobotTopicStats stats;
   const uint16_t tf = pub.channel("/tf", "foxglove.FrameTransforms");
   const uint16_t robot_ch = pub.channel("/sim/robot", "foxglove.SceneUpdate");
@@ -478,6 +480,8 @@ RobotTopicStats publish_simulation(Publisher& pub, const Clock& clock,
   const uint16_t joints_ch = pub.channel("/sim/joints", "terrastride.JointStates");
   const uint16_t feet_ch = pub.channel("/sim/feet", "terrastride.FootStates");
   const uint16_t track_ch = pub.channel("/sim/tracking", "terrastride.Tracking");
+  const uint16_t log_ch = pub.channel("/log", "foxglove.Log");
+  std::vector<std::array<bool, 3>> saturated(model.legs.size(), {false, false, false});
   double end = 0.0;
   try {
     for (const json& s : sim["samples"]) {
@@ -485,26 +489,39 @@ RobotTopicStats publish_simulation(Publisher& pub, const Clock& clock,
       end = s["t"].get<double>();
       std::vector<Eigen::Vector3d> feet, forces;
       std::vector<bool> contact;
-      json foot_states = {{"timestamp", clock.stamp(t)}};
-      for (size_t l = 0; l < s["feet"].size(); ++l) {
-        const json& f = s["feet"][l];
+      for (const json& f : s["feet"]) {
         feet.push_back(v3(f["position"], path));
         forces.push_back(v3(f["force"], path));
         contact.push_back(f["contact"].get<bool>());
-        json st = {{"force", vec3(forces.back())}, {"contact", contact.back() ? 1 : 0}};
+      }
+      const RobotPose p = robot_pose(model, v3(s["base"]["position"], path), v3(s["base"]["euler_zyx"], path), feet);
+      json foot_states = {{"timestamp", clock.stamp(t)}};
+      for (size_t l = 0; l < feet.size(); ++l) {
+        const json& f = s["feet"][l];
+        json st = foot_state(model, l, feet[l], forces[l], contact[l], p, field, friction);
         st["planned_contact"] = f.value("planned_contact", false) ? 1 : 0;
         if (f.contains("shin_force") && f["shin_force"].is_number()) set_finite(st, "shin_force", f["shin_force"].get<double>());
         foot_states[model.legs[l].name] = std::move(st);
       }
-      const RobotPose p = robot_pose(model, v3(s["base"]["position"], path), v3(s["base"]["euler_zyx"], path), feet);
-      for (size_t l = 0; l < feet.size(); ++l)  // the normal force along the base's z: no terrain here
-        set_finite(foot_states[model.legs[l].name], "normal_force", forces[l].dot(p.R.col(2)));
       pub.publish(tf, clock.ns(t), {{"transforms", robot_transforms(clock, t, "sim_", model, p)}});
       pub.publish(robot_ch, clock.ns(t),
                   robot_entities(clock, t, "sim_", model, p, color(0.3, 0.5, 0.95, 0.5), {}, contact));
       pub.publish(force_ch, clock.ns(t),
                   force_entities(clock, t, "sim_forces", feet, forces, contact, color(0.2, 0.4, 1.0)));
-      pub.publish(joints_ch, clock.ns(t), sim_joints(clock, t, model, s, p, path));
+      const json joints = sim_joints(clock, t, model, s, p, path);
+      for (size_t l = 0; l < model.legs.size(); ++l)  // the first time each motor saturates
+        for (int j = 0; j < 3; ++j) {
+          const json& v = joints[model.legs[l].name][kJointNames[j]];
+          if (saturated[l][j] || !v.contains("torque_ratio") || v["torque_ratio"].get<double>() < 1.0 - 1e-6)
+            continue;
+          saturated[l][j] = true;
+          pub.publish(log_ch, clock.ns(t),
+                      log_message(clock, t, 3, "simulation",
+                                  model.legs[l].name + " " + kJointNames[j] +
+                                      format(" motor at its torque limit (%.1f N m)", model.legs[l].torque_limit[j])));
+          ++stats.logs;
+        }
+      pub.publish(joints_ch, clock.ns(t), joints);
       pub.publish(feet_ch, clock.ns(t), foot_states);
       if (s.contains("planned_base")) pub.publish(track_ch, clock.ns(t), sim_tracking(clock, t, s, path));
     }

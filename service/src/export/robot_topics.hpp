@@ -36,8 +36,10 @@ RobotTopicStats publish_plan(Publisher& pub, const Clock& clock, const robot::Ro
 // The simulation (`terrastride simulate --out sim.json`, read as JSON): /tf under the sim_
 // prefix, /sim/robot, /sim/contact_forces, /sim/joints, /sim/feet, /sim/tracking, /sim/verdict
 // and its findings on /log. Throws CommandError naming `path` on a malformed file.
+// The feet's margins are measured on `field` (may be null) with `friction`, as the plan's.
 RobotTopicStats publish_simulation(Publisher& pub, const Clock& clock,
                                    const robot::RobotModel& model, const nlohmann::json& sim,
-                                   const std::string& path);
+                                   const std::string& path, const terrain::HeightField* field,
+                                   double friction);
 
 }  // namespace terrastride::service::foxglove
