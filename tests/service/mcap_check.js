@@ -11,6 +11,7 @@
 // largest: {bytes, topic}, cubes: {topic: n}, triangles: {topic: n}, points: {topic: n},
 // robot_spheres: {topic: [[x, y, z, diameter]]} (the first message of each .../robot topic, its
 // spheres placed in map through /tf at that time), numbers: {path: [min, max]}, logs,
+// grids: {topic: {field: [min, max]}} (FLOAT32 fields, NaN left out),
 // frames: [child frames of /tf], schemas: {topic: schema name}}.
 'use strict';
 const fs = require('fs');
@@ -115,7 +116,7 @@ async function main() {
   const largest = { bytes: 0, topic: '' };
   const cubes = {}, triangles = {}, points = {}, schemas = {};
   const parentOf = {}, framesUsed = new Set();
-  const numbers = {}, logs = [];
+  const numbers = {}, logs = [], grids = {};
   // The first message of each robot topic, its spheres placed in map by /tf at its time.
   const tfAt = new Map(), firstRobot = {};
   for (const [, ch] of reader.channelsById) schemas[ch.topic] = reader.schemasById.get(ch.schemaId).name;
@@ -152,6 +153,16 @@ async function main() {
       points[ch.topic] = (points[ch.topic] || 0) + Buffer.from(value.data, 'base64').length / value.point_stride;
     } else if (schemaName === 'foxglove.Grid') {
       framesUsed.add(value.frame_id);
+      const data = Buffer.from(value.data, 'base64');
+      const g = grids[ch.topic] = grids[ch.topic] || {};
+      for (const f of value.fields) {
+        if (f.type !== 7) continue;  // FLOAT32
+        for (let o = f.offset; o + 4 <= data.length; o += value.cell_stride) {
+          const x = data.readFloatLE(o);
+          if (!Number.isFinite(x)) continue;
+          g[f.name] = g[f.name] ? [Math.min(g[f.name][0], x), Math.max(g[f.name][1], x)] : [x, x];
+        }
+      }
     } else if (schemaName === 'foxglove.FrameTransforms') {
       for (const t of value.transforms || []) {
         if (parentOf[t.child_frame_id] !== undefined && parentOf[t.child_frame_id] !== t.parent_frame_id)
@@ -212,7 +223,7 @@ async function main() {
   console.log(JSON.stringify({
     ok: errors.length === 0, errors, topics, messages,
     chunks: reader.chunkIndexes.length, compression: [...compression],
-    largest, cubes, triangles, points, frames: Object.keys(parentOf).sort(), schemas, numbers, logs, robot_spheres: robotSpheres,
+    largest, cubes, triangles, points, frames: Object.keys(parentOf).sort(), schemas, numbers, logs, grids, robot_spheres: robotSpheres,
     start_ns: stats ? String(stats.messageStartTime) : null, end_ns: stats ? String(stats.messageEndTime) : null,
     statistics: stats ? { messageCount: Number(stats.messageCount), channelCount: stats.channelCount } : null,
   }));

@@ -224,6 +224,28 @@ TEST_F(ExportTest, FindingsAreLogMessagesAtTheirTime) {
   EXPECT_GT(errors, 0) << check["logs"];  // the failed torque check
 }
 
+// A grid too large for one message is coarsened (a cell keeps the lowest margin of those it
+// covers), and the relief of the same cells, tiled, stays under the budget.
+TEST_F(ExportTest, FineGridIsCoarsenedUnderTheBudget) {
+  const fs::path out = dir_->path() / "fine.mcap";
+  const CommandResult r =
+      run_terrastride("export --terrain pallet_15 --resolution 0.004 --json --out " + q(out));
+  ASSERT_EQ(r.code, 0) << r.all();
+  const json summary = json::parse(r.out);
+  EXPECT_EQ(summary["grid_decimation"], 2);
+  const json check = read_back(out, {{"/terrain/grid", 1}});
+  ASSERT_TRUE(check["ok"].get<bool>()) << check.dump(1);
+  EXPECT_LE(check["largest"]["bytes"].get<size_t>(), 3500000u);
+  EXPECT_EQ(check["triangles"]["/terrain/relief"], summary["relief_triangles"]);
+  // The coarse grid keeps the box's top (15 cm) and its unsafe edges (a margin below zero).
+  const json& fields = check["grids"]["/terrain/grid"];
+  EXPECT_NEAR(fields["height"][1].get<double>(), 0.15, 1e-3) << fields;
+  bool unsafe = false;
+  for (const auto& [name, range] : fields.items())
+    if (name.rfind("margin_r", 0) == 0) unsafe = unsafe || range[0].get<double>() < 0;
+  EXPECT_TRUE(unsafe) << fields;
+}
+
 // A plan's layout plots fields that exist in the file.
 TEST_F(ExportTest, LayoutPlotsFieldsTheFileHolds) {
   const fs::path out = dir_->path() / "layout.mcap", layout = dir_->path() / "my_layout.json";
