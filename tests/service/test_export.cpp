@@ -296,6 +296,7 @@ TEST_F(ExportTest, BagMapKeepsTheRecordingsTimeCloudsAndSensorFrames) {
   ASSERT_EQ(r.code, 0) << r.all();
   check = read_back(out, json::object());
   EXPECT_EQ(check["start_ns"], "1000000000000");
+  EXPECT_EQ(check["end_ns"], "1001600000000");  // the sensor's last pose, 1.6 s in
   EXPECT_FALSE(check["topics"].contains("/terrain/points"));
 }
 
@@ -334,6 +335,8 @@ TEST_F(ExportTest, BadInputsNameTheProblemAndWriteNothing) {
        "broken_sim.json"},
       {"--terrain flat --compression lz4", "--compression"},
       {"--terrain flat --start-time -5", "--start-time"},
+      {"--terrain " + shell_quote(std::string(TERRASTRIDE_SOURCE_DIR) + "/tests/fixtures/bags/scan.bag"),
+       "mapped first"},
       {"--terrain flat --layout " + q(dir_->path() / "layout.txt"), "--layout"},
   };
   for (const Case& c : cases) {

@@ -20,6 +20,7 @@
 #include "report/terrain_input.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/bag.hpp"
 #include "terrastride/planner/options.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrain_source.hpp"
@@ -43,6 +44,11 @@ std::string layout_path(const ExportOptions& o) {
 
 void check_options(const ExportOptions& o) {
   if (o.terrain.empty()) throw CommandError("--terrain is required");
+  for (const auto& t : o.terrain)
+    if (perception::is_bag_file(t))
+      throw CommandError("--terrain " + t +
+                         ": a recording is mapped first (`terrastride map BAG --topic T --frame F "
+                         "--out DIR`), then exported with `--terrain DIR --bag-frame F`");
   if (!o.sim.empty() && o.plan.empty())
     throw CommandError("--sim " + o.sim + ": a simulation is drawn beside its plan; give --plan");
   if (o.compression != "zstd" && o.compression != "none")

@@ -365,10 +365,14 @@ void publish_clouds(Publisher& pub, const Clock& clock, const std::vector<std::s
   if (!frames.empty()) {
     const uint16_t tf = pub.channel("/tf", "foxglove.FrameTransforms");
     pub.publish(tf, clock.ns(0), {{"transforms", frames}});
+    // The recording's stamps relative to its first: t = 0 is that stamp, or --start-time.
+    uint64_t first = UINT64_MAX;
+    for (const auto& m : moving) first = std::min(first, m.first);
     for (const auto& [ns, origin] : moving) {
-      json t = transform(clock, 0, kMapFrame, "sensor", origin, Eigen::Quaterniond::Identity());
-      t["timestamp"] = {{"sec", ns / 1000000000ull}, {"nsec", ns % 1000000000ull}};
-      pub.publish(tf, ns, {{"transforms", json::array({t})}});
+      const double t = 1e-9 * static_cast<double>(ns - first);
+      pub.publish(tf, clock.ns(t),
+                  {{"transforms", json::array({transform(clock, t, kMapFrame, "sensor", origin,
+                                                         Eigen::Quaterniond::Identity())})}});
     }
     stats->sensor_frames = frames.size();
   }
