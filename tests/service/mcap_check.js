@@ -11,7 +11,8 @@
 // largest: {bytes, topic}, cubes: {topic: n}, triangles: {topic: n}, points: {topic: n},
 // robot_spheres: {topic: [[x, y, z, diameter]]} (the first message of each .../robot topic, its
 // spheres placed in map through /tf at that time), numbers: {path: [min, max]}, logs,
-// grids: {topic: {field: [min, max]}} (FLOAT32 fields, NaN left out),
+// grids: {topic: {field: [min, max]}} (FLOAT32 fields, NaN left out), point_boxes: {topic:
+// [min x, y, z, max x, y, z]} of the point clouds (x y z FLOAT32 first),
 // frames: [child frames of /tf], schemas: {topic: schema name}}.
 'use strict';
 const fs = require('fs');
@@ -116,7 +117,7 @@ async function main() {
   const largest = { bytes: 0, topic: '' };
   const cubes = {}, triangles = {}, points = {}, schemas = {};
   const parentOf = {}, framesUsed = new Set();
-  const numbers = {}, logs = [], grids = {};
+  const numbers = {}, logs = [], grids = {}, pointBoxes = {};
   // The first message of each robot topic, its spheres placed in map by /tf at its time.
   const tfAt = new Map(), firstRobot = {};
   for (const [, ch] of reader.channelsById) schemas[ch.topic] = reader.schemasById.get(ch.schemaId).name;
@@ -150,7 +151,15 @@ async function main() {
       logs.push({ level: value.level, message: value.message, t: value.timestamp.sec + 1e-9 * value.timestamp.nsec });
     } else if (schemaName === 'foxglove.PointCloud') {
       framesUsed.add(value.frame_id);
-      points[ch.topic] = (points[ch.topic] || 0) + Buffer.from(value.data, 'base64').length / value.point_stride;
+      const data = Buffer.from(value.data, 'base64');
+      points[ch.topic] = (points[ch.topic] || 0) + data.length / value.point_stride;
+      const box = pointBoxes[ch.topic] = pointBoxes[ch.topic] || [Infinity, Infinity, Infinity, -Infinity, -Infinity, -Infinity];
+      for (let o = 0; o + 12 <= data.length; o += value.point_stride)
+        for (let a = 0; a < 3; a++) {
+          const x = data.readFloatLE(o + 4 * a);
+          box[a] = Math.min(box[a], x);
+          box[a + 3] = Math.max(box[a + 3], x);
+        }
     } else if (schemaName === 'foxglove.Grid') {
       framesUsed.add(value.frame_id);
       const data = Buffer.from(value.data, 'base64');
@@ -223,7 +232,7 @@ async function main() {
   console.log(JSON.stringify({
     ok: errors.length === 0, errors, topics, messages,
     chunks: reader.chunkIndexes.length, compression: [...compression],
-    largest, cubes, triangles, points, frames: Object.keys(parentOf).sort(), schemas, numbers, logs, grids, robot_spheres: robotSpheres,
+    largest, cubes, triangles, points, frames: Object.keys(parentOf).sort(), schemas, numbers, logs, grids, point_boxes: pointBoxes, robot_spheres: robotSpheres,
     start_ns: stats ? String(stats.messageStartTime) : null, end_ns: stats ? String(stats.messageEndTime) : null,
     statistics: stats ? { messageCount: Number(stats.messageCount), channelCount: stats.channelCount } : null,
   }));

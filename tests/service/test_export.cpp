@@ -246,6 +246,27 @@ TEST_F(ExportTest, FineGridIsCoarsenedUnderTheBudget) {
   EXPECT_TRUE(unsafe) << fields;
 }
 
+// A map folder's cloud is drawn where the map put it: a --sensor-pose 5 m along x from the file's
+// own VIEWPOINT moves the points there, not back to the VIEWPOINT.
+TEST_F(ExportTest, MapFolderCloudsArePlacedAsTheMapPlacedThem) {
+  const fs::path terrain = dir_->path() / "moved_terrain", out = dir_->path() / "moved.mcap";
+  const std::string cloud = std::string(TERRASTRIDE_TEST_DATA_DIR) + "/scans/flat.pcd";
+  // flat.pcd's VIEWPOINT is -1 0 0.8, pitched 40 degrees down.
+  ASSERT_EQ(run_terrastride("map " + shell_quote(cloud) +
+                            " --sensor-pose 4,0,0.8,0,0.342020143,0,0.939692621 --out " + q(terrain))
+                .code,
+            0);
+  const CommandResult r = run_terrastride("export --terrain " + q(terrain) + " --out " + q(out));
+  ASSERT_EQ(r.code, 0) << r.all();
+  const json check = read_back(out, {{"/terrain/points", 1}});
+  ASSERT_TRUE(check["ok"].get<bool>()) << check.dump(1);
+  const json& box = check["point_boxes"]["/terrain/points"];
+  EXPECT_GT(box[0].get<double>(), 4.0) << box;  // the VIEWPOINT would put them from x = -0.7
+  EXPECT_NEAR(box[2].get<double>(), 0.0, 0.03) << box;
+  EXPECT_NEAR(box[5].get<double>(), 0.0, 0.03) << box;
+  EXPECT_TRUE(check["logs"].empty()) << check["logs"];
+}
+
 // A plan's layout plots fields that exist in the file.
 TEST_F(ExportTest, LayoutPlotsFieldsTheFileHolds) {
   const fs::path out = dir_->path() / "layout.mcap", layout = dir_->path() / "my_layout.json";

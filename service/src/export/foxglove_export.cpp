@@ -205,21 +205,17 @@ ExportSummary export_foxglove(const ExportOptions& o) {
 
   // The clouds the terrain came from: the files themselves, or a map folder's inputs.
   const std::vector<SensorInput> sensors = sensor_inputs(view.info);
-  std::vector<std::string> clouds;
-  if (view.kind == "clouds") clouds = o.terrain;
-  if (view.kind == "map")  // files still on disk; a bag's clouds given the frame to place them in
-    for (const auto& s : sensors) {
-      std::error_code ec;
-      if (s.has_stamp ? !o.bag_frame.empty() : fs::is_regular_file(s.path, ec))
-        clouds.push_back(s.path);
-    }
+  CloudInputs clouds;
+  clouds.bag_frame = o.bag_frame;
+  if (view.kind == "clouds") clouds.files = o.terrain;
+  if (view.kind == "map") clouds.recorded = sensors;
   const Clock clock = make_clock(o, sensors);
 
   Publisher pub(o.compression);
   if (plan) add_robot_schemas(pub, model);
   const TerrainTopicStats ts = publish_terrain(pub, clock, view, model.foot_radius, o.max_voxels);
   TerrainTopicStats cs = ts;
-  publish_clouds(pub, clock, clouds, o.bag_frame, sensors, o.max_points, &cs);
+  publish_clouds(pub, clock, clouds, sensors, o.max_points, &cs);
   ExportSummary summary;
   const double friction = plan ? plan_friction(plan->trajectory) : 0.0;
   if (plan) {

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <functional>
 #include <limits>
 #include <map>
@@ -294,13 +295,19 @@ std::vector<SensorInput> sensor_inputs(const nlohmann::json& info) {
       s.has_origin = true;
       for (int a = 0; a < 3; ++a) s.origin[a] = in["origin"][a].get<double>();
     }
+    if (in.contains("pose") && in["pose"].is_object())
+      s.pose_source = in["pose"].value("source", std::string());
+    if (in.contains("up") && in["up"].is_object()) s.up_from = in["up"].value("from", std::string());
     const json* q = in.contains("pose") && in["pose"].is_object() && in["pose"].contains("orientation_xyzw")
                         ? &in["pose"]["orientation_xyzw"]
                         : nullptr;
     if (q && q->is_array() && q->size() == 4)
+    {
+      s.has_orientation = true;
       s.orientation = Eigen::Quaterniond((*q)[3].get<double>(), (*q)[0].get<double>(),
                                          (*q)[1].get<double>(), (*q)[2].get<double>())
                           .normalized();
+    }
     out.push_back(s);
   }
   std::stable_sort(out.begin(), out.end(), [](const SensorInput& a, const SensorInput& b) {
@@ -311,46 +318,72 @@ std::vector<SensorInput> sensor_inputs(const nlohmann::json& info) {
 
 namespace {
 
-// The clouds as `terrastride map` reads them: files placed by their own poses, or a bag's clouds
-// on its PointCloud2 topics placed in `bag_frame` by its tf.
-std::vector<perception::PointCloud> read_clouds(const std::vector<std::string>& clouds,
-                                                const std::string& bag_frame) {
-  std::vector<std::string> files;
-  std::map<std::string, std::vector<std::string>> bag_topics;  // bag -> topics
-  static const std::regex kBagInput(R"(^(.*):([^:@]+)@\d+\.\d+$)");
-  for (const auto& c : clouds) {
-    std::smatch m;
-    if (std::regex_match(c, m, kBagInput)) {
-      auto& topics = bag_topics[m[1].str()];
-      if (std::find(topics.begin(), topics.end(), m[2].str()) == topics.end())
-        topics.push_back(m[2].str());
-    } else {
-      files.push_back(c);
+// How the map placed a recorded input file: its pose (a --sensor-pose or a poses line, recorded
+// with the optical frame already composed), its --origin, or its VIEWPOINT; and its up mode.
+terrain::CloudPoseOptions recorded_placement(const SensorInput& in) {
+  terrain::CloudPoseOptions o;
+  if ((in.pose_source == "poses" || in.pose_source == "sensor-pose") && in.has_origin && in.has_orientation)
+    o.sensor_pose = perception::SensorPose{in.origin, in.orientation};
+  else if (in.pose_source == "origin" && in.has_origin)
+    o.origin = in.origin;
+  if (in.up_from.rfind("levelled", 0) == 0)
+    o.up = terrain::UpMode::kAuto;
+  else if (in.up_from.find("checked") == std::string::npos && !in.up_from.empty())
+    o.up = terrain::UpMode::kZ;
+  return o;
+}
+
+// The clouds, each as `terrastride map` read it; `problems` gets the recorded inputs that no
+// longer read.
+std::vector<perception::PointCloud> read_clouds(const CloudInputs& in,
+                                                std::vector<std::string>* problems) {
+  std::vector<perception::PointCloud> out;
+  if (!in.files.empty()) {
+    try {
+      out = terrain::read_map_clouds(in.files, std::nullopt).clouds;
+    } catch (const std::exception& e) {
+      throw CommandError(std::string("--terrain: ") + e.what());
     }
   }
-  std::vector<perception::PointCloud> out;
-  try {
-    if (!files.empty()) out = terrain::read_map_clouds(files, std::nullopt).clouds;
-    for (const auto& [bag, topics] : bag_topics) {
-      if (bag_frame.empty()) continue;
-      perception::BagCloudOptions bo;
-      bo.topics = topics;
-      bo.fixed_frame = bag_frame;
+  std::map<std::string, std::vector<std::string>> bag_topics;  // bag -> topics
+  static const std::regex kBagInput(R"(^(.*):([^:@]+)@\d+\.\d+$)");
+  for (const SensorInput& s : in.recorded) {
+    std::smatch m;
+    std::error_code ec;
+    try {
+      if (std::regex_match(s.path, m, kBagInput)) {
+        auto& topics = bag_topics[m[1].str()];
+        if (std::find(topics.begin(), topics.end(), m[2].str()) == topics.end())
+          topics.push_back(m[2].str());
+      } else if (std::filesystem::is_regular_file(s.path, ec)) {
+        for (auto& c : terrain::read_map_clouds({s.path}, recorded_placement(s)).clouds)
+          out.push_back(std::move(c));
+      }
+    } catch (const std::exception& e) {
+      problems->push_back(e.what());
+    }
+  }
+  for (const auto& [bag, topics] : bag_topics) {
+    if (in.bag_frame.empty()) continue;
+    perception::BagCloudOptions bo;
+    bo.topics = topics;
+    bo.fixed_frame = in.bag_frame;
+    try {
       perception::read_bag_clouds(bag, bo, [&](perception::PointCloud&& c, const perception::BagCloudInfo&) {
         out.push_back(std::move(c));
       });
+    } catch (const std::exception& e) {
+      problems->push_back("--bag-frame " + in.bag_frame + ": " + e.what());
     }
-  } catch (const std::exception& e) {
-    throw CommandError(std::string("the terrain's clouds: ") + e.what());
   }
   return out;
 }
 
 }  // namespace
 
-void publish_clouds(Publisher& pub, const Clock& clock, const std::vector<std::string>& clouds,
-                    const std::string& bag_frame, const std::vector<SensorInput>& sensors,
-                    size_t max_points, TerrainTopicStats* stats) {
+void publish_clouds(Publisher& pub, const Clock& clock, const CloudInputs& clouds,
+                    const std::vector<SensorInput>& sensors, size_t max_points,
+                    TerrainTopicStats* stats) {
   // The sensor poses (origins, and orientations where terrain.json has them) as frames
   // sensor_<i>, and a
   // frame `sensor` that moves to each cloud's origin at its stamp.
@@ -376,10 +409,13 @@ void publish_clouds(Publisher& pub, const Clock& clock, const std::vector<std::s
     }
     stats->sensor_frames = frames.size();
   }
-  if (clouds.empty()) return;
+  std::vector<std::string> problems;
   perception::PointCloud merged;
-  for (auto& c : read_clouds(clouds, bag_frame))
+  for (auto& c : read_clouds(clouds, &problems))
     merged.points.insert(merged.points.end(), c.points.begin(), c.points.end());
+  for (const auto& p : problems)
+    pub.publish(pub.channel("/log", "foxglove.Log"), clock.ns(0),
+                log_message(clock, 0, 3, "export", "the map's cloud is not drawn: " + p));
   stats->points_in = merged.points.size();
   if (merged.points.empty()) return;
   // The map's own cleaning, then a voxel grid (PCL) coarse enough for the budget.

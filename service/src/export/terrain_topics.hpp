@@ -33,24 +33,37 @@ TerrainTopicStats publish_terrain(Publisher& pub, const Clock& clock,
                                   const report::TerrainView& view, double foot_radius,
                                   size_t max_voxels);
 
-// Where the clouds were taken from and when (terrain.json "inputs": "PATH[:TOPIC@SEC.NSEC]" and
-// the sensor origin), in time order.
+// Where the clouds were taken from and when (terrain.json "inputs": "PATH[:TOPIC@SEC.NSEC]", the
+// sensor pose and how the cloud was placed), in time order.
 struct SensorInput {
   std::string path;
   bool has_stamp = false;
   uint64_t stamp_ns = 0;
   bool has_origin = false;
   Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  bool has_orientation = false;
   Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();  // "pose" when recorded
+  std::string pose_source;  // "viewpoint", "origin", "poses", "sensor-pose" ("" unrecorded)
+  std::string up_from;      // how up was found ("levelled by ...", "... checked ...", "z ...")
 };
 std::vector<SensorInput> sensor_inputs(const nlohmann::json& terrain_info);
 
+// The clouds to draw: `files` (a `--terrain` of cloud files, read as `terrastride map` reads them
+// by default) and, of a map folder's `recorded` inputs, the files still on disk (placed as the
+// map placed them: its recorded pose, origin or VIEWPOINT and up) and, with `bag_frame`, the bags'
+// clouds (placed in that frame by the bag's tf).
+struct CloudInputs {
+  std::vector<std::string> files;
+  std::vector<SensorInput> recorded;
+  std::string bag_frame;
+};
+
 // /terrain/points: the clouds' points in the map frame, through the map's default cleaning and a
-// voxel grid coarse enough to leave at most `max_points`; and /tf frames sensor_<i> at each
-// input's origin. `clouds` are files (read as `terrastride map` reads them) or, with
-// `bag_frame`, the bags a map folder was built from.
-void publish_clouds(Publisher& pub, const Clock& clock, const std::vector<std::string>& clouds,
-                    const std::string& bag_frame, const std::vector<SensorInput>& sensors,
-                    size_t max_points, TerrainTopicStats* stats);
+// voxel grid coarse enough to leave at most `max_points`; /tf frames sensor_<i> at each of
+// `sensors`' poses and `sensor` moving to each stamped one. A recorded input that no longer reads
+// as it did is a warning on /log, not an error: the points are an aid, the map is the terrain.
+void publish_clouds(Publisher& pub, const Clock& clock, const CloudInputs& clouds,
+                    const std::vector<SensorInput>& sensors, size_t max_points,
+                    TerrainTopicStats* stats);
 
 }  // namespace terrastride::service::foxglove
