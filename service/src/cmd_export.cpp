@@ -25,7 +25,8 @@ void add_export_command(CLI::App& app) {
                   "or a scene name")
       ->required();
   cmd->add_option("--plan", o->plan, "plan.json made on this terrain");
-  cmd->add_option("--sim", o->sim, "The plan's simulation: `terrastride simulate PLAN --out sim.json`");
+  cmd->add_option("--sim", o->sim,
+                  "The plan's simulation: `terrastride simulate PLAN --out sim.json`");
   cmd->add_option("--out", o->out, "The .mcap file (written atomically)")->required();
   cmd->add_option("--resolution", o->resolution, "Grid cell for scenes and clouds (m)")
       ->capture_default_str();
@@ -52,20 +53,26 @@ void add_export_command(CLI::App& app) {
     const foxglove::ExportSummary s = foxglove::export_foxglove(*o);
     nlohmann::json topics = s.messages_per_topic;
     if (*as_json) {
-      std::cout << nlohmann::json{{"out", o->out},       {"bytes", s.bytes},
-                                  {"messages", s.messages}, {"chunks", s.chunks},
-                                  {"topics", topics},      {"voxels", s.voxels},
-                                  {"footholds", s.footholds}, {"shin_contacts", s.shin_contacts},
+      std::cout << nlohmann::json{{"out", o->out},
+                                  {"bytes", s.bytes},
+                                  {"messages", s.messages},
+                                  {"chunks", s.chunks},
+                                  {"topics", topics},
+                                  {"voxels", s.voxels},
+                                  {"footholds", s.footholds},
+                                  {"shin_contacts", s.shin_contacts},
                                   {"duration_s", s.duration_s},
                                   {"voxel_messages", s.voxel_messages},
                                   {"relief_triangles", s.relief_triangles},
                                   {"relief_cells", s.relief_cells},
                                   {"grid_decimation", s.grid_decimation},
-                                  {"points", s.points}, {"points_in", s.points_in},
+                                  {"points", s.points},
+                                  {"points_in", s.points_in},
                                   {"logs", s.logs},
                                   {"largest_message", s.largest_message},
                                   {"largest_topic", s.largest_topic},
-                                  {"epoch_s", s.epoch_s}, {"layout", s.layout}}
+                                  {"epoch_s", s.epoch_s},
+                                  {"layout", s.layout}}
                        .dump()
                 << "\n";
       return;
@@ -73,8 +80,8 @@ void add_export_command(CLI::App& app) {
     for (const auto& [topic, n] : s.messages_per_topic)
       std::cout << "  " << topic << ": " << n << " messages\n";
     std::cout << s.messages << " messages in " << s.chunks << " chunks, " << s.bytes
-              << " bytes: " << o->out << " (largest message " << s.largest_message
-              << " bytes, " << s.largest_topic << "); layout " << s.layout << "\n";
+              << " bytes: " << o->out << " (largest message " << s.largest_message << " bytes, "
+              << s.largest_topic << "); layout " << s.layout << "\n";
   });
 }
 

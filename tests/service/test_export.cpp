@@ -9,10 +9,10 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include <octomap/OcTree.h>
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
-#include <octomap/OcTree.h>
 
 #include "support/run_command.hpp"
 
@@ -32,8 +32,8 @@ std::string q(const fs::path& p) {
 // Runs the Node reader; its JSON verdict.
 json read_back(const fs::path& mcap, const json& expected) {
   const std::string script = std::string(TERRASTRIDE_SOURCE_DIR) + "/tests/service/mcap_check.js";
-  const CommandResult r =
-      run_command("node " + shell_quote(script) + " " + q(mcap) + " " + shell_quote(expected.dump()));
+  const CommandResult r = run_command("node " + shell_quote(script) + " " + q(mcap) + " " +
+                                      shell_quote(expected.dump()));
   try {
     return json::parse(r.out);
   } catch (const std::exception&) {
@@ -137,13 +137,15 @@ TEST_F(ExportTest, PlanAndSimulationDecodeOnEveryChannelWithTheRightCounts) {
     // plan's first foot positions, and the simulated robot's on the simulation's.
     const json first_plan = read_json(plan_)["samples"][0]["feet"];
     const json first_sim = read_json(sim_)["samples"][0]["feet"];
-    for (const auto& [topic, feet] : {std::pair{"/plan/robot", first_plan}, {"/sim/robot", first_sim}})
+    for (const auto& [topic, feet] :
+         {std::pair{"/plan/robot", first_plan}, {"/sim/robot", first_sim}})
       for (const json& foot : feet) {
         double nearest = 1e9;
         for (const json& sp : check["robot_spheres"][topic])
-          nearest = std::min(nearest, std::hypot(sp[0].get<double>() - foot["position"][0].get<double>(),
-                                                 sp[1].get<double>() - foot["position"][1].get<double>(),
-                                                 sp[2].get<double>() - foot["position"][2].get<double>()));
+          nearest = std::min(nearest,
+                             std::hypot(sp[0].get<double>() - foot["position"][0].get<double>(),
+                                        sp[1].get<double>() - foot["position"][1].get<double>(),
+                                        sp[2].get<double>() - foot["position"][2].get<double>()));
         EXPECT_LT(nearest, 1e-3) << topic << " " << foot["position"];
       }
     // The numbers: the joints' worst torque ratio is the checks' torque_ratio_max; forces and
@@ -152,7 +154,8 @@ TEST_F(ExportTest, PlanAndSimulationDecodeOnEveryChannelWithTheRightCounts) {
     double worst = 0.0;
     for (const std::string leg : {"LF", "RF", "LH", "RH"}) {
       for (const std::string joint : {"haa", "hfe", "kfe"})
-        worst = std::max(worst, n["/plan/joints." + leg + "." + joint + ".torque_ratio"][1].get<double>());
+        worst = std::max(worst,
+                         n["/plan/joints." + leg + "." + joint + ".torque_ratio"][1].get<double>());
       EXPECT_GT(n["/plan/feet." + leg + ".normal_force"][1].get<double>(), 100.0) << leg;
       EXPECT_TRUE(n.contains("/plan/feet." + leg + ".friction_margin")) << leg;
       EXPECT_TRUE(n.contains("/plan/feet." + leg + ".polytope_margin")) << leg;
@@ -166,9 +169,9 @@ TEST_F(ExportTest, PlanAndSimulationDecodeOnEveryChannelWithTheRightCounts) {
 
 TEST_F(ExportTest, TerrainAloneFromAMapFolder) {
   const fs::path terrain = dir_->path() / "terrain";
-  ASSERT_EQ(run_terrastride("map " + shell_quote(std::string(TERRASTRIDE_TEST_DATA_DIR) +
-                                                 "/scans/flat.pcd") +
-                            " --out " + q(terrain))
+  ASSERT_EQ(run_terrastride(
+                "map " + shell_quote(std::string(TERRASTRIDE_TEST_DATA_DIR) + "/scans/flat.pcd") +
+                " --out " + q(terrain))
                 .code,
             0);
   const fs::path out = dir_->path() / "terrain.mcap";
@@ -183,7 +186,8 @@ TEST_F(ExportTest, TerrainAloneFromAMapFolder) {
   EXPECT_GT(check["points"]["/terrain/points"].get<int>(), 1000);
   EXPECT_GT(check["topics"]["/terrain/voxels"].get<int>(), 0);
   // The flat scan's relief: merged into far fewer triangles than two per cell, and all there.
-  const json summary = json::parse(run_terrastride("export --terrain " + q(terrain) + " --json --out " + q(out)).out);
+  const json summary = json::parse(
+      run_terrastride("export --terrain " + q(terrain) + " --json --out " + q(out)).out);
   EXPECT_EQ(check["triangles"]["/terrain/relief"], summary["relief_triangles"]);
   EXPECT_GT(summary["relief_triangles"].get<int>(), 0);
   EXPECT_LT(summary["relief_triangles"].get<size_t>(), summary["relief_cells"].get<size_t>());
@@ -203,7 +207,8 @@ TEST_F(ExportTest, FindingsAreLogMessagesAtTheirTime) {
       for (json& c : f["force"]) c = 4.0 * c.get<double>();
   const fs::path heavy = dir_->path() / "heavy_plan.json", out = dir_->path() / "heavy.mcap";
   std::ofstream(heavy) << plan.dump();
-  const CommandResult r = run_terrastride("export --terrain flat --plan " + q(heavy) + " --out " + q(out));
+  const CommandResult r =
+      run_terrastride("export --terrain flat --plan " + q(heavy) + " --out " + q(out));
   ASSERT_EQ(r.code, 0) << r.all();
   const json check = read_back(out, json::object());
   ASSERT_TRUE(check["ok"].get<bool>()) << check.dump(1);
@@ -252,10 +257,11 @@ TEST_F(ExportTest, MapFolderCloudsArePlacedAsTheMapPlacedThem) {
   const fs::path terrain = dir_->path() / "moved_terrain", out = dir_->path() / "moved.mcap";
   const std::string cloud = std::string(TERRASTRIDE_TEST_DATA_DIR) + "/scans/flat.pcd";
   // flat.pcd's VIEWPOINT is -1 0 0.8, pitched 40 degrees down.
-  ASSERT_EQ(run_terrastride("map " + shell_quote(cloud) +
-                            " --sensor-pose 4,0,0.8,0,0.342020143,0,0.939692621 --out " + q(terrain))
-                .code,
-            0);
+  ASSERT_EQ(
+      run_terrastride("map " + shell_quote(cloud) +
+                      " --sensor-pose 4,0,0.8,0,0.342020143,0,0.939692621 --out " + q(terrain))
+          .code,
+      0);
   const CommandResult r = run_terrastride("export --terrain " + q(terrain) + " --out " + q(out));
   ASSERT_EQ(r.code, 0) << r.all();
   const json check = read_back(out, {{"/terrain/points", 1}});
@@ -293,7 +299,10 @@ TEST_F(ExportTest, LayoutPlotsFieldsTheFileHolds) {
 TEST_F(ExportTest, BagMapKeepsTheRecordingsTimeCloudsAndSensorFrames) {
   const std::string bag = std::string(TERRASTRIDE_SOURCE_DIR) + "/tests/fixtures/bags/scan.bag";
   const fs::path terrain = dir_->path() / "bag_terrain";
-  ASSERT_EQ(run_terrastride("map " + shell_quote(bag) + " --topic /points --frame odom --out " + q(terrain)).code, 0);
+  ASSERT_EQ(run_terrastride("map " + shell_quote(bag) + " --topic /points --frame odom --out " +
+                            q(terrain))
+                .code,
+            0);
   const fs::path out = dir_->path() / "bag.mcap";
   CommandResult r = run_terrastride("export --terrain " + q(terrain) +
                                     " --bag-frame odom --max-points 1000 --json --out " + q(out));
@@ -313,7 +322,8 @@ TEST_F(ExportTest, BagMapKeepsTheRecordingsTimeCloudsAndSensorFrames) {
     EXPECT_NE(std::find(frames.begin(), frames.end(), f), frames.end()) << f;
   }
   // --start-time moves the clock; without --bag-frame the points are not read.
-  r = run_terrastride("export --terrain " + q(terrain) + " --start-time 1000 --json --out " + q(out));
+  r = run_terrastride("export --terrain " + q(terrain) + " --start-time 1000 --json --out " +
+                      q(out));
   ASSERT_EQ(r.code, 0) << r.all();
   check = read_back(out, json::object());
   EXPECT_EQ(check["start_ns"], "1000000000000");
@@ -323,7 +333,8 @@ TEST_F(ExportTest, BagMapKeepsTheRecordingsTimeCloudsAndSensorFrames) {
 
 // geb079 (a building floor, 143 729 occupied voxels): every voxel drawn, no message above 4 MB.
 TEST_F(ExportTest, LargeOctomapStaysUnderTheMessageBudgetWithEveryVoxel) {
-  const fs::path bt = fs::path(TERRASTRIDE_SOURCE_DIR) / ".." / "shared" / "scans" / "octomap" / "geb079.bt";
+  const fs::path bt =
+      fs::path(TERRASTRIDE_SOURCE_DIR) / ".." / "shared" / "scans" / "octomap" / "geb079.bt";
   if (!fs::exists(bt)) GTEST_SKIP() << bt << " is absent (the shared scans)";
   octomap::OcTree tree(bt.string());
   size_t occupied = 0;
@@ -356,7 +367,8 @@ TEST_F(ExportTest, BadInputsNameTheProblemAndWriteNothing) {
        "broken_sim.json"},
       {"--terrain flat --compression lz4", "--compression"},
       {"--terrain flat --start-time -5", "--start-time"},
-      {"--terrain " + shell_quote(std::string(TERRASTRIDE_SOURCE_DIR) + "/tests/fixtures/bags/scan.bag"),
+      {"--terrain " +
+           shell_quote(std::string(TERRASTRIDE_SOURCE_DIR) + "/tests/fixtures/bags/scan.bag"),
        "mapped first"},
       {"--terrain flat --layout " + q(dir_->path() / "layout.txt"), "--layout"},
   };
@@ -367,8 +379,8 @@ TEST_F(ExportTest, BadInputsNameTheProblemAndWriteNothing) {
     EXPECT_FALSE(fs::exists(out)) << c.args;
   }
   // Unwritable --out: a missing folder, a directory, not .mcap; checked before any work.
-  for (const fs::path& bad : {dir_->path() / "no" / "x.mcap", dir_->path() / "adir.mcap",
-                              dir_->path() / "x.txt"}) {
+  for (const fs::path& bad :
+       {dir_->path() / "no" / "x.mcap", dir_->path() / "adir.mcap", dir_->path() / "x.txt"}) {
     fs::create_directories(dir_->path() / "adir.mcap");
     const CommandResult r =
         run_terrastride("export --terrain flat --plan " + q(plan_) + " --out " + q(bad));

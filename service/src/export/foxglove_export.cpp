@@ -18,12 +18,12 @@
 #include "export/robot_topics.hpp"
 #include "export/terrain_topics.hpp"
 #include "report/terrain_input.hpp"
+#include "terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/bag.hpp"
 #include "terrastride/planner/options.hpp"
 #include "terrastride/service/cli.hpp"
-#include "terrain_source.hpp"
 
 namespace terrastride::service::foxglove {
 
@@ -39,7 +39,8 @@ std::string read_text(const std::string& path) {
 
 std::string layout_path(const ExportOptions& o) {
   if (!o.layout.empty()) return o.layout;
-  return (fs::path(o.out).parent_path() / (fs::path(o.out).stem().string() + ".layout.json")).string();
+  return (fs::path(o.out).parent_path() / (fs::path(o.out).stem().string() + ".layout.json"))
+      .string();
 }
 
 void check_options(const ExportOptions& o) {
@@ -56,7 +57,8 @@ void check_options(const ExportOptions& o) {
   if (fs::path(o.out).extension() != ".mcap")
     throw CommandError("--out " + o.out + ": the export is an .mcap file");
   if (!std::isnan(o.start_time) && !(o.start_time >= 0 && o.start_time < 1e10))
-    throw CommandError("--start-time: seconds since 1970 (0 .. 1e10), got " + std::to_string(o.start_time));
+    throw CommandError("--start-time: seconds since 1970 (0 .. 1e10), got " +
+                       std::to_string(o.start_time));
   if (o.max_points == 0) throw CommandError("--max-points: at least 1");
   if (fs::path(layout_path(o)).extension() != ".json")
     throw CommandError("--layout " + o.layout + ": the layout is a .json file");
@@ -77,7 +79,8 @@ void check_plan_terrain(const planner::Trajectory& traj, const std::string& plan
   if (terrain.size() == 1) {
     std::error_code ec;
     if (named == terrain[0]) return;
-    if (fs::exists(named, ec) && fs::exists(terrain[0], ec) && fs::equivalent(named, terrain[0], ec))
+    if (fs::exists(named, ec) && fs::exists(terrain[0], ec) &&
+        fs::equivalent(named, terrain[0], ec))
       return;
   }
   std::string given;
@@ -98,8 +101,9 @@ json read_simulation(const std::string& path, size_t feet) {
   }
   if (!sim.is_object() || !sim.contains("samples") || !sim["samples"].is_array() ||
       sim["samples"].empty())
-    throw CommandError("--sim " + path +
-                       ": no \"samples\" (write it with `terrastride simulate PLAN --out sim.json`)");
+    throw CommandError(
+        "--sim " + path +
+        ": no \"samples\" (write it with `terrastride simulate PLAN --out sim.json`)");
   for (const json& s : sim["samples"])
     if (!s.is_object() || !s.contains("t") || !s.contains("base") || !s.contains("feet") ||
         !s["feet"].is_array() || s["feet"].size() != feet)
@@ -153,7 +157,8 @@ Clock make_clock(const ExportOptions& o, const std::vector<SensorInput>& sensors
 // planner's default), for the friction-cone margins.
 double plan_friction(const planner::Trajectory& traj) {
   for (const char* key : {"friction", "mu"})
-    if (traj.extra.contains(key) && traj.extra[key].is_number()) return traj.extra[key].get<double>();
+    if (traj.extra.contains(key) && traj.extra[key].is_number())
+      return traj.extra[key].get<double>();
   return planner::ProblemOptions{}.friction;
 }
 
@@ -219,13 +224,16 @@ ExportSummary export_foxglove(const ExportOptions& o) {
   ExportSummary summary;
   const double friction = plan ? plan_friction(plan->trajectory) : 0.0;
   if (plan) {
-    const RobotTopicStats ps = publish_plan(pub, clock, model, plan->trajectory, checks, view, friction);
+    const RobotTopicStats ps =
+        publish_plan(pub, clock, model, plan->trajectory, checks, view, friction);
     summary.footholds = ps.footholds;
     summary.shin_contacts = ps.shin_contacts;
     summary.logs += ps.logs;
     summary.duration_s = plan->trajectory.samples.empty() ? 0.0 : plan->trajectory.samples.back().t;
   }
-  if (!sim.is_null()) summary.logs += publish_simulation(pub, clock, model, sim, o.sim, view.field.get(), friction).logs;
+  if (!sim.is_null())
+    summary.logs +=
+        publish_simulation(pub, clock, model, sim, o.sim, view.field.get(), friction).logs;
 
   const std::string bytes = pub.writer().finish();
   summary.messages_per_topic = pub.messages_per_topic();

@@ -36,13 +36,13 @@ json Clock::stamp(double t) const {
 }
 
 std::string base64(const std::string& bytes) {
-  static const char* kAlphabet =
-      "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  static const char* kAlphabet = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
   std::string out;
   out.reserve((bytes.size() + 2) / 3 * 4);
   size_t i = 0;
   for (; i + 2 < bytes.size(); i += 3) {
-    const uint32_t v = (uint8_t(bytes[i]) << 16) | (uint8_t(bytes[i + 1]) << 8) | uint8_t(bytes[i + 2]);
+    const uint32_t v =
+        (uint8_t(bytes[i]) << 16) | (uint8_t(bytes[i + 1]) << 8) | uint8_t(bytes[i + 2]);
     for (int s : {18, 12, 6, 0}) out += kAlphabet[(v >> s) & 63];
   }
   if (i + 1 == bytes.size()) {
@@ -75,7 +75,9 @@ json pose(const Eigen::Vector3d& p, const Eigen::Quaterniond& q) {
   return {{"position", vec3(p)}, {"orientation", quat(q)}};
 }
 json color(double r, double g, double b, double a) {
-  return {{"r", rounded(r, 1e-3)}, {"g", rounded(g, 1e-3)}, {"b", rounded(b, 1e-3)},
+  return {{"r", rounded(r, 1e-3)},
+          {"g", rounded(g, 1e-3)},
+          {"b", rounded(b, 1e-3)},
           {"a", rounded(a, 1e-3)}};
 }
 json size3(double x, double y, double z) {
@@ -86,7 +88,7 @@ json duration(double s) {
   return time_json(ns);
 }
 json margin_color(double margin) {
-  if (margin < 0.0) return color(0.9, 0.1, 0.1);   // unsafe
+  if (margin < 0.0) return color(0.9, 0.1, 0.1);    // unsafe
   if (margin < 0.02) return color(1.0, 0.75, 0.0);  // within 2 cm of an unsafe cell
   return color(0.1, 0.75, 0.3);
 }
@@ -96,12 +98,12 @@ Eigen::Quaterniond orientation_zyx(const Eigen::Vector3d& euler_zyx) {
 
 json entity(const Clock& clock, double t, const std::string& id, const std::string& frame_id,
             bool frame_locked) {
-  return {{"timestamp", clock.stamp(t)}, {"frame_id", frame_id},   {"id", id},
-          {"lifetime", duration(0)},     {"frame_locked", frame_locked},
-          {"metadata", json::array()},   {"arrows", json::array()}, {"cubes", json::array()},
-          {"spheres", json::array()},    {"cylinders", json::array()},
-          {"lines", json::array()},      {"triangles", json::array()},
-          {"texts", json::array()},      {"models", json::array()}};
+  return {
+      {"timestamp", clock.stamp(t)}, {"frame_id", frame_id},         {"id", id},
+      {"lifetime", duration(0)},     {"frame_locked", frame_locked}, {"metadata", json::array()},
+      {"arrows", json::array()},     {"cubes", json::array()},       {"spheres", json::array()},
+      {"cylinders", json::array()},  {"lines", json::array()},       {"triangles", json::array()},
+      {"texts", json::array()},      {"models", json::array()}};
 }
 json scene_update(json entities) {
   return {{"deletions", json::array()}, {"entities", std::move(entities)}};
@@ -128,9 +130,9 @@ json cube(const Eigen::Vector3d& p, const Eigen::Vector3d& size, const json& c,
 json cylinder_between(const Eigen::Vector3d& a, const Eigen::Vector3d& b, double d, const json& c) {
   const Eigen::Vector3d axis = b - a;
   const double length = axis.norm();
-  const Eigen::Quaterniond q = length > 1e-9
-                                   ? Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis)
-                                   : Eigen::Quaterniond::Identity();
+  const Eigen::Quaterniond q =
+      length > 1e-9 ? Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis)
+                    : Eigen::Quaterniond::Identity();
   return {{"pose", pose(0.5 * (a + b), q)},
           {"size", size3(d, d, length)},
           {"bottom_scale", 1.0},
@@ -145,12 +147,9 @@ json force_arrow(const Eigen::Vector3d& from, const Eigen::Vector3d& force, cons
                : Eigen::Quaterniond::Identity();
   const double length = n * m_per_N;
   const double head = std::min(0.05, 0.3 * length);
-  return {{"pose", pose(from, q)},
-          {"shaft_length", std::max(0.0, length - head)},
-          {"shaft_diameter", 0.012},
-          {"head_length", head},
-          {"head_diameter", 0.03},
-          {"color", c}};
+  return {{"pose", pose(from, q)},   {"shaft_length", std::max(0.0, length - head)},
+          {"shaft_diameter", 0.012}, {"head_length", head},
+          {"head_diameter", 0.03},   {"color", c}};
 }
 json transform(const Clock& clock, double t, const std::string& parent, const std::string& child,
                const Eigen::Vector3d& translation, const Eigen::Quaterniond& rotation) {
@@ -162,8 +161,12 @@ json transform(const Clock& clock, double t, const std::string& parent, const st
 }
 json log_message(const Clock& clock, double t, int level, const std::string& name,
                  const std::string& message) {
-  return {{"timestamp", clock.stamp(t)}, {"level", level}, {"message", message},
-          {"name", name},                {"file", ""},     {"line", 0}};
+  return {{"timestamp", clock.stamp(t)},
+          {"level", level},
+          {"message", message},
+          {"name", name},
+          {"file", ""},
+          {"line", 0}};
 }
 
 Publisher::Publisher(const std::string& compression)

@@ -21,7 +21,7 @@ constexpr const char* kMapFrame = "map";
 // Export time: a time t in seconds of the export's clock (the plan's t = 0 is `plan_offset_s`
 // after the epoch) as nanoseconds since the Unix epoch.
 struct Clock {
-  uint64_t epoch_ns = 0;      // what t = 0 of the terrain is (a recording's first stamp, or stated)
+  uint64_t epoch_ns = 0;  // what t = 0 of the terrain is (a recording's first stamp, or stated)
   double plan_offset_s = 0.0;  // the plan's t = 0 on that clock
   uint64_t ns(double t) const;
   json stamp(double t) const;  // {sec, nsec}

@@ -31,7 +31,9 @@ json time_schema() {
           {"required", {"sec", "nsec"}}};
 }
 json object_schema(const std::string& title, json properties, json required = json::array()) {
-  return {{"title", title}, {"type", "object"}, {"properties", std::move(properties)},
+  return {{"title", title},
+          {"type", "object"},
+          {"properties", std::move(properties)},
           {"required", std::move(required)}};
 }
 json per_leg_schema(const std::string& title, const robot::RobotModel& model, const json& leg) {
@@ -41,9 +43,10 @@ json per_leg_schema(const std::string& title, const robot::RobotModel& model, co
 }
 
 json vector3_schema() {
-  return object_schema("foxglove.Vector3",
-                       {{"x", number_schema("x")}, {"y", number_schema("y")}, {"z", number_schema("z")}},
-                       {"x", "y", "z"});
+  return object_schema(
+      "foxglove.Vector3",
+      {{"x", number_schema("x")}, {"y", number_schema("y")}, {"z", number_schema("z")}},
+      {"x", "y", "z"});
 }
 
 // ---- The robot at one moment.
@@ -61,7 +64,8 @@ RobotPose robot_pose(const robot::RobotModel& model, const Eigen::Vector3d& base
   p.base = base;
   p.R = robot::rotation_zyx<double>(euler);
   for (size_t l = 0; l < feet.size(); ++l) {
-    const robot::IkResult ik = robot::inverse_kinematics(model.legs[l], p.R.transpose() * (feet[l] - base));
+    const robot::IkResult ik =
+        robot::inverse_kinematics(model.legs[l], p.R.transpose() * (feet[l] - base));
     p.q.push_back(ik.q);
     p.frames.push_back(robot::leg_frames(model.legs[l], ik.q));
   }
@@ -112,7 +116,8 @@ json robot_entities(const Clock& clock, double t, const std::string& prefix,
     const Eigen::Vector3d foot = f.rotation[2].transpose() * (f.foot - f.origin[2]);
     json hip = entity(clock, t, name + "_hip", name + "_hip", true);
     hip["spheres"].push_back(sphere(Eigen::Vector3d::Zero(), thigh_d * 1.2, grey));
-    if (hfe.norm() > 1e-3) hip["cylinders"].push_back(cylinder_between(Eigen::Vector3d::Zero(), hfe, thigh_d, grey));
+    if (hfe.norm() > 1e-3)
+      hip["cylinders"].push_back(cylinder_between(Eigen::Vector3d::Zero(), hfe, thigh_d, grey));
     json thigh = entity(clock, t, name + "_thigh", name + "_thigh", true);
     thigh["cylinders"].push_back(cylinder_between(Eigen::Vector3d::Zero(), knee, thigh_d, grey));
     json shin = entity(clock, t, name + "_shin", name + "_shin", true);
@@ -127,8 +132,9 @@ json robot_entities(const Clock& clock, double t, const std::string& prefix,
 }
 
 json force_entities(const Clock& clock, double t, const std::string& id,
-                    const std::vector<Eigen::Vector3d>& feet, const std::vector<Eigen::Vector3d>& forces,
-                    const std::vector<bool>& contact, const json& c) {
+                    const std::vector<Eigen::Vector3d>& feet,
+                    const std::vector<Eigen::Vector3d>& forces, const std::vector<bool>& contact,
+                    const json& c) {
   json e = entity(clock, t, id);
   for (size_t f = 0; f < feet.size(); ++f)
     if (contact[f] && forces[f].norm() > 1e-6)
@@ -178,32 +184,37 @@ void add_robot_schemas(Publisher& pub, const robot::RobotModel& model) {
       "terrastride.Joint",
       {{"angle", number_schema("rad")},
        {"velocity", number_schema("rad/s")},
-       {"torque", number_schema("N m (plan: leg dynamics, checks' torque check; sim: MuJoCo's motor)")},
+       {"torque",
+        number_schema("N m (plan: leg dynamics, checks' torque check; sim: MuJoCo's motor)")},
        {"torque_limit", number_schema("N m, the robot file's")},
        {"torque_ratio", number_schema("|torque| / torque_limit (> 1: over the limit)")},
        {"velocity_limit", number_schema("rad/s, the robot file's (0: none given)")}});
-  json leg = object_schema("terrastride.LegJoints", {{"haa", joint}, {"hfe", joint}, {"kfe", joint}});
+  json leg =
+      object_schema("terrastride.LegJoints", {{"haa", joint}, {"hfe", joint}, {"kfe", joint}});
   pub.add_schema("terrastride.JointStates", per_leg_schema("terrastride.JointStates", model, leg));
   json foot = object_schema(
       "terrastride.Foot",
       {{"force", vector3_schema()},
        {"normal_force", number_schema("N, along the terrain normal under the foot")},
        {"friction_margin", number_schema("N, mu f_n - |f_t| (< 0: outside the friction cone)")},
-       {"polytope_margin", number_schema("1 - max_i |J_i^T f| / tau_lim_i (< 0: beyond a torque limit)")},
-       {"foothold_margin", number_schema("m, the terrain's safety margin under the foot (at most 1)")},
+       {"polytope_margin",
+        number_schema("1 - max_i |J_i^T f| / tau_lim_i (< 0: beyond a torque limit)")},
+       {"foothold_margin",
+        number_schema("m, the terrain's safety margin under the foot (at most 1)")},
        {"contact", number_schema("1 in contact, 0 in swing")},
        {"planned_contact", number_schema("sim: 1 where the plan has contact")},
        {"shin_force", number_schema("sim: N, contact force on the shin")}});
   pub.add_schema("terrastride.FootStates", per_leg_schema("terrastride.FootStates", model, foot));
-  pub.add_schema("terrastride.Tracking",
-                 object_schema("terrastride.Tracking",
-                               {{"timestamp", time_schema()},
-                                {"position_error", vector3_schema()},
-                                {"position_error_norm", number_schema("m, simulated - planned base")},
-                                {"yaw_error", number_schema("rad")},
-                                {"pitch_error", number_schema("rad")},
-                                {"roll_error", number_schema("rad")}},
-                               {"timestamp", "position_error", "position_error_norm"}));
+  pub.add_schema(
+      "terrastride.Tracking",
+      object_schema("terrastride.Tracking",
+                    {{"timestamp", time_schema()},
+                     {"position_error", vector3_schema()},
+                     {"position_error_norm", number_schema("m, simulated - planned base")},
+                     {"yaw_error", number_schema("rad")},
+                     {"pitch_error", number_schema("rad")},
+                     {"roll_error", number_schema("rad")}},
+                    {"timestamp", "position_error", "position_error_norm"}));
 }
 
 namespace {
@@ -265,12 +276,14 @@ void publish_plan_logs(Publisher& pub, const Clock& clock, const planner::Trajec
                        const collision::CheckReport& checks, RobotTopicStats* stats) {
   const uint16_t ch = pub.channel("/log", "foxglove.Log");
   const auto log = [&](double t, int level, const std::string& text) {
-    pub.publish(ch, clock.ns(clock.plan(t)), log_message(clock, clock.plan(t), level, "checks", text));
+    pub.publish(ch, clock.ns(clock.plan(t)),
+                log_message(clock, clock.plan(t), level, "checks", text));
     ++stats->logs;
   };
   const std::vector<std::string> failures = checks.failures();
   log(0, failures.empty() ? 2 : 4,
-      failures.empty() ? "post-hoc checks: all pass" : "post-hoc checks: " + std::to_string(failures.size()) + " failed");
+      failures.empty() ? "post-hoc checks: all pass"
+                       : "post-hoc checks: " + std::to_string(failures.size()) + " failed");
   for (const auto& f : failures) log(0, 4, f);
   for (const auto& leg : checks.torque.legs)
     for (int j = 0; j < 3; ++j)
@@ -284,13 +297,16 @@ void publish_plan_logs(Publisher& pub, const Clock& clock, const planner::Trajec
   if (checks.clearance)
     for (const auto& leg : checks.clearance->legs) {
       if (leg.first_certain_collision_t >= 0)
-        log(leg.first_certain_collision_t, 4, leg.leg + " shin/thigh: certain collision with the map");
+        log(leg.first_certain_collision_t, 4,
+            leg.leg + " shin/thigh: certain collision with the map");
       else if (leg.first_collision_t >= 0)
-        log(leg.first_collision_t, 3, leg.leg + " shin/thigh touches occupied voxels (within the map's uncertainty)");
+        log(leg.first_collision_t, 3,
+            leg.leg + " shin/thigh touches occupied voxels (within the map's uncertainty)");
     }
   if (checks.trunk && checks.trunk->first_collision_t >= 0)
     log(checks.trunk->first_collision_t, checks.trunk->first_certain_collision_t >= 0 ? 4 : 3,
-        "trunk touches the map" + std::string(checks.trunk->overhang.empty() ? "" : ": " + checks.trunk->overhang));
+        "trunk touches the map" +
+            std::string(checks.trunk->overhang.empty() ? "" : ": " + checks.trunk->overhang));
   if (checks.footholds)
     for (const auto& f : checks.footholds->footholds)
       if (f.margin < 0)
@@ -329,8 +345,8 @@ RobotTopicStats publish_plan(Publisher& pub, const Clock& clock, const robot::Ro
   const uint16_t force_ch = pub.channel("/plan/contact_forces", "foxglove.SceneUpdate",
                                         {{"arrow_m_per_N", std::to_string(kArrowMetresPerNewton)}});
   const uint16_t joints_ch = pub.channel("/plan/joints", "terrastride.JointStates");
-  const uint16_t feet_ch = pub.channel("/plan/feet", "terrastride.FootStates",
-                                       {{"friction", std::to_string(friction)}});
+  const uint16_t feet_ch =
+      pub.channel("/plan/feet", "terrastride.FootStates", {{"friction", std::to_string(friction)}});
   publish_plan_overviews(pub, clock, traj, checks, &stats);
   const auto* clearance = checks.clearance ? &*checks.clearance : nullptr;
   json contacts = entity(clock, 0, "shin_contacts");
@@ -351,7 +367,9 @@ RobotTopicStats publish_plan(Publisher& pub, const Clock& clock, const robot::Ro
       int v = 0;  // the leg-capsule check's verdict: 0 clear, 1 possible, 2 certain
       if (clearance && l < clearance->legs.size() && k < clearance->legs[l].shin_verdict.size())
         v = static_cast<int>(clearance->legs[l].shin_verdict[k]);
-      shin_colors.push_back(v == 2 ? color(0.9, 0.1, 0.1) : v == 1 ? color(1.0, 0.6, 0.0) : color(0.35, 0.35, 0.4));
+      shin_colors.push_back(v == 2   ? color(0.9, 0.1, 0.1)
+                            : v == 1 ? color(1.0, 0.6, 0.0)
+                                     : color(0.35, 0.35, 0.4));
       if (v > 0) {
         const Eigen::Vector3d knee = p.base + p.R * p.frames[l].origin[2];
         contacts["spheres"].push_back(sphere(0.5 * (knee + feet[l]), 0.03, shin_colors.back()));
@@ -361,10 +379,12 @@ RobotTopicStats publish_plan(Publisher& pub, const Clock& clock, const robot::Ro
           foot_state(model, l, feet[l], forces[l], contact[l], p, view.field.get(), friction);
     }
     pub.publish(tf, clock.ns(t), {{"transforms", robot_transforms(clock, t, "", model, p)}});
-    pub.publish(robot_ch, clock.ns(t),
-                robot_entities(clock, t, "", model, p, color(0.85, 0.85, 0.9, 0.6), shin_colors, contact));
-    pub.publish(force_ch, clock.ns(t),
-                force_entities(clock, t, "plan_forces", feet, forces, contact, color(0.95, 0.45, 0.1)));
+    pub.publish(
+        robot_ch, clock.ns(t),
+        robot_entities(clock, t, "", model, p, color(0.85, 0.85, 0.9, 0.6), shin_colors, contact));
+    pub.publish(
+        force_ch, clock.ns(t),
+        force_entities(clock, t, "plan_forces", feet, forces, contact, color(0.95, 0.45, 0.1)));
     pub.publish(joints_ch, clock.ns(t), plan_joints(clock, t, model, checks, k));
     pub.publish(feet_ch, clock.ns(t), foot_states);
   }
@@ -397,7 +417,8 @@ json sim_joints(const Clock& clock, double t, const robot::RobotModel& model, co
       json v = {{"torque_limit", leg.torque_limit[j]}, {"velocity_limit", leg.velocity_limit[j]}};
       set_finite(v, "angle", p.q[l][j]);
       set_finite(v, "torque", tau[j]);
-      if (leg.torque_limit[j] > 0) set_finite(v, "torque_ratio", std::abs(tau[j]) / leg.torque_limit[j]);
+      if (leg.torque_limit[j] > 0)
+        set_finite(v, "torque_ratio", std::abs(tau[j]) / leg.torque_limit[j]);
       joints[kJointNames[j]] = std::move(v);
     }
     msg[leg.name] = std::move(joints);
@@ -406,9 +427,13 @@ json sim_joints(const Clock& clock, double t, const robot::RobotModel& model, co
 }
 
 json sim_tracking(const Clock& clock, double t, const json& s, const std::string& path) {
-  const Eigen::Vector3d e = v3(s["base"]["position"], path) - v3(s["planned_base"]["position"], path);
-  const Eigen::Vector3d a = v3(s["base"]["euler_zyx"], path) - v3(s["planned_base"]["euler_zyx"], path);
-  json msg = {{"timestamp", clock.stamp(t)}, {"position_error", vec3(e)}, {"position_error_norm", e.norm()}};
+  const Eigen::Vector3d e =
+      v3(s["base"]["position"], path) - v3(s["planned_base"]["position"], path);
+  const Eigen::Vector3d a =
+      v3(s["base"]["euler_zyx"], path) - v3(s["planned_base"]["euler_zyx"], path);
+  json msg = {{"timestamp", clock.stamp(t)},
+              {"position_error", vec3(e)},
+              {"position_error_norm", e.norm()}};
   const auto wrap = [](double x) { return std::remainder(x, 2 * M_PI); };
   set_finite(msg, "yaw_error", wrap(a[0]));
   set_finite(msg, "pitch_error", wrap(a[1]));
@@ -422,32 +447,44 @@ void publish_sim_verdict(Publisher& pub, const Clock& clock, const json& sim, do
                          RobotTopicStats* stats) {
   const uint16_t log_ch = pub.channel("/log", "foxglove.Log");
   const auto log = [&](double t, int level, const std::string& text) {
-    pub.publish(log_ch, clock.ns(clock.plan(t)), log_message(clock, clock.plan(t), level, "simulation", text));
+    pub.publish(log_ch, clock.ns(clock.plan(t)),
+                log_message(clock, clock.plan(t), level, "simulation", text));
     ++stats->logs;
   };
   const auto number = [&](const char* key) {
     return sim.contains(key) && sim[key].is_number() ? sim[key].get<double>() : NAN;
   };
-  if (sim.value("fell", false) && std::isfinite(number("fall_t"))) log(number("fall_t"), 4, "the robot fell");
+  if (sim.value("fell", false) && std::isfinite(number("fall_t")))
+    log(number("fall_t"), 4, "the robot fell");
   if (sim.value("unstable", false) && std::isfinite(number("unstable_t")))
     log(number("unstable_t"), 4, "the simulation became unstable");
-  const double slip_limit = sim.contains("thresholds") ? sim["thresholds"].value("slip_m", 0.05) : 0.05;
+  const double slip_limit =
+      sim.contains("thresholds") ? sim["thresholds"].value("slip_m", 0.05) : 0.05;
   if (sim.contains("stances") && sim["stances"].is_array())
     for (const json& st : sim["stances"]) {
       const double t_end = st.value("t_end", 0.0);
       if (!st.value("touched_down", true))
-        log(st.value("t_start", 0.0), 3, st.value("foot", std::string("?")) + " missed its touch-down");
+        log(st.value("t_start", 0.0), 3,
+            st.value("foot", std::string("?")) + " missed its touch-down");
       if (st.value("slip_m", 0.0) > slip_limit)
-        log(t_end, 3, st.value("foot", std::string("?")) + format(" slipped %.3f m in stance (limit %.3f m)",
-                                                                  st.value("slip_m", 0.0), slip_limit));
+        log(t_end, 3,
+            st.value("foot", std::string("?")) + format(" slipped %.3f m in stance (limit %.3f m)",
+                                                        st.value("slip_m", 0.0), slip_limit));
     }
   const std::string verdict = sim.value("verdict", std::string("unknown"));
   std::string reasons;
   if (sim.contains("reasons") && sim["reasons"].is_array())
-    for (const json& r : sim["reasons"]) reasons += (reasons.empty() ? ": " : "; ") + (r.is_string() ? r.get<std::string>() : r.dump());
-  log(end, verdict == "pass" ? 2 : verdict == "fail" ? 4 : 3, "simulation verdict " + verdict + reasons);
+    for (const json& r : sim["reasons"])
+      reasons +=
+          (reasons.empty() ? ": " : "; ") + (r.is_string() ? r.get<std::string>() : r.dump());
+  log(end,
+      verdict == "pass"   ? 2
+      : verdict == "fail" ? 4
+                          : 3,
+      "simulation verdict " + verdict + reasons);
 
-  json props = {{"timestamp", time_schema()}, {"passed", number_schema("1 when the verdict is pass")}};
+  json props = {{"timestamp", time_schema()},
+                {"passed", number_schema("1 when the verdict is pass")}};
   json msg = {{"passed", verdict == "pass" ? 1 : 0}};
   for (const auto& [k, v] : sim.items())
     if (v.is_number() && std::isfinite(v.get<double>())) {
@@ -494,36 +531,43 @@ RobotTopicStats publish_simulation(Publisher& pub, const Clock& clock,
         forces.push_back(v3(f["force"], path));
         contact.push_back(f["contact"].get<bool>());
       }
-      const RobotPose p = robot_pose(model, v3(s["base"]["position"], path), v3(s["base"]["euler_zyx"], path), feet);
+      const RobotPose p = robot_pose(model, v3(s["base"]["position"], path),
+                                     v3(s["base"]["euler_zyx"], path), feet);
       json foot_states = {{"timestamp", clock.stamp(t)}};
       for (size_t l = 0; l < feet.size(); ++l) {
         const json& f = s["feet"][l];
         json st = foot_state(model, l, feet[l], forces[l], contact[l], p, field, friction);
         st["planned_contact"] = f.value("planned_contact", false) ? 1 : 0;
-        if (f.contains("shin_force") && f["shin_force"].is_number()) set_finite(st, "shin_force", f["shin_force"].get<double>());
+        if (f.contains("shin_force") && f["shin_force"].is_number())
+          set_finite(st, "shin_force", f["shin_force"].get<double>());
         foot_states[model.legs[l].name] = std::move(st);
       }
       pub.publish(tf, clock.ns(t), {{"transforms", robot_transforms(clock, t, "sim_", model, p)}});
-      pub.publish(robot_ch, clock.ns(t),
-                  robot_entities(clock, t, "sim_", model, p, color(0.3, 0.5, 0.95, 0.5), {}, contact));
-      pub.publish(force_ch, clock.ns(t),
-                  force_entities(clock, t, "sim_forces", feet, forces, contact, color(0.2, 0.4, 1.0)));
+      pub.publish(
+          robot_ch, clock.ns(t),
+          robot_entities(clock, t, "sim_", model, p, color(0.3, 0.5, 0.95, 0.5), {}, contact));
+      pub.publish(
+          force_ch, clock.ns(t),
+          force_entities(clock, t, "sim_forces", feet, forces, contact, color(0.2, 0.4, 1.0)));
       const json joints = sim_joints(clock, t, model, s, p, path);
       for (size_t l = 0; l < model.legs.size(); ++l)  // the first time each motor saturates
         for (int j = 0; j < 3; ++j) {
           const json& v = joints[model.legs[l].name][kJointNames[j]];
-          if (saturated[l][j] || !v.contains("torque_ratio") || v["torque_ratio"].get<double>() < 1.0 - 1e-6)
+          if (saturated[l][j] || !v.contains("torque_ratio") ||
+              v["torque_ratio"].get<double>() < 1.0 - 1e-6)
             continue;
           saturated[l][j] = true;
           pub.publish(log_ch, clock.ns(t),
                       log_message(clock, t, 3, "simulation",
                                   model.legs[l].name + " " + kJointNames[j] +
-                                      format(" motor at its torque limit (%.1f N m)", model.legs[l].torque_limit[j])));
+                                      format(" motor at its torque limit (%.1f N m)",
+                                             model.legs[l].torque_limit[j])));
           ++stats.logs;
         }
       pub.publish(joints_ch, clock.ns(t), joints);
       pub.publish(feet_ch, clock.ns(t), foot_states);
-      if (s.contains("planned_base")) pub.publish(track_ch, clock.ns(t), sim_tracking(clock, t, s, path));
+      if (s.contains("planned_base"))
+        pub.publish(track_ch, clock.ns(t), sim_tracking(clock, t, s, path));
     }
   } catch (const json::exception& e) {
     throw CommandError("--sim " + path + ": " + e.what());

@@ -40,15 +40,18 @@ json grid_message(const Clock& clock, const report::TerrainView& view,
   const double raw_budget = 0.7 * kMessageBudget;  // base64 makes 4 bytes of 3
   size_t k = 1;
   while (static_cast<double>(view.nx / k + 1) * (view.ny / k + 1) * stride > raw_budget) ++k;
-  const int cx = static_cast<int>((view.nx + k - 1) / k), cy = static_cast<int>((view.ny + k - 1) / k);
+  const int cx = static_cast<int>((view.nx + k - 1) / k),
+            cy = static_cast<int>((view.ny + k - 1) / k);
   std::string data(static_cast<size_t>(cx) * cy * stride, '\0');
   for (int J = 0; J < cy; ++J)
     for (int I = 0; I < cx; ++I) {
       char* cell = data.data() + (static_cast<size_t>(J) * cx + I) * stride;
       for (size_t f = 0; f < fields.size(); ++f) {
         float v = kNaN;
-        for (int i = I * static_cast<int>(k); i < std::min(view.nx, (I + 1) * static_cast<int>(k)); ++i)
-          for (int j = J * static_cast<int>(k); j < std::min(view.ny, (J + 1) * static_cast<int>(k)); ++j) {
+        for (int i = I * static_cast<int>(k); i < std::min(view.nx, (I + 1) * static_cast<int>(k));
+             ++i)
+          for (int j = J * static_cast<int>(k);
+               j < std::min(view.ny, (J + 1) * static_cast<int>(k)); ++j) {
             const float x = fields[f].value(view.index(i, j));
             if (!std::isfinite(x)) continue;
             v = std::isnan(v) ? x : fields[f].take_min ? std::min(v, x) : std::max(v, x);
@@ -88,7 +91,8 @@ void publish_grids(Publisher& pub, const Clock& clock, const report::TerrainView
   json grid = grid_message(clock, view, fields, &k);
   stats->grid_decimation = k;
   pub.publish(pub.channel("/terrain/grid", "foxglove.Grid",
-                          {{"source", view.source}, {"kind", view.kind},
+                          {{"source", view.source},
+                           {"kind", view.kind},
                            {"cell_m", std::to_string(view.resolution * k)},
                            {"decimation", std::to_string(k)}}),
               clock.ns(0), grid);
@@ -115,8 +119,8 @@ void publish_grids(Publisher& pub, const Clock& clock, const report::TerrainView
       const auto key = std::make_pair(static_cast<int>(std::floor(c.x() / 2.0)),
                                       static_cast<int>(std::floor(c.y() / 2.0)));
       if (!tiles.count(key))
-        tiles[key] = entity(clock, 0, "overhangs_" + std::to_string(key.first) + "_" +
-                                          std::to_string(key.second));
+        tiles[key] = entity(
+            clock, 0, "overhangs_" + std::to_string(key.first) + "_" + std::to_string(key.second));
       tiles[key]["cubes"].push_back(cube(Eigen::Vector3d(c.x(), c.y(), z),
                                          Eigen::Vector3d(view.resolution, view.resolution, 0.01),
                                          color(0.48, 0.17, 0.75, 0.6)));
@@ -151,16 +155,17 @@ void publish_voxels(Publisher& pub, const Clock& clock, const octomap::OcTree& t
   std::vector<json> entities;
   for (auto& [key, cubes] : tiles)
     for (size_t first = 0, part = 0; first < cubes.size(); first += kCubesPerEntity, ++part) {
-      json e = entity(clock, 0, "voxels_" + std::to_string(key.first) + "_" +
-                                    std::to_string(key.second) + "_" + std::to_string(part));
+      json e = entity(clock, 0,
+                      "voxels_" + std::to_string(key.first) + "_" + std::to_string(key.second) +
+                          "_" + std::to_string(part));
       const size_t last = std::min(cubes.size(), first + kCubesPerEntity);
       e["cubes"] = json(std::vector<json>(cubes.begin() + first, cubes.begin() + last));
       e["metadata"].push_back({{"key", "voxels"}, {"value", std::to_string(last - first)}});
       entities.push_back(std::move(e));
     }
-  const uint16_t ch = pub.channel("/terrain/voxels", "foxglove.SceneUpdate",
-                                  {{"voxels", std::to_string(stats->voxels)},
-                                   {"tile_m", std::to_string(kTile)}});
+  const uint16_t ch =
+      pub.channel("/terrain/voxels", "foxglove.SceneUpdate",
+                  {{"voxels", std::to_string(stats->voxels)}, {"tile_m", std::to_string(kTile)}});
   stats->voxel_messages = publish_entities(pub, ch, clock.ns(0), entities, kMessageBudget);
 }
 
@@ -169,7 +174,7 @@ void publish_voxels(Publisher& pub, const Clock& clock, const octomap::OcTree& t
 
 struct ReliefMesh {
   const report::TerrainView& view;
-  size_t layer;                           // margin layer the colours come from
+  size_t layer;  // margin layer the colours come from
   std::vector<std::vector<Eigen::Vector3d>> by_class = std::vector<std::vector<Eigen::Vector3d>>(4);
   size_t triangles = 0;
 
@@ -187,7 +192,8 @@ struct ReliefMesh {
   }
   bool known(int i, int j) const { return std::isfinite(view.height[view.index(i, j)]); }
   void quad(int i0, int j0, int i1, int j1, int cls) {
-    const Eigen::Vector3d a = vertex(i0, j0), b = vertex(i1, j0), c = vertex(i1, j1), d = vertex(i0, j1);
+    const Eigen::Vector3d a = vertex(i0, j0), b = vertex(i1, j0), c = vertex(i1, j1),
+                          d = vertex(i0, j1);
     for (const Eigen::Vector3d& p : {a, b, c, a, c, d}) by_class[cls].push_back(p);
     triangles += 2;
   }
@@ -200,7 +206,8 @@ struct ReliefMesh {
       for (int j = j0; j <= j1; ++j) {
         if (!known(i, j) || colour_class(i, j) != *cls) return false;
         const double u = double(i - i0) / (i1 - i0), v = double(j - j0) / (j1 - j0);
-        const double bilinear = (1 - u) * (1 - v) * h00 + u * (1 - v) * h10 + (1 - u) * v * h01 + u * v * h11;
+        const double bilinear =
+            (1 - u) * (1 - v) * h00 + u * (1 - v) * h10 + (1 - u) * v * h01 + u * v * h11;
         if (std::abs(vertex(i, j).z() - bilinear) > kFlatTolerance) return false;
       }
     return true;
@@ -211,8 +218,8 @@ struct ReliefMesh {
     int cls = 0;
     if (size == 1) {
       if (!known(i0, j0) || !known(i1, j0) || !known(i0, j1) || !known(i1, j1)) return;
-      cls = std::min({colour_class(i0, j0), colour_class(i1, j0), colour_class(i0, j1),
-                      colour_class(i1, j1)});
+      cls = std::min(
+          {colour_class(i0, j0), colour_class(i1, j0), colour_class(i0, j1), colour_class(i1, j1)});
       quad(i0, j0, i1, j1, cls);
       return;
     }
@@ -231,7 +238,8 @@ void publish_relief(Publisher& pub, const Clock& clock, const report::TerrainVie
   if (view.radii.empty() || view.nx < 2 || view.ny < 2) return;
   size_t layer = 0;
   for (size_t r = 1; r < view.radii.size(); ++r)
-    if (std::abs(view.radii[r] - foot_radius) < std::abs(view.radii[layer] - foot_radius)) layer = r;
+    if (std::abs(view.radii[r] - foot_radius) < std::abs(view.radii[layer] - foot_radius))
+      layer = r;
   constexpr int kTileCells = 64;  // a power of two: the blocks halve down to single cells
   const json colours[4] = {color(0.9, 0.1, 0.1), color(1.0, 0.75, 0.0), color(0.1, 0.75, 0.3),
                            color(0.55, 0.55, 0.6)};
@@ -297,12 +305,13 @@ std::vector<SensorInput> sensor_inputs(const nlohmann::json& info) {
     }
     if (in.contains("pose") && in["pose"].is_object())
       s.pose_source = in["pose"].value("source", std::string());
-    if (in.contains("up") && in["up"].is_object()) s.up_from = in["up"].value("from", std::string());
-    const json* q = in.contains("pose") && in["pose"].is_object() && in["pose"].contains("orientation_xyzw")
-                        ? &in["pose"]["orientation_xyzw"]
-                        : nullptr;
-    if (q && q->is_array() && q->size() == 4)
-    {
+    if (in.contains("up") && in["up"].is_object())
+      s.up_from = in["up"].value("from", std::string());
+    const json* q =
+        in.contains("pose") && in["pose"].is_object() && in["pose"].contains("orientation_xyzw")
+            ? &in["pose"]["orientation_xyzw"]
+            : nullptr;
+    if (q && q->is_array() && q->size() == 4) {
       s.has_orientation = true;
       s.orientation = Eigen::Quaterniond((*q)[3].get<double>(), (*q)[0].get<double>(),
                                          (*q)[1].get<double>(), (*q)[2].get<double>())
@@ -322,7 +331,8 @@ namespace {
 // with the optical frame already composed), its --origin, or its VIEWPOINT; and its up mode.
 terrain::CloudPoseOptions recorded_placement(const SensorInput& in) {
   terrain::CloudPoseOptions o;
-  if ((in.pose_source == "poses" || in.pose_source == "sensor-pose") && in.has_origin && in.has_orientation)
+  if ((in.pose_source == "poses" || in.pose_source == "sensor-pose") && in.has_origin &&
+      in.has_orientation)
     o.sensor_pose = perception::SensorPose{in.origin, in.orientation};
   else if (in.pose_source == "origin" && in.has_origin)
     o.origin = in.origin;
@@ -369,9 +379,10 @@ std::vector<perception::PointCloud> read_clouds(const CloudInputs& in,
     bo.topics = topics;
     bo.fixed_frame = in.bag_frame;
     try {
-      perception::read_bag_clouds(bag, bo, [&](perception::PointCloud&& c, const perception::BagCloudInfo&) {
-        out.push_back(std::move(c));
-      });
+      perception::read_bag_clouds(bag, bo,
+                                  [&](perception::PointCloud&& c, const perception::BagCloudInfo&) {
+                                    out.push_back(std::move(c));
+                                  });
     } catch (const std::exception& e) {
       problems->push_back("--bag-frame " + in.bag_frame + ": " + e.what());
     }
@@ -419,7 +430,8 @@ void publish_clouds(Publisher& pub, const Clock& clock, const CloudInputs& cloud
   stats->points_in = merged.points.size();
   if (merged.points.empty()) return;
   // The map's own cleaning, then a voxel grid (PCL) coarse enough for the budget.
-  perception::PointCloud kept = perception::filter_cloud(merged, perception::default_map_cleaning());
+  perception::PointCloud kept =
+      perception::filter_cloud(merged, perception::default_map_cleaning());
   double leaf = 0.0;
   while (kept.points.size() > max_points) {
     leaf = leaf == 0.0 ? 0.01 : 1.5 * leaf;

@@ -16,7 +16,7 @@ namespace terrastride::service::foxglove {
 constexpr size_t kMessageBudget = 3500000;
 
 struct TerrainTopicStats {
-  size_t voxels = 0;          // cubes on /terrain/voxels
+  size_t voxels = 0;  // cubes on /terrain/voxels
   size_t voxel_messages = 0;
   size_t relief_triangles = 0;
   size_t relief_cells = 0;     // grid cells the mesh covers (before merging flat blocks)
