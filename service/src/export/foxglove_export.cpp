@@ -18,7 +18,7 @@
 #include "export/robot_topics.hpp"
 #include "export/terrain_topics.hpp"
 #include "report/terrain_input.hpp"
-#include "terrain_source.hpp"
+#include "common/terrain_source.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/bag.hpp"
