@@ -805,14 +805,19 @@ __attribute__((flatten)) std::vector<SafetyLayer> safety_layers_portable(
 
 std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vector<double>& radii,
                                         const SafetyOptions& o) {
+  if (!(o.max_climb > 0))
+    throw InputError("safety options: max_climb must be positive (infinity: every level reachable)");
+  return compute_safety(grid, radii, o,
+                        std::isfinite(o.max_climb) ? ground_levels(grid, o.max_climb)
+                                                   : GroundLevels{});
+}
+
+std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vector<double>& radii,
+                                        const SafetyOptions& o, const GroundLevels& levels) {
   for (double r : radii) {
     if (!std::isfinite(r) || r < 0 || r > 1.0)
       throw InputError("foot radius " + std::to_string(r) + " m is outside [0, 1] m");
   }
-  if (!(o.max_climb > 0))
-    throw InputError("safety options: max_climb must be positive (infinity: every level reachable)");
-  const GroundLevels levels = std::isfinite(o.max_climb) ? ground_levels(grid, o.max_climb)
-                                                          : GroundLevels{};
 #ifdef TERRASTRIDE_SAFETY_AVX2
   static const bool avx2 = [] {
     __builtin_cpu_init();  // a no-op after start-up; needed if this runs from a static initialiser
@@ -842,7 +847,7 @@ TerrainMap::TerrainMap(HeightGrid grid, const std::vector<double>& radii, Safety
   for (double r : radii)
     if (std::none_of(todo.begin(), todo.end(), [r](double t) { return std::abs(t - r) < 1e-9; }))
       todo.push_back(r);
-  for (auto& l : compute_safety(grid_, todo, options_)) {
+  for (auto& l : compute_safety(grid_, todo, options_, levels_)) {
     l.margin_field = BSplineField(grid_.geometry, l.margin, /*interpolate=*/true);
     layers_.push_back(std::move(l));
   }
@@ -895,7 +900,7 @@ const SafetyLayer& TerrainMap::layer(double r) const {
   std::lock_guard<std::mutex> lock(mutex_);
   for (const auto& l : layers_)
     if (std::abs(l.radius - r) < 1e-9) return l;
-  SafetyLayer l = compute_safety(grid_, r, options_);
+  SafetyLayer l = std::move(compute_safety(grid_, {r}, options_, levels_).front());
   l.margin_field = BSplineField(grid_.geometry, l.margin, /*interpolate=*/true);
   layers_.push_back(std::move(l));
   return layers_.back();

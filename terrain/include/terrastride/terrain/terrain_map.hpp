@@ -106,6 +106,10 @@ std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vecto
                                         const SafetyOptions& options = {});
 SafetyLayer compute_safety(const HeightGrid& grid, double radius,
                            const SafetyOptions& options = {});
+// The same with the grid's levels for options.max_climb already computed (ground_levels; an empty
+// GroundLevels when it is +infinity).
+std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vector<double>& radii,
+                                        const SafetyOptions& options, const GroundLevels& levels);
 
 struct Clearance {
   double min = 0.0;    // min over the segment of p_z - h(p_x, p_y)
