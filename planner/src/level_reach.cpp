@@ -2,24 +2,22 @@
 
 #include <algorithm>
 #include <cmath>
-#include <deque>
 #include <limits>
 #include <sstream>
 #include <string>
 #include <vector>
 
 #include "terrastride/planner/request_limits.hpp"
+#include "terrastride/terrain/levels.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
 
 namespace terrastride::planner {
 namespace {
 
-// The ground the check walks on: heights per cell and whether a foot can stand there.
-struct LevelGrid {
-  terrain::GridGeometry geometry;
-  std::vector<float> height;
-  std::vector<uint8_t> ground;    // 0: no walkable ground (only an overhang was seen)
-  std::vector<float> overhang;    // the overhang's underside where ground == 0 (else unused)
+// The ground the check walks on: heights per cell, whether a foot can stand there, and the
+// overhang's underside where it cannot (for the message).
+struct LevelGrid : terrain::LevelInput {
+  std::vector<float> overhang;
 
   int index(double x, double y) const {
     const double fx = (x - geometry.origin.x()) / geometry.resolution;
@@ -39,16 +37,10 @@ LevelGrid level_grid(const terrain::HeightField& terrain) {
   LevelGrid l;
   if (const auto* map = dynamic_cast<const terrain::TerrainMap*>(&terrain)) {
     const terrain::HeightGrid& g = map->grid();
-    l.geometry = g.geometry;
-    l.height = g.elevation;
-    l.ground.assign(g.geometry.size(), 1);
+    static_cast<terrain::LevelInput&>(l) = terrain::level_input(g);
     l.overhang.assign(g.geometry.size(), std::numeric_limits<float>::infinity());
-    if (g.overhead.size() == g.geometry.size())
-      for (size_t k = 0; k < g.geometry.size(); ++k)
-        if (g.observed[k] == 0 && g.support[k] == 0 && std::isfinite(g.overhead[k])) {
-          l.ground[k] = 0;
-          l.overhang[k] = g.overhead[k];
-        }
+    for (size_t k = 0; k < g.geometry.size(); ++k)
+      if (!l.ground[k]) l.overhang[k] = g.overhead[k];
     return l;
   }
   const Eigen::Vector2d lo = terrain.min_corner(), hi = terrain.max_corner();
@@ -69,41 +61,6 @@ LevelGrid level_grid(const terrain::HeightField& terrain) {
       l.height[l.geometry.index(i, j)] = static_cast<float>(terrain.height(c.x(), c.y()));
     }
   return l;
-}
-
-// Cells connected to `from` by the steps of the header's rule (breadth first).
-std::vector<uint8_t> connected(const LevelGrid& l, int from, double reach) {
-  const terrain::GridGeometry& g = l.geometry;
-  const int far = std::max(1, static_cast<int>(std::floor(reach / g.resolution)));
-  std::vector<uint8_t> seen(g.size(), 0);
-  std::deque<int> queue{from};
-  seen[from] = 1;
-  while (!queue.empty()) {
-    const int k = queue.front();
-    queue.pop_front();
-    const int i = k / g.ny, j = k % g.ny;
-    const double h = l.height[k];
-    for (int di = -1; di <= 1; ++di)
-      for (int dj = -1; dj <= 1; ++dj) {
-        if (!di && !dj) continue;
-        for (int d = 1; d <= far + 1; ++d) {
-          if (d > 1 && std::hypot(double(d * di), double(d * dj)) * g.resolution > reach) break;
-          const int a = i + d * di, b = j + d * dj;
-          if (a < 0 || b < 0 || a >= g.nx || b >= g.ny) break;
-          const int n = static_cast<int>(g.index(a, b));
-          if (l.ground[n] && std::abs(l.height[n] - h) <= reach) {
-            if (!seen[n]) {
-              seen[n] = 1;
-              queue.push_back(n);
-            }
-            break;
-          }
-          // Not a step: swung over only when it is a hole or no higher than a leg length above.
-          if (l.ground[n] && l.height[n] > h + reach) break;
-        }
-      }
-  }
-  return seen;
 }
 
 std::string num(double v) {
@@ -175,7 +132,7 @@ void check_level_reach(const terrain::HeightField& terrain, const robot::RobotMo
   for (const Foot& f : goal_feet)
     if (f.cell >= 0 && !l.ground[f.cell]) no_ground("goal", goal, f);
   if (source < 0) return;
-  const std::vector<uint8_t> reached = connected(l, source, reach);
+  const std::vector<uint8_t> reached = terrain::reachable_cells(l, source, reach);
   const auto refuse = [&](const char* field, const Eigen::Vector3d& p, const Foot& f) {
     throw RequestError(
         field, pose(p) + ": " + where(f) + " stands on a surface at z " + num(l.height[f.cell]) +

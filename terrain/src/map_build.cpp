@@ -740,12 +740,15 @@ json map_summary(const MapBuild& build, const json& terrain, const std::string& 
                   {"noise_sigma", g.noise_sigma},
                   {"noise_estimated", g.noise.estimated},
                   {"smoothing_length", g.smoothing_length},
-                  // safe[].safe_fraction is SafetyLayer::safe_fraction(): safe cells over observed
-                  // (measured or interpolated) cells.
-                  {"safe_fraction_of", "observed_cells + interpolated_cells"},
+                  // safe[].safe_fraction is SafetyLayer::safe_fraction(): safe cells over
+                  // walkable observed (measured or interpolated) cells, unreachable levels apart.
+                  {"safe_fraction_of",
+                   "observed_cells + interpolated_cells - unreachable_cells"},
                   {"safe", safe},
                   {"overhang_cells", g.overhang_cells},
                   {"overhang_cells_over_unobserved_ground", g.overhang_unobserved_cells},
+                  {"unreachable_cells", build.map->levels().unreachable_cells},
+                  {"unreachable_levels", build.map->levels().unreachable_levels},
                   {"timings", terrain["timings"]}};
   if (!g.notes.empty()) summary["notes"] = g.notes;  // the noise note first when there is one
   return summary;

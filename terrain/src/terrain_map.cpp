@@ -551,8 +551,14 @@ DiskSpec disk_spec(const HeightGrid& grid, double radius, double mean_support,
                    const SafetyOptions& o) {
   const double res = grid.geometry.resolution;
   DiskSpec d;
-  // Disk rows: for a row offset di, the cells j - w[di] .. j + w[di].
-  const double reach = radius / res + 0.5 + 1e-9;
+  // Disk rows: for a row offset di, the cells j - w[di] .. j + w[di]. A foot of any size reaches
+  // at least the 8 neighbours: on cells wider than the foot (a 2 cm foot on an 8 cm OctoMap) the
+  // disk would otherwise be the cell alone, and a step, a partition's one-cell crest or a wall top
+  // would pass as flat. (Where r + res/2 already spans the neighbours, 2 cm cells from a 2 cm foot
+  // up, the disk is unchanged.)
+  double reach = radius / res + 0.5;
+  if (radius > 0) reach = std::max(reach, std::sqrt(2.0));
+  reach += 1e-9;
   const int R = static_cast<int>(std::floor(reach));
   d.R = R;
   d.w.resize(2 * R + 1);
@@ -709,7 +715,7 @@ void fill_margin(const GridGeometry& g, SafetyScratch& sc, SafetyLayer& layer) {
 // The masks and margins for validated radii.
 inline std::vector<SafetyLayer> safety_layers(const HeightGrid& grid,
                                               const std::vector<double>& radii,
-                                              const SafetyOptions& o) {
+                                              const SafetyOptions& o, const GroundLevels& levels) {
   const GridGeometry& g = grid.geometry;
   const int nx = g.nx, ny = g.ny;
   double support_sum = 0;
@@ -760,11 +766,19 @@ inline std::vector<SafetyLayer> safety_layers(const HeightGrid& grid,
       mask_row(grid, i, disks[l], row_at, sc, layers[l]);
     }
   }
+  // Unreachable levels are no ground to walk on: never safe, out of the safe fraction.
   size_t observed = 0;
   for (size_t k = 0; k < g.size(); ++k) observed += grid.observed[k] != 0;
   for (auto& l : layers) {
+    if (levels.unreachable_cells > 0)
+      for (size_t k = 0; k < g.size(); ++k)
+        if (levels.unreachable[k] && l.safe[k]) {
+          l.safe[k] = 0;
+          --l.safe_cells;
+        }
     fill_margin(g, sc, l);
-    l.observed_cells = observed;
+    l.observed_cells = observed - levels.unreachable_cells;
+    l.unreachable_cells = levels.unreachable_cells;
   }
   return layers;
 }
@@ -776,19 +790,30 @@ inline std::vector<SafetyLayer> safety_layers(const HeightGrid& grid,
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
 #define TERRASTRIDE_SAFETY_AVX2 1
 __attribute__((target("avx2"), flatten)) std::vector<SafetyLayer> safety_layers_avx2(
-    const HeightGrid& grid, const std::vector<double>& radii, const SafetyOptions& o) {
-  return safety_layers(grid, radii, o);
+    const HeightGrid& grid, const std::vector<double>& radii, const SafetyOptions& o,
+    const GroundLevels& levels) {
+  return safety_layers(grid, radii, o, levels);
 }
 #endif
 __attribute__((flatten)) std::vector<SafetyLayer> safety_layers_portable(
-    const HeightGrid& grid, const std::vector<double>& radii, const SafetyOptions& o) {
-  return safety_layers(grid, radii, o);
+    const HeightGrid& grid, const std::vector<double>& radii, const SafetyOptions& o,
+    const GroundLevels& levels) {
+  return safety_layers(grid, radii, o, levels);
 }
 
 }  // namespace
 
 std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vector<double>& radii,
                                         const SafetyOptions& o) {
+  if (!(o.max_climb > 0))
+    throw InputError("safety options: max_climb must be positive (infinity: every level reachable)");
+  return compute_safety(grid, radii, o,
+                        std::isfinite(o.max_climb) ? ground_levels(grid, o.max_climb)
+                                                   : GroundLevels{});
+}
+
+std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vector<double>& radii,
+                                        const SafetyOptions& o, const GroundLevels& levels) {
   for (double r : radii) {
     if (!std::isfinite(r) || r < 0 || r > 1.0)
       throw InputError("foot radius " + std::to_string(r) + " m is outside [0, 1] m");
@@ -798,9 +823,9 @@ std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vecto
     __builtin_cpu_init();  // a no-op after start-up; needed if this runs from a static initialiser
     return __builtin_cpu_supports("avx2") != 0;
   }();
-  if (avx2) return safety_layers_avx2(grid, radii, o);
+  if (avx2) return safety_layers_avx2(grid, radii, o, levels);
 #endif
-  return safety_layers_portable(grid, radii, o);
+  return safety_layers_portable(grid, radii, o, levels);
 }
 
 SafetyLayer compute_safety(const HeightGrid& grid, double radius, const SafetyOptions& o) {
@@ -815,11 +840,14 @@ TerrainMap::TerrainMap(HeightGrid grid, const std::vector<double>& radii, Safety
               grid_.surface.size() == grid_.geometry.size() ? grid_.surface : grid_.elevation) {
   if (!(options_.max_step > 0) || !(options_.max_rms > 0) || !(options_.max_slope > 0))
     throw InputError("safety options: max_step, max_rms and max_slope must be positive");
+  if (!(options_.max_climb > 0))
+    throw InputError("safety options: max_climb must be positive (infinity: every level reachable)");
+  if (std::isfinite(options_.max_climb)) levels_ = ground_levels(grid_, options_.max_climb);
   std::vector<double> todo;
   for (double r : radii)
     if (std::none_of(todo.begin(), todo.end(), [r](double t) { return std::abs(t - r) < 1e-9; }))
       todo.push_back(r);
-  for (auto& l : compute_safety(grid_, todo, options_)) {
+  for (auto& l : compute_safety(grid_, todo, options_, levels_)) {
     l.margin_field = BSplineField(grid_.geometry, l.margin, /*interpolate=*/true);
     layers_.push_back(std::move(l));
   }
@@ -872,7 +900,7 @@ const SafetyLayer& TerrainMap::layer(double r) const {
   std::lock_guard<std::mutex> lock(mutex_);
   for (const auto& l : layers_)
     if (std::abs(l.radius - r) < 1e-9) return l;
-  SafetyLayer l = compute_safety(grid_, r, options_);
+  SafetyLayer l = std::move(compute_safety(grid_, {r}, options_, levels_).front());
   l.margin_field = BSplineField(grid_.geometry, l.margin, /*interpolate=*/true);
   layers_.push_back(std::move(l));
   return layers_.back();
@@ -927,6 +955,7 @@ PointAnswer TerrainMap::answer(double x, double y, double foot_radius) const {
   a.margin = l.margin[k];
   if (grid_.overhead.size() == grid_.geometry.size()) a.overhead = grid_.overhead[k];
   a.overhang_only = !a.observed && grid_.support[k] == 0 && std::isfinite(a.overhead);
+  a.unreachable = !levels_.unreachable.empty() && levels_.unreachable[k];
   if (a.observed && std::isfinite(a.overhead)) a.free_height = a.overhead - grid_.elevation[k];
   std::ostringstream why;
   if (a.overhang_only) {
@@ -935,6 +964,10 @@ PointAnswer TerrainMap::answer(double x, double y, double foot_radius) const {
         << a.overhead << " m), not the ground beneath it";
   } else if (!a.observed) {
     why << "not observed: the map holds no measured ground here";
+  } else if (a.unreachable) {
+    why << "an unreachable level: no step of at most " << options_.max_climb
+        << " m joins this surface (z " << grid_.elevation[k]
+        << " m) to the floor's level (a cupboard top, a wall's crest?)";
   } else if (!a.safe) {
     why << "not a safe foothold for the " << foot_radius
         << " m foot: an edge, a step, a slope or roughness within reach (margin " << a.margin
@@ -1040,12 +1073,14 @@ nlohmann::json write_terrain_layers(const TerrainMap& map, const std::string& di
         {"step_noise_factor", o.step_noise_factor},
         {"rms_noise_factor", o.rms_noise_factor},
         {"slope_noise_factor", o.slope_noise_factor},
+        {"max_climb", o.max_climb},
         {"max_rms", o.max_rms},
         {"max_slope", o.max_slope},
         {"safe_fraction_definition",
-         "safe cells / observed cells (measured or interpolated): walkable ground only; "
+         "safe cells / walkable observed cells (measured or interpolated, on the floor's level): "
          "hole-filled, bridged and uncertain cells, and cells whose only surface is an overhang, "
-         "are not observed"},
+         "are not observed; observed cells on levels no step of at most max_climb joins to the "
+         "floor's are unreachable (statistics.unreachable_cells)"},
         {"radii", safety}}},
       {"statistics",
        {{"points_in_grid", g.points_in_grid},
@@ -1057,7 +1092,9 @@ nlohmann::json write_terrain_layers(const TerrainMap& map, const std::string& di
         {"see_through_cells", g.see_through_cells},
         {"uncertain_cells", g.uncertain_cells},
         {"overhang_cells", g.overhang_cells},
-        {"overhang_cells_over_unobserved_ground", g.overhang_unobserved_cells}}}};
+        {"overhang_cells_over_unobserved_ground", g.overhang_unobserved_cells},
+        {"unreachable_cells", map.levels().unreachable_cells},
+        {"unreachable_levels", map.levels().unreachable_levels}}}};
   if (!g.notes.empty()) meta["notes"] = g.notes;
   return meta;
 }
@@ -1115,6 +1152,10 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
     opts.step_noise_factor = sj.value("step_noise_factor", opts.step_noise_factor);
     opts.rms_noise_factor = sj.value("rms_noise_factor", opts.rms_noise_factor);
     opts.slope_noise_factor = sj.value("slope_noise_factor", opts.slope_noise_factor);
+    // JSON has no infinity: a map written without the level rule holds null.
+    if (sj.contains("max_climb"))
+      opts.max_climb = sj.at("max_climb").is_null() ? std::numeric_limits<double>::infinity()
+                                                     : sj.at("max_climb").get<double>();
     for (const auto& r : sj.at("radii")) radii.push_back(r.at("radius").get<double>());
   } catch (const nlohmann::json::exception& e) {
     throw InputError(meta_path.string() + ": missing or malformed field (" + e.what() + ")");

@@ -2,7 +2,8 @@
 // a shelf whose underside is 0.6 m up across the path (x in [0.4, 0.9]). HyQ, whose trunk's top
 // stands at least 0.62 m up while a foot swings, is refused before any solve with a message naming
 // the trunk and the overhang; Go2 is planned under it, clean in every post-hoc check, and passes
-// in MuJoCo (--simulate). Go2 also starts under a stair tread (tread_45) and walks out.
+// in MuJoCo (--simulate). Go2 also starts under a stair tread (tread_45) and walks out; HyQ is
+// refused there.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -80,6 +81,17 @@ TEST_F(OverhangPlan, Go2WalksUnderTheShelfCleanAndPassesInMuJoCo) {
   const json& samples = p.plan["samples"];
   ASSERT_FALSE(samples.empty());
   EXPECT_NEAR(samples.back()["base"]["position"][0].get<double>(), 1.0, 1e-3);
+}
+
+TEST_F(OverhangPlan, HyQStartingUnderTheTreadIsRefusedNamingTrunkAndOverhang) {
+  // The tread's underside 0.45 m up over the start: HyQ's trunk stands higher than that while a
+  // foot swings; Go2's (below) fits.
+  const Planned p = plan("--terrain tread_45", "hyq_tread_45");
+  EXPECT_EQ(p.code, 1) << p.output;
+  EXPECT_NE(p.output.find("hyq's trunk box cannot pass under the overhang"), std::string::npos)
+      << p.output;
+  EXPECT_NE(p.output.find("0.45 m above the walkable surface"), std::string::npos) << p.output;
+  EXPECT_FALSE(fs::exists(dir_ / "hyq_tread_45.json"));
 }
 
 TEST_F(OverhangPlan, Go2StartsUnderATreadAndWalksOut) {

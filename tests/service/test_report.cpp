@@ -384,6 +384,71 @@ TEST_F(ReportTest, TerrainRowsCarryStatusesAgainstStatedThresholds) {
   EXPECT_NE(mapped.out.find(words), std::string::npos) << words << "\n" << mapped.out;
 }
 
+// The page shows how each cloud's up direction was found (terrain.json inputs[k].up) and the
+// overhead layer's figures: a floor with a table top seen only from beneath, from a sensor 0.4 m
+// up at the side whose position is given (--origin), so the floor is checked against gravity.
+TEST_F(ReportTest, UpEstimateAndOverhangFiguresAreOnThePage) {
+  {
+    std::ofstream xyz(dir_ / "room.xyz");
+    for (int i = 0; i < 200; ++i)
+      for (int j = 0; j < 100; ++j) xyz << i * 0.01 + 0.005 << " " << j * 0.01 - 0.495 << " 0\n";
+    for (int i = 0; i < 50; ++i)
+      for (int j = 0; j < 50; ++j) xyz << 1.005 + i * 0.01 << " " << j * 0.01 - 0.245 << " 0.75\n";
+  }
+  const auto mapped = run("map " + shell_quote((dir_ / "room.xyz").string()) +
+                          " --origin -1,0,0.4 --out " + shell_quote((dir_ / "room").string()));
+  ASSERT_EQ(mapped.code, 0) << mapped.all();
+  const auto r = run("report --terrain " + shell_quote((dir_ / "room").string()) + " --out " +
+                     shell_quote((dir_ / "room.html").string()));
+  ASSERT_EQ(r.code, 0) << r.all();
+  const json rep = read_json(dir_ / "room.json");
+  const json& t = rep["terrain"];
+  ASSERT_EQ(t["inputs"].size(), 1u) << t.dump().substr(0, 400);
+  const json& in = t["inputs"][0];
+  EXPECT_EQ(in["method"], "check") << in.dump();
+  EXPECT_NEAR(in["tilt_deg"].get<double>(), 0.0, 0.5) << in.dump();
+  EXPECT_NEAR(in["sensor_height_m"].get<double>(), 0.4, 0.02) << in.dump();
+  EXPECT_GT(in["inlier_share"].get<double>(), 0.5) << in.dump();
+  EXPECT_GT(t["overhang_cells"].get<size_t>(), 100u);
+  EXPECT_NEAR(t["min_free_height_m"].get<double>(), 0.75, 0.05) << t["min_free_height_m"];
+  // The same figures as rows of the summary table the page draws.
+  bool up_row = false, free_row = false;
+  for (const json& row : rep["summary"]) {
+    const std::string label = row["label"];
+    if (label.find("up of ") == 0 && label.find("room.xyz") != std::string::npos) {
+      up_row = true;
+      EXPECT_EQ(row["status"], "ok") << row.dump();
+      EXPECT_NE(row["note"].get<std::string>().find("0.40 m from the dominant plane"),
+                std::string::npos)
+          << row.dump();
+    }
+    if (label == "minimum free height under an overhang") {
+      free_row = true;
+      EXPECT_NEAR(row["value"].get<double>(), 0.75, 0.05) << row.dump();
+    }
+  }
+  EXPECT_TRUE(up_row) << rep["summary"].dump(1);
+  EXPECT_TRUE(free_row) << rep["summary"].dump(1);
+  // The page carries the figures and the table that shows them.
+  const std::string page = slurp(dir_ / "room.html");
+  EXPECT_NE(page.find("terrain-inputs-table"), std::string::npos);
+  EXPECT_NE(page.find("\"sensor_height_m\":"), std::string::npos);
+  EXPECT_NE(page.find("\"min_free_height_m\":"), std::string::npos);
+  // A map levelled by a guess (--up auto) is a note, not an ok.
+  ASSERT_EQ(run("map " + shell_quote((dir_ / "room.xyz").string()) +
+                " --origin -1,0,0.4 --up auto --out " + shell_quote((dir_ / "auto").string()))
+                .code,
+            0);
+  ASSERT_EQ(run("report --terrain " + shell_quote((dir_ / "auto").string()) + " --out " +
+                shell_quote((dir_ / "auto.html").string()))
+                .code,
+            0);
+  const json levelled = read_json(dir_ / "auto.json");
+  EXPECT_EQ(levelled["terrain"]["inputs"][0]["method"], "auto");
+  for (const json& row : levelled["summary"])
+    if (row["label"].get<std::string>().find("up of ") == 0) EXPECT_EQ(row["status"], "note");
+}
+
 // The shin chart's thresholds are the verdict's: on the demo's scan (pallet_10, 5 cm OctoMap) the
 // shins dip into the voxels within the map's uncertainty (the exact scene says they clear the
 // pallet); a sample deeper than one voxel is a certain collision in the chart and the summary.

@@ -14,6 +14,8 @@
 #include <string>
 #include <vector>
 
+#include <Eigen/Geometry>
+
 #include "terrastride/perception/bag.hpp"
 #include "terrastride/perception/ros_messages.hpp"
 #include "terrastride/perception/tf_buffer.hpp"
@@ -257,6 +259,74 @@ std::vector<Eigen::Vector3f> floor_below(float drop) {
   return pts;
 }
 
+// A depth camera's cloud as its driver publishes it: in the optical frame (z forward, x right,
+// y down), the pose its body's (x forward, z up), pitched down and turned. With "sensor_frame":
+// "optical" it maps as the same points in the world frame with the camera's position as origin.
+TEST(Pointcloud2Placement, OpticalFrameCloudGivesTheWorldFrameGrid) {
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--workers", "1"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  // A floor with a 12 cm box, in the world frame.
+  std::vector<Eigen::Vector3f> world;
+  for (int i = 0; i < 150; ++i)
+    for (int j = 0; j < 100; ++j) {
+      const float x = 0.205f + 0.01f * i, y = -0.495f + 0.01f * j;
+      const bool box = x > 0.8f && x < 1.2f && y > -0.2f && y < 0.2f;
+      world.emplace_back(x, y, box ? 0.12f : 0.0f);
+    }
+  const Eigen::Vector3d t(-0.4, 0.1, 0.8);
+  const Eigen::Quaterniond body = Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitZ()) *
+                                  Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitY());  // 40 deg down
+  const Eigen::Quaterniond optical(0.5, -0.5, 0.5, -0.5);  // (w, x, y, z): REP 103's optical frame
+  const Eigen::Quaterniond world_from_optical = body * optical;
+  std::vector<Eigen::Vector3f> local;
+  for (const Eigen::Vector3f& w : world)
+    local.push_back((world_from_optical.inverse() * (w.cast<double>() - t)).cast<float>());
+  // Forward really is the optical z axis: the floor lies ahead of the camera (z > 0).
+  EXPECT_GT(local.front().z(), 0.0f);
+
+  Client c = Client::connect(server.tcp());
+  const json posed = c.call_ok({{"op", "map.update"},
+                                {"mode", "replace"},
+                                {"pose", {t.x(), t.y(), t.z(), body.x(), body.y(), body.z(), body.w()}},
+                                {"sensor_frame", "optical"},
+                                {"up", "check"}},
+                               {p::make_bytes_attachment("pointcloud2", cdr_cloud(local, "camera"))});
+  const json& placed = posed["stats"]["pointcloud2"];
+  EXPECT_EQ(placed["pose"]["sensor_frame"], "optical") << placed.dump();
+  EXPECT_EQ(placed["pose"]["source"], "sensor-pose") << placed.dump();
+  ASSERT_TRUE(placed["pose"].contains("position")) << placed.dump();
+  EXPECT_NEAR(placed["pose"]["position"][2].get<double>(), 0.8, 1e-9);
+  ASSERT_TRUE(placed.contains("up")) << placed.dump();
+  const std::vector<json> from_optical = sample_map(c);
+
+  c.call_ok({{"op", "map.update"}, {"mode", "replace"}, {"origin", {t.x(), t.y(), t.z()}}},
+            {p::make_points_attachment("points", world)});
+  const std::vector<json> from_world = sample_map(c);
+  const json world_extent = c.call_ok({{"op", "status"}})["map"]["min_corner"];
+  ASSERT_EQ(from_optical.size(), from_world.size());
+  int observed = 0;
+  for (std::size_t i = 0; i < from_world.size(); ++i) {
+    ASSERT_EQ(from_optical[i]["observed"], from_world[i]["observed"]) << i;
+    if (!from_world[i]["observed"].get<bool>()) continue;
+    ++observed;
+    EXPECT_NEAR(from_optical[i]["height"].get<double>(), from_world[i]["height"].get<double>(),
+                1e-3)
+        << i;
+  }
+  EXPECT_GT(observed, 3000);
+  // Taken as a body-frame cloud (the flag left out) the same bytes map elsewhere: the flag counts.
+  c.call_ok({{"op", "map.update"},
+             {"mode", "replace"},
+             {"pose", {t.x(), t.y(), t.z(), body.x(), body.y(), body.z(), body.w()}}},
+            {p::make_bytes_attachment("pointcloud2", cdr_cloud(local, "camera"))});
+  const json body_extent = c.call_ok({{"op", "status"}})["map"]["min_corner"];
+  EXPECT_GT(std::hypot(body_extent[0].get<double>() - world_extent[0].get<double>(),
+                       body_extent[1].get<double>() - world_extent[1].get<double>()),
+            0.1)
+      << body_extent << " " << world_extent;
+  EXPECT_EQ(server.stop(SIGTERM), 0) << server.output;
+}
+
 TEST(Pointcloud2UpdateErrors, BadPayloadsAreRefusedAndTheConnectionStaysUsable) {
   ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--workers", "1"});
   ASSERT_FALSE(server.tcp().empty()) << server.output;
@@ -325,7 +395,11 @@ TEST(Pointcloud2UpdateErrors, BadPayloadsAreRefusedAndTheConnectionStaysUsable) 
       {"NaN in the pose", with({{"pose", {2.0, 1.0, nan, 0, 0, 0, 1}}}),
        {p::make_bytes_attachment("pointcloud2", good)}, "pose"},
       {"not a rotation", with({{"pose", {2.0, 1.0, 0.6, 0, 0, 0, 2}}}),
-       {p::make_bytes_attachment("pointcloud2", good)}, "not a rotation"},
+       {p::make_bytes_attachment("pointcloud2", good)}, "norm 2"},
+      {"unknown up with pointcloud2", with({{"up", "sideways"}}),
+       {p::make_bytes_attachment("pointcloud2", good)}, "\"up\" must be"},
+      {"unknown sensor frame with pointcloud2", with({{"sensor_frame", "camera"}}),
+       {p::make_bytes_attachment("pointcloud2", good)}, "\"sensor_frame\" must be"},
       {"no pose", {{"op", "map.update"}}, {p::make_bytes_attachment("pointcloud2", good)},
        "needs \"pose\""},
       {"origin instead of pose", with({{"origin", {0, 0, 1}}}),

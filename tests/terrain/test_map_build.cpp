@@ -5,7 +5,10 @@
 
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <filesystem>
+#include <random>
 #include <fstream>
 #include <string>
 #include <vector>
@@ -221,6 +224,84 @@ TEST_F(MapBuildTest, ParallelReadingKeepsTheOrderAndNamesTheFirstBadFile) {
       EXPECT_NE(std::string(e.what()).find("first_missing.pcd"), std::string::npos) << e.what();
     }
   }
+}
+
+}  // namespace
+
+// ---- hard cases of the up direction (design.md §5.1).
+namespace {
+
+// A 2 x 2 m floor 1.2 m ahead of a camera's body frame pitched 90 deg down: forward (x) is down.
+std::vector<Eigen::Vector3f> floor_straight_ahead() {
+  std::vector<Eigen::Vector3f> pts;
+  for (int i = 0; i < 100; ++i)
+    for (int j = 0; j < 100; ++j) pts.emplace_back(1.2f, -1.0f + 0.02f * i, -1.0f + 0.02f * j);
+  return pts;
+}
+
+TEST(HardUpCases, SensorLookingStraightDownIsLevelledByAuto) {
+  terrain::CloudPoseOptions o;
+  o.up = terrain::UpMode::kAuto;
+  terrain::CloudPlacement pl;
+  const perception::PointCloud cloud =
+      terrain::place_map_points(floor_straight_ahead(), "down", o, &pl);
+  EXPECT_TRUE(pl.levelled);
+  ASSERT_TRUE(pl.plane.has_value());
+  ASSERT_TRUE(pl.plane->found);
+  EXPECT_NEAR(pl.plane->tilt_deg, 90.0, 0.5);
+  EXPECT_NEAR(pl.plane->sensor_height, 1.2, 0.01);
+  // Levelled about the sensor: the floor 1.2 m below it, flat.
+  for (const Eigen::Vector3f& p : cloud.points) ASSERT_NEAR(p.z(), -1.2f, 1e-3f) << p.transpose();
+  // Checked instead, the same cloud is refused, naming the tilt.
+  o.up = terrain::UpMode::kCheck;
+  try {
+    terrain::place_map_points(floor_straight_ahead(), "down", o, &pl);
+    ADD_FAILURE() << "a camera looking straight down passed the up check";
+  } catch (const perception::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("90.0 deg"), std::string::npos) << e.what();
+  }
+}
+
+TEST(HardUpCases, NaNsAndNoFloorAreAClearRefusalNotACrash) {
+  const fs::path dir = fs::temp_directory_path() / ("terrastride_hard_up_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  // Scattered returns in a 1 m cube (foliage: no plane holds 15 % of them) and NaN points.
+  const std::string scatter = (dir / "scatter.xyz").string();
+  {
+    std::ofstream xyz(scatter);
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    for (int k = 0; k < 3000; ++k) {
+      xyz << u(rng) << " " << u(rng) << " " << u(rng) << "\n";
+      if (k % 3 == 0) xyz << "nan nan nan\n";
+    }
+  }
+  terrain::CloudPoseOptions o;
+  o.up = terrain::UpMode::kAuto;
+  try {
+    terrain::read_map_clouds({scatter}, o);
+    ADD_FAILURE() << "--up auto levelled a cloud without a dominant plane";
+  } catch (const perception::InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("scatter.xyz"), std::string::npos) << what;
+    EXPECT_NE(what.find("plane"), std::string::npos) << what;
+  }
+  // Checked, it is mapped as it is, unchecked, with the reason kept.
+  o.up = terrain::UpMode::kCheck;
+  const terrain::MapInput in = terrain::read_map_clouds({scatter}, o);
+  ASSERT_EQ(in.clouds.size(), 1u);
+  EXPECT_EQ(in.clouds[0].points.size(), 3000u);  // the NaNs dropped
+  ASSERT_EQ(in.sources.files.size(), 1u);
+  ASSERT_TRUE(in.sources.files[0].placement.has_value());
+  const auto& plane = in.sources.files[0].placement->plane;
+  ASSERT_TRUE(plane.has_value());
+  EXPECT_FALSE(plane->found);
+  EXPECT_FALSE(plane->problem.empty());
+  // NaNs only: the reader's error, naming the file.
+  const std::string nans = (dir / "nans.xyz").string();
+  std::ofstream(nans) << "nan nan nan\nnan nan nan\n";
+  EXPECT_THROW(terrain::read_map_clouds({nans}, o), perception::InputError);
+  fs::remove_all(dir);
 }
 
 }  // namespace

@@ -97,8 +97,14 @@ struct SafetyPrecompute {
   double mean_support = 1.0;
 };
 
+// The disk's reach in cells: r + res/2, and at least the 8 neighbours for a foot of any size.
+double disk_reach(double radius, double res) {
+  const double reach = radius / res + 0.5;
+  return (radius > 0 ? std::max(reach, std::sqrt(2.0)) : reach) + 1e-9;
+}
+
 int disk_half_width(double radius, double res) {
-  return static_cast<int>(std::floor(radius / res + 0.5 + 1e-9));
+  return static_cast<int>(std::floor(disk_reach(radius, res)));
 }
 
 SafetyPrecompute precompute_safety(const HeightGrid& grid, int W) {
@@ -167,7 +173,7 @@ SafetyLayer safety_for_radius(const HeightGrid& grid, const SafetyPrecompute& pr
   const int nx = g.nx, ny = g.ny;
   const double res = g.resolution;
   // Disk rows: for a row offset di, the cells j - w[di] .. j + w[di].
-  const double reach = radius / res + 0.5 + 1e-9;
+  const double reach = disk_reach(radius, res);
   const int R = static_cast<int>(std::floor(reach));
   std::vector<int> w(2 * R + 1);
   double sxx = 0, syy = 0;

@@ -122,10 +122,11 @@ TEST(RealFloor, PlannerSlopesAreTheFloorsAtTwoAndFiveCentimetres) {
     expect_safe_cells_walkable(m, kFoot);
     safe_fraction[n++] = m.layer(kFoot).safe_fraction();
   }
-  // The resolution changes detail, not walkability: 94.0 % and 100 % (the 2 cm disk needs its
-  // neighbours observed, so the ragged border of the scan costs a ring of cells).
+  // The resolution changes detail, not walkability: 94.0 % and 88.3 % (the disk holds the 8
+  // neighbours at both resolutions and needs them observed, so the ragged border of the scan
+  // costs a ring of cells, 5 cm wide at 5 cm).
   EXPECT_GT(safe_fraction[0], 0.90);
-  EXPECT_GT(safe_fraction[1], 0.90);
+  EXPECT_GT(safe_fraction[1], 0.85);
   EXPECT_LT(std::abs(safe_fraction[0] - safe_fraction[1]), 0.08);
 }
 

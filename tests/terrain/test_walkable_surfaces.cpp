@@ -7,10 +7,14 @@
 
 #include <cmath>
 #include <functional>
+#include <limits>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/terrain/map_build.hpp"
+#include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
 
 namespace terrastride {
@@ -158,6 +162,124 @@ TEST(WalkableOctomap, CupboardTopIsItsOwnLevelOfGround) {
   EXPECT_NEAR(g.elevation[cell(g, 0.75, 0.75)], 1.975, 1e-5);
   EXPECT_EQ(g.observed[cell(g, 0.75, 0.75)], 1);
   EXPECT_TRUE(g.overhead.empty());
+  // Observed, flat, and out of every leg's reach: an unreachable level, not safe ground.
+  const terrain::PointAnswer a = build.map->answer(0.75, 0.75, 0.02);
+  EXPECT_TRUE(a.unreachable);
+  EXPECT_FALSE(a.safe);
+  EXPECT_NE(a.unsafe_because.find("unreachable level"), std::string::npos) << a.unsafe_because;
+  EXPECT_EQ(build.map->levels().unreachable_cells, 100u);  // the 10 x 10 cells of its top
+  EXPECT_EQ(build.map->levels().unreachable_levels, 1u);
+  EXPECT_TRUE(build.map->safe(0.25, 0.25, 0.02));
+}
+
+// ---- the foot disk and the level rule on rasterised scenes.
+terrain::Scene scene_with(std::vector<terrain::Box> boxes) {
+  return terrain::Scene("test", "test", 0.0, std::move(boxes), {-1.0, -1.0}, {1.0, 1.0});
+}
+
+terrain::SafetyOptions every_level() {
+  terrain::SafetyOptions o;
+  o.max_climb = std::numeric_limits<double>::infinity();
+  return o;
+}
+
+// The cells a one-cell spike at the grid's centre makes unsafe, as offsets from it.
+std::vector<std::pair<int, int>> spike_footprint(double res, double spike, double radius) {
+  // A flat floor with one cell raised whole (min = max = elevation: a crest one cell wide).
+  terrain::HeightGrid g = terrain::rasterize_scene(scene_with({}), res);
+  const int ci = g.geometry.nx / 2, cj = g.geometry.ny / 2;
+  const size_t c = g.geometry.index(ci, cj);
+  g.elevation[c] = g.min[c] = g.max[c] = static_cast<float>(spike);
+  const terrain::SafetyLayer l = terrain::compute_safety(g, radius, every_level());
+  std::vector<std::pair<int, int>> out;
+  for (int di = -8; di <= 8; ++di)
+    for (int dj = -8; dj <= 8; ++dj)
+      if (!l.safe[g.geometry.index(ci + di, cj + dj)]) out.emplace_back(di, dj);
+  return out;
+}
+
+TEST(FootDisk, TwoCentimetreGridsKeepTheDiskOfRadiusPlusHalfACell) {
+  // A spike makes unsafe exactly the cells whose disk (centres within r + res/2) holds it: on
+  // 2 cm cells the disks of the map's radii are what they were before the disk's 3 x 3 minimum.
+  for (const double r : {0.02, 0.05, 0.10}) {
+    std::vector<std::pair<int, int>> expected;
+    const double reach = r / 0.02 + 0.5 + 1e-9;
+    for (int di = -8; di <= 8; ++di)
+      for (int dj = -8; dj <= 8; ++dj)
+        if (std::hypot(di, dj) <= reach) expected.emplace_back(di, dj);
+    EXPECT_EQ(spike_footprint(0.02, 0.10, r), expected) << "radius " << r;
+  }
+}
+
+TEST(FootDisk, CoarseCellsJudgeAFootOverTheEightNeighbours) {
+  // On 8 cm cells a 2 cm foot's disk would be the cell alone: a one-cell wall crest 1.5 m up was
+  // flat there, hence safe. Its disk now holds the 8 neighbours: the crest and the 3 x 3 around
+  // it are unsafe.
+  std::vector<std::pair<int, int>> three_by_three;
+  for (int di = -1; di <= 1; ++di)
+    for (int dj = -1; dj <= 1; ++dj) three_by_three.emplace_back(di, dj);
+  EXPECT_EQ(spike_footprint(0.08, 1.5, 0.02), three_by_three);
+  EXPECT_EQ(spike_footprint(0.08, 1.5, 0.05), three_by_three);
+  // Radius 0 stays the cell itself: a point foot on a flat crest.
+  EXPECT_TRUE(spike_footprint(0.08, 1.5, 0.0).empty());
+}
+
+TEST(Levels, CupboardBesideAFloorIsAnUnreachableLevel) {
+  // A cupboard 1.8 m high, 0.6 x 0.4 m, on a 2 x 2 m floor: its flat top passes every foothold
+  // test, and no step of at most max_climb (0.8 m) joins it to the floor.
+  const terrain::Scene scene = scene_with({{{0.2, 0.2, 0.0}, {0.8, 0.6, 1.8}}});
+  const auto map = terrain::TerrainMap::from_scene(scene, 0.02, {0.02});
+  const auto all = terrain::TerrainMap::from_scene(scene, 0.02, {0.02}, every_level());
+  EXPECT_TRUE(all->safe(0.5, 0.4, 0.02));  // without the level rule the top is safe ground
+  EXPECT_FALSE(map->safe(0.5, 0.4, 0.02));
+  const terrain::PointAnswer a = map->answer(0.5, 0.4, 0.02);
+  EXPECT_TRUE(a.observed);
+  EXPECT_TRUE(a.unreachable);
+  EXPECT_NE(a.unsafe_because.find("0.8 m"), std::string::npos) << a.unsafe_because;
+  const terrain::SafetyLayer& l = map->layer(0.02), &la = all->layer(0.02);
+  const terrain::HeightGrid& g = map->grid();
+  size_t top = 0, top_safe = 0;  // the top's cells, and those safe without the rule
+  for (size_t k = 0; k < g.geometry.size(); ++k)
+    if (g.elevation[k] > 1.0) {
+      ++top;
+      top_safe += la.safe[k];
+    }
+  EXPECT_GE(top, 30u * 20u);
+  EXPECT_GT(top_safe, 25u * 15u);
+  EXPECT_EQ(l.unreachable_cells, top);
+  EXPECT_EQ(map->levels().unreachable_levels, 1u);
+  EXPECT_EQ(l.observed_cells + l.unreachable_cells, la.observed_cells);
+  EXPECT_EQ(l.safe_cells + top_safe, la.safe_cells);
+  EXPECT_DOUBLE_EQ(l.safe_fraction(), double(l.safe_cells) / double(la.observed_cells - top));
+  // The floor around it is the same either way.
+  for (size_t k = 0; k < l.safe.size(); ++k)
+    if (!map->levels().unreachable[k]) ASSERT_EQ(l.safe[k], la.safe[k]) << k;
+  // A box 0.6 m high is a step a leg can take: the same level as the floor.
+  const terrain::Scene low = scene_with({{{0.2, 0.2, 0.0}, {0.8, 0.6, 0.6}}});
+  EXPECT_TRUE(terrain::TerrainMap::from_scene(low, 0.02, {0.02})->safe(0.5, 0.4, 0.02));
+}
+
+TEST(Levels, ShippedScenesKeepEverySafeCell) {
+  // Pallets up to 60 cm, stairs, the EUR pallet, the trench, the overhang scenes: one level each,
+  // so the masks are those without the rule.
+  for (const std::string name : {"flat", "pallet_10", "pallet_15", "pallet_60", "eur_pallet",
+                                 "stairs", "gap", "shelf_60", "half_shelf_50", "tread_40"}) {
+    const auto scene = terrain::make_scene(name);
+    const auto map = terrain::TerrainMap::from_scene(*scene, 0.02, {0.02, 0.05});
+    const auto all = terrain::TerrainMap::from_scene(*scene, 0.02, {0.02, 0.05}, every_level());
+    EXPECT_EQ(map->levels().unreachable_cells, 0u) << name;
+    for (const double r : {0.02, 0.05}) {
+      EXPECT_EQ(map->layer(r).safe, all->layer(r).safe) << name << " radius " << r;
+      EXPECT_GT(map->layer(r).safe_cells, 0u) << name;
+    }
+  }
+}
+
+TEST(Levels, MaxClimbMustBePositive) {
+  terrain::SafetyOptions o;
+  o.max_climb = 0.0;
+  const terrain::Scene scene = scene_with({});
+  EXPECT_THROW(terrain::TerrainMap::from_scene(scene, 0.02, {0.02}, o), perception::InputError);
 }
 
 // ---- clouds with sensor origins: the height grid's ray rule.

@@ -228,6 +228,11 @@ void print_summary(const MapOptions& o, const terrain::MapBuild& build, const js
     std::cout << "  overhangs (overhead clearance layer): " << g.overhang_cells << " cells, "
               << g.overhang_unobserved_cells
               << " of them over unobserved ground (not walkable, not counted above)\n";
+  if (summary["unreachable_cells"].get<size_t>() > 0)
+    std::cout << "  unreachable levels: " << summary["unreachable_cells"].get<size_t>()
+              << " observed cells on " << summary["unreachable_levels"].get<size_t>()
+              << " levels no step of at most " << build.map->safety_options().max_climb
+              << " m joins to the floor's (not safe, not counted above)\n";
   if (summary.contains("notes"))
     for (const auto& note : summary["notes"]) std::cout << "  note: " << note.get<std::string>() << "\n";
   std::cout << "  time: read " << fmt(timings["read_s"]) << " s, clean " << fmt(timings["filter_s"])

@@ -77,6 +77,27 @@ constexpr double kSafeProblem = 0.05;
 constexpr double kSafeNote = 0.5;
 constexpr double kObservedNote = 0.1;
 
+// One row per cloud input: its up estimate (terrain.json inputs[k].up). Levelled by a guess
+// (--up auto), taken unchecked (--up z) or without a dominant plane to check against is a note:
+// the map is only as level as that guess.
+void up_rows(const json& inputs, json& summary) {
+  for (const json& in : inputs) {
+    const std::string method = in["method"].get<std::string>();
+    const bool tilted = !in["tilt_deg"].is_null();
+    std::string note = "method " + method + " (" + in["from"].get<std::string>() + ")";
+    if (tilted)
+      note += "; sensor " + fmt(in["sensor_height_m"].get<double>(), 2) +
+              " m from the dominant plane, which holds " +
+              fmt(100 * in["inlier_share"].get<double>(), 0) + " % of the points";
+    else if (in.contains("problem"))
+      note += "; " + in["problem"].get<std::string>();
+    const bool sure = method == "pose" || (method == "check" && tilted);
+    summary.push_back(row("up of " + in["path"].get<std::string>(),
+                          tilted ? in["tilt_deg"] : json(method), tilted ? "deg tilt" : "",
+                          sure ? "ok" : "note", note));
+  }
+}
+
 // The report's own summary table: the safe fraction of every layer, and the observed fraction,
 // each with a status against the thresholds above; a terrain problem goes into `problems`.
 json overall_summary(const json& terrain, double resolution, json& problems) {
@@ -110,13 +131,26 @@ json overall_summary(const json& terrain, double resolution, json& problems) {
                             fmt(resolution, 3) + " m; a note below " +
                             fmt(100 * kObservedNote, 0) + " %"));
   const size_t overhangs = terrain["overhang_cells"].get<size_t>();
-  if (overhangs > 0)
+  if (overhangs > 0) {
     summary.push_back(row("overhang cells", overhangs, "cells", "ok",
                           std::to_string(terrain["overhang_cells_over_unobserved_ground"]
                                              .get<size_t>()) +
                               " of them over ground never observed (no walkable ground there, not "
                               "in the safe fraction); the others have ground beneath with the "
                               "overhang's clearance above it"));
+    summary.push_back(row("minimum free height under an overhang", terrain["min_free_height_m"],
+                          "m", "ok",
+                          terrain["min_free_height_m"].is_null()
+                              ? "no overhang lies over observed ground"
+                              : "the least room between observed ground and the underside of the "
+                                "overhang above it (the overhead layer)"));
+  }
+  const size_t unreachable = terrain["unreachable_cells"].get<size_t>();
+  if (unreachable > 0)
+    summary.push_back(row("unreachable cells", unreachable, "cells", "ok",
+                          "observed ground on levels no step of a leg joins to the floor's (a "
+                          "cupboard top, a wall's crest): not safe, not in the safe fraction"));
+  up_rows(terrain["inputs"], summary);
   return summary;
 }
 

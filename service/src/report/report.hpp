@@ -44,6 +44,9 @@ struct TerrainView {
   // Per cell, the underside of the lowest overhang above the ground (world z; a ceiling, a table
   // top, a shelf), +infinity where none; empty when nothing is overhead anywhere.
   std::vector<float> overhead;
+  // A map's observed cells on levels unreachable from its floor (SafetyLayer::unreachable_cells:
+  // out of the safe fraction); 0 for a scene.
+  size_t unreachable_cells = 0;
   // The terrain as the planner and the checks see it (heights and margins at any point); footholds
   // and profiles are queried here rather than on the coarser display grid.
   std::shared_ptr<const terrain::HeightField> field;

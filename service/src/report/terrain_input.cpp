@@ -34,6 +34,7 @@ void fill_from_map(TerrainView& view, std::shared_ptr<const terrain::TerrainMap>
   for (size_t k = 0; k < cells; ++k)
     if (grid.observed[k]) view.height[k] = grid.elevation[k];
   view.overhead = grid.overhead;
+  view.unreachable_cells = map->levels().unreachable_cells;
   view.radii = radii;
   view.margin.clear();
   view.safe_fraction.clear();

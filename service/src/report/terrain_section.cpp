@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <string>
 #include <vector>
 
 #include "report/sections.hpp"
@@ -21,6 +22,45 @@ int closest_radius(const std::vector<double>& radii, double r) {
   for (size_t i = 1; i < radii.size(); ++i)
     if (std::abs(radii[i] - r) < std::abs(radii[best] - r)) best = static_cast<int>(i);
   return best;
+}
+
+// How the input's up direction was found, in one word: "pose" (the rotation given), "check" (the
+// dominant plane checked against the given or assumed z), "auto" (levelled by the dominant plane),
+// "z" (z taken as up unchecked).
+std::string up_method(const std::string& from) {
+  if (from == "pose") return "pose";
+  if (from.find("--up auto") != std::string::npos) return "auto";
+  if (from.find("checked") != std::string::npos) return "check";
+  return "z";
+}
+
+// Per cloud input of a map (terrain.json inputs[k]), its up estimate as the page shows it.
+json up_estimates(const json& info) {
+  json out = json::array();
+  if (!info.is_object() || !info.contains("inputs") || !info["inputs"].is_array()) return out;
+  for (const json& in : info["inputs"]) {
+    if (!in.is_object() || !in.contains("up") || !in.contains("path")) continue;
+    const json& up = in["up"];
+    const std::string from = up.value("from", "");
+    json e{{"path", in["path"]},
+           {"method", up_method(from)},
+           {"from", from},
+           {"pose_source", in.contains("pose") ? in["pose"].value("source", "") : ""},
+           {"sensor_frame", in.contains("pose") ? in["pose"].value("sensor_frame", "") : ""},
+           {"plane_found", up.contains("found") ? up["found"] : json(nullptr)},
+           {"tilt_deg", nullptr},
+           {"sensor_height_m", nullptr},
+           {"inlier_share", nullptr}};
+    if (up.value("found", false)) {
+      e["tilt_deg"] = num(up.value("tilt_deg", NAN), 2);
+      e["sensor_height_m"] = num(up.value("sensor_height", NAN), 3);
+      e["inlier_share"] = num(up.value("inlier_share", NAN), 3);
+    } else if (up.contains("problem")) {
+      e["problem"] = up["problem"];
+    }
+    out.push_back(std::move(e));
+  }
+  return out;
 }
 
 }  // namespace
@@ -60,11 +100,14 @@ json terrain_section(const TerrainView& t, const ReportOptions& options, double 
 
   size_t observed = 0, overhang = 0, overhang_unobserved = 0;
   double hmin = std::numeric_limits<double>::infinity(), hmax = -hmin;
+  double min_free = std::numeric_limits<double>::infinity();  // overhang over observed ground
   for (size_t k = 0; k < t.height.size(); ++k) {
     if (t.observed[k]) ++observed;
     if (has_overhead && std::isfinite(t.overhead[k])) {
       ++overhang;
       overhang_unobserved += !t.observed[k];
+      if (t.observed[k] && std::isfinite(t.height[k]))
+        min_free = std::min<double>(min_free, t.overhead[k] - t.height[k]);
     }
     if (std::isfinite(t.height[k])) {
       hmin = std::min<double>(hmin, t.height[k]);
@@ -99,6 +142,9 @@ json terrain_section(const TerrainView& t, const ReportOptions& options, double 
       {"observed_fraction", num(t.height.empty() ? 0.0 : double(observed) / t.height.size(), 4)},
       {"overhang_cells", overhang},
       {"overhang_cells_over_unobserved_ground", overhang_unobserved},
+      {"min_free_height_m", num(min_free, 3)},  // null: no overhang over observed ground
+      {"unreachable_cells", t.unreachable_cells},
+      {"inputs", up_estimates(t.info)},
       {"overhead", std::move(overhead)},
       {"height_min_m", num(hmin)},
       {"height_max_m", num(hmax)},

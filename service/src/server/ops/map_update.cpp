@@ -110,18 +110,8 @@ FusedMap fuse_cloud(Backend& backend, OpContext& ctx, perception::PointCloud clo
   return fused;
 }
 
-// The float32 attachment "points": world-frame points with an optional "origin", or points in
-// the frame whose pose "pose" [x, y, z, qx, qy, qz, qw] gives ("sensor_frame": "optical" when
-// they are in a camera's optical frame and the pose is its body's); "up" as `terrastride map
-// --up`, "z" by default (the attachment's points have always been world-frame). Placed by
-// terrain::place_map_points, as `map` places a cloud file; *info gets the placement.
-perception::PointCloud cloud_from_points(const json& h, const protocol::Attachment& att,
-                                         json* info) {
-  if (h.contains("frame") || h.contains("encoding"))
-    throw ProtocolError(pc::kBadRequest, "\"frame\" and \"encoding\" go with a \"pointcloud2\" "
-                                         "attachment, not with \"points\"");
-  std::vector<Eigen::Vector3f> points = protocol::read_points(att);  // rejects NaN, bad shapes
-  if (points.empty()) throw ProtocolError(pc::kBadRequest, "attachment 'points' holds no points");
+// The placement fields both cloud attachments take: "up", "sensor_frame" and "pose".
+terrain::CloudPoseOptions placement_options(const json& h) {
   terrain::CloudPoseOptions poses;
   poses.up = terrain::UpMode::kZ;
   const std::string up = protocol::get_string(h, "up", std::string("z"));
@@ -138,16 +128,36 @@ perception::PointCloud cloud_from_points(const json& h, const protocol::Attachme
     throw ProtocolError(pc::kBadRequest,
                         "\"sensor_frame\" must be \"body\" or \"optical\", got '" + frame + "'");
   if (frame == "optical") poses.sensor_frame = perception::SensorFrame::kOptical;
+  if (h.contains("pose")) {
+    const Eigen::VectorXd v = protocol::get_vector(h, "pose", 7);  // finite numbers
+    perception::SensorPose pose;
+    pose.position = v.head<3>();
+    try {
+      pose.orientation = perception::checked_quaternion(v[3], v[4], v[5], v[6], "\"pose\"");
+    } catch (const perception::InputError& e) {
+      throw ProtocolError(pc::kBadRequest, e.what());
+    }
+    poses.sensor_pose = pose;
+  }
+  return poses;
+}
+
+// The float32 attachment "points": world-frame points with an optional "origin", or points in
+// the frame whose pose "pose" [x, y, z, qx, qy, qz, qw] gives ("sensor_frame": "optical" when
+// they are in a camera's optical frame and the pose is its body's); "up" as `terrastride map
+// --up`, "z" by default (the attachment's points have always been world-frame). Placed by
+// terrain::place_map_points, as `map` places a cloud file; *info gets the placement.
+perception::PointCloud cloud_from_points(const json& h, const protocol::Attachment& att,
+                                         json* info) {
+  if (h.contains("frame") || h.contains("encoding"))
+    throw ProtocolError(pc::kBadRequest, "\"frame\" and \"encoding\" go with a \"pointcloud2\" "
+                                         "attachment, not with \"points\"");
+  std::vector<Eigen::Vector3f> points = protocol::read_points(att);  // rejects NaN, bad shapes
+  if (points.empty()) throw ProtocolError(pc::kBadRequest, "attachment 'points' holds no points");
+  terrain::CloudPoseOptions poses = placement_options(h);
   if (h.contains("origin") && !h["origin"].is_null())
     poses.origin = protocol::get_vector(h, "origin", 3);
   try {
-    if (h.contains("pose")) {
-      const Eigen::VectorXd v = protocol::get_vector(h, "pose", 7);  // finite numbers
-      perception::SensorPose pose;
-      pose.position = v.head<3>();
-      pose.orientation = perception::checked_quaternion(v[3], v[4], v[5], v[6], "\"pose\"");
-      poses.sensor_pose = pose;
-    }
     terrain::CloudPlacement placement;
     perception::PointCloud cloud =
         terrain::place_map_points(std::move(points), "attachment 'points'", poses, &placement);
@@ -162,7 +172,8 @@ perception::PointCloud cloud_from_points(const json& h, const protocol::Attachme
 // 2 CDR with its 4-byte encapsulation header, or ROS 1), decoded by the bag reader's decoder (any
 // field layout with float32/float64 x, y, z; NaN points, an organised cloud's misses, dropped and
 // counted), placed in the world frame with "pose" [x, y, z, qx, qy, qz, qw], the pose of the
-// cloud's frame (the sensor) in the world; its position is the sensor origin for ray casting.
+// cloud's frame (the sensor) in the world (its position is the sensor origin for ray casting),
+// "sensor_frame" and "up" as the "points" attachment takes them (terrain::place_map_points).
 perception::PointCloud cloud_from_pointcloud2(const json& h, const protocol::Attachment& att,
                                               json* info) {
   if (h.contains("origin"))
@@ -177,11 +188,7 @@ perception::PointCloud cloud_from_pointcloud2(const json& h, const protocol::Att
     throw ProtocolError(pc::kBadRequest,
                         "a \"pointcloud2\" attachment needs \"pose\": [x, y, z, qx, qy, qz, qw], "
                         "the pose of the cloud's frame (the sensor) in the map's frame");
-  const Eigen::VectorXd pose = protocol::get_vector(h, "pose", 7);  // finite numbers
-  const Eigen::Quaterniond q(pose[6], pose[3], pose[4], pose[5]);
-  if (std::abs(q.norm() - 1.0) > 1e-3)
-    throw ProtocolError(pc::kBadRequest, "\"pose\": the quaternion [qx, qy, qz, qw] has norm " +
-                                             std::to_string(q.norm()) + " (not a rotation)");
+  const terrain::CloudPoseOptions poses = placement_options(h);
   perception::DecodedCloud decoded;
   try {
     decoded = perception::decode_pointcloud2(
@@ -206,20 +213,21 @@ perception::PointCloud cloud_from_pointcloud2(const json& h, const protocol::Att
                                              std::to_string(decoded.points_in) + " points, " +
                                              std::to_string(decoded.non_finite) +
                                              " NaN or infinite)");
-  Eigen::Isometry3d world_from_sensor = Eigen::Isometry3d::Identity();
-  world_from_sensor.linear() = q.normalized().toRotationMatrix();
-  world_from_sensor.translation() = pose.head<3>();
-  const Eigen::Isometry3f tf = world_from_sensor.cast<float>();
   perception::PointCloud cloud;
-  cloud.points = std::move(decoded.points);
-  for (Eigen::Vector3f& p : cloud.points) p = tf * p;
-  cloud.sensor_origin = world_from_sensor.translation();
+  terrain::CloudPlacement placement;
+  try {
+    cloud = terrain::place_map_points(std::move(decoded.points), "attachment 'pointcloud2'", poses,
+                                      &placement);
+  } catch (const perception::InputError& e) {
+    throw ProtocolError(pc::kBadRequest, e.what());
+  }
   *info = {{"frame", frame_id},
            {"stamp", static_cast<double>(decoded.stamp_ns) * 1e-9},
            {"width", decoded.width},
            {"height", decoded.height},
            {"points", cloud.points.size()},
            {"non_finite", decoded.non_finite}};
+  info->update(terrain::placement_json(placement));  // "pose" and "up", as for "points"
   return cloud;
 }
 

@@ -15,6 +15,7 @@
 
 #include "terrastride/terrain/height_field.hpp"
 #include "terrastride/terrain/height_grid.hpp"
+#include "terrastride/terrain/levels.hpp"
 
 namespace terrastride::terrain {
 
@@ -68,6 +69,12 @@ struct SafetyOptions {
   double step_noise_factor = 6.0;
   double rms_noise_factor = 1.0;
   double slope_noise_factor = 4.0;
+  // Levels (levels.hpp): observed ground that no step of at most max_climb joins to the floor
+  // level (a cupboard top, a partition's crest) is unreachable: never safe, out of the safe
+  // fraction. 0.8 m: the longest leg of the shipped robots (HyQ's 0.771 m) rounded up, so the map
+  // refuses only what no robot could climb; planner::check_level_reach judges each robot's own
+  // legs. +infinity: every level counts as reachable.
+  double max_climb = 0.8;
 };
 
 struct SafetyLayer {
@@ -75,13 +82,16 @@ struct SafetyLayer {
   std::vector<uint8_t> safe;  // per cell, 1 = safe
   std::vector<float> margin;  // signed distance (m) to the nearest unsafe cell, negative inside
   size_t safe_cells = 0;
-  size_t observed_cells = 0;  // cells with grid.observed != 0 (measured or interpolated)
+  // Walkable observed cells: grid.observed != 0 (measured or interpolated) and on the floor's level.
+  size_t observed_cells = 0;
+  size_t unreachable_cells = 0;  // observed cells on unreachable levels (not in observed_cells)
   BSplineField margin_field;  // C2 interpolation of `margin` (built by TerrainMap, not here)
 
   // THE safe fraction of a map (terrain.json safety.radii[].safe_fraction, `map`, the report):
-  // safe cells over observed cells (measured or interpolated). Unobserved cells (hole-filled,
-  // bridged, uncertain, outside the scan) are left out of the denominator: they say nothing about
-  // the ground, and their number depends on the grid's bounding box. Every safe cell is observed,
+  // safe cells over walkable observed cells (measured or interpolated, on the floor's level).
+  // Unobserved cells (hole-filled, bridged, uncertain, overhang-only, outside the scan) are left
+  // out of the denominator: they say nothing about the ground, and their number depends on the
+  // grid's bounding box; unreachable levels are reported apart (unreachable_cells). Every safe cell is observed,
   // so the figure is in [0, 1]; 0 when nothing was observed.
   double safe_fraction() const {
     return observed_cells ? double(safe_cells) / double(observed_cells) : 0.0;
@@ -96,6 +106,10 @@ std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vecto
                                         const SafetyOptions& options = {});
 SafetyLayer compute_safety(const HeightGrid& grid, double radius,
                            const SafetyOptions& options = {});
+// The same with the grid's levels for options.max_climb already computed (ground_levels; an empty
+// GroundLevels when it is +infinity).
+std::vector<SafetyLayer> compute_safety(const HeightGrid& grid, const std::vector<double>& radii,
+                                        const SafetyOptions& options, const GroundLevels& levels);
 
 struct Clearance {
   double min = 0.0;    // min over the segment of p_z - h(p_x, p_y)
@@ -117,6 +131,7 @@ struct PointAnswer {
   double overhead = std::numeric_limits<double>::infinity();
   double free_height = std::numeric_limits<double>::infinity();
   bool overhang_only = false;  // an overhang and no walkable ground beneath it was seen
+  bool unreachable = false;    // observed ground on a level no step joins to the floor's
   std::string unsafe_because;  // why the point is not safe ground; empty when safe
 };
 
@@ -157,12 +172,15 @@ class TerrainMap : public HeightField {
   const SafetyLayer& layer(double foot_radius) const;
   std::vector<double> radii() const;
   int cell_index(double x, double y) const;  // -1 outside the grid
+  // The grid's levels for safety_options().max_climb (empty when it is +infinity).
+  const GroundLevels& levels() const { return levels_; }
 
  private:
   void build_overhead_field();
 
   HeightGrid grid_;
   SafetyOptions options_;
+  GroundLevels levels_;
   BSplineField height_;
   // Built when grid_.overhead has a finite cell: the B-spline approximant of the overhead eroded by
   // two cells (a 5 x 5 minimum), each value capped at kOverheadCap above the cell's elevation. A
