@@ -12,6 +12,7 @@
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/map_build.hpp"
 #include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_open.hpp"
 
 namespace terrastride::service::report {
 namespace {
@@ -48,8 +49,7 @@ void fill_from_map(TerrainView& view, std::shared_ptr<const terrain::TerrainMap>
 }  // namespace
 
 bool is_terrain_dir(const std::string& path) {
-  std::error_code ec;
-  return fs::is_directory(path, ec) && fs::exists(fs::path(path) / "terrain.json", ec);
+  return terrain::is_terrain_folder(path);
 }
 
 bool is_scene_name(const std::string& name) {
@@ -103,106 +103,44 @@ TerrainView load_terrain_view(const std::vector<std::string>& inputs,
                               const TerrainInputOptions& options) {
   if (inputs.empty()) throw CommandError("--terrain: no terrain given");
   const auto t0 = Clock::now();
+  // The one opening of a terrain (terrain::open_terrain); clouds are mapped in memory as
+  // `terrastride map` maps them (its defaults, this report's --resolution and --origin) and
+  // described as that folder's terrain.json would describe them.
+  terrain::TerrainOpenOptions open;
+  open.clouds = true;
+  open.cloud_resolution = options.resolution;
+  open.cloud_origin = options.origin;
+  terrain::OpenedTerrain opened;
+  try {
+    opened = terrain::open_terrain(inputs, open);
+  } catch (const terrain::TerrainOpenError& e) {
+    if (e.grid_options()) throw CommandError("--resolution/--foot-radius: " + std::string(e.what()));
+    if (e.input().empty()) throw CommandError(e.what());
+    throw CommandError(std::string("--terrain ") + e.what());
+  }
   TerrainView view;
-  if (inputs.size() == 1 && is_scene_name(inputs[0])) {
-    std::shared_ptr<terrain::Scene> scene(terrain::make_scene(inputs[0]));
+  if (opened.kind == "scene") {
+    const terrain::Scene& scene = *opened.scene;
     view.kind = "scene";
-    view.source = inputs[0];
     view.resolution = options.resolution;
-    view.origin = scene->min_corner();
-    const Eigen::Vector2d size = scene->max_corner() - scene->min_corner();
+    view.origin = scene.min_corner();
+    const Eigen::Vector2d size = scene.max_corner() - scene.min_corner();
     view.nx = std::max(1, static_cast<int>(std::ceil(size.x() / options.resolution - 1e-9)));
     view.ny = std::max(1, static_cast<int>(std::ceil(size.y() / options.resolution - 1e-9)));
-    rasterize_field(view, *scene, safety_radii(options.radii, {}, options.foot_radius));
-    view.field = scene;
-    view.info = {
-        {"scene", scene->name()},
-        {"description", scene->describe()},
-        {"note", "exact analytic terrain: heights and safety margins are exact, sharp edges"}};
+    rasterize_field(view, scene, safety_radii(options.radii, {}, options.foot_radius));
+    view.field = opened.scene;
+    view.info = opened.info;
+    view.info["note"] = "exact analytic terrain: heights and safety margins are exact, sharp edges";
     if (options.voxelise_scene && (options.voxel_hi - options.voxel_lo).minCoeff() > 0) {
-      view.octree = collision::voxelise_scene(*scene, options.voxel_lo, options.voxel_hi);
+      view.octree = collision::voxelise_scene(scene, options.voxel_lo, options.voxel_hi);
       view.info["octomap"] = "voxelised from the scene's boxes (no scan)";
     }
-  } else if (inputs.size() == 1 && is_terrain_dir(inputs[0])) {
-    std::shared_ptr<const terrain::TerrainMap> map;
-    try {
-      map = terrain::load_terrain_dir(inputs[0]);
-    } catch (const std::exception& e) {
-      throw CommandError(std::string("--terrain ") + inputs[0] + ": " + e.what());
-    }
-    nlohmann::json info;
-    std::ifstream meta{(fs::path(inputs[0]) / "terrain.json").string()};
-    try {
-      info = nlohmann::json::parse(meta);
-    } catch (const std::exception&) {
-      info = nlohmann::json::object();
-    }
-    std::shared_ptr<const octomap::OcTree> octree;
-    const fs::path bt = fs::path(inputs[0]) / "octomap.bt";
-    if (fs::exists(bt)) {
-      try {
-        octree = collision::read_octomap(bt.string());
-      } catch (const std::exception& e) {
-        throw CommandError(std::string("--terrain ") + inputs[0] + ": " + e.what());
-      }
-    }
-    view = map_view(std::move(map), std::move(octree), std::move(info), options);
-    view.source = inputs[0];
-  } else if (inputs.size() == 1 && perception::is_octomap_file(inputs[0]) &&
-             fs::exists(inputs[0])) {
-    // An OctoMap, mapped in memory as `terrastride map X.bt` maps it (the grid at the tree's
-    // voxel size); its own tree is the view's occupancy map.
-    terrain::MapBuild build;
-    terrain::OctreeMapInput input;
-    try {
-      input = terrain::read_map_octomap(inputs[0]);
-      terrain::MapBuildOptions map_options;
-      map_options.grid.resolution = 0;
-      build = terrain::build_terrain_map_from_octree(input, map_options);
-    } catch (const terrain::MapBuildError& e) {
-      throw CommandError("--terrain " + inputs[0] + ": " + e.what());
-    } catch (const perception::InputError& e) {
-      throw CommandError("--terrain " + inputs[0] + ": " + e.what());
-    }
-    nlohmann::json info = terrain::terrain_json(build, input.sources);
-    view = map_view(std::move(build.map), terrain::octree_as_saved(*build.octree),
-                    std::move(info), options);
-    view.kind = "octomap";
-    view.source = inputs[0];
   } else {
-    // Point clouds.
-    for (const auto& in : inputs) {
-      std::error_code ec;
-      if (fs::is_directory(in, ec))
-        throw CommandError("--terrain " + in +
-                           ": a folder without terrain.json (not written by `terrastride map`)");
-      if (!fs::exists(in, ec))
-        throw CommandError("--terrain " + in +
-                           ": no such file, folder or scene (scenes: " +
-                           terrain::scene_names_text() + ")");
-    }
-    // Mapped in memory as `terrastride map` maps them (its defaults, this report's --resolution
-    // and --origin); the page describes the map as that folder's terrain.json would.
-    terrain::MapInput input;
-    terrain::MapBuild build;
-    try {
-      input = terrain::read_map_clouds(inputs, options.origin);
-      terrain::MapBuildOptions map_options;
-      map_options.grid.resolution = options.resolution;
-      build = terrain::build_terrain_map(std::move(input.clouds), map_options);
-    } catch (const terrain::MapBuildError& e) {
-      if (e.stage() == terrain::MapStage::kGrid)
-        throw CommandError("--resolution/--foot-radius: " + std::string(e.what()));
-      throw CommandError(e.what());
-    } catch (const perception::InputError& e) {
-      throw CommandError(e.what());
-    }
-    nlohmann::json info = terrain::terrain_json(build, input.sources);
-    view = map_view(std::move(build.map), terrain::octree_as_saved(*build.octree), std::move(info),
-                    options);
-    view.kind = "clouds";
-    for (const auto& in : inputs) view.source += (view.source.empty() ? "" : ", ") + in;
+    view = map_view(opened.map, opened.octree, std::move(opened.info), options);
+    // "map" (a folder), "octomap" or "clouds": what the page says the terrain came from.
+    view.kind = opened.kind;
   }
+  view.source = opened.spec;
   view.build_s = std::chrono::duration<double>(Clock::now() - t0).count();
   return view;
 }
