@@ -77,7 +77,8 @@ TEST(OctomapCli, CorruptOctomapsAreExitOneNamingTheFile) {
   const std::string head = good.substr(0, good.find("\ndata\n") + 6);
   std::string random(2000, '\0');
   for (size_t k = 0; k < random.size(); ++k) random[k] = static_cast<char>((k * 2654435761u) >> 13);
-  r = run("plan --terrain flat --duration 2.4 --goal 0.3,0,0 --constraints baseline --out " + (dir / "plan.json").string());
+  r = run("plan --terrain flat --duration 2.4 --goal 0.3,0,0 --constraints baseline --out " +
+          (dir / "plan.json").string());
   ASSERT_EQ(r.code, 0) << r.err;
   const std::string plan = (dir / "plan.json").string();
   for (const auto& [name, bytes] : std::vector<std::pair<std::string, std::string>>{
