@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # One idempotent set-up for a fresh Debian machine (run as root, or with sudo available):
 # installs the Debian packages terrastride needs, then configures and builds it.
-#   scripts/setup.sh              Release build in build/
+#   scripts/setup.sh              Release build of the terrastride binary in build/
+#   scripts/setup.sh --tests      and the fast tests (`ctest --test-dir build -L fast`)
+#   scripts/setup.sh --all        and everything else: the slow tests and the benchmarks
 #   scripts/setup.sh --sanitize   ASan+UBSan build of the fast tests in build-asan/
 #   scripts/setup.sh --deps-only  packages only
 #   scripts/setup.sh --fuzz-deps  also clang + libFuzzer runtime (for tests/fuzz/run.sh)
@@ -11,10 +13,12 @@ cd "$(dirname "$0")/.."
 mode=release
 case "${1:-}" in
   "") ;;
+  --tests) mode=tests ;;
+  --all) mode=all ;;
   --sanitize) mode=sanitize ;;
   --deps-only) mode=deps ;;
   --fuzz-deps) mode=fuzz ;;
-  *) echo "setup.sh: unknown option '$1' (use --sanitize, --deps-only or --fuzz-deps)" >&2; exit 2 ;;
+  *) echo "setup.sh: unknown option '$1' (use --tests, --all, --sanitize, --deps-only or --fuzz-deps)" >&2; exit 2 ;;
 esac
 
 packages=(
@@ -75,5 +79,12 @@ if [ "$mode" = sanitize ]; then
   cmake --build build-asan -j "$jobs" --target fast_tests
 else
   cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
-  cmake --build build -j "$jobs"
+  # The binary alone by default (the demo's); tests and benchmarks only when asked: they are
+  # most of a full build's compile time.
+  case "$mode" in
+    tests) targets=(--target terrastride fast_tests) ;;
+    all) targets=() ;;
+    *) targets=(--target terrastride) ;;
+  esac
+  cmake --build build -j "$jobs" "${targets[@]}"
 fi

@@ -609,9 +609,23 @@ void add_input_overhangs(const std::vector<PointBatch>& batches, HeightGrid& gri
     }
 }
 
-void add_notes(HeightGrid& grid) {
+void add_notes(HeightGrid& grid, double input_voxel) {
   const double res = grid.geometry.resolution;
   if (!grid.noise.estimated) grid.notes.push_back(grid.noise.note);
+  if (input_voxel > 0) {
+    // An OctoMap's points are its voxels' tops, one per voxel column: a grid at the voxel size or
+    // coarser measures every cell the map saw, and only a finer one interpolates.
+    if (res < 0.75 * input_voxel) {
+      std::ostringstream n;
+      n << "grid finer than its OctoMap: one point per " << input_voxel << " m voxel, "
+        << metres(res * res / (input_voxel * input_voxel), 2) << " per " << res
+        << " m cell; cells without a voxel of their own are interpolated between voxels up to "
+        << metres(100 * grid.gap_radius, 1) << " cm away (observed = 2); --resolution "
+        << input_voxel << " (the OctoMap's) or coarser measures every cell";
+      grid.notes.push_back(n.str());
+    }
+    return;
+  }
   const double spacing = grid.noise.point_spacing;
   if (spacing > 0.75 * res) {
     std::ostringstream n;
@@ -795,7 +809,7 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
   smooth_surface(grid, grid.smoothing_length);
   count_overhangs(grid);
   if (grid.overhang_cells == 0) grid.overhead.clear();
-  add_notes(grid);
+  add_notes(grid, o.input_voxel);
   return grid;
 }
 

@@ -682,6 +682,7 @@ MapBuild build_terrain_map_from_octree(OctreeMapInput& input, MapBuildOptions op
   if (!input.tree) throw std::invalid_argument("build_terrain_map_from_octree: no tree");
   const double res = input.tree->getResolution();
   if (!(options.grid.resolution > 0)) options.grid.resolution = res;
+  options.grid.input_voxel = res;
   options.grid.min_cell_points = 1;
   options.grid.min_support_points = 1;
   options.cleaning.reset();

@@ -54,6 +54,25 @@ TEST(Cli, UnknownSubcommandAndBadFlagsFail) {
   EXPECT_NE(r.code, 0);
 }
 
+// A plan made with the defaults keeps the promise: every constraint set (`all`), exit 0, every
+// post-hoc check clean. (The paper's `baseline` alone exits 4 here: a hind HFE past its range.)
+TEST(Cli, PlanWithTheDefaultsIsFeasibleAndChecksClean) {
+  const std::string out = (std::filesystem::temp_directory_path() /
+                           ("terrastride_cli_default_" + std::to_string(::getpid()) + ".json"))
+                              .string();
+  const terrastride::test_support::CommandResult r =
+      terrastride::test_support::run_terrastride("plan --terrain flat --json --out " + out);
+  ASSERT_EQ(r.code, 0) << r.all();
+  const auto summary = nlohmann::json::parse(r.out);
+  EXPECT_EQ(summary["status"], "optimal") << r.out;
+  EXPECT_TRUE(summary["checks_passed"].get<bool>()) << summary["failures"].dump();
+  EXPECT_TRUE(summary["failures"].empty()) << summary["failures"].dump();
+  std::ifstream in(out);
+  const auto plan = nlohmann::json::parse(in);
+  EXPECT_EQ(plan["constraints"], nlohmann::json::array({"all"}));
+  std::filesystem::remove(out);
+}
+
 TEST(Cli, RobotFkAndIkRoundTrip) {
   CliResult r = run("robot fk --robot hyq --leg LF --q -0.2,0.75,-1.5");
   ASSERT_EQ(r.code, 0) << r.out;

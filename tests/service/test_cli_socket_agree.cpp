@@ -171,7 +171,8 @@ TEST_F(CliSocketAgree, ANegativeFootRadiusIsAnError) {
 
 TEST_F(CliSocketAgree, NoFootholdMarginWhereNoEdgeIsInReach) {
   const fs::path out = dir_ / "flat.json";
-  auto r = run_terrastride("plan --terrain flat --duration 2.4 --out " + out.string());
+  auto r = run_terrastride("plan --terrain flat --duration 2.4 --constraints baseline --out " +
+                           out.string());
   ASSERT_EQ(r.code, 0) << r.all();
   std::ifstream in(out);
   const json plan = json::parse(in);

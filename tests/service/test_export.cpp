@@ -49,7 +49,8 @@ class ExportTest : public ::testing::Test {
     plan_ = dir_->path() / "plan.json";
     sim_ = dir_->path() / "sim.json";
     // A short crawl on the flat scene, and its execution in MuJoCo.
-    plan_code_ = run_terrastride("plan --terrain flat --duration 2.4 --out " + q(plan_)).code;
+    plan_code_ = run_terrastride("plan --terrain flat --duration 2.4 --constraints baseline --out " +
+                                 q(plan_)).code;
     sim_code_ = run_terrastride("simulate " + q(plan_) + " --terrain flat --out " + q(sim_)).code;
   }
   static void TearDownTestSuite() {

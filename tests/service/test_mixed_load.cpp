@@ -75,7 +75,10 @@ void plan_client(const std::string& address, Clock::time_point until, int seed, 
       req["terrain"] = "pallet_10";
       req["constraints"] = {"all"};
     } else {
-      req.update({{"terrain", "flat"}, {"duration", 2.4}, {"goal", {0.3, 0.0, 0.0}}});
+      req.update({{"terrain", "flat"},
+                  {"duration", 2.4},
+                  {"goal", {0.3, 0.0, 0.0}},
+                  {"constraints", "baseline"}});
     }
     tally->add("plan", c.call(req));
   }

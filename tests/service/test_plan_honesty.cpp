@@ -53,14 +53,14 @@ void expect_honest(const std::string& args, const fs::path& out) {
 // It used to exit 0 as "optimal"; the checks' verdict is now its exit code.
 TEST_F(PlanHonesty, ABaselinePlanThatHitsThePalletExitsFour) {
   const fs::path out = dir_ / "baseline.json";
-  const auto r = run_terrastride("plan --terrain pallet_15 --out " + out.string());
+  const auto r = run_terrastride("plan --terrain pallet_15 --constraints baseline --out " + out.string());
   EXPECT_EQ(r.code, 4) << r.all();
   EXPECT_NE(r.all().find("post-hoc check"), std::string::npos) << r.all();
   EXPECT_NE(r.all().find("FAILED: "), std::string::npos) << r.all();
   ASSERT_TRUE(fs::exists(out));  // written for inspection
   EXPECT_EQ(read_json(out)["solver"]["status"], "optimal");
   EXPECT_FALSE(read_json(out)["post_hoc"]["failures"].empty());
-  expect_honest("--terrain pallet_15", dir_ / "again.json");
+  expect_honest("--terrain pallet_15 --constraints baseline", dir_ / "again.json");
 }
 
 // Off the benchmark's path: other goals, a yaw, a lateral offset, another gait, every set.
@@ -76,7 +76,8 @@ TEST_F(PlanHonesty, OffPathRequestsAreCleanOrFailLoudly) {
 // foot; 5 mm is placed on the terrain and the correction recorded.
 TEST_F(PlanHonesty, MeasuredStanceFeetOffTheGroundAreRefusedOrSettled) {
   const fs::path first = dir_ / "first.json";
-  ASSERT_EQ(run_terrastride("plan --terrain flat --duration 2.4 --out " + first.string()).code, 0);
+  ASSERT_EQ(run_terrastride("plan --terrain flat --duration 2.4 --constraints baseline --out " +
+                            first.string()).code, 0);
   const json plan = read_json(first);
   const json& s = plan["samples"][10];  // t = 0.1 s: every foot in stance
   ASSERT_TRUE(s["feet"][0]["contact"].get<bool>());

@@ -29,7 +29,8 @@ std::string error_code(const p::Message& m) {
 // The flat 2.4 s crawl to x = 0.3 (a cold solve of some 0.1 s), with a 1 s horizon.
 json open_request() {
   return {{"op", "plan.session.open"}, {"terrain", "flat"}, {"duration", 2.4},
-          {"goal", {0.3, 0.0, 0.0}},   {"horizon", 1.0},     {"sample_dt", 0.02}};
+          {"goal", {0.3, 0.0, 0.0}},   {"horizon", 1.0},     {"sample_dt", 0.02},
+          {"constraints", "baseline"}};
 }
 
 double rss_kib(int pid) {

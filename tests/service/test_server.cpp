@@ -215,7 +215,8 @@ TEST_F(ServerTest, PlanAndCheckAnswerHonestly) {
                          {"terrain", "flat"},
                          {"gait", "crawl"},
                          {"duration", 2.4},
-                         {"goal", {0.3, 0.0, 0.0}}});
+                         {"goal", {0.3, 0.0, 0.0}},
+                         {"constraints", "baseline"}});
   ASSERT_TRUE(m.header["ok"].get<bool>()) << m.header.dump();
   const json r = m.header["result"];
   EXPECT_EQ(r["robot"], "hyq");
@@ -269,7 +270,8 @@ TEST_F(ServerTest, PlanOnAScannedMapRunsTheLegAndTrunkChecks) {
     EXPECT_GT(up["stats"]["octomap_resolution"].get<double>(), 0.0) << up.dump();
     mode = "add";
   }
-  const json plan = c.call_ok({{"op", "plan"}, {"terrain", "current"}, {"goal", {1.0, 0.0, 0.0}}});
+  const json plan = c.call_ok(
+      {{"op", "plan"}, {"terrain", "current"}, {"goal", {1.0, 0.0, 0.0}}, {"constraints", "baseline"}});
   ASSERT_EQ(plan["solver"]["status"], "optimal") << plan.dump().substr(0, 2000);
   EXPECT_TRUE(plan["checks"].contains("shin_collisions")) << plan["checks"].dump();
   EXPECT_TRUE(plan["checks"].contains("trunk_collisions")) << plan["checks"].dump();
@@ -304,7 +306,7 @@ TEST_F(ServerTest, APlanIsCheckedWithTheRobotItCarries) {
   robot.replace(robot.find("name: go2\n"), 10, "name: go2_other\n");
   std::ofstream(dir / "go2_other.yaml") << robot;
   const std::string cmd = std::string(TERRASTRIDE_BINARY) + " plan --robot " + (dir / "go2_other.yaml").string() +
-                          " --terrain flat --goal 0.3,0,0 --out " + (dir / "plan.json").string() +
+                          " --terrain flat --goal 0.3,0,0 --constraints baseline --out " + (dir / "plan.json").string() +
                           " > /dev/null 2>&1";
   ASSERT_EQ(WEXITSTATUS(std::system(cmd.c_str())), 0) << cmd;
   const json plan = json::parse(read(dir / "plan.json"));
@@ -323,7 +325,7 @@ TEST_F(ServerTest, ReplanFromAMeasuredState) {
   Client c = Client::connect(address_);
   // pallet_10's 11 s crawl: the 2.4 s flat crawl's re-plans from t = 0.1 s end infeasible even
   // on the plan (a planner limitation, not the service's).
-  const json first = c.call_ok({{"op", "plan"}, {"terrain", "pallet_10"}});
+  const json first = c.call_ok({{"op", "plan"}, {"terrain", "pallet_10"}, {"constraints", "baseline"}});
   ASSERT_EQ(first["solver"]["status"], "optimal");
   json req = {{"op", "plan"}, {"terrain", "pallet_10"}, {"init", first}, {"start_time", 0.1}};
   const json on_plan = c.call_ok(req);
@@ -390,7 +392,11 @@ TEST_F(ServerTest, ReplanFromAMeasuredState) {
 // The samples as a float32 table: the same plan as with JSON samples, column for column.
 TEST_F(ServerTest, PlanSamplesAsAttachmentMatchJson) {
   Client c = Client::connect(address_);
-  json req = {{"op", "plan"}, {"terrain", "flat"}, {"duration", 2.4}, {"goal", {0.3, 0.0, 0.0}}};
+  json req = {{"op", "plan"},
+              {"terrain", "flat"},
+              {"duration", 2.4},
+              {"goal", {0.3, 0.0, 0.0}},
+              {"constraints", "baseline"}};
   const json as_json = c.call_ok(req);
   req["samples"] = "attachment";
   const p::Message m = c.call(req);
@@ -496,7 +502,8 @@ TEST_F(ServerTest, CancelStopsARunningPlan) {
           {"id", "long"},
           {"terrain", "pallet_15"},
           {"duration", 11.0},
-          {"goal", {1.0, 0.0, 0.0}}});
+          {"goal", {1.0, 0.0, 0.0}},
+          {"constraints", "baseline"}});
   for (int tries = 0; tries < 400; ++tries) {
     if (Client::connect(address_).call_ok({{"op", "status"}})["queue"]["running"] == 1) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(5));

@@ -154,7 +154,10 @@ TEST(ServerInProcess, PalletOfAnyHeightIsASceneForEveryOperation) {
   InProcessServer s(1, 2);
   Client c = Client::connect(s.address);
   // A short crawl that stays before the box (its edge at x = 0.55, HyQ's front feet at 0.41).
-  const json request = {{"terrain", "pallet_12"}, {"duration", 2.4}, {"goal", {0.1, 0.0, 0.0}}};
+  const json request = {{"terrain", "pallet_12"},
+                        {"duration", 2.4},
+                        {"goal", {0.1, 0.0, 0.0}},
+                        {"constraints", "baseline"}};
   json plan_request = request;
   plan_request["op"] = "plan";
   const p::Message planned = c.call(plan_request);

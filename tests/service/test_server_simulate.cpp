@@ -29,7 +29,8 @@ TEST(ServerSimulate, ExecutesAPlanAndJudgesIt) {
   Client c = Client::connect(server.tcp());
   const json hello = c.call_ok({{"op", "hello"}});
   EXPECT_NE(std::find(hello["ops"].begin(), hello["ops"].end(), "simulate"), hello["ops"].end());
-  const json plan = c.call_ok({{"op", "plan"}, {"terrain", "flat"}, {"duration", 2.4}});
+  const json plan = c.call_ok(
+      {{"op", "plan"}, {"terrain", "flat"}, {"duration", 2.4}, {"constraints", "baseline"}});
 
   // On the exact flat scene: the plan executes (the CLI's flat crawl figures).
   json r = c.call_ok({{"op", "simulate"}, {"plan", plan}, {"terrain", "flat"}});
@@ -87,7 +88,8 @@ TEST(ServerSimulate, RefusesWhatItCannotJudgeOrFinish) {
   ServerProcess server({"--listen", "tcp://127.0.0.1:0", "--workers", "1", "--queue", "4"});
   ASSERT_FALSE(server.tcp().empty()) << server.output;
   Client c = Client::connect(server.tcp());
-  const json plan = c.call_ok({{"op", "plan"}, {"terrain", "flat"}, {"duration", 2.4}});
+  const json plan = c.call_ok(
+      {{"op", "plan"}, {"terrain", "flat"}, {"duration", 2.4}, {"constraints", "baseline"}});
   ASSERT_TRUE(plan["samples"].is_array());
   const auto call = [&](const json& p, json extra = json::object()) {
     json request = {{"op", "simulate"}, {"plan", p}, {"terrain", "flat"}};

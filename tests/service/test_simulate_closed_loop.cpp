@@ -97,7 +97,7 @@ TEST(ClosedLoop, PushThatTopplesTheOpenLoopIsSurvivedWithReplanning) {
 // The flat 2.4 s crawl re-planned every 0.2 s through a server on a loopback port: the server
 // opened a session with the plan as its reference and answered the steps.
 TEST(ClosedLoop, ReplansGoThroughTheSocket) {
-  const std::string plan = plan_file("flat", "--terrain flat --duration 2.4");
+  const std::string plan = plan_file("flat", "--terrain flat --duration 2.4 --constraints baseline");
   ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
   ASSERT_FALSE(server.tcp().empty()) << server.output;
   const auto r = run_terrastride("simulate " + plan + " --terrain flat --json --replan-every 0.2 " +
@@ -134,7 +134,7 @@ TEST(ClosedLoop, ReplansGoThroughTheSocket) {
 }
 
 TEST(ClosedLoop, BadViaAndUnreachableServerAreNamed) {
-  const std::string plan = plan_file("flat_bad", "--terrain flat --duration 2.4");
+  const std::string plan = plan_file("flat_bad", "--terrain flat --duration 2.4 --constraints baseline");
   auto r = run_terrastride("simulate " + plan + " --terrain flat --replan-every 0.1 --via ftp://x");
   EXPECT_EQ(r.code, 1) << r.all();
   EXPECT_NE(r.err.find("--via ftp://x"), std::string::npos) << r.all();

@@ -129,9 +129,9 @@ const planner::Trajectory& cached_plan(const std::string& args) {
   return it->second;
 }
 
-// `terrastride plan --terrain flat --duration 2.4`, once per test run.
+// `terrastride plan --terrain flat --duration 2.4 --constraints baseline`, once per test run.
 const planner::Trajectory& flat_crawl() {
-  return cached_plan("--terrain flat --duration 2.4");
+  return cached_plan("--terrain flat --duration 2.4 --constraints baseline");
 }
 
 void print(const std::string& what, const simulation::SimulationReport& r) {
@@ -252,7 +252,7 @@ TEST(Simulation, Pallet15BaselineHitsTheShinAndAllConstraintsPass) {
   const auto model = hyq();
   const auto scene = terrain::make_scene("pallet_15");
   const auto base =
-      simulation::simulate_plan(model, cached_plan("--terrain pallet_15"), *scene, {});
+      simulation::simulate_plan(model, cached_plan("--terrain pallet_15 --constraints baseline"), *scene, {});
   print("pallet_15 baseline", base);
   EXPECT_NE(base.verdict, "pass");
   EXPECT_GE(base.shin_impulse_max, 5.0);

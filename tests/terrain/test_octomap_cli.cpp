@@ -50,7 +50,8 @@ TEST(OctomapCli, PlanOnAnOctomapFile) {
   // would stand beside a cell the map did not observe, which its 3 x 3 disk on these 5 cm cells
   // does not take).
   const auto r = terrastride::test_support::run_terrastride(
-      "plan --terrain " + fixture() + " --start 0.1,0,0 --goal 0.3,0,0 --out /dev/null");
+      "plan --terrain " + fixture() +
+      " --start 0.1,0,0 --goal 0.3,0,0 --constraints baseline --out /dev/null");
   EXPECT_EQ(r.err.find("terrastride map"), std::string::npos) << r.err;
   EXPECT_EQ(r.err.find("unknown point cloud"), std::string::npos) << r.err;
   EXPECT_EQ(r.err.find("--terrain"), std::string::npos) << r.err;
@@ -78,7 +79,8 @@ TEST(OctomapCli, CorruptOctomapsAreExitOneNamingTheFile) {
   const std::string head = good.substr(0, good.find("\ndata\n") + 6);
   std::string random(2000, '\0');
   for (size_t k = 0; k < random.size(); ++k) random[k] = static_cast<char>((k * 2654435761u) >> 13);
-  r = run("plan --terrain flat --duration 2.4 --goal 0.3,0,0 --out " + (dir / "plan.json").string());
+  r = run("plan --terrain flat --duration 2.4 --goal 0.3,0,0 --constraints baseline --out " +
+          (dir / "plan.json").string());
   ASSERT_EQ(r.code, 0) << r.err;
   const std::string plan = (dir / "plan.json").string();
   for (const auto& [name, bytes] : std::vector<std::pair<std::string, std::string>>{

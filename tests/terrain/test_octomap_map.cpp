@@ -260,6 +260,36 @@ TEST(OctomapInput, MapOfAnOctomapMatchesItsScene) {
   EXPECT_GE(static_cast<double>(within) / measured, 0.97) << within << " of " << measured;
 }
 
+// An OctoMap states its resolution: mapped at it, every cell it saw is measured, so no "sparse
+// cloud" advice (an 8 cm map used to be told "--resolution 0.19"); a finer grid is told the
+// OctoMap's own resolution.
+TEST(OctomapInput, ResolutionAdviceIsTheOctomapsOwn) {
+  ScratchDir dir;
+  octomap::OcTree tree(0.08);
+  for (double x = 0.04; x < 2.0; x += 0.08)
+    for (double y = 0.04; y < 2.0; y += 0.08) {
+      tree.updateNode(octomap::point3d(x, y, 0.04), true);
+      if (x > 1.0) tree.updateNode(octomap::point3d(x, y, 0.12), true);  // an 8 cm step
+    }
+  ASSERT_TRUE(tree.writeBinaryConst(dir.file("coarse.bt")));
+  const auto notes_at = [&](double resolution) {
+    terrain::OctreeMapInput input = terrain::read_map_octomap(dir.file("coarse.bt"));
+    terrain::MapBuildOptions options;
+    options.grid.resolution = resolution;
+    return terrain::build_terrain_map_from_octree(input, options).map->grid().notes;
+  };
+  for (const auto& note : notes_at(0)) {  // the tree's 8 cm
+    EXPECT_EQ(note.find("sparse cloud"), std::string::npos) << note;
+    EXPECT_EQ(note.find("--resolution"), std::string::npos) << note;
+  }
+  bool advised = false;
+  for (const auto& note : notes_at(0.02)) {
+    EXPECT_EQ(note.find("sparse cloud"), std::string::npos) << note;
+    advised |= note.find("--resolution 0.08 (the OctoMap's)") != std::string::npos;
+  }
+  EXPECT_TRUE(advised);
+}
+
 TEST(OctomapInput, SharedOctomapsMapWithSensibleSafeFractions) {
   TERRASTRIDE_REQUIRE_SHARED_SCANS();
   for (const std::string name : {"freiburg1_360.bt", "geb079.bt"}) {

@@ -38,7 +38,7 @@ struct PlanCliOptions {
   double duration = 0.0;
   std::string goal;
   std::string start;
-  std::string constraints = "baseline";
+  std::string constraints = "all";  // planner::kDefaultRequestConstraints
   std::vector<std::string> feasibility;  // NAME=VALUE settings of the constraint sets
   double sample_dt = 0.01;
   double max_time = 0.0;
@@ -354,7 +354,8 @@ void add_plan_command(CLI::App& app) {
                   "lateral_corridor=0.02, swing_apex_rise=0.1; plans from rest only unless "
                   "replan_path_shape=1; a solve they make fail is solved again without them), all "
                   "(= foot,shin_ik,thigh,trunk,polytope,joints,force_ramp,monotone_progress,"
-                  "lateral_corridor,swing_apex)")
+                  "lateral_corridor,swing_apex). Default: all (a re-plan: --init's); "
+                  "--constraints baseline is the paper's formulation alone")
       ->capture_default_str();
   {
     std::string names;

@@ -219,7 +219,7 @@ PlanRequest read_plan_request(const json& fields, const robot::RobotModel& robot
   else if (r.replan && extra.contains("constraints"))
     po.constraints = constraint_sets(extra["constraints"]);  // what init was planned with
   else
-    po.constraints = {"baseline"};
+    po.constraints = planner::kDefaultRequestConstraints;
   if (const json* f = find(fields, "feasibility"))
     po.feasibility_settings = feasibility_settings(*f);
   else if (r.replan && extra.contains("feasibility_settings"))

@@ -80,6 +80,10 @@ struct HeightGridOptions {
   double foot_radius = 0.02;          // m (HyQ's foot)
   double noise_slope_p95 = 0.1;       // tan; a sixth of the default friction-cone slope 0.6
   double max_smoothing_length = 0.1;  // m
+  // The input's own sample spacing when the input states it (an OctoMap: one support point per
+  // voxel, its resolution), m; 0: the points are a cloud, their spacing estimated (noise). The
+  // notes' resolution advice is then in terms of it rather than of a "sparse cloud".
+  double input_voxel = 0.0;
 };
 
 // The sensor noise estimate (HeightGrid::noise). Heights are binned in squares of bin_size (two

@@ -1,0 +1,12 @@
+# Per-target build settings that cut compile time where run-time speed does not matter.
+#
+# terrastride_light_optimisation(TARGET LEVEL): compile TARGET at LEVEL (-O1, -O2) instead of the
+# build type's -O3 in optimised builds (Release, RelWithDebInfo, MinSizeRel; Debug stays -O0).
+# For test executables and command-line glue: GCC spends most of a Release build in -O3's inlining
+# and vectorisation of template-heavy code (Eigen, nlohmann::json, GoogleTest), which such code
+# does not need. Results do not change: without -ffast-math no level reassociates floating-point
+# arithmetic (and the product libraries, planner/ terrain/ perception/ collision/, keep -O3).
+# Target options come after CMAKE_CXX_FLAGS_<CONFIG> on the command line, so LEVEL wins.
+function(terrastride_light_optimisation target level)
+  target_compile_options(${target} PRIVATE $<$<CONFIG:Release,RelWithDebInfo,MinSizeRel>:${level}>)
+endfunction()
