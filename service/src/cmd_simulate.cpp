@@ -261,8 +261,6 @@ void check_closed_loop_options(const SimulateCliOptions& o) {
   if (!std::isfinite(o.replan_latency) || o.replan_latency < 0 ||
       (o.replan_every > 0 && o.replan_latency >= o.replan_every))
     throw CommandError("--replan-latency: must be within [0, --replan-every)");
-  if (!(o.replan_budget_iterations >= 0 && o.replan_budget_iterations <= 1000))
-    throw CommandError("--replan-iterations: must be within [0, 1000] (0 = none)");
   if (!(o.replan_budget_ms >= 0 && o.replan_budget_ms <= 60000))
     throw CommandError("--replan-budget: must be within [0, 60000] ms (0 = wait for each solve)");
 }
@@ -335,11 +333,9 @@ void run_simulate(const SimulateCliOptions& o) {
       } catch (const RequestFieldError& e) {
         throw CommandError(o.plan + ": as a re-planning session's reference: " + e.what());
       }
-      sim.replanner = simulation::session_replanner(model, *replan_terrain->smooth(),
-                                                   *replan_terrain->exact(), req.options, traj,
-                                                   o.horizon, req.sample_dt,
-                                                   1e-3 * o.replan_budget_ms,
-                                                   o.replan_budget_iterations);
+      sim.replanner = simulation::session_replanner(
+          model, *replan_terrain->smooth(), *replan_terrain->exact(), req.options, traj, o.horizon,
+          req.sample_dt, 1e-3 * o.replan_budget_ms, o.replan_budget_iterations);
     }
   }
   simulation::SimulationReport rep;
@@ -469,6 +465,7 @@ void add_simulate_command(CLI::App& app) {
                   "within it answers with the current plan from the measured time (a fallback, "
                   "reported per step) and its plan, if it converges later, is the next re-plan's "
                   "start; 0 = wait for each solve")
+      ->check(CLI::Range(0, 1000))
       ->capture_default_str();
   cmd->add_option("--replan-budget", opts->replan_budget_ms,
                   "With --replan-every: each re-plan's wall-clock budget (ms) instead, as the "
