@@ -72,6 +72,7 @@ struct StepJob {
   double t = 0.0, end = 0.0, horizon = 0.0, sample_dt = 0.01;
   bool to_goal = false, warm_from_late = false;
   int step_number = 0;
+  int iteration_budget = 0;  // StepLimits::iterations (its solve capped at 4 x that)
   std::vector<std::string> touchdowns;  // feet in the air turned from stance to a swing
   Clock::time_point t0;
   // Cancels the solve at its next iteration (a newer step needs the worker, or the session ends).
@@ -126,7 +127,10 @@ std::unique_ptr<SrbdProblem> solve_job(StepJob& job) {
     step_options.push_back(std::move(option));
   const double cap = solver_options.max_time;
   o.solve = solve(*problem, solver_options, step_options);
-  const bool stopped = o.solve.status == "time_limit" || solver_options.should_stop();
+  // A solve ended by its time, a stop, or an iteration budget's cap is not retried: the retry
+  // is for a problem the pinned end makes infeasible, not for one out of budget.
+  const bool stopped = o.solve.status == "time_limit" || solver_options.should_stop() ||
+                       (job.iteration_budget > 0 && o.solve.status == "max_iterations");
   if (!o.solve.success && !job.to_goal && !stopped) {
     const SolveResult pinned = o.solve;
     out.feet_freed = true;
@@ -475,17 +479,19 @@ SessionStep PlanningSession::step_with_iteration_budget(const std::shared_ptr<St
   // for a plan the next step starts from.
   int& cap = job->solver_options.max_iterations;
   cap = std::min(cap, 4 * iterations);
+  job->iteration_budget = iterations;
   run_job(*job);
   const PlanOutcome& o = job->result.outcome;
-  if (!o.success) return fallback_after_solve(*job, "solve_failed", o.message);
-  if (o.solve.iterations <= iterations) return std::move(job->result);
+  const bool capped = o.solve.status == "max_iterations";  // at the cap above
+  if (!o.success && !capped) return fallback_after_solve(*job, "solve_failed", o.message);
+  if (o.success && o.solve.iterations <= iterations) return std::move(job->result);
   std::ostringstream m;
-  m << "the re-plan from t = " << job->t << " s took " << o.solve.iterations
-    << " solver iterations, over its budget of " << iterations
-    << "; the session's current plan from t stands (the solve's plan is the next step's warm "
-       "start)";
+  m << "the re-plan from t = " << job->t << " s " << (o.success ? "took " : "had not converged in ")
+    << o.solve.iterations << " solver iterations, over its budget of " << iterations
+    << "; the session's current plan from t stands"
+    << (o.success ? " (the solve's plan is the next step's warm start)" : "");
   SessionStep out = fallback_after_solve(*job, "iterations", m.str());
-  late_by_iterations_ = job;
+  if (o.success) late_by_iterations_ = job;
   return out;
 }
 
