@@ -633,7 +633,15 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
       return out;
     }
     if (!job->result.outcome.success) {
-      out = fallback_after_solve(*job, "solve_failed", job->result.outcome.message);
+      // The fallback made above, its reason and the failed solve's figures set in place.
+      out.fallback_reason = "solve_failed";
+      out.outcome.message = job->result.outcome.message;
+      auto& session_json = out.outcome.trajectory.extra["session"];
+      session_json["fallback_reason"] = out.fallback_reason;
+      session_json["fallback_message"] = out.outcome.message;
+      out.outcome.solve = job->result.outcome.solve;
+      out.outcome.trajectory.solver.iterations = job->result.outcome.solve.iterations;
+      out.outcome.trajectory.solver.wall_s = job->result.outcome.solve.wall_s;
       out.wall_s = seconds_since(t0);
       return out;
     }
