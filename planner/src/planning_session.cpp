@@ -72,6 +72,7 @@ struct StepJob {
   double t = 0.0, end = 0.0, horizon = 0.0, sample_dt = 0.01;
   bool to_goal = false, warm_from_late = false;
   int step_number = 0;
+  int iteration_budget = 0;  // StepLimits::iterations (its solve capped at 4 x that)
   std::vector<std::string> touchdowns;  // feet in the air turned from stance to a swing
   Clock::time_point t0;
   // Cancels the solve at its next iteration (a newer step needs the worker, or the session ends).
@@ -112,14 +113,24 @@ std::unique_ptr<SrbdProblem> solve_job(StepJob& job) {
       // after its full set-up, until Ipopt had seen three such iterations): the regularisation
       // from the first, and no MUMPS scaling (the forces are already scaled to body weights,
       // SrbdTnlp::get_scaling_parameters), which MUMPS recomputed for every factorisation.
-      {"perturb_always_cd", "yes"}, {"mumps_scaling", "0"}};
+      {"perturb_always_cd", "yes"}, {"mumps_scaling", "0"},
+      // Mehrotra's probing for the barrier parameter instead of the quality-function search:
+      // the adaptive quality function raised mu from mu_init to 1e-2..1e-2.5 at the first
+      // iteration and took 3-5 iterations back down, and 9-75 (two failed at 120) where the
+      // horizon's end moves onto the pallet. With probing 40 steps of pallet_15 `all`
+      // (bench-service --mode replan) took 169 iterations instead of 330, at most 7, none
+      // failed; a monotone barrier, or LOQO's rule, took 277-563 with failures (docs §6.7).
+      {"mu_oracle", "probing"}};
   // TERRASTRIDE_STEP_IPOPT_OPTIONS adds Ipopt options to session steps only (tuning runs;
   // TERRASTRIDE_IPOPT_OPTIONS would change the reference's cold solve too).
   for (auto& option : ipopt_options_from_env("TERRASTRIDE_STEP_IPOPT_OPTIONS"))
     step_options.push_back(std::move(option));
   const double cap = solver_options.max_time;
   o.solve = solve(*problem, solver_options, step_options);
-  const bool stopped = o.solve.status == "time_limit" || solver_options.should_stop();
+  // A solve ended by its time, a stop, or an iteration budget's cap is not retried: the retry
+  // is for a problem the pinned end makes infeasible, not for one out of budget.
+  const bool stopped = o.solve.status == "time_limit" || solver_options.should_stop() ||
+                       (job.iteration_budget > 0 && o.solve.status == "max_iterations");
   if (!o.solve.success && !job.to_goal && !stopped) {
     const SolveResult pinned = o.solve;
     out.feet_freed = true;
@@ -452,9 +463,44 @@ SessionStep PlanningSession::fallback_step(const StepJob& job, const std::string
   return out;
 }
 
+SessionStep PlanningSession::fallback_after_solve(const StepJob& job, const std::string& reason,
+                                                  const std::string& message) const {
+  SessionStep out = fallback_step(job, reason, message);
+  out.outcome.solve = job.result.outcome.solve;
+  out.outcome.trajectory.solver.iterations = job.result.outcome.solve.iterations;
+  out.outcome.trajectory.solver.wall_s = job.result.outcome.solve.wall_s;
+  return out;
+}
+
+SessionStep PlanningSession::step_with_iteration_budget(const std::shared_ptr<StepJob>& job,
+                                                        int iterations) {
+  if (worker_) worker_->cancel_all();
+  // The solve may go on past the budget (as a wall-clock step's solve runs on after its answer)
+  // for a plan the next step starts from.
+  int& cap = job->solver_options.max_iterations;
+  cap = std::min(cap, 4 * iterations);
+  job->iteration_budget = iterations;
+  run_job(*job);
+  const PlanOutcome& o = job->result.outcome;
+  const bool capped = o.solve.status == "max_iterations";  // at the cap above
+  if (!o.success && !capped) return fallback_after_solve(*job, "solve_failed", o.message);
+  if (o.success && o.solve.iterations <= iterations) return std::move(job->result);
+  std::ostringstream m;
+  m << "the re-plan from t = " << job->t << " s " << (o.success ? "took " : "had not converged in ")
+    << o.solve.iterations << " solver iterations, over its budget of " << iterations
+    << "; the session's current plan from t stands"
+    << (o.success ? " (the solve's plan is the next step's warm start)" : "");
+  SessionStep out = fallback_after_solve(*job, "iterations", m.str());
+  if (o.success) late_by_iterations_ = job;
+  return out;
+}
+
 void PlanningSession::adopt_late_solve() {
-  if (!worker_) return;
-  const std::shared_ptr<StepJob> job = worker_->take_late();
+  std::shared_ptr<StepJob> job = std::move(late_by_iterations_);
+  late_by_iterations_.reset();
+  if (worker_)
+    if (auto from_worker = worker_->take_late(); from_worker && (!job || from_worker->t > job->t))
+      job = std::move(from_worker);
   if (!job || job->t <= previous_start_) return;
   previous_ = std::move(job->result.outcome.trajectory);
   previous_start_ = job->t;
@@ -587,6 +633,7 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
       return out;
     }
     if (!job->result.outcome.success) {
+      // The fallback made above, its reason and the failed solve's figures set in place.
       out.fallback_reason = "solve_failed";
       out.outcome.message = job->result.outcome.message;
       auto& session_json = out.outcome.trajectory.extra["session"];
@@ -599,6 +646,10 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
       return out;
     }
     out = std::move(job->result);
+  } else if (limits.iterations > 0) {
+    out = step_with_iteration_budget(job, limits.iterations);
+    out.wall_s = seconds_since(t0);
+    if (out.fallback) return out;
   } else {
     if (worker_) worker_->cancel_all();
     run_job(*job);

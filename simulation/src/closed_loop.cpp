@@ -36,11 +36,11 @@ ReplannerFactory session_replanner(const robot::RobotModel& robot,
                                    const terrain::HeightField& check_terrain,
                                    const planner::PlannerOptions& options,
                                    const planner::Trajectory& reference, double horizon,
-                                   double sample_dt, double budget) {
+                                   double sample_dt, double budget, int budget_iterations) {
   auto ref = std::make_shared<const planner::Trajectory>(reference);
   const planner::PlannerOptions opts = options;
   return [&robot, &plan_terrain, &check_terrain, opts, ref, horizon, sample_dt,
-          budget]() -> Replanner {
+          budget, budget_iterations]() -> Replanner {
     std::shared_ptr<planner::PlanningSession> session;
     try {
       session = std::make_shared<planner::PlanningSession>(robot, plan_terrain, check_terrain,
@@ -48,7 +48,7 @@ ReplannerFactory session_replanner(const robot::RobotModel& robot,
     } catch (const std::invalid_argument& e) {
       throw SimulationError(std::string("re-planning session: ") + e.what());
     }
-    return [session, budget](const MeasuredState& ms) {
+    return [session, budget, budget_iterations](const MeasuredState& ms) {
       Replan out;
       out.start_time = ms.t;
       const planner::Trajectory& reference = session->reference();
@@ -62,6 +62,7 @@ ReplannerFactory session_replanner(const robot::RobotModel& robot,
             on_previous ? ms.t - t0 : ms.t);
         planner::StepLimits limits;
         limits.budget = budget;
+        if (budget <= 0.0) limits.iterations = budget_iterations;
         planner::SessionStep step = session->step(start, ms.t, limits);
         out.success = step.outcome.success;
         out.iterations = step.outcome.solve.iterations;

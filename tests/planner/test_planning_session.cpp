@@ -27,6 +27,7 @@ struct FlatSession : ::testing::Test {
     o.has_goal = true;
     o.goal = Eigen::Vector3d(0.3, 0.0, 0.0);
     o.duration = 2.4;
+    options = o;
     cold = plan_motion(robot, flat, flat, o, 0.02);
     ASSERT_TRUE(cold.success) << cold.message;
     session = std::make_unique<PlanningSession>(robot, flat, flat, o, cold.trajectory, 1.0, 0.02);
@@ -39,6 +40,7 @@ struct FlatSession : ::testing::Test {
   }
   robot::RobotModel robot = robot::load_robot(robot::resolve_robot_path("hyq"));
   testing::FlatField flat;
+  PlannerOptions options;
   PlanOutcome cold;
   std::unique_ptr<PlanningSession> session;
 };
@@ -121,6 +123,44 @@ TEST_F(FlatSession, ASolveThatFinishesLateWarmStartsTheNextStep) {
   const SessionStep c = session->step(measured(0.4), 0.4);
   ASSERT_TRUE(c.outcome.success) << c.outcome.message;
   EXPECT_FALSE(c.warm_from_late_solve);
+}
+
+
+// A budget in solver iterations (StepLimits::iterations, the simulation's deterministic deadline):
+// a step whose solve needs more than its budget answers with the fallback ("iterations"), and the
+// solve's plan, which converged after its budget, becomes the session's plan when the next step
+// begins; a step within its budget answers with its own plan. The same steps in a second session
+// decide the same and answer the same plans (no wall clock involved).
+TEST_F(FlatSession, AnIterationBudgetFallsBackAndAdoptsTheSolveAtTheNextStep) {
+  auto run = [&](PlanningSession& s) {
+    std::vector<SessionStep> steps;
+    StepLimits one;
+    one.iterations = 1;
+    SrbdProblem::StartState m = s.planned_state(0.2);
+    m.position.y() += 0.02;
+    steps.push_back(s.step(m, 0.2, one));
+    EXPECT_TRUE(steps.back().fallback);
+    EXPECT_EQ(steps.back().fallback_reason, "iterations");
+    EXPECT_GT(steps.back().outcome.solve.iterations, 1);
+    EXPECT_TRUE(steps.back().outcome.success) << "a fallback is a plan to follow";
+    EXPECT_EQ(s.previous_start_time(), 0.0);
+    StepLimits ample;
+    ample.iterations = 60;
+    steps.push_back(s.step(s.planned_state(0.3), 0.3, ample));
+    EXPECT_TRUE(steps.back().warm_from_late_solve);
+    EXPECT_FALSE(steps.back().fallback) << steps.back().outcome.message;
+    EXPECT_DOUBLE_EQ(s.previous_start_time(), 0.3);
+    return steps;
+  };
+  const std::vector<SessionStep> a = run(*session);
+  PlanningSession again(robot, flat, flat, options, cold.trajectory, 1.0, 0.02);
+  const std::vector<SessionStep> b = run(again);
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    EXPECT_EQ(a[k].outcome.solve.iterations, b[k].outcome.solve.iterations);
+    ASSERT_EQ(a[k].outcome.trajectory.samples.size(), b[k].outcome.trajectory.samples.size());
+    EXPECT_EQ(a[k].outcome.trajectory.samples.back().base.position,
+              b[k].outcome.trajectory.samples.back().base.position);
+  }
 }
 
 

@@ -79,10 +79,10 @@ TEST(ClosedLoop, PushThatTopplesTheOpenLoopIsSurvivedWithReplanning) {
   EXPECT_EQ(o.value("verdict", ""), "fail") << o.dump();
   EXPECT_FALSE(o.contains("closed_loop"));
 
-  // Without a budget (--replan-budget 0) every step's own solve is tracked: the run does not
+  // Without a budget (--replan-iterations 0) every step's own solve is tracked: the run does not
   // depend on the machine's load.
   const auto closed = run_terrastride("simulate " + plan + " --terrain pallet_15 --json " + push +
-                                      " --replan-every 0.1 --horizon 1 --replan-budget 0");
+                                      " --replan-every 0.1 --horizon 1 --replan-iterations 0");
   const json c = summary(closed);
   EXPECT_EQ(closed.code, 0) << closed.all();
   EXPECT_NE(c.value("verdict", ""), "fail") << c.dump();
@@ -129,6 +129,42 @@ TEST(ClosedLoop, ReplansGoThroughTheSocket) {
   const json l = summary(local);
   EXPECT_EQ(local.code, 0) << local.all();
   EXPECT_EQ(l["closed_loop"]["replans"].get<int>(), 11) << l.dump();
+  EXPECT_EQ(server.stop(SIGTERM), 0) << server.output;
+  std::filesystem::remove(plan);
+}
+
+// The simulation's re-plans have a deadline in solver iterations (simulate's default,
+// --replan-iterations), not in wall-clock time: the same closed loop, in this process and through
+// a server's plan.session.step (the same PlanningSession code path), re-plans the same steps with
+// the same iterations and falls back at the same steps, whatever the machine's load. With a
+// budget of 1 iteration some steps fall back ("iterations") and the run still passes (a late
+// plan is the next step's).
+TEST(ClosedLoop, AnIterationBudgetGivesTheSameStepsInProcessAndThroughTheSocket) {
+  const std::string plan = plan_file("flat_iter", "--terrain flat --duration 2.4");
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  const std::string args =
+      " --terrain flat --json --replan-every 0.2 --horizon 1 --replan-iterations 1";
+  const json tcp = summary(run_terrastride("simulate " + plan + args + " --via " + server.tcp()));
+  const json local = summary(run_terrastride("simulate " + plan + args));
+  ASSERT_TRUE(tcp.contains("closed_loop") && local.contains("closed_loop"))
+      << tcp.dump() << local.dump();
+  const json& a = tcp["closed_loop"]["steps"];
+  const json& b = local["closed_loop"]["steps"];
+  ASSERT_EQ(a.size(), 11u) << tcp.dump();
+  ASSERT_EQ(b.size(), a.size());
+  int fallbacks = 0;
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    EXPECT_EQ(a[k]["iterations"], b[k]["iterations"]) << k;
+    EXPECT_EQ(a[k]["fallback"], b[k]["fallback"]) << k;
+    if (!a[k]["fallback"].is_null()) {
+      ++fallbacks;
+      EXPECT_EQ(a[k]["fallback"], "iterations") << a[k].dump();
+      EXPECT_GT(a[k]["iterations"].get<int>(), 1) << a[k].dump();
+    }
+  }
+  EXPECT_GT(fallbacks, 0) << "a 1-iteration budget never ran out: the test checks nothing";
+  EXPECT_NE(local.value("verdict", ""), "fail") << local.dump();
   EXPECT_EQ(server.stop(SIGTERM), 0) << server.output;
   std::filesystem::remove(plan);
 }

@@ -837,6 +837,12 @@ struct ReplanTally {
               {"deadline_fallbacks", deadline_fallbacks},
               {"deadline_misses", misses},
               {"warm_from_late_solve", late_warm},
+              // Steps answered with their own solve's plan (neither a fallback nor failed).
+              {"own_solutions", static_cast<int>(latencies.size()) - failures - fallbacks},
+              {"own_fraction", latencies.empty() ? 0.0
+                                                 : static_cast<double>(static_cast<int>(
+                                                       latencies.size()) - failures - fallbacks) /
+                                                       latencies.size()},
               {"iterations_per_step", static_cast<double>(iterations) /
                                           std::max<std::size_t>(1, solves.size())},
               {"latency", latency_json(latencies)},
@@ -981,7 +987,10 @@ void print_replan(const json& r) {
             << " ms: " << r["deadline_misses"] << " replies after it, " << r["fallbacks"]
             << " fallbacks (" << r["deadline_fallbacks"] << " at the deadline), "
             << r["warm_from_late_solve"] << " steps warm-started from a late solve, "
-            << r["sessions"] << " sessions\n";
+            << r["sessions"] << " sessions\n"
+            << "  own solutions (not fallbacks): " << r["own_solutions"] << " of "
+            << r["latency"].value("count", 0) << std::setprecision(2) << " ("
+            << r["own_fraction"].get<double>() << ")\n";
 }
 
 }  // namespace

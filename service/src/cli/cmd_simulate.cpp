@@ -57,7 +57,11 @@ struct SimulateCliOptions {
   std::string via = "in-process";
   double horizon = 1.0;
   double replan_latency = 0.0;
-  double replan_budget_ms = 50.0;
+  // A re-plan's deadline: in solver iterations by default (the closed loop's answers then do
+  // not depend on the machine's load: a run is reproducible), or in wall-clock time as the
+  // service's steps (--replan-budget, which takes precedence when > 0).
+  int replan_budget_iterations = 5;
+  double replan_budget_ms = 0.0;
   double connect_timeout = 10.0;
   double step_timeout = 120.0;
 };
@@ -77,15 +81,18 @@ simulation::ReplannerFactory socket_replanner(const SimulateCliOptions& o,
                                          {"init", *init},
                                          {"horizon", o.horizon}});
     const std::string id = opened.at("session").get<std::string>();
-    return [client, id, feet, budget_ms = o.replan_budget_ms](const simulation::MeasuredState& ms) {
+    json budget = {{"budget_ms", o.replan_budget_ms}};
+    if (o.replan_budget_ms <= 0 && o.replan_budget_iterations > 0)
+      budget = {{"budget_ms", 0.0}, {"budget_iterations", o.replan_budget_iterations}};
+    return [client, id, feet, budget](const simulation::MeasuredState& ms) {
       simulation::Replan out;
       out.start_time = ms.t;
-      const protocol::Message reply = client->call({{"op", "plan.session.step"},
-                                                    {"session", id},
-                                                    {"time", ms.t},
-                                                    {"budget_ms", budget_ms},
-                                                    {"start_state",
-                                                     simulation::start_state_json(ms, feet)}});
+      json request = {{"op", "plan.session.step"},
+                      {"session", id},
+                      {"time", ms.t},
+                      {"start_state", simulation::start_state_json(ms, feet)}};
+      request.update(budget);
+      const protocol::Message reply = client->call(request);
       const std::string error = error_text(reply);
       if (!error.empty()) {
         out.message = error;
@@ -110,15 +117,18 @@ simulation::ReplannerFactory socket_replanner(const SimulateCliOptions& o,
 // The closed loop's steps: how many fell back (and why), how many overran the budget, and the
 // steps that did either.
 void print_replan_steps(const simulation::SimulationReport& r, double budget_ms) {
-  int deadline = 0, failed = 0, over = 0;
+  int deadline = 0, failed = 0, over = 0, own = 0;
   for (const auto& s : r.replan_records) {
-    deadline += s.fallback == "deadline";
+    deadline += s.fallback == "deadline" || s.fallback == "iterations";
     failed += s.fallback == "solve_failed";
     over += budget_ms > 0 && 1e3 * s.wall_s > budget_ms;
   }
   std::cout << "          steps: " << r.replan_records.size() << ", fallbacks " << r.replan_fallbacks
             << " (" << deadline << " at the deadline, " << failed << " failed solves), "
             << over << " answered after the " << budget_ms << " ms budget\n";
+  for (const auto& s : r.replan_records)
+    if (s.fallback.empty()) ++own;
+  std::cout << "          own solutions: " << own << " of " << r.replan_records.size() << "\n";
   for (const auto& s : r.replan_records)
     if (!s.fallback.empty() || (budget_ms > 0 && 1e3 * s.wall_s > budget_ms))
       std::cout << "            t = " << s.t << " s: " << 1e3 * s.wall_s << " ms, "
@@ -323,10 +333,9 @@ void run_simulate(const SimulateCliOptions& o) {
       } catch (const RequestFieldError& e) {
         throw CommandError(o.plan + ": as a re-planning session's reference: " + e.what());
       }
-      sim.replanner = simulation::session_replanner(model, *replan_terrain->smooth(),
-                                                   *replan_terrain->exact(), req.options, traj,
-                                                   o.horizon, req.sample_dt,
-                                                   1e-3 * o.replan_budget_ms);
+      sim.replanner = simulation::session_replanner(
+          model, *replan_terrain->smooth(), *replan_terrain->exact(), req.options, traj, o.horizon,
+          req.sample_dt, 1e-3 * o.replan_budget_ms, o.replan_budget_iterations);
     }
   }
   simulation::SimulationReport rep;
@@ -450,11 +459,19 @@ void add_simulate_command(CLI::App& app) {
                   "With --replan-every: a re-plan is tracked this much simulated time after the "
                   "state it starts from was measured (s)")
       ->capture_default_str();
+  cmd->add_option("--replan-iterations", opts->replan_budget_iterations,
+                  "With --replan-every: each re-plan's budget in solver iterations (a deadline "
+                  "that does not depend on the machine's load): a solve that has not converged "
+                  "within it answers with the current plan from the measured time (a fallback, "
+                  "reported per step) and its plan, if it converges later, is the next re-plan's "
+                  "start; 0 = wait for each solve")
+      ->check(CLI::Range(0, 1000))
+      ->capture_default_str();
   cmd->add_option("--replan-budget", opts->replan_budget_ms,
-                  "With --replan-every: each re-plan's wall-clock budget (ms): it answers by then "
-                  "with its new plan or, when the solve has not finished or failed, the current "
-                  "plan from the measured time (a fallback, reported per step); 0 = wait for "
-                  "each solve")
+                  "With --replan-every: each re-plan's wall-clock budget (ms) instead, as the "
+                  "service's steps: it answers by then with its new plan or, when the solve has "
+                  "not finished or failed, the current plan from the measured time; 0 = the "
+                  "iteration budget (--replan-iterations)")
       ->capture_default_str();
   cmd->add_option("--connect-timeout", opts->connect_timeout,
                   "With --via tcp/unix: seconds to wait for the server's connection")

@@ -59,11 +59,18 @@ struct SessionStep {
 // by start + budget - reserve (less the session's own measured lateness) whatever the solve does, with the solve's plan if it finished and
 // succeeded, else the fallback (SessionStep::fallback). reserve is what the caller needs after
 // the step (e.g. encoding its reply). budget 0: the step waits for its solve.
+// iterations > 0 (with budget 0) is the same deadline counted in solver iterations instead of
+// wall-clock time, so that a step's answer does not depend on the machine's load (a simulation's
+// closed loop): the step waits for its solve (up to 4 x iterations), answers with its plan if it
+// converged within `iterations`, else with the fallback (fallback_reason "iterations"), and a
+// solve that converged later becomes the session's plan when the next step begins, as a late
+// wall-clock solve does.
 struct StepLimits {
   std::function<bool()> should_stop;
   double max_time = 0.0;
   double budget = 0.0;
   double reserve = 0.0;
+  int iterations = 0;
 };
 
 struct StepJob;
@@ -113,6 +120,10 @@ class PlanningSession {
                                    const StepLimits& limits);
   SessionStep fallback_step(const StepJob& job, const std::string& reason,
                             const std::string& message) const;
+  // The fallback of a step whose own solve ran but was not used (failed, or over its budget).
+  SessionStep fallback_after_solve(const StepJob& job, const std::string& reason,
+                                   const std::string& message) const;
+  SessionStep step_with_iteration_budget(const std::shared_ptr<StepJob>& job, int iterations);
   void adopt_late_solve();
 
   const robot::RobotModel& robot_;
@@ -132,6 +143,9 @@ class PlanningSession {
   double late_s_ = 0.0;
   int steps_ = 0;
   std::unique_ptr<StepWorker> worker_;  // made by the first budgeted step
+  // A solve over its iteration budget that still converged (StepLimits::iterations): adopted as
+  // a late solve when the next step begins.
+  std::shared_ptr<StepJob> late_by_iterations_;
 };
 
 // The part of `timeline` up to `end` (an event time of it): the horizon of a session step.

@@ -373,7 +373,20 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
                         "budget_ms: must be within [0, 60000] (0 = no budget: wait for the solve)");
   planner::PlannerOptions po;
   apply_deadline(ctx, &po);
-  planner::StepLimits limits{po.should_stop, po.max_time, 1e-3 * budget_ms, 0.0};
+  // "budget_iterations": the deadline counted in solver iterations instead (budget_ms 0 then;
+  // a simulation's closed loop, whose answers must not depend on the machine's load).
+  const double budget_iterations = number_field(h, "budget_iterations", 0.0);
+  if (!(budget_iterations >= 0.0 && budget_iterations <= 1000.0 &&
+        budget_iterations == std::floor(budget_iterations)))
+    throw ProtocolError(pc::kBadRequest,
+                        "budget_iterations: must be a whole number within [0, 1000] (0 = none)");
+  if (budget_iterations > 0.0 && h.contains("budget_ms") && budget_ms > 0.0)
+    throw ProtocolError(pc::kBadRequest,
+                        "budget_ms and budget_iterations: give one of them (budget_iterations "
+                        "counts the step's deadline in solver iterations, budget_ms in time)");
+  planner::StepLimits limits{po.should_stop, po.max_time,
+                             budget_iterations > 0.0 ? 0.0 : 1e-3 * budget_ms, 0.0,
+                             static_cast<int>(budget_iterations)};
   if (limits.budget > 0.0 && po.max_time > 0.0) limits.budget = std::min(limits.budget, po.max_time);
   // That time, plus 5 ms for the socket and the client's parsing, comes out of the budget.
   if (limits.budget > 0.0) limits.reserve = std::min(s->reply_s + 0.005, 0.6 * limits.budget);
@@ -403,7 +416,8 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
     r.result["fallback_reason"] = step.fallback_reason;
     r.result["message"] = step.outcome.message;
   }
-  r.result["budget_ms"] = budget_ms;
+  r.result["budget_ms"] = limits.budget > 0.0 ? budget_ms : 0.0;
+  if (limits.iterations > 0) r.result["budget_iterations"] = limits.iterations;
   r.result["step_ms"] = 1e3 * step.wall_s;
   r.result["warm_from_late_solve"] = step.warm_from_late_solve;
   s->reply_s = std::max(0.9 * s->reply_s,
@@ -427,7 +441,8 @@ void add_plan_session_operation(Backend& backend, OperationRegistry& registry) {
   registry.add({"plan.session.step", OpKind::kWorker,
                 "re-plan a session from a measured state at a session time",
                 [b, table](OpContext& c) { return step_session(*b, *table, c); },
-                std::vector<std::string>{"session", "time", "start_state", "samples", "budget_ms"}});
+                std::vector<std::string>{"session", "time", "start_state", "samples", "budget_ms",
+                                         "budget_iterations"}});
   registry.add({"plan.session.close", OpKind::kInline, "close a planning session",
                 [table](OpContext& c) {
                   OpResult r;

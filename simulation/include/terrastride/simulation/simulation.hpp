@@ -342,13 +342,16 @@ SimulationReport simulate_plan(const robot::RobotModel& model, const planner::Tr
 // each call one session step from the measured state, mapped to the planner's start state as the
 // socket's plan.session.step maps it (start_state_json, then planner::start_state_from_json). The
 // robot and terrains must outlive every run; `options` as the reference was planned with. Each
-// step has `budget` seconds (planner::StepLimits::budget, as the server's steps; 0 = none).
+// step has `budget` seconds (planner::StepLimits::budget, as the server's steps; 0 = none) or,
+// with budget 0, `budget_iterations` solver iterations (StepLimits::iterations: answers that do
+// not depend on the machine's load; 0 = none).
 ReplannerFactory session_replanner(const robot::RobotModel& robot,
                                    const terrain::HeightField& plan_terrain,
                                    const terrain::HeightField& check_terrain,
                                    const planner::PlannerOptions& options,
                                    const planner::Trajectory& reference, double horizon,
-                                   double sample_dt, double budget = 0.0);
+                                   double sample_dt, double budget = 0.0,
+                                   int budget_iterations = 0);
 
 // Robustness margin (`terrastride simulate --margin`): the largest disturbance a plan survives,
 // so two plans can be compared by how much they take. Survives = the verdict is not "fail" (no

@@ -1,0 +1,270 @@
+// Scenario runner: push recovery of the pallet_15 `all` crawl, open loop against re-planning.
+//   bench_push_recovery [--runs N] [--replan-every S] [--horizon H] [--iterations K]
+//                       [--replan-before S] [--phases F,F,...]
+//                       [--directions left,right,forward,backward] [--json]
+// For each phase (a time of the 11 s plan) and push direction (relative to the planned heading
+// there: left, right, forward, backward; 0.2 s on the trunk) the largest push survived (verdict
+// not "fail"), open loop and closed loop (a planning session re-planning every --replan-every s
+// over --horizon, each re-plan's deadline --iterations solver iterations: the simulation's
+// deterministic budget; re-planning from --replan-before s before the push, default 0.5, < 0 from
+// the start: the earlier re-plans only follow the undisturbed plan). Each cell is simulation::simulation_margin's search (doubling, then
+// bisection of the bracket, survived = not "fail"), made coarse for a 2-core machine: --runs
+// simulations per cell, from 200 N, in all four directions. Phases by default: six evenly spaced, the middle of the climb, and the middle of
+// the swing that steps onto the pallet; the table names the swinging foot at each. The target:
+// the closed loop survives at least 1.5x the open loop's push at every phase and direction.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "terrastride/planner/planner.hpp"
+#include "terrastride/robot/robot_model.hpp"
+#include "terrastride/simulation/simulation.hpp"
+#include "terrastride/terrain/scenes.hpp"
+#include "terrastride/terrain/terrain_map.hpp"
+
+using namespace terrastride;
+
+namespace {
+
+struct Args {
+  int runs = 5;
+  double replan_every = 0.1, horizon = 1.0;
+  int iterations = 5;
+  // Re-plans start this long before the push (< 0: from the plan's start). Earlier ones follow
+  // the undisturbed plan, and they cost about half of a closed-loop run's time.
+  double replan_before = 0.5;
+  std::vector<double> phases;  // fractions of the plan; empty: the default eight
+  std::vector<std::string> directions = {"left", "right", "forward", "backward"};
+  bool json = false;
+};
+
+std::vector<std::string> split(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ',')) out.push_back(item);
+  return out;
+}
+
+Args parse(int argc, char** argv) {
+  Args a;
+  for (int i = 1; i < argc; ++i) {
+    const std::string k = argv[i];
+    auto value = [&]() -> std::string {
+      if (i + 1 >= argc) throw std::invalid_argument(k + ": needs a value");
+      return argv[++i];
+    };
+    if (k == "--runs") a.runs = std::stoi(value());
+    else if (k == "--replan-every") a.replan_every = std::stod(value());
+    else if (k == "--horizon") a.horizon = std::stod(value());
+    else if (k == "--iterations") a.iterations = std::stoi(value());
+    else if (k == "--replan-before") a.replan_before = std::stod(value());
+    else if (k == "--phases")
+      for (const auto& f : split(value())) a.phases.push_back(std::stod(f));
+    else if (k == "--directions") a.directions = split(value());
+    else if (k == "--json") a.json = true;
+    else throw std::invalid_argument("unknown option " + k);
+  }
+  if (a.runs < 2 || a.runs > 20) throw std::invalid_argument("--runs: must be within [2, 20]");
+  for (const auto& d : a.directions)
+    if (d != "left" && d != "right" && d != "forward" && d != "backward")
+      throw std::invalid_argument("--directions: left, right, forward or backward, got " + d);
+  for (double f : a.phases)
+    if (!(f >= 0 && f < 1)) throw std::invalid_argument("--phases: fractions in [0, 1)");
+  return a;
+}
+
+// The middle of the climb (the first time the base is halfway between its start and end
+// heights) and the middle of the first swing whose touch-down is 5 cm above its lift-off (the
+// step onto the pallet), as fractions of the plan.
+std::pair<double, double> climb_phases(const planner::Trajectory& plan) {
+  const double T = plan.samples.back().t;
+  const double z0 = plan.samples.front().base.position.z();
+  const double z1 = plan.samples.back().base.position.z();
+  double mid_climb = 0.5;
+  for (const auto& s : plan.samples)
+    if (std::abs(s.base.position.z() - z0) >= 0.5 * std::abs(z1 - z0)) {
+      mid_climb = s.t / T;
+      break;
+    }
+  const planner::PhaseTimeline tl = planner::timeline_of(plan);
+  double step_on = mid_climb;
+  double best = T;
+  for (std::size_t f = 0; f < tl.feet.size(); ++f)
+    for (int j = 0; j < tl.num_intervals(); ++j) {
+      if (tl.contact[f][j]) continue;
+      const double lift = tl.events[j];
+      int k = j;
+      while (k + 1 < tl.num_intervals() && !tl.contact[f][k + 1]) ++k;
+      const double land = tl.events[k + 1];
+      const double z_lift = planner::interpolate_plan(plan, lift).feet[f].position.z();
+      const double z_land = planner::interpolate_plan(plan, std::min(land, T)).feet[f].position.z();
+      if (z_land - z_lift > 0.05 && lift < best) {
+        best = lift;
+        step_on = 0.5 * (lift + land) / T;
+      }
+    }
+  return {mid_climb, step_on};
+}
+
+// The feet in the air at time t (the swing under way), "-" when all stand.
+std::string swinging(const planner::Trajectory& plan, double t) {
+  std::string out;
+  const auto s = planner::interpolate_plan(plan, t);
+  for (std::size_t f = 0; f < s.feet.size(); ++f)
+    if (!s.feet[f].contact) out += (out.empty() ? "" : "+") + plan.feet[f];
+  return out.empty() ? "-" : out;
+}
+
+// The largest push along `dir` at t survived, in `runs` simulations: doubling from 200 N until
+// one fails (at most to 3200 N), then bisecting the bracket with the runs left.
+double largest_push(const robot::RobotModel& robot, const planner::Trajectory& plan,
+                    const terrain::Scene& scene, const simulation::SimulationOptions& sim,
+                    double t, const Eigen::Vector3d& dir, int runs, std::string* failure) {
+  auto survives = [&](double force) {
+    simulation::SimulationOptions o = sim;
+    o.pushes.push_back({t, force * dir, 0.2});
+    const auto r = simulation::simulate_plan(robot, plan, scene, o);
+    if (r.verdict == "fail") *failure = r.reasons.empty() ? "fail" : r.reasons.front();
+    return r.verdict != "fail";
+  };
+  double lo = 0.0, hi = -1.0, a = 200.0;
+  int used = 0;
+  while (used < runs) {
+    ++used;
+    if (survives(a)) {
+      lo = a;
+      if (a >= 3200.0) return lo;
+      a *= 2;
+    } else {
+      hi = a;
+      break;
+    }
+  }
+  while (used < runs && hi > 0) {
+    ++used;
+    const double mid = 0.5 * (lo + hi);
+    (survives(mid) ? lo : hi) = mid;
+  }
+  return lo;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args args;
+  try {
+    args = parse(argc, argv);
+  } catch (const std::exception& e) {
+    std::cerr << "bench_push_recovery: " << e.what() << "\n";
+    return 2;
+  }
+  const auto robot = robot::load_robot(robot::resolve_robot_path("hyq"));
+  const auto scene = terrain::make_scene("pallet_15");
+  const auto smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
+  planner::PlannerOptions po;
+  po.gait = "crawl";
+  po.cycles = 3;
+  po.duration = 11.0;
+  po.has_goal = true;
+  po.goal = Eigen::Vector3d(scene->goal().x(), scene->goal().y(), 0.0);
+  po.constraints = {"all"};
+  po.max_time = 120.0;
+  const auto planned = planner::plan_motion(robot, *smooth, *scene, po, 0.01);
+  if (!planned.success) {
+    std::cerr << "bench_push_recovery: the pallet_15 all plan failed: " << planned.message << "\n";
+    return 1;
+  }
+  const planner::Trajectory& plan = planned.trajectory;
+  const double T = plan.samples.back().t;
+  std::vector<std::pair<double, std::string>> phases;
+  if (args.phases.empty()) {
+    for (int k = 1; k <= 6; ++k) phases.push_back({k / 7.0, "even"});
+    const auto [mid_climb, step_on] = climb_phases(plan);
+    phases.push_back({mid_climb, "mid-climb"});
+    phases.push_back({step_on, "step onto the pallet (mid-swing)"});
+    std::sort(phases.begin(), phases.end());
+  } else {
+    for (double f : args.phases) phases.push_back({f, "given"});
+  }
+  simulation::SimulationOptions open;
+  open.record_dt = 0.0;
+  const simulation::ReplannerFactory sessions = simulation::session_replanner(
+      robot, *smooth, *scene, po, plan, args.horizon, 0.01, 0.0, args.iterations);
+  // The closed loop of a push at t: a session's re-plans from t - replan_before on (before it
+  // the re-planner declines, and the run keeps the plan it tracks).
+  auto closed_loop = [&](double t) {
+    simulation::SimulationOptions closed = open;
+    closed.replan_every = args.replan_every;
+    const double from = args.replan_before < 0 ? -1.0 : t - args.replan_before;
+    closed.replanner = [sessions, from]() -> simulation::Replanner {
+      simulation::Replanner session = sessions();
+      return [session, from](const simulation::MeasuredState& ms) {
+        if (ms.t >= from) return session(ms);
+        simulation::Replan declined;
+        declined.start_time = ms.t;
+        declined.message = "before the push's re-planning window";
+        return declined;
+      };
+    };
+    return closed;
+  };
+  const auto wall0 = std::chrono::steady_clock::now();
+  nlohmann::json rows = nlohmann::json::array();
+  if (!args.json)
+    std::printf("pallet_15 all (%.2f s), pushes of 0.2 s; closed loop: re-plan every %.2f s, "
+                "horizon %.1f s, %d-iteration budget, from %.1f s before the push; %d runs per "
+                "cell\n"
+                "%-6s %-7s %-34s %-9s %9s %9s %6s  %s\n",
+                T, args.replan_every, args.horizon, args.iterations, args.replan_before, args.runs,
+                "t (s)", "swing",
+                "phase", "push", "open (N)", "closed(N)", "ratio", "closed loop's failure");
+  int met = 0, cells = 0;
+  for (const auto& [fraction, label] : phases) {
+    const double t = fraction * T;
+    const double yaw = planner::interpolate_plan(plan, t).base.euler_zyx[0];
+    const Eigen::Vector3d ahead(std::cos(yaw), std::sin(yaw), 0.0);
+    const Eigen::Vector3d left(-std::sin(yaw), std::cos(yaw), 0.0);
+    for (const auto& d : args.directions) {
+      const Eigen::Vector3d dir = d == "left" ? left : d == "right" ? Eigen::Vector3d(-left)
+                                  : d == "forward" ? ahead : Eigen::Vector3d(-ahead);
+      std::string open_failure, closed_failure;
+      const double o = largest_push(robot, plan, *scene, open, t, dir, args.runs, &open_failure);
+      const double c =
+          largest_push(robot, plan, *scene, closed_loop(t), t, dir, args.runs, &closed_failure);
+      const double ratio = o > 0 ? c / o : (c > 0 ? INFINITY : 1.0);
+      ++cells;
+      met += ratio >= 1.5;
+      rows.push_back({{"t", t}, {"fraction", fraction}, {"phase", label},
+                      {"swing", swinging(plan, t)}, {"direction", d}, {"open_N", o},
+                      {"closed_N", c}, {"ratio", ratio}, {"open_failure", open_failure},
+                      {"closed_failure", closed_failure}});
+      if (!args.json) {
+        std::printf("%-6.2f %-7s %-34s %-9s %9.0f %9.0f %6.2f  %s\n", t, swinging(plan, t).c_str(),
+                    label.c_str(), d.c_str(), o, c, ratio, closed_failure.c_str());
+        std::fflush(stdout);
+      }
+    }
+  }
+  const double wall =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  if (args.json) {
+    std::cout << nlohmann::json{{"plan_duration", T}, {"replan_every", args.replan_every},
+                                {"horizon", args.horizon}, {"iterations", args.iterations},
+                                {"runs", args.runs}, {"rows", rows}, {"cells_met", met},
+                                {"cells", cells}, {"wall_s", wall}}
+                     .dump(1)
+              << "\n";
+  } else {
+    std::printf("closed loop >= 1.5x open loop in %d of %d cells; %.0f s wall\n", met, cells, wall);
+  }
+  return 0;
+}
