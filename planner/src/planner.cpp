@@ -81,7 +81,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     }
     start_ptr = &start;
   } else {
-    Gait gait = load_gait(resolve_gait_path(options.gait));
+    Gait gait = gait_for_robot(options.gait, robot);  // timed to its size, its weight borne
     // A plan from rest with force ramps: the second foot to lift off may carry half the weight W
     // at the start (statics puts the crawl's LF on the loaded diagonal once LH has shed its load)
     // and sheds it at force_rate_max r at most, in W / (2 r); its lift-off comes no earlier than

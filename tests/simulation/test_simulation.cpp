@@ -4,6 +4,7 @@
 
 #include <sys/wait.h>
 #include <unistd.h>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -14,9 +15,12 @@
 #include <random>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "terrastride/simulation/simulation.hpp"
+#include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/plan_io.hpp"
+#include "terrastride/planner/request_limits.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/scenes.hpp"
@@ -354,6 +358,46 @@ TEST(Simulation, HeightFieldOverloadDispatchesByTerrainType) {
 // bracket's upper end fails (both sides), within the tolerance; a heavier trunk has a margin too.
 robot::RobotModel shipped(const std::string& name) {
   return robot::load_robot(std::string(TERRASTRIDE_TEST_DATA_DIR) + "/robots/" + name + ".yaml");
+}
+
+// A gait's times are HyQ's scaled by sqrt(h / 0.58 m) (Froude similarity; HyQ's own exactly);
+// a robot that cannot hold its weight on the fewest feet the gait stands on is refused before
+// any solve, naming the leg and joint.
+TEST(GaitTiming, ScalesWithTheRobotAndRefusesARobotTooWeakToStand) {
+  const auto crawl = planner::load_gait(planner::resolve_gait_path("crawl"));
+  const auto trot = planner::load_gait(planner::resolve_gait_path("trot"));
+  const auto hyq_model = hyq(), go2 = shipped("go2"), anymal = shipped("anymal_c");
+  EXPECT_EQ(planner::gait_time_scale(hyq_model), 1.0);
+  EXPECT_EQ(planner::timed_for_robot(crawl, hyq_model).cycle_duration, crawl.cycle_duration);
+  EXPECT_NEAR(planner::gait_time_scale(go2), std::sqrt(go2.nominal_base_height / 0.58), 1e-15);
+  EXPECT_NEAR(planner::gait_time_scale(go2), 0.717, 1e-3);
+  EXPECT_NEAR(planner::gait_time_scale(anymal), 0.834, 1e-3);
+  EXPECT_NEAR(planner::timed_for_robot(crawl, go2).cycle_duration,
+              crawl.cycle_duration * planner::gait_time_scale(go2), 1e-12);
+
+  const std::vector<std::string> feet{"LF", "RF", "LH", "RH"};
+  EXPECT_EQ(planner::fewest_stance_feet(crawl, feet), 3);
+  EXPECT_EQ(planner::fewest_stance_feet(trot, feet), 2);
+  for (const auto* model : {&hyq_model, &go2, &anymal}) {
+    const double crawl_ratio = planner::require_weight_bearable(crawl, *model);
+    const double trot_ratio = planner::require_weight_bearable(trot, *model);
+    std::cout << model->name << ": weight on the crawl's 3 feet " << crawl_ratio
+              << " of the worst joint's limit, on the trot's 2 " << trot_ratio << "\n";
+    EXPECT_GT(crawl_ratio, 0.0);
+    EXPECT_LT(crawl_ratio, trot_ratio);  // the weight on fewer feet
+    EXPECT_LT(trot_ratio, 1.0);
+  }
+  robot::RobotModel weak = go2;
+  for (auto& leg : weak.legs) leg.torque_limit[2] = 2.0;
+  try {
+    planner::require_weight_bearable(crawl, weak);
+    ADD_FAILURE() << "a Go2 with 2 N m knees was not refused";
+  } catch (const planner::RequestError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("cannot carry its weight"), std::string::npos) << what;
+    EXPECT_NE(what.find("KFE"), std::string::npos) << what;
+    EXPECT_NE(what.find("its limit is 2 N m"), std::string::npos) << what;
+  }
 }
 
 // The controller's gains follow the robot (controller_gains.cpp): HyQ's are its tuned absolute
