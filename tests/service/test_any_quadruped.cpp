@@ -1,7 +1,8 @@
 // Any quadruped, first class: a URDF imported with `terrastride robot import` (force polytopes
 // fitted as part of it) goes through `plan --constraints all` on flat ground and over pallet_10,
 // `check`, `simulate`, `export` and `report`, each with exit 0, and each reading the robot from the
-// plan alone: the robot files are deleted after planning and no data folder names them. Robots:
+// plan alone: the robot files are deleted after planning and no data folder names them, and the
+// flat plan is checked and simulated once more in a folder holding only it. Robots:
 // Go2 and ANYmal C (../shared/robots, skipped without it) and quadrupeds written here
 // (support/quadruped_urdf.hpp) varied as real ones vary; a URDF the importer cannot take as it is
 // is refused naming the joint or link and the flag that fixes it, then imported with that flag.
@@ -69,6 +70,14 @@ void expect_end_to_end(const std::string& tag, const std::string& urdf_path,
     r = run_in(dir, "report --terrain " + terrain + " --plan " + plan + " --out " + terrain + ".html");
     EXPECT_EQ(r.code, 0) << terrain << ": report: " << r.all();
   }
+  // A fresh folder holding nothing but the plan.
+  const fs::path alone = scratch(tag + "_plan_alone");
+  fs::copy_file(dir / "flat.json", alone / "plan.json");
+  r = run_in(alone, "check plan.json --terrain flat");
+  EXPECT_EQ(r.code, 0) << "plan alone: check: " << r.all();
+  r = run_in(alone, "simulate plan.json --terrain flat");
+  EXPECT_EQ(r.code, 0) << "plan alone: simulate: " << r.all();
+  fs::remove_all(alone);
   fs::remove_all(dir);
 }
 
