@@ -45,7 +45,7 @@ int fewest_stance_feet(const Gait& gait, const std::vector<std::string>& feet);
 // Refuses a robot that cannot carry its weight in the gait, before any solve: at the nominal
 // stance, its weight shared by the fewest feet the gait stands on (legs' own weight included),
 // a joint needing more torque than its limit. The message names the robot, leg, joint, torque
-// and limit. Returns the worst |tau| / limit (HyQ's crawl 0.31).
+// and limit. Returns the worst |tau| / limit.
 double require_weight_bearable(const Gait& gait, const robot::RobotModel& robot);
 // The gait a plan from rest walks: `name_or_path` loaded, timed_for_robot, and
 // require_weight_bearable (a robot too weak for it is refused here, not after a solve that
