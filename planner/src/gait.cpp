@@ -138,8 +138,8 @@ double require_weight_bearable(const Gait& gait, const robot::RobotModel& robot)
           << " gait: on " << n << " feet at its nominal stance (" << robot.mass * kG / n
           << " N each) leg " << leg.name << "'s " << kJoint[j] << " needs " << std::abs(tau[j])
           << " N m and its limit is " << leg.torque_limit[j]
-          << " N m (the robot file's torque_limit; a lower nominal_base_height bends the knees "
-             "less, or give the motor's effort with `robot import --effort`)";
+          << " N m (the robot file's torque_limit: give the motor's with `robot import "
+             "--effort`; a straighter nominal stance, `robot import --nominal-height`, needs less)";
         throw RequestError("robot", m.str());
       }
     }
