@@ -58,6 +58,8 @@ void expect_end_to_end(const std::string& tag, const std::string& urdf_path,
   }
   // From here on the plans alone carry the robot.
   fs::remove_all(dir / "robots");
+  const fs::path alone = scratch(tag + "_plan_alone");
+  fs::copy_file(dir / "flat.json", alone / "plan.json");
   for (const std::string terrain : {"flat", "pallet_10"}) {
     const std::string plan = terrain + ".json";
     r = run_in(dir, "check " + plan + " --terrain " + terrain);
@@ -70,9 +72,8 @@ void expect_end_to_end(const std::string& tag, const std::string& urdf_path,
     r = run_in(dir, "report --terrain " + terrain + " --plan " + plan + " --out " + terrain + ".html");
     EXPECT_EQ(r.code, 0) << terrain << ": report: " << r.all();
   }
-  // A fresh folder holding nothing but the plan.
-  const fs::path alone = scratch(tag + "_plan_alone");
-  fs::copy_file(dir / "flat.json", alone / "plan.json");
+  // A fresh folder holding nothing but the plan (copied before `report` wrote flat.json beside
+  // flat.html).
   r = run_in(alone, "check plan.json --terrain flat");
   EXPECT_EQ(r.code, 0) << "plan alone: check: " << r.all();
   r = run_in(alone, "simulate plan.json --terrain flat");
