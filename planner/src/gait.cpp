@@ -5,7 +5,10 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <sstream>
 
+#include "terrastride/planner/request_limits.hpp"
+#include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 
 namespace terrastride::planner {
@@ -69,6 +72,85 @@ Gait load_gait(const std::string& path) {
     g.swing[leg] = windows;
   }
   return g;
+}
+
+double gait_time_scale(const robot::RobotModel& robot) {
+  const double h = robot.nominal_base_height;
+  if (!(h > 0.0) || !std::isfinite(h))
+    throw GaitError("robot '" + robot.name + "': nominal_base_height must be > 0 to time a gait");
+  return std::sqrt(h / kGaitReferenceBaseHeight);  // HyQ: sqrt(1) = 1 exactly
+}
+
+Gait timed_for_robot(const Gait& gait, const robot::RobotModel& robot) {
+  Gait timed = gait;
+  timed.cycle_duration *= gait_time_scale(robot);
+  return timed;
+}
+
+int fewest_stance_feet(const Gait& gait, const std::vector<std::string>& feet) {
+  std::vector<double> cuts{0.0, 1.0};
+  for (const auto& [leg, windows] : gait.swing)
+    for (const auto& [a, b] : windows) {
+      cuts.push_back(a);
+      cuts.push_back(b);
+    }
+  std::sort(cuts.begin(), cuts.end());
+  int fewest = static_cast<int>(feet.size());
+  for (std::size_t k = 0; k + 1 < cuts.size(); ++k) {
+    if (cuts[k + 1] - cuts[k] < 1e-12) continue;
+    const double mid = 0.5 * (cuts[k] + cuts[k + 1]);
+    int standing = 0;
+    for (const auto& f : feet) {
+      bool swinging = false;
+      const auto it = gait.swing.find(f);
+      if (it != gait.swing.end())
+        for (const auto& [a, b] : it->second) swinging = swinging || (mid > a && mid < b);
+      standing += !swinging;
+    }
+    if (standing > 0) fewest = std::min(fewest, standing);
+  }
+  return fewest;
+}
+
+double require_weight_bearable(const Gait& gait, const robot::RobotModel& robot) {
+  std::vector<std::string> feet;
+  for (const auto& leg : robot.legs) feet.push_back(leg.name);
+  const int n = fewest_stance_feet(gait, feet);
+  if (n < 1 || !(robot.mass > 0.0)) return 0.0;
+  constexpr double kG = 9.81;
+  const Eigen::Vector3d gravity(0.0, 0.0, -kG), load(0.0, 0.0, robot.mass * kG / n);
+  static const char* kJoint[3] = {"HAA", "HFE", "KFE"};
+  double worst = 0.0;
+  for (const auto& leg : robot.legs) {
+    if (!(leg.torque_limit.minCoeff() > 0.0)) continue;
+    // The foot sphere's centre above the nominal contact point, as the simulator stands it.
+    const auto ik =
+        robot::inverse_kinematics(leg, leg.nominal_foot + Eigen::Vector3d(0, 0, robot.foot_radius));
+    if (ik.status == robot::IkStatus::unreachable) continue;  // the reachability check names it
+    const Eigen::Vector3d zero = Eigen::Vector3d::Zero();
+    const Eigen::Vector3d tau = robot::joint_torques(leg, ik.q, zero, zero, load, gravity);
+    for (int j = 0; j < 3; ++j) {
+      const double ratio = std::abs(tau[j]) / leg.torque_limit[j];
+      worst = std::max(worst, ratio);
+      if (ratio > 1.0) {
+        std::ostringstream m;
+        m << "robot '" << robot.name << "' cannot carry its weight in the " << gait.name
+          << " gait: on " << n << " feet at its nominal stance (" << robot.mass * kG / n
+          << " N each) leg " << leg.name << "'s " << kJoint[j] << " needs " << std::abs(tau[j])
+          << " N m and its limit is " << leg.torque_limit[j]
+          << " N m (the robot file's torque_limit: give the motor's with `robot import "
+             "--effort`; a straighter nominal stance, `robot import --nominal-height`, needs less)";
+        throw RequestError("robot", m.str());
+      }
+    }
+  }
+  return worst;
+}
+
+Gait gait_for_robot(const std::string& name_or_path, const robot::RobotModel& robot) {
+  Gait gait = timed_for_robot(load_gait(resolve_gait_path(name_or_path)), robot);
+  require_weight_bearable(gait, robot);
+  return gait;
 }
 
 std::string resolve_gait_path(const std::string& name_or_path) {

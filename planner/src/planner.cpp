@@ -83,7 +83,7 @@ PlanSetup replan_setup(const robot::RobotModel& robot, const std::vector<std::st
 PlanSetup fresh_setup(const robot::RobotModel& robot, const std::vector<std::string>& feet,
                       const PlannerOptions& options) {
   PlanSetup setup;
-  Gait gait = load_gait(resolve_gait_path(options.gait));
+  Gait gait = gait_for_robot(options.gait, robot);  // timed to its size, its weight borne
   // A plan from rest with force ramps: the second foot to lift off may carry half the weight W
   // at the start (statics puts the crawl's LF on the loaded diagonal once LH has shed its load)
   // and sheds it at force_rate_max r at most, in W / (2 r); its lift-off comes no earlier than

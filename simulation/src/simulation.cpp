@@ -193,6 +193,11 @@ struct TerrainMjcf {
   std::function<void(mjModel*)> after_load;
   int filled_cells = 0;
   std::string description;
+  // Contact pairs a robot geom can make with the terrain geoms: a scene's few boxes and its plane
+  // make at most 8 contacts per pair (box-box), a heightfield up to 50 per pair (prisms); 0: no
+  // terrain (the robot alone).
+  int terrain_geoms = 0;
+  bool heightfield = false;
 };
 
 TerrainMjcf scene_mjcf(const terrain::Scene& scene) {
@@ -212,6 +217,7 @@ TerrainMjcf scene_mjcf(const terrain::Scene& scene) {
       << "\" " << kTerrainGeom << "/>\n";
   }
   t.geoms = x.str();
+  t.terrain_geoms = 1 + static_cast<int>(scene.boxes().size());
   t.description =
       "scene " + scene.name() + " (" + std::to_string(scene.boxes().size()) + " boxes on a plane" +
       (overhead > 0 ? ", " + std::to_string(overhead) + " of them overhead)" : std::string(")"));
@@ -267,6 +273,7 @@ TerrainMjcf map_mjcf(const terrain::TerrainMap& map) {
     << fmt(centre.y()) << " " << fmt(lo) << "\" " << kTerrainGeom << "/>\n";
   t.asset = a.str();
   t.geoms = x.str();
+  t.heightfield = true;
   const float base = lo;
   t.after_load = [heights, base, range](mjModel* m) {
     const int adr = m->hfield_adr[0];
@@ -282,20 +289,34 @@ TerrainMjcf map_mjcf(const terrain::TerrainMap& map) {
   return t;
 }
 
+// MuJoCo's contact and constraint buffers for this robot on this terrain, as [nconmax, njmax].
+// A heightfield's are MuJoCo 2.2.2's defaults raised so a scan does not fill them (100 contacts
+// filled up: a foot sphere or a shin meets several prisms): 1000 contacts, 3100 rows. 2.2.2
+// allocates and clears dense njmax x njmax matrices (3100: 77 MB, 0.2 s of page faults per run,
+// more than a 11 s plan's physics), so a scene's buffers hold what its geoms can make: 8 contacts
+// per robot geom and terrain geom, 3 rows each (elliptic, condim 3), plus a row per joint limit.
+// A run that fills either buffer says so in its verdict (dropped contacts).
+std::pair<int, int> contact_buffers(const robot::RobotModel& model, const TerrainMjcf* terrain) {
+  constexpr int kHeightfieldContacts = 1000, kHeightfieldRows = 3100;
+  if (terrain && terrain->heightfield) return {kHeightfieldContacts, kHeightfieldRows};
+  const int robot_geoms = (model.trunk ? 1 : 0) + 3 * static_cast<int>(model.legs.size());
+  const int terrain_geoms = terrain ? std::max(terrain->terrain_geoms, 1) : 1;
+  const int contacts = std::min(kHeightfieldContacts, 8 * robot_geoms * terrain_geoms);
+  const int rows = std::min(kHeightfieldRows,
+                            3 * contacts + 3 * static_cast<int>(model.legs.size()) + 16);
+  return {contacts, rows};
+}
+
 std::string full_mjcf(const robot::RobotModel& model, const TerrainMjcf* terrain,
                       const SimulationOptions& o, const Vector3d& pos,
                       const Eigen::Quaterniond& quat) {
+  const auto [nconmax, njmax] = contact_buffers(model, terrain);
   std::ostringstream x;
   // Elliptic cones with a high impratio: the default pyramid lets a loaded foot creep several
   // millimetres per stance, which the slip check would blame on the plan.
   x << "<mujoco model=\"" << model.name << "\">\n"
     << "<compiler angle=\"radian\" autolimits=\"true\"/>\n"
-    // Contact and constraint buffers: MuJoCo 2.2.2's defaults (100 contacts) fill up on a scanned
-    // heightfield (a foot sphere or a shin meets several prisms) and contacts beyond are dropped.
-    // njmax: an elliptic condim-3 contact is 3 constraint rows, plus the joints' range limits;
-    // MuJoCo 2.2.2 sizes dense njmax x njmax matrices from it (6000 cost ~290 MB per model).
-    // A run that fills either buffer says so in its verdict (dropped contacts).
-    << "<size nconmax=\"1000\" njmax=\"3100\"/>\n"
+    << "<size nconmax=\"" << nconmax << "\" njmax=\"" << njmax << "\"/>\n"
     << "<option timestep=\"" << fmt(o.dt) << "\" gravity=\"0 0 " << fmt(-kGravity)
     << "\" cone=\"elliptic\" impratio=\"100\"/>\n"
     << "<default><geom solref=\"0.005 1\" friction=\"" << fmt(o.friction)

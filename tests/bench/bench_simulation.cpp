@@ -12,6 +12,11 @@
 //           as a heightfield
 //   speed   simulated seconds per wall second at dt 2 ms: the flat crawl on boxes and on a 2 cm
 //           heightfield, median of --repeat runs (wall and CPU), with the machine's load
+//   process (only when named) the whole `terrastride simulate PLAN --terrain pallet_15 --out F`
+//           process on the 11 s pallet_15 `all` plan (planned once by `terrastride plan`):
+//           simulated seconds per CPU second and per wall second of the process (start-up,
+//           plan.json, model, physics, sim.json), median of --repeat runs; --binary (default
+//           ./terrastride, the build directory's)
 //   closed_loop  (only when named) pallet_15 `all`: open loop vs re-planning at the
 //           --rates (Hz; default 10,20) over a --horizon (s; default 1) planning session: the
 //           largest lateral push (0.2 s, left and right, bisection to 20 N) survived at mid-climb
@@ -20,11 +25,14 @@
 // Plans come from the planner library with `terrastride plan`'s request (3 crawl cycles, goal 1 m
 // ahead, 2 cm B-spline of a scene; a map's own field).
 #include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
@@ -36,6 +44,7 @@
 #include <vector>
 
 #include "terrastride/simulation/simulation.hpp"
+#include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/map_build.hpp"
@@ -261,12 +270,85 @@ nlohmann::json row_json(const Row& r) {
 
 }  // namespace
 
+// `binary ARGS` as a child process with its output discarded: its exit code, wall seconds and
+// the child's user and system CPU seconds.
+struct ChildRun {
+  int code = -1;
+  double wall_s = 0, user_s = 0, sys_s = 0;
+};
+ChildRun run_child(const std::string& command) {
+  rusage before{}, after{};
+  getrusage(RUSAGE_CHILDREN, &before);
+  const auto t0 = std::chrono::steady_clock::now();
+  const int status = std::system((command + " > /dev/null 2>&1").c_str());
+  ChildRun r;
+  r.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  getrusage(RUSAGE_CHILDREN, &after);
+  const auto seconds = [](const timeval& a, const timeval& b) {
+    return (b.tv_sec - a.tv_sec) + 1e-6 * (b.tv_usec - a.tv_usec);
+  };
+  r.user_s = seconds(before.ru_utime, after.ru_utime);
+  r.sys_s = seconds(before.ru_stime, after.ru_stime);
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return r;
+}
+
+// The whole `simulate` process on the 11 s pallet_15 `all` plan, median of `repeat` runs.
+nlohmann::json process_speed(const std::string& binary, int repeat) {
+  const fs::path dir = fs::temp_directory_path() / ("bench_simulation_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string plan = (dir / "plan.json").string(), out = (dir / "sim.json").string();
+  const ChildRun planned =
+      run_child(binary + " plan --terrain pallet_15 --constraints all --out " + plan);
+  if (planned.code != 0) {
+    std::fprintf(stderr, "process: `%s plan --terrain pallet_15 --constraints all` exit %d\n",
+                 binary.c_str(), planned.code);
+    fs::remove_all(dir);
+    return nullptr;
+  }
+  const double duration = planner::read_plan_file(plan).duration;
+  std::vector<double> cpu, user, sys, wall;
+  const double load_before = load1();
+  for (int r = 0; r < repeat; ++r) {
+    const ChildRun run =
+        run_child(binary + " simulate " + plan + " --terrain pallet_15 --out " + out);
+    if (run.code != 0) {
+      std::fprintf(stderr, "process: simulate exit %d\n", run.code);
+      fs::remove_all(dir);
+      return nullptr;
+    }
+    cpu.push_back(run.user_s + run.sys_s);
+    user.push_back(run.user_s);
+    sys.push_back(run.sys_s);
+    wall.push_back(run.wall_s);
+  }
+  fs::remove_all(dir);
+  const auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v[v.size() / 2];
+  };
+  return {{"terrain", "pallet_15"},
+          {"plan", "pallet_15/all (terrastride plan)"},
+          {"process", "terrastride simulate PLAN --terrain pallet_15 --out sim.json"},
+          {"plan_duration_s", duration},
+          {"repeat", repeat},
+          {"cpu_s_median", median(cpu)},
+          {"user_s_median", median(user)},
+          {"sys_s_median", median(sys)},
+          {"wall_s_median", median(wall)},
+          {"realtime_cpu_median", duration / median(cpu)},
+          {"realtime_wall_median", duration / median(wall)},
+          {"load1_before", load_before},
+          {"load1_after", load1()}};
+}
+
 int main(int argc, char** argv) {
   std::vector<std::string> only;
   int repeat = 3;
   bool json = false;
   std::vector<double> rates = {10.0, 20.0};
   double horizon = 1.0;
+  std::string binary = "./terrastride";
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--only" && i + 1 < argc) {
@@ -280,9 +362,11 @@ int main(int argc, char** argv) {
       for (const auto& r : split(argv[++i])) rates.push_back(std::atof(r.c_str()));
     } else if (a == "--horizon" && i + 1 < argc) {
       horizon = std::atof(argv[++i]);
+    } else if (a == "--binary" && i + 1 < argc) {
+      binary = argv[++i];
     } else {
       std::cerr << "usage: bench_simulation [--only flat,pallet,wrong,scenes,scans,speed,closed_loop] "
-                   "[--repeat N] [--json] [--rates HZ,...] [--horizon S]\n";
+                   "[--repeat N] [--json] [--rates HZ,...] [--horizon S] [--binary B]\n";
       return 2;
     }
   }
@@ -425,6 +509,20 @@ int main(int argc, char** argv) {
             kind, wall_x[wall_x.size() / 2], repeat, wall_x.front(), wall_x.back(),
             cpu_x[cpu_x.size() / 2], load_before, load1());
     }
+  }
+  if (std::find(only.begin(), only.end(), "process") != only.end()) {
+    const nlohmann::json p = process_speed(binary, repeat);
+    if (p.is_null()) return 1;
+    speed.push_back(p);
+    if (!json)
+      std::printf(
+          "process simulate pallet_15/all (%.1f s): %.1fx real time per CPU second (median of %d: "
+          "%.3f s CPU, %.3f s user, %.3f s sys), %.1fx per wall second (%.3f s); load %.1f -> %.1f\n",
+          p["plan_duration_s"].get<double>(), p["realtime_cpu_median"].get<double>(), repeat,
+          p["cpu_s_median"].get<double>(), p["user_s_median"].get<double>(),
+          p["sys_s_median"].get<double>(), p["realtime_wall_median"].get<double>(),
+          p["wall_s_median"].get<double>(), p["load1_before"].get<double>(),
+          p["load1_after"].get<double>());
   }
   if (json) std::cout << nlohmann::json{{"rows", rows}, {"speed", speed}}.dump(1) << "\n";
   return 0;

@@ -6,6 +6,10 @@
 #include <string>
 #include <vector>
 
+namespace terrastride::robot {
+struct RobotModel;
+}
+
 namespace terrastride::planner {
 
 // Unreadable or invalid gait file, or a gait that does not fit the robot; names file and field.
@@ -25,6 +29,28 @@ struct Gait {
 };
 
 Gait load_gait(const std::string& path);
+
+// Gait files give their times in HyQ's seconds. Another robot walks the same gait dynamically
+// similar to HyQ (equal Froude number v^2 / (g h)): its times scale by sqrt(h / h_HyQ), h the
+// nominal base height (HyQ 0.58 m: 1 exactly; Go2 0.298 m: 0.717; ANYmal C 0.404 m: 0.834), and
+// since a stride is the range-of-motion box, which scales with the leg (default_cycles), the feet
+// keep HyQ's speeds relative to leg length over time scaled so. A `--duration` replaces it.
+constexpr double kGaitReferenceBaseHeight = 0.58;  // m, HyQ's nominal base height
+double gait_time_scale(const robot::RobotModel& robot);
+// The gait with its cycle_duration scaled by gait_time_scale (the gait itself for scale 1).
+Gait timed_for_robot(const Gait& gait, const robot::RobotModel& robot);
+
+// The fewest feet the gait stands on at once while any stands (a flight phase aside).
+int fewest_stance_feet(const Gait& gait, const std::vector<std::string>& feet);
+// Refuses a robot that cannot carry its weight in the gait, before any solve: at the nominal
+// stance, its weight shared by the fewest feet the gait stands on (legs' own weight included),
+// a joint needing more torque than its limit. The message names the robot, leg, joint, torque
+// and limit. Returns the worst |tau| / limit.
+double require_weight_bearable(const Gait& gait, const robot::RobotModel& robot);
+// The gait a plan from rest walks: `name_or_path` loaded, timed_for_robot, and
+// require_weight_bearable (a robot too weak for it is refused here, not after a solve that
+// cannot succeed).
+Gait gait_for_robot(const std::string& name_or_path, const robot::RobotModel& robot);
 // data/gaits/<name>.yaml (TERRASTRIDE_DATA_DIR honoured), or a path to a .yaml file.
 std::string resolve_gait_path(const std::string& name_or_path);
 // The gait names in the data folder (data/gaits/NAME.yaml), sorted.
