@@ -118,7 +118,7 @@ std::unique_ptr<SrbdProblem> solve_job(StepJob& job) {
       // the adaptive quality function raised mu from mu_init to 1e-2..1e-2.5 at the first
       // iteration and took 3-5 iterations back down, and 9-75 (two failed at 120) where the
       // horizon's end moves onto the pallet. With probing 40 steps of pallet_15 `all`
-      // (bench-service --mode replan) took 169 iterations instead of 330, at most 7, none
+      // (bench_service --mode replan) took 169 iterations instead of 330, at most 7, none
       // failed; a monotone barrier, or LOQO's rule, took 277-563 with failures (docs §6.7).
       {"mu_oracle", "probing"}};
   // TERRASTRIDE_STEP_IPOPT_OPTIONS adds Ipopt options to session steps only (tuning runs;

@@ -656,3 +656,20 @@ TEST_F(ReportTest, DemoRunsMapPlanChecksAndReport) {
 }
 
 }  // namespace
+
+namespace {
+// `report --plan flat.json --out flat.html` would write its report.json over the plan: refused,
+// naming the file, and the plan is left as it was.
+TEST_F(ReportTest, TheReportNeverWritesOverItsInputs) {
+  const fs::path plan = dir_ / "flat.json";
+  terrastride::planner::write_plan_file(plan.string(), make_crawl({}));
+  const std::string before = slurp(plan);
+  const auto r = run("report --terrain flat --plan " + shell_quote(plan.string()) + " --out " +
+                     shell_quote((dir_ / "flat.html").string()));
+  EXPECT_EQ(r.code, 1) << r.all();
+  EXPECT_NE(r.err.find("--plan input"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("flat.json"), std::string::npos) << r.err;
+  EXPECT_EQ(slurp(plan), before);
+  EXPECT_FALSE(fs::exists(dir_ / "flat.html"));
+}
+}  // namespace

@@ -45,10 +45,13 @@ int run_cli(int argc, char** argv) {
 #define TERRASTRIDE_COMMAND(name) add_##name##_command(app);
 #include "terrastride_commands.inc"
 #undef TERRASTRIDE_COMMAND
+  return run_command_line(app, argc, argv);
+}
 
+int run_command_line(CLI::App& app, int argc, char** argv) {
   // "terrastride robot fk": the chain of subcommands that ran, for error messages.
   auto command_name = [&app] {
-    std::string name = "terrastride";
+    std::string name = app.get_name();
     for (const CLI::App* level = &app;;) {
       const auto subs = level->get_subcommands();
       if (subs.empty()) return name;
@@ -71,10 +74,10 @@ int run_cli(int argc, char** argv) {
     std::string unexpected;
     for (const std::string& extra : app.remaining(true)) unexpected += " '" + extra + "'";
     if (!unexpected.empty())
-      std::cerr << "terrastride: error: unknown subcommand or option:" << unexpected << "\n";
+      std::cerr << app.get_name() << ": error: unknown subcommand or option:" << unexpected << "\n";
     else
-      std::cerr << "terrastride: error: " << e.what() << "\n";
-    std::cerr << "Run 'terrastride --help' for usage.\n";
+      std::cerr << app.get_name() << ": error: " << e.what() << "\n";
+    std::cerr << "Run '" << app.get_name() << " --help' for usage.\n";
     return 2;
   } catch (const CommandError& e) {
     std::cerr << command_name() << ": error: " << e.what() << "\n";

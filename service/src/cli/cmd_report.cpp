@@ -144,10 +144,30 @@ void print_summary(const json& s, bool as_json) {
             << "\ndata:   " << s["json"].get<std::string>() << "\n";
 }
 
+// The report's two files must not replace what it reads: `report --plan flat.json --out
+// flat.html` would write its flat.json over the plan.
+void refuse_overwriting_inputs(const std::string& out, const std::vector<std::string>& plans,
+                               const std::vector<std::string>& terrain) {
+  const std::string json_path = fs::path(out).replace_extension(".json").string();
+  auto same = [](const std::string& a, const std::string& b) {
+    std::error_code ec;
+    return fs::exists(a, ec) && fs::exists(b, ec) && fs::equivalent(a, b, ec);
+  };
+  auto check = [&](const std::string& input, const std::string& flag) {
+    for (const std::string& written : {out, json_path})
+      if (same(written, input))
+        throw CommandError("--out " + out + ": the report would write " + written + ", which is the " +
+                           flag + " input; choose another --out name");
+  };
+  for (const auto& p : plans) check(p, "--plan");
+  for (const auto& t : terrain) check(t, "--terrain");
+}
+
 // One report: OUT.html and OUT.json for --terrain and its --plan files.
 void run_single(const ReportCommandOptions& o, const report::TerrainInputOptions& topts,
                 const report::ReportOptions& ropts) {
   check_out_html(o.out);
+  refuse_overwriting_inputs(o.out, o.plans, o.terrain);
   const json rep = report::make_report_file(o.terrain, o.plans, topts, ropts, o.out);
   const std::string json_path = fs::path(o.out).replace_extension(".json").string();
   print_summary(summary_json(rep, o.out, json_path), o.json_output);

@@ -37,6 +37,11 @@ Eigen::VectorXd parse_numbers(const std::string& text, int n, const std::string&
 // Runs the command line; returns the process exit code. Never throws.
 int run_cli(int argc, char** argv);
 
+// Parses and runs `app` (usage errors exit 2, CommandError its code, other errors 1, each printed
+// as "NAME COMMAND: error: ..."): the terrastride binary's and its tools' (tests/bench/bench_service)
+// shared handling.
+int run_command_line(CLI::App& app, int argc, char** argv);
+
 // Subcommands: each service/src/cli/cmd_NAME.cpp defines `void add_NAME_command(CLI::App& app)`,
 // registered automatically from the file name (see service/CMakeLists.txt).
 

@@ -1,4 +1,5 @@
-// `terrastride bench-service`: load tool for the socket service. Measures map.query throughput and
+// bench_service (build/tests/bench/bench_service): load tool for the socket service, a tool of its
+// own beside the benchmarks rather than a command of the product binary. Measures map.query throughput and
 // latency with many concurrent clients, the overhead a worker operation (plan) adds beyond its own
 // compute time, and, in hostile mode, what attacks on the transport do (malformed frames, abrupt
 // disconnects, slowloris, half-sent frames, idle sockets at the connection limit, oversized
@@ -995,10 +996,10 @@ void print_replan(const json& r) {
 
 }  // namespace
 
-void add_bench_service_command(CLI::App& app) {
+// The tool's options and its run on `cmd` (the executable's own app).
+void configure_bench_service(CLI::App* cmd) {
   auto o = std::make_shared<BenchOptions>();
-  CLI::App* cmd = app.add_subcommand(
-      "bench-service",
+  cmd->description(
       "Load-test the socket service: map.query throughput and p50/p99 latency with many clients, "
       "plan overhead, and (--mode hostile) attacks on the transport with the server's memory and "
       "well-behaved clients' latency meanwhile");
@@ -1200,3 +1201,10 @@ void add_bench_service_command(CLI::App& app) {
 }
 
 }  // namespace terrastride::service
+
+int main(int argc, char** argv) {
+  CLI::App app;
+  app.name("bench_service");
+  terrastride::service::configure_bench_service(&app);
+  return terrastride::service::run_command_line(app, argc, argv);
+}
