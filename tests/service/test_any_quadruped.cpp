@@ -69,11 +69,11 @@ void expect_end_to_end(const std::string& tag, const std::string& urdf_path,
     r = run_in(dir, "export --terrain " + terrain + " --plan " + plan + " --sim sim_" + plan +
                         " --out " + terrain + ".mcap");
     EXPECT_EQ(r.code, 0) << terrain << ": export: " << r.all();
-    r = run_in(dir, "report --terrain " + terrain + " --plan " + plan + " --out " + terrain + ".html");
+    r = run_in(dir, "report --terrain " + terrain + " --plan " + plan + " --out " + terrain +
+                        "_report.html");
     EXPECT_EQ(r.code, 0) << terrain << ": report: " << r.all();
   }
-  // A fresh folder holding nothing but the plan (copied before `report` wrote flat.json beside
-  // flat.html).
+  // A fresh folder holding nothing but the plan.
   r = run_in(alone, "check plan.json --terrain flat");
   EXPECT_EQ(r.code, 0) << "plan alone: check: " << r.all();
   r = run_in(alone, "simulate plan.json --terrain flat");

@@ -100,7 +100,7 @@ def pointcloud2_updates(c):
     # Bad payloads: bad_request naming the problem; the connection stays usable.
     for att, fields, part in (
             (Attachment.raw("pointcloud2", msg[:len(msg) // 2]), {}, "cut short"),
-            (Attachment.raw("pointcloud2", msg), {"pose": [0, 0, 0, 0, 0, 0, 3]}, "not a rotation"),
+            (Attachment.raw("pointcloud2", msg), {"pose": [0, 0, 0, 0, 0, 0, 3]}, "has norm 3, not 1"),
             (Attachment.raw("pointcloud2", msg), {"frame": "camera"}, "'lidar'"),
             (Attachment("pointcloud2", (3,), [1, 2, 3]), {}, "uint8")):
         f = {"pose": [2.0, 1.0, 0.6, 0.0, 0.0, 0.0, 1.0]}
