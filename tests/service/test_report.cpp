@@ -200,7 +200,7 @@ TEST_F(ReportTest, FootholdOnThePalletEdgeIsAProblem) {
   // pallet_10: box from x = 0.55; LF lands at 0.31 + 0.24 = 0.55, right on the edge.
   CrawlSpec spec;
   spec.advance = 0.24;
-  const fs::path plan = dir_ / "edge.json";
+  const fs::path plan = dir_ / "edge_plan.json";
   terrastride::planner::write_plan_file(plan.string(), make_crawl(spec));
   const fs::path html = dir_ / "edge.html";
   const RunResult r = run("report --terrain pallet_10 --plan " + shell_quote(plan.string()) +
@@ -233,7 +233,7 @@ TEST_F(ReportTest, TorqueViolationIsAProblem) {
   spec.force_scale = 4.0;  // four times the weight on the stance legs for half a second
   spec.scale_t0 = 1.0;
   spec.scale_t1 = 1.5;
-  const fs::path plan = dir_ / "heavy.json";
+  const fs::path plan = dir_ / "heavy_plan.json";
   terrastride::planner::write_plan_file(plan.string(), make_crawl(spec));
   const fs::path html = dir_ / "heavy.html";
   const RunResult r = run("report --terrain flat --plan " + shell_quote(plan.string()) + " --out " +
