@@ -393,3 +393,33 @@ TEST_F(ExportTest, BadInputsNameTheProblemAndWriteNothing) {
 }
 
 }  // namespace
+
+namespace {
+// The exports people open first, read back by the independent reader: the demo's folder (the
+// shipped pallet scan, its plan) and pallet_15 with `all` and its execution in MuJoCo.
+TEST_F(ExportTest, TheDemoAndThePallet15AllRunWithItsSimulationValidate) {
+  const fs::path demo = dir_->path() / "demo";
+  CommandResult r = run_terrastride("demo --out " + q(demo));
+  ASSERT_EQ(r.code, 0) << r.all();
+  const fs::path demo_mcap = dir_->path() / "demo.mcap";
+  r = run_terrastride("export --terrain " + q(demo / "terrain") + " --plan " +
+                      q(demo / "plan.json") + " --out " + q(demo_mcap));
+  ASSERT_EQ(r.code, 0) << r.all();
+  json check = read_back(demo_mcap, {{"/terrain/grid", 1}});
+  EXPECT_TRUE(check["ok"].get<bool>()) << check.dump(1);
+  EXPECT_LE(check["largest"]["bytes"].get<size_t>(), 3500000u);
+
+  const fs::path plan = dir_->path() / "p15.json", sim = dir_->path() / "p15_sim.json";
+  r = run_terrastride("plan --terrain pallet_15 --constraints all --out " + q(plan));
+  ASSERT_EQ(r.code, 0) << r.all();
+  r = run_terrastride("simulate " + q(plan) + " --terrain pallet_15 --out " + q(sim));
+  ASSERT_EQ(r.code, 0) << r.all();
+  const fs::path p15_mcap = dir_->path() / "p15.mcap";
+  r = run_terrastride("export --terrain pallet_15 --plan " + q(plan) + " --sim " + q(sim) +
+                      " --out " + q(p15_mcap));
+  ASSERT_EQ(r.code, 0) << r.all();
+  check = read_back(p15_mcap, {{"/terrain/grid", 1}});
+  EXPECT_TRUE(check["ok"].get<bool>()) << check.dump(1);
+  EXPECT_LE(check["largest"]["bytes"].get<size_t>(), 3500000u);
+}
+}  // namespace
