@@ -190,26 +190,26 @@ nlohmann::json solve_with_shape_fallback(std::unique_ptr<SrbdProblem>* problem,
 
 // plan.json's solver and request figures (solver, objective and its phases, the request's
 // options, the line followed, the fallbacks and the measured start's own violations).
-void record_solve(const SrbdProblem& problem, const PlanOutcome& out,
+void record_solve(const SrbdProblem& problem, const SolveResult& solve,
                   const PlannerOptions& options, const PlannerOptions& problem_options,
                   const nlohmann::json& shape_fallback, const nlohmann::json& rest_lead_in,
                   Trajectory* traj) {
   auto& st = traj->solver;
-  st.status = out.solve.status;
-  st.iterations = out.solve.iterations;
-  st.wall_s = out.solve.wall_s;
+  st.status = solve.status;
+  st.iterations = solve.iterations;
+  st.wall_s = solve.wall_s;
   st.n_variables = problem.num_free_variables();
   st.n_constraints = problem.num_constraints();
   auto& extra = traj->extra;
-  extra["solver_max_violation"] = out.solve.max_violation;
-  extra["solver_termination"] = out.solve.termination;
+  extra["solver_max_violation"] = solve.max_violation;
+  extra["solver_termination"] = solve.termination;
   if (problem.has_objective()) {
-    extra["objective"] = problem.eval_objective(out.solve.x.data());
+    extra["objective"] = problem.eval_objective(solve.x.data());
     // The two phases of the solve (SolverOptions::objective_max_iterations).
-    extra["solver_phases"] = {{"feasibility_iterations", out.solve.feasibility_iterations},
-                              {"objective_iterations", out.solve.objective_iterations},
-                              {"polish_iterations", out.solve.polish_iterations},
-                              {"objective_at_feasible_point", out.solve.objective_start}};
+    extra["solver_phases"] = {{"feasibility_iterations", solve.feasibility_iterations},
+                              {"objective_iterations", solve.objective_iterations},
+                              {"polish_iterations", solve.polish_iterations},
+                              {"objective_at_feasible_point", solve.objective_start}};
   }
   extra["cycles"] = options.cycles;
   extra["optimize_timing"] = options.optimize_timing;
@@ -287,7 +287,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
     for (const auto& [k, v] : problem->violation_by_kind(out.solve.x))
       std::fprintf(stderr, "final violation %s %g\n", k.c_str(), v);
   out.trajectory = sample_solution(*problem, out.solve.x, sample_dt);
-  record_solve(*problem, out, options, problem_options, shape_fallback, setup.rest_lead_in,
+  record_solve(*problem, out.solve, options, problem_options, shape_fallback, setup.rest_lead_in,
                &out.trajectory);
   DenseCheckLimits lim;
   lim.friction = options.friction;

@@ -2,6 +2,8 @@
 // one output folder (batch.hpp describes the folder).
 #include "batch/batch.hpp"
 
+#include "terrastride/terrain/terrain_open.hpp"
+
 #include <fcntl.h>
 #include <sys/file.h>
 #include <sys/stat.h>
@@ -426,7 +428,7 @@ std::vector<BatchScan> list_batch_scans(const std::string& source) {
       if (p.filename().string().rfind('.', 0) == 0) continue;  // hidden (and temporaries)
       if (e.is_regular_file(ec) && is_scan_file(p))
         add_scan_path(groups, folder_of, p, false, where);
-      else if (e.is_directory(ec) && is_terrain_dir(p.string()))
+      else if (e.is_directory(ec) && terrain::is_terrain_folder(p.string()))
         add_scan_path(groups, folder_of, p, true, where);
     }
     if (groups.empty())
@@ -443,7 +445,7 @@ std::vector<BatchScan> list_batch_scans(const std::string& source) {
       const fs::path p = fs::path(line).is_absolute() || base.empty() ? fs::path(line)
                                                                       : base / line;
       if (fs::is_directory(p, ec)) {
-        if (!is_terrain_dir(p.string()))
+        if (!terrain::is_terrain_folder(p.string()))
           throw CommandError(at + ": " + p.string() +
                              " is a folder but not one `terrastride map` wrote (no terrain.json)");
         add_scan_path(groups, folder_of, p, true, at);

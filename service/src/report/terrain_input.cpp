@@ -48,14 +48,6 @@ void fill_from_map(TerrainView& view, std::shared_ptr<const terrain::TerrainMap>
 
 }  // namespace
 
-bool is_terrain_dir(const std::string& path) {
-  return terrain::is_terrain_folder(path);
-}
-
-bool is_scene_name(const std::string& name) {
-  return terrain::is_scene_name(name);
-}
-
 std::vector<double> safety_radii(const std::vector<double>& requested,
                                  const std::vector<double>& terrain_radii, double foot_radius) {
   std::vector<double> radii = requested;

@@ -26,11 +26,6 @@ struct TerrainInputOptions {
   Eigen::Vector2d voxel_hi = Eigen::Vector2d::Zero();
 };
 
-// True when `path` is a folder written by `terrastride map` (holds terrain.json).
-bool is_terrain_dir(const std::string& path);
-// True when the name is one of the scenes (docs/design.md §11).
-bool is_scene_name(const std::string& name);
-
 TerrainView load_terrain_view(const std::vector<std::string>& inputs,
                               const TerrainInputOptions& options);
 
