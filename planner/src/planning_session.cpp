@@ -119,7 +119,8 @@ std::unique_ptr<SrbdProblem> solve_job(StepJob& job) {
       // iteration and took 3-5 iterations back down, and 9-75 (two failed at 120) where the
       // horizon's end moves onto the pallet. With probing 40 steps of pallet_15 `all`
       // (bench_service --mode replan) took 169 iterations instead of 330, at most 7, none
-      // failed; a monotone barrier, or LOQO's rule, took 277-563 with failures (docs §6.7).
+      // failed; a monotone barrier, or LOQO's rule, took 277-563 with failures
+      // (docs/results/2026-11-28-measurements.md).
       {"mu_oracle", "probing"}};
   // TERRASTRIDE_STEP_IPOPT_OPTIONS adds Ipopt options to session steps only (tuning runs;
   // TERRASTRIDE_IPOPT_OPTIONS would change the reference's cold solve too).

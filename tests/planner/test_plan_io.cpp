@@ -79,7 +79,7 @@ TEST(PlanIo, RoundTripKeepsEverything) {
   EXPECT_EQ(r.solver.iterations, 42);
   EXPECT_DOUBLE_EQ(r.checks.at("dynamics_linear_max_N"), 1.5);
   EXPECT_EQ(r.extra["phases"], t.extra["phases"]);
-  // The written file has docs/design.md §3.5's layout.
+  // The written file has the layout of docs/formats.md, "plan.json".
   const json j = plan_to_json(t);
   EXPECT_TRUE(j["samples"][0]["base"].contains("angular_acceleration"));
   EXPECT_TRUE(j["samples"][0]["feet"][0].contains("contact"));

@@ -14,7 +14,7 @@ namespace {
 
 using nlohmann::json;
 
-// Problem and check thresholds: the targets of docs/design.md §12 and issues 4-5
+// Problem and check thresholds: the targets of docs/design.md §12 and §6.8
 // (plan.json "checks").
 struct CheckLimit {
   const char* key;

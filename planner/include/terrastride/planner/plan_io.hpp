@@ -1,5 +1,5 @@
-// plan.json: reading and writing a Trajectory (format in docs/design.md
-// §3.5), and reading a measured start state in the same conventions.
+// plan.json: reading and writing a Trajectory (format in docs/formats.md,
+// "plan.json"), and reading a measured start state in the same conventions.
 #pragma once
 
 #include <nlohmann/json.hpp>

@@ -1,4 +1,4 @@
-// A planned motion sampled in time: the content of plan.json (see docs/design.md §3.5).
+// A planned motion sampled in time: the content of plan.json (see docs/formats.md, "plan.json").
 // Everything in the world frame; forces are those the ground exerts on the foot.
 #pragma once
 
