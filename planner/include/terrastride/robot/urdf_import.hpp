@@ -1,4 +1,4 @@
-// A robot file (data/robots/*.yaml) from a URDF, read with Debian's urdfdom (docs/design.md §4.1,
+// A robot file (data/robots/*.yaml) from a URDF, read with Debian's urdfdom (docs/design.md §4.3,
 // "Robots from URDF"): the four HAA-HFE-KFE leg chains ending in a foot sphere, fixed joints
 // composed, fixed children's inertia lumped into the moving link, effort/velocity/range limits,
 // the foot sphere radius and link radii from the collision primitives, and the SRBD mass and
