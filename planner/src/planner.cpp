@@ -25,8 +25,8 @@ namespace {
 
 constexpr double kDenseDt = 0.002;  // docs/design.md §6.8: dense checks every 2 ms
 
-// The most iterations a solve with the path-shape rows gets before it is solved again without
-// them. Measured (docs/design.md §6.4): the clean shaped plans of the off-path suite
+// The most iterations a solve with the path-shape rows gets before it is solved again without them.
+// Measured (docs/results/2026-11-28-measurements.md): the clean shaped plans of the off-path suite
 // and the scenes took 6-74 iterations; the failing ones ended infeasible after 45-99 or stalled
 // after 234-825 (the flat 2.4 s `all` crawl: 825, 41 s, then 86 without the rows).
 constexpr int kShapedMaxIterations = 150;

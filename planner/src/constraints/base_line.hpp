@@ -45,11 +45,12 @@ inline BaseLine base_line_of(SrbdProblem& problem) {
 
 // Whether the path-shape families (monotone_progress, lateral_corridor, swing_apex) shape this
 // problem: a plan from rest always; a problem from a given start state (a re-plan) only with
-// `replan_path_shape` = 1. The rows are preferences on the shape of a cold plan; a re-plan
-// follows a plan that has that shape already, pinned at its end, and its measured start may lie
-// ahead of or beside it, where rows shaped for the cold plan cannot hold. Measured (see
-// docs/design.md §6.4): pallet_15 sessions with the families on failed 3 (to the goal) and 6 (2 s
-// horizon) of 20 steps with them in every step, 0 and 0 with them in the reference only.
+// `replan_path_shape` = 1. The rows are preferences on the shape of a cold plan; a re-plan follows
+// a plan that has that shape already, pinned at its end, and its measured start may lie ahead of or
+// beside it, where rows shaped for the cold plan cannot hold. Measured (see
+// docs/results/2026-11-28-measurements.md): pallet_15 sessions with the families on failed 3 (to
+// the goal) and 6 (2 s horizon) of 20 steps with them in every step, 0 and 0 with them in the
+// reference only.
 inline bool path_shape_applies(const SrbdProblem& problem, const FeasibilityOptions& options) {
   return problem.starts_at_rest() || options.replan_path_shape != 0;
 }
