@@ -752,541 +752,835 @@ void fail_non_finite_figures(double t0, SimulationReport* rep) {
 
 }  // namespace
 
-SimulationReport simulate(const robot::RobotModel& model, const planner::Trajectory& plan,
-                          const terrain::HeightField& scene, const TerrainMjcf& terrain,
-                          const SimulationOptions& o) {
-  validate_simulation(model, plan, o);
-  const int n_legs = static_cast<int>(model.legs.size());
+// Only free-floating robots are simulated: the generated model's base is a free joint.
+void require_free_base(const robot::RobotModel& model) {
   for (bool free : model.base_dof_free)
     if (!free)
       throw SimulationError("robot '" + model.name +
                             "': its base moves on restricted degrees of freedom (a slider); only "
                             "free-floating robots are simulated");
-  const PlanView view(plan, n_legs);
-  // Closed loop: the re-plan being tracked (its samples from 0 = `start` on the plan's axis) and
-  // the one waiting for its latency; outside the tracked re-plan's span, the original plan.
+}
+
+// The closed loop's re-planner (none in open loop).
+Replanner make_replanner(const SimulationOptions& o) {
+  const Replanner replanner = o.replan_every > 0 ? o.replanner() : Replanner();
+  if (o.replan_every > 0 && !replanner) throw SimulationError("replan every: no re-planner made");
+  return replanner;
+}
+
+// The plan the controller follows. Closed loop: the re-plan being tracked (its samples from 0 =
+// `start` on the plan's axis) and the one waiting for its latency; outside the tracked re-plan's
+// span, the original plan.
+class FollowedPlan {
+ public:
+  FollowedPlan(const planner::Trajectory& plan, int n_feet)
+      : plan_(plan), n_feet_(n_feet), original_(plan, n_feet) {}
+
+  const PlanView& original() const { return original_; }
+
+  // The waiting re-plan becomes the tracked one once its latency has passed (at once without one).
+  void promote_pending(double now) {
+    if (!pending_.view || now < pending_from_ - 1e-9) return;
+    tracked_ = std::move(pending_);
+    pending_ = Tracked{};
+  }
+
+  // The plan the controller follows at t and the shift from the plan's axis to its own.
+  std::pair<const PlanView*, double> view_for(double t) const {
+    if (tracked_.view && t >= tracked_.start - 1e-9 && t <= tracked_.end + 1e-9)
+      return {tracked_.view.get(), tracked_.start};
+    return {&original_, 0.0};
+  }
+  PlanView::State at(double t) const {
+    const auto [v, shift] = view_for(t);
+    return v->at(t - shift);
+  }
+  bool contact(int i, double t) const {
+    const auto [v, shift] = view_for(t);
+    return v->contact(i, t - shift);
+  }
+
+  // When to compare a touchdown at t with the plan's foothold planned for `t_mid` (mid-stance):
+  // within the tracked re-plan's span (a re-plan may have moved the foothold), since beyond that
+  // the original plan's foothold would be compared.
+  double foothold_time(double t, double t_mid) const {
+    if (tracked_.view && t >= tracked_.start && t <= tracked_.end)
+      return std::max(t, std::min(t_mid, tracked_.end));
+    return t_mid;
+  }
+
+  // Queues a successful re-plan to be tracked from `from` (its latency passed); SimulationError
+  // when it cannot be followed.
+  void queue(Replan& next, double from) {
+    if (next.plan.feet != plan_.feet)
+      throw SimulationError("its feet differ from the simulated plan's");
+    Tracked n;
+    n.plan = std::make_unique<planner::Trajectory>(std::move(next.plan));
+    n.view = std::make_unique<PlanView>(*n.plan, n_feet_);
+    n.start = next.start_time;
+    n.end = next.start_time + n.view->t_end();
+    pending_ = std::move(n);
+    pending_from_ = from;
+  }
+
+ private:
   struct Tracked {
     std::unique_ptr<planner::Trajectory> plan;
     std::unique_ptr<PlanView> view;
     double start = 0.0, end = 0.0;
   };
-  Tracked tracked, pending;
-  double pending_from = 0.0;
-  // The waiting re-plan becomes the tracked one once its latency has passed (at once without one).
-  auto promote_pending = [&](double now) {
-    if (!pending.view || now < pending_from - 1e-9) return;
-    tracked = std::move(pending);
-    pending = Tracked{};
-  };
-  const Replanner replanner = o.replan_every > 0 ? o.replanner() : Replanner();
-  if (o.replan_every > 0 && !replanner) throw SimulationError("replan every: no re-planner made");
-  // The plan the controller follows at t and the shift from the plan's axis to its own.
-  auto view_for = [&](double t) -> std::pair<const PlanView*, double> {
-    if (tracked.view && t >= tracked.start - 1e-9 && t <= tracked.end + 1e-9)
-      return {tracked.view.get(), tracked.start};
-    return {&view, 0.0};
-  };
-  auto plan_at = [&](double t) {
-    const auto [v, shift] = view_for(t);
-    return v->at(t - shift);
-  };
-  auto contact_at = [&](int i, double t) {
-    const auto [v, shift] = view_for(t);
-    return v->contact(i, t - shift);
-  };
-  const double r_foot = model.foot_radius;
-  const double mu = o.friction;
-  const ControllerOptions& c = o.controller;
-  const ControllerGains g = c.gains ? *c.gains : controller_gains(model);
+  const planner::Trajectory& plan_;
+  int n_feet_;
+  PlanView original_;
+  Tracked tracked_, pending_;
+  double pending_from_ = 0.0;
+};
 
-  // Initial state: the plan's first sample, legs by IK of its feet.
-  const auto s0 = view.at(plan.samples.front().t);
-  const Matrix3d rot0 = rotation_zyx(s0.euler);
-  const Eigen::Quaterniond quat0(rot0);
-  SimulationReport rep;
-  rep.thresholds = o.thresholds;
-  rep.gains = g;
-  rep.dt = o.dt;
-  rep.model_xml = full_mjcf(model, &terrain, o, s0.base_pos, quat0);
-  rep.terrain = terrain.description;
-  rep.filled_cells = terrain.filled_cells;
-  auto sim = load_model(rep.model_xml);
-  if (terrain.after_load) {
-    terrain.after_load(sim->m);
-    mj_forward(sim->m, sim->d);
-  }
-  mjModel* m = sim->m;
-  mjData* d = sim->d;
-  const int nv = m->nv;
-  std::vector<mjtNum> jacp(3 * nv), full_m(nv * nv);
+// The ids of the generated model's parts the run reads and drives.
+struct ModelParts {
+  std::vector<int> foot_site, foot_geom, shin_geom, thigh_geom;
+  int trunk_geom = -1, trunk_body = -1;
+};
 
-  std::vector<int> foot_site(n_legs), foot_geom(n_legs), shin_geom(n_legs), thigh_geom(n_legs);
+ModelParts find_model_parts(const mjModel* m, const robot::RobotModel& model) {
+  const int n_legs = static_cast<int>(model.legs.size());
+  ModelParts parts;
+  parts.foot_site.resize(n_legs);
+  parts.foot_geom.resize(n_legs);
+  parts.shin_geom.resize(n_legs);
+  parts.thigh_geom.resize(n_legs);
   for (int i = 0; i < n_legs; ++i) {
     const std::string n = model.legs[i].name;
-    foot_site[i] = mj_name2id(m, mjOBJ_SITE, (n + "_foot").c_str());
-    foot_geom[i] = mj_name2id(m, mjOBJ_GEOM, (n + "_foot").c_str());
-    shin_geom[i] = mj_name2id(m, mjOBJ_GEOM, (n + "_shin").c_str());
-    thigh_geom[i] = mj_name2id(m, mjOBJ_GEOM, (n + "_thigh").c_str());
+    parts.foot_site[i] = mj_name2id(m, mjOBJ_SITE, (n + "_foot").c_str());
+    parts.foot_geom[i] = mj_name2id(m, mjOBJ_GEOM, (n + "_foot").c_str());
+    parts.shin_geom[i] = mj_name2id(m, mjOBJ_GEOM, (n + "_shin").c_str());
+    parts.thigh_geom[i] = mj_name2id(m, mjOBJ_GEOM, (n + "_thigh").c_str());
   }
-  const int trunk_geom = mj_name2id(m, mjOBJ_GEOM, "trunk");
-  const int trunk_body = mj_name2id(m, mjOBJ_BODY, "trunk");
+  parts.trunk_geom = mj_name2id(m, mjOBJ_GEOM, "trunk");
+  parts.trunk_body = mj_name2id(m, mjOBJ_BODY, "trunk");
+  return parts;
+}
 
-  auto sphere_target = [&](const Vector3d& foot) {
-    return Vector3d(foot + r_foot * terrain_normal(scene, foot));
-  };
-  // IK of the sphere centre over the planned foot point `foot` on a terrain of normal `n`.
-  auto ik_in = [&](int i, const Vector3d& p_base, const Matrix3d& rot, const Vector3d& foot,
-                   const Vector3d& n, const Vector3d& fallback) {
-    const auto ik =
-        robot::inverse_kinematics(model.legs[i], rot.transpose() * (foot + r_foot * n - p_base));
-    return ik.status == robot::IkStatus::unreachable ? fallback : Vector3d(ik.q);
-  };
+// The measured trunk: position, rotation, linear and angular velocity (world frame).
+struct BaseState {
+  Vector3d p;
+  Matrix3d rot;
+  Vector3d v, omega;
+};
 
-  for (int k = 0; k < 3; ++k) d->qpos[k] = s0.base_pos[k];
-  d->qpos[3] = quat0.w();
-  d->qpos[4] = quat0.x();
-  d->qpos[5] = quat0.y();
-  d->qpos[6] = quat0.z();
+BaseState measured_base(const mjData* d) {
+  BaseState b;
+  b.p = Vector3d(d->qpos[0], d->qpos[1], d->qpos[2]);
+  b.rot = Eigen::Quaterniond(d->qpos[3], d->qpos[4], d->qpos[5], d->qpos[6]).toRotationMatrix();
+  b.v = Vector3d(d->qvel[0], d->qvel[1], d->qvel[2]);
+  b.omega = b.rot * Vector3d(d->qvel[3], d->qvel[4], d->qvel[5]);
+  return b;
+}
+
+// Contacts of the current state: per foot force (terrain on foot), shin/thigh/trunk normal force.
+struct ContactForces {
+  std::vector<Vector3d> foot_force;
+  std::vector<bool> foot_contact;
+  std::vector<double> shin_f, thigh_f;
+  double trunk_f = 0.0;
+};
+
+ContactForces measure_contacts(const mjModel* m, const mjData* d, const ModelParts& parts,
+                               int n_legs) {
+  ContactForces c;
+  c.foot_force.assign(n_legs, Vector3d::Zero());
+  c.foot_contact.assign(n_legs, false);
+  c.shin_f.assign(n_legs, 0.0);
+  c.thigh_f.assign(n_legs, 0.0);
+  for (int k = 0; k < d->ncon; ++k) {
+    const mjContact& con = d->contact[k];
+    mjtNum res[6];
+    mj_contactForce(m, d, k, res);
+    Eigen::Map<const Eigen::Matrix<mjtNum, 3, 3, Eigen::RowMajor>> frame(con.frame);
+    // Force on geom2 (the normal points from geom1 to geom2); robot geoms take their side.
+    const Vector3d f2 = frame.transpose() * Vector3d(res[0], res[1], res[2]);
+    for (int i = 0; i < n_legs; ++i) {
+      if (con.geom1 == parts.foot_geom[i] || con.geom2 == parts.foot_geom[i]) {
+        c.foot_force[i] += con.geom2 == parts.foot_geom[i] ? f2 : Vector3d(-f2);
+        c.foot_contact[i] = true;
+      }
+      if (con.geom1 == parts.shin_geom[i] || con.geom2 == parts.shin_geom[i])
+        c.shin_f[i] += std::abs(res[0]);
+      if (con.geom1 == parts.thigh_geom[i] || con.geom2 == parts.thigh_geom[i])
+        c.thigh_f[i] += std::abs(res[0]);
+    }
+    if (con.geom1 == parts.trunk_geom || con.geom2 == parts.trunk_geom)
+      c.trunk_f += std::abs(res[0]);
+  }
+  return c;
+}
+
+// The plan's references at one control step: now, a moment before and after (the swing
+// feed-forward's joint rates), and the rotations of each.
+struct PlanReference {
+  PlanView::State now, before, after;
+  Matrix3d rot, rot_before, rot_after;
+};
+
+// The time around a control step over which the plan is differentiated (swing joint rates).
+constexpr double kRateStep = 0.004;
+
+// One run of a plan in MuJoCo: the model built from the robot, the terrain and the plan's first
+// state (constructor), then stepped along the plan with the tracking controller (run), then
+// summed up and judged (the returned report).
+class SimulationRun {
+ public:
+  SimulationRun(const robot::RobotModel& model, const planner::Trajectory& plan,
+                const terrain::HeightField& scene, const TerrainMjcf& terrain,
+                const SimulationOptions& o);
+  SimulationReport run();
+
+ private:
+  // Model building.
+  void load(const TerrainMjcf& terrain, const PlanView::State& s0, const Matrix3d& rot0);
+  void set_initial_state(const PlanView::State& s0, const Matrix3d& rot0);
+  void prepare_report();
+
+  // Stepping.
+  void step_through_plan();
+  void replan_if_due(double t, const BaseState& b, const ContactForces& contacts);
+  MeasuredState measured_state(double t, const BaseState& b,
+                               const ContactForces& contacts);
+  void follow_replan(double t, Replan& next);
+  void track(double t, const BaseState& b, const PlanReference& ref);
+  void track_stances(double t, const ContactForces& contacts);
+  void record_sample(double t, const BaseState& b, const PlanReference& ref,
+                     const ContactForces& contacts);
+  void record_joint_limits();
+  void apply_pushes(double t);
+  bool step_physics(double t);
+  void add_body_impulses();
+
+  // Controller.
+  PlanReference plan_reference(double t) const;
+  void control(double t, const BaseState& b, const PlanReference& ref);
+  std::vector<Vector3d> trunk_wrench_forces(const BaseState& b, const PlanReference& ref,
+                                            const std::vector<Vector3d>& lever) const;
+  Vector3d leg_torque(int i, double t, const BaseState& b, const PlanReference& ref,
+                      const std::vector<int>& stance, const std::vector<Vector3d>& delta);
+  bool apply_torque(int i, Vector3d tau);
+  Vector3d ik_in(int i, const Vector3d& p_base, const Matrix3d& rot, const Vector3d& foot,
+                 const Vector3d& n, const Vector3d& fallback) const;
+
+  // Verdict.
+  void summarise();
+  std::string worst_end_stop();
+  void judge();
+
+  Vector3d foot_centre(int i) const {
+    const int s = parts_.foot_site[i];
+    return Vector3d(d_->site_xpos[3 * s], d_->site_xpos[3 * s + 1], d_->site_xpos[3 * s + 2]);
+  }
+  // The terrain point under a foot sphere's centre.
+  Vector3d contact_point(const Vector3d& centre) const {
+    return centre - r_foot_ * terrain_normal(scene_, centre);
+  }
+  // The velocity J qdot of a point whose translation Jacobian is in jacp_.
+  Vector3d jacobian_velocity() const {
+    Vector3d vel = Vector3d::Zero();
+    for (int r = 0; r < 3; ++r)
+      for (int k = 0; k < nv_; ++k) vel[r] += jacp_[r * nv_ + k] * d_->qvel[k];
+    return vel;
+  }
+
+  const robot::RobotModel& model_;
+  const planner::Trajectory& plan_;
+  const terrain::HeightField& scene_;
+  const SimulationOptions& o_;
+  const int n_legs_;
+  FollowedPlan followed_;
+  const Replanner replanner_;
+  const double r_foot_;
+  const double mu_;
+  const ControllerOptions& c_;
+  const ControllerGains g_;
+
+  SimulationReport rep_;
+  std::unique_ptr<Model> sim_;
+  mjModel* m_ = nullptr;
+  mjData* d_ = nullptr;
+  int nv_ = 0;
+  std::vector<mjtNum> jacp_, full_m_;
+  ModelParts parts_;
+  std::vector<Vector3d> q_prev_;
+
+  // Stances as executed: each foot's stances in rep_.stances and where each touched down.
+  std::vector<std::vector<int>> stance_index_;
+  std::vector<Vector3d> touchdown_point_;
+
+  double t0_ = 0.0, t_end_ = 0.0;
+  int n_steps_ = 0;
+  double sq_err_sum_ = 0.0, saturated_s_ = 0.0;
+  double next_record_ = 0.0, next_replan_ = 0.0;
+  std::vector<Vector3d> tau_applied_;
+};
+
+// --- Model building ---
+
+SimulationRun::SimulationRun(const robot::RobotModel& model, const planner::Trajectory& plan,
+                             const terrain::HeightField& scene, const TerrainMjcf& terrain,
+                             const SimulationOptions& o)
+    : model_(model),
+      plan_(plan),
+      scene_(scene),
+      o_(o),
+      n_legs_(static_cast<int>(model.legs.size())),
+      followed_(plan, n_legs_),
+      replanner_(make_replanner(o)),
+      r_foot_(model.foot_radius),
+      mu_(o.friction),
+      c_(o.controller),
+      g_(o.controller.gains ? *o.controller.gains : controller_gains(model)) {
+  // Initial state: the plan's first sample, legs by IK of its feet.
+  const auto s0 = followed_.original().at(plan.samples.front().t);
+  const Matrix3d rot0 = rotation_zyx(s0.euler);
+  load(terrain, s0, rot0);
+  set_initial_state(s0, rot0);
+  prepare_report();
+}
+
+void SimulationRun::load(const TerrainMjcf& terrain, const PlanView::State& s0,
+                         const Matrix3d& rot0) {
+  const Eigen::Quaterniond quat0(rot0);
+  rep_.thresholds = o_.thresholds;
+  rep_.gains = g_;
+  rep_.dt = o_.dt;
+  rep_.model_xml = full_mjcf(model_, &terrain, o_, s0.base_pos, quat0);
+  rep_.terrain = terrain.description;
+  rep_.filled_cells = terrain.filled_cells;
+  sim_ = load_model(rep_.model_xml);
+  if (terrain.after_load) {
+    terrain.after_load(sim_->m);
+    mj_forward(sim_->m, sim_->d);
+  }
+  m_ = sim_->m;
+  d_ = sim_->d;
+  nv_ = m_->nv;
+  jacp_.resize(3 * nv_);
+  full_m_.resize(nv_ * nv_);
+  parts_ = find_model_parts(m_, model_);
+}
+
+void SimulationRun::set_initial_state(const PlanView::State& s0, const Matrix3d& rot0) {
+  const Eigen::Quaterniond quat0(rot0);
+  for (int k = 0; k < 3; ++k) d_->qpos[k] = s0.base_pos[k];
+  d_->qpos[3] = quat0.w();
+  d_->qpos[4] = quat0.x();
+  d_->qpos[5] = quat0.y();
+  d_->qpos[6] = quat0.z();
   const Vector3d omega0_local = rot0.transpose() * s0.omega;
   for (int k = 0; k < 3; ++k) {
-    d->qvel[k] = s0.base_vel[k];
-    d->qvel[3 + k] = omega0_local[k];
+    d_->qvel[k] = s0.base_vel[k];
+    d_->qvel[3 + k] = omega0_local[k];
   }
-  std::vector<Vector3d> q_prev(n_legs);
-  for (int i = 0; i < n_legs; ++i) {
-    const auto ik = robot::inverse_kinematics(
-        model.legs[i], rot0.transpose() * (sphere_target(s0.foot[i]) - s0.base_pos));
+  q_prev_.resize(n_legs_);
+  for (int i = 0; i < n_legs_; ++i) {
+    const Vector3d sphere = s0.foot[i] + r_foot_ * terrain_normal(scene_, s0.foot[i]);
+    const auto ik =
+        robot::inverse_kinematics(model_.legs[i], rot0.transpose() * (sphere - s0.base_pos));
     if (ik.status == robot::IkStatus::unreachable)
       throw SimulationError("plan: first sample: " + ik.message);
-    q_prev[i] = ik.q;
-    for (int j = 0; j < 3; ++j) d->qpos[7 + 3 * i + j] = ik.q[j];
+    q_prev_[i] = ik.q;
+    for (int j = 0; j < 3; ++j) d_->qpos[7 + 3 * i + j] = ik.q[j];
   }
-  mj_forward(m, d);
+  mj_forward(m_, d_);
+}
 
-  rep.torque_max.assign(n_legs, Vector3d::Zero());
-  rep.saturated_time.assign(n_legs, Vector3d::Zero());
-  rep.joint_limit_time.assign(n_legs, Vector3d::Zero());
-  rep.joint_limit_impulse.assign(n_legs, Vector3d::Zero());
-  rep.shin_impulse.assign(n_legs, 0.0);
-  rep.thigh_impulse.assign(n_legs, 0.0);
-
+void SimulationRun::prepare_report() {
+  rep_.torque_max.assign(n_legs_, Vector3d::Zero());
+  rep_.saturated_time.assign(n_legs_, Vector3d::Zero());
+  rep_.joint_limit_time.assign(n_legs_, Vector3d::Zero());
+  rep_.joint_limit_impulse.assign(n_legs_, Vector3d::Zero());
+  rep_.shin_impulse.assign(n_legs_, 0.0);
+  rep_.thigh_impulse.assign(n_legs_, 0.0);
   // Stances as executed.
-  std::vector<std::vector<int>> stance_index(n_legs);
-  for (int f = 0; f < n_legs; ++f)
-    for (const auto& p : view.phases(f)) {
+  stance_index_.resize(n_legs_);
+  for (int f = 0; f < n_legs_; ++f)
+    for (const auto& p : followed_.original().phases(f)) {
       if (!p.contact) continue;
-      stance_index[f].push_back(static_cast<int>(rep.stances.size()));
+      stance_index_[f].push_back(static_cast<int>(rep_.stances.size()));
       StanceReport s;
       s.foot = f;
       s.t_start = p.start;
       s.t_end = p.end;
-      rep.stances.push_back(s);
+      rep_.stances.push_back(s);
     }
-  std::vector<Vector3d> touchdown_point(rep.stances.size(), Vector3d::Zero());
-  auto stance_at = [&](int f, double t) {
-    for (int idx : stance_index[f])
-      if (t >= rep.stances[idx].t_start && t < rep.stances[idx].t_end) return idx;
-    return -1;
-  };
+  touchdown_point_.assign(rep_.stances.size(), Vector3d::Zero());
+  t0_ = plan_.samples.front().t;
+  t_end_ = followed_.original().t_end();
+  n_steps_ = static_cast<int>(simulation_steps(plan_, o_.dt));
+  next_record_ = t0_;
+  next_replan_ = t0_ + o_.replan_every;
+  tau_applied_.assign(n_legs_, Vector3d::Zero());
+}
 
-  const double t0 = plan.samples.front().t;
-  const double t_end = view.t_end();
-  const int n_steps = static_cast<int>(simulation_steps(plan, o.dt));
-  double sq_err_sum = 0.0, saturated_s = 0.0;
-  double next_record = t0;
-  double next_replan = t0 + o.replan_every;
+SimulationReport SimulationRun::run() {
   const auto wall0 = std::chrono::steady_clock::now();
   const double cpu0 = thread_cpu_seconds();
-  std::vector<Vector3d> tau_applied(n_legs, Vector3d::Zero());
+  step_through_plan();
+  rep_.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  rep_.cpu_s = thread_cpu_seconds() - cpu0;
+  summarise();
+  judge();
+  return std::move(rep_);
+}
 
-  for (int step = 0; step <= n_steps; ++step) {
-    if (o.stop_requested && step % 50 == 0 && o.stop_requested())
-      throw SimulationCancelled("simulation stopped at t = " + std::to_string(d->time + t0) + " s");
-    const double t = d->time + t0;
-    const Vector3d p(d->qpos[0], d->qpos[1], d->qpos[2]);
-    const Matrix3d rot =
-        Eigen::Quaterniond(d->qpos[3], d->qpos[4], d->qpos[5], d->qpos[6]).toRotationMatrix();
-    const Vector3d v(d->qvel[0], d->qvel[1], d->qvel[2]);
-    const Vector3d omega = rot * Vector3d(d->qvel[3], d->qvel[4], d->qvel[5]);
+// --- Stepping ---
 
-    // Contacts: per foot force (terrain on foot), shin/thigh/trunk normal force.
-    std::vector<Vector3d> foot_force(n_legs, Vector3d::Zero());
-    std::vector<bool> foot_contact(n_legs, false);
-    std::vector<double> shin_f(n_legs, 0.0), thigh_f(n_legs, 0.0);
-    double trunk_f = 0.0;
-    for (int k = 0; k < d->ncon; ++k) {
-      const mjContact& con = d->contact[k];
-      mjtNum res[6];
-      mj_contactForce(m, d, k, res);
-      Eigen::Map<const Eigen::Matrix<mjtNum, 3, 3, Eigen::RowMajor>> frame(con.frame);
-      // Force on geom2 (the normal points from geom1 to geom2); robot geoms take their side.
-      const Vector3d f2 = frame.transpose() * Vector3d(res[0], res[1], res[2]);
-      for (int i = 0; i < n_legs; ++i) {
-        if (con.geom1 == foot_geom[i] || con.geom2 == foot_geom[i]) {
-          foot_force[i] += con.geom2 == foot_geom[i] ? f2 : Vector3d(-f2);
-          foot_contact[i] = true;
-        }
-        if (con.geom1 == shin_geom[i] || con.geom2 == shin_geom[i]) shin_f[i] += std::abs(res[0]);
-        if (con.geom1 == thigh_geom[i] || con.geom2 == thigh_geom[i])
-          thigh_f[i] += std::abs(res[0]);
-      }
-      if (con.geom1 == trunk_geom || con.geom2 == trunk_geom) trunk_f += std::abs(res[0]);
-    }
-
+void SimulationRun::step_through_plan() {
+  for (int step = 0; step <= n_steps_; ++step) {
+    if (o_.stop_requested && step % 50 == 0 && o_.stop_requested())
+      throw SimulationCancelled("simulation stopped at t = " + std::to_string(d_->time + t0_) +
+                                " s");
+    const double t = d_->time + t0_;
+    const BaseState b = measured_base(d_);
+    const ContactForces contacts = measure_contacts(m_, d_, parts_, n_legs_);
     // Closed loop: the measured state to the re-planner; its plan tracked after the latency.
-    promote_pending(t);
-    // No re-plan within the plan's last 0.1 s: a re-plan to rest over that little cannot ramp the
-    // forces down (every such step failed force_ramp in its first few ms). The 1 ms slack is for
-    // durations that carry rounding: 3 crawl cycles of 3.6667 s end at 11.0001 s, and the step at
-    // 10.9 s, 0.1001 s before that end, failed in every closed-loop run.
-    if (replanner && t >= next_replan - 1e-9 && t < t_end - 0.1 - 1e-3) {
-      next_replan += o.replan_every;
-      MeasuredState ms;
-      ms.t = t;
-      ms.base_position = p;
-      ms.base_euler_zyx = euler_zyx_of(rot);
-      ms.base_linear_velocity = v;
-      ms.base_angular_velocity = omega;
-      ms.foot_contact = foot_contact;
-      for (int i = 0; i < n_legs; ++i) {
-        const Vector3d centre(d->site_xpos[3 * foot_site[i]], d->site_xpos[3 * foot_site[i] + 1],
-                              d->site_xpos[3 * foot_site[i] + 2]);
-        ms.foot_position.push_back(centre - r_foot * terrain_normal(scene, centre));
-        mj_jacSite(m, d, jacp.data(), nullptr, foot_site[i]);
-        Vector3d vel = Vector3d::Zero();
-        for (int r = 0; r < 3; ++r)
-          for (int k = 0; k < nv; ++k) vel[r] += jacp[r * nv + k] * d->qvel[k];
-        ms.foot_velocity.push_back(vel);
-      }
-      const auto call0 = std::chrono::steady_clock::now();
-      const double call_cpu0 = thread_cpu_seconds();
-      Replan next = replanner(ms);
-      record_replan(t, call0, call_cpu0, next, &rep);
-      if (next.success) {
-        try {
-          if (next.plan.feet != plan.feet)
-            throw SimulationError("its feet differ from the simulated plan's");
-          Tracked n;
-          n.plan = std::make_unique<planner::Trajectory>(std::move(next.plan));
-          n.view = std::make_unique<PlanView>(*n.plan, n_legs);
-          n.start = next.start_time;
-          n.end = next.start_time + n.view->t_end();
-          pending = std::move(n);
-          pending_from = t + o.replan_latency;
-        } catch (const SimulationError& e) {
-          next.success = false;
-          next.message = std::string("re-plan at t = ") + fmt(t) + " s: " + e.what();
-        }
-      }
-      if (!next.success) {
-        ++rep.replan_failures;
-        rep.replan_failure_times.push_back(t);
-        if (rep.replan_first_failure.empty())
-          rep.replan_first_failure = next.message.empty() ? "re-plan failed" : next.message;
-      }
-      promote_pending(t);
-    }
-    const auto [plan_view, plan_shift] = view_for(t);
-    const auto ps = plan_view->at(t - plan_shift);
-    const Matrix3d rot_plan = rotation_zyx(ps.euler);
-    if (replanner)
-      rep.reference_position_max =
-          std::max(rep.reference_position_max, (p - view.at(t).base_pos).norm());
+    followed_.promote_pending(t);
+    replan_if_due(t, b, contacts);
+    const PlanReference ref = plan_reference(t);
+    if (replanner_)
+      rep_.reference_position_max = std::max(
+          rep_.reference_position_max, (b.p - followed_.original().at(t).base_pos).norm());
+    track(t, b, ref);
+    track_stances(t, contacts);
+    record_sample(t, b, ref, contacts);
+    if (step == n_steps_ || rep_.fell) break;
+    control(t, b, ref);
+    record_joint_limits();
+    apply_pushes(t);
+    if (!step_physics(t)) break;
+    add_body_impulses();
+  }
+}
 
-    // Tracking errors.
-    const double pos_err = (p - ps.base_pos).norm();
-    const double tilt = Eigen::AngleAxisd(rot_plan.transpose() * rot).angle();
-    const double drop = ps.base_pos.z() - p.z();
-    sq_err_sum += pos_err * pos_err;
-    if (pos_err > rep.position_max) {
-      rep.position_max = pos_err;
-      rep.position_max_t = t;
-    }
-    rep.tilt_max = std::max(rep.tilt_max, tilt);
-    rep.height_drop_max = std::max(rep.height_drop_max, drop);
-    double body_impulse = rep.trunk_impulse;
-    for (int i = 0; i < n_legs; ++i) body_impulse = std::max(body_impulse, rep.thigh_impulse[i]);
-    if (!rep.fell && (drop > o.thresholds.fall_height_m || tilt > o.thresholds.fall_tilt_rad ||
-                      body_impulse > o.thresholds.body_contact_impulse_Ns)) {
-      rep.fell = true;
-      rep.fall_t = t;
-      std::ostringstream why;
-      why.precision(3);
-      if (drop > o.thresholds.fall_height_m)
-        why << "fall at t = " << t << " s: trunk " << drop << " m below the plan (limit "
-            << o.thresholds.fall_height_m << ")";
-      else if (tilt > o.thresholds.fall_tilt_rad)
-        why << "fall at t = " << t << " s: orientation error " << tilt * 180 / M_PI
-            << " deg (limit " << o.thresholds.fall_tilt_rad * 180 / M_PI << ")";
-      else
-        why << "fall at t = " << t << " s: trunk or thigh on the terrain (contact impulse "
-            << body_impulse << " N s)";
-      rep.reasons.push_back(why.str());
-    }
+void SimulationRun::replan_if_due(double t, const BaseState& b, const ContactForces& contacts) {
+  // No re-plan within the plan's last 0.1 s: a re-plan to rest over that little cannot ramp the
+  // forces down (every such step failed force_ramp in its first few ms). The 1 ms slack is for
+  // durations that carry rounding: 3 crawl cycles of 3.6667 s end at 11.0001 s, and the step at
+  // 10.9 s, 0.1001 s before that end, failed in every closed-loop run.
+  if (!(replanner_ && t >= next_replan_ - 1e-9 && t < t_end_ - 0.1 - 1e-3)) return;
+  next_replan_ += o_.replan_every;
+  const MeasuredState ms = measured_state(t, b, contacts);
+  const auto call0 = std::chrono::steady_clock::now();
+  const double call_cpu0 = thread_cpu_seconds();
+  Replan next = replanner_(ms);
+  record_replan(t, call0, call_cpu0, next, &rep_);
+  follow_replan(t, next);
+  followed_.promote_pending(t);
+}
 
-    // Stance bookkeeping: touchdown error and slip of the sphere's contact point.
-    for (int i = 0; i < n_legs; ++i) {
-      const int idx = stance_at(i, t);
-      if (idx < 0 || !foot_contact[i]) continue;
-      const Vector3d centre(d->site_xpos[3 * foot_site[i]], d->site_xpos[3 * foot_site[i] + 1],
-                            d->site_xpos[3 * foot_site[i] + 2]);
-      const Vector3d contact_pt = centre - r_foot * terrain_normal(scene, centre);
-      StanceReport& s = rep.stances[idx];
-      if (!s.touched_down) {
-        s.touched_down = true;
-        s.touchdown_t = t;
-        // The foothold of the plan tracked now (a re-plan may have moved it): within its span,
-        // since beyond that the original plan's foothold would be compared.
-        double t_foothold = 0.5 * (s.t_start + s.t_end);
-        if (tracked.view && t >= tracked.start && t <= tracked.end)
-          t_foothold = std::max(t, std::min(t_foothold, tracked.end));
-        const Vector3d planned = plan_at(t_foothold).foot[i];
-        s.touchdown_error = (contact_pt - planned).norm();
-        touchdown_point[idx] = contact_pt;
-      } else {
-        s.centre_drift =
-            std::max(s.centre_drift, (contact_pt - touchdown_point[idx]).head<2>().norm());
-      }
-      // Sliding: the velocity of the lower leg's material point at the contact, tangential part.
-      const Vector3d n = terrain_normal(scene, centre);
-      mj_jac(m, d, jacp.data(), nullptr, contact_pt.data(), m->site_bodyid[foot_site[i]]);
-      Vector3d vel = Vector3d::Zero();
-      for (int r = 0; r < 3; ++r)
-        for (int k = 0; k < nv; ++k) vel[r] += jacp[r * nv + k] * d->qvel[k];
-      s.slip += (vel - vel.dot(n) * n).norm() * o.dt;
-    }
+MeasuredState SimulationRun::measured_state(double t, const BaseState& b,
+                                            const ContactForces& contacts) {
+  MeasuredState ms;
+  ms.t = t;
+  ms.base_position = b.p;
+  ms.base_euler_zyx = euler_zyx_of(b.rot);
+  ms.base_linear_velocity = b.v;
+  ms.base_angular_velocity = b.omega;
+  ms.foot_contact = contacts.foot_contact;
+  for (int i = 0; i < n_legs_; ++i) {
+    ms.foot_position.push_back(contact_point(foot_centre(i)));
+    mj_jacSite(m_, d_, jacp_.data(), nullptr, parts_.foot_site[i]);
+    ms.foot_velocity.push_back(jacobian_velocity());
+  }
+  return ms;
+}
 
-    // Record.
-    if (o.record_dt > 0 && t >= next_record - 1e-9) {
-      next_record += o.record_dt;
-      SimulationSample smp;
-      smp.t = t;
-      smp.base_position = p;
-      smp.base_euler_zyx = euler_zyx_of(rot);
-      smp.planned_position = ps.base_pos;
-      smp.planned_euler_zyx = ps.euler;
-      smp.joint_torque = tau_applied;
-      smp.foot_contact = foot_contact;
-      smp.foot_force = foot_force;
-      for (int i = 0; i < n_legs; ++i) {
-        smp.planned_contact.push_back(contact_at(i, t));
-        const Vector3d centre(d->site_xpos[3 * foot_site[i]], d->site_xpos[3 * foot_site[i] + 1],
-                              d->site_xpos[3 * foot_site[i] + 2]);
-        smp.foot_position.push_back(centre - r_foot * terrain_normal(scene, centre));
-      }
-      smp.shin_force = shin_f;
-      smp.thigh_force = thigh_f;
-      smp.trunk_force = trunk_f;
-      rep.samples.push_back(std::move(smp));
-    }
-    if (step == n_steps || rep.fell) break;
-
-    // Trunk PD wrench, spread over the planned stance feet within the friction cone.
-    std::vector<int> stance;
-    std::vector<Vector3d> lever;
-    for (int i = 0; i < n_legs; ++i)
-      if (contact_at(i, t)) {
-        stance.push_back(i);
-        lever.push_back(Vector3d(d->site_xpos[3 * foot_site[i]], d->site_xpos[3 * foot_site[i] + 1],
-                                 d->site_xpos[3 * foot_site[i] + 2]) -
-                        p);
-      }
-    std::vector<Vector3d> delta(stance.size(), Vector3d::Zero());
-    if (c.trunk_wrench) {
-      Eigen::Matrix<double, 6, 1> w;
-      w.head<3>() = g.kp_position * (ps.base_pos - p) + g.kd_position * (ps.base_vel - v);
-      w.tail<3>() = g.kp_orientation * rotation_vector(rot_plan * rot.transpose()) +
-                    g.kd_orientation * (ps.omega - omega);
-      if (!c.planned_forces) {
-        // Without the plan's forces the wrench carries the weight.
-        double mass = 0;
-        for (int b = 1; b < m->nbody; ++b) mass += m->body_mass[b];
-        w.head<3>() += mass * (ps.base_acc + Vector3d(0, 0, kGravity));
-      }
-      delta = spread_wrench(w, lever);
-    }
-
-    // The plan a moment before and after, for the swing feed-forward's joint rates.
-    constexpr double h = 0.004;
-    const auto pm = plan_view->at(t - h - plan_shift), pp = plan_view->at(t + h - plan_shift);
-    const Matrix3d rot_m = rotation_zyx(pm.euler), rot_p = rotation_zyx(pp.euler);
-    mj_fullM(m, full_m.data(), d->qM);
-    bool saturated = false;
-    for (int i = 0; i < n_legs; ++i) {
-      const int dof = 6 + 3 * i;
-      const auto& leg = model.legs[i];
-      mj_jacSite(m, d, jacp.data(), nullptr, foot_site[i]);
-      Matrix3d jac;
-      for (int r = 0; r < 3; ++r)
-        for (int k = 0; k < 3; ++k) jac(r, k) = jacp[r * nv + dof + k];
-      Matrix3d mass;
-      for (int r = 0; r < 3; ++r)
-        for (int k = 0; k < 3; ++k) mass(r, k) = full_m[(dof + r) * nv + dof + k];
-      Vector3d q, qd, bias;
-      for (int j = 0; j < 3; ++j) {
-        q[j] = d->qpos[7 + 3 * i + j];
-        qd[j] = d->qvel[dof + j];
-        bias[j] = d->qfrc_bias[dof + j];
-      }
-      // Desired joints: IK of the planned foot relative to the measured base; their rates from
-      // the planned motion (finite differences of the IK along the planned base).
-      const Vector3d n = terrain_normal(scene, ps.foot[i]);
-      const Vector3d q_des = ik_in(i, p, rot, ps.foot[i], n, q_prev[i]);
-      q_prev[i] = q_des;
-      const Vector3d q0 = ik_in(i, ps.base_pos, rot_plan, ps.foot[i], n, q);
-      const Vector3d qm = ik_in(i, pm.base_pos, rot_m, pm.foot[i], n, q0);
-      const Vector3d qp = ik_in(i, pp.base_pos, rot_p, pp.foot[i], n, q0);
-      const Vector3d qd_des = (qp - qm) / (2 * h);
-      const Vector3d qdd_des = (qp - 2 * q0 + qm) / (h * h);
-      const bool in_stance = contact_at(i, t);
-      Vector3d tau = bias;
-      if (in_stance) {
-        Vector3d f = c.planned_forces ? ps.force[i] : Vector3d::Zero();
-        const auto it = std::find(stance.begin(), stance.end(), i);
-        f += delta[it - stance.begin()];
-        f = into_cone(f, n, c.cone_margin * mu);
-        tau -= jac.transpose() * f;
-        tau += g.kp_stance * (q_des - q) + g.kd_stance * (qd_des - qd);
-      } else {
-        if (c.swing_feedforward) tau += mass * qdd_des;
-        tau += g.kp_swing * (q_des - q) + g.kd_swing * (qd_des - qd);
-      }
-      for (int j = 0; j < 3; ++j) {
-        const double lim = leg.torque_limit[j];
-        if (std::abs(tau[j]) > lim) {
-          saturated = true;
-          rep.saturated_time[i][j] += o.dt;
-          tau[j] = std::clamp(tau[j], -lim, lim);
-        }
-        rep.torque_max[i][j] = std::max(rep.torque_max[i][j], std::abs(tau[j]));
-        d->ctrl[3 * i + j] = tau[j];
-      }
-      tau_applied[i] = tau;
-    }
-    if (saturated) saturated_s += o.dt;
-    // End stops: MuJoCo's joint-limit constraints (joint k of the model is leg k/3 - 1's, the
-    // free joint being 0); their torque times dt is the stop's impulse.
-    for (int k = 0; k < d->nefc; ++k) {
-      if (d->efc_type[k] != mjCNSTR_LIMIT_JOINT || d->efc_force[k] == 0) continue;
-      const int jnt = d->efc_id[k] - 1;
-      if (jnt < 0 || jnt >= 3 * n_legs) continue;
-      rep.joint_limit_time[jnt / 3][jnt % 3] += o.dt;
-      rep.joint_limit_impulse[jnt / 3][jnt % 3] += std::abs(d->efc_force[k]) * o.dt;
-    }
-
-    // Pushes on the trunk.
-    for (int k = 0; k < 6; ++k) d->xfrc_applied[6 * trunk_body + k] = 0;
-    for (const auto& push : o.pushes)
-      if (t >= push.t && t < push.t + push.duration)
-        for (int k = 0; k < 3; ++k) d->xfrc_applied[6 * trunk_body + k] += push.force[k];
-
-    const auto step0 = std::chrono::steady_clock::now();
-    mj_step(m, d);
-    rep.physics_wall_s +=
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - step0).count();
-    ++rep.steps;
-    if (became_unstable(d)) {
-      record_instability(d, t, &rep);
-      break;
-    }
-    // Impulses of the step just taken (contact forces of the new state times dt).
-    for (int k = 0; k < d->ncon; ++k) {
-      const mjContact& con = d->contact[k];
-      mjtNum res[6];
-      mj_contactForce(m, d, k, res);
-      const double impulse = std::abs(res[0]) * o.dt;
-      for (int i = 0; i < n_legs; ++i) {
-        if (con.geom1 == shin_geom[i] || con.geom2 == shin_geom[i]) rep.shin_impulse[i] += impulse;
-        if (con.geom1 == thigh_geom[i] || con.geom2 == thigh_geom[i])
-          rep.thigh_impulse[i] += impulse;
-      }
-      if (con.geom1 == trunk_geom || con.geom2 == trunk_geom) rep.trunk_impulse += impulse;
+// A successful re-plan is tracked after the latency; a failed one (or one that cannot be
+// followed) is counted, the first failure's message kept.
+void SimulationRun::follow_replan(double t, Replan& next) {
+  if (next.success) {
+    try {
+      followed_.queue(next, t + o_.replan_latency);
+    } catch (const SimulationError& e) {
+      next.success = false;
+      next.message = std::string("re-plan at t = ") + fmt(t) + " s: " + e.what();
     }
   }
-  rep.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
-  rep.cpu_s = thread_cpu_seconds() - cpu0;
-  rep.duration = rep.unstable ? rep.unstable_t - t0 : d->time;
-  rep.realtime_factor = rep.wall_s > 0 ? rep.duration / rep.wall_s : 0.0;
-  if (!rep.replan_wall_s.empty()) {
-    median_and_max(rep.replan_wall_s, &rep.replan_wall_median, &rep.replan_wall_max);
-    median_and_max(rep.replan_cpu_s, &rep.replan_cpu_median, &rep.replan_cpu_max);
+  if (!next.success) {
+    ++rep_.replan_failures;
+    rep_.replan_failure_times.push_back(t);
+    if (rep_.replan_first_failure.empty())
+      rep_.replan_first_failure = next.message.empty() ? "re-plan failed" : next.message;
   }
-  if (!rep.replan_iterations.empty())
-    median_and_max(rep.replan_iterations, &rep.replan_iterations_median,
-                   &rep.replan_iterations_max);
-  const int n_eval = rep.steps + 1;
-  rep.position_rms = std::sqrt(sq_err_sum / n_eval);
-  rep.saturation_fraction = rep.duration > 0 ? saturated_s / rep.duration : 0.0;
-  for (const auto& s : rep.stances) {
-    if (rep.fell && s.t_start > rep.fall_t) continue;
+}
+
+// Tracking errors, and the fall that ends the run: the trunk too far below the plan, tilted too
+// far, or the body on the terrain.
+void SimulationRun::track(double t, const BaseState& b, const PlanReference& ref) {
+  const auto& ps = ref.now;
+  const double pos_err = (b.p - ps.base_pos).norm();
+  const double tilt = Eigen::AngleAxisd(ref.rot.transpose() * b.rot).angle();
+  const double drop = ps.base_pos.z() - b.p.z();
+  sq_err_sum_ += pos_err * pos_err;
+  if (pos_err > rep_.position_max) {
+    rep_.position_max = pos_err;
+    rep_.position_max_t = t;
+  }
+  rep_.tilt_max = std::max(rep_.tilt_max, tilt);
+  rep_.height_drop_max = std::max(rep_.height_drop_max, drop);
+  double body_impulse = rep_.trunk_impulse;
+  for (int i = 0; i < n_legs_; ++i) body_impulse = std::max(body_impulse, rep_.thigh_impulse[i]);
+  const auto& th = o_.thresholds;
+  if (rep_.fell || !(drop > th.fall_height_m || tilt > th.fall_tilt_rad ||
+                     body_impulse > th.body_contact_impulse_Ns))
+    return;
+  rep_.fell = true;
+  rep_.fall_t = t;
+  std::ostringstream why;
+  why.precision(3);
+  if (drop > th.fall_height_m)
+    why << "fall at t = " << t << " s: trunk " << drop << " m below the plan (limit "
+        << th.fall_height_m << ")";
+  else if (tilt > th.fall_tilt_rad)
+    why << "fall at t = " << t << " s: orientation error " << tilt * 180 / M_PI << " deg (limit "
+        << th.fall_tilt_rad * 180 / M_PI << ")";
+  else
+    why << "fall at t = " << t << " s: trunk or thigh on the terrain (contact impulse "
+        << body_impulse << " N s)";
+  rep_.reasons.push_back(why.str());
+}
+
+// Stance bookkeeping: touchdown error and slip of the sphere's contact point.
+void SimulationRun::track_stances(double t, const ContactForces& contacts) {
+  const auto stance_at = [&](int f) {
+    for (int idx : stance_index_[f])
+      if (t >= rep_.stances[idx].t_start && t < rep_.stances[idx].t_end) return idx;
+    return -1;
+  };
+  for (int i = 0; i < n_legs_; ++i) {
+    const int idx = stance_at(i);
+    if (idx < 0 || !contacts.foot_contact[i]) continue;
+    const Vector3d centre = foot_centre(i);
+    const Vector3d contact_pt = contact_point(centre);
+    StanceReport& s = rep_.stances[idx];
     if (!s.touched_down) {
-      if (s.t_end - s.t_start > 0.05 && s.t_start < t0 + rep.duration) ++rep.missed_touchdowns;
+      s.touched_down = true;
+      s.touchdown_t = t;
+      const double t_foothold = followed_.foothold_time(t, 0.5 * (s.t_start + s.t_end));
+      const Vector3d planned = followed_.at(t_foothold).foot[i];
+      s.touchdown_error = (contact_pt - planned).norm();
+      touchdown_point_[idx] = contact_pt;
+    } else {
+      s.centre_drift =
+          std::max(s.centre_drift, (contact_pt - touchdown_point_[idx]).head<2>().norm());
+    }
+    // Sliding: the velocity of the lower leg's material point at the contact, tangential part.
+    const Vector3d n = terrain_normal(scene_, centre);
+    mj_jac(m_, d_, jacp_.data(), nullptr, contact_pt.data(), m_->site_bodyid[parts_.foot_site[i]]);
+    const Vector3d vel = jacobian_velocity();
+    s.slip += (vel - vel.dot(n) * n).norm() * o_.dt;
+  }
+}
+
+void SimulationRun::record_sample(double t, const BaseState& b, const PlanReference& ref,
+                                  const ContactForces& contacts) {
+  if (!(o_.record_dt > 0 && t >= next_record_ - 1e-9)) return;
+  next_record_ += o_.record_dt;
+  SimulationSample smp;
+  smp.t = t;
+  smp.base_position = b.p;
+  smp.base_euler_zyx = euler_zyx_of(b.rot);
+  smp.planned_position = ref.now.base_pos;
+  smp.planned_euler_zyx = ref.now.euler;
+  smp.joint_torque = tau_applied_;
+  smp.foot_contact = contacts.foot_contact;
+  smp.foot_force = contacts.foot_force;
+  for (int i = 0; i < n_legs_; ++i) {
+    smp.planned_contact.push_back(followed_.contact(i, t));
+    smp.foot_position.push_back(contact_point(foot_centre(i)));
+  }
+  smp.shin_force = contacts.shin_f;
+  smp.thigh_force = contacts.thigh_f;
+  smp.trunk_force = contacts.trunk_f;
+  rep_.samples.push_back(std::move(smp));
+}
+
+// End stops: MuJoCo's joint-limit constraints (joint k of the model is leg k/3 - 1's, the free
+// joint being 0); their torque times dt is the stop's impulse.
+void SimulationRun::record_joint_limits() {
+  for (int k = 0; k < d_->nefc; ++k) {
+    if (d_->efc_type[k] != mjCNSTR_LIMIT_JOINT || d_->efc_force[k] == 0) continue;
+    const int jnt = d_->efc_id[k] - 1;
+    if (jnt < 0 || jnt >= 3 * n_legs_) continue;
+    rep_.joint_limit_time[jnt / 3][jnt % 3] += o_.dt;
+    rep_.joint_limit_impulse[jnt / 3][jnt % 3] += std::abs(d_->efc_force[k]) * o_.dt;
+  }
+}
+
+// Pushes on the trunk.
+void SimulationRun::apply_pushes(double t) {
+  const int trunk = parts_.trunk_body;
+  for (int k = 0; k < 6; ++k) d_->xfrc_applied[6 * trunk + k] = 0;
+  for (const auto& push : o_.pushes)
+    if (t >= push.t && t < push.t + push.duration)
+      for (int k = 0; k < 3; ++k) d_->xfrc_applied[6 * trunk + k] += push.force[k];
+}
+
+// One physics step; false when it went unstable (the run stops there).
+bool SimulationRun::step_physics(double t) {
+  const auto step0 = std::chrono::steady_clock::now();
+  mj_step(m_, d_);
+  rep_.physics_wall_s +=
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - step0).count();
+  ++rep_.steps;
+  if (became_unstable(d_)) {
+    record_instability(d_, t, &rep_);
+    return false;
+  }
+  return true;
+}
+
+// Impulses of the step just taken (contact forces of the new state times dt).
+void SimulationRun::add_body_impulses() {
+  for (int k = 0; k < d_->ncon; ++k) {
+    const mjContact& con = d_->contact[k];
+    mjtNum res[6];
+    mj_contactForce(m_, d_, k, res);
+    const double impulse = std::abs(res[0]) * o_.dt;
+    for (int i = 0; i < n_legs_; ++i) {
+      if (con.geom1 == parts_.shin_geom[i] || con.geom2 == parts_.shin_geom[i])
+        rep_.shin_impulse[i] += impulse;
+      if (con.geom1 == parts_.thigh_geom[i] || con.geom2 == parts_.thigh_geom[i])
+        rep_.thigh_impulse[i] += impulse;
+    }
+    if (con.geom1 == parts_.trunk_geom || con.geom2 == parts_.trunk_geom)
+      rep_.trunk_impulse += impulse;
+  }
+}
+
+// --- Controller ---
+
+PlanReference SimulationRun::plan_reference(double t) const {
+  const auto [view, shift] = followed_.view_for(t);
+  PlanReference ref;
+  ref.now = view->at(t - shift);
+  ref.rot = rotation_zyx(ref.now.euler);
+  ref.before = view->at(t - kRateStep - shift);
+  ref.after = view->at(t + kRateStep - shift);
+  ref.rot_before = rotation_zyx(ref.before.euler);
+  ref.rot_after = rotation_zyx(ref.after.euler);
+  return ref;
+}
+
+// The joint torques of every leg for the step from t: the trunk wrench spread over the planned
+// stance feet, the planned forces, joint PD and the swing feed-forward, clamped to the limits.
+void SimulationRun::control(double t, const BaseState& b, const PlanReference& ref) {
+  std::vector<int> stance;
+  std::vector<Vector3d> lever;
+  for (int i = 0; i < n_legs_; ++i)
+    if (followed_.contact(i, t)) {
+      stance.push_back(i);
+      lever.push_back(foot_centre(i) - b.p);
+    }
+  const std::vector<Vector3d> delta = trunk_wrench_forces(b, ref, lever);
+  mj_fullM(m_, full_m_.data(), d_->qM);
+  bool saturated = false;
+  for (int i = 0; i < n_legs_; ++i)
+    saturated = apply_torque(i, leg_torque(i, t, b, ref, stance, delta)) || saturated;
+  if (saturated) saturated_s_ += o_.dt;
+}
+
+// Trunk PD wrench, spread over the planned stance feet (at `lever` from the base): each stance
+// foot's share.
+std::vector<Vector3d> SimulationRun::trunk_wrench_forces(const BaseState& b,
+                                                         const PlanReference& ref,
+                                                         const std::vector<Vector3d>& lever) const {
+  if (!c_.trunk_wrench) return std::vector<Vector3d>(lever.size(), Vector3d::Zero());
+  const auto& ps = ref.now;
+  Eigen::Matrix<double, 6, 1> w;
+  w.head<3>() = g_.kp_position * (ps.base_pos - b.p) + g_.kd_position * (ps.base_vel - b.v);
+  w.tail<3>() = g_.kp_orientation * rotation_vector(ref.rot * b.rot.transpose()) +
+                g_.kd_orientation * (ps.omega - b.omega);
+  if (!c_.planned_forces) {
+    // Without the plan's forces the wrench carries the weight.
+    double mass = 0;
+    for (int k = 1; k < m_->nbody; ++k) mass += m_->body_mass[k];
+    w.head<3>() += mass * (ps.base_acc + Vector3d(0, 0, kGravity));
+  }
+  return spread_wrench(w, lever);
+}
+
+// IK of the sphere centre over the planned foot point `foot` on a terrain of normal `n`.
+Vector3d SimulationRun::ik_in(int i, const Vector3d& p_base, const Matrix3d& rot,
+                              const Vector3d& foot, const Vector3d& n,
+                              const Vector3d& fallback) const {
+  const auto ik =
+      robot::inverse_kinematics(model_.legs[i], rot.transpose() * (foot + r_foot_ * n - p_base));
+  return ik.status == robot::IkStatus::unreachable ? fallback : Vector3d(ik.q);
+}
+
+// Leg i's torque before the limits: gravity/Coriolis, in stance the planned force plus its share
+// of the trunk wrench within the friction cone, joint PD towards the IK of the planned foot, and
+// in swing the feed-forward of the planned joint accelerations.
+Vector3d SimulationRun::leg_torque(int i, double t, const BaseState& b, const PlanReference& ref,
+                                   const std::vector<int>& stance,
+                                   const std::vector<Vector3d>& delta) {
+  const int dof = 6 + 3 * i;
+  mj_jacSite(m_, d_, jacp_.data(), nullptr, parts_.foot_site[i]);
+  Matrix3d jac;
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 3; ++k) jac(r, k) = jacp_[r * nv_ + dof + k];
+  Matrix3d mass;
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 3; ++k) mass(r, k) = full_m_[(dof + r) * nv_ + dof + k];
+  Vector3d q, qd, bias;
+  for (int j = 0; j < 3; ++j) {
+    q[j] = d_->qpos[7 + 3 * i + j];
+    qd[j] = d_->qvel[dof + j];
+    bias[j] = d_->qfrc_bias[dof + j];
+  }
+  // Desired joints: IK of the planned foot relative to the measured base; their rates from the
+  // planned motion (finite differences of the IK along the planned base).
+  const auto& ps = ref.now;
+  const auto &pm = ref.before, &pp = ref.after;
+  const Vector3d n = terrain_normal(scene_, ps.foot[i]);
+  const Vector3d q_des = ik_in(i, b.p, b.rot, ps.foot[i], n, q_prev_[i]);
+  q_prev_[i] = q_des;
+  const Vector3d q0 = ik_in(i, ps.base_pos, ref.rot, ps.foot[i], n, q);
+  const Vector3d qm = ik_in(i, pm.base_pos, ref.rot_before, pm.foot[i], n, q0);
+  const Vector3d qp = ik_in(i, pp.base_pos, ref.rot_after, pp.foot[i], n, q0);
+  constexpr double h = kRateStep;
+  const Vector3d qd_des = (qp - qm) / (2 * h);
+  const Vector3d qdd_des = (qp - 2 * q0 + qm) / (h * h);
+  Vector3d tau = bias;
+  if (followed_.contact(i, t)) {
+    Vector3d f = c_.planned_forces ? ps.force[i] : Vector3d::Zero();
+    const auto it = std::find(stance.begin(), stance.end(), i);
+    f += delta[it - stance.begin()];
+    f = into_cone(f, n, c_.cone_margin * mu_);
+    tau -= jac.transpose() * f;
+    tau += g_.kp_stance * (q_des - q) + g_.kd_stance * (qd_des - qd);
+  } else {
+    if (c_.swing_feedforward) tau += mass * qdd_des;
+    tau += g_.kp_swing * (q_des - q) + g_.kd_swing * (qd_des - qd);
+  }
+  return tau;
+}
+
+// Clamps leg i's torque to its limits and commands it; true when a joint saturated.
+bool SimulationRun::apply_torque(int i, Vector3d tau) {
+  bool saturated = false;
+  for (int j = 0; j < 3; ++j) {
+    const double lim = model_.legs[i].torque_limit[j];
+    if (std::abs(tau[j]) > lim) {
+      saturated = true;
+      rep_.saturated_time[i][j] += o_.dt;
+      tau[j] = std::clamp(tau[j], -lim, lim);
+    }
+    rep_.torque_max[i][j] = std::max(rep_.torque_max[i][j], std::abs(tau[j]));
+    d_->ctrl[3 * i + j] = tau[j];
+  }
+  tau_applied_[i] = tau;
+  return saturated;
+}
+
+// --- Verdict ---
+
+// The run's figures from what the steps accumulated.
+void SimulationRun::summarise() {
+  rep_.duration = rep_.unstable ? rep_.unstable_t - t0_ : d_->time;
+  rep_.realtime_factor = rep_.wall_s > 0 ? rep_.duration / rep_.wall_s : 0.0;
+  if (!rep_.replan_wall_s.empty()) {
+    median_and_max(rep_.replan_wall_s, &rep_.replan_wall_median, &rep_.replan_wall_max);
+    median_and_max(rep_.replan_cpu_s, &rep_.replan_cpu_median, &rep_.replan_cpu_max);
+  }
+  if (!rep_.replan_iterations.empty())
+    median_and_max(rep_.replan_iterations, &rep_.replan_iterations_median,
+                   &rep_.replan_iterations_max);
+  const int n_eval = rep_.steps + 1;
+  rep_.position_rms = std::sqrt(sq_err_sum_ / n_eval);
+  rep_.saturation_fraction = rep_.duration > 0 ? saturated_s_ / rep_.duration : 0.0;
+  for (const auto& s : rep_.stances) {
+    if (rep_.fell && s.t_start > rep_.fall_t) continue;
+    if (!s.touched_down) {
+      if (s.t_end - s.t_start > 0.05 && s.t_start < t0_ + rep_.duration) ++rep_.missed_touchdowns;
       continue;
     }
-    rep.slip_max = std::max(rep.slip_max, s.slip);
-    rep.centre_drift_max = std::max(rep.centre_drift_max, s.centre_drift);
-    rep.touchdown_error_max = std::max(rep.touchdown_error_max, s.touchdown_error);
+    rep_.slip_max = std::max(rep_.slip_max, s.slip);
+    rep_.centre_drift_max = std::max(rep_.centre_drift_max, s.centre_drift);
+    rep_.touchdown_error_max = std::max(rep_.touchdown_error_max, s.touchdown_error);
   }
-  for (double x : rep.shin_impulse) rep.shin_impulse_max = std::max(rep.shin_impulse_max, x);
+  for (double x : rep_.shin_impulse) rep_.shin_impulse_max = std::max(rep_.shin_impulse_max, x);
+}
+
+// The end stop pressed hardest (its impulse and time go into the report); its joint's name.
+std::string SimulationRun::worst_end_stop() {
   std::string limit_joint;
   static const char* kJoints[3] = {"HAA", "HFE", "KFE"};
-  for (int i = 0; i < n_legs; ++i)
+  for (int i = 0; i < n_legs_; ++i)
     for (int j = 0; j < 3; ++j)
-      if (rep.joint_limit_impulse[i][j] > rep.joint_limit_impulse_max) {
-        rep.joint_limit_impulse_max = rep.joint_limit_impulse[i][j];
-        rep.joint_limit_max_s = rep.joint_limit_time[i][j];
-        limit_joint = model.legs[i].name + " " + kJoints[j];
+      if (rep_.joint_limit_impulse[i][j] > rep_.joint_limit_impulse_max) {
+        rep_.joint_limit_impulse_max = rep_.joint_limit_impulse[i][j];
+        rep_.joint_limit_max_s = rep_.joint_limit_time[i][j];
+        limit_joint = model_.legs[i].name + " " + kJoints[j];
       }
+  return limit_joint;
+}
 
-  // Verdict. An unstable run judges nothing after its instability (stances it never reached,
-  // torques of a limp robot): it fails with that reason alone.
-  if (!rep.unstable) fail_non_finite_figures(t0, &rep);
-  if (rep.unstable) {
-    rep.verdict = "fail";
-    return rep;
+// Verdict. An unstable run judges nothing after its instability (stances it never reached,
+// torques of a limp robot): it fails with that reason alone.
+void SimulationRun::judge() {
+  const std::string limit_joint = worst_end_stop();
+  if (!rep_.unstable) fail_non_finite_figures(t0_, &rep_);
+  if (rep_.unstable) {
+    rep_.verdict = "fail";
+    return;
   }
-  const auto& th = o.thresholds;
-  std::ostringstream w;
-  w.precision(3);
+  const auto& th = o_.thresholds;
   auto warn = [&](bool bad, const std::string& what) {
-    if (bad) rep.reasons.push_back(what);
+    if (bad) rep_.reasons.push_back(what);
   };
-  auto str = [](double v, int prec = 3) {
+  auto str = [](double v) {
     std::ostringstream s;
-    s.precision(prec);
+    s.precision(3);
     s << v;
     return s.str();
   };
-  warn(rep.position_rms > th.position_rms_m, "base position error RMS " + str(rep.position_rms) +
-                                                 " m (limit " + str(th.position_rms_m) + ")");
-  warn(rep.position_max > th.position_max_m, "base position error max " + str(rep.position_max) +
-                                                 " m at t = " + str(rep.position_max_t) +
-                                                 " s (limit " + str(th.position_max_m) + ")");
-  warn(rep.saturation_fraction > th.saturation_fraction,
-       "torque saturated " + str(100 * rep.saturation_fraction) + " % of the time (limit " +
+  const SimulationReport& r = rep_;
+  warn(r.position_rms > th.position_rms_m, "base position error RMS " + str(r.position_rms) +
+                                               " m (limit " + str(th.position_rms_m) + ")");
+  warn(r.position_max > th.position_max_m, "base position error max " + str(r.position_max) +
+                                               " m at t = " + str(r.position_max_t) +
+                                               " s (limit " + str(th.position_max_m) + ")");
+  warn(r.saturation_fraction > th.saturation_fraction,
+       "torque saturated " + str(100 * r.saturation_fraction) + " % of the time (limit " +
            str(100 * th.saturation_fraction) + " %)");
-  warn(rep.slip_max > th.slip_m,
-       "foot slip " + str(rep.slip_max) + " m in a stance (limit " + str(th.slip_m) + ")");
-  warn(rep.touchdown_error_max > th.touchdown_error_m,
-       "touchdown error " + str(rep.touchdown_error_max) + " m (limit " +
+  warn(r.slip_max > th.slip_m,
+       "foot slip " + str(r.slip_max) + " m in a stance (limit " + str(th.slip_m) + ")");
+  warn(r.touchdown_error_max > th.touchdown_error_m,
+       "touchdown error " + str(r.touchdown_error_max) + " m (limit " +
            str(th.touchdown_error_m) + ")");
-  warn(rep.missed_touchdowns > 0,
-       std::to_string(rep.missed_touchdowns) + " planned stance(s) never touched the terrain");
-  warn(rep.shin_impulse_max >= th.shin_impulse_Ns, "shin contact impulse " +
-                                                       str(rep.shin_impulse_max) + " N s (limit " +
-                                                       str(th.shin_impulse_Ns) + ")");
-  warn(rep.joint_limit_impulse_max > th.joint_limit_impulse_Nms,
-       limit_joint + " pressed against its range's end stop: " + str(rep.joint_limit_impulse_max) +
-           " N m s over " + str(rep.joint_limit_max_s) + " s (limit " +
+  warn(r.missed_touchdowns > 0,
+       std::to_string(r.missed_touchdowns) + " planned stance(s) never touched the terrain");
+  warn(r.shin_impulse_max >= th.shin_impulse_Ns, "shin contact impulse " +
+                                                     str(r.shin_impulse_max) + " N s (limit " +
+                                                     str(th.shin_impulse_Ns) + ")");
+  warn(r.joint_limit_impulse_max > th.joint_limit_impulse_Nms,
+       limit_joint + " pressed against its range's end stop: " + str(r.joint_limit_impulse_max) +
+           " N m s over " + str(r.joint_limit_max_s) + " s (limit " +
            str(th.joint_limit_impulse_Nms) + " N m s)");
-  const int contacts_full = d->warning[mjWARN_CONTACTFULL].number;
-  const int constraints_full = d->warning[mjWARN_CNSTRFULL].number;
+  const int contacts_full = d_->warning[mjWARN_CONTACTFULL].number;
+  const int constraints_full = d_->warning[mjWARN_CNSTRFULL].number;
   warn(contacts_full + constraints_full > 0,
        "MuJoCo's contact or constraint buffer was full in " +
            std::to_string(contacts_full + constraints_full) +
            " step(s): contacts were dropped, the physics is not faithful there");
-  rep.verdict = rep.fell ? "fail" : (rep.reasons.empty() ? "pass" : "warn");
-  return rep;
+  rep_.verdict = rep_.fell ? "fail" : (rep_.reasons.empty() ? "pass" : "warn");
+}
+
+SimulationReport simulate(const robot::RobotModel& model, const planner::Trajectory& plan,
+                          const terrain::HeightField& scene, const TerrainMjcf& terrain,
+                          const SimulationOptions& o) {
+  validate_simulation(model, plan, o);
+  require_free_base(model);
+  return SimulationRun(model, plan, scene, terrain, o).run();
 }
 
 }  // namespace
