@@ -206,6 +206,31 @@ std::vector<std::string> post_hoc_failures(const robot::RobotModel& model,
   }
 }
 
+// A re-plan's inputs, in the plan: the files it started from and the corrections of its
+// start state's stance feet.
+void record_replan_inputs(const PlanCliOptions& o, const planner::WarmStart& warm,
+                          const nlohmann::json& stance_corrections,
+                          planner::Trajectory* trajectory) {
+  trajectory->extra["init"] = o.init;
+  trajectory->extra["start_time"] = o.start_time;
+  if (warm.start) trajectory->extra["start_state"] = o.start_state;
+  if (!stance_corrections.empty())
+    trajectory->extra["start_state_corrections"] = stance_corrections;
+}
+
+// --out: atomic for files (through symbolic links), written through for pipes and devices; the
+// samples as serialised on the second core.
+void write_plan(const PlanCliOptions& o, const planner::Trajectory& trajectory,
+                std::future<planner::SerialisedSamples>& samples_text) {
+  try {
+    std::cout.flush();
+    const planner::SerialisedSamples samples = samples_text.get();
+    planner::write_plan_file(o.out, trajectory, &samples);
+  } catch (const std::exception& e) {
+    throw CommandError(std::string("--out: ") + e.what());
+  }
+}
+
 // The summary, as --json prints it.
 nlohmann::json plan_summary(const planner::PlanOutcome& out,
                             const std::vector<std::string>& failures,
@@ -317,13 +342,7 @@ void run_plan(const PlanCliOptions& o) {
         return planner::serialise_samples(samples);
       });
   std::vector<std::string> failures = post_hoc_failures(model, terrains, &out.trajectory);
-  if (warm.previous) {
-    out.trajectory.extra["init"] = o.init;
-    out.trajectory.extra["start_time"] = o.start_time;
-    if (warm.start) out.trajectory.extra["start_state"] = o.start_state;
-    if (!stance_corrections.empty())
-      out.trajectory.extra["start_state_corrections"] = stance_corrections;
-  }
+  if (warm.previous) record_replan_inputs(o, warm, stance_corrections, &out.trajectory);
   // A non-optimal plan is still written when it nearly satisfies every constraint (useful as a
   // warm start or for inspection); the exit code says it is not optimal either way.
   const bool useful = out.success || out.solve.max_violation <= 1e-3;
@@ -334,16 +353,7 @@ void run_plan(const PlanCliOptions& o) {
                                           &out.trajectory);
     failures.insert(failures.end(), sim.begin(), sim.end());
   }
-  if (useful) {
-    // Atomic for files (through symbolic links), written through for pipes and devices.
-    try {
-      std::cout.flush();
-      const planner::SerialisedSamples samples = samples_text.get();
-      planner::write_plan_file(o.out, out.trajectory, &samples);
-    } catch (const std::exception& e) {
-      throw CommandError(std::string("--out: ") + e.what());
-    }
-  }
+  if (useful) write_plan(o, out.trajectory, samples_text);
   const nlohmann::json post_hoc = out.trajectory.extra.value("post_hoc", nlohmann::json());
   const nlohmann::json simulation =
       post_hoc.is_object() ? post_hoc.value("simulation", nlohmann::json()) : nlohmann::json();
