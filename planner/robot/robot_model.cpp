@@ -246,6 +246,139 @@ std::string robot_definition_hash(const std::string& text) {
 }
 
 namespace {
+
+// base_dof_free: which of x/y/z/yaw/pitch/roll the base moves in (all when absent).
+void read_base_dof_free(const FieldReader& top, const std::string& path, RobotModel& robot) {
+  if (!top.has("base_dof_free")) return;
+  YAML::Node dofs = top.child("base_dof_free");
+  static const char* kNames[6] = {"x", "y", "z", "yaw", "pitch", "roll"};
+  if (!dofs.IsMap()) top.fail("base_dof_free", "must map x/y/z/yaw/pitch/roll to true/false");
+  const FieldReader dr(path, dofs, "base_dof_free");
+  for (int i = 0; i < 6; ++i) {
+    YAML::Node d = dr.child(kNames[i]);
+    try {
+      robot.base_dof_free[i] = d.as<bool>();
+    } catch (const YAML::Exception&) {
+      dr.fail(kNames[i], "must be true or false");
+    }
+  }
+}
+
+// The trunk's collision box, which must clear the ground of the nominal stance.
+void read_trunk_box(const FieldReader& top, RobotModel& robot) {
+  robot.trunk = read_trunk(top);
+  if (!robot.trunk) return;
+  const double bottom = robot.trunk->center.z() - robot.trunk->half_size().z();
+  if (!(bottom > -robot.nominal_base_height))
+    top.fail("trunk", "its bottom (z = " + std::to_string(bottom) +
+                          " m in the base frame) is not above the ground of the nominal stance "
+                          "(z = -nominal_base_height = " +
+                          std::to_string(-robot.nominal_base_height) + " m)");
+}
+
+// A leg's side and kinematic chain: the general `geometry`, or the in-plane l0/l1/l2; classified.
+void read_leg_chain(const FieldReader& r, LegModel& leg) {
+  const bool side_given = r.has("side");
+  if (side_given) {
+    const std::string side = r.text("side");
+    if (side == "left") leg.side = +1;
+    else if (side == "right") leg.side = -1;
+    else r.fail("side", "must be 'left' or 'right' (got '" + side + "')");
+  }
+  if (r.has("geometry")) {
+    // The general leg. The in-plane keys would say the same thing twice.
+    for (const char* key : {"l0", "l1", "l2"})
+      if (r.has(key))
+        r.fail(key, "give either 'geometry' or l0/l1/l2, not both");
+    read_general_geometry(r, leg);
+  } else {
+    // The in-plane leg (HyQ): l0, l1, l2 straight down, HAA about -side x, HFE and KFE about y.
+    leg.l0 = r.non_negative("l0");
+    leg.l1 = r.positive("l1");
+    leg.l2 = r.positive("l2");
+    if (!side_given) r.fail("side", "missing");
+    leg.joint_axis = {Eigen::Vector3d(-leg.side, 0.0, 0.0), Eigen::Vector3d::UnitY(),
+                      Eigen::Vector3d::UnitY()};
+    leg.joint_offset = {Eigen::Vector3d(0.0, 0.0, -leg.l0), Eigen::Vector3d(0.0, 0.0, -leg.l1),
+                        Eigen::Vector3d(0.0, 0.0, -leg.l2)};
+  }
+  try {
+    classify_leg_geometry(leg, side_given);
+  } catch (const std::invalid_argument& e) {
+    r.fail(r.has("geometry") ? "geometry" : "l0", e.what());
+  }
+}
+
+// The knee branch and the joint ranges, which must agree (or IK would always fail).
+void read_leg_joint_ranges(const FieldReader& r, LegModel& leg) {
+  const std::string knee = r.text("knee");
+  if (knee == "backward") leg.knee_sign = -1;
+  else if (knee == "forward") leg.knee_sign = +1;
+  else r.fail("knee", "must be 'backward' or 'forward' (got '" + knee + "')");
+  const FieldReader limits = r.sub("joint_range_deg");
+  static const char* kJoints[3] = {"haa", "hfe", "kfe"};
+  for (int j = 0; j < 3; ++j) {
+    const auto [lo, hi] = limits.range_deg(kJoints[j]);
+    leg.q_min[j] = lo;
+    leg.q_max[j] = hi;
+  }
+  // The knee branch must agree with the KFE range, or IK would always fail.
+  if (leg.shape == LegShape::in_plane) {
+    if ((leg.knee_sign < 0 && leg.q_max[2] > 0) || (leg.knee_sign > 0 && leg.q_min[2] < 0))
+      r.fail("joint_range_deg.kfe", "range does not match knee: " + knee);
+  } else if (leg.shape == LegShape::lateral_offset) {
+    // The straight leg's KFE angle: the closed form's knee branch starts there.
+    const Eigen::Vector3d &d1 = leg.joint_offset[1], &d2 = leg.joint_offset[2];
+    const double s2 = leg.joint_axis[2].y();
+    const double straight =
+        s2 * std::atan2(d1.x() * d2.z() - d1.z() * d2.x(), d1.x() * d2.x() + d1.z() * d2.z());
+    const double lo = leg.knee_sign * (leg.q_min[2] - straight),
+                 hi = leg.knee_sign * (leg.q_max[2] - straight);
+    if (std::min(lo, hi) < -1e-9 || std::max(lo, hi) > 2 * M_PI)
+      r.fail("joint_range_deg.kfe",
+             "range does not lie on the knee's side (" + knee + ") of the straight leg (KFE = " +
+                 std::to_string(straight * 180.0 / M_PI) + " deg)");
+  }
+}
+
+// The leg's actuators (torque and velocity limits), links, nominal foot, range of motion and the
+// shin's and thigh's collision shapes.
+void read_leg_body(const FieldReader& r, LegModel& leg) {
+  static const char* kJoints[3] = {"haa", "hfe", "kfe"};
+  const FieldReader torque = r.sub("torque_limit");
+  for (int j = 0; j < 3; ++j) leg.torque_limit[j] = torque.positive(kJoints[j]);
+  if (r.has("velocity_limit")) {
+    const FieldReader velocity = r.sub("velocity_limit");
+    for (int j = 0; j < 3; ++j) leg.velocity_limit[j] = velocity.positive(kJoints[j]);
+  }
+  const FieldReader links = r.sub("links");
+  leg.links[0] = read_link(links.sub("hip"));
+  leg.links[1] = read_link(links.sub("upper"));
+  leg.links[2] = read_link(links.sub("lower"));
+  leg.nominal_foot = r.vec3("nominal_foot");
+  leg.range_of_motion = r.vec3("range_of_motion");
+  for (int j = 0; j < 3; ++j)
+    if (!(leg.range_of_motion[j] > 0)) r.fail("range_of_motion", "half-sizes must be > 0");
+  const FieldReader shin = r.sub("shin");
+  leg.shin_length = shin.positive("length");
+  leg.shin_angle = shin.number("angle_deg") * kDegToRad;
+  leg.shin_radius = shin.positive("radius");
+  leg.thigh_radius = r.sub("thigh").positive("radius");
+}
+
+// One leg, its keys merged over leg_model's.
+LegModel read_leg(const FieldReader& r, const RobotModel& robot) {
+  LegModel leg;
+  leg.name = r.text("name");
+  if (robot.leg_index(leg.name) >= 0) r.fail("name", "duplicate leg name '" + leg.name + "'");
+  leg.haa_origin = r.vec3("haa_origin");
+  read_leg_chain(r, leg);
+  read_leg_joint_ranges(r, leg);
+  leg.is_front = leg.haa_origin.x() >= 0;
+  read_leg_body(r, leg);
+  return leg;
+}
+
 RobotModel read_robot(const YAML::Node& root, const std::string& path) {
   if (!root.IsMap()) throw RobotFileError(path + ": robot file must be a YAML mapping");
   const FieldReader top(path, root, "");
@@ -263,30 +396,8 @@ RobotModel read_robot(const YAML::Node& root, const std::string& path) {
   robot.inertia = read_inertia(body.sub("inertia"));
   robot.nominal_base_height = top.positive("nominal_base_height");
   robot.foot_radius = top.non_negative("foot_radius");
-  if (top.has("base_dof_free")) {
-    YAML::Node dofs = top.child("base_dof_free");
-    static const char* kNames[6] = {"x", "y", "z", "yaw", "pitch", "roll"};
-    if (!dofs.IsMap()) top.fail("base_dof_free", "must map x/y/z/yaw/pitch/roll to true/false");
-    const FieldReader dr(path, dofs, "base_dof_free");
-    for (int i = 0; i < 6; ++i) {
-      YAML::Node d = dr.child(kNames[i]);
-      try {
-        robot.base_dof_free[i] = d.as<bool>();
-      } catch (const YAML::Exception&) {
-        dr.fail(kNames[i], "must be true or false");
-      }
-    }
-  }
-
-  robot.trunk = read_trunk(top);
-  if (robot.trunk) {
-    const double bottom = robot.trunk->center.z() - robot.trunk->half_size().z();
-    if (!(bottom > -robot.nominal_base_height))
-      top.fail("trunk", "its bottom (z = " + std::to_string(bottom) +
-                            " m in the base frame) is not above the ground of the nominal stance "
-                            "(z = -nominal_base_height = " +
-                            std::to_string(-robot.nominal_base_height) + " m)");
-  }
+  read_base_dof_free(top, path, robot);
+  read_trunk_box(top, robot);
 
   // Shared leg description; each leg may override any of these keys.
   // (Optional: an imported robot file gives every key per leg.)
@@ -300,89 +411,7 @@ RobotModel read_robot(const YAML::Node& root, const std::string& path) {
     if (!list[k].IsMap()) top.fail("legs[" + std::to_string(k) + "]", "must be a mapping");
     for (const auto& kv : list[k]) merged[kv.first.as<std::string>()] = kv.second;
     const FieldReader r(path, merged, "legs[" + std::to_string(k) + "]");
-
-    LegModel leg;
-    leg.name = r.text("name");
-    if (robot.leg_index(leg.name) >= 0) r.fail("name", "duplicate leg name '" + leg.name + "'");
-    leg.haa_origin = r.vec3("haa_origin");
-    const bool side_given = r.has("side");
-    if (side_given) {
-      const std::string side = r.text("side");
-      if (side == "left") leg.side = +1;
-      else if (side == "right") leg.side = -1;
-      else r.fail("side", "must be 'left' or 'right' (got '" + side + "')");
-    }
-    if (r.has("geometry")) {
-      // The general leg. The in-plane keys would say the same thing twice.
-      for (const char* key : {"l0", "l1", "l2"})
-        if (r.has(key))
-          r.fail(key, "give either 'geometry' or l0/l1/l2, not both");
-      read_general_geometry(r, leg);
-    } else {
-      // The in-plane leg (HyQ): l0, l1, l2 straight down, HAA about -side x, HFE and KFE about y.
-      leg.l0 = r.non_negative("l0");
-      leg.l1 = r.positive("l1");
-      leg.l2 = r.positive("l2");
-      if (!side_given) r.fail("side", "missing");
-      leg.joint_axis = {Eigen::Vector3d(-leg.side, 0.0, 0.0), Eigen::Vector3d::UnitY(),
-                        Eigen::Vector3d::UnitY()};
-      leg.joint_offset = {Eigen::Vector3d(0.0, 0.0, -leg.l0), Eigen::Vector3d(0.0, 0.0, -leg.l1),
-                          Eigen::Vector3d(0.0, 0.0, -leg.l2)};
-    }
-    try {
-      classify_leg_geometry(leg, side_given);
-    } catch (const std::invalid_argument& e) {
-      r.fail(r.has("geometry") ? "geometry" : "l0", e.what());
-    }
-    const std::string knee = r.text("knee");
-    if (knee == "backward") leg.knee_sign = -1;
-    else if (knee == "forward") leg.knee_sign = +1;
-    else r.fail("knee", "must be 'backward' or 'forward' (got '" + knee + "')");
-    leg.is_front = leg.haa_origin.x() >= 0;
-    const FieldReader limits = r.sub("joint_range_deg");
-    static const char* kJoints[3] = {"haa", "hfe", "kfe"};
-    for (int j = 0; j < 3; ++j) {
-      const auto [lo, hi] = limits.range_deg(kJoints[j]);
-      leg.q_min[j] = lo;
-      leg.q_max[j] = hi;
-    }
-    // The knee branch must agree with the KFE range, or IK would always fail.
-    if (leg.shape == LegShape::in_plane) {
-      if ((leg.knee_sign < 0 && leg.q_max[2] > 0) || (leg.knee_sign > 0 && leg.q_min[2] < 0))
-        r.fail("joint_range_deg.kfe", "range does not match knee: " + knee);
-    } else if (leg.shape == LegShape::lateral_offset) {
-      // The straight leg's KFE angle: the closed form's knee branch starts there.
-      const Eigen::Vector3d &d1 = leg.joint_offset[1], &d2 = leg.joint_offset[2];
-      const double s2 = leg.joint_axis[2].y();
-      const double straight =
-          s2 * std::atan2(d1.x() * d2.z() - d1.z() * d2.x(), d1.x() * d2.x() + d1.z() * d2.z());
-      const double lo = leg.knee_sign * (leg.q_min[2] - straight),
-                   hi = leg.knee_sign * (leg.q_max[2] - straight);
-      if (std::min(lo, hi) < -1e-9 || std::max(lo, hi) > 2 * M_PI)
-        r.fail("joint_range_deg.kfe",
-               "range does not lie on the knee's side (" + knee + ") of the straight leg (KFE = " +
-                   std::to_string(straight * 180.0 / M_PI) + " deg)");
-    }
-    const FieldReader torque = r.sub("torque_limit");
-    for (int j = 0; j < 3; ++j) leg.torque_limit[j] = torque.positive(kJoints[j]);
-    if (r.has("velocity_limit")) {
-      const FieldReader velocity = r.sub("velocity_limit");
-      for (int j = 0; j < 3; ++j) leg.velocity_limit[j] = velocity.positive(kJoints[j]);
-    }
-    const FieldReader links = r.sub("links");
-    leg.links[0] = read_link(links.sub("hip"));
-    leg.links[1] = read_link(links.sub("upper"));
-    leg.links[2] = read_link(links.sub("lower"));
-    leg.nominal_foot = r.vec3("nominal_foot");
-    leg.range_of_motion = r.vec3("range_of_motion");
-    for (int j = 0; j < 3; ++j)
-      if (!(leg.range_of_motion[j] > 0)) r.fail("range_of_motion", "half-sizes must be > 0");
-    const FieldReader shin = r.sub("shin");
-    leg.shin_length = shin.positive("length");
-    leg.shin_angle = shin.number("angle_deg") * kDegToRad;
-    leg.shin_radius = shin.positive("radius");
-    leg.thigh_radius = r.sub("thigh").positive("radius");
-    robot.legs.push_back(leg);
+    robot.legs.push_back(read_leg(r, robot));
   }
   return robot;
 }

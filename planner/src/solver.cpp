@@ -450,62 +450,54 @@ std::vector<std::pair<std::string, std::string>> ipopt_options_from_env(const ch
   return options;
 }
 
-SolveResult solve(const SrbdProblem& problem, const SolverOptions& options,
-                  const std::vector<std::pair<std::string, std::string>>& extra_options) {
-  const auto lock = acquire_solver(options);
-  if (!lock.owns_lock()) {
-    SolveResult stopped;
-    stopped.status = "stopped";
-    stopped.termination = "stopped before the solve (another solve held the solver)";
-    stopped.x = const_cast<SrbdProblem&>(problem).initial_guess();
-    stopped.max_violation = problem.max_violation(stopped.x);
-    return stopped;
-  }
-  const auto t0 = std::chrono::steady_clock::now();
-  Ipopt::SmartPtr<SrbdTnlp> nlp = new SrbdTnlp(problem, options);
-  for (const auto& option : extra_options)
-    if (option.first == "derivative_test") nlp->stop_before_jacobian_ = false;
-  Ipopt::SmartPtr<Ipopt::IpoptApplication> app = IpoptApplicationFactory();
-  auto opts = app->Options();
-  opts->SetIntegerValue("print_level", options.verbose ? 5 : 0);
-  opts->SetStringValue("sb", "yes");  // no banner
-  opts->SetStringValue("hessian_approximation", "limited-memory");
-  opts->SetStringValue("linear_solver", "mumps");
+namespace {
+
+// The solver's fixed Ipopt settings for these problems (each one's reason beside it).
+void set_ipopt_options(Ipopt::OptionsList& opts, const SolverOptions& options) {
+  opts.SetIntegerValue("print_level", options.verbose ? 5 : 0);
+  opts.SetStringValue("sb", "yes");  // no banner
+  opts.SetStringValue("hessian_approximation", "limited-memory");
+  opts.SetStringValue("linear_solver", "mumps");
   // Approximate minimum degree: on these banded-in-time KKT systems it needs 1.4-2.4x fewer
   // factorisation flops and 15-33 % fewer factor entries than MUMPS's automatic choice (AMF),
   // with the same iteration counts (pallet_15 baseline: 3.8e7 against 9.0e7 flops per factorisation).
-  opts->SetIntegerValue("mumps_pivot_order", 0);
+  opts.SetIntegerValue("mumps_pivot_order", 0);
   // No maximum-transversal permutation/scaling in MUMPS's analysis: on pallet_15 it made the
   // analysis 0.14 s instead of 0.02 s, half of a warm-started re-plan, and the iteration counts
   // over the ten-scenario set are unchanged without it (factorisation flops 5 % lower).
-  opts->SetIntegerValue("mumps_permuting_scaling", 0);
+  opts.SetIntegerValue("mumps_permuting_scaling", 0);
   // The L-BFGS update as extra rows of the factorised system instead of Sherman-Morrison: the
   // default spends 2 x history extra back-solves per iteration (pallet_15: 117 solves against 48),
   // and MUMPS's back-solves cost a fifth of a factorisation each on these small fronts.
-  opts->SetStringValue("limited_memory_aug_solver", "extended");
+  opts.SetStringValue("limited_memory_aug_solver", "extended");
   // Iterative refinement only when a solve's residual ratio exceeds 1e-8 (default: always one
   // step, and more above 1e-10). MUMPS back-solves cost about 4 ms each on the flat crawl's
   // system, whatever their size; this drops 24 of them to 17 there (pallet_15: 27 to 20) with the
   // same iteration counts over the ten-scenario set.
-  opts->SetIntegerValue("min_refinement_steps", 0);
-  opts->SetNumericValue("residual_ratio_max", 1e-8);
-  opts->SetStringValue("fixed_variable_treatment", "make_parameter");
-  opts->SetStringValue("nlp_scaling_method", "user-scaling");  // see get_scaling_parameters
+  opts.SetIntegerValue("min_refinement_steps", 0);
+  opts.SetNumericValue("residual_ratio_max", 1e-8);
+  opts.SetStringValue("fixed_variable_treatment", "make_parameter");
+  opts.SetStringValue("nlp_scaling_method", "user-scaling");  // see get_scaling_parameters
   // Start the constraint multipliers at zero instead of a least-squares estimate: the estimate
   // costs a factorisation of the KKT system, and over the ten-scenario set the iteration counts
   // were the same or lower without it (flat "all": 15 -> 7).
-  opts->SetNumericValue("constr_mult_init_max", 0.0);
+  opts.SetNumericValue("constr_mult_init_max", 0.0);
   // The adaptive barrier falls back to a monotone mode when it stops making progress, and on the
   // demo's scanned pallet that fallback held mu near 6 for some 40 iterations (48 in all). Without
   // the fallback: 25 iterations, plan 4.3-4.7 s instead of 7.4-8.6 s. Flat, pallet_10 and pallet_15,
   // baseline and all, never fall back: the same iteration counts either way.
-  opts->SetStringValue("adaptive_mu_globalization", "never-monotone-mode");
-  opts->SetNumericValue("tol", options.tolerance);
-  opts->SetNumericValue("constr_viol_tol", options.tolerance);
-  opts->SetNumericValue("acceptable_tol", 10 * options.tolerance);
-  opts->SetIntegerValue("max_iter", options.max_iterations);
-  if (options.max_time > 0.0) opts->SetNumericValue("max_cpu_time", options.max_time);
-  // TERRASTRIDE_IPOPT_OPTIONS="name=value name=value" adds Ipopt options (for tuning runs).
+  opts.SetStringValue("adaptive_mu_globalization", "never-monotone-mode");
+  opts.SetNumericValue("tol", options.tolerance);
+  opts.SetNumericValue("constr_viol_tol", options.tolerance);
+  opts.SetNumericValue("acceptable_tol", 10 * options.tolerance);
+  opts.SetIntegerValue("max_iter", options.max_iterations);
+  if (options.max_time > 0.0) opts.SetNumericValue("max_cpu_time", options.max_time);
+}
+
+// Ipopt options given by the caller, then those of TERRASTRIDE_IPOPT_OPTIONS (tuning runs), after
+// the fixed ones so they override them.
+void set_extra_ipopt_options(Ipopt::OptionsList& opts,
+                             const std::vector<std::pair<std::string, std::string>>& extra_options) {
   auto all_options = extra_options;
   for (auto& option : ipopt_options_from_env("TERRASTRIDE_IPOPT_OPTIONS"))
     all_options.push_back(std::move(option));
@@ -514,15 +506,74 @@ SolveResult solve(const SrbdProblem& problem, const SolverOptions& options,
     char* end = nullptr;
     const long iv = std::strtol(v.c_str(), &end, 10);
     if (end && *end == '\0' && !v.empty()) {
-      if (!opts->SetIntegerValue(k, static_cast<Ipopt::Index>(iv))) opts->SetNumericValue(k, iv);
+      if (!opts.SetIntegerValue(k, static_cast<Ipopt::Index>(iv))) opts.SetNumericValue(k, iv);
       continue;
     }
     const double dv = std::strtod(v.c_str(), &end);
     if (end && *end == '\0' && !v.empty())
-      opts->SetNumericValue(k, dv);
+      opts.SetNumericValue(k, dv);
     else
-      opts->SetStringValue(k, v);
+      opts.SetStringValue(k, v);
   }
+}
+
+// The status of a solve that ended in Ipopt (not at a verified feasible iterate).
+std::string ipopt_status_name(Ipopt::ApplicationReturnStatus st, const SrbdTnlp& nlp) {
+  switch (st) {
+    case Ipopt::Solve_Succeeded:
+      return "optimal";
+    case Ipopt::Solved_To_Acceptable_Level:
+      return "acceptable";
+    case Ipopt::Infeasible_Problem_Detected:
+      return "infeasible";
+    case Ipopt::Maximum_Iterations_Exceeded:
+      return "max_iterations";
+    case Ipopt::Maximum_CpuTime_Exceeded:
+      return "time_limit";
+    case Ipopt::User_Requested_Stop:
+      return nlp.timed_out_ ? "time_limit" : nlp.stalled_ ? "stalled" : "stopped";
+    case Ipopt::Diverging_Iterates:
+      return "diverging";
+    case Ipopt::Restoration_Failed:
+      return "restoration_failed";
+    case Ipopt::Search_Direction_Becomes_Too_Small:
+      return "step_too_small";
+    case Ipopt::Error_In_Step_Computation:
+      return "step_failed";
+    case Ipopt::Not_Enough_Degrees_Of_Freedom:
+      return "too_few_degrees_of_freedom";
+    case Ipopt::Invalid_Number_Detected:
+      return "invalid_number";
+    default:
+      return "error";
+  }
+}
+
+// The answer when another solve holds the solver and this one was told not to wait: the initial
+// guess, judged.
+SolveResult stopped_before_solve(const SrbdProblem& problem) {
+  SolveResult stopped;
+  stopped.status = "stopped";
+  stopped.termination = "stopped before the solve (another solve held the solver)";
+  stopped.x = const_cast<SrbdProblem&>(problem).initial_guess();
+  stopped.max_violation = problem.max_violation(stopped.x);
+  return stopped;
+}
+
+}  // namespace
+
+SolveResult solve(const SrbdProblem& problem, const SolverOptions& options,
+                  const std::vector<std::pair<std::string, std::string>>& extra_options) {
+  const auto lock = acquire_solver(options);
+  if (!lock.owns_lock()) return stopped_before_solve(problem);
+  const auto t0 = std::chrono::steady_clock::now();
+  Ipopt::SmartPtr<SrbdTnlp> nlp = new SrbdTnlp(problem, options);
+  for (const auto& option : extra_options)
+    if (option.first == "derivative_test") nlp->stop_before_jacobian_ = false;
+  Ipopt::SmartPtr<Ipopt::IpoptApplication> app = IpoptApplicationFactory();
+  auto opts = app->Options();
+  set_ipopt_options(*opts, options);
+  set_extra_ipopt_options(*opts, extra_options);
   SolveResult r;
   if (std::getenv("TERRASTRIDE_DEBUG_CHECKS"))
     for (const auto& [k, v] :
@@ -559,47 +610,7 @@ SolveResult solve(const SrbdProblem& problem, const SolverOptions& options,
     return r;
   }
   r.termination = "ipopt";
-  switch (st) {
-    case Ipopt::Solve_Succeeded:
-      r.status = "optimal";
-      break;
-    case Ipopt::Solved_To_Acceptable_Level:
-      r.status = "acceptable";
-      break;
-    case Ipopt::Infeasible_Problem_Detected:
-      r.status = "infeasible";
-      break;
-    case Ipopt::Maximum_Iterations_Exceeded:
-      r.status = "max_iterations";
-      break;
-    case Ipopt::Maximum_CpuTime_Exceeded:
-      r.status = "time_limit";
-      break;
-    case Ipopt::User_Requested_Stop:
-      r.status = nlp->timed_out_ ? "time_limit" : nlp->stalled_ ? "stalled" : "stopped";
-      break;
-    case Ipopt::Diverging_Iterates:
-      r.status = "diverging";
-      break;
-    case Ipopt::Restoration_Failed:
-      r.status = "restoration_failed";
-      break;
-    case Ipopt::Search_Direction_Becomes_Too_Small:
-      r.status = "step_too_small";
-      break;
-    case Ipopt::Error_In_Step_Computation:
-      r.status = "step_failed";
-      break;
-    case Ipopt::Not_Enough_Degrees_Of_Freedom:
-      r.status = "too_few_degrees_of_freedom";
-      break;
-    case Ipopt::Invalid_Number_Detected:
-      r.status = "invalid_number";
-      break;
-    default:
-      r.status = "error";
-      break;
-  }
+  r.status = ipopt_status_name(st, *nlp);
   r.success = st == Ipopt::Solve_Succeeded || st == Ipopt::Solved_To_Acceptable_Level;
   r.max_violation = problem.max_violation(r.x);
   return r;

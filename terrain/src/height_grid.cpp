@@ -671,37 +671,36 @@ void points_extent(const std::vector<PointBatch>& batches, Eigen::Vector2d* lo_o
   hi = Eigen::Vector2d(mxx, mxy);
 }
 
-}  // namespace
-
-HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const HeightGridOptions& o) {
+void validate_grid_options(const HeightGridOptions& o) {
   validate_resolution(o.resolution);
   if (!(o.cluster_gap > 0) || !(o.min_support_fraction >= 0 && o.min_support_fraction <= 1))
     throw InputError("height grid: cluster_gap must be > 0 and min_support_fraction in [0, 1]");
   if (!(o.overhang_free_height > 0) || !std::isfinite(o.overhang_free_height))
     throw InputError("height grid: the overhang free height must be a positive number of metres");
-  HeightGrid grid;
-  size_t total = 0;
-  for (const auto& b : batches) total += b.size;
-  grid.points_in = total;
+}
 
-  Eigen::Vector2d lo, hi;
+// The grid's xy extent: the options' corners when given, else the points'.
+void grid_extent(const std::vector<PointBatch>& batches, const HeightGridOptions& o,
+                 Eigen::Vector2d* lo, Eigen::Vector2d* hi) {
   if (o.lo && o.hi) {
-    lo = *o.lo;
-    hi = *o.hi;
-    if (!(hi.x() > lo.x() && hi.y() > lo.y()) || !lo.allFinite() || !hi.allFinite())
+    *lo = *o.lo;
+    *hi = *o.hi;
+    if (!(hi->x() > lo->x() && hi->y() > lo->y()) || !lo->allFinite() || !hi->allFinite())
       throw InputError("height grid: the extent's max corner must exceed its min corner");
   } else {
-    points_extent(batches, &lo, &hi);
+    points_extent(batches, lo, hi);
   }
-  grid.geometry = make_geometry(lo, hi, o.resolution, o.max_cells);
-  allocate(grid);
-  grid.overhead.assign(grid.geometry.size(), std::numeric_limits<float>::infinity());
-  const GridGeometry& g = grid.geometry;
-  const size_t ncell = g.size();
+}
 
-  // Pass 1: cell of every point (counting sort keeps this cache friendly and allocation free).
+// Pass 1: cell of every point (counting sort keeps this cache friendly and allocation free). The
+// points' cells (kOutside for those outside the grid) in batch order; `start` gets each cell's
+// first entry (its last element: the points in the grid).
+std::vector<uint32_t> bin_points(const std::vector<PointBatch>& batches, const GridGeometry& g,
+                                 size_t total, std::vector<uint32_t>* start_out) {
+  const size_t ncell = g.size();
   std::vector<uint32_t> cell(total);
-  std::vector<uint32_t> start(ncell + 1, 0);
+  std::vector<uint32_t>& start = *start_out;
+  start.assign(ncell + 1, 0);
   const float inv = static_cast<float>(1.0 / g.resolution);
   const float ox = static_cast<float>(g.origin.x()), oy = static_cast<float>(g.origin.y());
   size_t t = 0;
@@ -720,13 +719,17 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
     }
   }
   for (size_t k = 0; k < ncell; ++k) start[k + 1] += start[k];
-  grid.points_in_grid = start[ncell];
-  if (grid.points_in_grid == 0) throw InputError("no finite points inside the height grid extent");
+  return cell;
+}
 
-  // Pass 2: scatter heights (and ray entry heights when the origin is known) into cell order.
-  std::vector<Entry> entries(grid.points_in_grid);
+// Pass 2: scatter heights (and ray entry heights when the origin is known) into cell order.
+std::vector<Entry> scatter_entries(const std::vector<PointBatch>& batches, const GridGeometry& g,
+                                   const std::vector<uint32_t>& cell,
+                                   const std::vector<uint32_t>& start) {
+  std::vector<Entry> entries(start.back());
   std::vector<uint32_t> fill(start.begin(), start.end() - 1);
-  t = 0;
+  size_t t = 0;
+  const float ox = static_cast<float>(g.origin.x()), oy = static_cast<float>(g.origin.y());
   const float res = static_cast<float>(g.resolution);
   for (const auto& b : batches) {
     const bool has_origin = b.origin.has_value();
@@ -756,10 +759,13 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
       entries[fill[k]++] = Entry{p.z(), ze, has_origin ? o3.z() : ze};
     }
   }
-  cell.clear();
-  cell.shrink_to_fit();
+  return entries;
+}
 
-  // Pass 3: sort every cell, then estimate the sensor noise (and the point spacing) from them.
+// Pass 3: sort every cell's entries by height; each cell's point count into the grid.
+void sort_cells(std::vector<Entry>& entries, const std::vector<uint32_t>& start,
+                HeightGrid& grid) {
+  const size_t ncell = start.size() - 1;
   for (size_t k = 0; k < ncell; ++k) {
     const size_t n = start[k + 1] - start[k];
     grid.count[k] = static_cast<uint32_t>(n);
@@ -776,13 +782,16 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
       std::sort(e, e + n, [](const Entry& a, const Entry& b) { return a.z < b.z; });
     }
   }
-  grid.noise = estimate_noise(entries, start, g, o.cluster_gap);
-  grid.noise_sigma = grid.noise.sigma;
-  HeightGridOptions eff = o;
-  // The gap grows to 4 sigma so noise never splits a surface.
-  eff.cluster_gap = std::max(o.cluster_gap, 4.0 * grid.noise_sigma);
-  grid.cluster_gap = eff.cluster_gap;
-  // Pass 4: per-cell support surface.
+}
+
+// Pass 4: per-cell support surface, then the surface made whole: sparse surfaces, the input's
+// overhangs, sampling gaps, narrow pits, holes, smoothing; `eff` is the options with the
+// noise-widened cluster gap.
+void build_surface(const std::vector<PointBatch>& batches, const std::vector<Entry>& entries,
+                   const std::vector<uint32_t>& start, const HeightGridOptions& o,
+                   const HeightGridOptions& eff, HeightGrid& grid) {
+  const GridGeometry& g = grid.geometry;
+  const size_t ncell = g.size();
   std::vector<uint8_t> candidate(ncell, 0);
   for (size_t k = 0; k < ncell; ++k) {
     const size_t n = start[k + 1] - start[k];
@@ -807,6 +816,41 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const Heigh
   fill_holes_around(grid, o.min_cell_points, bridged);
   grid.smoothing_length = smoothing_length(grid.noise, o);
   smooth_surface(grid, grid.smoothing_length);
+}
+
+}  // namespace
+
+HeightGrid build_height_grid(const std::vector<PointBatch>& batches, const HeightGridOptions& o) {
+  validate_grid_options(o);
+  HeightGrid grid;
+  size_t total = 0;
+  for (const auto& b : batches) total += b.size;
+  grid.points_in = total;
+
+  Eigen::Vector2d lo, hi;
+  grid_extent(batches, o, &lo, &hi);
+  grid.geometry = make_geometry(lo, hi, o.resolution, o.max_cells);
+  allocate(grid);
+  grid.overhead.assign(grid.geometry.size(), std::numeric_limits<float>::infinity());
+  const GridGeometry& g = grid.geometry;
+
+  std::vector<uint32_t> start;
+  std::vector<uint32_t> cell = bin_points(batches, g, total, &start);
+  grid.points_in_grid = start.back();
+  if (grid.points_in_grid == 0) throw InputError("no finite points inside the height grid extent");
+  std::vector<Entry> entries = scatter_entries(batches, g, cell, start);
+  cell.clear();
+  cell.shrink_to_fit();
+
+  sort_cells(entries, start, grid);
+  // The sensor noise (and the point spacing) from the sorted cells.
+  grid.noise = estimate_noise(entries, start, g, o.cluster_gap);
+  grid.noise_sigma = grid.noise.sigma;
+  HeightGridOptions eff = o;
+  // The gap grows to 4 sigma so noise never splits a surface.
+  eff.cluster_gap = std::max(o.cluster_gap, 4.0 * grid.noise_sigma);
+  grid.cluster_gap = eff.cluster_gap;
+  build_surface(batches, entries, start, o, eff, grid);
   count_overhangs(grid);
   if (grid.overhang_cells == 0) grid.overhead.clear();
   add_notes(grid, o.input_voxel);

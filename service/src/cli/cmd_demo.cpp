@@ -291,20 +291,8 @@ void print_text_summary(const json& rep, const planner::Trajectory& traj, double
             << " s CPU)\nreport: " << html.string() << "\n";
 }
 
-void run_demo(const DemoOptions& o) {
-  const auto t_all = Clock::now();
-  const std::clock_t cpu0 = std::clock();
-  // Before any stage: an --out folder holding anything but an earlier demo, or an unwritable one,
-  // fails now rather than after the map and the solve.
-  try {
-    perception::check_output_dir(o.out, demo_output_kind());
-  } catch (const perception::InputError& e) {
-    throw CommandError(std::string("--out: ") + e.what());
-  }
-  Progress progress(6, o.json_output);
-  json summary{{"stages", json::object()}};
-
-  // 1. scan
+// 1. scan: --scan, else the shipped pallet scan; every file must exist.
+std::vector<std::string> scan_stage(const DemoOptions& o, Progress& progress) {
   progress.start("scan", "shipped pallet scan");
   const std::vector<std::string> scan = o.scan.empty() ? find_pallet_scan() : o.scan;
   if (scan.empty()) {
@@ -319,17 +307,13 @@ void run_demo(const DemoOptions& o) {
       throw CommandError("stage 'scan': --scan " + f + ": no such file");
     }
   progress.done(join(scan, " "));
-  summary["scan"] = scan;
+  return scan;
+}
 
-  // Everything goes into a temporary folder beside out/demo, renamed into place at the end.
-  fs::create_directories(fs::absolute(o.out).parent_path());
-  perception::AtomicOutputDir out_dir(o.out, demo_output_kind());
-  const fs::path work = out_dir.path();
-  const fs::path final_dir = o.out;
-
-  // 2. map
+// 2. map, into `terrain_dir`.
+DemoMap map_stage(const std::vector<std::string>& scan, const fs::path& terrain_dir,
+                  Progress& progress, json& summary) {
   progress.start("map", "height grid, OctoMap, safety masks");
-  const fs::path terrain_dir = work / "terrain";
   DemoMap map;
   try {
     map = map_scan(scan, terrain_dir);
@@ -340,21 +324,28 @@ void run_demo(const DemoOptions& o) {
   summary["stages"]["map"] = map.summary;
   progress.done(std::to_string(map.summary["points_kept"].get<long>()) + " points kept, " +
                 std::to_string(map.summary["cells"].get<long>()) + " cells");
+  return map;
+}
 
-  // 3. plan, with every constraint set this build has.
+// --constraints, else every constraint set this build has ("all" when it has that name).
+std::string demo_constraints(const DemoOptions& o) {
   const std::vector<std::string> available = planner::constraint_set_names();
-  std::string constraints = o.constraints;
-  if (constraints.empty())
-    constraints = std::find(available.begin(), available.end(), "all") != available.end()
-                      ? "all"
-                      : join(available, ",");
+  if (!o.constraints.empty()) return o.constraints;
+  return std::find(available.begin(), available.end(), "all") != available.end()
+             ? "all"
+             : join(available, ",");
+}
+
+// 3. plan with `constraints`, written to work/plan.json; `model` gets the plan's robot
+// (`terrastride plan`'s default).
+DemoPlan plan_stage(const DemoOptions& o, const DemoMap& map, const fs::path& work,
+                    const fs::path& final_dir, const std::string& constraints,
+                    robot::RobotModel* model, Progress& progress, json& summary) {
   progress.start("plan", "crawl 1 m over the pallet, constraints: " + constraints);
-  // The plan's robot: `terrastride plan`'s default.
-  robot::RobotModel model;
   DemoPlan plan;
   try {
-    model = robot::load_robot(robot::resolve_robot_path("hyq"));
-    plan = plan_on_map(model, map, terrain_dir.string(), (final_dir / "terrain").string(),
+    *model = robot::load_robot(robot::resolve_robot_path("hyq"));
+    plan = plan_on_map(*model, map, (work / "terrain").string(), (final_dir / "terrain").string(),
                        constraints, o.max_time, work / "plan.json",
                        (final_dir / "plan.json").string());
   } catch (const CommandError& e) {
@@ -364,19 +355,29 @@ void run_demo(const DemoOptions& o) {
     progress.fail();
     throw CommandError(std::string("stage 'plan' failed: ") + e.what());
   }
-  planner::Trajectory& traj = plan.trajectory;
+  const planner::Trajectory& traj = plan.trajectory;
   summary["stages"]["plan"] = {{"constraints", constraints},
                                {"status", traj.solver.status},
                                {"iterations", traj.solver.iterations},
                                {"wall_s", traj.solver.wall_s}};
   progress.done(traj.solver.status + ", " + std::to_string(traj.solver.iterations) +
                 " iterations, solver " + fixed(traj.solver.wall_s, 2) + " s");
+  return plan;
+}
 
-  // 4. post-hoc checks on the scan's own terrain: torques, FCL capsules vs the OctoMap, footholds.
+// 4. post-hoc checks on the scan's own terrain: torques, FCL capsules vs the OctoMap, footholds.
+// The report's view of the map goes to `view`.
+std::shared_ptr<collision::CheckReport> checks_stage(const robot::RobotModel& model,
+                                                     const DemoMap& map,
+                                                     const planner::Trajectory& traj,
+                                                     const fs::path& final_dir,
+                                                     report::TerrainView* view_out,
+                                                     Progress& progress, json& summary) {
   progress.start("checks", "joint torques, shin capsules vs OctoMap, footholds");
   report::TerrainInputOptions topts;
   topts.foot_radius = model.foot_radius;
-  report::TerrainView view = report::map_view(map.map, map.octree, map.terrain, topts);
+  report::TerrainView& view = *view_out;
+  view = report::map_view(map.map, map.octree, map.terrain, topts);
   view.source = (final_dir / "terrain").string();
   collision::CheckTerrain ct;
   ct.field = view.field.get();
@@ -392,10 +393,18 @@ void run_demo(const DemoOptions& o) {
   const auto keys = checks->keys();
   summary["stages"]["checks"] = keys;
   progress.done(check_detail(keys));
+  return checks;
+}
 
-  // 5. simulate: the plan executed in MuJoCo on the map's planning surface (a heightfield), its
-  // verdict added to plan.json as `plan --simulate` adds it.
+// 5. simulate: the plan executed in MuJoCo on the map's planning surface (a heightfield), its
+// verdict added to plan.json as `plan --simulate` adds it. The run's report when it ran.
+std::shared_ptr<simulation::SimulationReport> simulate_stage(const robot::RobotModel& model,
+                                                             const DemoMap& map,
+                                                             const fs::path& work,
+                                                             DemoPlan& plan, Progress& progress,
+                                                             json& summary) {
   progress.start("simulate", "MuJoCo, the plan on the map's surface as a heightfield");
+  planner::Trajectory& traj = plan.trajectory;
   auto simulation = std::make_shared<simulation::SimulationReport>();
   std::vector<std::string> sim_failures;
   try {
@@ -422,22 +431,62 @@ void run_demo(const DemoOptions& o) {
     simulation.reset();
     progress.done(sim_failures.empty() ? std::string() : sim_failures.front());
   }
+  return simulation;
+}
 
-  // 6. report
+// 6. report: HTML and JSON into `work`; the report's data.
+json report_stage(const report::TerrainView& view, const DemoPlan& plan,
+                  std::shared_ptr<collision::CheckReport> checks,
+                  std::shared_ptr<simulation::SimulationReport> simulation,
+                  const std::vector<std::string>& scan, const std::string& constraints,
+                  const fs::path& work, const fs::path& final_dir, Progress& progress) {
   progress.start("report", "self-contained HTML + JSON");
   report::PlanInput input;
   input.name = "plan.json";
   input.path = (final_dir / "plan.json").string();
-  input.trajectory = traj;
-  input.checks = checks;
-  input.simulation = simulation;
+  input.trajectory = plan.trajectory;
+  input.checks = std::move(checks);
+  input.simulation = std::move(simulation);
   report::ReportOptions ropts;
   ropts.title = "terrastride demo: " + fs::path(scan.front()).filename().string();
-  ropts.robot = traj.robot;
+  ropts.robot = plan.trajectory.robot;
   json rep = report::build_report(view, {input}, ropts);
   rep["demo"] = {{"scan", scan}, {"constraints", constraints}, {"stage_s", progress.timings()}};
   report::write_report(rep, (work / "report.html").string());
   progress.done("");
+  return rep;
+}
+
+void run_demo(const DemoOptions& o) {
+  const auto t_all = Clock::now();
+  const std::clock_t cpu0 = std::clock();
+  // Before any stage: an --out folder holding anything but an earlier demo, or an unwritable one,
+  // fails now rather than after the map and the solve.
+  try {
+    perception::check_output_dir(o.out, demo_output_kind());
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--out: ") + e.what());
+  }
+  Progress progress(6, o.json_output);
+  json summary{{"stages", json::object()}};
+  const std::vector<std::string> scan = scan_stage(o, progress);
+  summary["scan"] = scan;
+
+  // Everything goes into a temporary folder beside out/demo, renamed into place at the end.
+  fs::create_directories(fs::absolute(o.out).parent_path());
+  perception::AtomicOutputDir out_dir(o.out, demo_output_kind());
+  const fs::path work = out_dir.path();
+  const fs::path final_dir = o.out;
+  const DemoMap map = map_stage(scan, work / "terrain", progress, summary);
+  const std::string constraints = demo_constraints(o);
+  robot::RobotModel model;
+  DemoPlan plan =
+      plan_stage(o, map, work, final_dir, constraints, &model, progress, summary);
+  report::TerrainView view;
+  auto checks = checks_stage(model, map, plan.trajectory, final_dir, &view, progress, summary);
+  auto simulation = simulate_stage(model, map, work, plan, progress, summary);
+  const json rep = report_stage(view, plan, checks, simulation, scan, constraints, work, final_dir,
+                                progress);
   out_dir.commit();
 
   const fs::path html = final_dir / "report.html";
@@ -453,7 +502,7 @@ void run_demo(const DemoOptions& o) {
   if (o.json_output) {
     std::cout << summary.dump() << "\n";
   } else {
-    print_text_summary(rep, traj, model.foot_radius, total, cpu, html);
+    print_text_summary(rep, plan.trajectory, model.foot_radius, total, cpu, html);
   }
   if (!plan.problem.empty())
     throw CommandError(plan.exit_code == kExitNotOptimal

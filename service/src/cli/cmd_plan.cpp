@@ -140,11 +140,10 @@ robot::RobotModel plan_robot(const PlanCliOptions& o) {
   }
 }
 
-void run_plan(const PlanCliOptions& o) {
-  const robot::RobotModel model = plan_robot(o);
-  // The flags given become the request's fields, read by the socket's reader (plan_request.hpp):
-  // one set of checks, limits and defaults. Flags left out are left out, so a re-plan keeps
-  // what --init was planned with.
+// The flags given become the request's fields, read by the socket's reader (plan_request.hpp):
+// one set of checks, limits and defaults. Flags left out are left out, so a re-plan keeps what
+// --init was planned with.
+nlohmann::json request_fields(const PlanCliOptions& o) {
   nlohmann::json fields = {{"terrain", o.terrain}};
   if (o.given("--gait")) fields["gait"] = o.gait;
   if (o.given("--cycles")) fields["cycles"] = o.cycles;
@@ -172,14 +171,141 @@ void run_plan(const PlanCliOptions& o) {
   } catch (const std::runtime_error& e) {
     throw CommandError(std::string("--start-state: ") + e.what());
   }
+  return fields;
+}
+
+// The planner on the request, its errors named by the flags.
+planner::PlanOutcome solve_request(const robot::RobotModel& model, const TerrainSource& terrains,
+                                   const PlanRequest& req, const planner::WarmStart& warm,
+                                   const PlanCliOptions& o) {
+  serve_solver_workspace_from_heap();
+  try {
+    return planner::plan_motion(model, *terrains.smooth(), *terrains.exact(), req.options,
+                                req.sample_dt, warm);
+  } catch (const planner::GaitError& e) {
+    throw CommandError(std::string("--gait: ") + e.what());
+  } catch (const planner::RequestError& e) {
+    throw CommandError(cli_field(e.field(), o) + ": " + e.problem());
+  } catch (const std::invalid_argument& e) {
+    throw CommandError(e.what());
+  }
+}
+
+// The post-hoc checks (as `terrastride check` at its default resolution) judge every plan: a plan
+// that fails one is not a usable plan, whatever the solver says. Their failures.
+std::vector<std::string> post_hoc_failures(const robot::RobotModel& model,
+                                           const TerrainSource& terrains,
+                                           planner::Trajectory* trajectory) {
+  try {
+    return add_post_hoc_checks(
+        model,
+        check_terrain_for(terrains, model, *trajectory, kPostHocVoxel, /*require_octomap=*/false),
+        trajectory);
+  } catch (const collision::TrajectoryError& e) {
+    return {std::string("the post-hoc checks could not read the plan: ") + e.what()};
+  }
+}
+
+// A re-plan's inputs, in the plan: the files it started from and the corrections of its
+// start state's stance feet.
+void record_replan_inputs(const PlanCliOptions& o, const planner::WarmStart& warm,
+                          const nlohmann::json& stance_corrections,
+                          planner::Trajectory* trajectory) {
+  trajectory->extra["init"] = o.init;
+  trajectory->extra["start_time"] = o.start_time;
+  if (warm.start) trajectory->extra["start_state"] = o.start_state;
+  if (!stance_corrections.empty())
+    trajectory->extra["start_state_corrections"] = stance_corrections;
+}
+
+// --out: atomic for files (through symbolic links), written through for pipes and devices; the
+// samples as serialised on the second core.
+void write_plan(const PlanCliOptions& o, const planner::Trajectory& trajectory,
+                std::future<planner::SerialisedSamples>& samples_text) {
+  try {
+    std::cout.flush();
+    const planner::SerialisedSamples samples = samples_text.get();
+    planner::write_plan_file(o.out, trajectory, &samples);
+  } catch (const std::exception& e) {
+    throw CommandError(std::string("--out: ") + e.what());
+  }
+}
+
+// The summary, as --json prints it.
+nlohmann::json plan_summary(const planner::PlanOutcome& out,
+                            const std::vector<std::string>& failures,
+                            const nlohmann::json& simulation, bool useful,
+                            const PlanCliOptions& o) {
+  const planner::Trajectory& traj = out.trajectory;
+  nlohmann::json summary = {{"status", traj.solver.status},
+                            {"iterations", traj.solver.iterations},
+                            {"wall_s", traj.solver.wall_s},
+                            {"n_variables", traj.solver.n_variables},
+                            {"n_constraints", traj.solver.n_constraints},
+                            {"max_violation", out.solve.max_violation},
+                            {"checks", traj.checks},
+                            {"checks_passed", failures.empty()},
+                            {"failures", failures},
+                            {"simulation", simulation},
+                            {"written", useful ? o.out : ""}};
+  // A cold solve that failed with the path-shape rows and was solved again without them.
+  const nlohmann::json shape_fallback = traj.extra.value("path_shape_fallback", nlohmann::json());
+  if (!shape_fallback.is_null()) summary["path_shape_fallback"] = shape_fallback;
+  return summary;
+}
+
+// The summary for people.
+void print_plan_summary(std::ostream& summary_out, const planner::Trajectory& traj,
+                        const std::vector<std::string>& failures,
+                        const nlohmann::json& simulation, bool useful, const PlanCliOptions& o) {
+  summary_out << "plan: " << traj.solver.status << " after " << traj.solver.iterations
+              << " iterations in " << traj.solver.wall_s << " s (" << traj.solver.n_variables
+              << " variables, " << traj.solver.n_constraints << " constraints)\n";
+  const nlohmann::json shape_fallback = traj.extra.value("path_shape_fallback", nlohmann::json());
+  if (!shape_fallback.is_null())
+    summary_out << "  path shape: the solve with the path-shape rows ended '"
+                << shape_fallback["shaped_status"].get<std::string>() << "' after "
+                << shape_fallback["shaped_iterations"].get<int>()
+                << " iterations (counted above); solved again without them\n";
+  for (const auto& [k, v] : traj.checks) summary_out << "  " << k << " = " << v << "\n";
+  if (simulation.contains("verdict")) {
+    summary_out << "  simulation: " << simulation["verdict"].get<std::string>();
+    for (const auto& why : simulation["reasons"]) summary_out << "; " << why.get<std::string>();
+    summary_out << "\n";
+  }
+  for (const auto& f : failures) summary_out << "  FAILED: " << f << "\n";
+  if (useful) summary_out << "wrote " << o.out << "\n";
+}
+
+// The exit: 3 when the solver's plan is not optimal, kExitChecksFailed when it fails a post-hoc
+// check (or the simulation), 0 otherwise.
+void throw_plan_problems(const planner::PlanOutcome& out, const std::vector<std::string>& failures,
+                         bool useful, const PlanCliOptions& o) {
+  if (out.trajectory.solver.status != "optimal") {
+    std::string msg = out.message.empty() ? "status " + out.trajectory.solver.status : out.message;
+    // The planner's message names the constraint families still violated, their feet and times.
+    msg += useful ? "; the plan was written to " + o.out + " for inspection" : "; no plan written";
+    throw CommandError(msg, 3);
+  }
+  if (!failures.empty()) {
+    std::string msg = "the solver's plan fails " + std::to_string(failures.size()) +
+                      " post-hoc check" + (failures.size() > 1 ? "s" : "") + ": ";
+    for (std::size_t i = 0; i < failures.size(); ++i) msg += (i ? "; " : "") + failures[i];
+    throw CommandError(msg + "; the plan was written to " + o.out + " for inspection",
+                       kExitChecksFailed);
+  }
+}
+
+void run_plan(const PlanCliOptions& o) {
+  const robot::RobotModel model = plan_robot(o);
+  const nlohmann::json fields = request_fields(o);
   PlanRequest req;
   try {
     req = read_plan_request(fields, model);
   } catch (const RequestFieldError& e) {
     throw CommandError(cli_field(e.field(), o) + ": " + cli_text(e.problem()));
   }
-  planner::PlannerOptions& po = req.options;
-  po.verbose = o.verbose;
+  req.options.verbose = o.verbose;
   const planner::WarmStart warm = req.warm_start();
   const TerrainSource terrains =
       load_terrain_source(o.terrain, /*smooth_scene=*/true,
@@ -205,18 +331,7 @@ void run_plan(const PlanCliOptions& o) {
   std::ostream& summary_out =
       perception::same_file_as_descriptor(o.out, STDOUT_FILENO) ? std::cerr : std::cout;
 
-  planner::PlanOutcome out;
-  serve_solver_workspace_from_heap();
-  try {
-    out = planner::plan_motion(model, *terrains.smooth(), *terrains.exact(), po, req.sample_dt,
-                               warm);
-  } catch (const planner::GaitError& e) {
-    throw CommandError(std::string("--gait: ") + e.what());
-  } catch (const planner::RequestError& e) {
-    throw CommandError(cli_field(e.field(), o) + ": " + e.problem());
-  } catch (const std::invalid_argument& e) {
-    throw CommandError(e.what());
-  }
+  planner::PlanOutcome out = solve_request(model, terrains, req, warm, o);
   out.trajectory.extra["terrain"] = o.terrain;
   return_free_heap_pages();
   // The samples are final: serialise them (two thirds of plan.json) on the second core while
@@ -226,29 +341,11 @@ void run_plan(const PlanCliOptions& o) {
       std::async(std::launch::async, [&samples = out.trajectory.samples] {
         return planner::serialise_samples(samples);
       });
-  // The post-hoc checks (as `terrastride check` at its default resolution) judge every plan: a
-  // plan that fails one is not a usable plan, whatever the solver says.
-  std::vector<std::string> failures;
-  try {
-    failures = add_post_hoc_checks(
-        model,
-        check_terrain_for(terrains, model, out.trajectory, kPostHocVoxel,
-                          /*require_octomap=*/false),
-        &out.trajectory);
-  } catch (const collision::TrajectoryError& e) {
-    failures = {std::string("the post-hoc checks could not read the plan: ") + e.what()};
-  }
-  if (warm.previous) {
-    out.trajectory.extra["init"] = o.init;
-    out.trajectory.extra["start_time"] = o.start_time;
-    if (warm.start) out.trajectory.extra["start_state"] = o.start_state;
-    if (!stance_corrections.empty())
-      out.trajectory.extra["start_state_corrections"] = stance_corrections;
-  }
-  const double violation = out.solve.max_violation;
+  std::vector<std::string> failures = post_hoc_failures(model, terrains, &out.trajectory);
+  if (warm.previous) record_replan_inputs(o, warm, stance_corrections, &out.trajectory);
   // A non-optimal plan is still written when it nearly satisfies every constraint (useful as a
   // warm start or for inspection); the exit code says it is not optimal either way.
-  const bool useful = out.success || violation <= 1e-3;
+  const bool useful = out.success || out.solve.max_violation <= 1e-3;
   // --simulate: MuJoCo executes the plan on the exact terrain (a scene's boxes, a map's planning
   // surface); a "fail" verdict is a post-hoc failure (exit 4), a "warn" is reported only.
   if (o.simulate && useful && !out.trajectory.samples.empty()) {
@@ -256,68 +353,15 @@ void run_plan(const PlanCliOptions& o) {
                                           &out.trajectory);
     failures.insert(failures.end(), sim.begin(), sim.end());
   }
-  if (useful) {
-    // Atomic for files (through symbolic links), written through for pipes and devices.
-    try {
-      std::cout.flush();
-      const planner::SerialisedSamples samples = samples_text.get();
-      planner::write_plan_file(o.out, out.trajectory, &samples);
-    } catch (const std::exception& e) {
-      throw CommandError(std::string("--out: ") + e.what());
-    }
-  }
+  if (useful) write_plan(o, out.trajectory, samples_text);
   const nlohmann::json post_hoc = out.trajectory.extra.value("post_hoc", nlohmann::json());
   const nlohmann::json simulation =
       post_hoc.is_object() ? post_hoc.value("simulation", nlohmann::json()) : nlohmann::json();
-  nlohmann::json summary = {{"status", out.trajectory.solver.status},
-                            {"iterations", out.trajectory.solver.iterations},
-                            {"wall_s", out.trajectory.solver.wall_s},
-                            {"n_variables", out.trajectory.solver.n_variables},
-                            {"n_constraints", out.trajectory.solver.n_constraints},
-                            {"max_violation", violation},
-                            {"checks", out.trajectory.checks},
-                            {"checks_passed", failures.empty()},
-                            {"failures", failures},
-                            {"simulation", simulation},
-                            {"written", useful ? o.out : ""}};
-  // A cold solve that failed with the path-shape rows and was solved again without them.
-  const nlohmann::json shape_fallback =
-      out.trajectory.extra.value("path_shape_fallback", nlohmann::json());
-  if (!shape_fallback.is_null()) summary["path_shape_fallback"] = shape_fallback;
-  if (o.json) {
-    summary_out << summary.dump() << "\n";
-  } else {
-    summary_out << "plan: " << out.trajectory.solver.status << " after "
-                << out.trajectory.solver.iterations << " iterations in "
-                << out.trajectory.solver.wall_s << " s (" << out.trajectory.solver.n_variables
-                << " variables, " << out.trajectory.solver.n_constraints << " constraints)\n";
-    if (!shape_fallback.is_null())
-      summary_out << "  path shape: the solve with the path-shape rows ended '"
-                  << shape_fallback["shaped_status"].get<std::string>() << "' after "
-                  << shape_fallback["shaped_iterations"].get<int>()
-                  << " iterations (counted above); solved again without them\n";
-    for (const auto& [k, v] : out.trajectory.checks) summary_out << "  " << k << " = " << v << "\n";
-    if (simulation.contains("verdict")) {
-      summary_out << "  simulation: " << simulation["verdict"].get<std::string>();
-      for (const auto& why : simulation["reasons"]) summary_out << "; " << why.get<std::string>();
-      summary_out << "\n";
-    }
-    for (const auto& f : failures) summary_out << "  FAILED: " << f << "\n";
-    if (useful) summary_out << "wrote " << o.out << "\n";
-  }
-  if (out.trajectory.solver.status != "optimal") {
-    std::string msg = out.message.empty() ? "status " + out.trajectory.solver.status : out.message;
-    // The planner's message names the constraint families still violated, their feet and times.
-    msg += useful ? "; the plan was written to " + o.out + " for inspection" : "; no plan written";
-    throw CommandError(msg, 3);
-  }
-  if (!failures.empty()) {
-    std::string msg = "the solver's plan fails " + std::to_string(failures.size()) +
-                      " post-hoc check" + (failures.size() > 1 ? "s" : "") + ": ";
-    for (std::size_t i = 0; i < failures.size(); ++i) msg += (i ? "; " : "") + failures[i];
-    throw CommandError(msg + "; the plan was written to " + o.out + " for inspection",
-                       kExitChecksFailed);
-  }
+  if (o.json)
+    summary_out << plan_summary(out, failures, simulation, useful, o).dump() << "\n";
+  else
+    print_plan_summary(summary_out, out.trajectory, failures, simulation, useful, o);
+  throw_plan_problems(out, failures, useful, o);
 }
 
 }  // namespace

@@ -265,16 +265,8 @@ void check_closed_loop_options(const SimulateCliOptions& o) {
     throw CommandError("--replan-budget: must be within [0, 60000] ms (0 = wait for each solve)");
 }
 
-void run_simulate(const SimulateCliOptions& o) {
-  if (!o.out.empty()) {
-    try {
-      perception::check_output_file(o.out);
-    } catch (const perception::InputError& e) {
-      throw CommandError(std::string("--out: ") + e.what());
-    }
-  }
-  simulation::SimulationOptions sim = simulation_options_from(o);
-  check_closed_loop_options(o);
+// --via: in-process or a server's address (with its timeouts); true for a server.
+bool check_via(const SimulateCliOptions& o) {
   const bool via_socket = o.via.rfind("tcp://", 0) == 0 || o.via.rfind("unix:", 0) == 0;
   if (o.via != "in-process" && !via_socket)
     throw CommandError("--via " + o.via + ": must be in-process, tcp://HOST:PORT or unix:PATH");
@@ -289,55 +281,116 @@ void run_simulate(const SimulateCliOptions& o) {
       throw CommandError("--via " + o.via + ": " + e.what());
     }
   }
-  PlanWithRobot loaded = read_plan_with_robot(o.plan, o.robot);
-  const planner::Trajectory& traj = loaded.trajectory;
-  const robot::RobotModel& model = loaded.robot;
+  return via_socket;
+}
+
+// --terrain: a scene (its exact boxes) or a map folder (its surface as a heightfield).
+std::unique_ptr<terrain::HeightField> simulated_terrain(const SimulateCliOptions& o) {
   const bool is_scene = terrain::is_scene_name(o.terrain);
   if (!is_scene && !std::filesystem::is_directory(o.terrain))
     throw CommandError("--terrain " + o.terrain +
                        ": neither a terrain directory from 'terrastride map' nor a scene name (" +
                        terrain::scene_names_text() + ")");
-  std::unique_ptr<terrain::HeightField> terrain;
-  if (is_scene) {
-    terrain = terrain::make_scene(o.terrain);
-  } else {
+  if (is_scene) return terrain::make_scene(o.terrain);
+  try {
+    return terrain::load_terrain_dir(o.terrain);
+  } catch (const perception::InputError& e) {
+    throw CommandError("--terrain " + o.terrain + ": " + e.what());
+  }
+}
+
+void check_margin_options(const SimulateCliOptions& o) {
+  if (!o.margin) return;
+  if (!std::isfinite(o.margin_push_time) || o.margin_push_time < 0 || o.margin_push_time >= 1)
+    throw CommandError("--margin-push-time: must be in [0, 1)");
+  if (!std::isfinite(o.margin_push_duration) || o.margin_push_duration <= 0 ||
+      o.margin_push_duration > 2)
+    throw CommandError("--margin-push-duration: must be in (0, 2] s");
+}
+
+// Closed loop: the re-planner in this process (the plan's options, planning on the 2 cm
+// B-spline of a scene or the map's own field, checking on the exact terrain, as `plan` does) or
+// through a server. The in-process one plans on `replan_terrain`, which must outlive the run.
+void add_replanner(const SimulateCliOptions& o, const planner::Trajectory& traj,
+                   const robot::RobotModel& model, bool via_socket,
+                   simulation::SimulationOptions* sim,
+                   std::unique_ptr<TerrainSource>* replan_terrain) {
+  if (!(o.replan_every > 0)) return;
+  sim->replan_every = o.replan_every;
+  sim->replan_latency = o.replan_latency;
+  if (via_socket) {
+    sim->replanner = socket_replanner(o, traj);
+    return;
+  }
+  *replan_terrain = std::make_unique<TerrainSource>(
+      load_terrain_source(o.terrain, /*smooth_scene=*/true, "not a terrain directory"));
+  PlanRequest req;
+  try {
+    req = read_plan_request({{"terrain", o.terrain}, {"init", planner::plan_to_json(traj)}},
+                            model);
+  } catch (const RequestFieldError& e) {
+    throw CommandError(o.plan + ": as a re-planning session's reference: " + e.what());
+  }
+  sim->replanner = simulation::session_replanner(
+      model, *(*replan_terrain)->smooth(), *(*replan_terrain)->exact(), req.options, traj,
+      o.horizon, req.sample_dt, 1e-3 * o.replan_budget_ms, o.replan_budget_iterations);
+}
+
+// --margin: the robustness margin's search (its runs repeat the plan some 50 times, bisections on
+// the verdict), as JSON.
+json search_margin(const SimulateCliOptions& o, const robot::RobotModel& model,
+                   const planner::Trajectory& traj, const terrain::HeightField& terrain,
+                   const simulation::SimulationOptions& sim) {
+  simulation::MarginOptions mo;
+  mo.push_time_fraction = o.margin_push_time;
+  mo.push_duration = o.margin_push_duration;
+  const bool tty = isatty(STDERR_FILENO) && !o.json;
+  if (tty) std::cerr << "searching the robustness margin (about 50 runs) ..." << std::flush;
+  json margin;
+  try {
+    margin = margin_json(simulation::simulation_margin(model, traj, terrain, sim, mo));
+  } catch (const simulation::SimulationError& e) {
+    if (tty) std::cerr << "\n";
+    throw CommandError("--margin: " + std::string(e.what()));
+  } catch (const ClientError& e) {
+    if (tty) std::cerr << "\n";
+    throw CommandError("--margin: --via " + o.via + ": " + e.what());
+  }
+  if (tty) std::cerr << "\r" << std::string(52, ' ') << "\r" << std::flush;
+  return margin;
+}
+
+// --out: the summary and the run's samples.
+void write_simulation_file(const SimulateCliOptions& o, const json& summary,
+                           const simulation::SimulationReport& rep,
+                           const robot::RobotModel& model) {
+  json full = summary;
+  full["samples"] = simulation_samples_json(rep, model);
+  try {
+    perception::write_file_atomically(o.out, full.dump() + "\n");
+  } catch (const perception::InputError& e) {
+    throw CommandError(std::string("--out: ") + e.what());
+  }
+}
+
+void run_simulate(const SimulateCliOptions& o) {
+  if (!o.out.empty()) {
     try {
-      terrain = terrain::load_terrain_dir(o.terrain);
+      perception::check_output_file(o.out);
     } catch (const perception::InputError& e) {
-      throw CommandError("--terrain " + o.terrain + ": " + e.what());
+      throw CommandError(std::string("--out: ") + e.what());
     }
   }
-  if (o.margin) {
-    if (!std::isfinite(o.margin_push_time) || o.margin_push_time < 0 || o.margin_push_time >= 1)
-      throw CommandError("--margin-push-time: must be in [0, 1)");
-    if (!std::isfinite(o.margin_push_duration) || o.margin_push_duration <= 0 ||
-        o.margin_push_duration > 2)
-      throw CommandError("--margin-push-duration: must be in (0, 2] s");
-  }
-  // Closed loop: the re-planner in this process (the plan's options, planning on the 2 cm
-  // B-spline of a scene or the map's own field, checking on the exact terrain, as `plan` does) or
-  // through a server.
+  simulation::SimulationOptions sim = simulation_options_from(o);
+  check_closed_loop_options(o);
+  const bool via_socket = check_via(o);
+  PlanWithRobot loaded = read_plan_with_robot(o.plan, o.robot);
+  const planner::Trajectory& traj = loaded.trajectory;
+  const robot::RobotModel& model = loaded.robot;
+  const std::unique_ptr<terrain::HeightField> terrain = simulated_terrain(o);
+  check_margin_options(o);
   std::unique_ptr<TerrainSource> replan_terrain;
-  if (o.replan_every > 0) {
-    sim.replan_every = o.replan_every;
-    sim.replan_latency = o.replan_latency;
-    if (via_socket) {
-      sim.replanner = socket_replanner(o, traj);
-    } else {
-      replan_terrain = std::make_unique<TerrainSource>(
-          load_terrain_source(o.terrain, /*smooth_scene=*/true, "not a terrain directory"));
-      PlanRequest req;
-      try {
-        req = read_plan_request({{"terrain", o.terrain}, {"init", planner::plan_to_json(traj)}},
-                                model);
-      } catch (const RequestFieldError& e) {
-        throw CommandError(o.plan + ": as a re-planning session's reference: " + e.what());
-      }
-      sim.replanner = simulation::session_replanner(
-          model, *replan_terrain->smooth(), *replan_terrain->exact(), req.options, traj, o.horizon,
-          req.sample_dt, 1e-3 * o.replan_budget_ms, o.replan_budget_iterations);
-    }
-  }
+  add_replanner(o, traj, model, via_socket, &sim, &replan_terrain);
   simulation::SimulationReport rep;
   try {
     rep = simulation::simulate_plan(model, traj, *terrain, sim);
@@ -348,33 +401,8 @@ void run_simulate(const SimulateCliOptions& o) {
   }
   json summary = simulation_summary_json(rep, model);
   summary["plan"] = o.plan;
-  if (o.margin) {
-    // The margin's runs repeat the plan some 50 times (bisections on the verdict).
-    simulation::MarginOptions mo;
-    mo.push_time_fraction = o.margin_push_time;
-    mo.push_duration = o.margin_push_duration;
-    const bool tty = isatty(STDERR_FILENO) && !o.json;
-    if (tty) std::cerr << "searching the robustness margin (about 50 runs) ..." << std::flush;
-    try {
-      summary["margin"] = margin_json(simulation::simulation_margin(model, traj, *terrain, sim, mo));
-    } catch (const simulation::SimulationError& e) {
-      if (tty) std::cerr << "\n";
-      throw CommandError("--margin: " + std::string(e.what()));
-    } catch (const ClientError& e) {
-      if (tty) std::cerr << "\n";
-      throw CommandError("--margin: --via " + o.via + ": " + e.what());
-    }
-    if (tty) std::cerr << "\r" << std::string(52, ' ') << "\r" << std::flush;
-  }
-  if (!o.out.empty()) {
-    json full = summary;
-    full["samples"] = simulation_samples_json(rep, model);
-    try {
-      perception::write_file_atomically(o.out, full.dump() + "\n");
-    } catch (const perception::InputError& e) {
-      throw CommandError(std::string("--out: ") + e.what());
-    }
-  }
+  if (o.margin) summary["margin"] = search_margin(o, model, traj, *terrain, sim);
+  if (!o.out.empty()) write_simulation_file(o, summary, rep, model);
   if (o.json) {
     std::cout << summary.dump() << "\n";
   } else {

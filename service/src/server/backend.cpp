@@ -145,6 +145,45 @@ std::string Backend::terrain_dir_path(const std::string& requested,
                                            "terrain roots");
 }
 
+terrain::OpenedTerrain Backend::open_terrain_dir(const std::string& requested,
+                                                const std::string& field, bool octomap) const {
+  const std::string path = terrain_dir_path(requested, field);
+  terrain::TerrainOpenOptions options;
+  options.folder_octomap = octomap;
+  try {
+    return terrain::open_terrain({path}, options);
+  } catch (const terrain::TerrainOpenError& e) {
+    // The readers' own words (they name the file), as the operations have always replied.
+    const std::string what = e.what();
+    throw perception::InputError(e.input().empty() ? what : what.substr(e.input().size() + 2));
+  }
+}
+
+RequestTerrain Backend::request_terrain(const std::string& spec, const std::string& op,
+                                        bool smooth) {
+  RequestTerrain t;
+  if (spec == "current") {
+    t.snapshot = map();
+    if (!t.snapshot) throw ProtocolError(pc::kNoMap, op + " on \"current\": no map loaded");
+    t.exact = t.smooth = t.snapshot->field.get();
+    // A published scene is planned on its raster ("scene:NAME"), checked on its exact boxes.
+    if (smooth && dynamic_cast<const terrain::Scene*>(t.exact)) {
+      t.raster = scene_raster(t.snapshot->source.substr(t.snapshot->source.find(':') + 1));
+      t.smooth = t.raster->smooth.get();
+    }
+  } else if (terrain::is_scene_name(spec)) {
+    // By name, never through the file system: a file of a scene's name in the server's folder is
+    // outside its terrain roots.
+    t.raster = scene_raster(spec);
+    t.smooth = t.raster->smooth.get();
+    t.exact = t.raster->scene.get();
+  } else {
+    t.folder = open_terrain_dir(spec, "terrain", /*octomap=*/false);
+    t.smooth = t.exact = t.folder.map.get();
+  }
+  return t;
+}
+
 std::vector<double> Backend::radii_from(const json& h) const {
   std::vector<double> radii{robot_.foot_radius};
   const auto it = h.find("foot_radii");

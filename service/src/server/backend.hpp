@@ -25,6 +25,7 @@
 #include "terrastride/terrain/height_field.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
+#include "terrastride/terrain/terrain_open.hpp"
 
 namespace terrastride::service {
 
@@ -60,7 +61,18 @@ struct CloudHistory {
 constexpr std::size_t kSceneRasterCacheEntries = 8;
 struct SceneRaster {
   std::shared_ptr<const terrain::Scene> scene;
-  std::unique_ptr<terrain::TerrainMap> smooth;
+  std::shared_ptr<const terrain::TerrainMap> smooth;
+};
+
+// The terrain a request names, as the operations open it (Backend::request_terrain): "current"
+// (the published map), a scene name or a terrain directory under the server's roots. Holds what
+// the fields live in.
+struct RequestTerrain {
+  std::shared_ptr<const MapSnapshot> snapshot;  // "current": the published map, kept alive
+  std::shared_ptr<const SceneRaster> raster;    // a scene (or a published one, when planned on)
+  terrain::OpenedTerrain folder;                // a terrain directory (folder.spec: its real path)
+  const terrain::HeightField* smooth = nullptr;  // what the optimiser plans on (C2), when asked
+  const terrain::HeightField* exact = nullptr;   // what the checks and the simulation judge on
 };
 
 class Backend {
@@ -96,6 +108,16 @@ class Backend {
   // (after resolving symlinks and ".."), and named relative to it or absolutely. `field` names the
   // request field in errors.
   std::string terrain_dir_path(const std::string& requested, const std::string& field) const;
+  // A terrain directory a client names, confined as terrain_dir_path and opened by
+  // terrain::open_terrain (its octomap.bt too when `octomap` and the folder has one). A folder it
+  // cannot read is a perception::InputError naming the file, as the terrain readers word it.
+  terrain::OpenedTerrain open_terrain_dir(const std::string& requested, const std::string& field,
+                                          bool octomap) const;
+  // The terrain in a request's "terrain": "current" (no_map, naming `op`, when none is
+  // published), a scene name (through the raster cache) or a terrain directory
+  // (open_terrain_dir, without its OctoMap: the post-hoc checks read it). `smooth`: the optimiser's
+  // field is needed too (a published scene's raster).
+  RequestTerrain request_terrain(const std::string& spec, const std::string& op, bool smooth);
   // Extra safety-layer radii to precompute ("foot_radii": [r, ...]); the robot's is always there.
   std::vector<double> radii_from(const nlohmann::json& header) const;
 

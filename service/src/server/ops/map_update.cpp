@@ -272,32 +272,25 @@ OpResult map_update(Backend& backend, OpContext& ctx) {
   } else if (has_dir) {
     const std::string dir = protocol::get_string(h, "terrain_dir", std::nullopt);
     const auto t0 = std::chrono::steady_clock::now();
-    const std::string dir_path = backend.terrain_dir_path(dir, "terrain_dir");
-    std::unique_ptr<terrain::TerrainMap> tm;
+    // The map and the scan's occupancy map, when the folder has one (`terrastride map` writes
+    // it), for the post-hoc leg and trunk checks; without it a plan's capsules and trunk are not
+    // checked (as `terrastride plan --terrain DIR`), which its post_hoc.terrain says.
+    terrain::OpenedTerrain opened;
     try {
-      tm = terrain::load_terrain_dir(dir_path);
+      opened = backend.open_terrain_dir(dir, "terrain_dir", /*octomap=*/true);
     } catch (const perception::InputError& e) {
       throw ProtocolError(pc::kBadRequest, std::string("\"terrain_dir\": ") + e.what());
     }
+    const std::shared_ptr<const terrain::TerrainMap> tm = opened.map;
     for (double r : backend.radii_from(h)) tm->layer(r);
-    // The scan's occupancy map, when the folder has one (`terrastride map` writes it), for the
-    // post-hoc leg and trunk checks; without it a plan's capsules and trunk are not checked
-    // (as `terrastride plan --terrain DIR`), which its post_hoc.terrain says.
-    const std::string bt = (std::filesystem::path(dir_path) / "octomap.bt").string();
-    if (std::filesystem::exists(bt)) {
-      try {
-        next->octree = collision::read_octomap(bt);
-      } catch (const std::runtime_error& e) {
-        throw ProtocolError(pc::kBadRequest, std::string("\"terrain_dir\": ") + e.what());
-      }
-    }
+    next->octree = opened.octree;
     backend.clouds().clear();
     next->source = "terrain_dir:" + dir;
     next->stats = grid_stats(*tm);
     next->stats["octomap_resolution"] =
         next->octree ? json(next->octree->getResolution()) : json(nullptr);
     next->stats["load_s"] = seconds_since(t0);
-    next->field = std::move(tm);
+    next->field = tm;
   } else {
     FusedMap fused = fuse_cloud(backend, ctx, std::move(*cloud), mode);
     next->stats = std::move(fused.stats);

@@ -108,27 +108,11 @@ void refuse_what_cannot_finish(const planner::Trajectory& plan, double dt, bool 
                      " s a simulate request may run: raise dt, shorten the plan or drop margin");
 }
 
-// The terrain, as `plan` resolves it; a scene (or a published scene) runs on its exact boxes.
-// `keep` holds what the returned field lives in.
-struct SimulatedTerrain {
-  std::shared_ptr<const MapSnapshot> snapshot;
-  std::shared_ptr<const SceneRaster> raster;
-  std::unique_ptr<terrain::TerrainMap> map;
-  const terrain::HeightField* field = nullptr;
-};
-void load_terrain(Backend& backend, const std::string& spec, SimulatedTerrain* t) {
+// The terrain, as `plan` opens it (Backend::request_terrain); a scene (or a published scene) runs
+// on its exact boxes.
+RequestTerrain load_terrain(Backend& backend, const std::string& spec) {
   try {
-    if (spec == "current") {
-      t->snapshot = backend.map();
-      if (!t->snapshot) throw ProtocolError(pc::kNoMap, "simulate on \"current\": no map loaded");
-      t->field = t->snapshot->field.get();
-    } else if (terrain::is_scene_name(spec)) {
-      t->raster = backend.scene_raster(spec);
-      t->field = t->raster->scene.get();
-    } else {
-      t->map = terrain::load_terrain_dir(backend.terrain_dir_path(spec, "terrain"));
-      t->field = t->map.get();
-    }
+    return backend.request_terrain(spec, "simulate", /*smooth=*/false);
   } catch (const perception::InputError& e) {
     throw ProtocolError(pc::kBadRequest, "\"terrain\" " + spec + ": " + e.what());
   }
@@ -156,18 +140,18 @@ OpResult simulate(Backend& backend, OpContext& ctx) {
   options.stop_requested = [token = ctx.token, wall_limit] {
     return token->stop_requested() || std::chrono::steady_clock::now() >= wall_limit;
   };
-  SimulatedTerrain terrain;
-  load_terrain(backend, protocol::get_string(h, "terrain", std::string("current")), &terrain);
+  const RequestTerrain terrain =
+      load_terrain(backend, protocol::get_string(h, "terrain", std::string("current")));
   ctx.check_stop();
   OpResult r;
   try {
     const simulation::SimulationReport rep =
-        simulation::simulate_plan(model, traj, *terrain.field, options);
+        simulation::simulate_plan(model, traj, *terrain.exact, options);
     r.result = simulation_summary_json(rep, model);
     if (with_samples) r.result["samples"] = simulation_samples_json(rep, model);
     if (margin)
       r.result["margin"] =
-          margin_json(simulation::simulation_margin(model, traj, *terrain.field, options, {}));
+          margin_json(simulation::simulation_margin(model, traj, *terrain.exact, options, {}));
   } catch (const simulation::SimulationCancelled& e) {
     ctx.check_stop();  // the token's reason as the protocol's error
     throw ProtocolError(pc::kTimeout, "simulate: stopped after " + number_text(kMaxWallSeconds) +
