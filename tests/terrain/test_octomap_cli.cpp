@@ -61,6 +61,42 @@ TEST(OctomapCli, PlanOnAnOctomapFile) {
   if (r.code == 4) EXPECT_NE(r.err.find("post-hoc check"), std::string::npos) << r.err;
 }
 
+// `simulate --terrain X.bt` runs on the map the OctoMap gives, as `simulate --terrain DIR` runs on
+// the folder `map X.bt` writes: one terrain opening for every command.
+TEST(OctomapCli, SimulateOnAnOctomapFileIsTheRunOnItsMap) {
+  const fs::path dir = fs::temp_directory_path() / ("terrastride_octomap_sim_" +
+                                                    std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const auto run = [](const std::string& args) {
+    return terrastride::test_support::run_terrastride(args);
+  };
+  const std::string plan = (dir / "plan.json").string();
+  auto r = run("plan --terrain " + fixture() + " --start 0.1,0,0 --goal 0.3,0,0 --out " + plan);
+  ASSERT_TRUE(r.code == 0 || r.code == 4) << r.err;
+  r = run("map " + fixture() + " --out " + (dir / "map").string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  r = run("simulate " + plan + " --terrain " + fixture() + " --json --out " +
+          (dir / "sim_bt.json").string());
+  ASSERT_NE(r.code, 1) << r.err;
+  const auto on_file = nlohmann::json::parse(r.out);
+  r = run("simulate " + plan + " --terrain " + (dir / "map").string() + " --json --out " +
+          (dir / "sim_dir.json").string());
+  ASSERT_NE(r.code, 1) << r.err;
+  const auto on_folder = nlohmann::json::parse(r.out);
+  EXPECT_EQ(on_file["verdict"], on_folder["verdict"]);
+  EXPECT_EQ(on_file["position_error_rms_m"], on_folder["position_error_rms_m"]);
+  EXPECT_EQ(on_file["heightfield_filled_cells"], on_folder["heightfield_filled_cells"]);
+  EXPECT_EQ(on_file["steps"], on_folder["steps"]);
+  // A cloud is not a terrain to simulate on: the error says how to make one.
+  r = run("simulate " + plan + " --terrain " + std::string(TERRASTRIDE_SOURCE_DIR) +
+          "/data/scans/flat.pcd --out " + (dir / "never.json").string());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("terrastride map"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir / "never.json"));
+  fs::remove_all(dir);
+}
+
 // A corrupt OctoMap, given as the map input or as a terrain folder's octomap.bt, is exit 1 with an
 // error naming the file: a body of 0xFF bytes made OctoMap's recursive reader overflow the stack
 // (exit 139) in `map`, and in `plan`, `check`, `report` and `export` with `--terrain DIR`.

@@ -284,19 +284,12 @@ bool check_via(const SimulateCliOptions& o) {
   return via_socket;
 }
 
-// --terrain: a scene (its exact boxes) or a map folder (its surface as a heightfield).
-std::unique_ptr<terrain::HeightField> simulated_terrain(const SimulateCliOptions& o) {
-  const bool is_scene = terrain::is_scene_name(o.terrain);
-  if (!is_scene && !std::filesystem::is_directory(o.terrain))
-    throw CommandError("--terrain " + o.terrain +
-                       ": neither a terrain directory from 'terrastride map' nor a scene name (" +
-                       terrain::scene_names_text() + ")");
-  if (is_scene) return terrain::make_scene(o.terrain);
-  try {
-    return terrain::load_terrain_dir(o.terrain);
-  } catch (const perception::InputError& e) {
-    throw CommandError("--terrain " + o.terrain + ": " + e.what());
-  }
+// --terrain: a scene (its exact boxes), a map folder or an OctoMap (the map's surface as a
+// heightfield), opened as every command opens a terrain (terrain::open_terrain).
+TerrainSource simulated_terrain(const SimulateCliOptions& o) {
+  return load_terrain_source(o.terrain, /*smooth_scene=*/false,
+                             "point clouds are not simulated on directly; run 'terrastride map " +
+                                 o.terrain + " --out DIR' and pass --terrain DIR");
 }
 
 void check_margin_options(const SimulateCliOptions& o) {
@@ -387,13 +380,14 @@ void run_simulate(const SimulateCliOptions& o) {
   PlanWithRobot loaded = read_plan_with_robot(o.plan, o.robot);
   const planner::Trajectory& traj = loaded.trajectory;
   const robot::RobotModel& model = loaded.robot;
-  const std::unique_ptr<terrain::HeightField> terrain = simulated_terrain(o);
+  const TerrainSource terrain_source = simulated_terrain(o);
+  const terrain::HeightField& terrain = *terrain_source.exact();
   check_margin_options(o);
   std::unique_ptr<TerrainSource> replan_terrain;
   add_replanner(o, traj, model, via_socket, &sim, &replan_terrain);
   simulation::SimulationReport rep;
   try {
-    rep = simulation::simulate_plan(model, traj, *terrain, sim);
+    rep = simulation::simulate_plan(model, traj, terrain, sim);
   } catch (const simulation::SimulationError& e) {
     throw CommandError(o.plan + ": " + e.what());
   } catch (const ClientError& e) {
@@ -401,7 +395,7 @@ void run_simulate(const SimulateCliOptions& o) {
   }
   json summary = simulation_summary_json(rep, model);
   summary["plan"] = o.plan;
-  if (o.margin) summary["margin"] = search_margin(o, model, traj, *terrain, sim);
+  if (o.margin) summary["margin"] = search_margin(o, model, traj, terrain, sim);
   if (!o.out.empty()) write_simulation_file(o, summary, rep, model);
   if (o.json) {
     std::cout << summary.dump() << "\n";
@@ -441,7 +435,8 @@ void add_simulate_command(CLI::App& app) {
                   "Robot name or file, for a plan written before plans carried their robot "
                   "(a plan that carries one is judged with it)");
   cmd->add_option("--terrain", opts->terrain,
-                  "Terrain directory from 'terrastride map' (its elevation becomes a heightfield) "
+                  "Terrain directory from 'terrastride map' or OctoMap file (.bt, .ot; its elevation "
+                  "becomes a heightfield) "
                   "or a scene name (exact boxes: " + terrain::scene_names_text() + ")")
       ->required();
   cmd->add_option("--dt", opts->dt, "Simulation time step (s)")->capture_default_str();
