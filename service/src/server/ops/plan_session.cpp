@@ -5,6 +5,9 @@
 // without a step, or when the server is full and it is the longest idle. Steps run in
 // the server process (one solve at a time per process: Debian's MUMPS is not re-entrant), so they
 // pay no process start; a session's steps run one at a time.
+#include <pthread.h>
+#include <sched.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -53,6 +56,41 @@ struct Session {
 
 // A step's default budget (plan.session.step "budget_ms"): a control loop at 10-20 Hz.
 constexpr double kDefaultStepBudgetMs = 50.0;
+
+// A budgeted step's thread at a real-time priority (SCHED_FIFO) for the step and its reply, where
+// the process may (root, CAP_SYS_NICE, an rtprio limit); its previous policy when it ends. The
+// step sleeps until its solve finishes or its answer is due, and at that moment has to win a
+// core from its own solve and any other process: at the normal policy a loaded machine's
+// scheduler woke it 5-35 ms late (the answer is a few milliseconds of work: the fallback is
+// made while the solve runs). The work under it is bounded (no solve runs on this thread), and
+// the kernel's real-time throttling leaves the rest of the machine its share regardless.
+class RealtimeForStep {
+ public:
+  explicit RealtimeForStep(bool wanted) {
+    if (!wanted) return;
+    self_ = pthread_self();
+    if (pthread_getschedparam(self_, &policy_, &param_) != 0) return;
+    sched_param rt{};
+    rt.sched_priority = 1;  // the lowest real-time priority: above every normal thread
+    active_ = pthread_setschedparam(self_, SCHED_FIFO, &rt) == 0;
+  }
+  ~RealtimeForStep() {
+    if (active_) pthread_setschedparam(self_, policy_, &param_);
+  }
+  RealtimeForStep(const RealtimeForStep&) = delete;
+  RealtimeForStep& operator=(const RealtimeForStep&) = delete;
+  bool active() const { return active_; }
+
+ private:
+  pthread_t self_{};
+  int policy_ = SCHED_OTHER;
+  sched_param param_{};
+  bool active_ = false;
+};
+
+double ms_between(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
 
 // The memory one session may hold (its reference and previous plans).
 constexpr std::size_t kMaxSessionBytes = std::size_t{16} << 20;
@@ -331,6 +369,7 @@ OpResult open_session(Backend& backend, SessionTable& table, OpContext& ctx) {
 }
 
 OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
+  const auto op_start = Clock::now();
   const json& h = ctx.request.header;
   const auto s = table.get(session_field(h), ctx.connection);
   // A step waits for the one before it (which may still be stopping after its deadline's reply
@@ -388,8 +427,13 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
                              budget_iterations > 0.0 ? 0.0 : 1e-3 * budget_ms, 0.0,
                              static_cast<int>(budget_iterations)};
   if (limits.budget > 0.0 && po.max_time > 0.0) limits.budget = std::min(limits.budget, po.max_time);
-  // That time, plus 5 ms for the socket and the client's parsing, comes out of the budget.
-  if (limits.budget > 0.0) limits.reserve = std::min(s->reply_s + 0.005, 0.6 * limits.budget);
+  // That time, plus 5 ms for the socket and the client's parsing, and the time this request has
+  // spent here already (the previous step's lock, the state's parsing) come out of the budget.
+  const auto step_called = Clock::now();
+  if (limits.budget > 0.0)
+    limits.reserve = std::min(s->reply_s + 0.005 + 1e-3 * ms_between(op_start, step_called),
+                              0.6 * limits.budget);
+  const RealtimeForStep realtime(limits.budget > 0.0);
   planner::SessionStep step;
   try {
     step = ps.step(measured, t, limits);
@@ -420,8 +464,17 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
   if (limits.iterations > 0) r.result["budget_iterations"] = limits.iterations;
   r.result["step_ms"] = 1e3 * step.wall_s;
   r.result["warm_from_late_solve"] = step.warm_from_late_solve;
+  const auto reply_built = Clock::now();
+  // Where the step's time went in this process (the client sees the socket's on top): before
+  // the step (the session's lock, the state), the step, how late it returned after its answer
+  // was due, the reply's building; and whether the step ran at a real-time priority.
+  r.result["timing_ms"] = {{"before_step", ms_between(op_start, step_called)},
+                           {"step", 1e3 * step.wall_s},
+                           {"answer_late", 1e3 * step.answer_late_s},
+                           {"reply", ms_between(step_returned, reply_built)},
+                           {"realtime", realtime.active()}};
   s->reply_s = std::max(0.9 * s->reply_s,
-                        std::chrono::duration<double>(Clock::now() - step_returned).count());
+                        std::chrono::duration<double>(reply_built - step_returned).count());
   (void)backend;
   return r;
 }
