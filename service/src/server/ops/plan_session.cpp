@@ -58,7 +58,11 @@ struct Session {
 constexpr double kDefaultStepBudgetMs = 50.0;
 
 // A budgeted step's thread at a real-time priority (SCHED_FIFO) for the step and its reply, where
-// the process may (root, CAP_SYS_NICE, an rtprio limit); its previous policy when it ends. The
+// the process may (root, CAP_SYS_NICE, an rtprio limit); a step without a budget, which solves on
+// this thread, at the normal policy. The server's worker keeps the priority while it waits for
+// its next job (Operation::keeps_priority): restored at the op's end, the thread was preempted
+// before its reply left, and woken at the normal policy it started the next step late (together
+// 10-45 ms of the round trip at load 13). The
 // step sleeps until its solve finishes or its answer is due, and at that moment has to win a
 // core from its own solve and any other process: at the normal policy a loaded machine's
 // scheduler woke it 5-35 ms late (the answer is a few milliseconds of work: the fallback is
@@ -67,24 +71,27 @@ constexpr double kDefaultStepBudgetMs = 50.0;
 class RealtimeForStep {
  public:
   explicit RealtimeForStep(bool wanted) {
-    if (!wanted) return;
-    self_ = pthread_self();
-    if (pthread_getschedparam(self_, &policy_, &param_) != 0) return;
+    const pthread_t self = pthread_self();
+    int policy = SCHED_OTHER;
+    sched_param param{};
+    if (pthread_getschedparam(self, &policy, &param) != 0) return;
+    if (!wanted) {
+      if (policy != SCHED_OTHER) {
+        const sched_param normal{};
+        pthread_setschedparam(self, SCHED_OTHER, &normal);
+      }
+      return;
+    }
     sched_param rt{};
     rt.sched_priority = 1;  // the lowest real-time priority: above every normal thread
-    active_ = pthread_setschedparam(self_, SCHED_FIFO, &rt) == 0;
-  }
-  ~RealtimeForStep() {
-    if (active_) pthread_setschedparam(self_, policy_, &param_);
+    active_ = (policy == SCHED_FIFO && param.sched_priority >= 1) ||
+              pthread_setschedparam(self, SCHED_FIFO, &rt) == 0;
   }
   RealtimeForStep(const RealtimeForStep&) = delete;
   RealtimeForStep& operator=(const RealtimeForStep&) = delete;
   bool active() const { return active_; }
 
  private:
-  pthread_t self_{};
-  int policy_ = SCHED_OTHER;
-  sched_param param_{};
   bool active_ = false;
 };
 
@@ -475,6 +482,8 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
                            {"realtime", realtime.active()}};
   s->reply_s = std::max(0.9 * s->reply_s,
                         std::chrono::duration<double>(reply_built - step_returned).count());
+  // The reply's JSON text made here, at the step's priority, rather than by the worker after.
+  r.result_text = r.result.dump();
   (void)backend;
   return r;
 }
@@ -495,7 +504,8 @@ void add_plan_session_operation(Backend& backend, OperationRegistry& registry) {
                 "re-plan a session from a measured state at a session time",
                 [b, table](OpContext& c) { return step_session(*b, *table, c); },
                 std::vector<std::string>{"session", "time", "start_state", "samples", "budget_ms",
-                                         "budget_iterations"}});
+                                         "budget_iterations"},
+                std::vector<std::string>{}, /*keeps_priority=*/true});
   registry.add({"plan.session.close", OpKind::kInline, "close a planning session",
                 [table](OpContext& c) {
                   OpResult r;
