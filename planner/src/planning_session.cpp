@@ -1,6 +1,9 @@
 // Planning sessions: successive re-plans of one motion from measured states (planning_session.hpp).
 #include "terrastride/planner/planning_session.hpp"
 
+#include <pthread.h>
+#include <sched.h>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -312,6 +315,11 @@ class StepWorker {
 
  private:
   void run() {
+    // The solve at the normal policy whatever its creator's (a server raises a budgeted step's
+    // thread to a real-time one, and a thread inherits that): the step must be able to preempt
+    // its own solve at the deadline.
+    sched_param normal{};
+    pthread_setschedparam(pthread_self(), SCHED_OTHER, &normal);
     std::unique_lock<std::mutex> lock(mu_);
     for (;;) {
       wake_.wait(lock, [&] { return stop_ || pending_; });
@@ -621,8 +629,9 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
     // step only has to return: on a loaded machine even a millisecond of work at the deadline
     // becomes several.
     out = fallback_step(*job, "deadline", "");
-    if (!worker_->wait(*job, t0 + std::chrono::duration_cast<Clock::duration>(
-                                      std::chrono::duration<double>(answer_in)))) {
+    const Clock::time_point due =
+        t0 + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(answer_in));
+    if (!worker_->wait(*job, due)) {
       std::ostringstream m;
       m << "the re-plan from t = " << t << " s had not finished " << 1e3 * answer_in
         << " ms into its " << 1e3 * limits.budget << " ms budget; the session's current plan "
@@ -630,7 +639,8 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
       out.outcome.message = m.str();
       out.outcome.trajectory.extra["session"]["fallback_message"] = out.outcome.message;
       out.wall_s = seconds_since(t0);
-      late_s_ = std::max(0.9 * late_s_, out.wall_s - answer_in);
+      out.answer_late_s = out.wall_s - answer_in;
+      late_s_ = std::max(0.9 * late_s_, out.answer_late_s);
       return out;
     }
     if (!job->result.outcome.success) {
@@ -644,9 +654,11 @@ SessionStep PlanningSession::step(const SrbdProblem::StartState& measured, doubl
       out.outcome.trajectory.solver.iterations = job->result.outcome.solve.iterations;
       out.outcome.trajectory.solver.wall_s = job->result.outcome.solve.wall_s;
       out.wall_s = seconds_since(t0);
+      out.answer_late_s = out.wall_s - answer_in;
       return out;
     }
     out = std::move(job->result);
+    out.answer_late_s = seconds_since(t0) - answer_in;
   } else if (limits.iterations > 0) {
     out = step_with_iteration_budget(job, limits.iterations);
     out.wall_s = seconds_since(t0);

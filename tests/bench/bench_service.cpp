@@ -21,6 +21,8 @@
 #include <random>
 #include <thread>
 
+#include <pthread.h>
+#include <sched.h>
 #include <time.h>
 
 #include "terrastride/service/cli.hpp"
@@ -61,6 +63,11 @@ struct BenchOptions {
   // 130-220 KB of JSON samples per reply cost 20-30 ms of a loaded machine outside the step) or
   // "json".
   std::string replan_samples = "attachment";
+  // The client's thread and the in-process server's I/O thread at a real-time priority, as a
+  // robot's control loop and a deployed server's I/O thread would run (the step's own thread is
+  // raised by the server's session op): what is then left of the round trip is the machine's.
+  bool realtime_loop = false;
+  bool realtime_server_io = false;  // it was permitted
   // Hostile mode.
   int slowloris = 32;      // connections per slow-frame case
   double max_wait_s = 15;  // longest wait for the server to close a hostile connection
@@ -778,6 +785,12 @@ struct ReplanTally {
   // the first, a better warm start in the second), the process CPU of a step when the server is
   // in-process (load-independent, unlike the wall times), and one record per step for the tail.
   std::vector<double> per_iteration, cpu, outside_server;
+  // Where a step's round trip goes past its work (the reply's "timing_ms"): how late the step
+  // returned after its answer was due (the scheduler's wake-up), the op before the step and the
+  // reply's building, and what is outside the op (the server's queue and I/O thread, the socket,
+  // the client).
+  std::vector<double> answer_late, op_overhead, outside_op;
+  int realtime_steps = 0;
   json records = json::array();
   int failures = 0, iterations = 0, fallbacks = 0, deadline_fallbacks = 0, misses = 0;
   int late_warm = 0, sessions = 1;
@@ -806,6 +819,18 @@ struct ReplanTally {
     (*rec)["variables"] = r["solver"].value("n_variables", 0);
     (*rec)["constraints"] = r["solver"].value("n_constraints", 0);
     (*rec)["end_time"] = r.value("end_time", 0.0);
+    if (r.contains("timing_ms")) {
+      const json& tm = r["timing_ms"];
+      const double before = tm.value("before_step", 0.0), step = tm.value("step", 0.0),
+                   built = tm.value("reply", 0.0);
+      answer_late.push_back(tm.value("answer_late", 0.0));
+      op_overhead.push_back(before + built);
+      outside_op.push_back(latency - before - step - built);
+      realtime_steps += tm.value("realtime", false);
+      (*rec)["answer_late_ms"] = answer_late.back();
+      (*rec)["op_overhead_ms"] = op_overhead.back();
+      (*rec)["outside_op_ms"] = outside_op.back();
+    }
     std::size_t reply_bytes = reply.header.dump().size();
     for (const auto& a : reply.attachments) reply_bytes += a.data.size();
     (*rec)["reply_bytes"] = reply_bytes;
@@ -853,6 +878,10 @@ struct ReplanTally {
               {"server_total", latency_json(server_totals)},
               {"solve_per_iteration", latency_json(per_iteration)},
               {"outside_server", latency_json(outside_server)},
+              {"answer_late", latency_json(answer_late)},
+              {"op_overhead", latency_json(op_overhead)},
+              {"outside_op", latency_json(outside_op)},
+              {"realtime_steps", realtime_steps},
               {"step_records", records}};
     if (!cpu.empty()) j["cpu"] = latency_json(cpu);
     if (j["latency"].contains("p50_ms")) {
@@ -886,7 +915,15 @@ json measured_base(const json& current, double current_start, double t) {
 // the open's round trip: the reference plan's solve and everything around it, as a `plan`
 // would be. A motion holds about duration / 0.1 steps; the next session (the same motion as its
 // reference, "init": no solve) begins where the previous one ended, as a robot's next motion would.
+// The calling thread (or `thread`) at SCHED_FIFO priority 1, where the process may; false if not.
+bool try_realtime(pthread_t thread) {
+  sched_param rt{};
+  rt.sched_priority = 1;
+  return pthread_setschedparam(thread, SCHED_FIFO, &rt) == 0;
+}
+
 json bench_replan(const BenchOptions& o, bool in_process) {
+  const bool realtime_client = o.realtime_loop && try_realtime(pthread_self());
   Client c = connect(o);
   c.set_timeout(600);
   const auto t_open = Clock::now();
@@ -952,7 +989,9 @@ json bench_replan(const BenchOptions& o, bool in_process) {
     current_start = t;
   }
   c.call_ok({{"op", "plan.session.close"}, {"session", id}});
-  return tally.to_json(o, ref, cold_ms);
+  json out = tally.to_json(o, ref, cold_ms);
+  out["realtime_loop"] = {{"client", realtime_client}, {"server_io", o.realtime_server_io}};
+  return out;
 }
 
 void print_latency(const std::string& label, const json& j) {
@@ -976,6 +1015,14 @@ void print_replan(const json& r) {
   print_latency("  step in the server: ", r["server_total"]);
   print_latency("  step outside the server (reply JSON, socket, client parsing): ",
                 r["outside_server"]);
+  print_latency("  step answered after it was due (scheduler wake-up): ", r["answer_late"]);
+  print_latency("  step op before and after the step (lock, state, reply): ", r["op_overhead"]);
+  print_latency("  outside the op (server queue and I/O thread, socket, client): ",
+                r["outside_op"]);
+  std::cout << "  steps at a real-time priority: " << r.value("realtime_steps", 0)
+            << "; client and server I/O thread at one: "
+            << r["realtime_loop"].value("client", false) << ", "
+            << r["realtime_loop"].value("server_io", false) << "\n";
   print_latency("  step solve per iteration: ", r["solve_per_iteration"]);
   if (r.contains("cpu")) print_latency("  step process CPU (in-process server): ", r["cpu"]);
   std::cout << std::setprecision(3) << "  median / cold = "
@@ -1088,6 +1135,10 @@ void configure_bench_service(CLI::App* cmd) {
       ->capture_default_str();
   cmd->add_flag("--json-points", o->json_points,
                 "Send query points as JSON [[x, y], ...] instead of a float32 attachment");
+  cmd->add_flag("--realtime-loop", o->realtime_loop,
+                "Replan mode: the client's thread and the in-process server's I/O thread at "
+                "SCHED_FIFO priority 1 where permitted (a robot's control loop, a deployed "
+                "server's I/O thread)");
   cmd->add_flag("--json", o->json, "Print the figures as one JSON object");
   cmd->callback([o] {
     std::unique_ptr<Server> server;
@@ -1118,6 +1169,8 @@ void configure_bench_service(CLI::App* cmd) {
           [backend] { return backend_hello(*backend); });
       o->connect = server->bind().front();
       server_thread = std::thread([&server] { server->run(); });
+      if (o->realtime_loop && o->mode == "replan")
+        o->realtime_server_io = try_realtime(server_thread.native_handle());
     }
     json out = {{"address", o->connect}};
     try {

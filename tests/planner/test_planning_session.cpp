@@ -2,7 +2,10 @@
 // the step answers by its budget with its own plan or the session's current plan (the fallback),
 // whatever the solve does, and a solve that finishes late warm-starts the next step.
 #include <gtest/gtest.h>
+#include <pthread.h>
+#include <sched.h>
 
+#include <atomic>
 #include <chrono>
 #include <thread>
 
@@ -215,6 +218,36 @@ TEST_F(FlatSession, AFootMeasuredInTheAirWhereThePlanHasAStanceTouchesDown) {
   ASSERT_FALSE(phases.empty());
   EXPECT_FALSE(phases[0].contact);
   EXPECT_NEAR(phases[0].end, 0.15, 0.03 + 1e-6);  // an event within 0.03 s of 0.2 s is reused
+}
+
+// A step made from a thread at a real-time priority (the service raises a budgeted step's thread
+// so that its answer is not delayed by the scheduler) solves at the normal policy: the solver
+// thread it starts would otherwise inherit SCHED_FIFO, and the step could not preempt its own
+// solve at the deadline (the same priority never preempts under FIFO). The solve's per-iteration
+// callback runs on the solver thread and records its policy.
+TEST_F(FlatSession, TheSolveRunsAtTheNormalPolicyWhenTheStepIsRealTime) {
+  int caller_policy = SCHED_OTHER;
+  sched_param caller_param{};
+  ASSERT_EQ(pthread_getschedparam(pthread_self(), &caller_policy, &caller_param), 0);
+  sched_param rt{};
+  rt.sched_priority = 1;
+  if (pthread_setschedparam(pthread_self(), SCHED_FIFO, &rt) != 0)
+    GTEST_SKIP() << "this process may not use SCHED_FIFO (no CAP_SYS_NICE or rtprio limit)";
+  auto solver_policy = std::make_shared<std::atomic<int>>(-1);
+  StepLimits limits;
+  limits.budget = 5.0;  // ample: the step waits for its solve on the worker thread
+  limits.should_stop = [solver_policy] {
+    int policy = -1;
+    sched_param param{};
+    if (pthread_getschedparam(pthread_self(), &policy, &param) == 0) solver_policy->store(policy);
+    return false;
+  };
+  const SessionStep step = session->step(measured(0.2), 0.2, limits);
+  pthread_setschedparam(pthread_self(), caller_policy, &caller_param);
+  ASSERT_TRUE(step.outcome.success) << step.outcome.message;
+  EXPECT_FALSE(step.fallback) << step.fallback_reason;
+  EXPECT_EQ(solver_policy->load(), SCHED_OTHER);
+  EXPECT_LE(step.answer_late_s, 0.0) << "the solve finished before its answer was due";
 }
 
 }  // namespace

@@ -6,6 +6,8 @@
 #include "terrastride/service/server.hpp"
 
 #include <malloc.h>
+#include <pthread.h>
+#include <sched.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -38,6 +40,16 @@ void OpContext::check_stop() const {
 void Server::Impl::run_job(std::shared_ptr<Job> job) {
   // Worker thread: run the handler, encode the reply here (off the I/O thread), post it back.
   asio::post(io, [job] { job->running = true; });
+  // A worker left at a raised priority by an operation that keeps it (Operation::keeps_priority)
+  // returns to the normal policy before any other operation.
+  if (!job->op->keeps_priority) {
+    int policy = SCHED_OTHER;
+    sched_param param{};
+    if (pthread_getschedparam(pthread_self(), &policy, &param) == 0 && policy != SCHED_OTHER) {
+      const sched_param normal{};
+      pthread_setschedparam(pthread_self(), SCHED_OTHER, &normal);
+    }
+  }
   bool ok = false;
   std::string code;
   std::string frame;

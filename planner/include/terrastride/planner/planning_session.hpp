@@ -47,6 +47,10 @@ struct SessionStep {
   // measured state than the plan that step fell back to.
   bool warm_from_late_solve = false;
   double wall_s = 0.0;  // the step call, start to return
+  // A budgeted step: how long after its answer was due (start + budget - reserve, less the
+  // session's measured lateness) it returned; <= 0 when it returned in time (its solve finished
+  // first). What the scheduler adds to a deadline on a loaded machine.
+  double answer_late_s = 0.0;
   // Feet measured in the air (3 cm above the terrain) where the schedule had a stance: this plan
   // swings them and touches them down 0.2 s after t (the rest of their stance as scheduled).
   std::vector<std::string> touchdowns;

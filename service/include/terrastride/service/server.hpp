@@ -59,6 +59,11 @@ struct Operation {
   // it (an attachment under a misspelt name would otherwise be ignored). Default: none.
   // nullopt: the names are not checked.
   std::optional<std::vector<std::string>> attachments = std::vector<std::string>{};
+  // A worker-pool operation whose reply is due by a deadline may raise its worker thread's
+  // scheduling priority (plan.session.step, to a real-time one); the worker keeps it while it
+  // waits for its next job, so that it wakes at once for the client's next request, and returns
+  // to the normal policy before running any other operation. Others run at the normal policy.
+  bool keeps_priority = false;
 };
 
 class OperationRegistry {

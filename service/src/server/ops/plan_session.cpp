@@ -5,6 +5,9 @@
 // without a step, or when the server is full and it is the longest idle. Steps run in
 // the server process (one solve at a time per process: Debian's MUMPS is not re-entrant), so they
 // pay no process start; a session's steps run one at a time.
+#include <pthread.h>
+#include <sched.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -53,6 +56,48 @@ struct Session {
 
 // A step's default budget (plan.session.step "budget_ms"): a control loop at 10-20 Hz.
 constexpr double kDefaultStepBudgetMs = 50.0;
+
+// A budgeted step's thread at a real-time priority (SCHED_FIFO) for the step and its reply, where
+// the process may (root, CAP_SYS_NICE, an rtprio limit); a step without a budget, which solves on
+// this thread, at the normal policy. The server's worker keeps the priority while it waits for
+// its next job (Operation::keeps_priority): restored at the op's end, the thread was preempted
+// before its reply left, and woken at the normal policy it started the next step late (together
+// 10-45 ms of the round trip at load 13). The
+// step sleeps until its solve finishes or its answer is due, and at that moment has to win a
+// core from its own solve and any other process: at the normal policy a loaded machine's
+// scheduler woke it 5-35 ms late (the answer is a few milliseconds of work: the fallback is
+// made while the solve runs). The work under it is bounded (no solve runs on this thread), and
+// the kernel's real-time throttling leaves the rest of the machine its share regardless.
+class RealtimeForStep {
+ public:
+  explicit RealtimeForStep(bool wanted) {
+    const pthread_t self = pthread_self();
+    int policy = SCHED_OTHER;
+    sched_param param{};
+    if (pthread_getschedparam(self, &policy, &param) != 0) return;
+    if (!wanted) {
+      if (policy != SCHED_OTHER) {
+        const sched_param normal{};
+        pthread_setschedparam(self, SCHED_OTHER, &normal);
+      }
+      return;
+    }
+    sched_param rt{};
+    rt.sched_priority = 1;  // the lowest real-time priority: above every normal thread
+    active_ = (policy == SCHED_FIFO && param.sched_priority >= 1) ||
+              pthread_setschedparam(self, SCHED_FIFO, &rt) == 0;
+  }
+  RealtimeForStep(const RealtimeForStep&) = delete;
+  RealtimeForStep& operator=(const RealtimeForStep&) = delete;
+  bool active() const { return active_; }
+
+ private:
+  bool active_ = false;
+};
+
+double ms_between(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
 
 // The memory one session may hold (its reference and previous plans).
 constexpr std::size_t kMaxSessionBytes = std::size_t{16} << 20;
@@ -331,6 +376,7 @@ OpResult open_session(Backend& backend, SessionTable& table, OpContext& ctx) {
 }
 
 OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
+  const auto op_start = Clock::now();
   const json& h = ctx.request.header;
   const auto s = table.get(session_field(h), ctx.connection);
   // A step waits for the one before it (which may still be stopping after its deadline's reply
@@ -388,8 +434,13 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
                              budget_iterations > 0.0 ? 0.0 : 1e-3 * budget_ms, 0.0,
                              static_cast<int>(budget_iterations)};
   if (limits.budget > 0.0 && po.max_time > 0.0) limits.budget = std::min(limits.budget, po.max_time);
-  // That time, plus 5 ms for the socket and the client's parsing, comes out of the budget.
-  if (limits.budget > 0.0) limits.reserve = std::min(s->reply_s + 0.005, 0.6 * limits.budget);
+  // That time, plus 5 ms for the socket and the client's parsing, and the time this request has
+  // spent here already (the previous step's lock, the state's parsing) come out of the budget.
+  const auto step_called = Clock::now();
+  if (limits.budget > 0.0)
+    limits.reserve = std::min(s->reply_s + 0.005 + 1e-3 * ms_between(op_start, step_called),
+                              0.6 * limits.budget);
+  const RealtimeForStep realtime(limits.budget > 0.0);
   planner::SessionStep step;
   try {
     step = ps.step(measured, t, limits);
@@ -420,8 +471,19 @@ OpResult step_session(Backend& backend, SessionTable& table, OpContext& ctx) {
   if (limits.iterations > 0) r.result["budget_iterations"] = limits.iterations;
   r.result["step_ms"] = 1e3 * step.wall_s;
   r.result["warm_from_late_solve"] = step.warm_from_late_solve;
+  const auto reply_built = Clock::now();
+  // Where the step's time went in this process (the client sees the socket's on top): before
+  // the step (the session's lock, the state), the step, how late it returned after its answer
+  // was due, the reply's building; and whether the step ran at a real-time priority.
+  r.result["timing_ms"] = {{"before_step", ms_between(op_start, step_called)},
+                           {"step", 1e3 * step.wall_s},
+                           {"answer_late", 1e3 * step.answer_late_s},
+                           {"reply", ms_between(step_returned, reply_built)},
+                           {"realtime", realtime.active()}};
   s->reply_s = std::max(0.9 * s->reply_s,
-                        std::chrono::duration<double>(Clock::now() - step_returned).count());
+                        std::chrono::duration<double>(reply_built - step_returned).count());
+  // The reply's JSON text made here, at the step's priority, rather than by the worker after.
+  r.result_text = r.result.dump();
   (void)backend;
   return r;
 }
@@ -442,7 +504,8 @@ void add_plan_session_operation(Backend& backend, OperationRegistry& registry) {
                 "re-plan a session from a measured state at a session time",
                 [b, table](OpContext& c) { return step_session(*b, *table, c); },
                 std::vector<std::string>{"session", "time", "start_state", "samples", "budget_ms",
-                                         "budget_iterations"}});
+                                         "budget_iterations"},
+                std::vector<std::string>{}, /*keeps_priority=*/true});
   registry.add({"plan.session.close", OpKind::kInline, "close a planning session",
                 [table](OpContext& c) {
                   OpResult r;
