@@ -4,6 +4,8 @@
 // longest idle connection, the pre-hello frame cap, the request-byte budgets, the per-connection
 // quotas, unsent replies and clients that take none), and a graceful shutdown with replies.
 #include <gtest/gtest.h>
+#include <pthread.h>
+#include <sched.h>
 
 #include <functional>
 #include <thread>
@@ -297,6 +299,37 @@ TEST(ServerInProcess, HalfSentFrameIsClosedAfterTheFrameTimeout) {
 
 // A connection with nothing in flight is closed after the idle timeout (with a `timeout` reply);
 // one with a job running is not idle.
+// --realtime-io: the I/O thread runs at SCHED_FIFO where the process may, and status says
+// whether it does (a robot's operator must know); without the flag it never does.
+TEST(ServerInProcess, RealtimeIoIsReportedAsItTookEffect) {
+  bool permitted = false;
+  std::thread probe([&permitted] {
+    sched_param rt{};
+    rt.sched_priority = 1;
+    permitted = pthread_setschedparam(pthread_self(), SCHED_FIFO, &rt) == 0;
+  });
+  probe.join();
+  {
+    InProcessServer s(1, 1, [](ServerOptions& o) { o.realtime_io = true; });
+    Client c = Client::connect(s.address);
+    EXPECT_EQ(c.call_ok({{"op", "status"}})["realtime_io"].get<bool>(), permitted);
+    if (permitted) {
+      // The I/O thread's policy as the kernel has it.
+      int policy = 0;
+      sched_param param{};
+      ASSERT_EQ(pthread_getschedparam(s.thread.native_handle(), &policy, &param), 0);
+      EXPECT_EQ(policy, SCHED_FIFO);
+    }
+  }
+  InProcessServer plain(1, 1);
+  Client c = Client::connect(plain.address);
+  EXPECT_FALSE(c.call_ok({{"op", "status"}})["realtime_io"].get<bool>());
+  int policy = 0;
+  sched_param param{};
+  ASSERT_EQ(pthread_getschedparam(plain.thread.native_handle(), &policy, &param), 0);
+  EXPECT_EQ(policy, SCHED_OTHER);
+}
+
 TEST(ServerInProcess, IdleConnectionIsClosed) {
   InProcessServer s(1, 1, [](ServerOptions& o) { o.idle_timeout_s = 0.3; });
   Client idle = Client::connect(s.address);
