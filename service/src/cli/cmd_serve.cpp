@@ -22,6 +22,7 @@ struct ServeOptions {
   int queue = 8;
   int max_connections = 512;
   double drain_seconds = 5.0;
+  bool realtime_io = false;
   double frame_timeout_s = 10.0;
   double min_receive_rate = 128.0 * 1024;
   double idle_timeout_s = 300.0;
@@ -84,6 +85,7 @@ void serve(const ServeOptions& o) {
   so.queue = o.queue;
   so.max_connections = o.max_connections;
   so.drain_seconds = o.drain_seconds;
+  so.realtime_io = o.realtime_io;
   so.frame_timeout_s = o.frame_timeout_s;
   so.min_receive_rate = o.min_receive_rate;
   so.idle_timeout_s = o.idle_timeout_s;
@@ -173,6 +175,11 @@ void add_serve_command(CLI::App& app) {
   cmd->add_option("--max-frame-bytes", o->max_frame_bytes, "Largest accepted frame")
       ->capture_default_str()
       ->check(CLI::Range(64u, 0xffffffffu));
+  cmd->add_flag("--realtime-io", o->realtime_io,
+                "Run the I/O thread (requests, replies, map.query) at SCHED_FIFO priority 1 where "
+                "permitted, so a planning-session step's reply leaves when due on a busy computer "
+                "(budgeted steps raise their worker likewise); status.realtime_io says whether it "
+                "took effect");
   cmd->add_option("--workers", o->workers, "Threads for plans, checks and map updates")
       ->capture_default_str()
       ->check(CLI::Range(1, 64));

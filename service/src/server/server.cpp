@@ -228,6 +228,7 @@ json Server::Impl::status_json() {
   }
   json s = {{"uptime_s", std::chrono::duration<double>(Clock::now() - started).count()},
             {"draining", draining.load()},
+            {"realtime_io", realtime_io.load()},
             {"listen", listeners.bound},
             {"connections",
              {{"open", counters.connections_open.load()},
@@ -399,6 +400,16 @@ void Server::run() {
   im.sweep_timer = std::make_unique<asio::steady_timer>(im.io);
   im.sweep();
   if (im.stopped) im.begin_shutdown();
+  if (im.options.realtime_io) {
+    sched_param rt{};
+    rt.sched_priority = 1;
+    im.realtime_io = pthread_setschedparam(pthread_self(), SCHED_FIFO, &rt) == 0;
+    if (!im.realtime_io)
+      std::fprintf(stderr,
+                   "terrastride serve: --realtime-io: this process may not use SCHED_FIFO (it "
+                   "needs CAP_SYS_NICE or an rtprio limit); the I/O thread runs at the normal "
+                   "policy\n");
+  }
   im.io.run();
   im.pool->stop();
 }

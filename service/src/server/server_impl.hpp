@@ -56,6 +56,7 @@ struct Server::Impl {
   std::unique_ptr<asio::signal_set> signals;
   std::unique_ptr<asio::steady_timer> drain_timer;
   std::atomic<bool> stopped{false};
+  std::atomic<bool> realtime_io{false};  // the I/O thread runs at SCHED_FIFO (ServerOptions::realtime_io)
   std::shared_ptr<ByteBudget> budget;
   // Connections counted against max_connections (not the ones closing or refused).
   int active_connections = 0;

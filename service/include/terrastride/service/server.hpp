@@ -115,6 +115,13 @@ struct ServerOptions {
   std::size_t max_unsent_bytes = std::size_t{512} << 20;
   double drain_seconds = 5.0;  // on SIGINT/SIGTERM: time running jobs get before cancellation
   bool handle_signals = true;
+  // The I/O thread (reads requests, writes replies, runs map.query inline) at SCHED_FIFO
+  // priority 1 where the process may (CAP_SYS_NICE or an rtprio limit), so that on a busy robot
+  // computer a planning-session step's reply leaves when it is due rather than when the
+  // scheduler next picks the thread (docs/sessions.md). Off by default: a real-time thread
+  // preempts every normal one, and the kernel's real-time throttling is what then leaves the
+  // rest of the machine its share. status.realtime_io says whether it took effect.
+  bool realtime_io = false;
 
   // Limits that keep clients from holding memory or connection slots without using them
   // (docs/protocol.md, "Limits"). A frame that has started must be complete within
