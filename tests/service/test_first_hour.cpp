@@ -132,9 +132,18 @@ TEST_F(FirstHour, NoisyFloorMapsPlansChecksAndSimulates) {
   const CommandResult refused = terrastride("map " + cloud + " --out floor");
   EXPECT_EQ(refused.code, 1) << refused.all();
   EXPECT_NE(refused.err.find("--viewpoint origin"), std::string::npos) << refused.err;
+  // Its last resort, z taken as up, keeps the VIEWPOINT's rotation: written, and said unusable.
+  const CommandResult as_is = terrastride("map " + cloud + " --up z --out as_is");
+  ASSERT_EQ(as_is.code, 0) << as_is.all();
+  EXPECT_NE(as_is.out.find("warning: no observed cell is safe"), std::string::npos) << as_is.out;
   const CommandResult mapped = terrastride("map " + cloud + " --viewpoint origin --out floor");
   ASSERT_EQ(mapped.code, 0) << mapped.all();
-  const CommandResult listed = terrastride("regions --terrain floor");
+  EXPECT_EQ(mapped.out.find("warning:"), std::string::npos) << mapped.out;
+  // The map names the next step; pasted, it lists the floor's regions.
+  const std::vector<std::string> next = lines_after(mapped.out, "next: ");
+  ASSERT_EQ(next.size(), 1u) << mapped.out;
+  EXPECT_NE(next[0].find(" regions --terrain floor"), std::string::npos) << next[0];
+  const CommandResult listed = paste(next[0]);
   ASSERT_EQ(listed.code, 0) << listed.all();
   std::smatch m;
   ASSERT_TRUE(std::regex_search(listed.out, m, std::regex("\nregion 1: (.* plan --terrain .*)\n")))
@@ -186,6 +195,23 @@ TEST_F(FirstHour, ALargeMapsReportSaysItOpensOnThePlan) {
   const CommandResult small = terrastride("report --terrain flat --plan flat.json --out f.html");
   ASSERT_EQ(small.code, 0) << small.all();
   EXPECT_NE(small.out.find("view: the whole map"), std::string::npos) << small.out;
+}
+
+// The demo (README's first step) from a scratch folder: it writes out/demo/report.html there and
+// its check line gives the shin's distance to certain voxels, the one that fails a plan, with the
+// contacts within the map's uncertainty counted as failing nothing.
+TEST_F(FirstHour, TheDemoWritesItsReportAndSaysWhichShinFiguresJudgeThePlan) {
+  const CommandResult demo = terrastride("demo");
+  ASSERT_EQ(demo.code, 0) << demo.all();
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "demo" / "report.html")) << demo.all();
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(demo.out, m,
+                                std::regex("shin min (-?[0-9.]+) mm to certain voxels, ([0-9]+) "
+                                           "shin contacts with voxels within the map's "
+                                           "uncertainty \\(these fail nothing\\)")))
+      << demo.out;
+  EXPECT_GE(std::stod(m[1]), 0.0) << "a demo plan that passes keeps its shins off certain voxels";
+  EXPECT_EQ(demo.out.find("mm to the voxels"), std::string::npos) << demo.out;
 }
 
 }  // namespace
