@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <fstream>
 #include <nlohmann/json.hpp>
 #include <regex>
 #include <sstream>
@@ -195,6 +196,36 @@ TEST_F(FirstHour, ALargeMapsReportSaysItOpensOnThePlan) {
   const CommandResult small = terrastride("report --terrain flat --plan flat.json --out f.html");
   ASSERT_EQ(small.code, 0) << small.all();
   EXPECT_NE(small.out.find("view: the whole map"), std::string::npos) << small.out;
+}
+
+// A cloud given where a map is expected: plan, regions, check and query refuse it with the `map`
+// command to paste; pasted as printed, it writes the folder the hint then names, and regions runs
+// on it.
+TEST_F(FirstHour, ACloudGivenAsTerrainGetsTheMapCommandToPaste) {
+  {
+    std::ofstream xyz(dir_ / "my floor.xyz");
+    for (int i = 0; i <= 100; ++i)
+      for (int j = 0; j <= 60; ++j) xyz << 0.02 * i << ' ' << -0.6 + 0.02 * j << " 0\n";
+  }
+  ASSERT_EQ(terrastride("plan --terrain flat --out p.json").code, 0);
+  std::string command;
+  for (const std::string args :
+       {"plan --terrain 'my floor.xyz' --out x.json", "regions --terrain 'my floor.xyz'",
+        "check p.json --terrain 'my floor.xyz'", "query 'my floor.xyz' --at 0.5,0"}) {
+    const CommandResult refused = terrastride(args);
+    EXPECT_EQ(refused.code, 1) << args << "\n" << refused.all();
+    std::smatch m;
+    ASSERT_TRUE(std::regex_search(refused.err, m, std::regex("map it first with `([^`]*)`")))
+        << args << "\n" << refused.err;
+    EXPECT_NE(refused.err.find("'my floor-map'"), std::string::npos) << refused.err;
+    if (command.empty()) command = m[1];
+    EXPECT_EQ(m[1], command) << args;
+  }
+  const CommandResult mapped = paste(command);
+  ASSERT_EQ(mapped.code, 0) << command << "\n" << mapped.all();
+  EXPECT_TRUE(fs::is_directory(dir_ / "my floor-map"));
+  const CommandResult listed = terrastride("regions --terrain 'my floor-map'");
+  EXPECT_EQ(listed.code, 0) << listed.all();
 }
 
 // The demo (README's first step) from a scratch folder: it writes out/demo/report.html there and

@@ -17,6 +17,7 @@
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/robot/robot_model.hpp"
+#include "pasteable.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
@@ -318,10 +319,8 @@ void run_check(const CheckCliOptions& o) {
   PlanWithRobot loaded = read_plan_with_robot(o.plan, o.robot);
   const planner::Trajectory& traj = loaded.trajectory;
   const robot::RobotModel& model = loaded.robot;
-  const TerrainSource source = load_terrain_source(
-      o.terrain, /*smooth_scene=*/false,
-      "a file; pass a terrain directory from 'terrastride map', an OctoMap (.bt, .ot) or a scene "
-      "name");
+  const TerrainSource source =
+      load_terrain_source(o.terrain, /*smooth_scene=*/false, map_it_first(o.terrain));
   const collision::CheckTerrain view =
       check_terrain_for(source, model, traj, o.resolution, /*require_octomap=*/true);
   collision::CheckReport rep;

@@ -334,9 +334,7 @@ void run_plan(const PlanCliOptions& o) {
   req.options.verbose = o.verbose;
   const planner::WarmStart warm = req.warm_start();
   const TerrainSource terrains =
-      load_terrain_source(o.terrain, /*smooth_scene=*/true,
-                          "point clouds are not planned on directly; run 'terrastride map " +
-                              o.terrain + " --out DIR' and pass --terrain DIR");
+      load_terrain_source(o.terrain, /*smooth_scene=*/true, map_it_first(o.terrain));
   nlohmann::json stance_corrections;
   try {
     check_stances_on_terrain(req, model, *terrains.exact());

@@ -86,9 +86,8 @@ void run_regions(const RegionsOptions& o) {
     throw CommandError("--goal-distance: must be within (0, 100] m");
   if (o.foot_radius_given && !(o.foot_radius >= 0 && o.foot_radius <= 0.5))
     throw CommandError("--foot-radius: must be within [0, 0.5] m");
-  TerrainSource source = load_terrain_source(
-      o.terrain, /*smooth_scene=*/true, "give a folder written by `terrastride map`, an OctoMap "
-                                        "(.bt/.ot) or a scene name");
+  TerrainSource source =
+      load_terrain_source(o.terrain, /*smooth_scene=*/true, map_it_first(o.terrain));
   terrain::RegionOptions ro;
   for (const auto& leg : model.legs) ro.footprint.feet.push_back(leg.nominal_foot.head<2>());
   ro.footprint.foot_radius = o.foot_radius_given ? o.foot_radius : model.foot_radius;

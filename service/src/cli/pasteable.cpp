@@ -37,4 +37,19 @@ std::string pasteable_program() {
   return shell_word(self.string());
 }
 
+std::string map_folder_for(const std::string& file) {
+  return fs::path(file).stem().string() + "-map";
+}
+
+std::string map_command(const std::string& file) {
+  return pasteable_program() + " map " + shell_word(file) + " --out " +
+         shell_word(map_folder_for(file));
+}
+
+std::string map_it_first(const std::string& file) {
+  return "a file is not a map: map it first with `" + map_command(file) +
+         "` (add the pose flags `map` asks for, if any) and pass --terrain " +
+         shell_word(map_folder_for(file)) + ", or give an OctoMap (.bt, .ot) or a scene name";
+}
+
 }  // namespace terrastride::service

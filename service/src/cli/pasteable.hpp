@@ -15,4 +15,12 @@ std::string shell_word(const std::string& s);
 // bare name would then run nothing, or another build).
 std::string pasteable_program();
 
+// For a file given where a map is expected (a point cloud): the `map` command to paste, which
+// writes the folder map_folder_for(file) (the file's name with "-map").
+std::string map_folder_for(const std::string& file);
+std::string map_command(const std::string& file);
+
+// The error hint of plan, regions and check for such a file: map it first, then pass the folder.
+std::string map_it_first(const std::string& file);
+
 }  // namespace terrastride::service
