@@ -137,6 +137,15 @@ TEST_F(FirstHour, NoisyFloorMapsPlansChecksAndSimulates) {
   const CommandResult as_is = terrastride("map " + cloud + " --up z --out as_is");
   ASSERT_EQ(as_is.code, 0) << as_is.all();
   EXPECT_NE(as_is.out.find("warning: no observed cell is safe"), std::string::npos) << as_is.out;
+  // report takes only --origin of map's pose flags: its refusal says how to use the others.
+  const CommandResult report_refused = terrastride("report --terrain " + cloud + " --out r.html");
+  EXPECT_EQ(report_refused.code, 1) << report_refused.all();
+  EXPECT_NE(report_refused.err.find("report takes only --origin"), std::string::npos)
+      << report_refused.err;
+  EXPECT_NE(report_refused.err.find(" map " + scan("anybotics_samples/grid_map_pcl_input_cloud.pcd") +
+                                    " --out grid_map_pcl_input_cloud-map` with the flag added"),
+            std::string::npos)
+      << report_refused.err;
   const CommandResult mapped = terrastride("map " + cloud + " --viewpoint origin --out floor");
   ASSERT_EQ(mapped.code, 0) << mapped.all();
   EXPECT_EQ(mapped.out.find("warning:"), std::string::npos) << mapped.out;

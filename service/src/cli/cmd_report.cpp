@@ -14,7 +14,9 @@
 #include "report/report.hpp"
 #include "report/report_file.hpp"
 #include "report/terrain_input.hpp"
+#include "pasteable.hpp"
 #include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/scenes.hpp"
 
@@ -213,12 +215,32 @@ void refuse_overwriting_inputs(const std::string& out, const std::vector<std::st
   for (const auto& t : terrain) check(t, "--terrain");
 }
 
+// A cloud the report could not map may need map's pose flags, of which report takes only
+// --origin (and a refusal names them all): the map command to paste, then the folder to report.
+std::string cloud_flags_hint(const std::vector<std::string>& terrain, const std::string& error) {
+  for (const std::string& input : terrain) {
+    std::error_code ec;
+    if (!fs::is_regular_file(input, ec) || perception::is_octomap_file(input)) continue;
+    if (error.rfind(input + ":", 0) != 0) continue;  // the error is not about this cloud
+    return "\n(if it needs map's pose flags: report takes only --origin; for --viewpoint, "
+           "--sensor-pose, --poses, --sensor-frame or --up, map the cloud first, `" +
+           map_command(input) + "` with the flag added, then report --terrain " +
+           shell_word(map_folder_for(input)) + ")";
+  }
+  return "";
+}
+
 // One report: OUT.html and OUT.json for --terrain and its --plan files.
 void run_single(const ReportCommandOptions& o, const report::TerrainInputOptions& topts,
                 const report::ReportOptions& ropts) {
   check_out_html(o.out);
   refuse_overwriting_inputs(o.out, o.plans, o.terrain);
-  const json rep = report::make_report_file(o.terrain, o.plans, topts, ropts, o.out);
+  json rep;
+  try {
+    rep = report::make_report_file(o.terrain, o.plans, topts, ropts, o.out);
+  } catch (const CommandError& e) {
+    throw CommandError(e.what() + cloud_flags_hint(o.terrain, e.what()), e.exit_code());
+  }
   const std::string json_path = fs::path(o.out).replace_extension(".json").string();
   print_summary(summary_json(rep, o.out, json_path), o.json_output);
 }
