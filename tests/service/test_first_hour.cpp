@@ -235,6 +235,15 @@ TEST_F(FirstHour, ACloudGivenAsTerrainGetsTheMapCommandToPaste) {
   EXPECT_TRUE(fs::is_directory(dir_ / "my floor-map"));
   const CommandResult listed = terrastride("regions --terrain 'my floor-map'");
   EXPECT_EQ(listed.code, 0) << listed.all();
+  // A start off the map names the regions command that lists starts on it; pasted, it runs.
+  const CommandResult off = terrastride("plan --terrain 'my floor-map' --start 5,5,0 --out o.json");
+  EXPECT_EQ(off.code, 1) << off.all();
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(off.err, m, std::regex("--start: .*; `([^`]* regions [^`]*)` lists")))
+      << off.err;
+  const CommandResult pasted = paste(m[1]);
+  EXPECT_EQ(pasted.code, 0) << pasted.all();
+  EXPECT_NE(pasted.out.find("region 1: "), std::string::npos) << pasted.out;
 }
 
 // The demo (README's first step) from a scratch folder: it writes out/demo/report.html there and

@@ -340,7 +340,14 @@ void run_plan(const PlanCliOptions& o) {
     check_stances_on_terrain(req, model, *terrains.exact());
     stance_corrections = settle_stance_feet(&req, *terrains.smooth());
   } catch (const RequestFieldError& e) {
-    throw CommandError(cli_field(e.field(), o) + ": " + cli_text(e.problem()));
+    // A start or goal off the safe ground: `regions` lists the ones that are on it.
+    const bool pose = e.field() == "start" || e.field() == "goal";
+    std::string robot = o.robot == "hyq" ? "" : " --robot " + shell_word(o.robot);
+    throw CommandError(cli_field(e.field(), o) + ": " + cli_text(e.problem()) +
+                       (pose ? "; `" + pasteable_program() + " regions --terrain " +
+                                   shell_word(o.terrain) + robot +
+                                   "` lists starts and goals on safe ground with plan commands"
+                             : ""));
   }
 
   // --out is checked before the solve (a probe file in its folder), so a missing or read-only
@@ -405,10 +412,10 @@ void add_plan_command(CLI::App& app) {
                   "robot's strides, the length of its range-of-motion box: Go2 4 for 1 m)");
   cmd->add_option("--duration", o->duration, "total duration in s (default: the gait's)");
   cmd->add_option("--goal", o->goal,
-                  "goal X,Y,YAW of the base (default 1,0,0; a re-plan: --init's goal)");
+                  "goal X,Y,YAW of the base (m, m, rad; default 1,0,0; a re-plan: --init's goal)");
   cmd->add_option("--start", o->start,
-                  "start X,Y,YAW of the base, the nominal stance placed on the terrain there "
-                  "(default 0,0,0)");
+                  "start X,Y,YAW of the base (m, m, rad), the nominal stance placed on the "
+                  "terrain there (default 0,0,0)");
   cmd->add_option("--constraints", o->constraints,
                   "constraint sets, comma separated: baseline, foot (foot radius), shin (shin "
                   "collision, the paper's fixed-angle model), shin_ik (shin collision on the leg's "
