@@ -66,9 +66,9 @@ std::vector<std::string> lines_after(const std::string& text, const std::string&
   return found;
 }
 
-#define REQUIRE_SHARED_SCANS()                                                        \
-  if (!shared_scans_present())                                                        \
-  GTEST_SKIP() << "no " << TERRASTRIDE_SHARED_DIR                                     \
+#define REQUIRE_SHARED_SCANS()                    \
+  if (!shared_scans_present())                    \
+  GTEST_SKIP() << "no " << TERRASTRIDE_SHARED_DIR \
                << "/scans (the shared scans folder is not beside this clone)"
 
 // `plan --terrain flat` exits 0 and says so in one line, then names the commands that judge the
@@ -142,9 +142,10 @@ TEST_F(FirstHour, NoisyFloorMapsPlansChecksAndSimulates) {
   EXPECT_EQ(report_refused.code, 1) << report_refused.all();
   EXPECT_NE(report_refused.err.find("report takes only --origin"), std::string::npos)
       << report_refused.err;
-  EXPECT_NE(report_refused.err.find(" map " + scan("anybotics_samples/grid_map_pcl_input_cloud.pcd") +
-                                    " --out grid_map_pcl_input_cloud-map` with the flag added"),
-            std::string::npos)
+  EXPECT_NE(
+      report_refused.err.find(" map " + scan("anybotics_samples/grid_map_pcl_input_cloud.pcd") +
+                              " --out grid_map_pcl_input_cloud-map` with the flag added"),
+      std::string::npos)
       << report_refused.err;
   const CommandResult mapped = terrastride("map " + cloud + " --viewpoint origin --out floor");
   ASSERT_EQ(mapped.code, 0) << mapped.all();
@@ -225,7 +226,8 @@ TEST_F(FirstHour, ACloudGivenAsTerrainGetsTheMapCommandToPaste) {
     EXPECT_EQ(refused.code, 1) << args << "\n" << refused.all();
     std::smatch m;
     ASSERT_TRUE(std::regex_search(refused.err, m, std::regex("map it first with `([^`]*)`")))
-        << args << "\n" << refused.err;
+        << args << "\n"
+        << refused.err;
     EXPECT_NE(refused.err.find("'my floor-map'"), std::string::npos) << refused.err;
     if (command.empty()) command = m[1];
     EXPECT_EQ(m[1], command) << args;
@@ -239,7 +241,8 @@ TEST_F(FirstHour, ACloudGivenAsTerrainGetsTheMapCommandToPaste) {
   const CommandResult off = terrastride("plan --terrain 'my floor-map' --start 5,5,0 --out o.json");
   EXPECT_EQ(off.code, 1) << off.all();
   std::smatch m;
-  ASSERT_TRUE(std::regex_search(off.err, m, std::regex("--start: .*; `([^`]* regions [^`]*)` lists")))
+  ASSERT_TRUE(
+      std::regex_search(off.err, m, std::regex("--start: .*; `([^`]* regions [^`]*)` lists")))
       << off.err;
   const CommandResult pasted = paste(m[1]);
   EXPECT_EQ(pasted.code, 0) << pasted.all();

@@ -258,9 +258,8 @@ std::string check_detail(const std::map<std::string, double>& keys) {
   if (keys.count("shin_collisions_certain"))
     check_detail += ", shin certain collisions " + fixed(keys.at("shin_collisions_certain"), 0);
   if (keys.count("shin_min_certain_distance_m"))
-    check_detail +=
-        ", shin min " + fixed(keys.at("shin_min_certain_distance_m") * 1000, 1) +
-        " mm to certain voxels";
+    check_detail += ", shin min " + fixed(keys.at("shin_min_certain_distance_m") * 1000, 1) +
+                    " mm to certain voxels";
   if (keys.count("shin_contacts_uncertain"))
     check_detail += ", " + fixed(keys.at("shin_contacts_uncertain"), 0) +
                     " shin contacts with voxels within the map's uncertainty (these fail nothing)";

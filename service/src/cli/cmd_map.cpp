@@ -14,13 +14,13 @@
 #include <sstream>
 #include <vector>
 
+#include "pasteable.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/bag.hpp"
 #include "terrastride/perception/bag_clouds.hpp"
 #include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/perception/sensor_pose.hpp"
 #include "terrastride/perception/tf_buffer.hpp"
-#include "pasteable.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/map_build.hpp"
 

@@ -261,8 +261,8 @@ nlohmann::json plan_summary(const planner::PlanOutcome& out,
 void print_plan_passed(std::ostream& summary_out, const planner::Trajectory& traj,
                        const PlanCliOptions& o) {
   int uncertain = 0;
-  for (const char* key : {"shin_contacts_uncertain", "thigh_contacts_uncertain",
-                          "trunk_contacts_uncertain"}) {
+  for (const char* key :
+       {"shin_contacts_uncertain", "thigh_contacts_uncertain", "trunk_contacts_uncertain"}) {
     const auto it = traj.checks.find(key);
     if (it != traj.checks.end()) uncertain += static_cast<int>(it->second);
   }
@@ -276,8 +276,8 @@ void print_plan_passed(std::ostream& summary_out, const planner::Trajectory& tra
   if (o.out.rfind("/dev/", 0) == 0) return;  // the plan went to a stream: nothing to judge by name
   const std::string program = pasteable_program();
   const std::string args = shell_word(o.out) + " --terrain " + shell_word(o.terrain);
-  summary_out << "next: " << program << " check " << args << "\n      " << program
-              << " simulate " << args << " --out sim.json\n";
+  summary_out << "next: " << program << " check " << args << "\n      " << program << " simulate "
+              << args << " --out sim.json\n";
 }
 
 void print_plan_summary(std::ostream& summary_out, const planner::Trajectory& traj,

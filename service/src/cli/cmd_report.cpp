@@ -11,10 +11,10 @@
 #include <sstream>
 
 #include "batch/batch.hpp"
+#include "pasteable.hpp"
 #include "report/report.hpp"
 #include "report/report_file.hpp"
 #include "report/terrain_input.hpp"
-#include "pasteable.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/service/cli.hpp"
@@ -124,10 +124,9 @@ json report_view(const json& report) {
   }
   if (!(lo[0] <= hi[0])) return {{"zoomed", false}, {"whole", whole}, {"plan", whole}};
   const double margin = 1.0;
-  const std::vector<double> plan{std::max(whole[0], lo[0] - margin),
-                                 std::min(whole[1], hi[0] + margin),
-                                 std::max(whole[2], lo[1] - margin),
-                                 std::min(whole[3], hi[1] + margin)};
+  const std::vector<double> plan{
+      std::max(whole[0], lo[0] - margin), std::min(whole[1], hi[0] + margin),
+      std::max(whole[2], lo[1] - margin), std::min(whole[3], hi[1] + margin)};
   const double whole_span = std::max(whole[1] - whole[0], whole[3] - whole[2]);
   const double plan_span = std::max(plan[1] - plan[0], plan[3] - plan[2]);
   return {{"zoomed", whole_span > 3 * plan_span}, {"whole", whole}, {"plan", plan}};
