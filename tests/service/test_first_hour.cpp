@@ -99,6 +99,24 @@ TEST_F(FirstHour, APlanThatPassesSaysSoAndItsNextStepsRunAsPrinted) {
   EXPECT_EQ(baseline.out.find("next: "), std::string::npos) << baseline.out;
 }
 
+// With this binary first on PATH, a printed command names it bare, as the user typed it; with
+// another `terrastride` first on PATH, the absolute path of this one (the other is not run).
+TEST_F(FirstHour, PrintedCommandsNameTheBinaryAsTheShellFindsIt) {
+  const std::string bin_dir = fs::path(TERRASTRIDE_BINARY).parent_path().string();
+  CommandResult r = paste("PATH=" + shell_quote(bin_dir) +
+                          ":\"$PATH\" terrastride regions --terrain flat --max-regions 1");
+  ASSERT_EQ(r.code, 0) << r.all();
+  EXPECT_NE(r.out.find("\nregion 1: terrastride plan --terrain flat "), std::string::npos) << r.out;
+  fs::create_directories(dir_ / "other");
+  fs::create_symlink("/bin/true", dir_ / "other" / "terrastride");
+  r = paste("PATH=" + shell_quote((dir_ / "other").string()) + ":\"$PATH\" " + TERRASTRIDE_BINARY +
+            " regions --terrain flat --max-regions 1");
+  ASSERT_EQ(r.code, 0) << r.all();
+  EXPECT_NE(r.out.find("\nregion 1: " + fs::canonical(TERRASTRIDE_BINARY).string() + " plan "),
+            std::string::npos)
+      << r.out;
+}
+
 // The building floor: `regions` names the corridor, and its first plan command, pasted as
 // printed, plans from a terrain path with a space in it (quoted in the command).
 TEST_F(FirstHour, RegionsPlanCommandPastedAsPrintedPlansOnTheBuildingFloor) {
