@@ -11,6 +11,7 @@
 
 #include "common/simulation_run.hpp"
 #include "common/terrain_source.hpp"
+#include "pasteable.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/collision/octree_terrain.hpp"
 #include "terrastride/perception/atomic_output.hpp"
@@ -318,10 +319,8 @@ void run_check(const CheckCliOptions& o) {
   PlanWithRobot loaded = read_plan_with_robot(o.plan, o.robot);
   const planner::Trajectory& traj = loaded.trajectory;
   const robot::RobotModel& model = loaded.robot;
-  const TerrainSource source = load_terrain_source(
-      o.terrain, /*smooth_scene=*/false,
-      "a file; pass a terrain directory from 'terrastride map', an OctoMap (.bt, .ot) or a scene "
-      "name");
+  const TerrainSource source =
+      load_terrain_source(o.terrain, /*smooth_scene=*/false, map_it_first(o.terrain));
   const collision::CheckTerrain view =
       check_terrain_for(source, model, traj, o.resolution, /*require_octomap=*/true);
   collision::CheckReport rep;

@@ -253,13 +253,16 @@ std::string check_detail(const std::map<std::string, double>& keys) {
   std::string check_detail;
   if (keys.count("torque_ratio_max"))
     check_detail += "torque ratio " + fixed(keys.at("torque_ratio_max"), 3);
+  // Only certain collisions fail (docs/leg-check.md): the distance to certain voxels is the
+  // figure that judges the plan; contacts with uncertain voxels are counted beside it.
   if (keys.count("shin_collisions_certain"))
-    check_detail += ", shin certain collisions " + fixed(keys.at("shin_collisions_certain"), 0) +
-                    " (" + fixed(keys.at("shin_contacts_uncertain"), 0) +
-                    " voxel contacts within the map's uncertainty)";
-  if (keys.count("shin_min_distance_m"))
-    check_detail +=
-        ", shin min " + fixed(keys.at("shin_min_distance_m") * 1000, 1) + " mm to the voxels";
+    check_detail += ", shin certain collisions " + fixed(keys.at("shin_collisions_certain"), 0);
+  if (keys.count("shin_min_certain_distance_m"))
+    check_detail += ", shin min " + fixed(keys.at("shin_min_certain_distance_m") * 1000, 1) +
+                    " mm to certain voxels";
+  if (keys.count("shin_contacts_uncertain"))
+    check_detail += ", " + fixed(keys.at("shin_contacts_uncertain"), 0) +
+                    " shin contacts with voxels within the map's uncertainty (these fail nothing)";
   if (keys.count("unsafe_footholds"))
     check_detail += ", unsafe footholds " + fixed(keys.at("unsafe_footholds"), 0);
   return check_detail;

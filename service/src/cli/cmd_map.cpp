@@ -14,6 +14,7 @@
 #include <sstream>
 #include <vector>
 
+#include "pasteable.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/bag.hpp"
 #include "terrastride/perception/bag_clouds.hpp"
@@ -235,10 +236,25 @@ void print_summary(const MapOptions& o, const terrain::MapBuild& build, const js
               << " m joins to the floor's (not safe, not counted above)\n";
   if (summary.contains("notes"))
     for (const auto& note : summary["notes"]) std::cout << "  note: " << note.get<std::string>() << "\n";
+  // A map whose observed cells are all unsafe is most often a cloud placed wrong (z taken as up
+  // on a tilted or upside-down cloud): it is written, but says so.
+  bool any_safe = false;
+  for (const auto& s : summary["safe"]) any_safe = any_safe || s["safe_fraction"].get<double>() > 0;
+  if (g.observed_cells > 0 && !any_safe)
+    std::cout << "  warning: no observed cell is safe for any foot radius, so no robot can stand "
+                 "on this map; if the ground is not level in it, the cloud's orientation is "
+                 "wrong: give the sensor's pose (--sensor-pose, --poses, --viewpoint) rather than "
+                 "--up z\n";
   std::cout << "  time: read " << fmt(timings["read_s"]) << " s, clean " << fmt(timings["filter_s"])
             << " s, grid " << fmt(timings["grid_s"]) << " s, safety " << fmt(timings["safety_s"])
             << " s, OctoMap " << fmt(timings["octomap_s"]) << " s, write "
             << fmt(timings["write_s"]) << " s, total " << fmt(timings["total_s"]) << " s\n";
+}
+
+// The first-hour step after a map: where on it the robot can stand and go (to paste as printed).
+void print_next_step(const MapOptions& o) {
+  std::cout << "next: " << pasteable_program() << " regions --terrain " << shell_word(o.out)
+            << "\n";
 }
 
 // One line per cloud file: where its pose came from and how its up direction was found.
@@ -331,6 +347,7 @@ void run_map_octomap(const MapOptions& o) {
             << " of them overhangs with free space beneath (not support; "
             << input.stats.overhang_only_columns << " columns hold nothing else)\n";
   print_summary(o, build, meta, summary);
+  print_next_step(o);
 }
 
 std::string stamp_text(int64_t ns) { return perception::format_stamp(ns); }
@@ -554,6 +571,7 @@ void run_map(MapOptions o) {
   if (any_bag) print_bag_summary(bags);
   print_summary(o, build, meta, summary);
   if (!any_bag) print_placements(input.sources);
+  print_next_step(o);
 }
 
 }  // namespace

@@ -15,6 +15,7 @@
 #include "common/simulation_run.hpp"
 #include "common/solver_heap.hpp"
 #include "common/terrain_source.hpp"
+#include "pasteable.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/planner/feasibility.hpp"
@@ -255,6 +256,30 @@ nlohmann::json plan_summary(const planner::PlanOutcome& out,
 }
 
 // The summary for people.
+// The verdict of a plan that exits 0, and the commands that judge it further, to paste as printed.
+// The collision counts above include contacts within the map's uncertainty, which fail nothing.
+void print_plan_passed(std::ostream& summary_out, const planner::Trajectory& traj,
+                       const PlanCliOptions& o) {
+  int uncertain = 0;
+  for (const char* key :
+       {"shin_contacts_uncertain", "thigh_contacts_uncertain", "trunk_contacts_uncertain"}) {
+    const auto it = traj.checks.find(key);
+    if (it != traj.checks.end()) uncertain += static_cast<int>(it->second);
+  }
+  summary_out << "PASS: optimal, every post-hoc check clean (joint ranges and torques, leg and "
+                 "trunk clearance, footholds)";
+  if (uncertain > 0)
+    summary_out << "; the " << uncertain
+                << " leg or trunk contacts counted above are within the map's uncertainty and "
+                   "fail nothing (only *_collisions_certain do, docs/leg-check.md)";
+  summary_out << "\n";
+  if (o.out.rfind("/dev/", 0) == 0) return;  // the plan went to a stream: nothing to judge by name
+  const std::string program = pasteable_program();
+  const std::string args = shell_word(o.out) + " --terrain " + shell_word(o.terrain);
+  summary_out << "next: " << program << " check " << args << "\n      " << program << " simulate "
+              << args << " --out sim.json\n";
+}
+
 void print_plan_summary(std::ostream& summary_out, const planner::Trajectory& traj,
                         const std::vector<std::string>& failures,
                         const nlohmann::json& simulation, bool useful, const PlanCliOptions& o) {
@@ -275,6 +300,7 @@ void print_plan_summary(std::ostream& summary_out, const planner::Trajectory& tr
   }
   for (const auto& f : failures) summary_out << "  FAILED: " << f << "\n";
   if (useful) summary_out << "wrote " << o.out << "\n";
+  if (traj.solver.status == "optimal" && failures.empty()) print_plan_passed(summary_out, traj, o);
 }
 
 // The exit: 3 when the solver's plan is not optimal, kExitChecksFailed when it fails a post-hoc
@@ -308,15 +334,20 @@ void run_plan(const PlanCliOptions& o) {
   req.options.verbose = o.verbose;
   const planner::WarmStart warm = req.warm_start();
   const TerrainSource terrains =
-      load_terrain_source(o.terrain, /*smooth_scene=*/true,
-                          "point clouds are not planned on directly; run 'terrastride map " +
-                              o.terrain + " --out DIR' and pass --terrain DIR");
+      load_terrain_source(o.terrain, /*smooth_scene=*/true, map_it_first(o.terrain));
   nlohmann::json stance_corrections;
   try {
     check_stances_on_terrain(req, model, *terrains.exact());
     stance_corrections = settle_stance_feet(&req, *terrains.smooth());
   } catch (const RequestFieldError& e) {
-    throw CommandError(cli_field(e.field(), o) + ": " + cli_text(e.problem()));
+    // A start or goal off the safe ground: `regions` lists the ones that are on it.
+    const bool pose = e.field() == "start" || e.field() == "goal";
+    std::string robot = o.robot == "hyq" ? "" : " --robot " + shell_word(o.robot);
+    throw CommandError(cli_field(e.field(), o) + ": " + cli_text(e.problem()) +
+                       (pose ? "; `" + pasteable_program() + " regions --terrain " +
+                                   shell_word(o.terrain) + robot +
+                                   "` lists starts and goals on safe ground with plan commands"
+                             : ""));
   }
 
   // --out is checked before the solve (a probe file in its folder), so a missing or read-only
@@ -381,10 +412,10 @@ void add_plan_command(CLI::App& app) {
                   "robot's strides, the length of its range-of-motion box: Go2 4 for 1 m)");
   cmd->add_option("--duration", o->duration, "total duration in s (default: the gait's)");
   cmd->add_option("--goal", o->goal,
-                  "goal X,Y,YAW of the base (default 1,0,0; a re-plan: --init's goal)");
+                  "goal X,Y,YAW of the base (m, m, rad; default 1,0,0; a re-plan: --init's goal)");
   cmd->add_option("--start", o->start,
-                  "start X,Y,YAW of the base, the nominal stance placed on the terrain there "
-                  "(default 0,0,0)");
+                  "start X,Y,YAW of the base (m, m, rad), the nominal stance placed on the "
+                  "terrain there (default 0,0,0)");
   cmd->add_option("--constraints", o->constraints,
                   "constraint sets, comma separated: baseline, foot (foot radius), shin (shin "
                   "collision, the paper's fixed-angle model), shin_ik (shin collision on the leg's "

@@ -1,10 +1,12 @@
 // `terrastride query DIR --at X,Y [...]`: height, gradient and foothold safety at points of a map.
 #include <cmath>
+#include <filesystem>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "pasteable.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
@@ -21,6 +23,11 @@ struct QueryOptions {
 
 void run_query(const QueryOptions& o) {
   std::unique_ptr<terrain::TerrainMap> map;
+  std::error_code ec;
+  if (std::filesystem::is_regular_file(o.dir, ec))
+    throw CommandError(o.dir + ": a file is not a map: map it first with `" + map_command(o.dir) +
+                       "` (add the pose flags `map` asks for, if any) and query " +
+                       shell_word(map_folder_for(o.dir)));
   try {
     map = terrain::load_terrain_dir(o.dir);
   } catch (const perception::InputError& e) {

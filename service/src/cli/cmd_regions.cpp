@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "common/terrain_source.hpp"
+#include "pasteable.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/cli.hpp"
@@ -38,11 +39,12 @@ nlohmann::json pose_json(const terrain::RegionPose& p) {
   return {{"x", p.xy.x()}, {"y", p.xy.y()}, {"yaw", p.yaw}, {"height", p.height}};
 }
 
-// The command a user pastes to plan from a region's start to its first goal.
+// The command a user pastes, as printed, to plan from a region's start to its first goal: this
+// binary as the shell finds it, the terrain and robot quoted as their names need.
 std::string plan_command(const RegionsOptions& o, const terrain::SafeRegion& r) {
   if (r.goals.empty()) return "";
-  std::string cmd = "terrastride plan --terrain " + o.terrain;
-  if (o.robot != "hyq") cmd += " --robot " + o.robot;
+  std::string cmd = pasteable_program() + " plan --terrain " + shell_word(o.terrain);
+  if (o.robot != "hyq") cmd += " --robot " + shell_word(o.robot);
   return cmd + " --start " + pose_text(r.start) + " --goal " + pose_text(r.goals.front().pose) +
          " --constraints all --out plan.json";
 }
@@ -84,9 +86,8 @@ void run_regions(const RegionsOptions& o) {
     throw CommandError("--goal-distance: must be within (0, 100] m");
   if (o.foot_radius_given && !(o.foot_radius >= 0 && o.foot_radius <= 0.5))
     throw CommandError("--foot-radius: must be within [0, 0.5] m");
-  TerrainSource source = load_terrain_source(
-      o.terrain, /*smooth_scene=*/true, "give a folder written by `terrastride map`, an OctoMap "
-                                        "(.bt/.ot) or a scene name");
+  TerrainSource source =
+      load_terrain_source(o.terrain, /*smooth_scene=*/true, map_it_first(o.terrain));
   terrain::RegionOptions ro;
   for (const auto& leg : model.legs) ro.footprint.feet.push_back(leg.nominal_foot.head<2>());
   ro.footprint.foot_radius = o.foot_radius_given ? o.foot_radius : model.foot_radius;
@@ -112,6 +113,9 @@ void run_regions(const RegionsOptions& o) {
     return;
   }
   std::cout << terrain::describe_regions(listing);
+  if (!listing.regions.empty())
+    std::cout << "plan commands to paste as printed (--start and --goal are X,Y,YAW, the yaw in "
+                 "radians):\n";
   for (const auto& r : listing.regions) {
     const std::string cmd = plan_command(o, r);
     if (!cmd.empty()) std::cout << "region " << r.id << ": " << cmd << "\n";

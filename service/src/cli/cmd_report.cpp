@@ -11,10 +11,12 @@
 #include <sstream>
 
 #include "batch/batch.hpp"
+#include "pasteable.hpp"
 #include "report/report.hpp"
 #include "report/report_file.hpp"
 #include "report/terrain_input.hpp"
 #include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/scenes.hpp"
 
@@ -101,6 +103,44 @@ json terrain_input_notes(const json& info) {
   return notes;
 }
 
+// Where the page's map and 3-D views open, by the page's own rule (service/report/template.html,
+// `view`): the plans' base paths and footholds plus 1 m, clipped to the map, when the map spans
+// more than three times that; else the whole map. Said on the command line so that a large map's
+// report can be judged without a browser.
+json report_view(const json& report) {
+  const json& t = report["terrain"];
+  if (!t.contains("x") || !t.contains("y") || t["x"].empty() || t["y"].empty()) return json();
+  const std::vector<double> whole{t["x"].front().get<double>(), t["x"].back().get<double>(),
+                                  t["y"].front().get<double>(), t["y"].back().get<double>()};
+  double lo[2] = {1e300, 1e300}, hi[2] = {-1e300, -1e300};
+  const auto add = [&](const json& x, const json& y) {
+    if (!x.is_number() || !y.is_number()) return;
+    const double p[2] = {x.get<double>(), y.get<double>()};
+    for (int k = 0; k < 2; ++k) lo[k] = std::min(lo[k], p[k]), hi[k] = std::max(hi[k], p[k]);
+  };
+  for (const json& p : report["plans"]) {
+    for (size_t i = 0; i < p["base"]["x"].size(); ++i) add(p["base"]["x"][i], p["base"]["y"][i]);
+    for (const json& f : p["footholds"]) add(f["position"][0], f["position"][1]);
+  }
+  if (!(lo[0] <= hi[0])) return {{"zoomed", false}, {"whole", whole}, {"plan", whole}};
+  const double margin = 1.0;
+  const std::vector<double> plan{
+      std::max(whole[0], lo[0] - margin), std::min(whole[1], hi[0] + margin),
+      std::max(whole[2], lo[1] - margin), std::min(whole[3], hi[1] + margin)};
+  const double whole_span = std::max(whole[1] - whole[0], whole[3] - whole[2]);
+  const double plan_span = std::max(plan[1] - plan[0], plan[3] - plan[2]);
+  return {{"zoomed", whole_span > 3 * plan_span}, {"whole", whole}, {"plan", plan}};
+}
+
+std::string extent_text(const json& box) {
+  std::ostringstream os;
+  os.setf(std::ios::fixed);
+  os.precision(2);
+  os << "x " << box[0].get<double>() << ".." << box[1].get<double>() << " m, y "
+     << box[2].get<double>() << ".." << box[3].get<double>() << " m";
+  return os.str();
+}
+
 json summary_json(const json& report, const std::string& html, const std::string& json_path) {
   json plans = json::array();
   for (const json& p : report["plans"]) {
@@ -123,6 +163,7 @@ json summary_json(const json& report, const std::string& html, const std::string
           {"observed_fraction", report["terrain"]["observed_fraction"]},
           {"cells", report["terrain"]["cells"]},
           {"terrain_inputs", terrain_input_notes(report["terrain"]["info"])},
+          {"view", report_view(report)},
           {"plans", plans}};
 }
 
@@ -138,6 +179,16 @@ void print_summary(const json& s, bool as_json) {
   for (const json& p : s["problems"])
     std::cout << "PROBLEM " << p["plan"].get<std::string>() << ": " << p["text"].get<std::string>()
               << "\n";
+  const json& view = s["view"];
+  if (view.is_object() && !s["plans"].empty()) {
+    if (view["zoomed"].get<bool>())
+      std::cout << "view: the map and 3-D views open on the plans' surroundings, "
+                << extent_text(view["plan"]) << ", of a map " << extent_text(view["whole"])
+                << " (the whole map is one button away)\n";
+    else
+      std::cout << "view: the whole map, " << extent_text(view["whole"])
+                << " (the plans' surroundings span a third of it or more)\n";
+  }
   std::cout << (s["ok"].get<bool>() ? "no problems found"
                                     : std::to_string(s["problems"].size()) + " problems found")
             << "\nreport: " << s["html"].get<std::string>()
@@ -163,12 +214,32 @@ void refuse_overwriting_inputs(const std::string& out, const std::vector<std::st
   for (const auto& t : terrain) check(t, "--terrain");
 }
 
+// A cloud the report could not map may need map's pose flags, of which report takes only
+// --origin (and a refusal names them all): the map command to paste, then the folder to report.
+std::string cloud_flags_hint(const std::vector<std::string>& terrain, const std::string& error) {
+  for (const std::string& input : terrain) {
+    std::error_code ec;
+    if (!fs::is_regular_file(input, ec) || perception::is_octomap_file(input)) continue;
+    if (error.rfind(input + ":", 0) != 0) continue;  // the error is not about this cloud
+    return "\n(if it needs map's pose flags: report takes only --origin; for --viewpoint, "
+           "--sensor-pose, --poses, --sensor-frame or --up, map the cloud first, `" +
+           map_command(input) + "` with the flag added, then report --terrain " +
+           shell_word(map_folder_for(input)) + ")";
+  }
+  return "";
+}
+
 // One report: OUT.html and OUT.json for --terrain and its --plan files.
 void run_single(const ReportCommandOptions& o, const report::TerrainInputOptions& topts,
                 const report::ReportOptions& ropts) {
   check_out_html(o.out);
   refuse_overwriting_inputs(o.out, o.plans, o.terrain);
-  const json rep = report::make_report_file(o.terrain, o.plans, topts, ropts, o.out);
+  json rep;
+  try {
+    rep = report::make_report_file(o.terrain, o.plans, topts, ropts, o.out);
+  } catch (const CommandError& e) {
+    throw CommandError(e.what() + cloud_flags_hint(o.terrain, e.what()), e.exit_code());
+  }
   const std::string json_path = fs::path(o.out).replace_extension(".json").string();
   print_summary(summary_json(rep, o.out, json_path), o.json_output);
 }
