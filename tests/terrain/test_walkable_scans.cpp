@@ -117,6 +117,9 @@ TEST(WalkableScans, Geb079WallsAreNoOverhangs) {
   // What is left over the corridor floor there is a real underside 0.9 m up (0.92 m of room).
   EXPECT_GT(map.overhead(9.83, -1.01), 0.8);
   EXPECT_FALSE(std::isfinite(g.overhead[map.cell_index(9.83, -1.17)]));
+  // Another wall's foot, 0.2 m over the floor of the room at x = -5.6, within the trunk's reach at
+  // the goal of the crawl below (whose last knot's trunk rows it had left infeasible).
+  EXPECT_FALSE(std::isfinite(g.overhead[map.cell_index(-6.0, 1.1)]));
   // Every underside left beside the floor (the lowest observed ground within two cells at the
   // corridor's level) has the free height over it.
   const float floor = g.elevation[map.cell_index(6.2, -0.36)];
@@ -163,6 +166,12 @@ TEST(WalkableScans, Geb079RegionsSuggestOnlyPairsThePlannerAccepts) {
     }
   }
   EXPECT_GE(with_command + 1, listing["regions"].size());
+  // The crawl along the room at x = -5.6 (a region's suggestion) plans: it had ended infeasible
+  // after 129 iterations, its trunk 0.011 m into a wall's foot read as an overhang.
+  r = test_support::run_terrastride("plan --terrain " + out +
+                                    " --start -5.56,-0.44,1.571 --goal -5.56,0.44,1.571 "
+                                    "--constraints all --out " + dir.file("room.json"));
+  EXPECT_EQ(r.code, 0) << r.all();
   // The text names the region no pair of which passes.
   r = test_support::run_terrastride("regions --terrain " + out);
   ASSERT_EQ(r.code, 0) << r.all();
