@@ -11,6 +11,7 @@
 #include <memory>
 #include <sstream>
 
+#include "terrastride/planner/before_solve.hpp"
 #include "terrastride/planner/constraints.hpp"
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/piece_math.hpp"
@@ -253,6 +254,16 @@ void record_failure(const SrbdProblem& problem, const PlannerOptions& options,
 }
 
 }  // namespace
+
+void check_before_solve(const robot::RobotModel& robot, const terrain::HeightField& plan_terrain,
+                        const PlannerOptions& options) {
+  std::vector<std::string> feet;
+  for (const auto& leg : robot.legs) feet.push_back(leg.name);
+  const PlanSetup setup = fresh_setup(robot, feet, options);
+  // The problem's construction refuses a trunk that cannot pass under an overhang (trunk.cpp).
+  const SrbdProblem problem(robot, plan_terrain, setup.timeline, options, setup.start_ptr());
+  require_reachable(problem);
+}
 
 PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightField& plan_terrain,
                         const terrain::HeightField& check_terrain, const PlannerOptions& options,

@@ -609,6 +609,37 @@ void add_input_overhangs(const std::vector<PointBatch>& batches, HeightGrid& gri
     }
 }
 
+// An overhang is an underside with room beneath it: at least `free_height` above the ground under
+// it. Where its own cell has no ground (an OctoMap column whose lowest run had free voxels beneath
+// it, a thin cluster seen from beneath), that ground is the lowest observed ground within
+// kOverheadRoomCells: the planner's overhead field takes the lowest underside within that many
+// cells (TerrainMap's overhead field), so each underside is judged against every ground it reaches.
+// An underside lower than that is the foot of a wall whose free voxels lie under the floor (rays
+// through a glass or unscanned floor; geb079's corridor walls reach 0.12 m below it): no robot
+// passes under it, so it is no overhead; its cell stays what it was (unobserved without ground).
+constexpr int kOverheadRoomCells = 2;
+void drop_overhangs_without_room(HeightGrid& grid, double free_height) {
+  const GridGeometry& g = grid.geometry;
+  std::vector<uint32_t> dropped;
+  for (int i = 0; i < g.nx; ++i)
+    for (int j = 0; j < g.ny; ++j) {
+      const size_t k = g.index(i, j);
+      if (!std::isfinite(grid.overhead[k])) continue;
+      float ground = std::numeric_limits<float>::infinity();
+      for (int a = std::max(0, i - kOverheadRoomCells);
+           a <= std::min(g.nx - 1, i + kOverheadRoomCells); ++a)
+        for (int b = std::max(0, j - kOverheadRoomCells);
+             b <= std::min(g.ny - 1, j + kOverheadRoomCells); ++b) {
+          const size_t n = g.index(a, b);
+          if (grid.observed[n] == 1) ground = std::min(ground, grid.elevation[n]);
+        }
+      if (std::isfinite(ground) && grid.overhead[k] < ground + free_height)
+        dropped.push_back(static_cast<uint32_t>(k));
+    }
+  // Judged against the ground as observed, before any underside is dropped.
+  for (const uint32_t k : dropped) grid.overhead[k] = std::numeric_limits<float>::infinity();
+}
+
 void add_notes(HeightGrid& grid, double input_voxel) {
   const double res = grid.geometry.resolution;
   if (!grid.noise.estimated) grid.notes.push_back(grid.noise.note);
@@ -804,6 +835,7 @@ void build_surface(const std::vector<PointBatch>& batches, const std::vector<Ent
   for (size_t k = 0; k < ncell; ++k) sample[k] = grid.support[k] > 0;
   promote_sparse_surfaces(entries, start, candidate, eff, grid, sample);
   add_input_overhangs(batches, grid);
+  drop_overhangs_without_room(grid, o.overhang_free_height);
   for (size_t k = 0; k < ncell; ++k) grid.observed_cells += grid.observed[k] == 1;
   // Sampling gaps at the scale of the point spacing (1.5 cells for dense clouds, as before), then
   // the see-through openings: in that order, a sparse cloud's surface is whole before the pits

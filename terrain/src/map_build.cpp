@@ -207,14 +207,27 @@ void resolve_pose(const perception::CloudFileRead& file, const std::string& path
     // The same plane in the file's own frame: what the points say without the VIEWPOINT.
     const Eigen::Vector3d raw = pl.pose.orientation.inverse() * p.normal();
     const double raw_tilt = std::acos(std::clamp(raw.z(), -1.0, 1.0)) * 180.0 / M_PI;
+    const std::string origin =
+        "--viewpoint origin (the points taken as written, the VIEWPOINT's position as the "
+        "sensor's, its rotation not applied)";
+    const std::string others =
+        "give the sensor's pose (--sensor-pose, --poses), or level the cloud by that plane "
+        "(--up auto, after the VIEWPOINT's rotation)";
+    const std::string as_is =
+        "--up z maps it with the VIEWPOINT's rotation applied, tilted as it is";
+    // Level as written: world-frame points whose VIEWPOINT holds the sensor's pose, the common
+    // case, so the flag that reads them so leads.
+    const bool level_as_written = raw_tilt <= max_tilt_deg;
     throw perception::InputError(
         head +
         ", with the rotation of the file's VIEWPOINT applied (PCL's meaning: the points in "
         "the sensor frame, VIEWPOINT its pose); as written, that plane is " +
-        fixed(raw_tilt, 1) +
-        " deg from level. If the points are already in the world frame, say --viewpoint origin "
-        "(the VIEWPOINT's position is then the sensor's, its rotation not applied); or give the "
-        "sensor's pose (--sensor-pose, --poses), or take the VIEWPOINT as it is (--up z)");
+        fixed(raw_tilt, 1) + " deg from level" +
+        (level_as_written
+             ? ", so the points look already in the world frame: say " + origin +
+                   ". Otherwise " + others + "; " + as_is
+             : ". Either " + others + "; or, if the points are in the world frame, say " +
+                   origin + "; " + as_is));
   }
   throw perception::InputError(
       head +
@@ -250,7 +263,8 @@ perception::PointCloud place_cloud(perception::CloudFileRead file, const std::st
   const Eigen::Vector3d sensor = pl.pose.position;
   pl.plane = perception::estimate_support_plane(cloud.points, sensor, o.plane);
   const perception::SupportPlane& plane = *pl.plane;
-  if (o.up == UpMode::kCheck || pl.rotation_known) {
+  // --up auto levels an unmarked VIEWPOINT's cloud too: its rotation applied, then the plane's.
+  if (o.up == UpMode::kCheck) {
     if (plane.found && plane.tilt_deg > o.max_tilt_deg) refuse_unlevel(path, pl, o.max_tilt_deg);
     return cloud;
   }

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "perception/test_util.hpp"
 #include "support/run_command.hpp"
 #include "terrastride/perception/cloud_io.hpp"
 #include "terrastride/perception/npy.hpp"
@@ -415,6 +416,41 @@ TEST_F(SensorFramesCli, BadPosesAreRefusedNamingTheOptionOrLine) {
   std::ofstream(path("p3.txt")) << "s.pcd 0 0 1 -0.5 0.5 -0.5 0.5\n";
   r = run("map --poses " + shell_quote(path("p3.txt")) + " --out " + shell_quote(path("p3")));
   EXPECT_EQ(r.code, 0) << r.err;
+}
+
+}  // namespace
+
+namespace {
+
+// A real world-frame cloud whose VIEWPOINT holds the sensor's pose (skipped without ../shared):
+// refused with --viewpoint origin as the first suggestion (the cloud as written is level), --up z
+// said to keep the VIEWPOINT's rotation; --up auto levels it (the rotation applied, then the
+// plane's).
+TEST(SensorFramesShared, WorldFramePcdWithASensorViewpointLeadsWithViewpointOrigin) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
+  terrastride::perception::test::ScratchDir dir;
+  const std::string cloud =
+      shell_quote(terrastride::perception::test::scan("anybotics_samples/grid_map_pcl_input_cloud.pcd"));
+  CommandResult r = run("map " + cloud + " --out " + shell_quote(dir.file("refused")));
+  EXPECT_EQ(r.code, 1) << r.all();
+  const size_t origin = r.err.find("say --viewpoint origin");
+  ASSERT_NE(origin, std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("as written, that plane is 1.6 deg from level"), std::string::npos) << r.err;
+  for (const char* later : {"--sensor-pose", "--up auto", "--up z"}) {
+    const size_t at = r.err.find(later);
+    ASSERT_NE(at, std::string::npos) << later << ": " << r.err;
+    EXPECT_GT(at, origin) << later << ": " << r.err;
+  }
+  EXPECT_NE(r.err.find("--up z maps it with the VIEWPOINT's rotation applied"), std::string::npos)
+      << r.err;
+  EXPECT_FALSE(fs::exists(dir.file("refused")));
+  const std::string out = dir.file("levelled");
+  r = run("map " + cloud + " --up auto --out " + shell_quote(out));
+  ASSERT_EQ(r.code, 0) << r.all();
+  std::ifstream in(fs::path(out) / "terrain.json");
+  const json up = json::parse(in)["inputs"][0]["up"];
+  EXPECT_EQ(up["from"], "levelled by the dominant plane (--up auto)") << up.dump();
+  EXPECT_NEAR(up["tilt_deg"].get<double>(), 91.5, 0.5) << up.dump();
 }
 
 }  // namespace

@@ -5,6 +5,9 @@
 
 #include <cmath>
 #include <filesystem>
+#include <limits>
+#include <algorithm>
+#include <nlohmann/json.hpp>
 #include <string>
 
 #include "perception/test_util.hpp"
@@ -100,6 +103,81 @@ TEST(WalkableScans, Geb079CorridorCrawlStillPlansAndCeilingStartIsRefused) {
   EXPECT_NE(r.err.find("--start: [0.2, -4.44, 0]"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("no walkable ground"), std::string::npos) << r.err;
   EXPECT_FALSE(std::filesystem::exists(dir.file("ceiling.json")));
+}
+
+// geb079's corridor walls reach 0.12 m below its floor with free voxels under them: the column
+// rule reads each as an overhang, which has no room beneath it over the floor beside it, so it is
+// no overhead (it had put one 0.02 m above the corridor floor at (9.83, -1.01) through the
+// overhead field's window, and the trunk pre-check refused a plan along the corridor there).
+TEST(WalkableScans, Geb079WallsAreNoOverhangs) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
+  const terrain::MapBuild build = map_octomap("geb079.bt");
+  const terrain::TerrainMap& map = *build.map;
+  const terrain::HeightGrid& g = map.grid();
+  // What is left over the corridor floor there is a real underside 0.9 m up (0.92 m of room).
+  EXPECT_GT(map.overhead(9.83, -1.01), 0.8);
+  EXPECT_FALSE(std::isfinite(g.overhead[map.cell_index(9.83, -1.17)]));
+  // Another wall's foot, 0.2 m over the floor of the room at x = -5.6, within the trunk's reach at
+  // the goal of the crawl below (whose last knot's trunk rows it had left infeasible).
+  EXPECT_FALSE(std::isfinite(g.overhead[map.cell_index(-6.0, 1.1)]));
+  // Every underside left beside the floor (the lowest observed ground within two cells at the
+  // corridor's level) has the free height over it.
+  const float floor = g.elevation[map.cell_index(6.2, -0.36)];
+  const int r = 2;
+  for (int i = 0; i < g.geometry.nx; ++i)
+    for (int j = 0; j < g.geometry.ny; ++j) {
+      const float o = g.overhead[g.geometry.index(i, j)];
+      if (!std::isfinite(o)) continue;
+      float ground = std::numeric_limits<float>::infinity();
+      for (int a = std::max(0, i - r); a <= std::min(g.geometry.nx - 1, i + r); ++a)
+        for (int b = std::max(0, j - r); b <= std::min(g.geometry.ny - 1, j + r); ++b) {
+          const size_t n = g.geometry.index(a, b);
+          if (g.observed[n] == 1) ground = std::min(ground, g.elevation[n]);
+        }
+      if (ground < floor + 0.1f)
+        ASSERT_GE(o, ground + perception::kOverhangFreeHeight - 1e-4) << "cell " << i << ", " << j;
+    }
+}
+
+// `regions` suggests only what `plan` accepts before its solve: every region of the building
+// floor gets a command, and no suggested pair meets the trunk refusal.
+TEST(WalkableScans, Geb079RegionsSuggestOnlyPairsThePlannerAccepts) {
+  TERRASTRIDE_REQUIRE_SHARED_SCANS();
+  perception::test::ScratchDir dir;
+  const std::string out = dir.file("geb079");
+  auto r = test_support::run_terrastride("map " + perception::test::scan("octomap/geb079.bt") +
+                                         " --out " + out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  r = test_support::run_terrastride("regions --terrain " + out + " --json");
+  ASSERT_EQ(r.code, 0) << r.all();
+  const nlohmann::json listing = nlohmann::json::parse(r.out);
+  ASSERT_GE(listing["regions"].size(), 5u);
+  size_t with_command = 0;
+  for (const auto& region : listing["regions"]) {
+    with_command += !region["plan_command"].get<std::string>().empty();
+    // A refused pair says why; a trunk refusal names a real underside, with the free height
+    // beneath it (a wall's foot under the floor had been one 0.02 m up).
+    for (const auto& d : region["plan_pairs_refused_before_solve"]) {
+      const std::string why = d["refused"].get<std::string>();
+      const size_t at = why.find(" m above the walkable surface");
+      if (why.rfind("trunk:", 0) != 0 || at == std::string::npos) continue;
+      const double room = std::stod(why.substr(why.rfind(' ', at - 1) + 1));
+      EXPECT_GE(room, perception::kOverhangFreeHeight) << why;
+    }
+  }
+  EXPECT_GE(with_command + 1, listing["regions"].size());
+  // The crawl along the room at x = -5.6 (a region's suggestion) plans: it had ended infeasible
+  // after 129 iterations, its trunk 0.011 m into a wall's foot read as an overhang.
+  r = test_support::run_terrastride("plan --terrain " + out +
+                                    " --start -5.56,-0.44,1.571 --goal -5.56,0.44,1.571 "
+                                    "--constraints all --out " + dir.file("room.json"));
+  EXPECT_EQ(r.code, 0) << r.all();
+  // The text names the region no pair of which passes.
+  r = test_support::run_terrastride("regions --terrain " + out);
+  ASSERT_EQ(r.code, 0) << r.all();
+  if (with_command < listing["regions"].size())
+    EXPECT_NE(r.out.find("no suggested start and goal pass plan's checks"), std::string::npos)
+        << r.out;
 }
 
 TEST(WalkableScans, Freiburg360FloorAndTableTopsAreSeparateLevels) {

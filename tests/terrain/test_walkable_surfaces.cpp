@@ -91,6 +91,59 @@ TEST(WalkableOctomap, ShelfOverAFloorIsAnOverheadNotTheGround) {
   EXPECT_FALSE(std::isfinite(g.overhead[cell(g, 1.5, 1.0)]));
 }
 
+TEST(WalkableOctomap, WallWhoseFootHasFreeVoxelsUnderTheFloorIsNoOverhang) {
+  // A floor, and a wall over x in [1.0, 1.1) from 0.15 m below the floor's top to 1 m, with free
+  // voxels under its foot, below the floor (rays through an unscanned floor), none beside it.
+  const auto tree = make_tree([](double x, double y, octomap::OcTree& t) {
+    if (x > 1.0 && x < 1.1) {
+      free_from_to(t, x, y, -0.475, -0.125);
+      for (double z = -0.125; z < 1.0; z += kRes) occupied(t, x, y, z);
+    } else {
+      top_surface(t, x, y, 0.025);
+    }
+  });
+  perception::OctreeSupportStats st;
+  const auto cloud = perception::octree_support_cloud(tree, "wall", &st);
+  // The column rule alone reads the wall as an overhang 0.2 m below the floor's top...
+  ASSERT_EQ(cloud.overhangs.size(), 80u);
+  for (const auto& o : cloud.overhangs) EXPECT_NEAR(o.z(), -0.15, 1e-5);
+  // ...which leaves no room beneath it over the floor beside it: no overhead, the wall's cells
+  // still no ground, and the overhead field over the floor next to it unbounded.
+  const auto build = map_of(tree);
+  const terrain::HeightGrid& g = build.map->grid();
+  EXPECT_EQ(g.overhang_cells, 0u);
+  EXPECT_EQ(g.observed[cell(g, 1.05, 1.0)], 0);
+  EXPECT_GT(build.map->overhead(0.95, 1.0), 10.0);
+  EXPECT_GT(build.map->overhead(1.05, 1.0), 10.0);
+}
+
+TEST(WalkableOctomap, OverhangJustBelowTheFreeHeightOverTheNextGroundIsDropped) {
+  // A ceiling seen only from beneath over x in [1.0, 1.2) whose floor was not scanned, its
+  // underside 0.175 m over the floor beside it (less than the 0.2 m free height): no room to pass
+  // under, no overhead; the same ceiling 0.1 m higher is kept. (Cells farther than two from any
+  // observed ground have none to be judged against and keep their underside.)
+  for (const double underside : {0.2, 0.3}) {
+    const auto tree = make_tree([&](double x, double y, octomap::OcTree& t) {
+      if (x > 1.0 && x < 1.2) {
+        free_from_to(t, x, y, underside - 0.325, underside);
+        occupied(t, x, y, underside + 0.025);
+      } else {
+        top_surface(t, x, y, 0.025);
+      }
+    });
+    const auto build = map_of(tree);
+    const terrain::HeightGrid& g = build.map->grid();
+    if (underside < 0.25) {
+      EXPECT_EQ(g.overhang_cells, 0u) << underside;
+      EXPECT_GT(build.map->overhead(0.95, 1.0), 10.0);
+    } else {
+      ASSERT_EQ(g.overhead.size(), g.geometry.size());
+      EXPECT_NEAR(g.overhead[cell(g, 1.1, 1.0)], underside, 1e-5);
+      EXPECT_EQ(g.overhang_cells, 160u);
+    }
+  }
+}
+
 TEST(WalkableOctomap, CeilingOverUnobservedFloorIsNotGround) {
   // x < 1: a floor under a ceiling at 2.45-2.5 m; x >= 1: the ceiling alone, free space seen
   // beneath it down to 1 m (rays from a sensor elsewhere) and nothing known below.

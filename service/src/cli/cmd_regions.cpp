@@ -1,6 +1,8 @@
 // `terrastride regions --terrain DIR|FILE.bt|SCENE [--robot R]`: where on a map a robot may stand
-// and go (terrain::list_safe_regions), with a `terrastride plan` command per region that starts
-// at its suggested start and walks to its first goal.
+// and go (terrain::list_safe_regions), with a `terrastride plan` command per region from a
+// suggested start to a suggested goal that pass the planner's own refusals before a solve (the
+// stances on the map, level reach, the trunk under overhangs, the end stance's reach): a command
+// `plan` refuses at once is no suggestion. Pairs that fail are dropped and said so.
 #include <cmath>
 #include <iomanip>
 #include <iostream>
@@ -8,9 +10,11 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "common/plan_request.hpp"
 #include "common/terrain_source.hpp"
 #include "pasteable.hpp"
 #include "terrastride/perception/point_cloud.hpp"
+#include "terrastride/planner/before_solve.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/terrain/regions.hpp"
@@ -39,19 +43,82 @@ nlohmann::json pose_json(const terrain::RegionPose& p) {
   return {{"x", p.xy.x()}, {"y", p.xy.y()}, {"yaw", p.yaw}, {"height", p.height}};
 }
 
-// The command a user pastes, as printed, to plan from a region's start to its first goal: this
+// A start and goal the suggested plan command walks between, and the pairs dropped before it.
+struct CheckedPair {
+  const terrain::RegionPose* start = nullptr;  // null: no suggested pair passes
+  const terrain::RegionPose* goal = nullptr;
+  struct Dropped {
+    const terrain::RegionPose* start;
+    const terrain::RegionPose* goal;
+    std::string reason;
+  };
+  std::vector<Dropped> dropped;
+};
+
+// The pose as the printed command gives it (pose_text's millimetres and milliradians).
+nlohmann::json pose_numbers(const terrain::RegionPose& p) {
+  auto r = [](double v) { return std::round(v * 1e3) / 1e3; };
+  return nlohmann::json::array({r(p.xy.x()), r(p.xy.y()), r(p.yaw)});
+}
+
+// Why `plan --start START --goal GOAL --constraints all` would be refused before its solve, or ""
+// when it passes: the same request reader, stance checks and planner pre-checks plan runs.
+std::string refusal_before_solve(const robot::RobotModel& model, const TerrainSource& source,
+                                 const terrain::RegionPose& start, const terrain::RegionPose& goal) {
+  try {
+    const nlohmann::json fields = {
+        {"start", pose_numbers(start)}, {"goal", pose_numbers(goal)}, {"constraints", "all"}};
+    const PlanRequest req = read_plan_request(fields, model);
+    check_stances_on_terrain(req, model, *source.exact());
+    planner::check_before_solve(model, *source.smooth(), req.options);
+  } catch (const RequestFieldError& e) {
+    return e.field() + ": " + e.problem();
+  } catch (const std::exception& e) {  // UnreachableRequest, RequestError, GaitError
+    return e.what();
+  }
+  return "";
+}
+
+// The first suggested pair that passes: the region's start with each of its goals, then each goal
+// as the start with the others as goals (a start beside a wall may fail where its goals pass).
+CheckedPair check_region_pair(const robot::RobotModel& model, const TerrainSource& source,
+                              const terrain::SafeRegion& r) {
+  CheckedPair out;
+  std::vector<const terrain::RegionPose*> starts{&r.start};
+  for (const auto& g : r.goals) starts.push_back(&g.pose);
+  for (const terrain::RegionPose* s : starts)
+    for (const auto& g : r.goals) {
+      if (&g.pose == s) continue;
+      const std::string why = refusal_before_solve(model, source, *s, g.pose);
+      if (why.empty()) {
+        out.start = s;
+        out.goal = &g.pose;
+        return out;
+      }
+      out.dropped.push_back({s, &g.pose, why});
+    }
+  return out;
+}
+
+// The command a user pastes, as printed, to plan from the checked start to the checked goal: this
 // binary as the shell finds it, the terrain and robot quoted as their names need.
-std::string plan_command(const RegionsOptions& o, const terrain::SafeRegion& r) {
-  if (r.goals.empty()) return "";
+std::string plan_command(const RegionsOptions& o, const CheckedPair& p) {
+  if (!p.start) return "";
   std::string cmd = pasteable_program() + " plan --terrain " + shell_word(o.terrain);
   if (o.robot != "hyq") cmd += " --robot " + shell_word(o.robot);
-  return cmd + " --start " + pose_text(r.start) + " --goal " + pose_text(r.goals.front().pose) +
+  return cmd + " --start " + pose_text(*p.start) + " --goal " + pose_text(*p.goal) +
          " --constraints all --out plan.json";
 }
 
-nlohmann::json listing_json(const RegionsOptions& o, const terrain::RegionListing& l) {
+nlohmann::json listing_json(const RegionsOptions& o, const terrain::RegionListing& l,
+                            const std::vector<CheckedPair>& pairs) {
   nlohmann::json regions = nlohmann::json::array();
-  for (const auto& r : l.regions) {
+  for (size_t i = 0; i < l.regions.size(); ++i) {
+    const terrain::SafeRegion& r = l.regions[i];
+    nlohmann::json dropped = nlohmann::json::array();
+    for (const auto& d : pairs[i].dropped)
+      dropped.push_back(
+          {{"start", pose_json(*d.start)}, {"goal", pose_json(*d.goal)}, {"refused", d.reason}});
     nlohmann::json goals = nlohmann::json::array();
     for (const auto& g : r.goals)
       goals.push_back({{"pose", pose_json(g.pose)}, {"path_length_m", g.path_length}});
@@ -66,13 +133,35 @@ nlohmann::json listing_json(const RegionsOptions& o, const terrain::RegionListin
                        {"start", pose_json(r.start)},
                        {"start_border_m", r.start_border_m},
                        {"goals", goals},
-                       {"plan_command", plan_command(o, r)}});
+                       {"plan_command", plan_command(o, pairs[i])},
+                       {"plan_pairs_refused_before_solve", dropped}});
   }
   return {{"terrain", o.terrain},       {"robot", o.robot},
           {"foot_radius", l.foot_radius}, {"resolution", l.resolution},
           {"regions_total", l.regions_total}, {"regions_too_small", l.regions_too_small},
           {"standable_cells", l.standable_cells},
           {"regions", regions}};
+}
+
+// The commands, each from a start to a goal plan's pre-checks accept, and the pairs they refused.
+void print_plan_commands(const RegionsOptions& o, const terrain::RegionListing& listing,
+                         const std::vector<CheckedPair>& pairs) {
+  if (listing.regions.empty()) return;
+  std::cout << "plan commands to paste as printed (--start and --goal are X,Y,YAW, the yaw in "
+               "radians; each pair passed plan's checks before a solve, which cannot promise "
+               "the solve succeeds):\n";
+  for (size_t i = 0; i < listing.regions.size(); ++i) {
+    const terrain::SafeRegion& r = listing.regions[i];
+    const CheckedPair& p = pairs[i];
+    for (const auto& d : p.dropped)
+      std::cout << "region " << r.id << ": dropped start " << pose_text(*d.start) << " goal "
+                << pose_text(*d.goal) << ", plan refuses it before solving: " << d.reason
+                << "\n";
+    if (p.start)
+      std::cout << "region " << r.id << ": " << plan_command(o, p) << "\n";
+    else if (!r.goals.empty())
+      std::cout << "region " << r.id << ": no suggested start and goal pass plan's checks\n";
+  }
 }
 
 void run_regions(const RegionsOptions& o) {
@@ -108,18 +197,14 @@ void run_regions(const RegionsOptions& o) {
   } catch (const perception::InputError& e) {
     throw CommandError(e.what());
   }
+  std::vector<CheckedPair> pairs;
+  for (const auto& r : listing.regions) pairs.push_back(check_region_pair(model, source, r));
   if (o.json) {
-    std::cout << listing_json(o, listing).dump(2) << "\n";
+    std::cout << listing_json(o, listing, pairs).dump(2) << "\n";
     return;
   }
   std::cout << terrain::describe_regions(listing);
-  if (!listing.regions.empty())
-    std::cout << "plan commands to paste as printed (--start and --goal are X,Y,YAW, the yaw in "
-                 "radians):\n";
-  for (const auto& r : listing.regions) {
-    const std::string cmd = plan_command(o, r);
-    if (!cmd.empty()) std::cout << "region " << r.id << ": " << cmd << "\n";
-  }
+  print_plan_commands(o, listing, pairs);
 }
 
 }  // namespace
