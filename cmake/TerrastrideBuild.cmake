@@ -10,3 +10,19 @@
 function(terrastride_light_optimisation target level)
   target_compile_options(${target} PRIVATE $<$<CONFIG:Release,RelWithDebInfo,MinSizeRel>:${level}>)
 endfunction()
+
+# terrastride_precompile_headers(TARGET HEADER...): precompile the heavy third-party headers most
+# of TARGET's translation units include (Eigen, nlohmann::json, OctoMap, PCL, CLI11, GoogleTest).
+# GCC parses each of them in 1-2 s of CPU per translation unit; from the precompiled header it
+# loads them in a fraction of that. The header is force-included before each source; it changes
+# no code GCC generates (the same declarations, seen earlier), so products are bit-identical.
+# Off by default: measured on a clean Release build of the binary (2 cores, CCACHE_DISABLE=1) it
+# took 21.0 CPU-min with them against 20.2 without; GCC's -O3 optimisation and template
+# instantiation, not parsing, are most of these translation units' time, and building and loading
+# the precompiled headers ate the parse time saved.
+option(TERRASTRIDE_PCH "Precompile heavy third-party headers per library and for the tests" OFF)
+function(terrastride_precompile_headers target)
+  if(TERRASTRIDE_PCH)
+    target_precompile_headers(${target} PRIVATE ${ARGN})
+  endif()
+endfunction()

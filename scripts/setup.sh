@@ -79,12 +79,11 @@ if [ "$mode" = sanitize ]; then
   cmake --build build-asan -j "$jobs" --target fast_tests
 else
   cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
-  # The binary alone by default (the demo's); tests and benchmarks only when asked: they are
-  # most of a full build's compile time.
+  # The binary first (the demo's: it is ready before any test compiles), then the tests and
+  # benchmarks only when asked: they are most of a full build's compile time.
+  cmake --build build -j "$jobs" --target terrastride
   case "$mode" in
-    tests) targets=(--target terrastride fast_tests) ;;
-    all) targets=() ;;
-    *) targets=(--target terrastride) ;;
+    tests) cmake --build build -j "$jobs" --target fast_tests ;;
+    all) cmake --build build -j "$jobs" ;;
   esac
-  cmake --build build -j "$jobs" "${targets[@]}"
 fi

@@ -9,6 +9,7 @@
 #include <cctype>
 #include <cmath>
 #include <filesystem>
+#include <octomap/OcTree.h>
 
 #include "common/terrain_source.hpp"
 #include "terrastride/planner/gait.hpp"

@@ -98,7 +98,7 @@ class Ceiling : public FlatField {
   double U_, A_, from_, r_;
 };
 
-robot::RobotModel go2() {
+robot::RobotModel load_go2() {
   return robot::load_robot(robot::resolve_robot_path("go2"));
 }
 
@@ -162,7 +162,7 @@ TEST(Trunk, TopRowsAreTheOverheadAboveTheTopCorners) {
 // its rows. Go2's limit is 0.355 m: 0.237 m (box) + 0.05 m (swing) + 0.078 m (top) + 0.02 m
 // (margin) less 0.03 m of solver slack.
 TEST(Trunk, ARobotTooTallForTheOverhangIsRefused) {
-  const auto big = hyq(), small = go2();
+  const auto big = hyq(), small = load_go2();
   const Ceiling low(0.6, 0.0, -1e9, 0.0);
   SrbdProblem p(big, low, crawl_timeline(big), turning_crawl_options());
   try {

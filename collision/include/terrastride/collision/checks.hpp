@@ -9,7 +9,6 @@
 // ground exerts on the foot, world frame, as in plan.json.
 #pragma once
 
-#include <octomap/OcTree.h>
 #include <Eigen/Core>
 #include <map>
 #include <memory>
@@ -23,6 +22,13 @@
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/height_field.hpp"
+
+// The checks take the terrain's OctoMap by reference or shared pointer only: callers that build or
+// read one include <octomap/OcTree.h> (or collision/octree_terrain.hpp) themselves, and the many
+// that only run checks do not parse OctoMap.
+namespace octomap {
+class OcTree;
+}  // namespace octomap
 
 namespace terrastride::collision {
 
