@@ -220,14 +220,16 @@ void write_slow_go2(const fs::path& dir) {
       << replace_all(read(data + "go2.polytopes.yaml"), "robot: go2\n", "robot: go2_slow\n");
 }
 
-// A fast trot (1 m in 1.6 s) on a Go2 whose knees turn at 8 rad/s at most: planned without the
-// joint rows its knees reach twice their limit, which `check` catches (exit 3, naming the leg and
-// joint); `all` holds the limit and the check passes.
+// A fast trot (1 m in 1.4 s) on a Go2 whose knees turn at 8 rad/s at most: planned without the
+// joint rows its knees exceed their limit, which `check` catches (exit 3, naming the leg and
+// joint); `all` holds the limit and the check passes, sampled every 1 ms, between the rows'
+// points too (with rows at the swing segments' quarters only, a knee reached 1.009 x its limit
+// between them on this trot).
 TEST(AnyQuadruped, FastTrotVelocityIsCaughtByTheCheckAndHeldByAll) {
   const fs::path dir = scratch("velocity");
   write_slow_go2(dir);
-  const std::string trot =
-      "plan --robot robots/go2_slow.yaml --terrain flat --gait trot --goal 1,0,0 --duration 1.6 ";
+  const std::string trot = "plan --robot robots/go2_slow.yaml --terrain flat --gait trot --goal "
+                           "1,0,0 --duration 1.4 --sample-dt 0.001 ";
   CommandResult r = run_in(dir, trot + "--constraints baseline --out baseline.json");
   EXPECT_NE(r.code, 0) << r.all();  // the post-hoc velocity check fails the plan
   r = run_in(dir, "check baseline.json --terrain flat");
@@ -239,6 +241,38 @@ TEST(AnyQuadruped, FastTrotVelocityIsCaughtByTheCheckAndHeldByAll) {
   r = run_in(dir, "check all.json --terrain flat --json");
   EXPECT_EQ(r.code, 0) << r.all();
   EXPECT_NE(r.out.find("\"velocity_violations\":0"), std::string::npos) << r.out;
+  fs::remove_all(dir);
+}
+
+// A quadruped whose motors turn at 1.5 rad/s (a variant URDF: the hip and knee velocity limits
+// cut) is refused before any solve for the default 1 m crawl, naming the leg, the joint, the speed
+// it needs, its limit and the --duration that would serve; no plan is written. The same robot
+// walking that long passes the check before the solve.
+TEST(AnyQuadruped, MotorsTooSlowForTheGaitAreRefusedBeforeTheSolve) {
+  QuadrupedSpec slow;
+  slow.robot = "slow_motors";
+  slow.velocity_hip = slow.velocity_knee = 1.5;
+  const std::string urdf = written("slow_motors", slow);
+  const fs::path dir = scratch("slow_motors");
+  CommandResult r = run_in(dir, "robot import " + urdf + " --out slow.yaml");
+  ASSERT_EQ(r.code, 0) << r.all();
+  const std::string plan = "plan --robot slow.yaml --terrain flat --goal 1,0,0 --out plan.json";
+  r = run_in(dir, plan);
+  EXPECT_EQ(r.code, 1) << r.all();
+  for (const std::string part :
+       {"--duration: robot 'slow_motors' cannot swing its legs fast enough", "crawl gait",
+        "rad/s on average, above its limit of 1.5 rad/s", "--cycles"})
+    EXPECT_NE(r.err.find(part), std::string::npos) << part << " in: " << r.err;
+  EXPECT_FALSE(fs::exists(dir / "plan.json"));
+  const std::string fix = "plan a slower walk: --duration ";
+  const size_t at = r.err.find(fix);
+  ASSERT_NE(at, std::string::npos) << r.err;
+  const double hint = std::stod(r.err.substr(at + fix.size()));
+  EXPECT_GT(hint, 10.0) << r.err;
+  // The pre-check passes at that duration (a solve limited to a second: only the pre-check's
+  // verdict matters here, not the plan's).
+  r = run_in(dir, plan + " --duration " + std::to_string(hint) + " --max-time 1");
+  EXPECT_EQ(r.err.find("cannot swing its legs fast enough"), std::string::npos) << r.err;
   fs::remove_all(dir);
 }
 
