@@ -149,8 +149,7 @@ double require_weight_bearable(const Gait& gait, const robot::RobotModel& robot)
 }
 
 double require_joint_speeds_reachable(const PhaseTimeline& timeline, const std::string& gait_name,
-                                      const robot::RobotModel& robot, double distance,
-                                      double lift) {
+                                      const robot::RobotModel& robot, double distance) {
   const double duration = timeline.duration();
   if (!(distance > 0.0) || !(duration > 0.0)) return 0.0;
   for (const auto& leg : robot.legs)
@@ -173,16 +172,12 @@ double require_joint_speeds_reachable(const PhaseTimeline& timeline, const std::
     // The foot sphere's centre over the nominal contact point, as the planner's rows place it.
     const Eigen::Vector3d centre = leg.nominal_foot + Eigen::Vector3d(0, 0, robot.foot_radius);
     const auto back = robot::inverse_kinematics(leg, centre - Eigen::Vector3d(step / 2, 0, 0));
-    const auto apex = robot::inverse_kinematics(leg, centre + Eigen::Vector3d(0, 0, lift));
     const auto front = robot::inverse_kinematics(leg, centre + Eigen::Vector3d(step / 2, 0, 0));
     // A step beyond the leg's reach: the reachability check names it.
-    if (back.status == robot::IkStatus::unreachable ||
-        apex.status == robot::IkStatus::unreachable ||
-        front.status == robot::IkStatus::unreachable)
+    if (back.status == robot::IkStatus::unreachable || front.status == robot::IkStatus::unreachable)
       continue;
     for (int j = 0; j < 3; ++j) {
-      const double travel = std::abs(apex.q[j] - back.q[j]) + std::abs(front.q[j] - apex.q[j]);
-      const double needed = travel * swings / swing_time;
+      const double needed = std::abs(front.q[j] - back.q[j]) * swings / swing_time;
       const double ratio = needed / leg.velocity_limit[j];
       if (ratio > worst) {
         worst = ratio;
@@ -200,8 +195,7 @@ double require_joint_speeds_reachable(const PhaseTimeline& timeline, const std::
     m.precision(3);
     m << "robot '" << robot.name << "' cannot swing its legs fast enough in the " << gait_name
       << " gait: leg " << leg.name << " moves its foot " << worst_step
-      << " m ahead of the base in " << worst_swing << " s per swing, lifting it " << lift
-      << " m (" << distance << " m in " << duration << " s), which needs " << kJoint[worst_joint]
+      << " m ahead of the base in " << worst_swing << " s per swing (" << distance << " m in " << duration << " s), which needs " << kJoint[worst_joint]
       << " to turn at " << worst_needed << " rad/s on average, above its limit of "
       << leg.velocity_limit[worst_joint]
       << " rad/s (the robot file's velocity_limit); plan a slower walk: --duration " << std::fixed

@@ -109,8 +109,7 @@ PlanSetup fresh_setup(const robot::RobotModel& robot, const std::vector<std::str
   check_plan_horizon(setup.timeline.duration(), options.duration > 0.0 ? "duration" : "cycles");
   if (options.has_goal)
     require_joint_speeds_reachable(setup.timeline, gait.name, robot,
-                                   (options.goal - options.start).head<2>().norm(),
-                                   options.swing_clearance);
+                                   (options.goal - options.start).head<2>().norm());
   return setup;
 }
 

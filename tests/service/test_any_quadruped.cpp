@@ -244,14 +244,14 @@ TEST(AnyQuadruped, FastTrotVelocityIsCaughtByTheCheckAndHeldByAll) {
   fs::remove_all(dir);
 }
 
-// A quadruped whose motors turn at 1.2 rad/s (a variant URDF: the hip and knee velocity limits
+// A quadruped whose motors turn at 0.3 rad/s (a variant URDF: the hip and knee velocity limits
 // cut) is refused before any solve for the default 1 m crawl, naming the leg, the joint, the speed
 // it needs, its limit and the --duration that would serve; no plan is written. The same robot
 // walking that long passes the check before the solve.
 TEST(AnyQuadruped, MotorsTooSlowForTheGaitAreRefusedBeforeTheSolve) {
   QuadrupedSpec slow;
   slow.robot = "slow_motors";
-  slow.velocity_hip = slow.velocity_knee = 1.2;
+  slow.velocity_hip = slow.velocity_knee = 0.3;
   const std::string urdf = written("slow_motors", slow);
   const fs::path dir = scratch("slow_motors");
   CommandResult r = run_in(dir, "robot import " + urdf + " --out slow_motors.yaml");
@@ -262,7 +262,7 @@ TEST(AnyQuadruped, MotorsTooSlowForTheGaitAreRefusedBeforeTheSolve) {
   EXPECT_EQ(r.code, 1) << r.all();
   for (const std::string part :
        {"--duration: robot 'slow_motors' cannot swing its legs fast enough", "crawl gait",
-        "rad/s on average, above its limit of 1.2 rad/s", "--cycles"})
+        "rad/s on average, above its limit of 0.3 rad/s", "--cycles"})
     EXPECT_NE(r.err.find(part), std::string::npos) << part << " in: " << r.err;
   EXPECT_FALSE(fs::exists(dir / "plan.json"));
   const std::string fix = "plan a slower walk: --duration ";

@@ -97,17 +97,17 @@ PhaseTimeline make_timeline(const Gait& gait, const std::vector<std::string>& fe
 // limit (robots with velocity limits on every leg; others: 0). Each foot must cover `distance` (m,
 // start to goal) in its swings, while the base moves at the average speed distance / duration: a
 // swing carries the foot distance (1 - swing time / duration) / swings forward relative to the
-// base, and lifts it `lift` (m, the swing clearance demanded at mid-swing). The joint travel of
-// that swing, from a foot half a step behind the nominal foot up to `lift` above it and on to half
-// a step ahead (inverse kinematics at the three), over the swing time is the least average speed
-// the joint needs; its peak cannot be lower. Turns, terrain and the speed profile are left out: the
-// estimate stays below what a plan needs (Go2 with 8 rad/s knees trotting 1 m in 1.4 s: 0.58 of
-// the limit, where its plan peaks at 0.94). The message names the gait, leg, joint, needed speed and limit, and the fix: the
-// least --duration (the needed speed scales with 1 / duration) or more --cycles. Returns the
-// worst needed / limit.
+// base. The joint travel of that step, from half a step behind the nominal foot to half a step
+// ahead (inverse kinematics at both), over the swing time is the least average speed the joint
+// needs; its peak cannot be lower. The lift is left out: the base may rise instead of the swing
+// leg folding (counted as a 5 cm lift above the nominal foot, it refused Go2 with 1 rad/s knees
+// on its default crawl, whose plan holds 0.96 of that limit); so are turns and terrain. The
+// estimate stays below what a plan needs (Go2 with 8 rad/s knees trotting 1 m in 1.4 s: RATIO of
+// the limit, where its plan peaks at 0.92). The message names the gait, leg, joint, needed speed
+// and limit, and the fix: the least --duration (the needed speed scales with 1 / duration) or
+// more --cycles. Returns the worst needed / limit.
 double require_joint_speeds_reachable(const PhaseTimeline& timeline, const std::string& gait_name,
-                                      const robot::RobotModel& robot, double distance,
-                                      double lift);
+                                      const robot::RobotModel& robot, double distance);
 
 // The gait with its lead-in lengthened, if need be, so that the timeline's second lift-off (the
 // second distinct time at which a foot lifts off) comes no earlier than `second_lift_off` s; the
