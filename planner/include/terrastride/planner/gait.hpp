@@ -100,12 +100,12 @@ PhaseTimeline make_timeline(const Gait& gait, const std::vector<std::string>& fe
 // base. The joint travel of that step, from half a step behind the nominal foot to half a step
 // ahead (inverse kinematics at both), over the swing time is the least average speed the joint
 // needs; its peak cannot be lower. The lift is left out: the base may rise instead of the swing
-// leg folding (counted as a 5 cm lift above the nominal foot, it refused Go2 with 1 rad/s knees
-// on its default crawl, whose plan holds 0.96 of that limit); so are turns and terrain. The
-// estimate stays below what a plan needs (Go2 with 8 rad/s knees trotting 1 m in 1.4 s: RATIO of
-// the limit, where its plan peaks at 0.92). The message names the gait, leg, joint, needed speed
-// and limit, and the fix: the least --duration (the needed speed scales with 1 / duration) or
-// more --cycles. Returns the worst needed / limit.
+// leg folding (counted as a 5 cm lift, it refused Go2 with 1 rad/s knees on its default crawl,
+// for which a plan within 0.96 of that limit exists); so are turns and terrain. The estimate
+// stays below what a plan needs (Go2 with 8 rad/s knees trotting 1 m in 1.6 s: 0.086 of the
+// limit, where its plan peaks at 0.93): it refuses what no plan can do. The message names the
+// gait, leg, joint, needed speed and limit, and the fix: the least --duration (the needed speed
+// scales with 1 / duration) or more --cycles. Returns the worst needed / limit.
 double require_joint_speeds_reachable(const PhaseTimeline& timeline, const std::string& gait_name,
                                       const robot::RobotModel& robot, double distance);
 
