@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <iomanip>
 #include <sstream>
 
 #include "terrastride/planner/request_limits.hpp"
@@ -143,6 +144,64 @@ double require_weight_bearable(const Gait& gait, const robot::RobotModel& robot)
         throw RequestError("robot", m.str());
       }
     }
+  }
+  return worst;
+}
+
+double require_joint_speeds_reachable(const PhaseTimeline& timeline, const std::string& gait_name,
+                                      const robot::RobotModel& robot, double distance) {
+  const double duration = timeline.duration();
+  if (!(distance > 0.0) || !(duration > 0.0)) return 0.0;
+  for (const auto& leg : robot.legs)
+    if (!(leg.velocity_limit.minCoeff() > 0.0)) return 0.0;  // the robot file gives none
+  static const char* kJoint[3] = {"HAA", "HFE", "KFE"};
+  // The joint furthest beyond its limit: the --duration that serves it serves every joint.
+  double worst = 0.0, worst_needed = 0.0, worst_step = 0.0, worst_swing = 0.0;
+  int worst_leg = -1, worst_joint = -1;
+  for (std::size_t f = 0; f < robot.legs.size() && f < timeline.feet.size(); ++f) {
+    const robot::LegModel& leg = robot.legs[f];
+    int swings = 0;
+    double swing_time = 0.0;
+    for (const auto& phase : timeline.phases(static_cast<int>(f)))
+      if (!phase.contact) {
+        ++swings;
+        swing_time += phase.end - phase.start;
+      }
+    if (swings == 0) continue;
+    const double step = distance * (1.0 - swing_time / duration) / swings;
+    // The foot sphere's centre over the nominal contact point, as the planner's rows place it.
+    const Eigen::Vector3d centre = leg.nominal_foot + Eigen::Vector3d(0, 0, robot.foot_radius);
+    const auto back = robot::inverse_kinematics(leg, centre - Eigen::Vector3d(step / 2, 0, 0));
+    const auto front = robot::inverse_kinematics(leg, centre + Eigen::Vector3d(step / 2, 0, 0));
+    // A step beyond the leg's reach: the reachability check names it.
+    if (back.status == robot::IkStatus::unreachable || front.status == robot::IkStatus::unreachable)
+      continue;
+    for (int j = 0; j < 3; ++j) {
+      const double needed = std::abs(front.q[j] - back.q[j]) * swings / swing_time;
+      const double ratio = needed / leg.velocity_limit[j];
+      if (ratio > worst) {
+        worst = ratio;
+        worst_needed = needed;
+        worst_step = step;
+        worst_swing = swing_time / swings;
+        worst_leg = static_cast<int>(f);
+        worst_joint = j;
+      }
+    }
+  }
+  if (worst > 1.0) {
+    const robot::LegModel& leg = robot.legs[worst_leg];
+    std::ostringstream m;
+    m.precision(3);
+    m << "robot '" << robot.name << "' cannot swing its legs fast enough in the " << gait_name
+      << " gait: leg " << leg.name << " moves its foot " << worst_step
+      << " m ahead of the base in " << worst_swing << " s per swing (" << distance << " m in " << duration << " s), which needs " << kJoint[worst_joint]
+      << " to turn at " << worst_needed << " rad/s on average, above its limit of "
+      << leg.velocity_limit[worst_joint]
+      << " rad/s (the robot file's velocity_limit); plan a slower walk: --duration " << std::fixed
+      << std::setprecision(1) << std::ceil(10.0 * duration * worst) / 10.0
+      << " s at least, or more --cycles (shorter steps)";
+    throw RequestError("duration", m.str());
   }
   return worst;
 }

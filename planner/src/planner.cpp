@@ -108,6 +108,9 @@ PlanSetup fresh_setup(const robot::RobotModel& robot, const std::vector<std::str
   setup.timeline = make_timeline(gait, feet, options.cycles, options.duration);
   // Without a duration the horizon is the gait's period times its cycles (plus lead-in/out).
   check_plan_horizon(setup.timeline.duration(), options.duration > 0.0 ? "duration" : "cycles");
+  if (options.has_goal)
+    require_joint_speeds_reachable(setup.timeline, gait.name, robot,
+                                   (options.goal - options.start).head<2>().norm());
   return setup;
 }
 

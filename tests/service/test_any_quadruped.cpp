@@ -242,6 +242,39 @@ TEST(AnyQuadruped, FastTrotVelocityIsCaughtByTheCheckAndHeldByAll) {
   fs::remove_all(dir);
 }
 
+// A quadruped whose motors turn at 0.3 rad/s (a variant URDF: the hip and knee velocity limits
+// cut) is refused before any solve for the default 1 m crawl, naming the leg, the joint, the speed
+// it needs, its limit and the --duration that would serve; no plan is written. The same robot
+// walking that long passes the check before the solve.
+TEST(AnyQuadruped, MotorsTooSlowForTheGaitAreRefusedBeforeTheSolve) {
+  QuadrupedSpec slow;
+  slow.robot = "slow_motors";
+  slow.velocity_hip = slow.velocity_knee = 0.3;
+  const std::string urdf = written("slow_motors", slow);
+  const fs::path dir = scratch("slow_motors");
+  CommandResult r = run_in(dir, "robot import " + urdf + " --out slow_motors.yaml");
+  ASSERT_EQ(r.code, 0) << r.all();
+  const std::string plan =
+      "plan --robot slow_motors.yaml --terrain flat --goal 1,0,0 --out plan.json";
+  r = run_in(dir, plan);
+  EXPECT_EQ(r.code, 1) << r.all();
+  for (const std::string part :
+       {"--duration: robot 'slow_motors' cannot swing its legs fast enough", "crawl gait",
+        "rad/s on average, above its limit of 0.3 rad/s", "--cycles"})
+    EXPECT_NE(r.err.find(part), std::string::npos) << part << " in: " << r.err;
+  EXPECT_FALSE(fs::exists(dir / "plan.json"));
+  const std::string fix = "plan a slower walk: --duration ";
+  const size_t at = r.err.find(fix);
+  ASSERT_NE(at, std::string::npos) << r.err;
+  const double hint = std::stod(r.err.substr(at + fix.size()));
+  EXPECT_GT(hint, 10.0) << r.err;
+  // The pre-check passes at that duration (a solve limited to a second: only the pre-check's
+  // verdict matters here, not the plan's).
+  r = run_in(dir, plan + " --duration " + std::to_string(hint) + " --max-time 1");
+  EXPECT_EQ(r.err.find("cannot swing its legs fast enough"), std::string::npos) << r.err;
+  fs::remove_all(dir);
+}
+
 // A plan written before plans carried their robot names a robot that is not shipped: `check`
 // says how to give it (--robot FILE) and works with it; a plan that carries its robot refuses a
 // different --robot.

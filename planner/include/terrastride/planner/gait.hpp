@@ -93,6 +93,22 @@ struct PhaseTimeline {
 PhaseTimeline make_timeline(const Gait& gait, const std::vector<std::string>& feet, int cycles,
                             double duration);
 
+// Refuses, before any solve, a walk whose swings need a joint faster than the robot file's velocity
+// limit (robots with velocity limits on every leg; others: 0). Each foot must cover `distance` (m,
+// start to goal) in its swings, while the base moves at the average speed distance / duration: a
+// swing carries the foot distance (1 - swing time / duration) / swings forward relative to the
+// base. The joint travel of that step, from half a step behind the nominal foot to half a step
+// ahead (inverse kinematics at both), over the swing time is the least average speed the joint
+// needs; its peak cannot be lower. The lift is left out: the base may rise instead of the swing
+// leg folding (counted as a 5 cm lift, it refused Go2 with 1 rad/s knees on its default crawl,
+// for which a plan within 0.96 of that limit exists); so are turns and terrain. The estimate
+// stays below what a plan needs (Go2 with 8 rad/s knees trotting 1 m in 1.6 s: 0.086 of the
+// limit, where its plan peaks at 0.93): it refuses what no plan can do. The message names the
+// gait, leg, joint, needed speed and limit, and the fix: the least --duration (the needed speed
+// scales with 1 / duration) or more --cycles. Returns the worst needed / limit.
+double require_joint_speeds_reachable(const PhaseTimeline& timeline, const std::string& gait_name,
+                                      const robot::RobotModel& robot, double distance);
+
 // The gait with its lead-in lengthened, if need be, so that the timeline's second lift-off (the
 // second distinct time at which a foot lifts off) comes no earlier than `second_lift_off` s; the
 // total `duration` is kept (duration <= 0: the cycle is kept and the plan grows longer). Unchanged
