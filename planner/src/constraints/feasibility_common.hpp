@@ -9,6 +9,22 @@
 #include "terrastride/planner/piece_math.hpp"
 #include "terrastride/robot/robot_model.hpp"
 
+namespace terrastride::planner {
+
+// A small fixed-size AD scalar for the inner part of a piece that depends on the piece's many
+// variables only through a few intermediate scalars (leg_capsule_clearance.hpp: the link's two
+// ends, and a few more): that part runs on derivatives with respect to these scalars (9, fixed
+// size: no copies of 72-slot vectors), and its result is chained to the piece's variables once.
+using AdInner = Eigen::AutoDiffScalar<Eigen::Matrix<double, 9, 1>>;
+inline double value_of(const AdInner& v) { return v.value(); }
+inline AdInner terrain_height(const terrain::HeightField& f, const AdInner& x, const AdInner& y) {
+  Eigen::Vector2d g;
+  const double h = f.height_and_gradient(x.value(), y.value(), &g);
+  return AdInner(h, g.x() * x.derivatives() + g.y() * y.derivatives());
+}
+
+}  // namespace terrastride::planner
+
 namespace terrastride::planner::feasibility {
 
 constexpr int kMaxShinValues = 128;  // values one shin piece may fold into its soft minimum

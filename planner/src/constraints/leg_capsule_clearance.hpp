@@ -163,14 +163,48 @@ void capsule_clearance(const terrain::HeightField& field, const Vec3<T>& a, cons
   for (int j = 0; j < nk; ++j) {
     const T t = t_start + (1.0 - t_start) * (static_cast<double>(j) / std::max(1, nk - 1));
     const Vec3<T> q = a + t * d;
-    out[n++] = q[2] - terrain_height(field, q[0], q[1]) - gap;
-    if (j > 0) out[n++] = prev[2] - terrain_height(field, q[0], q[1]) - gap;
+    const T under = terrain_height(field, q[0], q[1]);  // read once for both values
+    out[n++] = q[2] - under - gap;
+    if (j > 0) out[n++] = prev[2] - under - gap;
     if (probe > 0.0) {
-      out[n++] = q[2] - terrain_height(field, q[0] + probe * across_x, q[1] + probe * across_y) - gap;
-      out[n++] = q[2] - terrain_height(field, q[0] - probe * across_x, q[1] - probe * across_y) - gap;
+      const T left_x = q[0] + probe * across_x, left_y = q[1] + probe * across_y;
+      const T right_x = q[0] - probe * across_x, right_y = q[1] - probe * across_y;
+      out[n++] = q[2] - terrain_height(field, left_x, left_y) - gap;
+      out[n++] = q[2] - terrain_height(field, right_x, right_y) - gap;
     }
     prev = q;
   }
+}
+
+// The soft minimum (soft_min at scale t_soft) of one capsule's n_values values: the folded row of
+// shin_ik and thigh.
+template <class T>
+T capsule_soft_min(const terrain::HeightField& field, const Vec3<T>& a, const Vec3<T>& b,
+                   double radius, double probe, const T& t_start, int nk, const T& across_x,
+                   const T& across_y, int n_values, double t_soft) {
+  T values[kMaxShinValues] = {};
+  capsule_clearance<T>(field, a, b, radius, probe, t_start, nk, across_x, across_y, values);
+  return soft_min(values, n_values, t_soft);
+}
+// For the piece's AD scalars: the row depends on the piece's variables only through the 9 scalars
+// a, b, t_start and across, so its 4 nk - 1 values and their soft minimum are differentiated with
+// respect to these 9 (AdInner) and the result chained to the piece's variables once, instead of
+// carrying every value's derivatives over all the piece's variables (shin_ik: 79 values by ~22
+// variables). The same value; derivatives equal up to round-off.
+template <>
+inline Ad capsule_soft_min<Ad>(const terrain::HeightField& field, const Vec3<Ad>& a,
+                               const Vec3<Ad>& b, double radius, double probe, const Ad& t_start,
+                               int nk, const Ad& across_x, const Ad& across_y, int n_values,
+                               double t_soft) {
+  const Ad* outer[9] = {&a[0], &a[1], &a[2], &b[0], &b[1], &b[2], &t_start, &across_x, &across_y};
+  AdInner inner[9];
+  for (int i = 0; i < 9; ++i) inner[i] = AdInner(outer[i]->value(), 9, i);
+  const AdInner r = capsule_soft_min<AdInner>(
+      field, Vec3<AdInner>(inner[0], inner[1], inner[2]), Vec3<AdInner>(inner[3], inner[4], inner[5]),
+      radius, probe, inner[6], nk, inner[7], inner[8], n_values, t_soft);
+  AdVector d;
+  for (int i = 0; i < 9; ++i) accumulate(&d, r.derivatives()[i], outer[i]->derivatives());
+  return Ad(r.value(), d);
 }
 
 }  // namespace terrastride::planner::feasibility

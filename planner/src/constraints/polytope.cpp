@@ -61,6 +61,52 @@ inline void polytope_rows(const LegPolytopeModel& m, const Vec3<Ad>& p, const Ve
   }
 }
 
+// The merged row: soft_max (at scale t) of the facet values at n points, point k's base-frame
+// foot position pb[k] and force fb[k], times scale.
+inline double polytope_soft_max(const LegPolytopeModel& m, const Vec3<double>* pb,
+                                const Vec3<double>* fb, int n, double scale, double t) {
+  double values[kMaxPolytopeValues];
+  for (int k = 0; k < n; ++k) polytope_rows(m, pb[k], fb[k], scale, values + k * kPolytopeFacets);
+  return soft_max(values, n * kPolytopeFacets, t);
+}
+// For AD arguments the soft maximum is differentiated in doubles: its derivative with respect to
+// value j is w_j = exp((v_j - max) / t) / sum, so the row's derivative is the sum over the points
+// of (sum_j w_j dg_j/dpb) pb' + (sum_j w_j dg_j/dfb) fb': six vector terms per point instead of
+// every facet value's derivatives over the piece's variables and their soft maximum in AD (the
+// same value; derivatives equal up to round-off).
+inline Ad polytope_soft_max(const LegPolytopeModel& m, const Vec3<Ad>* pb, const Vec3<Ad>* fb,
+                            int n, double scale, double t) {
+  using std::exp;
+  using std::log;
+  double values[kMaxPolytopeValues];
+  Eigen::Matrix<double, kPolytopeFacets, 3> dp[kMaxPolytopeValues / kPolytopeFacets],
+      df[kMaxPolytopeValues / kPolytopeFacets];
+  for (int k = 0; k < n; ++k) {
+    const Eigen::Vector3d pv(pb[k][0].value(), pb[k][1].value(), pb[k][2].value());
+    const Eigen::Vector3d fv(fb[k][0].value(), fb[k][1].value(), fb[k][2].value());
+    const auto v = m.constraint(pv, fv, &dp[k], &df[k]);
+    for (int j = 0; j < kPolytopeFacets; ++j) values[k * kPolytopeFacets + j] = v[j] * scale;
+  }
+  const int nv = n * kPolytopeFacets;
+  double top = values[0];
+  for (int k = 1; k < nv; ++k) top = std::max(top, values[k]);
+  double weights[kMaxPolytopeValues];
+  double sum = weights[0] = exp((values[0] - top) / t);
+  for (int k = 1; k < nv; ++k) sum += weights[k] = exp((values[k] - top) / t);
+  AdVector d;
+  for (int k = 0; k < n; ++k) {
+    const Eigen::Matrix<double, 1, kPolytopeFacets> w =
+        Eigen::Map<const Eigen::Matrix<double, 1, kPolytopeFacets>>(weights + k * kPolytopeFacets) *
+        (scale / sum);
+    const Eigen::RowVector3d wp = w * dp[k], wf = w * df[k];
+    for (int i = 0; i < 3; ++i) {
+      accumulate(&d, wp[i], pb[k][i].derivatives());
+      accumulate(&d, wf[i], fb[k][i].derivatives());
+    }
+  }
+  return Ad(top + t * log(sum), d);
+}
+
 }  // namespace feasibility
 
 void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options) {
@@ -132,7 +178,7 @@ void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options)
           (void)keep;
           const T h = x[dur] * frac;
           const Vec3<T> pf_w = gather3(x, pf), fk0 = gather3(x, f0), fk1 = gather3(x, f1);
-          T values[kMaxPolytopeValues] = {};
+          Vec3<T> pb[kMaxPolytopeValues / kPolytopeFacets], fb[kMaxPolytopeValues / kPolytopeFacets];
           int n = 0;
           for (const double sigma : sigmas) {
             Vec3<T> r, e;
@@ -140,12 +186,11 @@ void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options)
             hermite<T>(sigma, h, x, ep, &e, nullptr, nullptr);
             const Eigen::Matrix<T, 3, 3> Rt = rotation_zyx<T>(e).transpose();
             const Vec3<T> force = (1.0 - sigma) * fk0 + sigma * fk1;
-            const Vec3<T> pb = Rt * (pf_w - r);
-            const Vec3<T> fb = Rt * force;
-            feasibility::polytope_rows(*leg, pb, fb, scale, values + n);
-            n += kPolytopeFacets;
+            pb[n] = Rt * (pf_w - r);
+            fb[n] = Rt * force;
+            ++n;
           }
-          g[0] = feasibility::soft_max(values, n, t_soft);
+          g[0] = feasibility::polytope_soft_max(*leg, pb, fb, n, scale, t_soft);
         }));
   };
 
