@@ -179,10 +179,11 @@ TEST_P(Pointcloud2Update, SameMapAsTheEquivalentPcdFiles) {
   ASSERT_EQ(from_posed.size(), from_points.size());
   for (std::size_t i = 0; i < from_posed.size(); ++i) {
     ASSERT_EQ(from_posed[i]["observed"], from_points[i]["observed"]) << i;
-    if (from_posed[i]["observed"].get<bool>())
+    if (from_posed[i]["observed"].get<bool>()) {
       EXPECT_NEAR(from_posed[i]["height"].get<double>(), from_points[i]["height"].get<double>(),
                   1e-3)
           << i;
+    }
   }
   int observed = 0;
   for (std::size_t i = 0; i < from_points.size(); ++i) {
