@@ -67,7 +67,6 @@ struct BenchOptions {
   // robot's control loop and a deployed server's I/O thread would run (the step's own thread is
   // raised by the server's session op): what is then left of the round trip is the machine's.
   bool realtime_loop = false;
-  bool realtime_server_io = false;  // it was permitted
   // Hostile mode.
   int slowloris = 32;      // connections per slow-frame case
   double max_wait_s = 15;  // longest wait for the server to close a hostile connection
@@ -926,6 +925,8 @@ json bench_replan(const BenchOptions& o, bool in_process) {
   const bool realtime_client = o.realtime_loop && try_realtime(pthread_self());
   Client c = connect(o);
   c.set_timeout(600);
+  // As the server reports it (serve --realtime-io; the in-process server's --realtime-loop).
+  const bool realtime_server_io = c.call_ok({{"op", "status"}}).value("realtime_io", false);
   const auto t_open = Clock::now();
   const json ref = c.call_ok({{"op", "plan.session.open"},
                               {"terrain", o.replan_scene},
@@ -990,7 +991,7 @@ json bench_replan(const BenchOptions& o, bool in_process) {
   }
   c.call_ok({{"op", "plan.session.close"}, {"session", id}});
   json out = tally.to_json(o, ref, cold_ms);
-  out["realtime_loop"] = {{"client", realtime_client}, {"server_io", o.realtime_server_io}};
+  out["realtime_loop"] = {{"client", realtime_client}, {"server_io", realtime_server_io}};
   return out;
 }
 
@@ -1150,6 +1151,7 @@ void configure_bench_service(CLI::App* cmd) {
       so.workers = o->workers;
       so.queue = 64;
       so.handle_signals = false;
+      so.realtime_io = o->realtime_loop && o->mode == "replan";
       if (o->mode == "hostile" || o->mode == "all") {
         // Short limits so each case ends in seconds, and a token so the cases before hello run.
         so.frame_timeout_s = o->server_frame_timeout_s;
@@ -1169,8 +1171,6 @@ void configure_bench_service(CLI::App* cmd) {
           [backend] { return backend_hello(*backend); });
       o->connect = server->bind().front();
       server_thread = std::thread([&server] { server->run(); });
-      if (o->realtime_loop && o->mode == "replan")
-        o->realtime_server_io = try_realtime(server_thread.native_handle());
     }
     json out = {{"address", o->connect}};
     try {

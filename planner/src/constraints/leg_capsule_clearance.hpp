@@ -207,4 +207,18 @@ inline Ad capsule_soft_min<Ad>(const terrain::HeightField& field, const Vec3<Ad>
   return Ad(r.value(), d);
 }
 
+// One link's rows of a shin_ik or thigh piece into g: the folded soft minimum (t_soft > 0, one
+// row) or every value (rows.n_values rows).
+template <class T>
+void link_capsule_rows(const terrain::HeightField& field, const Vec3<T>& a, const Vec3<T>& b,
+                       const CapsuleRows& rows, const T& t_start, int nk, const T& across_x,
+                       const T& across_y, double t_soft, T* g) {
+  if (t_soft > 0.0)
+    g[0] = capsule_soft_min<T>(field, a, b, rows.gap_radius, rows.probe, t_start, nk, across_x,
+                               across_y, rows.n_values, t_soft);
+  else
+    capsule_clearance<T>(field, a, b, rows.gap_radius, rows.probe, t_start, nk, across_x,
+                         across_y, g);
+}
+
 }  // namespace terrastride::planner::feasibility

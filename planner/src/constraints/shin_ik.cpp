@@ -64,13 +64,8 @@ void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options) 
                              leg, robot::leg_joint_angles<T>(leg, R.transpose() * (foot - base)));
           const T len = sqrt((knee - foot).squaredNorm());
           const T t_start = exclusion / len, across_x = -sin(euler[0]), across_y = cos(euler[0]);
-          if (t_soft > 0.0)
-            g[0] = feasibility::capsule_soft_min<T>(*field, foot, knee, rows.gap_radius, rows.probe,
-                                                    t_start, nk, across_x, across_y, rows.n_values,
-                                                    t_soft);
-          else
-            feasibility::capsule_clearance<T>(*field, foot, knee, rows.gap_radius, rows.probe,
-                                              t_start, nk, across_x, across_y, g);
+          feasibility::link_capsule_rows<T>(*field, foot, knee, rows, t_start, nk, across_x,
+                                            across_y, t_soft, g);
         }));
       }
     }

@@ -50,13 +50,8 @@ void build_thigh_set(SrbdProblem& problem, const FeasibilityOptions& options) {
           const Vec3<T> hfe = base + R * robot::hfe_in_base<T>(leg, q);
           const Vec3<T> knee = base + R * robot::knee_in_base<T>(leg, q);
           const T t_start(0.0), across_x = -sin(euler[0]), across_y = cos(euler[0]);
-          if (t_soft > 0.0)
-            g[0] = feasibility::capsule_soft_min<T>(*field, hfe, knee, rows.gap_radius, rows.probe,
-                                                    t_start, nk, across_x, across_y, rows.n_values,
-                                                    t_soft);
-          else
-            feasibility::capsule_clearance<T>(*field, hfe, knee, rows.gap_radius, rows.probe,
-                                              t_start, nk, across_x, across_y, g);
+          feasibility::link_capsule_rows<T>(*field, hfe, knee, rows, t_start, nk, across_x,
+                                            across_y, t_soft, g);
         }));
       }
     }

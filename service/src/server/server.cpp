@@ -6,8 +6,6 @@
 #include "terrastride/service/server.hpp"
 
 #include <malloc.h>
-#include <pthread.h>
-#include <sched.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -17,6 +15,7 @@
 
 #include "connection.hpp"
 #include "server_impl.hpp"
+#include "thread_priority.hpp"
 
 namespace terrastride::service {
 
@@ -42,14 +41,7 @@ void Server::Impl::run_job(std::shared_ptr<Job> job) {
   asio::post(io, [job] { job->running = true; });
   // A worker left at a raised priority by an operation that keeps it (Operation::keeps_priority)
   // returns to the normal policy before any other operation.
-  if (!job->op->keeps_priority) {
-    int policy = SCHED_OTHER;
-    sched_param param{};
-    if (pthread_getschedparam(pthread_self(), &policy, &param) == 0 && policy != SCHED_OTHER) {
-      const sched_param normal{};
-      pthread_setschedparam(pthread_self(), SCHED_OTHER, &normal);
-    }
-  }
+  if (!job->op->keeps_priority) return_to_normal_policy();
   bool ok = false;
   std::string code;
   std::string frame;
@@ -401,9 +393,7 @@ void Server::run() {
   im.sweep();
   if (im.stopped) im.begin_shutdown();
   if (im.options.realtime_io) {
-    sched_param rt{};
-    rt.sched_priority = 1;
-    im.realtime_io = pthread_setschedparam(pthread_self(), SCHED_FIFO, &rt) == 0;
+    im.realtime_io = raise_to_realtime();
     if (!im.realtime_io)
       std::fprintf(stderr,
                    "terrastride serve: --realtime-io: this process may not use SCHED_FIFO (it "

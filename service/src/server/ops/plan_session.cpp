@@ -5,8 +5,6 @@
 // without a step, or when the server is full and it is the longest idle. Steps run in
 // the server process (one solve at a time per process: Debian's MUMPS is not re-entrant), so they
 // pay no process start; a session's steps run one at a time.
-#include <pthread.h>
-#include <sched.h>
 
 #include <algorithm>
 #include <chrono>
@@ -21,6 +19,7 @@
 #include "common/plan_request.hpp"
 #include "server/backend.hpp"
 #include "server/samples_table.hpp"
+#include "server/thread_priority.hpp"
 #include "common/terrain_source.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planning_session.hpp"
@@ -71,21 +70,10 @@ constexpr double kDefaultStepBudgetMs = 50.0;
 class RealtimeForStep {
  public:
   explicit RealtimeForStep(bool wanted) {
-    const pthread_t self = pthread_self();
-    int policy = SCHED_OTHER;
-    sched_param param{};
-    if (pthread_getschedparam(self, &policy, &param) != 0) return;
-    if (!wanted) {
-      if (policy != SCHED_OTHER) {
-        const sched_param normal{};
-        pthread_setschedparam(self, SCHED_OTHER, &normal);
-      }
-      return;
-    }
-    sched_param rt{};
-    rt.sched_priority = 1;  // the lowest real-time priority: above every normal thread
-    active_ = (policy == SCHED_FIFO && param.sched_priority >= 1) ||
-              pthread_setschedparam(self, SCHED_FIFO, &rt) == 0;
+    if (wanted)
+      active_ = raise_to_realtime();
+    else
+      return_to_normal_policy();
   }
   RealtimeForStep(const RealtimeForStep&) = delete;
   RealtimeForStep& operator=(const RealtimeForStep&) = delete;
