@@ -6,13 +6,17 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/piece_math.hpp"
 #include "terrastride/robot/geometry.hpp"
+#include "terrastride/robot/leg_kinematics.hpp"
 
 namespace terrastride::planner {
 
 std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
                                            const terrain::HeightField& terrain,
-                                           const Trajectory& dense, const DenseCheckLimits& limits) {
+                                           const Trajectory& dense,
+                                           const DenseCheckLimits& limits) {
   const double g = 9.81;
   const std::size_t nf = robot.legs.size();
   double lin = 0.0, ang = 0.0, pen = 0.0, fric = 0.0, slip = 0.0, rom = 0.0, stance_h = 0.0;
@@ -63,8 +67,9 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
         fric = std::max(fric, v);
       } else {
         if (debug && hs.height - ft.position.z() > pen)
-          std::fprintf(stderr, "pen %g at t=%g foot %zu p=(%g %g %g)\n", hs.height - ft.position.z(),
-                       s.t, f, ft.position.x(), ft.position.y(), ft.position.z());
+          std::fprintf(stderr, "pen %g at t=%g foot %zu p=(%g %g %g)\n",
+                       hs.height - ft.position.z(), s.t, f, ft.position.x(), ft.position.y(),
+                       ft.position.z());
         pen = std::max(pen, hs.height - ft.position.z());
       }
       was_contact[f] = ft.contact;
@@ -76,8 +81,8 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
       const Eigen::Vector3d ex =
           (pb - robot.legs[f].nominal_foot).cwiseAbs() - robot.legs[f].range_of_motion;
       if (debug && ex.maxCoeff() > rom)
-        std::fprintf(stderr, "rom %g at t=%g foot %zu contact %d pb=(%g %g %g)\n", ex.maxCoeff(), s.t, f,
-                     int(ft.contact), pb.x(), pb.y(), pb.z());
+        std::fprintf(stderr, "rom %g at t=%g foot %zu contact %d pb=(%g %g %g)\n", ex.maxCoeff(),
+                     s.t, f, int(ft.contact), pb.x(), pb.y(), pb.z());
       rom = std::max(rom, ex.maxCoeff());
     }
     last_t = s.t;
@@ -92,6 +97,95 @@ std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
   out["range_of_motion_excess_max_m"] = std::max(0.0, rom);
   out["stance_height_error_max_m"] = stance_h;
   out["force_rate_max_N_per_s"] = force_rate;
+  return out;
+}
+
+namespace {
+
+// The worst instant of one (foot, segment) for one kind of excess.
+struct SegmentWorst {
+  double excess = 0.0;
+  double sigma = 0.0;
+  void take(double e, double at) {
+    if (e > excess) {
+      excess = e;
+      sigma = at;
+    }
+  }
+};
+
+Eigen::Vector3d vec3_of(const std::vector<double>& x, int i) {
+  return i < 0 ? Eigen::Vector3d::Zero() : Eigen::Vector3d(x[i], x[i + 1], x[i + 2]);
+}
+
+}  // namespace
+
+JointDenseCheck dense_joint_check(const SrbdProblem& problem, const std::vector<double>& x,
+                                  double max_dt) {
+  if (!(max_dt > 0.0)) throw std::invalid_argument("dense_joint_check: max_dt must be > 0");
+  const robot::RobotModel& robot = problem.robot();
+  const Layout& L = problem.layout();
+  const int nf = static_cast<int>(robot.legs.size());
+  const bool velocities = has_velocity_limits(robot);
+  JointDenseCheck out;
+  double t0 = 0.0;
+  for (int s = 0; s < L.num_segments; ++s) {
+    const double h = x[L.interval_var[L.seg_interval[s]]] * L.seg_fraction[s];
+    const int steps = std::max(1, static_cast<int>(std::ceil(h / max_dt - 1e-9)));
+    std::vector<SegmentWorst> range(nf), velocity(nf);
+    const int b0 = L.base[s], b1 = L.base[s + 1];
+    for (int i = 0; i <= steps; ++i) {
+      const double sigma = static_cast<double>(i) / steps;
+      Eigen::Vector3d r, rv, e, ev;
+      hermite<double>(sigma, h, vec3_of(x, b0), vec3_of(x, b0 + 3), vec3_of(x, b1),
+                      vec3_of(x, b1 + 3), &r, &rv, nullptr);
+      hermite<double>(sigma, h, vec3_of(x, b0 + 6), vec3_of(x, b0 + 9), vec3_of(x, b1 + 6),
+                      vec3_of(x, b1 + 9), &e, &ev, nullptr);
+      const Eigen::Matrix3d rt = rotation_zyx<double>(e).transpose();
+      for (int f = 0; f < nf; ++f) {
+        const robot::LegModel& leg = robot.legs[f];
+        Eigen::Vector3d p, pv;
+        hermite<double>(sigma, h, vec3_of(x, L.foot_pos[f][s]), vec3_of(x, L.foot_vel[f][s]),
+                        vec3_of(x, L.foot_pos[f][s + 1]), vec3_of(x, L.foot_vel[f][s + 1]), &p, &pv,
+                        nullptr);
+        const robot::IkResult ik = robot::inverse_kinematics(leg, rt * (p - r));
+        if (ik.status == robot::IkStatus::unreachable) continue;  // the post-hoc check's failure
+        for (int j = 0; j < 3; ++j) {
+          const double beyond = std::max(leg.q_min[j] - ik.q[j], ik.q[j] - leg.q_max[j]);
+          range[f].take(beyond, sigma);
+          if (beyond > out.range_excess_rad) {
+            out.range_excess_rad = beyond;
+            out.range_foot = f;
+            out.range_joint = j;
+            out.range_t = t0 + sigma * h;
+          }
+        }
+        if (!velocities) continue;
+        const Eigen::Vector3d qd = joint_velocity_rows<double>(leg, r, rv, e, ev, p, pv);
+        for (int j = 0; j < 3; ++j) {
+          const double ratio = std::abs(qd[j]) / leg.velocity_limit[j];
+          velocity[f].take(ratio - 1.0, sigma);
+          if (ratio > out.velocity_ratio) {
+            out.velocity_ratio = ratio;
+            out.velocity_foot = f;
+            out.velocity_joint = j;
+            out.velocity_t = t0 + sigma * h;
+          }
+        }
+      }
+    }
+    out.samples += steps + (s + 1 == L.num_segments ? 1 : 0);
+    for (int f = 0; f < nf; ++f) {
+      const bool r_over = range[f].excess > 0.0, v_over = velocity[f].excess > 0.0;
+      if (r_over && v_over && range[f].sigma == velocity[f].sigma) {
+        out.violations.push_back({f, s, range[f].sigma, true, true});
+        continue;
+      }
+      if (r_over) out.violations.push_back({f, s, range[f].sigma, true, false});
+      if (v_over) out.violations.push_back({f, s, velocity[f].sigma, false, true});
+    }
+    t0 += h;
+  }
   return out;
 }
 

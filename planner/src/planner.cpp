@@ -14,6 +14,7 @@
 #include "terrastride/planner/before_solve.hpp"
 #include "terrastride/planner/constraints.hpp"
 #include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/joint_points.hpp"
 #include "terrastride/planner/piece_math.hpp"
 #include "terrastride/planner/quality.hpp"
 #include "terrastride/planner/reachability.hpp"
@@ -95,8 +96,7 @@ PlanSetup fresh_setup(const robot::RobotModel& robot, const std::vector<std::str
   // The robot's feasibility defaults only when force_ramp is asked for: computing them can
   // throw for a robot whose limits a `baseline` plan never reads.
   if (options.rest_boundaries && requests_constraint_set(options.constraints, "force_ramp")) {
-    const FeasibilityOptions feasibility =
-        feasibility_options(robot, options.feasibility_settings);
+    const FeasibilityOptions feasibility = feasibility_options(robot, options.feasibility_settings);
     if (feasibility.force_rate_max > 0.0) {
       const Gait led = with_rest_lead_in(gait, feet, options.cycles, options.duration,
                                          robot.mass * kGravity / feasibility.force_rate_max);
@@ -137,14 +137,11 @@ std::vector<std::pair<std::string, std::string>> warm_ipopt_options(bool warm) {
 // kShapedMaxIterations) once more without them, within what is left of max_time; `problem` is
 // then the unshaped one. Returns plan.json's "path_shape_fallback" (null: none). Not after a
 // cancellation, nor when the time limit is spent.
-nlohmann::json solve_with_shape_fallback(std::unique_ptr<SrbdProblem>* problem,
-                                         const robot::RobotModel& robot,
-                                         const terrain::HeightField& plan_terrain,
-                                         const PlanSetup& setup,
-                                         const PlannerOptions& problem_options,
-                                         const PlannerOptions& options, const WarmStart& warm,
-                                         std::chrono::steady_clock::time_point t_start,
-                                         SolveResult* result) {
+nlohmann::json solve_with_shape_fallback(
+    std::unique_ptr<SrbdProblem>* problem, const robot::RobotModel& robot,
+    const terrain::HeightField& plan_terrain, const PlanSetup& setup,
+    const PlannerOptions& problem_options, const PlannerOptions& options, const WarmStart& warm,
+    std::chrono::steady_clock::time_point t_start, SolveResult* result) {
   const auto ipopt_options = warm_ipopt_options(warm.previous != nullptr);
   SolverOptions solver_options = options;
   // A warm start continues a plan that was optimised already: stop at its first verified
@@ -190,6 +187,123 @@ nlohmann::json solve_with_shape_fallback(std::unique_ptr<SrbdProblem>* problem,
   result->polish_iterations += shaped.polish_iterations;
   result->wall_s += shaped.wall_s;
   return shape_fallback;
+}
+
+// The joint-point refinement's dense check: every segment at steps of at most 1 ms (the finest
+// --sample-dt a plan takes, request_limits.hpp), so that the post-hoc check at any sample step
+// finds no instant this one missed by more than the motion within half a millisecond.
+constexpr double kJointCheckDt = 0.001;
+// The most iterations one refinement re-solve gets: it starts from a solution that the new rows
+// alone cut off, a few points of a few legs.
+constexpr int kRefinementMaxIterations = 150;
+
+nlohmann::json joint_check_json(const JointDenseCheck& check, const robot::RobotModel& robot) {
+  static const char* kJoints[3] = {"HAA", "HFE", "KFE"};
+  nlohmann::json j = {{"range_excess_rad", check.range_excess_rad},
+                      {"intervals", check.violations.size()}};
+  if (check.range_foot >= 0 && check.range_excess_rad > 0.0)
+    j["range_worst"] = {{"foot", robot.legs[check.range_foot].name},
+                        {"joint", kJoints[check.range_joint]},
+                        {"t", check.range_t}};
+  if (has_velocity_limits(robot)) {
+    j["velocity_ratio"] = check.velocity_ratio;
+    if (check.velocity_foot >= 0)
+      j["velocity_worst"] = {{"foot", robot.legs[check.velocity_foot].name},
+                             {"joint", kJoints[check.velocity_joint]},
+                             {"t", check.velocity_t}};
+  }
+  return j;
+}
+
+// Constraint-point refinement (as in direct collocation's mesh refinement): the joint rows hold
+// at the knots and at points inside swings, and a joint may pass its range or velocity limit
+// between them (Go2 with 8 rad/s knees, a 1.4 s trot: 1.009x in a swing; 1 rad/s knees, the
+// default crawl: 1.415x in a stance leaving rest). After a successful solve of a problem with
+// "joints" rows the solution is checked densely (dense_joint_check); where a joint exceeds its
+// range or velocity limit the problem is built again with joint rows at the worst instant of
+// each such (segment, foot) as well, and solved from the solution to its first feasible point.
+// At most options.joint_refinement_rounds times, within options.max_time; a re-solve that fails
+// leaves the previous solution (and its problem) as the plan, which the post-hoc checks then
+// judge as before. Rows are added only where a limit is exceeded, so a plan inside its limits is
+// solved exactly as without refinement. Returns plan.json's "joint_refinement" (null: the check
+// found nothing, or the problem has no joint rows).
+nlohmann::json refine_joint_points(std::unique_ptr<SrbdProblem>* problem,
+                                   const robot::RobotModel& robot,
+                                   const terrain::HeightField& plan_terrain, const PlanSetup& setup,
+                                   const PlannerOptions& options, const WarmStart& warm,
+                                   std::chrono::steady_clock::time_point t_start,
+                                   SolveResult* result) {
+  if (options.joint_refinement_rounds <= 0 || !result->success ||
+      !requests_constraint_set((*problem)->options().constraints, "joints"))
+    return nullptr;
+  JointDenseCheck check = dense_joint_check(**problem, result->x, kJointCheckDt);
+  if (check.violations.empty()) return nullptr;
+  nlohmann::json record = {{"before", joint_check_json(check, robot)}};
+  nlohmann::json rounds = nlohmann::json::array();
+  std::vector<JointPoint> points;  // every point added so far
+  auto time_left = [&] {
+    return options.max_time > 0.0 ? options.max_time - seconds_since(t_start) : 1.0;
+  };
+  SolverOptions solver_options = options;
+  solver_options.stop_at_first_feasible = true;  // the solution was optimised already
+  solver_options.max_iterations = std::min(options.max_iterations, kRefinementMaxIterations);
+  std::string ended;
+  while (!check.violations.empty()) {
+    if (static_cast<int>(rounds.size()) >= options.joint_refinement_rounds) {
+      ended = "rounds";
+      break;
+    }
+    if (time_left() <= 0.0 || (options.should_stop && options.should_stop())) {
+      ended = "time";
+      break;
+    }
+    const std::size_t before = points.size();
+    points.insert(points.end(), check.violations.begin(), check.violations.end());
+    auto refined = std::make_unique<SrbdProblem>(robot, plan_terrain, setup.timeline,
+                                                 (*problem)->options(), setup.start_ptr());
+    if (warm.previous) refined->warm_start_from(*warm.previous, warm.shift);
+    add_joint_range_points(*refined, points);
+    add_joint_velocity_points(*refined, points);
+    // The rows at a measured start's instants are widened (joints.cpp): there they may hold
+    // already, and a re-solve would return the same solution.
+    if (refined->max_violation(result->x) <= options.tolerance) {
+      ended = "rows_hold";
+      break;
+    }
+    refined->initial_guess() = result->x;
+    if (options.max_time > 0.0) solver_options.max_time = std::max(time_left(), 1e-3);
+    const SolveResult again = solve(*refined, solver_options, warm_ipopt_options(true));
+    rounds.push_back({{"points", points.size() - before},
+                      {"status", again.status},
+                      {"iterations", again.iterations}});
+    result->iterations += again.iterations;
+    result->feasibility_iterations += again.feasibility_iterations;
+    result->objective_iterations += again.objective_iterations;
+    result->polish_iterations += again.polish_iterations;
+    result->wall_s += again.wall_s;
+    if (!again.success) {
+      ended = "failed";
+      points.resize(before);
+      break;
+    }
+    const double wall_s = result->wall_s;
+    const int iterations = result->iterations, feasibility = result->feasibility_iterations,
+              objective = result->objective_iterations, polish = result->polish_iterations;
+    *result = again;
+    result->wall_s = wall_s;
+    result->iterations = iterations;
+    result->feasibility_iterations = feasibility;
+    result->objective_iterations = objective;
+    result->polish_iterations = polish;
+    *problem = std::move(refined);
+    check = dense_joint_check(**problem, result->x, kJointCheckDt);
+  }
+  record["rounds"] = rounds;
+  record["points"] = points.size();
+  record["after"] = joint_check_json(check, robot);
+  record["held"] = check.violations.empty();
+  if (!ended.empty()) record["ended"] = ended;
+  return record;
 }
 
 // plan.json's solver and request figures (solver, objective and its phases, the request's
@@ -284,8 +398,8 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   // A measured start ahead of the plan may return to it (monotone_progress).
   if (warm.previous && warm.start)
     set_start_lead_of(*warm.previous, warm.shift, setup.start, &problem_options);
-  auto problem = std::make_unique<SrbdProblem>(robot, plan_terrain, setup.timeline,
-                                               problem_options, setup.start_ptr());
+  auto problem = std::make_unique<SrbdProblem>(robot, plan_terrain, setup.timeline, problem_options,
+                                               setup.start_ptr());
   // An unreachable goal stance otherwise costs seconds of iterations before "infeasible".
   const auto t_reach = std::chrono::steady_clock::now();
   require_reachable(*problem);
@@ -295,6 +409,10 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   PlanOutcome out;
   const nlohmann::json shape_fallback = solve_with_shape_fallback(
       &problem, robot, plan_terrain, setup, problem_options, options, warm, t_start, &out.solve);
+  const auto t_refine = std::chrono::steady_clock::now();
+  const nlohmann::json joint_refinement =
+      refine_joint_points(&problem, robot, plan_terrain, setup, options, warm, t_start, &out.solve);
+  const double refinement_s = seconds_since(t_refine);
   const auto t_after_solve = std::chrono::steady_clock::now();
   out.success = out.solve.success;
   if (std::getenv("TERRASTRIDE_DEBUG_CHECKS"))
@@ -303,6 +421,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   out.trajectory = sample_solution(*problem, out.solve.x, sample_dt);
   record_solve(*problem, out.solve, options, problem_options, shape_fallback, setup.rest_lead_in,
                &out.trajectory);
+  if (!joint_refinement.is_null()) out.trajectory.extra["joint_refinement"] = joint_refinement;
   DenseCheckLimits lim;
   lim.friction = options.friction;
   lim.max_normal_force = options.max_normal_force_factor * robot.mass * kGravity;
@@ -316,6 +435,7 @@ PlanOutcome plan_motion(const robot::RobotModel& robot, const terrain::HeightFie
   out.trajectory.extra["timings"] = {{"build_s", build_s},
                                      {"reachability_check_s", reachability_s},
                                      {"solve_s", out.solve.wall_s},
+                                     {"joint_refinement_s", refinement_s},
                                      {"sample_and_checks_s", seconds_since(t_after_solve)},
                                      {"total_s", seconds_since(t_start)}};
   if (!out.success) record_failure(*problem, options, shape_fallback, &out);
@@ -362,8 +482,7 @@ void check_plan_request(const PlannerOptions& options, double sample_dt) {
   if (!options.start.allFinite()) throw RequestError("start", "must be three finite numbers");
   const double reach = (options.goal.head<2>() - options.start.head<2>()).norm();
   if (options.has_goal && reach > PlanLimits::kMaxGoalDistance)
-    fail("goal", reach,
-         "must lie within 1000 m of the start (distance from the start in m shown)");
+    fail("goal", reach, "must lie within 1000 m of the start (distance from the start in m shown)");
 }
 
 }  // namespace terrastride::planner

@@ -7,9 +7,11 @@
 // standing foot) and at the quarter points of every swing segment, where the swing foot is
 // fastest; the bounds keep kVelocityMargin of the limit in hand for the motion between the points.
 #include <cmath>
+#include <vector>
 
 #include "spline_variables.hpp"
 #include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/joint_points.hpp"
 #include "terrastride/planner/nlp.hpp"
 #include "terrastride/robot/geometry.hpp"
 
@@ -57,6 +59,43 @@ template Vec3<double> joint_velocity_rows<double>(const robot::LegModel&, const 
                                                   const Vec3<double>&, const Vec3<double>&,
                                                   const Vec3<double>&);
 
+namespace {
+
+// One piece at fraction sigma of segment s for foot f: the leg's three joint velocities within
+// [lo, hi], from the base's and the foot's Hermite values and rates there (a stance foot's rate
+// is zero).
+void add_point_velocity_rows(SrbdProblem& problem, int f, int s, double sigma,
+                             const std::vector<double>& lo, const std::vector<double>& hi) {
+  const Layout& L = problem.layout();
+  const robot::LegModel leg = problem.robot().legs[f];
+  LocalVars lv;
+  const HermiteLocal rp = add_base_position(lv, L, s, sigma, false);
+  const HermiteLocal ep = add_base_euler(lv, L, s, sigma, false);
+  const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, false);
+  const int dur = add_segment_duration(lv, L, s);
+  const double frac = L.seg_fraction[s];
+  problem.add_piece(make_piece("joint_velocity", lv, lo, hi, [=](const auto* x, auto* g) {
+    using T = std::decay_t<decltype(*g)>;
+    const T h = x[dur] * frac;
+    Vec3<T> base, base_vel, euler, euler_rate, foot, foot_vel;
+    hermite<T>(sigma, h, x, rp, &base, &base_vel, nullptr);
+    hermite<T>(sigma, h, x, ep, &euler, &euler_rate, nullptr);
+    hermite<T>(sigma, h, x, fp, &foot, &foot_vel, nullptr);
+    const Vec3<T> qd =
+        joint_velocity_rows<T>(leg, base, base_vel, euler, euler_rate, foot, foot_vel);
+    for (int j = 0; j < 3; ++j) g[j] = qd[j];
+  }));
+}
+
+// Foot f's rows' bounds: the limits less kVelocityMargin.
+void velocity_bounds(const robot::LegModel& leg, std::vector<double>* lo, std::vector<double>* hi) {
+  const Eigen::Vector3d lim = (1.0 - kVelocityMargin) * leg.velocity_limit;
+  *lo = {-lim[0], -lim[1], -lim[2]};
+  *hi = {lim[0], lim[1], lim[2]};
+}
+
+}  // namespace
+
 bool has_velocity_limits(const robot::RobotModel& robot) {
   for (const auto& leg : robot.legs)
     if (!(leg.velocity_limit.minCoeff() > 0)) return false;
@@ -71,8 +110,8 @@ void build_joint_velocity_rows(SrbdProblem& problem) {
   const int nf = static_cast<int>(robot.legs.size());
   for (int f = 0; f < nf; ++f) {
     const robot::LegModel leg = robot.legs[f];
-    const Eigen::Vector3d lim = (1.0 - kVelocityMargin) * leg.velocity_limit;
-    const std::vector<double> lo{-lim[0], -lim[1], -lim[2]}, hi{lim[0], lim[1], lim[2]};
+    std::vector<double> lo, hi;
+    velocity_bounds(leg, &lo, &hi);
     for (int k = 0; k <= S; ++k) {
       LocalVars lv;
       const auto p = lv.add3(L.foot_pos[f][k]);
@@ -83,34 +122,28 @@ void build_joint_velocity_rows(SrbdProblem& problem) {
       const auto ev = lv.add3(L.base[k] + 9);
       problem.add_piece(make_piece("joint_velocity", lv, lo, hi, [=](const auto* x, auto* g) {
         using T = std::decay_t<decltype(*g)>;
-        const Vec3<T> qd =
-            joint_velocity_rows<T>(leg, gather3(x, r), gather3(x, rv), gather3(x, e),
-                                   gather3(x, ev), gather3(x, p), gather3(x, pv));
+        const Vec3<T> qd = joint_velocity_rows<T>(leg, gather3(x, r), gather3(x, rv), gather3(x, e),
+                                                  gather3(x, ev), gather3(x, p), gather3(x, pv));
         for (int j = 0; j < 3; ++j) g[j] = qd[j];
       }));
     }
     for (int s = 0; s < S; ++s) {
       if (L.contact[f][s]) continue;
-      for (const double sigma : {0.25, 0.5, 0.75}) {
-        LocalVars lv;
-        const HermiteLocal rp = add_base_position(lv, L, s, sigma, false);
-        const HermiteLocal ep = add_base_euler(lv, L, s, sigma, false);
-        const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, false);
-        const int dur = add_segment_duration(lv, L, s);
-        const double frac = L.seg_fraction[s];
-        problem.add_piece(make_piece("joint_velocity", lv, lo, hi, [=](const auto* x, auto* g) {
-          using T = std::decay_t<decltype(*g)>;
-          const T h = x[dur] * frac;
-          Vec3<T> base, base_vel, euler, euler_rate, foot, foot_vel;
-          hermite<T>(sigma, h, x, rp, &base, &base_vel, nullptr);
-          hermite<T>(sigma, h, x, ep, &euler, &euler_rate, nullptr);
-          hermite<T>(sigma, h, x, fp, &foot, &foot_vel, nullptr);
-          const Vec3<T> qd =
-              joint_velocity_rows<T>(leg, base, base_vel, euler, euler_rate, foot, foot_vel);
-          for (int j = 0; j < 3; ++j) g[j] = qd[j];
-        }));
-      }
+      for (const double sigma : {0.25, 0.5, 0.75})
+        add_point_velocity_rows(problem, f, s, sigma, lo, hi);
     }
+  }
+}
+
+void add_joint_velocity_points(SrbdProblem& problem, const std::vector<JointPoint>& points) {
+  const robot::RobotModel& robot = problem.robot();
+  if (!has_velocity_limits(robot)) return;
+  for (const JointPoint& point : points) {
+    if (!point.velocity) continue;
+    require_joint_point_in(problem, point);
+    std::vector<double> lo, hi;
+    velocity_bounds(robot.legs[point.foot], &lo, &hi);
+    add_point_velocity_rows(problem, point.foot, point.segment, point.sigma, lo, hi);
   }
 }
 

@@ -20,6 +20,7 @@
 #include "spline_variables.hpp"
 #include "start_return.hpp"
 #include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/joint_points.hpp"
 #include "terrastride/planner/nlp.hpp"
 
 namespace terrastride::planner {
@@ -142,8 +143,7 @@ void add_knot_joint_rows(SrbdProblem& problem, const JointBounds& jb, double t_s
           using T = std::decay_t<decltype(*g)>;
           T values[6];
           int n = 0;
-          joint_excess_values(leg, gather3(x, r), gather3(x, e), gather3(x, p), lo, hi, values,
-                              &n);
+          joint_excess_values(leg, gather3(x, r), gather3(x, e), gather3(x, p), lo, hi, values, &n);
           g[0] = feasibility::soft_max(values, n, t_soft);
         }));
         continue;
@@ -198,29 +198,33 @@ void add_merged_swing_joint_row(SrbdProblem& problem, const JointBounds& jb, int
   }));
 }
 
-// One piece per swing point, three rows each (the joints' angles within their widened bounds).
-void add_swing_point_joint_rows(SrbdProblem& problem, const JointBounds& jb, int f, int s) {
+// One piece at fraction sigma of segment s for foot f, three rows (the joints' angles within
+// their widened bounds). In a stance segment the foot's Hermite variables are its foothold's.
+void add_point_joint_rows(SrbdProblem& problem, const JointBounds& jb, int f, int s, double sigma) {
   const Layout& L = problem.layout();
   const robot::LegModel leg = problem.robot().legs[f];
-  for (const double sigma : kSwingPoints) {
-    LocalVars lv;
-    const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
-    const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
-    const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, true);
-    const int dur = add_segment_duration(lv, L, s);
-    const double frac = L.seg_fraction[s];
-    std::vector<double> lk, hk;
-    jb.widened(f, nominal_point_time(L, s, sigma), &lk, &hk);
-    problem.add_piece(make_piece("joints", lv, lk, hk, [=](const auto* x, auto* g) {
-      using T = std::decay_t<decltype(*g)>;
-      const T h = x[dur] * frac;
-      Vec3<T> base, euler, foot;
-      hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
-      hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
-      hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
-      joint_angle_rows(leg, base, euler, foot, g);
-    }));
-  }
+  LocalVars lv;
+  const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
+  const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
+  const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, true);
+  const int dur = add_segment_duration(lv, L, s);
+  const double frac = L.seg_fraction[s];
+  std::vector<double> lk, hk;
+  jb.widened(f, nominal_point_time(L, s, sigma), &lk, &hk);
+  problem.add_piece(make_piece("joints", lv, lk, hk, [=](const auto* x, auto* g) {
+    using T = std::decay_t<decltype(*g)>;
+    const T h = x[dur] * frac;
+    Vec3<T> base, euler, foot;
+    hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
+    hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
+    hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
+    joint_angle_rows(leg, base, euler, foot, g);
+  }));
+}
+
+// One piece per swing point.
+void add_swing_point_joint_rows(SrbdProblem& problem, const JointBounds& jb, int f, int s) {
+  for (const double sigma : kSwingPoints) add_point_joint_rows(problem, jb, f, s, sigma);
 }
 
 }  // namespace
@@ -239,6 +243,16 @@ void build_joints_set(SrbdProblem& problem, const FeasibilityOptions& options) {
       else
         add_swing_point_joint_rows(problem, jb, f, s);
     }
+}
+
+void add_joint_range_points(SrbdProblem& problem, const std::vector<JointPoint>& points) {
+  const JointBounds jb = joint_bounds(
+      problem, feasibility_options(problem.robot(), problem.options().feasibility_settings));
+  for (const JointPoint& point : points) {
+    if (!point.range) continue;
+    require_joint_point_in(problem, point);
+    add_point_joint_rows(problem, jb, point.foot, point.segment, point.sigma);
+  }
 }
 
 }  // namespace terrastride::planner

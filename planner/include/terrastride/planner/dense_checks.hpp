@@ -5,7 +5,9 @@
 
 #include <map>
 #include <string>
+#include <vector>
 
+#include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/trajectory.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/terrain/height_field.hpp"
@@ -13,7 +15,7 @@
 namespace terrastride::planner {
 
 struct DenseCheckLimits {
-  double friction = 0.5;         // pyramid coefficient
+  double friction = 0.5;          // pyramid coefficient
   double max_normal_force = 0.0;  // N; <= 0: no upper bound checked
 };
 
@@ -26,5 +28,36 @@ struct DenseCheckLimits {
 std::map<std::string, double> dense_checks(const robot::RobotModel& robot,
                                            const terrain::HeightField& terrain,
                                            const Trajectory& dense, const DenseCheckLimits& limits);
+
+// One instant of a solution for joint rows: foot `foot` at fraction `sigma` of segment `segment`
+// (Layout's segments), and the rows that instant needs: the joint angles within their ranges, the
+// joint velocities within their limits.
+struct JointPoint {
+  int foot = 0;
+  int segment = 0;
+  double sigma = 0.0;
+  bool range = false;
+  bool velocity = false;
+};
+
+// The joints of a solution checked densely, on the splines themselves (not on a sampled plan):
+// every segment at steps of at most `max_dt` seconds (both ends included), each leg's angles by
+// robot::inverse_kinematics (as the post-hoc check) and its velocities as the "joint_velocity"
+// rows compute them (the foot's velocity relative to the base through the leg's inverse
+// Jacobian; robots whose every leg has velocity limits only).
+struct JointDenseCheck {
+  double range_excess_rad = 0.0;  // largest angle beyond a joint's range (0: none)
+  double velocity_ratio = 0.0;    // largest |q'| / q'_lim (0: no velocity limits)
+  // Where each largest one is (-1: nowhere): the foot, the joint (0 HAA, 1 HFE, 2 KFE), the time.
+  int range_foot = -1, range_joint = -1, velocity_foot = -1, velocity_joint = -1;
+  double range_t = 0.0, velocity_t = 0.0;
+  int samples = 0;  // instants checked per foot
+  // Per (segment, foot), in segment then foot order: the worst instant of its angles beyond
+  // their ranges and that of its velocities above their limits, where it has such (one point
+  // with both rows where the two coincide).
+  std::vector<JointPoint> violations;
+};
+JointDenseCheck dense_joint_check(const SrbdProblem& problem, const std::vector<double>& x,
+                                  double max_dt);
 
 }  // namespace terrastride::planner

@@ -25,7 +25,7 @@ struct ObjectiveWeights {
   double body_height = 1.0;                // integral of ((z - z_nominal) / 0.05 m)^2 / T
   double heading = 1.0;                    // integral of |(yaw, pitch, roll) - nominal|^2 (rad) / T
   double lateral = 1.0;                    // integral of (lateral offset / 0.05 m)^2 / T
-  double progress = 0.1;  // integral of (offset along the line from the nominal / 0.05 m)^2 / T
+  double progress = 0.1;    // integral of (offset along the line from the nominal / 0.05 m)^2 / T
   double base_jerk = 0.01;  // integral of |jerk/g|^2, knot jumps of the acceleration included
   // Every weight zero: the feasibility problem of the original design.
   static ObjectiveWeights none() {
@@ -163,6 +163,12 @@ struct SolverOptions {
   // warm starts: the previous plan was optimised already, and a start on it re-verifies in 0
   // iterations).
   bool stop_at_first_feasible = false;
+  // plan_motion's joint-point refinement (planner.cpp), for problems with "joints" rows: after a
+  // successful solve a dense check (dense_joint_check) looks for joints beyond their ranges or
+  // velocity limits between the constraint points; where it finds some, the problem gets joint
+  // rows at the worst instants and is solved again from the solution, at most this many times.
+  // 0: never. Planning-session steps call solve() and never refine (they have a deadline).
+  int joint_refinement_rounds = 3;
 };
 
 // Both parts in one object: every field is reachable by its own name (options.gait,
