@@ -712,7 +712,7 @@ std::string robot_yaml(const ImportedRobot& r, const UrdfImport& out, const Urdf
   const std::vector<double> &thigh_radius = r.thigh_radius, &shin_radius = r.shin_radius;
   // The robot file.
   std::ostringstream y;
-  y << "# " << options.name << ", imported from a URDF by `terrastride robot import` (docs/design.md §4.1).\n"
+  y << "# " << options.name << ", imported from a URDF by `terrastride robot import` (docs/design.md §4.3).\n"
     << "# Geometry, limits, inertias, foot sphere and link radii come from the URDF; the stated defaults\n"
     << "# below (nominal stance, range-of-motion box, shin model) do not: the URDF does not hold them.\n";
   for (const auto& d : out.defaults) y << "#   default: " << d << "\n";
