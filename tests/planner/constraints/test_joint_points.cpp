@@ -137,18 +137,25 @@ TEST(JointPoints, RowsAreTheJointsOfTheSolutionAtTheirInstant) {
 }
 
 // Go2 with its limits cut so that the guess exceeds them: every interval the check reports has
-// its worst instant beyond the limit (the rows there say so), the largest ratio is one of those
-// instants', and with the limits restored nothing is reported.
+// its worst instant beyond the limit (the rows there say so), and the largest excess is one of
+// those instants'. With the limits widened far beyond the guess's motion nothing is reported.
 TEST(JointPoints, DenseCheckReportsTheWorstInstantOfEachExceedingInterval) {
   auto r = joint_points_go2();
   FlatField flat;
   const PhaseTimeline timeline = crawl_timeline(r, 1.2);
   {
-    SrbdProblem p(r, flat, timeline, joint_points_options(false));
+    robot::RobotModel wide = r;
+    for (auto& leg : wide.legs) {
+      leg.velocity_limit *= 100.0;
+      leg.q_min.array() -= 1.0;
+      leg.q_max.array() += 1.0;
+    }
+    SrbdProblem p(wide, flat, timeline, joint_points_options(false));
     const JointDenseCheck check = dense_joint_check(p, p.initial_guess(), 0.001);
     EXPECT_TRUE(check.violations.empty());
     EXPECT_GT(check.velocity_ratio, 0.0);
     EXPECT_LT(check.velocity_ratio, 1.0);
+    EXPECT_EQ(check.range_excess_rad, 0.0);
     EXPECT_GE(check.samples, 1201);  // 1.2 s at 1 ms or finer, both ends
   }
   for (auto& leg : r.legs) {
