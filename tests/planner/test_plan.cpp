@@ -42,6 +42,37 @@ PlannerOptions options_to_goal(double x) {
   return o;
 }
 
+// Go2 with its knees' velocity limit cut from 15.7 to 8 rad/s, a 1 m trot in 1.4 s, `all`: the
+// joint rows hold at their points, and a swinging knee passed its limit between them (1.009x at
+// 1 ms samples). plan_motion's refinement finds it, adds rows there and solves again; with
+// joint_refinement_rounds = 0 the plan is the first solve's and carries no record.
+TEST(Plan, JointRefinementHoldsVelocitiesBetweenConstraintPoints) {
+  auto r = robot::load_robot(robot::resolve_robot_path("go2"));
+  for (auto& leg : r.legs) leg.velocity_limit[2] = 8.0;
+  // The CLI's `--terrain flat`: the scene, and the smooth map of it the optimiser sees.
+  const auto scene = terrain::make_scene("flat");
+  const auto smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
+  PlannerOptions o = options_to_goal(1.0);
+  o.gait = "trot";
+  o.duration = 1.4;
+  o.cycles = default_cycles(r, o.start, o.goal);
+  o.constraints = {"all"};
+  o.joint_refinement_rounds = 0;
+  const PlanOutcome off = plan_motion(r, *smooth, *scene, o, 0.01);
+  ASSERT_TRUE(off.success) << off.message;
+  EXPECT_FALSE(off.trajectory.extra.contains("joint_refinement"));
+  o.joint_refinement_rounds = 3;
+  const PlanOutcome on = plan_motion(r, *smooth, *scene, o, 0.01);
+  ASSERT_TRUE(on.success) << on.message;
+  ASSERT_TRUE(on.trajectory.extra.contains("joint_refinement"));
+  const nlohmann::json& refinement = on.trajectory.extra["joint_refinement"];
+  EXPECT_GT(refinement["before"]["velocity_ratio"].get<double>(), 1.0);
+  EXPECT_LE(refinement["after"]["velocity_ratio"].get<double>(), 1.0);
+  EXPECT_TRUE(refinement["held"].get<bool>());
+  EXPECT_GT(on.trajectory.solver.iterations, off.trajectory.solver.iterations);
+  EXPECT_GT(on.trajectory.solver.n_constraints, off.trajectory.solver.n_constraints);
+}
+
 TEST(Plan, FlatCrawlReachesGoal) {
   const auto r = hyq();
   testing::FlatField flat;
