@@ -257,6 +257,12 @@ nlohmann::json refine_joint_points(std::unique_ptr<SrbdProblem>* problem,
       ended = "time";
       break;
     }
+    if (options.verbose)
+      std::fprintf(stderr,
+                   "plan: joints past their limits between the constraint points in %zu "
+                   "intervals (velocity %.4g x its limit, %.4g rad beyond a range); solving again "
+                   "with joint rows there\n",
+                   check.violations.size(), check.velocity_ratio, check.range_excess_rad);
     const std::size_t before = points.size();
     points.insert(points.end(), check.violations.begin(), check.violations.end());
     auto refined = std::make_unique<SrbdProblem>(robot, plan_terrain, setup.timeline,
