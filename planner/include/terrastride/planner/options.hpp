@@ -25,7 +25,7 @@ struct ObjectiveWeights {
   double body_height = 1.0;                // integral of ((z - z_nominal) / 0.05 m)^2 / T
   double heading = 1.0;                    // integral of |(yaw, pitch, roll) - nominal|^2 (rad) / T
   double lateral = 1.0;                    // integral of (lateral offset / 0.05 m)^2 / T
-  double progress = 0.1;    // integral of (offset along the line from the nominal / 0.05 m)^2 / T
+  double progress = 0.1;  // integral of (offset along the line from the nominal / 0.05 m)^2 / T
   double base_jerk = 0.01;  // integral of |jerk/g|^2, knot jumps of the acceleration included
   // Every weight zero: the feasibility problem of the original design.
   static ObjectiveWeights none() {
