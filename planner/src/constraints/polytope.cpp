@@ -69,53 +69,21 @@ inline double polytope_soft_max(const LegPolytopeModel& m, const Vec3<double>* p
   for (int k = 0; k < n; ++k) polytope_rows(m, pb[k], fb[k], scale, values + k * kPolytopeFacets);
   return soft_max(values, n * kPolytopeFacets, t);
 }
-// The merged row from world-frame quantities at n points: point k's Euler angles e[k], foot
-// offset from the base d[k] = p - r_k and force f[k] (pb = R_k^T d, fb = R_k^T f).
-inline double polytope_soft_max_world(const LegPolytopeModel& m, const Vec3<double>* e,
-                                      const Vec3<double>* d, const Vec3<double>* f, int n,
-                                      double scale, double t) {
-  Vec3<double> pb[kMaxPolytopeValues / kPolytopeFacets], fb[kMaxPolytopeValues / kPolytopeFacets];
-  for (int k = 0; k < n; ++k) {
-    const Eigen::Matrix3d Rt = rotation_zyx<double>(e[k]).transpose();
-    pb[k] = Rt * d[k];
-    fb[k] = Rt * f[k];
-  }
-  return polytope_soft_max(m, pb, fb, n, scale, t);
-}
 // For AD arguments the soft maximum is differentiated in doubles: its derivative with respect to
 // value j is w_j = exp((v_j - max) / t) / sum, so the row's derivative is the sum over the points
-// of (sum_j w_j dg_j/dpb) pb' + (sum_j w_j dg_j/dfb) fb'. Point k's pb and fb depend on the
-// piece's variables only through its 9 scalars e[k], d[k] and f[k], so the rotation into the base
-// frame is differentiated with respect to those (AdInner, fixed size) and the row chained to the
-// piece's variables once per point and scalar, instead of carrying the rotation's products and
-// every facet value over all the piece's variables (~34). The same value; derivatives equal up
-// to round-off.
-inline Ad polytope_soft_max_world(const LegPolytopeModel& m, const Vec3<Ad>* e, const Vec3<Ad>* d,
-                                  const Vec3<Ad>* f, int n, double scale, double t) {
+// of (sum_j w_j dg_j/dpb) pb' + (sum_j w_j dg_j/dfb) fb': six vector terms per point instead of
+// every facet value's derivatives over the piece's variables and their soft maximum in AD (the
+// same value; derivatives equal up to round-off).
+inline Ad polytope_soft_max(const LegPolytopeModel& m, const Vec3<Ad>* pb, const Vec3<Ad>* fb,
+                            int n, double scale, double t) {
   using std::exp;
   using std::log;
-  constexpr int kPoints = kMaxPolytopeValues / kPolytopeFacets;
   double values[kMaxPolytopeValues];
-  Eigen::Matrix<double, 3, 9> dpb[kPoints], dfb[kPoints];  // pb, fb by point k's 9 scalars
-  Eigen::Matrix<double, kPolytopeFacets, 3> dp[kPoints], df[kPoints];
+  Eigen::Matrix<double, kPolytopeFacets, 3> dp[kMaxPolytopeValues / kPolytopeFacets],
+      df[kMaxPolytopeValues / kPolytopeFacets];
   for (int k = 0; k < n; ++k) {
-    AdInner in[9];
-    for (int i = 0; i < 3; ++i) {
-      in[i] = AdInner(e[k][i].value(), 9, i);
-      in[3 + i] = AdInner(d[k][i].value(), 9, 3 + i);
-      in[6 + i] = AdInner(f[k][i].value(), 9, 6 + i);
-    }
-    const Eigen::Matrix<AdInner, 3, 3> Rt =
-        rotation_zyx<AdInner>(Vec3<AdInner>(in[0], in[1], in[2])).transpose();
-    const Vec3<AdInner> pb = Rt * Vec3<AdInner>(in[3], in[4], in[5]);
-    const Vec3<AdInner> fb = Rt * Vec3<AdInner>(in[6], in[7], in[8]);
-    Eigen::Vector3d pv, fv;
-    for (int i = 0; i < 3; ++i) {
-      pv[i] = pb[i].value();
-      fv[i] = fb[i].value();
-      dpb[k].row(i) = pb[i].derivatives().transpose();
-      dfb[k].row(i) = fb[i].derivatives().transpose();
-    }
+    const Eigen::Vector3d pv(pb[k][0].value(), pb[k][1].value(), pb[k][2].value());
+    const Eigen::Vector3d fv(fb[k][0].value(), fb[k][1].value(), fb[k][2].value());
     const auto v = m.constraint(pv, fv, &dp[k], &df[k]);
     for (int j = 0; j < kPolytopeFacets; ++j) values[k * kPolytopeFacets + j] = v[j] * scale;
   }
@@ -125,17 +93,18 @@ inline Ad polytope_soft_max_world(const LegPolytopeModel& m, const Vec3<Ad>* e, 
   double weights[kMaxPolytopeValues];
   double sum = weights[0] = exp((values[0] - top) / t);
   for (int k = 1; k < nv; ++k) sum += weights[k] = exp((values[k] - top) / t);
-  AdVector D;
+  AdVector d;
   for (int k = 0; k < n; ++k) {
     const Eigen::Matrix<double, 1, kPolytopeFacets> w =
         Eigen::Map<const Eigen::Matrix<double, 1, kPolytopeFacets>>(weights + k * kPolytopeFacets) *
         (scale / sum);
-    const Eigen::Matrix<double, 1, 9> inner = (w * dp[k]) * dpb[k] + (w * df[k]) * dfb[k];
-    const Ad* outer[9] = {&e[k][0], &e[k][1], &e[k][2], &d[k][0], &d[k][1],
-                          &d[k][2], &f[k][0], &f[k][1], &f[k][2]};
-    for (int i = 0; i < 9; ++i) accumulate(&D, inner[i], outer[i]->derivatives());
+    const Eigen::RowVector3d wp = w * dp[k], wf = w * df[k];
+    for (int i = 0; i < 3; ++i) {
+      accumulate(&d, wp[i], pb[k][i].derivatives());
+      accumulate(&d, wf[i], fb[k][i].derivatives());
+    }
   }
-  return Ad(top + t * log(sum), D);
+  return Ad(top + t * log(sum), d);
 }
 
 }  // namespace feasibility
@@ -209,18 +178,19 @@ void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options)
           (void)keep;
           const T h = x[dur] * frac;
           const Vec3<T> pf_w = gather3(x, pf), fk0 = gather3(x, f0), fk1 = gather3(x, f1);
-          constexpr int kPoints = kMaxPolytopeValues / kPolytopeFacets;
-          Vec3<T> e[kPoints], d[kPoints], force[kPoints];
+          Vec3<T> pb[kMaxPolytopeValues / kPolytopeFacets], fb[kMaxPolytopeValues / kPolytopeFacets];
           int n = 0;
           for (const double sigma : sigmas) {
-            Vec3<T> r;
+            Vec3<T> r, e;
             hermite<T>(sigma, h, x, rp, &r, nullptr, nullptr);
-            hermite<T>(sigma, h, x, ep, &e[n], nullptr, nullptr);
-            force[n] = (1.0 - sigma) * fk0 + sigma * fk1;
-            d[n] = pf_w - r;
+            hermite<T>(sigma, h, x, ep, &e, nullptr, nullptr);
+            const Eigen::Matrix<T, 3, 3> Rt = rotation_zyx<T>(e).transpose();
+            const Vec3<T> force = (1.0 - sigma) * fk0 + sigma * fk1;
+            pb[n] = Rt * (pf_w - r);
+            fb[n] = Rt * force;
             ++n;
           }
-          g[0] = feasibility::polytope_soft_max_world(*leg, e, d, force, n, scale, t_soft);
+          g[0] = feasibility::polytope_soft_max(*leg, pb, fb, n, scale, t_soft);
         }));
   };
 
