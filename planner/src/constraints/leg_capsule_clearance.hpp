@@ -23,7 +23,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <limits>
 #include <stdexcept>
 #include <string>
 #include <type_traits>
@@ -165,57 +164,10 @@ inline LegPoint add_leg_point(LocalVars& lv, const Layout& L, int f, int s, doub
   return p;
 }
 
-// The terrain one capsule piece reads: the field, and the height and gradient at every point its
-// last evaluation read (the values pass asks the field for both, height() being
-// height_and_gradient). Ipopt asks for the Jacobian at the point whose constraint values it has
-// just evaluated (every Jacobian of a session step), and the Jacobian's points are then the same
-// to the bit, so it reads them here instead of the field again (a fifth of a step's terrain
-// reads); a point that differs in any bit reads the field. A piece is evaluated by one thread at
-// a time (SrbdProblem's evaluation keeps each piece on the same thread), which is all the memo
-// needs.
-class CapsuleTerrain {
- public:
-  CapsuleTerrain(const terrain::HeightField& field, int points)
-      : field_(&field),
-        memo_(5 * static_cast<std::size_t>(points), std::numeric_limits<double>::quiet_NaN()) {}
-  // Point k of the piece's reads: (x, y)'s height, its gradient into *gradient.
-  double height(int k, double x, double y, Eigen::Vector2d* gradient) const {
-    double* m = memo_.data() + 5 * k;
-    if (!(m[0] == x && m[1] == y)) {  // a NaN (nothing read yet) equals nothing
-      Eigen::Vector2d g;
-      m[2] = field_->height_and_gradient(x, y, &g);
-      m[0] = x;
-      m[1] = y;
-      m[3] = g.x();
-      m[4] = g.y();
-    }
-    *gradient = Eigen::Vector2d(m[3], m[4]);
-    return m[2];
-  }
-
- private:
-  const terrain::HeightField* field_;
-  mutable std::vector<double> memo_;  // per point: x, y, height, gradient x and y
-};
-inline double capsule_terrain_height(const CapsuleTerrain& c, int k, double x, double y) {
-  Eigen::Vector2d g;
-  return c.height(k, x, y, &g);
-}
-template <int N>
-Eigen::AutoDiffScalar<Eigen::Matrix<double, N, 1>> capsule_terrain_height(
-    const CapsuleTerrain& c, int k, const Eigen::AutoDiffScalar<Eigen::Matrix<double, N, 1>>& x,
-    const Eigen::AutoDiffScalar<Eigen::Matrix<double, N, 1>>& y) {
-  Eigen::Vector2d g;
-  const double h = c.height(k, x.value(), y.value(), &g);
-  return {h, g.x() * x.derivatives() + g.y() * y.derivatives()};
-}
-// The terrain points one capsule reads: under each of its nk points, and two probes across.
-constexpr int capsule_terrain_points(int nk, bool probed) { return (probed ? 3 : 1) * nk; }
-
 // Writes capsule_clearance_values(nk, probe > 0) values to out. `across` is the horizontal unit vector across
 // the base's heading (-sin psi, cos psi). `t_start` is the fraction of the axis left out at a.
 template <class T>
-void capsule_clearance(const CapsuleTerrain& field, const Vec3<T>& a, const Vec3<T>& b,
+void capsule_clearance(const terrain::HeightField& field, const Vec3<T>& a, const Vec3<T>& b,
                        double radius, double probe, const T& t_start, int nk, const T& across_x,
                        const T& across_y, T* out) {
   using std::sqrt;
@@ -225,19 +177,19 @@ void capsule_clearance(const CapsuleTerrain& field, const Vec3<T>& a, const Vec3
   T cosi = horiz / len;
   if (value_of(cosi) < 0.5) cosi = T(0.5);
   const T gap = radius / cosi;
-  int n = 0, k = 0;
+  int n = 0;
   Vec3<T> prev;
   for (int j = 0; j < nk; ++j) {
     const T t = t_start + (1.0 - t_start) * (static_cast<double>(j) / std::max(1, nk - 1));
     const Vec3<T> q = a + t * d;
-    const T under = capsule_terrain_height(field, k++, q[0], q[1]);  // read once for both values
+    const T under = terrain_height(field, q[0], q[1]);  // read once for both values
     out[n++] = q[2] - under - gap;
     if (j > 0) out[n++] = prev[2] - under - gap;
     if (probe > 0.0) {
       const T left_x = q[0] + probe * across_x, left_y = q[1] + probe * across_y;
       const T right_x = q[0] - probe * across_x, right_y = q[1] - probe * across_y;
-      out[n++] = q[2] - capsule_terrain_height(field, k++, left_x, left_y) - gap;
-      out[n++] = q[2] - capsule_terrain_height(field, k++, right_x, right_y) - gap;
+      out[n++] = q[2] - terrain_height(field, left_x, left_y) - gap;
+      out[n++] = q[2] - terrain_height(field, right_x, right_y) - gap;
     }
     prev = q;
   }
@@ -250,7 +202,7 @@ void capsule_clearance(const CapsuleTerrain& field, const Vec3<T>& a, const Vec3
 // once, instead of carrying every value's derivatives over all the outer ones (shin_ik: 79 values
 // by ~22 variables). The same value; derivatives equal up to round-off.
 template <class T>
-T capsule_soft_min(const CapsuleTerrain& field, const Vec3<T>& a, const Vec3<T>& b,
+T capsule_soft_min(const terrain::HeightField& field, const Vec3<T>& a, const Vec3<T>& b,
                    double radius, double probe, const T& t_start, int nk, const T& across_x,
                    const T& across_y, int n_values, double t_soft) {
   if constexpr (std::is_same_v<T, double> || std::is_same_v<T, AdInner>) {
@@ -272,7 +224,7 @@ T capsule_soft_min(const CapsuleTerrain& field, const Vec3<T>& a, const Vec3<T>&
 // One link's rows of a shin_ik or thigh piece into g: the folded soft minimum (t_soft > 0, one
 // row) or every value (rows.n_values rows).
 template <class T>
-void link_capsule_rows(const CapsuleTerrain& field, const Vec3<T>& a, const Vec3<T>& b,
+void link_capsule_rows(const terrain::HeightField& field, const Vec3<T>& a, const Vec3<T>& b,
                        const CapsuleRows& rows, const T& t_start, int nk, const T& across_x,
                        const T& across_y, double t_soft, T* g) {
   if (t_soft > 0.0)

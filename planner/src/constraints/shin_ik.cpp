@@ -16,7 +16,6 @@
 // minimum (as for "shin").
 #include <algorithm>
 #include <cmath>
-#include <memory>
 #include <stdexcept>
 #include <vector>
 
@@ -52,8 +51,6 @@ void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options) 
       for (const double sigma : L.segment_points(s, std::max(1, points[f][s]), s == S - 1)) {
         LocalVars lv;
         const feasibility::LegPoint at = feasibility::add_leg_point(lv, L, f, s, sigma, foot_radius);
-        const auto capsule_terrain = std::make_shared<feasibility::CapsuleTerrain>(
-            *field, feasibility::capsule_terrain_points(nk, rows.probe > 0.0));
         const auto shin_rows = [=](const auto& foot, const auto& base, const auto& euler,
                                    const auto& R, auto* g) {
           using T = std::decay_t<decltype(*g)>;
@@ -65,8 +62,8 @@ void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options) 
                              leg, robot::leg_joint_angles<T>(leg, R.transpose() * (foot - base)));
           const T len = sqrt((knee - foot).squaredNorm());
           const T t_start = exclusion / len, across_x = -sin(euler[0]), across_y = cos(euler[0]);
-          feasibility::link_capsule_rows<T>(*capsule_terrain, foot, knee, rows, t_start, nk,
-                                            across_x, across_y, t_soft, g);
+          feasibility::link_capsule_rows<T>(*field, foot, knee, rows, t_start, nk, across_x,
+                                            across_y, t_soft, g);
         };
         const int n_rows = static_cast<int>(rows.lo.size());
         problem.add_piece(make_piece("shin_ik", lv, rows.lo, rows.hi, [=](const auto* x, auto* g) {

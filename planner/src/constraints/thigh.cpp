@@ -8,7 +8,6 @@
 // leg_clearance_points per segment there; elsewhere the thigh is a leg length above the ground.
 #include <algorithm>
 #include <cmath>
-#include <memory>
 #include <stdexcept>
 #include <vector>
 
@@ -40,8 +39,6 @@ void build_thigh_set(SrbdProblem& problem, const FeasibilityOptions& options) {
       for (const double sigma : L.segment_points(s, points[f][s], s == S - 1 || points[f][s + 1] <= 0)) {
         LocalVars lv;
         const feasibility::LegPoint at = feasibility::add_leg_point(lv, L, f, s, sigma, foot_radius);
-        const auto capsule_terrain = std::make_shared<feasibility::CapsuleTerrain>(
-            *field, feasibility::capsule_terrain_points(nk, rows.probe > 0.0));
         const auto thigh_rows = [=](const auto& foot, const auto& base, const auto& euler,
                                     const auto& R, auto* g) {
           using T = std::decay_t<decltype(*g)>;
@@ -51,8 +48,8 @@ void build_thigh_set(SrbdProblem& problem, const FeasibilityOptions& options) {
           const Vec3<T> hfe = base + R * robot::hfe_in_base<T>(leg, q);
           const Vec3<T> knee = base + R * robot::knee_in_base<T>(leg, q);
           const T t_start(0.0), across_x = -sin(euler[0]), across_y = cos(euler[0]);
-          feasibility::link_capsule_rows<T>(*capsule_terrain, hfe, knee, rows, t_start, nk,
-                                            across_x, across_y, t_soft, g);
+          feasibility::link_capsule_rows<T>(*field, hfe, knee, rows, t_start, nk, across_x,
+                                            across_y, t_soft, g);
         };
         const int n_rows = static_cast<int>(rows.lo.size());
         problem.add_piece(make_piece("thigh", lv, rows.lo, rows.hi, [=](const auto* x, auto* g) {
