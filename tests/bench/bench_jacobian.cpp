@@ -3,10 +3,13 @@
 // guess, the whole eval_jacobian (both threads, as Ipopt calls it) and eval_constraints, then each
 // piece kind's Jacobians on one thread.
 //   bench_jacobian [--sets all|baseline|SET,...] [--scene pallet_15] [--repeat 20]
-// Prints per kind: pieces, rows, local variables (mean, max), Jacobian nonzeros, the kind's
+// Prints per kind: pieces, rows, local variables (mean, max), Jacobian nonzeros, of them the
+// entries that are exactly zero at the guess and at a perturbed guess (a row that does not
+// depend on one of its piece's variables: an entry of the KKT system all the same), the kind's
 // Jacobian time per call (median of --repeat, ms) and per piece (us), and its values alone (ms).
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <map>
@@ -87,14 +90,25 @@ int main(int argc, char** argv) {
   std::printf("eval_jacobian (as Ipopt calls it) %.3f ms, eval_constraints %.3f ms (medians of %d)\n",
               1e3 * median(whole), 1e3 * median(values), repeat);
 
+  // Entries zero at the guess and at a guess moved by up to 1 mm (or mrad, or N) per variable.
+  std::vector<double> jac_moved(jac.size()), x_moved = x;
+  problem.eval_jacobian(x.data(), jac.data());
+  for (std::size_t i = 0; i < x_moved.size(); ++i)
+    x_moved[i] += 1e-3 * std::sin(12.9898 * static_cast<double>(i + 1));
+  problem.eval_jacobian(x_moved.data(), jac_moved.data());
   struct Kind {
-    int pieces = 0, rows = 0, nnz = 0, max_vars = 0;
+    int pieces = 0, rows = 0, nnz = 0, zeros = 0, max_vars = 0;
     long vars = 0;
     std::vector<const planner::Piece*> list;
   };
   std::map<std::string, Kind> kinds;
+  int nz_offset = 0;
   for (const auto& p : problem.pieces()) {
     Kind& k = kinds[p->kind];
+    const int entries = p->rows() * static_cast<int>(p->vars.size());
+    for (int z = nz_offset; z < nz_offset + entries; ++z)
+      k.zeros += jac[z] == 0.0 && jac_moved[z] == 0.0;
+    nz_offset += entries;
     ++k.pieces;
     k.rows += p->rows();
     const int n = static_cast<int>(p->vars.size());
@@ -103,8 +117,8 @@ int main(int argc, char** argv) {
     k.nnz += n * p->rows();
     k.list.push_back(p.get());
   }
-  std::printf("%-22s %6s %6s %6s %5s %8s %9s %9s %9s\n", "kind", "pieces", "rows", "vars", "max",
-              "nnz", "jac_ms", "us/piece", "values_ms");
+  std::printf("%-22s %6s %6s %6s %5s %8s %7s %9s %9s %9s\n", "kind", "pieces", "rows", "vars",
+              "max", "nnz", "zeros", "jac_ms", "us/piece", "values_ms");
   double total = 0.0, total_values = 0.0;
   double xl[planner::kMaxPieceVars], gl[64];
   std::vector<double> jl(64 * planner::kMaxPieceVars);
@@ -128,11 +142,13 @@ int main(int argc, char** argv) {
         }
       }));
     total_values += 1e3 * median(tv);
-    std::printf("%-22s %6d %6d %6.1f %5d %8d %9.3f %9.2f %9.3f\n", name.c_str(), k.pieces, k.rows,
-                static_cast<double>(k.vars) / k.pieces, k.max_vars, k.nnz, ms,
+    std::printf("%-22s %6d %6d %6.1f %5d %8d %7d %9.3f %9.2f %9.3f\n", name.c_str(), k.pieces,
+                k.rows, static_cast<double>(k.vars) / k.pieces, k.max_vars, k.nnz, k.zeros, ms,
                 1e3 * ms / k.pieces, 1e3 * median(tv));
   }
-  std::printf("%-22s %6s %6s %6s %5s %8s %9.3f %9s %9.3f (one thread)\n", "sum", "", "", "", "", "",
-              total, "", total_values);
+  int zeros = 0;
+  for (const auto& entry : kinds) zeros += entry.second.zeros;
+  std::printf("%-22s %6s %6s %6s %5s %8d %7d %9.3f %9s %9.3f (one thread)\n", "sum", "", "", "", "",
+              problem.jacobian_nonzeros(), zeros, total, "", total_values);
   return 0;
 }

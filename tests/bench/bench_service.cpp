@@ -77,6 +77,9 @@ struct BenchOptions {
   double server_min_receive_rate = 1 << 20;
   int server_max_connections = 128;
   std::size_t server_max_buffered_bytes = std::size_t{256} << 20;
+  // Replan mode, in-process server: a session's idle timeout (under valgrind the cold solve
+  // outlasts the server's default 300 s, and the session was gone before its first step).
+  double server_session_idle_timeout_s = 300;
 };
 
 // CPU time of this whole process (all threads), in ms: with the in-process server, a step's CPU
@@ -1120,6 +1123,9 @@ void configure_bench_service(CLI::App* cmd) {
   cmd->add_option("--server-idle-timeout", o->server_idle_timeout_s,
                   "Hostile mode, in-process server: --idle-timeout")
       ->capture_default_str();
+  cmd->add_option("--server-session-idle-timeout", o->server_session_idle_timeout_s,
+                  "Replan mode, in-process server: --session-idle-timeout (s)")
+      ->capture_default_str();
   cmd->add_option("--server-min-receive-rate", o->server_min_receive_rate,
                   "Hostile mode, in-process server: --min-receive-rate")
       ->capture_default_str();
@@ -1165,6 +1171,7 @@ void configure_bench_service(CLI::App* cmd) {
       OperationRegistry reg;
       BackendOptions bo;
       bo.debug_ops = true;
+      bo.session_idle_timeout_s = o->server_session_idle_timeout_s;
       backend = make_backend(bo, reg);
       server = std::make_unique<Server>(
           so, std::move(reg), [backend] { return backend_status(*backend); },

@@ -16,11 +16,20 @@ namespace terrastride::planner {
 // ends, and a few more): that part runs on derivatives with respect to these scalars (9, fixed
 // size: no copies of 72-slot vectors), and its result is chained to the piece's variables once.
 using AdInner = Eigen::AutoDiffScalar<Eigen::Matrix<double, 9, 1>>;
+// The same for a leg point's pieces (shin_ik, thigh; leg_capsule_clearance.hpp): their rows depend
+// on the piece's variables only through the foot, the base position and Euler angles at the point
+// and, in stance, the base pose at the stance's first knot (15 scalars).
+constexpr int kLegInnerScalars = 15;
+using AdLeg = Eigen::AutoDiffScalar<Eigen::Matrix<double, kLegInnerScalars, 1>>;
 inline double value_of(const AdInner& v) { return v.value(); }
-inline AdInner terrain_height(const terrain::HeightField& f, const AdInner& x, const AdInner& y) {
+inline double value_of(const AdLeg& v) { return v.value(); }
+template <int N>
+Eigen::AutoDiffScalar<Eigen::Matrix<double, N, 1>> terrain_height(
+    const terrain::HeightField& f, const Eigen::AutoDiffScalar<Eigen::Matrix<double, N, 1>>& x,
+    const Eigen::AutoDiffScalar<Eigen::Matrix<double, N, 1>>& y) {
   Eigen::Vector2d g;
   const double h = f.height_and_gradient(x.value(), y.value(), &g);
-  return AdInner(h, g.x() * x.derivatives() + g.y() * y.derivatives());
+  return {h, g.x() * x.derivatives() + g.y() * y.derivatives()};
 }
 
 }  // namespace terrastride::planner
@@ -35,6 +44,21 @@ inline void accumulate(AdVector* d, double a, const AdVector& da) {
     *d = a * da;
   else
     *d += a * da;
+}
+// The same for a fixed-size derivative vector (always sized; starts at zero).
+template <int N>
+void accumulate(Eigen::Matrix<double, N, 1>* d, double a, const Eigen::Matrix<double, N, 1>& da) {
+  if (a != 0.0) *d += a * da;
+}
+// d outer / d x of a result r computed on inner AD scalars seeded at outer[0..n-1]:
+// sum_i dr/dinner_i * d outer_i / dx, as the outer AD type (Ad, or AdLeg around AdInner).
+template <class Outer, class Inner>
+Outer chain_inner(const Inner& r, const Outer* const* outer, int n) {
+  using Der = typename Outer::DerType;
+  Der d;
+  if constexpr (Der::SizeAtCompileTime != Eigen::Dynamic) d.setZero();
+  for (int i = 0; i < n; ++i) accumulate(&d, r.derivatives()[i], outer[i]->derivatives());
+  return Outer(r.value(), d);
 }
 
 // Signed foothold-safety margin for a foot of radius r, its gradient chained through (x, y).

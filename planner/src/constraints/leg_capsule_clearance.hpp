@@ -25,6 +25,7 @@
 #include <cmath>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "feasibility_common.hpp"
@@ -100,17 +101,28 @@ struct LegPoint {
   double roll_radius = 0.0;  // the foot sphere's radius in stance, 0 in swing (no roll)
   std::array<int, 3> touchdown_base{{-1, -1, -1}}, touchdown_euler{{-1, -1, -1}};
 
-  // The foot (rolled in stance), base position, Euler angles and rotation at this point.
+  // The point's raw scalars (kLegInnerScalars): the foot before its roll, the base position and
+  // Euler angles at the point, and in stance the base position and Euler angles at the stance's
+  // first knot (zeros in swing).
   template <class T>
-  void eval(const robot::LegModel& leg, const T* x, Vec3<T>* foot_w, Vec3<T>* base_w,
+  void raw(const T* x, Vec3<T>* out) const {
+    const T h = duration >= 0 ? T(x[duration] * seg_fraction) : T(1.0);
+    hermite<T>(sigma, h, x, foot, &out[0], nullptr, nullptr);
+    hermite<T>(sigma, h, x, base, &out[1], nullptr, nullptr);
+    hermite<T>(sigma, h, x, euler, &out[2], nullptr, nullptr);
+    out[3] = roll_radius > 0.0 ? gather3(x, touchdown_base) : Vec3<T>::Zero();
+    out[4] = roll_radius > 0.0 ? gather3(x, touchdown_euler) : Vec3<T>::Zero();
+  }
+  // From the raw scalars: the foot (rolled in stance), base position, Euler angles and rotation.
+  template <class T>
+  void pose(const robot::LegModel& leg, const Vec3<T>* raw, Vec3<T>* foot_w, Vec3<T>* base_w,
             Vec3<T>* euler_w, Eigen::Matrix<T, 3, 3>* R) const {
     using std::atan2;
     using std::cos;
     using std::sin;
-    const T h = duration >= 0 ? T(x[duration] * seg_fraction) : T(1.0);
-    hermite<T>(sigma, h, x, foot, foot_w, nullptr, nullptr);
-    hermite<T>(sigma, h, x, base, base_w, nullptr, nullptr);
-    hermite<T>(sigma, h, x, euler, euler_w, nullptr, nullptr);
+    *foot_w = raw[0];
+    *base_w = raw[1];
+    *euler_w = raw[2];
     *R = rotation_zyx<T>(*euler_w);
     if (roll_radius <= 0.0) return;
     const Vec3<T> p = *foot_w;
@@ -120,9 +132,16 @@ struct LegPoint {
           b + Rb * robot::knee_in_base<T>(leg, robot::leg_joint_angles<T>(leg, Rb.transpose() * (p - b))) - p;
       return atan2(u.dot(heading), u[2]);
     };
-    const Vec3<T> b0 = gather3(x, touchdown_base);
-    const T dphi = pitch(*base_w, *R) - pitch(b0, rotation_zyx<T>(gather3(x, touchdown_euler)));
+    const T dphi = pitch(*base_w, *R) - pitch(raw[3], rotation_zyx<T>(raw[4]));
     *foot_w = p + (roll_radius * dphi) * heading;
+  }
+  // The foot (rolled in stance), base position, Euler angles and rotation at this point.
+  template <class T>
+  void eval(const robot::LegModel& leg, const T* x, Vec3<T>* foot_w, Vec3<T>* base_w,
+            Vec3<T>* euler_w, Eigen::Matrix<T, 3, 3>* R) const {
+    Vec3<T> r[5];
+    raw(x, r);
+    pose(leg, r, foot_w, base_w, euler_w, R);
   }
 };
 inline LegPoint add_leg_point(LocalVars& lv, const Layout& L, int f, int s, double sigma,
@@ -177,34 +196,29 @@ void capsule_clearance(const terrain::HeightField& field, const Vec3<T>& a, cons
 }
 
 // The soft minimum (soft_min at scale t_soft) of one capsule's n_values values: the folded row of
-// shin_ik and thigh.
+// shin_ik and thigh. For AD scalars the row depends on the piece's variables only through the 9
+// scalars a, b, t_start and across, so its 4 nk - 1 values and their soft minimum are
+// differentiated with respect to these 9 (AdInner) and the result chained to the outer scalars
+// once, instead of carrying every value's derivatives over all the outer ones (shin_ik: 79 values
+// by ~22 variables). The same value; derivatives equal up to round-off.
 template <class T>
 T capsule_soft_min(const terrain::HeightField& field, const Vec3<T>& a, const Vec3<T>& b,
                    double radius, double probe, const T& t_start, int nk, const T& across_x,
                    const T& across_y, int n_values, double t_soft) {
-  T values[kMaxShinValues] = {};
-  capsule_clearance<T>(field, a, b, radius, probe, t_start, nk, across_x, across_y, values);
-  return soft_min(values, n_values, t_soft);
-}
-// For the piece's AD scalars: the row depends on the piece's variables only through the 9 scalars
-// a, b, t_start and across, so its 4 nk - 1 values and their soft minimum are differentiated with
-// respect to these 9 (AdInner) and the result chained to the piece's variables once, instead of
-// carrying every value's derivatives over all the piece's variables (shin_ik: 79 values by ~22
-// variables). The same value; derivatives equal up to round-off.
-template <>
-inline Ad capsule_soft_min<Ad>(const terrain::HeightField& field, const Vec3<Ad>& a,
-                               const Vec3<Ad>& b, double radius, double probe, const Ad& t_start,
-                               int nk, const Ad& across_x, const Ad& across_y, int n_values,
-                               double t_soft) {
-  const Ad* outer[9] = {&a[0], &a[1], &a[2], &b[0], &b[1], &b[2], &t_start, &across_x, &across_y};
-  AdInner inner[9];
-  for (int i = 0; i < 9; ++i) inner[i] = AdInner(outer[i]->value(), 9, i);
-  const AdInner r = capsule_soft_min<AdInner>(
-      field, Vec3<AdInner>(inner[0], inner[1], inner[2]), Vec3<AdInner>(inner[3], inner[4], inner[5]),
-      radius, probe, inner[6], nk, inner[7], inner[8], n_values, t_soft);
-  AdVector d;
-  for (int i = 0; i < 9; ++i) accumulate(&d, r.derivatives()[i], outer[i]->derivatives());
-  return Ad(r.value(), d);
+  if constexpr (std::is_same_v<T, double> || std::is_same_v<T, AdInner>) {
+    T values[kMaxShinValues] = {};
+    capsule_clearance<T>(field, a, b, radius, probe, t_start, nk, across_x, across_y, values);
+    return soft_min(values, n_values, t_soft);
+  } else {
+    const T* outer[9] = {&a[0], &a[1], &a[2], &b[0], &b[1], &b[2], &t_start, &across_x, &across_y};
+    AdInner inner[9];
+    for (int i = 0; i < 9; ++i) inner[i] = AdInner(outer[i]->value(), 9, i);
+    const AdInner r = capsule_soft_min<AdInner>(
+        field, Vec3<AdInner>(inner[0], inner[1], inner[2]),
+        Vec3<AdInner>(inner[3], inner[4], inner[5]), radius, probe, inner[6], nk, inner[7],
+        inner[8], n_values, t_soft);
+    return chain_inner(r, outer, 9);
+  }
 }
 
 // One link's rows of a shin_ik or thigh piece into g: the folded soft minimum (t_soft > 0, one
@@ -219,6 +233,44 @@ void link_capsule_rows(const terrain::HeightField& field, const Vec3<T>& a, cons
   else
     capsule_clearance<T>(field, a, b, rows.gap_radius, rows.probe, t_start, nk, across_x,
                          across_y, g);
+}
+
+// A leg point's rows: rows(foot, base, euler, R, g) for any scalar type, at the point's pose
+// (LegPoint::eval), n of them into g. For the piece's AD scalars the rows depend on its variables
+// only through the point's 15 raw scalars (LegPoint::raw), so the pose (rotation, inverse
+// kinematics, the foot's roll) and the rows are differentiated with respect to those (AdLeg, fixed
+// size) and chained to the piece's variables once per row, instead of carrying the leg's
+// kinematics over all the piece's variables (22-37). The same values; derivatives equal up to
+// round-off.
+template <class T, class Rows>
+void leg_point_rows(const LegPoint& at, const robot::LegModel& leg, const T* x, int n, T* g,
+                    const Rows& rows) {
+  Vec3<T> raw[5];
+  at.raw(x, raw);
+  if constexpr (std::is_same_v<T, double>) {
+    Vec3<double> foot, base, euler;
+    Eigen::Matrix3d R;
+    at.pose(leg, raw, &foot, &base, &euler, &R);
+    rows(foot, base, euler, R, g);
+  } else {
+    // In swing the last 6 raw scalars are unused zeros: not seeded, not chained.
+    const int used = at.roll_radius > 0.0 ? kLegInnerScalars : 9;
+    const T* outer[kLegInnerScalars];
+    Vec3<AdLeg> inner[5];
+    for (int k = 0; k < 5; ++k)
+      for (int i = 0; i < 3; ++i) {
+        const int slot = 3 * k + i;
+        outer[slot] = &raw[k][i];
+        inner[k][i] = slot < used ? AdLeg(raw[k][i].value(), kLegInnerScalars, slot)
+                                  : AdLeg(raw[k][i].value());
+      }
+    Vec3<AdLeg> foot, base, euler;
+    Eigen::Matrix<AdLeg, 3, 3> R;
+    at.pose(leg, inner, &foot, &base, &euler, &R);
+    AdLeg inner_rows[kMaxShinValues];
+    rows(foot, base, euler, R, inner_rows);
+    for (int r = 0; r < n; ++r) g[r] = chain_inner(inner_rows[r], outer, used);
+  }
 }
 
 }  // namespace terrastride::planner::feasibility

@@ -51,14 +51,12 @@ void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options) 
       for (const double sigma : L.segment_points(s, std::max(1, points[f][s]), s == S - 1)) {
         LocalVars lv;
         const feasibility::LegPoint at = feasibility::add_leg_point(lv, L, f, s, sigma, foot_radius);
-        problem.add_piece(make_piece("shin_ik", lv, rows.lo, rows.hi, [=](const auto* x, auto* g) {
+        const auto shin_rows = [=](const auto& foot, const auto& base, const auto& euler,
+                                   const auto& R, auto* g) {
           using T = std::decay_t<decltype(*g)>;
           using std::cos;
           using std::sin;
           using std::sqrt;
-          Vec3<T> foot, base, euler;
-          Eigen::Matrix<T, 3, 3> R;
-          at.eval(leg, x, &foot, &base, &euler, &R);
           const Vec3<T> knee =
               base + R * robot::knee_in_base<T>(
                              leg, robot::leg_joint_angles<T>(leg, R.transpose() * (foot - base)));
@@ -66,6 +64,10 @@ void build_shin_ik_set(SrbdProblem& problem, const FeasibilityOptions& options) 
           const T t_start = exclusion / len, across_x = -sin(euler[0]), across_y = cos(euler[0]);
           feasibility::link_capsule_rows<T>(*field, foot, knee, rows, t_start, nk, across_x,
                                             across_y, t_soft, g);
+        };
+        const int n_rows = static_cast<int>(rows.lo.size());
+        problem.add_piece(make_piece("shin_ik", lv, rows.lo, rows.hi, [=](const auto* x, auto* g) {
+          feasibility::leg_point_rows(at, leg, x, n_rows, g, shin_rows);
         }));
       }
     }

@@ -39,19 +39,21 @@ void build_thigh_set(SrbdProblem& problem, const FeasibilityOptions& options) {
       for (const double sigma : L.segment_points(s, points[f][s], s == S - 1 || points[f][s + 1] <= 0)) {
         LocalVars lv;
         const feasibility::LegPoint at = feasibility::add_leg_point(lv, L, f, s, sigma, foot_radius);
-        problem.add_piece(make_piece("thigh", lv, rows.lo, rows.hi, [=](const auto* x, auto* g) {
+        const auto thigh_rows = [=](const auto& foot, const auto& base, const auto& euler,
+                                    const auto& R, auto* g) {
           using T = std::decay_t<decltype(*g)>;
           using std::cos;
           using std::sin;
-          Vec3<T> foot, base, euler;
-          Eigen::Matrix<T, 3, 3> R;
-          at.eval(leg, x, &foot, &base, &euler, &R);
           const Vec3<T> q = robot::leg_joint_angles<T>(leg, R.transpose() * (foot - base));
           const Vec3<T> hfe = base + R * robot::hfe_in_base<T>(leg, q);
           const Vec3<T> knee = base + R * robot::knee_in_base<T>(leg, q);
           const T t_start(0.0), across_x = -sin(euler[0]), across_y = cos(euler[0]);
           feasibility::link_capsule_rows<T>(*field, hfe, knee, rows, t_start, nk, across_x,
                                             across_y, t_soft, g);
+        };
+        const int n_rows = static_cast<int>(rows.lo.size());
+        problem.add_piece(make_piece("thigh", lv, rows.lo, rows.hi, [=](const auto* x, auto* g) {
+          feasibility::leg_point_rows(at, leg, x, n_rows, g, thigh_rows);
         }));
       }
     }
