@@ -7,6 +7,7 @@
 #include <filesystem>
 
 #include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/joint_points.hpp"
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/planner/planning_session.hpp"
 #include "terrastride/terrain/scenes.hpp"
@@ -71,6 +72,37 @@ TEST(Plan, JointRefinementHoldsVelocitiesBetweenConstraintPoints) {
   EXPECT_TRUE(refinement["held"].get<bool>());
   EXPECT_GT(on.trajectory.solver.iterations, off.trajectory.solver.iterations);
   EXPECT_GT(on.trajectory.solver.n_constraints, off.trajectory.solver.n_constraints);
+}
+
+// The clause the CLI adds to a plan's post-hoc failure when the refinement gave up: how it ended
+// and what the dense check still finds; nothing when it held or never ran.
+TEST(Plan, JointRefinementStopClauseSaysHowItEnded) {
+  EXPECT_EQ(joint_refinement_stop_clause(nullptr), "");
+  nlohmann::json record = {{"rounds", nlohmann::json::array()},
+                           {"after", {{"range_excess_rad", 0.0}, {"torque_ratio", 1.04}}},
+                           {"held", false}};
+  EXPECT_EQ(joint_refinement_stop_clause(record), "");  // ran to the end
+  for (int k = 0; k < 3; ++k) record["rounds"].push_back({{"status", "optimal"}});
+  record["ended"] = "rounds";
+  EXPECT_EQ(joint_refinement_stop_clause(record),
+            "refinement of the joint rows stopped after 3 rounds with joints still past their "
+            "limits between the constraint points (torque 1.04x its limit)");
+  record["ended"] = "time";
+  record["after"]["velocity_ratio"] = 1.2;
+  record["after"]["range_excess_rad"] = 0.01;
+  EXPECT_EQ(joint_refinement_stop_clause(record),
+            "refinement of the joint rows ran out of time after 3 rounds with joints still past "
+            "their limits between the constraint points (velocity 1.2x its limit, torque 1.04x "
+            "its limit, 0.01 rad beyond a range)");
+  record["ended"] = "rows_hold";
+  EXPECT_NE(joint_refinement_stop_clause(record).find("stopped after 3 rounds: the rows at the "
+                                                      "worst instants hold already"),
+            std::string::npos);
+  record["ended"] = "failed";
+  record["rounds"].back()["status"] = "infeasible";
+  EXPECT_NE(joint_refinement_stop_clause(record).find(
+                "stopped after 3 rounds: its re-solve ended infeasible, the previous solution kept"),
+            std::string::npos);
 }
 
 TEST(Plan, FlatCrawlReachesGoal) {
