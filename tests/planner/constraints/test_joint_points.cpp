@@ -327,6 +327,53 @@ TEST(JointPoints, DenseCheckReportsTorquesBeyondTheirLimitsInStance) {
   EXPECT_THROW(add_polytope_points(p, {in_swing}), std::invalid_argument);
 }
 
+// The check's largest torque is the leg's inverse dynamics at its instant, evaluated
+// independently: the problem's continuous solution (base acceleration as apparent gravity, the
+// force between its knots), the angles and velocities as above, the joint accelerations as a
+// difference of those velocities 0.1 ms away. The base's acceleration jumps at the knots (C1
+// splines), so at a segment's end or start the check reads that segment's side: the
+// independent evaluation there takes the side the check's value agrees with, before the knot
+// (backward difference) or after it (forward).
+TEST(JointPoints, DenseCheckTorqueIsTheLegDynamicsAtItsInstant) {
+  const auto r = joint_points_go2();
+  FlatField flat;
+  SrbdProblem p(r, flat, crawl_timeline(r, 1.2), joint_points_options(false));
+  const std::vector<double> x = perturbed_guess(p, 4, 0.002);
+  const JointDenseCheck check = dense_joint_check(p, x, 0.001);
+  ASSERT_GE(check.torque_foot, 0);
+  const int f = check.torque_foot, j = check.torque_joint;
+  const robot::LegModel& leg = r.legs[f];
+  const double dt = 1e-4;
+  // The ratio at time t from velocities at t_a and t_b (t_a < t_b).
+  auto ratio_at = [&](double t, double t_a, double t_b) {
+    Eigen::Vector3d q, qd, q_a, qd_a, q_b, qd_b;
+    independent_joints(p, x, f, t, &q, &qd);
+    independent_joints(p, x, f, t_a, &q_a, &qd_a);
+    independent_joints(p, x, f, t_b, &q_b, &qd_b);
+    const auto st = p.evaluate(x, t);
+    EXPECT_TRUE(st.contact[f]);
+    const Eigen::Matrix3d Rt = rotation_of(st.euler).transpose();
+    const Eigen::Vector3d tau =
+        robot::joint_torques(leg, q, qd, (qd_b - qd_a) / (t_b - t_a), Rt * st.force[f],
+                             Rt * (Eigen::Vector3d(0, 0, -kGravity) - st.acc));
+    return std::abs(tau[j]) / leg.torque_limit[j];
+  };
+  const double t = check.torque_t;
+  bool at_knot = false;
+  for (int s = 1; s < p.layout().num_segments; ++s)
+    at_knot = at_knot || std::abs(segment_start(p.layout(), x, s) - t) < 1e-9;
+  std::vector<double> candidates;
+  if (at_knot)
+    candidates = {ratio_at(t - 1e-9, t - dt, t - 1e-9), ratio_at(t, t, t + dt)};
+  else
+    candidates = {ratio_at(t, t - dt, t + dt)};
+  double nearest = candidates[0];
+  for (double c : candidates)
+    if (std::abs(c - check.torque_ratio) < std::abs(nearest - check.torque_ratio)) nearest = c;
+  EXPECT_GT(nearest, 0.05);
+  EXPECT_NEAR(check.torque_ratio, nearest, 1e-3 * nearest);
+}
+
 TEST(JointPoints, APointOutsideTheProblemIsRefused) {
   const auto r = joint_points_go2();
   FlatField flat;
