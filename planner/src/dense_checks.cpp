@@ -118,7 +118,71 @@ Eigen::Vector3d vec3_of(const std::vector<double>& x, int i) {
   return i < 0 ? Eigen::Vector3d::Zero() : Eigen::Vector3d(x[i], x[i + 1], x[i + 2]);
 }
 
+// One foot at one instant of a segment, what its torques need: the angles and their rates (ok:
+// inverse kinematics reached the foot), the contact force and the apparent gravity (g less the
+// base's acceleration), both in the base frame.
+struct LegInstant {
+  bool ok = false;
+  Eigen::Vector3d q, qd, force_base, gravity_base;
+};
+
+// The torques of a stance foot along one segment as the post-hoc torque check computes them
+// (collision::check_joint_torques: tau = M q'' + c + g - J^T f, q'' the central difference of q'
+// on the sample grid, one-sided at the segment's ends and next to IK failures), its worst ratio
+// per segment into `worst` and over the plan into `out`.
+void stance_torques(const robot::LegModel& leg, const std::vector<LegInstant>& at, double dt,
+                    int foot, double t0, SegmentWorst* worst, JointDenseCheck* out) {
+  const int n = static_cast<int>(at.size());
+  for (int k = 0; k < n; ++k) {
+    if (!at[k].ok) continue;
+    const bool prev = k > 0 && at[k - 1].ok, next = k + 1 < n && at[k + 1].ok;
+    Eigen::Vector3d qdd = Eigen::Vector3d::Zero();
+    if (prev && next) qdd = (at[k + 1].qd - at[k - 1].qd) / (2 * dt);
+    else if (next) qdd = (at[k + 1].qd - at[k].qd) / dt;
+    else if (prev) qdd = (at[k].qd - at[k - 1].qd) / dt;
+    const Eigen::Vector3d tau =
+        robot::joint_torques(leg, at[k].q, at[k].qd, qdd, at[k].force_base, at[k].gravity_base);
+    const double sigma = static_cast<double>(k) / (n - 1);
+    for (int j = 0; j < 3; ++j) {
+      const double ratio = std::abs(tau[j]) / leg.torque_limit[j];
+      worst->take(ratio - 1.0, sigma);
+      if (ratio > out->torque_ratio) {
+        out->torque_ratio = ratio;
+        out->torque_foot = foot;
+        out->torque_joint = j;
+        out->torque_t = t0 + sigma * dt * (n - 1);
+      }
+    }
+  }
+}
+
+// The points of one (segment, foot): one per distinct worst instant, with the rows it needs.
+void add_violations(int f, int s, const SegmentWorst& range, const SegmentWorst& velocity,
+                    const SegmentWorst& torque, std::vector<JointPoint>* out) {
+  const std::size_t first = out->size();
+  auto mark = [&](const SegmentWorst& w, bool JointPoint::*kind) {
+    if (!(w.excess > 0.0)) return;
+    for (std::size_t i = first; i < out->size(); ++i)
+      if ((*out)[i].sigma == w.sigma) {
+        (*out)[i].*kind = true;
+        return;
+      }
+    JointPoint point{f, s, w.sigma};
+    point.*kind = true;
+    out->push_back(point);
+  };
+  mark(range, &JointPoint::range);
+  mark(velocity, &JointPoint::velocity);
+  mark(torque, &JointPoint::torque);
+}
+
 }  // namespace
+
+bool has_torque_limits(const robot::RobotModel& robot) {
+  for (const auto& leg : robot.legs)
+    if (!(leg.torque_limit.minCoeff() > 0.0)) return false;
+  return !robot.legs.empty();
+}
 
 JointDenseCheck dense_joint_check(const SrbdProblem& problem, const std::vector<double>& x,
                                   double max_dt) {
@@ -126,19 +190,21 @@ JointDenseCheck dense_joint_check(const SrbdProblem& problem, const std::vector<
   const robot::RobotModel& robot = problem.robot();
   const Layout& L = problem.layout();
   const int nf = static_cast<int>(robot.legs.size());
-  const bool velocities = has_velocity_limits(robot);
+  const bool velocities = has_velocity_limits(robot), torques = has_torque_limits(robot);
+  const Eigen::Vector3d gravity(0.0, 0.0, -kGravity);
   JointDenseCheck out;
   double t0 = 0.0;
   for (int s = 0; s < L.num_segments; ++s) {
     const double h = x[L.interval_var[L.seg_interval[s]]] * L.seg_fraction[s];
     const int steps = std::max(1, static_cast<int>(std::ceil(h / max_dt - 1e-9)));
-    std::vector<SegmentWorst> range(nf), velocity(nf);
+    std::vector<SegmentWorst> range(nf), velocity(nf), torque(nf);
+    std::vector<std::vector<LegInstant>> legs(nf, std::vector<LegInstant>(steps + 1));
     const int b0 = L.base[s], b1 = L.base[s + 1];
     for (int i = 0; i <= steps; ++i) {
       const double sigma = static_cast<double>(i) / steps;
-      Eigen::Vector3d r, rv, e, ev;
+      Eigen::Vector3d r, rv, ra, e, ev;
       hermite<double>(sigma, h, vec3_of(x, b0), vec3_of(x, b0 + 3), vec3_of(x, b1),
-                      vec3_of(x, b1 + 3), &r, &rv, nullptr);
+                      vec3_of(x, b1 + 3), &r, &rv, &ra);
       hermite<double>(sigma, h, vec3_of(x, b0 + 6), vec3_of(x, b0 + 9), vec3_of(x, b1 + 6),
                       vec3_of(x, b1 + 9), &e, &ev, nullptr);
       const Eigen::Matrix3d rt = rotation_zyx<double>(e).transpose();
@@ -160,8 +226,15 @@ JointDenseCheck dense_joint_check(const SrbdProblem& problem, const std::vector<
             out.range_t = t0 + sigma * h;
           }
         }
-        if (!velocities) continue;
+        if (!velocities && !(torques && L.contact[f][s])) continue;
         const Eigen::Vector3d qd = joint_velocity_rows<double>(leg, r, rv, e, ev, p, pv);
+        if (torques && L.contact[f][s]) {
+          // The force is linear in time inside a stance segment; a missing knot is zero force.
+          const Eigen::Vector3d force = (1.0 - sigma) * vec3_of(x, L.force[f][s][0]) +
+                                        sigma * vec3_of(x, L.force[f][s][1]);
+          legs[f][i] = {true, ik.q, qd, rt * force, rt * (gravity - ra)};
+        }
+        if (!velocities) continue;
         for (int j = 0; j < 3; ++j) {
           const double ratio = std::abs(qd[j]) / leg.velocity_limit[j];
           velocity[f].take(ratio - 1.0, sigma);
@@ -176,13 +249,9 @@ JointDenseCheck dense_joint_check(const SrbdProblem& problem, const std::vector<
     }
     out.samples += steps + (s + 1 == L.num_segments ? 1 : 0);
     for (int f = 0; f < nf; ++f) {
-      const bool r_over = range[f].excess > 0.0, v_over = velocity[f].excess > 0.0;
-      if (r_over && v_over && range[f].sigma == velocity[f].sigma) {
-        out.violations.push_back({f, s, range[f].sigma, true, true});
-        continue;
-      }
-      if (r_over) out.violations.push_back({f, s, range[f].sigma, true, false});
-      if (v_over) out.violations.push_back({f, s, velocity[f].sigma, false, true});
+      if (torques && L.contact[f][s])
+        stance_torques(robot.legs[f], legs[f], h / steps, f, t0, &torque[f], &out);
+      add_violations(f, s, range[f], velocity[f], torque[f], &out.violations);
     }
     t0 += h;
   }

@@ -212,16 +212,39 @@ nlohmann::json joint_check_json(const JointDenseCheck& check, const robot::Robot
                              {"joint", kJoints[check.velocity_joint]},
                              {"t", check.velocity_t}};
   }
+  if (has_torque_limits(robot)) {
+    j["torque_ratio"] = check.torque_ratio;
+    if (check.torque_foot >= 0)
+      j["torque_worst"] = {{"foot", robot.legs[check.torque_foot].name},
+                           {"joint", kJoints[check.torque_joint]},
+                           {"t", check.torque_t}};
+  }
   return j;
+}
+
+// The check's points reduced to the rows the problem has: joint angles and velocities with
+// "joints", torques (force polytope rows) with "polytope"; a point left with none is dropped.
+void keep_rows_the_problem_has(JointDenseCheck* check, bool joints, bool polytopes) {
+  auto& points = check->violations;
+  for (JointPoint& point : points) {
+    point.range = point.range && joints;
+    point.velocity = point.velocity && joints;
+    point.torque = point.torque && polytopes;
+  }
+  points.erase(std::remove_if(points.begin(), points.end(),
+                              [](const JointPoint& p) { return !p.range && !p.velocity && !p.torque; }),
+               points.end());
 }
 
 // Constraint-point refinement (as in direct collocation's mesh refinement): the joint rows hold
 // at the knots and at points inside swings, and a joint may pass its range or velocity limit
 // between them (Go2 with 8 rad/s knees, a 1.4 s trot: 1.009x in a swing; 1 rad/s knees, the
-// default crawl: 1.415x in a stance leaving rest). After a successful solve of a problem with
-// "joints" rows the solution is checked densely (dense_joint_check); where a joint exceeds its
-// range or velocity limit the problem is built again with joint rows at the worst instant of
-// each such (segment, foot) as well, and solved from the solution to its first feasible point.
+// default crawl: 1.415x in a stance leaving rest); likewise the force polytope rows (the torques)
+// hold at a stance segment's knots and inner points only. After a successful solve of a problem
+// with "joints" or "polytope" rows the solution is checked densely (dense_joint_check); where a
+// joint exceeds its range or velocity limit ("joints") or its torque limit in stance
+// ("polytope") the problem is built again with those rows at the worst instant of each such
+// (segment, foot) as well, and solved from the solution to its first feasible point.
 // At most options.joint_refinement_rounds times, within options.max_time; a re-solve that fails
 // leaves the previous solution (and its problem) as the plan, which the post-hoc checks then
 // judge as before. Rows are added only where a limit is exceeded, so a plan inside its limits is
@@ -233,10 +256,17 @@ nlohmann::json refine_joint_points(std::unique_ptr<SrbdProblem>* problem,
                                    const PlannerOptions& options, const WarmStart& warm,
                                    std::chrono::steady_clock::time_point t_start,
                                    SolveResult* result) {
-  if (options.joint_refinement_rounds <= 0 || !result->success ||
-      !requests_constraint_set((*problem)->options().constraints, "joints"))
+  const auto& sets = (*problem)->options().constraints;
+  const bool joints = requests_constraint_set(sets, "joints"),
+             polytopes = requests_constraint_set(sets, "polytope");
+  if (options.joint_refinement_rounds <= 0 || !result->success || (!joints && !polytopes))
     return nullptr;
-  JointDenseCheck check = dense_joint_check(**problem, result->x, kJointCheckDt);
+  auto check_solution = [&] {
+    JointDenseCheck c = dense_joint_check(**problem, result->x, kJointCheckDt);
+    keep_rows_the_problem_has(&c, joints, polytopes);
+    return c;
+  };
+  JointDenseCheck check = check_solution();
   if (check.violations.empty()) return nullptr;
   nlohmann::json record = {{"before", joint_check_json(check, robot)}};
   nlohmann::json rounds = nlohmann::json::array();
@@ -260,9 +290,10 @@ nlohmann::json refine_joint_points(std::unique_ptr<SrbdProblem>* problem,
     if (options.verbose)
       std::fprintf(stderr,
                    "plan: joints past their limits between the constraint points in %zu "
-                   "intervals (velocity %.4g x its limit, %.4g rad beyond a range); solving again "
-                   "with joint rows there\n",
-                   check.violations.size(), check.velocity_ratio, check.range_excess_rad);
+                   "intervals (velocity %.4g x its limit, torque %.4g x its limit, %.4g rad "
+                   "beyond a range); solving again with joint rows there\n",
+                   check.violations.size(), check.velocity_ratio, check.torque_ratio,
+                   check.range_excess_rad);
     const std::size_t before = points.size();
     points.insert(points.end(), check.violations.begin(), check.violations.end());
     auto refined = std::make_unique<SrbdProblem>(robot, plan_terrain, setup.timeline,
@@ -270,6 +301,7 @@ nlohmann::json refine_joint_points(std::unique_ptr<SrbdProblem>* problem,
     if (warm.previous) refined->warm_start_from(*warm.previous, warm.shift);
     add_joint_range_points(*refined, points);
     add_joint_velocity_points(*refined, points);
+    add_polytope_points(*refined, points);
     // The rows at a measured start's instants are widened (joints.cpp): there they may hold
     // already, and a re-solve would return the same solution.
     if (refined->max_violation(result->x) <= options.tolerance) {
@@ -302,7 +334,7 @@ nlohmann::json refine_joint_points(std::unique_ptr<SrbdProblem>* problem,
     result->objective_iterations = objective;
     result->polish_iterations = polish;
     *problem = std::move(refined);
-    check = dense_joint_check(**problem, result->x, kJointCheckDt);
+    check = check_solution();
   }
   record["rounds"] = rounds;
   record["points"] = points.size();
@@ -377,6 +409,39 @@ void record_failure(const SrbdProblem& problem, const PlannerOptions& options,
 }
 
 }  // namespace
+
+std::string joint_refinement_stop_clause(const nlohmann::json& refinement) {
+  if (!refinement.is_object() || !refinement.contains("ended")) return "";
+  const std::string ended = refinement["ended"].get<std::string>();
+  const nlohmann::json rounds = refinement.value("rounds", nlohmann::json::array());
+  const nlohmann::json after = refinement.value("after", nlohmann::json::object());
+  auto figure = [](const char* fmt, double v) {
+    char buf[64];
+    std::snprintf(buf, sizeof buf, fmt, v);
+    return std::string(buf);
+  };
+  const std::string n = std::to_string(rounds.size()) + (rounds.size() == 1 ? " round" : " rounds");
+  std::string why = "stopped after " + n;
+  if (ended == "time") why = "ran out of time after " + n;
+  if (ended == "rows_hold")
+    why += ": the rows at the worst instants hold already (the force polytope only approximates "
+           "the torque limits; joint rows near a measured start are widened)";
+  if (ended == "failed" && !rounds.empty())
+    why += ": its re-solve ended " + rounds.back().value("status", std::string("?")) +
+           ", the previous solution kept";
+  std::string left;
+  auto add = [&](const std::string& part) { left += (left.empty() ? "" : ", ") + part; };
+  if (after.value("velocity_ratio", 0.0) > 1.0)
+    add("velocity " + figure("%.3g", after["velocity_ratio"].get<double>()) + "x its limit");
+  if (after.value("torque_ratio", 0.0) > 1.0)
+    add("torque " + figure("%.3g", after["torque_ratio"].get<double>()) + "x its limit");
+  if (after.value("range_excess_rad", 0.0) > 0.0)
+    add(figure("%.3g", after["range_excess_rad"].get<double>()) + " rad beyond a range");
+  return "refinement of the joint rows " + why +
+         (left.empty() ? std::string()
+                       : " with joints still past their limits between the constraint points (" +
+                             left + ")");
+}
 
 void check_before_solve(const robot::RobotModel& robot, const terrain::HeightField& plan_terrain,
                         const PlannerOptions& options) {

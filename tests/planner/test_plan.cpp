@@ -1,5 +1,6 @@
 // End-to-end planning: solves to optimal, reaches the goal, and holds every constraint densely.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -7,8 +8,11 @@
 #include <filesystem>
 
 #include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/joint_points.hpp"
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/planner/planning_session.hpp"
+#include "terrastride/planner/polytope_fit.hpp"
+#include "terrastride/planner/polytope_model.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
 #include <Eigen/LU>
@@ -71,6 +75,76 @@ TEST(Plan, JointRefinementHoldsVelocitiesBetweenConstraintPoints) {
   EXPECT_TRUE(refinement["held"].get<bool>());
   EXPECT_GT(on.trajectory.solver.iterations, off.trajectory.solver.iterations);
   EXPECT_GT(on.trajectory.solver.n_constraints, off.trajectory.solver.n_constraints);
+}
+
+// Go2 with its knees' torque limit cut from 45.43 to 10 N m (its force polytopes fitted anew,
+// beside a copy of its robot file) and the polytope rows at the force knots only
+// (polytope_inner_points 0, polytope_softmax 0), the default 1 m crawl on flat, `all`: the rows
+// hold at the knots and a stance knee passed its torque limit between them (1.026x at 1 ms).
+// The refinement finds it, adds polytope rows at the worst instants and solves again; with
+// joint_refinement_rounds = 0 the plan is the first solve's and carries no record.
+TEST(Plan, JointRefinementHoldsTorquesBetweenConstraintPoints) {
+  auto r = robot::load_robot(robot::resolve_robot_path("go2"));
+  for (auto& leg : r.legs) leg.torque_limit[2] = 10.0;
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() /
+                                    ("terrastride_knee10_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  r.source_file = (dir / "go2_knee10.yaml").string();  // the polytopes are read beside it
+  save_polytope_model(fit_robot_polytopes(r, PolytopeFitOptions{}, nullptr), r,
+                      polytope_path_for(r));
+  const auto scene = terrain::make_scene("flat");
+  const auto smooth = terrain::TerrainMap::from_scene(*scene, 0.02, {});
+  PlannerOptions o = options_to_goal(1.0);
+  o.cycles = default_cycles(r, o.start, o.goal);
+  o.constraints = {"all"};
+  o.feasibility_settings = {{"polytope_inner_points", 0.0}, {"polytope_softmax", 0.0}};
+  o.joint_refinement_rounds = 0;
+  const PlanOutcome off = plan_motion(r, *smooth, *scene, o, 0.01);
+  o.joint_refinement_rounds = 3;
+  const PlanOutcome on = plan_motion(r, *smooth, *scene, o, 0.01);
+  std::filesystem::remove_all(dir);
+  ASSERT_TRUE(off.success) << off.message;
+  EXPECT_FALSE(off.trajectory.extra.contains("joint_refinement"));
+  ASSERT_TRUE(on.success) << on.message;
+  ASSERT_TRUE(on.trajectory.extra.contains("joint_refinement"));
+  const nlohmann::json& refinement = on.trajectory.extra["joint_refinement"];
+  EXPECT_GT(refinement["before"]["torque_ratio"].get<double>(), 1.0);
+  EXPECT_LE(refinement["after"]["torque_ratio"].get<double>(), 1.0);
+  EXPECT_TRUE(refinement["held"].get<bool>());
+  EXPECT_FALSE(refinement.contains("ended"));
+  EXPECT_EQ(joint_refinement_stop_clause(refinement), "");
+  EXPECT_GT(on.trajectory.solver.n_constraints, off.trajectory.solver.n_constraints);
+}
+
+// The clause the CLI adds to a plan's post-hoc failure when the refinement gave up: how it ended
+// and what the dense check still finds; nothing when it held or never ran.
+TEST(Plan, JointRefinementStopClauseSaysHowItEnded) {
+  EXPECT_EQ(joint_refinement_stop_clause(nullptr), "");
+  nlohmann::json record = {{"rounds", nlohmann::json::array()},
+                           {"after", {{"range_excess_rad", 0.0}, {"torque_ratio", 1.04}}},
+                           {"held", false}};
+  EXPECT_EQ(joint_refinement_stop_clause(record), "");  // ran to the end
+  for (int k = 0; k < 3; ++k) record["rounds"].push_back({{"status", "optimal"}});
+  record["ended"] = "rounds";
+  EXPECT_EQ(joint_refinement_stop_clause(record),
+            "refinement of the joint rows stopped after 3 rounds with joints still past their "
+            "limits between the constraint points (torque 1.04x its limit)");
+  record["ended"] = "time";
+  record["after"]["velocity_ratio"] = 1.2;
+  record["after"]["range_excess_rad"] = 0.01;
+  EXPECT_EQ(joint_refinement_stop_clause(record),
+            "refinement of the joint rows ran out of time after 3 rounds with joints still past "
+            "their limits between the constraint points (velocity 1.2x its limit, torque 1.04x "
+            "its limit, 0.01 rad beyond a range)");
+  record["ended"] = "rows_hold";
+  EXPECT_NE(joint_refinement_stop_clause(record).find("stopped after 3 rounds: the rows at the "
+                                                      "worst instants hold already"),
+            std::string::npos);
+  record["ended"] = "failed";
+  record["rounds"].back()["status"] = "infeasible";
+  EXPECT_NE(joint_refinement_stop_clause(record).find(
+                "stopped after 3 rounds: its re-solve ended infeasible, the previous solution kept"),
+            std::string::npos);
 }
 
 TEST(Plan, FlatCrawlReachesGoal) {

@@ -28,6 +28,7 @@
 #include "feasibility_common.hpp"
 #include "spline_variables.hpp"
 #include "terrastride/planner/feasibility.hpp"
+#include "terrastride/planner/joint_points.hpp"
 #include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/polytope_model.hpp"
 
@@ -109,6 +110,42 @@ inline Ad polytope_soft_max(const LegPolytopeModel& m, const Vec3<Ad>* pb, const
 
 }  // namespace feasibility
 
+namespace {
+
+// One piece of the 6 facet rows at fraction sigma of segment s for foot f. At sigma = 0 or 1 only
+// that knot's values enter (base pose, foothold, force knot); inside, the whole Hermite segment of
+// the base, the segment's duration and both force knots.
+void add_polytope_point(SrbdProblem& problem, const std::shared_ptr<const RobotPolytopeModel>& model,
+                        int f, int s, double sigma) {
+  const Layout& L = problem.layout();
+  const double scale = 1.0 / (problem.robot().mass * kGravity);
+  const std::vector<double> lo(kPolytopeFacets, -kInf), hi(kPolytopeFacets, 0.0);
+  LocalVars lv;
+  const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
+  const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
+  const auto pf = lv.add3(L.foot_pos[f][s]);
+  const auto f0 = sigma < 1.0 ? lv.add3(L.force[f][s][0]) : std::array<int, 3>{-1, -1, -1};
+  const auto f1 = sigma > 0.0 ? lv.add3(L.force[f][s][1]) : std::array<int, 3>{-1, -1, -1};
+  const int dur = rp.needs_duration || ep.needs_duration ? add_segment_duration(lv, L, s) : -1;
+  const double frac = L.seg_fraction[s];
+  const LegPolytopeModel* leg = &model->legs[f];
+  problem.add_piece(make_piece("polytope", lv, lo, hi, [=, keep = model](const auto* x, auto* g) {
+    using T = std::decay_t<decltype(*g)>;
+    (void)keep;
+    const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);
+    Vec3<T> r, e;
+    hermite<T>(sigma, h, x, rp, &r, nullptr, nullptr);
+    hermite<T>(sigma, h, x, ep, &e, nullptr, nullptr);
+    const Eigen::Matrix<T, 3, 3> Rt = rotation_zyx<T>(e).transpose();
+    const Vec3<T> force = (1.0 - sigma) * gather3(x, f0) + sigma * gather3(x, f1);
+    const Vec3<T> pb = Rt * (gather3(x, pf) - r);
+    const Vec3<T> fb = Rt * force;
+    feasibility::polytope_rows(*leg, pb, fb, scale, g);
+  }));
+}
+
+}  // namespace
+
 void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options) {
   const Layout& L = problem.layout();
   const auto& robot = problem.robot();
@@ -121,35 +158,8 @@ void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options)
   const int nf = static_cast<int>(robot.legs.size());
   const int S = L.num_segments;
   const int ni = std::max(0, options.polytope_inner_points);
-  const std::vector<double> lo(kPolytopeFacets, -kInf), hi(kPolytopeFacets, 0.0);
 
-  // One piece at fraction sigma of segment s for foot f. At sigma = 0 or 1 only that knot's
-  // values enter (base pose, foothold, force knot); inside, the whole Hermite segment of the base,
-  // the segment's duration and both force knots.
-  auto add = [&](int f, int s, double sigma) {
-    LocalVars lv;
-    const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
-    const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
-    const auto pf = lv.add3(L.foot_pos[f][s]);
-    const auto f0 = sigma < 1.0 ? lv.add3(L.force[f][s][0]) : std::array<int, 3>{-1, -1, -1};
-    const auto f1 = sigma > 0.0 ? lv.add3(L.force[f][s][1]) : std::array<int, 3>{-1, -1, -1};
-    const int dur = rp.needs_duration || ep.needs_duration ? add_segment_duration(lv, L, s) : -1;
-    const double frac = L.seg_fraction[s];
-    const LegPolytopeModel* leg = &model->legs[f];
-    problem.add_piece(make_piece("polytope", lv, lo, hi, [=, keep = model](const auto* x, auto* g) {
-      using T = std::decay_t<decltype(*g)>;
-      (void)keep;
-      const T h = dur >= 0 ? T(x[dur] * frac) : T(1.0);
-      Vec3<T> r, e;
-      hermite<T>(sigma, h, x, rp, &r, nullptr, nullptr);
-      hermite<T>(sigma, h, x, ep, &e, nullptr, nullptr);
-      const Eigen::Matrix<T, 3, 3> Rt = rotation_zyx<T>(e).transpose();
-      const Vec3<T> force = (1.0 - sigma) * gather3(x, f0) + sigma * gather3(x, f1);
-      const Vec3<T> pb = Rt * (gather3(x, pf) - r);
-      const Vec3<T> fb = Rt * force;
-      feasibility::polytope_rows(*leg, pb, fb, scale, g);
-    }));
-  };
+  auto add = [&](int f, int s, double sigma) { add_polytope_point(problem, model, f, s, sigma); };
 
   // Merged (polytope_softmax > 0): one piece and ONE row per stance segment, the soft maximum of
   // the 6 facet rows at its two force knots and its inner points (>= each of them, so the row
@@ -210,6 +220,22 @@ void build_polytope_set(SrbdProblem& problem, const FeasibilityOptions& options)
       }
       for (int q = 1; q <= ni; ++q) add(f, s, static_cast<double>(q) / (ni + 1));
     }
+  }
+}
+
+void add_polytope_points(SrbdProblem& problem, const std::vector<JointPoint>& points) {
+  const auto model = shared_polytope_model(problem.robot());
+  if (model->legs.size() != problem.robot().legs.size())
+    throw std::invalid_argument("force polytopes of robot " + problem.robot().name + " have " +
+                                std::to_string(model->legs.size()) + " legs, the robot " +
+                                std::to_string(problem.robot().legs.size()));
+  for (const JointPoint& point : points) {
+    if (!point.torque) continue;
+    require_joint_point_in(problem, point);
+    if (!problem.layout().contact[point.foot][point.segment])
+      throw std::invalid_argument("polytope point in a swing: foot " + std::to_string(point.foot) +
+                                  ", segment " + std::to_string(point.segment));
+    add_polytope_point(problem, model, point.foot, point.segment, point.sigma);
   }
 }
 

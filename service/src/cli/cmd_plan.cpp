@@ -20,6 +20,7 @@
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/gait.hpp"
+#include "terrastride/planner/joint_points.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/planner/request_limits.hpp"
@@ -317,6 +318,12 @@ void throw_plan_problems(const planner::PlanOutcome& out, const std::vector<std:
     std::string msg = "the solver's plan fails " + std::to_string(failures.size()) +
                       " post-hoc check" + (failures.size() > 1 ? "s" : "") + ": ";
     for (std::size_t i = 0; i < failures.size(); ++i) msg += (i ? "; " : "") + failures[i];
+    // Why the joints' and torques' rows did not hold between the constraint points.
+    const auto refinement = out.trajectory.extra.find("joint_refinement");
+    if (refinement != out.trajectory.extra.end()) {
+      const std::string clause = planner::joint_refinement_stop_clause(*refinement);
+      if (!clause.empty()) msg += "; " + clause;
+    }
     throw CommandError(msg + "; the plan was written to " + o.out + " for inspection",
                        kExitChecksFailed);
   }
