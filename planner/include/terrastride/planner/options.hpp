@@ -163,10 +163,11 @@ struct SolverOptions {
   // warm starts: the previous plan was optimised already, and a start on it re-verifies in 0
   // iterations).
   bool stop_at_first_feasible = false;
-  // plan_motion's joint-point refinement (planner.cpp), for problems with "joints" rows: after a
-  // successful solve a dense check (dense_joint_check) looks for joints beyond their ranges or
-  // velocity limits between the constraint points; where it finds some, the problem gets joint
-  // rows at the worst instants and is solved again from the solution, at most this many times.
+  // plan_motion's joint-point refinement (planner.cpp), for problems with "joints" or "polytope"
+  // rows: after a successful solve a dense check (dense_joint_check) looks for joints beyond their
+  // ranges, velocity or torque limits between the constraint points; where it finds some, the
+  // problem gets joint or polytope rows at the worst instants and is solved again from the
+  // solution, at most this many times.
   // 0: never. Planning-session steps call solve() and never refine (they have a deadline).
   int joint_refinement_rounds = 3;
 };
