@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <string>
 
 #include "terrastride/planner/polytope_fit.hpp"
@@ -81,6 +82,115 @@ TEST(PolytopeFit, BadInputIsRejectedWithTheLegName) {
   robot::LegModel far = leg;
   far.nominal_foot.z() = -2.0;
   EXPECT_THROW(sample_leg_workspace(far, 5, 1), std::runtime_error);
+}
+
+// A quick fit of one leg: the copy tests need a model with real structure, not a good one.
+PolytopeFitOptions quick_fit_options() {
+  PolytopeFitOptions opt;
+  opt.samples = 80;
+  opt.l_refs = 4;
+  opt.alpha_refs = 2;
+  opt.max_iterations = 5;
+  opt.rounds = 1;
+  return opt;
+}
+
+Eigen::Vector3d mirrored(const LegCopy& c, const Eigen::Vector3d& v) {
+  return Eigen::Vector3d(c.mirror_x * v.x(), c.mirror_y * v.y(), v.z());
+}
+
+// Every leg of the real quadrupeds is a mirror twin or translated copy of the first, and the
+// copied model's facets at a foot position are exactly the mirrored facets of the source's at the
+// mirrored position.
+TEST(PolytopeCopy, TwinLegsAreFoundAndTheirModelIsTheMirroredSource) {
+  for (const std::string name : {"go2", "hyq", "anymal_c"}) {
+    const auto model = load(name);
+    const auto& source = model.legs[0];
+    const LegPolytopeModel fitted = fit_leg_polytope(
+        source, sample_leg_workspace(source, 80, 3), quick_fit_options(), nullptr);
+    for (size_t i = 1; i < model.legs.size(); ++i) {
+      const auto& target = model.legs[i];
+      const auto copy = find_leg_copy(source, target, sample_leg_workspace(target, 24, 5));
+      ASSERT_TRUE(copy) << name << " " << target.name;
+      const LegPolytopeModel m = copy_leg_polytope(fitted, source, target, *copy);
+      EXPECT_EQ(m.leg_name, target.name);
+      for (const auto& p : sample_leg_workspace(target, 40, 11)) {
+        const Eigen::Vector3d p_source = source.haa_origin + mirrored(*copy, p - target.haa_origin);
+        const PolytopeFacets ft = m.facets(p), fs = fitted.facets(p_source);
+        for (int j = 0; j < kPolytopeFacets; ++j) {
+          const int js = copy->source_facet[j];
+          EXPECT_LT((ft.normals[j] - mirrored(*copy, fs.normals[js])).norm(), 1e-9)
+              << name << " " << target.name << " facet " << j;
+          EXPECT_NEAR(ft.offsets[j], fs.offsets[js], 1e-9 * std::abs(fs.offsets[js]));
+        }
+      }
+    }
+  }
+  // The mirrors themselves: Go2's right front leg is its left front leg mirrored in y, HyQ's
+  // left hind leg (knee forward) its left front leg mirrored in x.
+  const auto go2 = load("go2");
+  const auto rf = find_leg_copy(go2.legs[0], go2.legs[1], {});
+  ASSERT_TRUE(rf);
+  EXPECT_EQ(rf->mirror_x, 1);
+  EXPECT_EQ(rf->mirror_y, -1);
+  const auto hyq = load("hyq");
+  const auto lh = find_leg_copy(hyq.legs[0], hyq.legs[2], {});
+  ASSERT_TRUE(lh);
+  EXPECT_EQ(lh->mirror_x, -1);
+  EXPECT_EQ(lh->mirror_y, 1);
+}
+
+TEST(PolytopeCopy, LegsWithOtherTorquesOrLinksAreNotCopies) {
+  const auto go2 = load("go2");
+  const auto feet = sample_leg_workspace(go2.legs[1], 24, 5);
+  robot::LegModel stronger = go2.legs[1];
+  stronger.torque_limit[2] *= 1.1;
+  EXPECT_FALSE(find_leg_copy(go2.legs[0], stronger, feet));
+  robot::LegModel longer = go2.legs[1];
+  longer.joint_offset[2] *= 1.05;  // a longer thigh (HFE -> KFE)
+  robot::classify_leg_geometry(longer, true);
+  EXPECT_FALSE(find_leg_copy(go2.legs[0], longer, feet));
+  const auto hyq = load("hyq");
+  EXPECT_FALSE(find_leg_copy(hyq.legs[0], go2.legs[0], sample_leg_workspace(go2.legs[0], 24, 5)));
+}
+
+TEST(PolytopeCopy, RobotFitCopiesTwinsOnlyWhenTheyFitAsWell) {
+  auto go2 = load("go2");
+  go2.legs[3].torque_limit[1] *= 1.2;  // RH is no twin any more
+  PolytopeFitOptions opt = quick_fit_options();
+  opt.copy_rho_in_tolerance = 1.0;  // accept every copy
+  std::vector<LegFitReport> reports;
+  const RobotPolytopeModel fitted = fit_robot_polytopes(go2, opt, &reports);
+  ASSERT_EQ(reports.size(), 4u);
+  EXPECT_TRUE(reports[0].copied_from.empty());
+  EXPECT_GT(reports[0].iterations, 0);
+  EXPECT_EQ(reports[1].copied_from, "LF mirrored in y");
+  EXPECT_EQ(reports[1].iterations, 0);
+  EXPECT_FALSE(reports[2].copied_from.empty());
+  EXPECT_TRUE(reports[3].copied_from.empty());
+  EXPECT_GT(reports[3].iterations, 0);
+  for (size_t i = 0; i < 4; ++i) {
+    EXPECT_EQ(fitted.legs[i].leg_name, go2.legs[i].name);
+    EXPECT_LE(reports[i].training.rho_out_max, opt.max_training_rho_out + 1e-9) << i;
+    // The report's figures are the leg's own, on its own training feet.
+    const auto q = evaluate_polytope_quality(
+        fitted.legs[i], go2.legs[i],
+        sample_leg_workspace(go2.legs[i], opt.samples, opt.seed + 7919 * i, opt.box_scale));
+    EXPECT_DOUBLE_EQ(q.rho_in_median, reports[i].training.rho_in_median) << i;
+  }
+  // A copy that must beat its source by a whole unit of rho_in never does: every leg is fitted,
+  // the twins starting from their copies.
+  opt.copy_rho_in_tolerance = -1.0;
+  fit_robot_polytopes(go2, opt, &reports);
+  for (const auto& r : reports) {
+    EXPECT_TRUE(r.copied_from.empty()) << r.leg;
+    EXPECT_GT(r.iterations, 0) << r.leg;
+    EXPECT_LE(r.training.rho_out_max, opt.max_training_rho_out + 1e-9) << r.leg;
+  }
+  EXPECT_TRUE(reports[0].started_from.empty());
+  EXPECT_EQ(reports[1].started_from, "LF mirrored in y");
+  EXPECT_FALSE(reports[2].started_from.empty());
+  EXPECT_TRUE(reports[3].started_from.empty());
 }
 
 // The committed parameters meet the quality targets of issue 5 on held-out positions; this fails

@@ -192,14 +192,19 @@ void run_import(const RobotOptions& opts, bool height_given, bool foot_radius_gi
     return;
   }
   double worst = 0, median = 0;
+  std::string copied;
   for (const auto& r : reports) {
     worst = std::max(worst, r.training.rho_out_max);
     median = std::max(median, r.training.rho_out_median);
+    if (!r.copied_from.empty())
+      copied += (copied.empty() ? "; " : ", ") + r.leg + " = " + r.copied_from;
+    if (!r.started_from.empty())
+      copied += (copied.empty() ? "; " : ", ") + r.leg + " fitted from " + r.started_from;
   }
-  std::printf("wrote %s (force polytopes of %zu legs fitted in %.2f s; rho_out median %.4f, max "
-              "%.4f on the training feet; `terrastride polytopes validate --robot %s` measures "
-              "them on held-out feet)\n",
-              polytopes.c_str(), reports.size(), fit_s, median, worst,
+  std::printf("wrote %s (force polytopes of %zu legs fitted in %.2f s%s; rho_out median %.4f, "
+              "max %.4f on the training feet; `terrastride polytopes validate --robot %s` "
+              "measures them on held-out feet)\n",
+              polytopes.c_str(), reports.size(), fit_s, copied.c_str(), median, worst,
               robot::robot_argument(model).c_str());
 }
 

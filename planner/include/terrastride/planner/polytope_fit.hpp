@@ -10,7 +10,9 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <array>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -42,6 +44,12 @@ struct PolytopeFitOptions {
   // Threads: legs are fitted in parallel, one leg per thread (fit_robot_polytopes); a single
   // leg's fit gives them to Ceres' Jacobian evaluation.
   int num_threads = 2;
+  // Legs that are copies of an earlier leg (LegCopy: mirror twins, translated copies) take its
+  // fitted model mirrored instead of a fit of their own, when on their own training samples the
+  // copy's rho_in median is at most `copy_rho_in_tolerance` below the source's (after the same
+  // conservative offset scaling); otherwise they are fitted.
+  bool copy_legs = true;
+  double copy_rho_in_tolerance = 0.005;
 };
 
 // The fit's settings as one line, recorded in the polytope file ("fit").
@@ -74,7 +82,39 @@ struct LegFitReport {
   double offset_scale = 1.0;  // the final conservative scaling of the offsets
   PolytopeQuality training;
   double wall_s = 0;
+  // Non-empty when the leg was not fitted but copied from an identical or mirrored leg
+  // (LegCopy): that leg's name and the mapping, e.g. "LF mirrored in y".
+  std::string copied_from;
+  // Non-empty when the fit started from such a copy (rejected as it was: fitted worse than its
+  // source, see fit_robot_polytopes) instead of from the exact polytopes.
+  std::string started_from;
 };
+
+// Leg `target` is a copy of leg `source` when its exact force polytope at every foot position p
+// is the source's at p_s = source.haa_origin + M (p - target.haa_origin), mirrored by M:
+// M = diag(mirror_x, mirror_y, 1) (mirror_y = -1: a left leg's right twin; mirror_x = -1: a
+// front leg's hind twin with the knee mirrored too; both +1: a translated copy). Facet j of the
+// target is the mirror image of facet source_facet[j] of the source (a mirrored joint axis
+// swaps its + and - torque-limit facets).
+struct LegCopy {
+  int source = -1;  // index of the source leg in the robot
+  int mirror_x = 1, mirror_y = 1;
+  std::array<int, kPolytopeFacets> source_facet{{0, 1, 2, 3, 4, 5}};
+  std::string describe(const std::string& source_name) const;
+};
+
+// Whether `target` is a copy of `source` under one of the four mirrors (tried in the order
+// translated, mirrored in y, in x, in both), checked numerically on the exact polytopes at the
+// target's nominal foot and at `check_feet`: unit normals and offsets equal within 1e-9
+// relative. The source leg's index is left to the caller.
+std::optional<LegCopy> find_leg_copy(const robot::LegModel& source, const robot::LegModel& target,
+                                     const std::vector<Eigen::Vector3d>& check_feet);
+
+// The source leg's fitted model carried over to the target leg by the copy's mirror (exact: the
+// mirrored model's facets at p equal the mirror of the source model's at p_s).
+LegPolytopeModel copy_leg_polytope(const LegPolytopeModel& fitted_source,
+                                   const robot::LegModel& source, const robot::LegModel& target,
+                                   const LegCopy& copy);
 
 // The paper's model with three exact reference polytopes (most retracted, nominal and most
 // extended leg length of `feet`, along the nominal foot's direction), nothing fitted.
@@ -86,11 +126,19 @@ LegPolytopeModel paper_polytope_model(const robot::LegModel& leg,
                                       bool with_roll = false);
 
 // Our variant, fitted by least squares on the exact polytopes at `feet` (see polytope_fit.cpp).
+// `start`: a model of this leg to start from, its grid (options' l_refs x alpha_refs), hip and
+// nodes (a twin leg's mirrored model), instead of the grid over the feet's range with the exact
+// polytopes of the samples nearest its nodes.
 LegPolytopeModel fit_leg_polytope(const robot::LegModel& leg,
                                   const std::vector<Eigen::Vector3d>& feet,
-                                  const PolytopeFitOptions& options, LegFitReport* report);
+                                  const PolytopeFitOptions& options, LegFitReport* report,
+                                  const LegPolytopeModel* start = nullptr);
 
-// Samples and fits every leg of a robot.
+// Samples and fits every leg of a robot. A leg that is a copy of an earlier fitted leg
+// (find_leg_copy) takes that leg's model mirrored when, on its own training samples and after
+// the same conservative offset scaling as a fit, it fits as well as the source did on its own
+// (rho_out max <= max_training_rho_out, rho_in median within copy_rho_in_tolerance of the
+// source's); otherwise it is fitted, starting from the mirrored model.
 RobotPolytopeModel fit_robot_polytopes(const robot::RobotModel& model,
                                        const PolytopeFitOptions& options,
                                        std::vector<LegFitReport>* reports);
