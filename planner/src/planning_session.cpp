@@ -130,8 +130,7 @@ void place_capture_foothold(StepJob& job, SrbdProblem* p) {
   }
 }
 
-std::unique_ptr<SrbdProblem> build_problem(StepJob& job,
-                                           const SrbdProblem::StartState* end_state) {
+std::unique_ptr<SrbdProblem> build_problem(StepJob& job, const SrbdProblem::StartState* end_state) {
   auto p = std::make_unique<SrbdProblem>(*job.robot, *job.plan_terrain, job.timeline,
                                          job.problem_options, &job.measured, end_state);
   p->warm_start_from(job.guess, job.t);
@@ -303,7 +302,8 @@ double outside_support(const std::vector<Eigen::Vector2d>& points, const Eigen::
     const Eigen::Vector2d a = h[i], b = h[(i + 1) % h.size()];
     if (h.size() >= 3 && cross(a, b, q) < 0) inside = false;
     const Eigen::Vector2d ab = b - a;
-    const double u = ab.squaredNorm() > 0 ? std::clamp((q - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0) : 0.0;
+    const double u =
+        ab.squaredNorm() > 0 ? std::clamp((q - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0) : 0.0;
     const Eigen::Vector2d c = a + u * ab;
     if ((q - c).norm() < best) {
       best = (q - c).norm();
@@ -382,7 +382,8 @@ double first_contact(const PhaseTimeline& tl, int f) {
 // The step a push calls for (planning_session.hpp, CaptureStep; foot -1 when none): from the
 // measured state's capture point against the support polygon of the feet standing at the start
 // (`airborne`: feet the step already swings), compared with the planned state's.
-CaptureStep plan_capture_step(const robot::RobotModel& robot, const SrbdProblem::StartState& measured,
+CaptureStep plan_capture_step(const robot::RobotModel& robot,
+                              const SrbdProblem::StartState& measured,
                               const SrbdProblem::StartState& planned,
                               const std::vector<int>& airborne, PhaseTimeline* tl) {
   CaptureStep c;
@@ -463,7 +464,6 @@ void write_timeline(const PhaseTimeline& tl, nlohmann::json* extra) {
   if (!tl.swing_elapsed.empty()) (*extra)["timeline"]["swing_elapsed"] = tl.swing_elapsed;
   (*extra)["phases"] = phases;
 }
-
 
 }  // namespace
 

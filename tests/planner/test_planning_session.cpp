@@ -263,9 +263,9 @@ TEST_F(FlatSession, AWarmStartBlendsAMeasuredStartOffThePlanIntoItsFirstKnots) {
   EXPECT_EQ(again.initial_guess(), plain.initial_guess());
 }
 
-// A push to the left (the measured base moving at 1.6 m/s sideways) carries the capture point out of
-// the support polygon: the step makes a step (session.capture_step), a swing that touches down by
-// 0.2 s after the step's start, its foothold moved to the left of the reference's.
+// A push to the left (the measured base moving at 1.6 m/s sideways) carries the capture point out
+// of the support polygon: the step makes a step (session.capture_step), a swing that touches down
+// by 0.2 s after the step's start, its foothold moved to the left of the reference's.
 TEST_F(FlatSession, APushThatMovesTheCapturePointOutOfSupportMakesAStepTowardsIt) {
   const double t = 0.6;
   SrbdProblem::StartState pushed = session->planned_state(t);

@@ -55,7 +55,8 @@ void balance_forces(const robot::RobotModel& robot, const Layout& L, const Probl
       const double h = x0[L.interval_var[L.seg_interval[s]]] * L.seg_fraction[s];
       const int b0 = L.base[s], b1 = L.base[s + 1];
       // The wrench the base motion of `xs` asks for, and the base position there.
-      auto wrench = [&](const std::vector<double>& xs, Eigen::Vector3d* r) -> Eigen::Matrix<double, 6, 1> {
+      auto wrench = [&](const std::vector<double>& xs,
+                        Eigen::Vector3d* r) -> Eigen::Matrix<double, 6, 1> {
         auto x3 = [&](int i) { return Eigen::Vector3d(xs[i], xs[i + 1], xs[i + 2]); };
         Eigen::Vector3d acc, e, ed, edd, w, wd;
         hermite<double>(sigma, h, x3(b0), x3(b0 + 3), x3(b1), x3(b1 + 3), r, nullptr, &acc);
@@ -109,8 +110,7 @@ void balance_forces(const robot::RobotModel& robot, const Layout& L, const Probl
                    limit = mu * fi.z() / (anchor ? 1.0 : std::sqrt(2.0));
       if (tangential > limit) fi.head<2>() *= limit / tangential;
       for (int d = 0; d < 3; ++d)
-        if (!lower || (*lower)[vars[i] + d] < (*upper)[vars[i] + d])
-          x0[vars[i] + d] = fi[d];
+        if (!lower || (*lower)[vars[i] + d] < (*upper)[vars[i] + d]) x0[vars[i] + d] = fi[d];
     }
   }
 }

@@ -22,10 +22,10 @@ namespace {
 // cm/s) are not: a small offset the solve repairs in the first segment alone (a 2 cm offset on
 // the flat crawl: 2 iterations), while a blended guess moves every row of the blended knots
 // (6 iterations).
-constexpr double kBlendVelocity = 0.15;      // m/s
-constexpr double kBlendPosition = 0.03;      // m
-constexpr double kBlendEuler = 0.08;         // rad
-constexpr double kBlendEulerRate = 0.8;      // rad/s
+constexpr double kBlendVelocity = 0.15;  // m/s
+constexpr double kBlendPosition = 0.03;  // m
+constexpr double kBlendEuler = 0.08;     // rad
+constexpr double kBlendEulerRate = 0.8;  // rad/s
 // The correction returns to the previous plan over at least this long, and over as long as a
 // decelerating at half of friction * g takes for the velocity offset, but ends before the last
 // knot (a session step's end is pinned) at most this fraction into the plan.
@@ -66,9 +66,11 @@ void blend_to_measured_start(SrbdProblem& problem, const Eigen::Vector3d& guess_
   if (!(dv.norm() > kBlendVelocity || dp.norm() > kBlendPosition || de.norm() > kBlendEuler ||
         dr.norm() > kBlendEulerRate))
     return;
+  // The guess before the blend: the forces are re-balanced for the change from it.
+  const std::vector<double> previous = x;
   const double decel = 0.5 * problem.options().friction * kGravity;
-  const double span = std::min(std::max(kBlendMin, 4.0 * dv.norm() / decel),
-                               kBlendMaxFraction * kt[S]);
+  const double span =
+      std::min(std::max(kBlendMin, 4.0 * dv.norm() / decel), kBlendMaxFraction * kt[S]);
   auto set3 = [&](int i, const Eigen::Vector3d& add) {
     for (int d = 0; d < 3; ++d)
       if (lo[i + d] < hi[i + d]) x[i + d] += add[d];
@@ -95,8 +97,8 @@ void blend_to_measured_start(SrbdProblem& problem, const Eigen::Vector3d& guess_
     const double land = kt[s_end];
     if (!(land > 0.0)) continue;
     const Eigen::Vector3d fp = at(p0) - guess_foot_position[f];
-    const Eigen::Vector3d fv =
-        free3(v0) ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : Eigen::Vector3d(at(v0) - guess_foot_velocity[f]);
+    Eigen::Vector3d fv = Eigen::Vector3d::Zero();
+    if (!free3(v0)) fv = at(v0) - guess_foot_velocity[f];
     for (int k = 1; k < s_end; ++k) {
       Eigen::Vector3d c, cr;
       hermite_correction(kt[k] / land, land, fp, fv, &c, &cr);
@@ -104,11 +106,10 @@ void blend_to_measured_start(SrbdProblem& problem, const Eigen::Vector3d& guess_
       if (free3(L.foot_vel[f][k])) set3(L.foot_vel[f][k], cr);
     }
   }
-  // The forces over the blended knots (and the first one after them) re-balanced for the moved
-  // base, nearest to the previous plan's.
-  const std::vector<double> previous = x;
-  initialization::balance_forces(problem.robot(), L, problem.options(), 0,
-                                 std::min(S, k_last + 1), &previous, &x, &lo, &hi);
+  // The forces over the blended knots (and the first one after them): the previous plan's plus
+  // the least change that balances the change in the base's motion.
+  initialization::balance_forces(problem.robot(), L, problem.options(), 0, std::min(S, k_last + 1),
+                                 &previous, &x, &lo, &hi);
 }
 
 }  // namespace
@@ -167,7 +168,7 @@ void SrbdProblem::warm_start_from(const Trajectory& prev, double shift) {
     foot_velocity[f] = knot[0].feet[f].velocity;
   }
   blend_to_measured_start(*this, knot[0].base.position, knot[0].base.linear_velocity,
-                          knot[0].base.euler_zyx, interpolation::euler_rates(knot[0]), foot_position,
-                          foot_velocity);
+                          knot[0].base.euler_zyx, interpolation::euler_rates(knot[0]),
+                          foot_position, foot_velocity);
 }
 }  // namespace terrastride::planner
