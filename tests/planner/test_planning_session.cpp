@@ -9,7 +9,6 @@
 #include <chrono>
 #include <thread>
 
-#include "terrastride/planner/nlp.hpp"
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/planner/planning_session.hpp"
 #include "terrastride/robot/robot_model.hpp"
@@ -219,48 +218,6 @@ TEST_F(FlatSession, AFootMeasuredInTheAirWhereThePlanHasAStanceTouchesDown) {
   ASSERT_FALSE(phases.empty());
   EXPECT_FALSE(phases[0].contact);
   EXPECT_NEAR(phases[0].end, 0.15, 0.03 + 1e-6);  // an event within 0.03 s of 0.2 s is reused
-}
-
-// A measured start off the previous plan (a lateral push: 2 cm and 0.3 m/s to the left, 3 degrees
-// of roll): the warm start moves its first knots from the measurement back to the previous plan
-// and re-balances the forces there, so that the guess is near dynamic balance. Against the
-// previous plan with only knot 0 at the measurement (the guess without the blend), its linear and
-// angular dynamics violation is at most a quarter; a start on the previous plan leaves the guess
-// as that plan.
-TEST_F(FlatSession, AWarmStartBlendsAMeasuredStartOffThePlanIntoItsFirstKnots) {
-  const double t = 0.6;
-  const PhaseTimeline tl = timeline_of(cold.trajectory).cropped(t);
-  PlannerOptions o = options;
-  set_path_line_of(cold.trajectory, &o);
-  const SrbdProblem::StartState on_plan = session->planned_state(t);
-  SrbdProblem::StartState pushed = on_plan;
-  pushed.position.y() += 0.02;
-  pushed.linear_velocity.y() += 0.3;
-  pushed.euler_zyx[2] += 0.05;
-  SrbdProblem plain(robot, flat, tl, o, &on_plan);
-  plain.warm_start_from(cold.trajectory, t);
-  SrbdProblem blended(robot, flat, tl, o, &pushed);
-  blended.warm_start_from(cold.trajectory, t);
-  ASSERT_EQ(plain.num_variables(), blended.num_variables());
-  // The previous plan as the guess, knot 0 at the measurement (the variables it fixes).
-  std::vector<double> unblended = plain.initial_guess();
-  for (int i = 0; i < blended.num_variables(); ++i)
-    if (!(blended.lower()[i] < blended.upper()[i])) unblended[i] = blended.lower()[i];
-  const auto before = blended.violation_by_kind(unblended);
-  const auto after = blended.violation_by_kind(blended.initial_guess());
-  for (const char* kind : {"dynamics_linear", "dynamics_angular"}) {
-    ASSERT_GT(before.at(kind), 0.05) << kind << ": the push must disturb the unblended guess";
-    EXPECT_LT(after.at(kind), 0.25 * before.at(kind)) << kind;
-  }
-  // The base's velocity at knot 1 lies between the measurement and the previous plan.
-  const int b1 = blended.layout().base[1];
-  const double v_prev = unblended[b1 + 4], v_blend = blended.initial_guess()[b1 + 4];
-  EXPECT_GT(v_blend, v_prev + 0.05);
-  EXPECT_LT(v_blend, pushed.linear_velocity.y() + 1e-9);
-  // On the plan: nothing to blend, the guess is the previous plan's.
-  SrbdProblem again(robot, flat, tl, o, &on_plan);
-  again.warm_start_from(cold.trajectory, t);
-  EXPECT_EQ(again.initial_guess(), plain.initial_guess());
 }
 
 // A push to the left (the measured base moving at 1.6 m/s sideways) carries the capture point out

@@ -14,25 +14,19 @@ namespace terrastride::planner::initialization {
 // the weight shared equally (a small regularised least-squares problem per knot), then held in
 // the friction pyramid. Ipopt then starts near dynamic balance instead of 1-2 m g away from it.
 void guess_forces(const GuessInputs& in, Variables* variables) {
-  balance_forces(in.robot, in.layout, in.options, 0, in.layout.num_segments, nullptr,
-                 &variables->initial);
-}
-
-void balance_forces(const robot::RobotModel& robot, const Layout& L, const ProblemOptions& options,
-                    int k_begin, int k_end, const std::vector<double>* anchor,
-                    std::vector<double>* initial, const std::vector<double>* lower,
-                    const std::vector<double>* upper) {
-  std::vector<double>& x0 = *initial;
+  const robot::RobotModel& robot = in.robot;
+  const Layout& L = in.layout;
+  std::vector<double>& x0 = variables->initial;
   const int S = L.num_segments;
   const int nf = static_cast<int>(robot.legs.size());
-  const double mg = robot.mass * kGravity, mu = options.friction;
-  const double fmax = options.max_normal_force_factor * mg;
+  const double mg = robot.mass * kGravity, mu = in.options.friction;
+  const double fmax = in.options.max_normal_force_factor * mg;
   const bool rot_free = robot.base_dof_free[3] || robot.base_dof_free[4] || robot.base_dof_free[5];
   auto v3 = [&](int i) { return Eigen::Vector3d(x0[i], x0[i + 1], x0[i + 2]); };
   // Angular rows are divided by this lever arm so that they weigh like the force rows.
   constexpr double kLever = 0.3;  // m
   constexpr double kRegularisation = 1e-3;
-  for (int k = std::max(0, k_begin); k <= std::min(S, k_end); ++k) {
+  for (int k = 0; k <= S; ++k) {
     std::vector<int> feet, vars;
     for (int f = 0; f < nf; ++f) {
       const int v = k < S && L.force[f][k][0] >= 0 ? L.force[f][k][0]
@@ -46,7 +40,7 @@ void balance_forces(const robot::RobotModel& robot, const Layout& L, const Probl
     if (feet.empty()) continue;
     const int n = static_cast<int>(feet.size());
     Eigen::MatrixXd A = Eigen::MatrixXd::Zero(12, 3 * n);
-    Eigen::VectorXd b = Eigen::VectorXd::Zero(12), b_anchor = b;
+    Eigen::VectorXd b = Eigen::VectorXd::Zero(12);
     int rows = 0;
     for (int side = 0; side < 2; ++side) {
       const int s = side == 0 ? k - 1 : k;  // the segment ending (0) or starting (1) at knot k
@@ -54,24 +48,14 @@ void balance_forces(const robot::RobotModel& robot, const Layout& L, const Probl
       const double sigma = side == 0 ? 1.0 : 0.0;
       const double h = x0[L.interval_var[L.seg_interval[s]]] * L.seg_fraction[s];
       const int b0 = L.base[s], b1 = L.base[s + 1];
-      // The wrench the base motion of `xs` asks for, and the base position there.
-      auto wrench = [&](const std::vector<double>& xs,
-                        Eigen::Vector3d* r) -> Eigen::Matrix<double, 6, 1> {
-        auto x3 = [&](int i) { return Eigen::Vector3d(xs[i], xs[i + 1], xs[i + 2]); };
-        Eigen::Vector3d acc, e, ed, edd, w, wd;
-        hermite<double>(sigma, h, x3(b0), x3(b0 + 3), x3(b1), x3(b1 + 3), r, nullptr, &acc);
-        hermite<double>(sigma, h, x3(b0 + 6), x3(b0 + 9), x3(b1 + 6), x3(b1 + 9), &e, &ed, &edd);
-        euler_to_angular<double>(e, ed, edd, &w, &wd);
-        const Eigen::Matrix3d R = rotation_zyx<double>(e);
-        const Eigen::Matrix3d Iw = R * robot.inertia * R.transpose();
-        Eigen::Matrix<double, 6, 1> out = Eigen::Matrix<double, 6, 1>::Zero();
-        out.head<3>() = robot.mass * acc + Eigen::Vector3d(0, 0, mg);
-        if (rot_free) out.tail<3>() = (Iw * wd + w.cross(Iw * w)) / kLever;
-        return out;
-      };
-      Eigen::Vector3d r, r_anchor;
-      b.segment<6>(rows) = wrench(x0, &r);
-      if (anchor) b_anchor.segment<6>(rows) = wrench(*anchor, &r_anchor);
+      Eigen::Vector3d r, acc, e, ed, edd, w, wd;
+      hermite<double>(sigma, h, v3(b0), v3(b0 + 3), v3(b1), v3(b1 + 3), &r, nullptr, &acc);
+      hermite<double>(sigma, h, v3(b0 + 6), v3(b0 + 9), v3(b1 + 6), v3(b1 + 9), &e, &ed, &edd);
+      euler_to_angular<double>(e, ed, edd, &w, &wd);
+      const Eigen::Matrix3d R = rotation_zyx<double>(e);
+      const Eigen::Matrix3d Iw = R * robot.inertia * R.transpose();
+      b.segment<3>(rows) = robot.mass * acc + Eigen::Vector3d(0, 0, mg);
+      if (rot_free) b.segment<3>(rows + 3) = (Iw * wd + w.cross(Iw * w)) / kLever;
       for (int i = 0; i < n; ++i) {
         if (!L.contact[feet[i]][s]) continue;
         A.block<3, 3>(rows, 3 * i).setIdentity();
@@ -84,33 +68,20 @@ void balance_forces(const robot::RobotModel& robot, const Layout& L, const Probl
       }
       rows += 6;
     }
-    // Nearest to the equal share: min |A f - b|^2 + eps |f - f_equal|^2. With an anchor, its
-    // forces plus the least change that balances the change in the wrench the base asks for
-    // (min |A df - (b - b_anchor)|^2 + eps |df|^2): an unchanged base keeps them as they are.
+    // Nearest to the equal share: min |A f - b|^2 + eps |f - f_equal|^2.
     Eigen::VectorXd f_equal = Eigen::VectorXd::Zero(3 * n);
     for (int i = 0; i < n; ++i) f_equal[3 * i + 2] = mg / n;
     const Eigen::MatrixXd At = A.topRows(rows).transpose();
     const Eigen::MatrixXd N =
         At * A.topRows(rows) + kRegularisation * Eigen::MatrixXd::Identity(3 * n, 3 * n);
-    Eigen::VectorXd f;
-    if (anchor) {
-      for (int i = 0; i < n; ++i)
-        for (int d = 0; d < 3; ++d) f_equal[3 * i + d] = (*anchor)[vars[i] + d];
-      f = f_equal + N.ldlt().solve(At * (b - b_anchor).head(rows));
-    } else {
-      f = N.ldlt().solve(At * b.head(rows) + kRegularisation * f_equal);
-    }
+    const Eigen::VectorXd f = N.ldlt().solve(At * b.head(rows) + kRegularisation * f_equal);
     for (int i = 0; i < n; ++i) {
       Eigen::Vector3d fi = f.segment<3>(3 * i);
       if (!fi.allFinite()) fi = f_equal.segment<3>(3 * i);
       fi.z() = std::clamp(fi.z(), 0.0, fmax);
-      // The guess's pyramid is the inner one (|f_x|, |f_y| <= mu f_z / sqrt 2 in the world frame);
-      // an anchor's forces, solved in the terrain's full pyramid, keep its room.
-      const double tangential = fi.head<2>().norm(),
-                   limit = mu * fi.z() / (anchor ? 1.0 : std::sqrt(2.0));
+      const double tangential = fi.head<2>().norm(), limit = mu * fi.z() / std::sqrt(2.0);
       if (tangential > limit) fi.head<2>() *= limit / tangential;
-      for (int d = 0; d < 3; ++d)
-        if (!lower || (*lower)[vars[i] + d] < (*upper)[vars[i] + d]) x0[vars[i] + d] = fi[d];
+      for (int d = 0; d < 3; ++d) x0[vars[i] + d] = fi[d];
     }
   }
 }

@@ -44,12 +44,5 @@ void guess_footholds(const GuessInputs& in, const BaseBoundary& boundary, Variab
 void guess_swing_feet(const GuessInputs& in, const BaseBoundary& boundary, Variables* variables);
 // Contact forces in dynamic balance with the guessed base motion.
 void guess_forces(const GuessInputs& in, Variables* variables);
-// The forces at knots [k_begin, k_end] of `initial` in dynamic balance with its base knots:
-// nearest to the weight shared equally (anchor null) or to the forces in *anchor (a warm start
-// re-balanced to a measured start). With bounds given only the free forces are written.
-void balance_forces(const robot::RobotModel& robot, const Layout& L, const ProblemOptions& options,
-                    int k_begin, int k_end, const std::vector<double>* anchor,
-                    std::vector<double>* initial, const std::vector<double>* lower = nullptr,
-                    const std::vector<double>* upper = nullptr);
 
 }  // namespace terrastride::planner::initialization
