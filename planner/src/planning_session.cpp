@@ -438,7 +438,9 @@ CaptureStep plan_capture_step(const robot::RobotModel& robot,
       by_distance.push_back({(measured.foot_position[f].head<2>() - cp).norm(), f});
   std::sort(by_distance.begin(), by_distance.end());
   for (const auto& [d, f] : by_distance) {
-    if (add_touchdowns({f}, tl, kCaptureTouchdown).empty()) continue;
+    PhaseTimeline stepped = *tl;  // add_touchdowns may add its event even when no foot can step
+    if (add_touchdowns({f}, &stepped, kCaptureTouchdown).empty()) continue;
+    *tl = std::move(stepped);
     c.foot = f;
     c.added_swing = true;
     c.touchdown = first_contact(*tl, f);
