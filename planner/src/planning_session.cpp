@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <sstream>
@@ -32,6 +33,15 @@ constexpr double kLiftedHeight = 0.03;
 // 5-10 cm up needs 0.15-0.2 s to come down), if its stance lasts 0.1 s beyond that; a stance
 // ending sooner is left as it is (the foot is about to lift off anyway).
 constexpr double kTouchdownAfter = 0.2;
+// A push that carries the capture point (x + v / omega, omega = sqrt(g / h)) this far out of the
+// support polygon of the feet standing at the step's start, and this much further out than the
+// plan's own capture point there (a crawl's swing may leave it slightly outside by design), gets a
+// step: the swing under way touches down by kCaptureTouchdown (or, with every foot standing, the
+// stance foot nearest the capture point lifts and touches down then), its foothold moved towards
+// the capture point by how far that lies outside, at most kCaptureShiftMax, on safe terrain.
+constexpr double kCaptureOutside = 0.02;
+constexpr double kCaptureTouchdown = 0.2;
+constexpr double kCaptureShiftMax = 0.15;
 
 using Clock = std::chrono::steady_clock;
 
@@ -77,6 +87,7 @@ struct StepJob {
   int step_number = 0;
   int iteration_budget = 0;  // StepLimits::iterations (its solve capped at 4 x that)
   std::vector<std::string> touchdowns;  // feet in the air turned from stance to a swing
+  CaptureStep capture;                  // a step after a push (foot < 0: none)
   Clock::time_point t0;
   // Cancels the solve at its next iteration (a newer step needs the worker, or the session ends).
   std::atomic<bool> cancel{false};
@@ -88,11 +99,42 @@ struct StepJob {
 
 namespace {
 
-std::unique_ptr<SrbdProblem> build_problem(const StepJob& job,
-                                           const SrbdProblem::StartState* end_state) {
+// The stance of `foot` that begins at time `from` of problem p's timeline (a capture step's
+// touch-down), or null.
+const Layout::Stance* stance_from(const SrbdProblem& p, int foot, double from) {
+  const Layout& L = p.layout();
+  for (const auto& st : L.stances)
+    if (st.foot == foot && std::abs(L.nominal_knot_time[st.first_seg] - from) < 1e-6) return &st;
+  return nullptr;
+}
+
+// The capture step's foothold guess: the warm start's, moved by the step's shift (by less where
+// the full shift lands on unsafe terrain; not at all when every fraction does), on the terrain.
+void place_capture_foothold(StepJob& job, SrbdProblem* p) {
+  CaptureStep& c = job.capture;
+  const Layout::Stance* st = stance_from(*p, c.foot, c.touchdown);
+  if (!st || !(p->lower()[st->pos_var] < p->upper()[st->pos_var])) return;
+  std::vector<double>& x = p->initial_guess();
+  const Eigen::Vector2d from(x[st->pos_var], x[st->pos_var + 1]);
+  const double radius = job.robot->foot_radius;
+  for (const double scale : {1.0, 0.75, 0.5, 0.25}) {
+    const Eigen::Vector2d q = from + scale * c.shift;
+    if (job.plan_terrain->safety_margin(q.x(), q.y(), radius).margin > 0.0) {
+      x[st->pos_var] = q.x();
+      x[st->pos_var + 1] = q.y();
+      x[st->pos_var + 2] = job.plan_terrain->height(q.x(), q.y());
+      c.foothold = Eigen::Vector3d(q.x(), q.y(), x[st->pos_var + 2]);
+      c.placed = true;
+      return;
+    }
+  }
+}
+
+std::unique_ptr<SrbdProblem> build_problem(StepJob& job, const SrbdProblem::StartState* end_state) {
   auto p = std::make_unique<SrbdProblem>(*job.robot, *job.plan_terrain, job.timeline,
                                          job.problem_options, &job.measured, end_state);
   p->warm_start_from(job.guess, job.t);
+  if (job.capture.foot >= 0) place_capture_foothold(job, p.get());
   return p;
 }
 
@@ -151,6 +193,19 @@ std::unique_ptr<SrbdProblem> solve_job(StepJob& job) {
   return problem;
 }
 
+nlohmann::json capture_step_json(const StepJob& job) {
+  const CaptureStep& c = job.capture;
+  nlohmann::json j = {{"foot", job.robot->legs[c.foot].name},
+                      {"touchdown_after_s", c.touchdown},
+                      {"touchdown_moved_from_s", c.scheduled_touchdown},
+                      {"added_swing", c.added_swing},
+                      {"capture_point", {c.point.x(), c.point.y()}},
+                      {"outside_m", c.outside},
+                      {"foothold_shift", {c.shift.x(), c.shift.y()}}};
+  if (c.placed) j["foothold_guess"] = {c.foothold.x(), c.foothold.y(), c.foothold.z()};
+  return j;
+}
+
 // The solved step as a plan: samples, solver figures, dense checks, and why it failed.
 void run_job(StepJob& job) {
   const std::unique_ptr<SrbdProblem> problem = solve_job(job);
@@ -182,6 +237,8 @@ void run_job(StepJob& job) {
   out.touchdowns = job.touchdowns;
   if (!job.touchdowns.empty())
     ex["session"]["touchdowns"] = {{"feet", job.touchdowns}, {"after_s", kTouchdownAfter}};
+  out.capture = job.capture;
+  if (job.capture.foot >= 0) ex["session"]["capture_step"] = capture_step_json(job);
   // The measured start's own violations (rows on it alone, left out of the solve).
   if (!problem->start_excess().empty()) ex["start_excess"] = problem->start_excess();
   if (!problem->end_excess().empty()) ex["session"]["end_excess"] = problem->end_excess();
@@ -217,30 +274,77 @@ void run_job(StepJob& job) {
   ex["failure"] = o.message;
 }
 
-// A timeline as plan.json writes it ("timeline") and the per-foot phases it implies ("phases").
-void write_timeline(const PhaseTimeline& tl, nlohmann::json* extra) {
-  nlohmann::json contact = nlohmann::json::array(), phases = nlohmann::json::object();
-  for (std::size_t f = 0; f < tl.feet.size(); ++f) {
-    contact.push_back(tl.contact[f]);
-    nlohmann::json list = nlohmann::json::array();
-    for (const auto& ph : tl.phases(static_cast<int>(f)))
-      list.push_back({{"start", ph.start}, {"end", ph.end}, {"contact", ph.contact}});
-    phases[tl.feet[f]] = list;
+// The distance from q to the convex polygon of `points` (0 inside; to a segment or a point for
+// two or one), and the nearest point of it.
+double outside_support(const std::vector<Eigen::Vector2d>& points, const Eigen::Vector2d& q,
+                       Eigen::Vector2d* nearest) {
+  std::vector<Eigen::Vector2d> hull = points;  // Andrew's monotone chain, counter-clockwise
+  std::sort(hull.begin(), hull.end(), [](const auto& a, const auto& b) {
+    return a.x() < b.x() || (a.x() == b.x() && a.y() < b.y());
+  });
+  auto cross = [](const Eigen::Vector2d& o, const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+    return (a - o).x() * (b - o).y() - (a - o).y() * (b - o).x();
+  };
+  std::vector<Eigen::Vector2d> h;
+  for (int pass = 0; pass < 2; ++pass) {
+    const std::size_t base = h.size();
+    for (const auto& p : hull) {
+      while (h.size() >= base + 2 && cross(h[h.size() - 2], h.back(), p) <= 0) h.pop_back();
+      h.push_back(p);
+    }
+    h.pop_back();
+    std::reverse(hull.begin(), hull.end());
   }
-  (*extra)["timeline"] = {{"events", tl.events}, {"contact", contact}};
-  if (tl.first_interval_elapsed > 0.0)
-    (*extra)["timeline"]["first_interval_elapsed"] = tl.first_interval_elapsed;
-  if (!tl.swing_elapsed.empty()) (*extra)["timeline"]["swing_elapsed"] = tl.swing_elapsed;
-  (*extra)["phases"] = phases;
+  if (h.empty()) h = hull;
+  bool inside = h.size() >= 3;
+  double best = std::numeric_limits<double>::infinity();
+  for (std::size_t i = 0; i < h.size(); ++i) {
+    const Eigen::Vector2d a = h[i], b = h[(i + 1) % h.size()];
+    if (h.size() >= 3 && cross(a, b, q) < 0) inside = false;
+    const Eigen::Vector2d ab = b - a;
+    const double u =
+        ab.squaredNorm() > 0 ? std::clamp((q - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0) : 0.0;
+    const Eigen::Vector2d c = a + u * ab;
+    if ((q - c).norm() < best) {
+      best = (q - c).norm();
+      *nearest = c;
+    }
+  }
+  if (inside) {
+    *nearest = q;
+    return 0.0;
+  }
+  return best;
 }
 
+// Foot f of `tl` (a step's timeline, from 0) touching down at td instead of later in its swing
+// under way (at `scheduled`): an event added at td unless one is within 0.03 s, the foot in
+// stance from there.
+void touch_down_earlier(int f, double td, double scheduled, PhaseTimeline* tl) {
+  int split = -1;
+  for (int j = 0; j < tl->num_intervals(); ++j)
+    if (tl->events[j + 1] > td - 0.03) {
+      split = j;
+      break;
+    }
+  if (split < 0) return;
+  if (std::abs(tl->events[split + 1] - td) <= 0.03) {
+    ++split;
+  } else {
+    tl->events.insert(tl->events.begin() + split + 1, td);
+    for (auto& c : tl->contact) c.insert(c.begin() + split, static_cast<bool>(c[split]));
+    ++split;
+  }
+  for (int j = split; j < tl->num_intervals() && tl->events[j] < scheduled - 1e-9; ++j)
+    tl->contact[f][j] = true;
+}
 
 // `tl` (a step's timeline, from 0) with each foot of `lifted` (in stance in its first interval)
 // swinging until kTouchdownAfter, an event added there if none is within 0.03 s. Returns the
 // feet it changed.
-std::vector<int> add_touchdowns(const std::vector<int>& lifted, PhaseTimeline* tl) {
+std::vector<int> add_touchdowns(const std::vector<int>& lifted, PhaseTimeline* tl,
+                                double td = kTouchdownAfter) {
   std::vector<int> changed;
-  double td = kTouchdownAfter;
   int split = -1;  // the interval containing td
   for (int j = 0; j < tl->num_intervals(); ++j)
     if (tl->events[j + 1] > td - 0.03) {
@@ -266,6 +370,101 @@ std::vector<int> add_touchdowns(const std::vector<int>& lifted, PhaseTimeline* t
     changed.push_back(f);
   }
   return changed;
+}
+
+// When foot f first stands in `tl` (its duration when it never does).
+double first_contact(const PhaseTimeline& tl, int f) {
+  for (int j = 0; j < tl.num_intervals(); ++j)
+    if (tl.contact[f][j]) return tl.events[j];
+  return tl.duration();
+}
+
+// The step a push calls for (planning_session.hpp, CaptureStep; foot -1 when none): from the
+// measured state's capture point against the support polygon of the feet standing at the start
+// (`airborne`: feet the step already swings), compared with the planned state's.
+CaptureStep plan_capture_step(const robot::RobotModel& robot,
+                              const SrbdProblem::StartState& measured,
+                              const SrbdProblem::StartState& planned,
+                              const std::vector<int>& airborne, PhaseTimeline* tl) {
+  CaptureStep c;
+  const int nf = static_cast<int>(robot.legs.size());
+  std::vector<Eigen::Vector2d> support;
+  double ground = 0.0;
+  for (int f = 0; f < nf; ++f)
+    if (tl->contact[f][0] && std::find(airborne.begin(), airborne.end(), f) == airborne.end()) {
+      support.push_back(measured.foot_position[f].head<2>());
+      ground += measured.foot_position[f].z();
+    }
+  if (support.empty()) return c;
+  const double h = measured.position.z() - ground / static_cast<double>(support.size());
+  if (!(h > 0.05)) return c;
+  const double omega = std::sqrt(kGravity / h);
+  auto capture_point = [&](const SrbdProblem::StartState& s) -> Eigen::Vector2d {
+    return s.position.head<2>() + s.linear_velocity.head<2>() / omega;
+  };
+  Eigen::Vector2d nearest, nearest_planned;
+  const Eigen::Vector2d cp = capture_point(measured);
+  const double outside = outside_support(support, cp, &nearest);
+  const double planned_outside = outside_support(support, capture_point(planned), &nearest_planned);
+  if (!(outside > kCaptureOutside) || !(outside - planned_outside > kCaptureOutside)) return c;
+  c.point = cp;
+  c.outside = outside;
+  c.shift = cp - nearest;
+  if (c.shift.norm() > kCaptureShiftMax) c.shift *= kCaptureShiftMax / c.shift.norm();
+  // The swing under way (the one landing nearest the capture point), touching down sooner.
+  double best = std::numeric_limits<double>::infinity();
+  for (int f = 0; f < nf; ++f) {
+    if (tl->contact[f][0] || std::find(airborne.begin(), airborne.end(), f) != airborne.end())
+      continue;
+    const double land = first_contact(*tl, f);
+    if (land >= tl->duration() - 1e-9) continue;  // no touch-down within the step
+    const double d = (measured.foot_position[f].head<2>() - cp).norm();
+    if (d < best) {
+      best = d;
+      c.foot = f;
+      c.scheduled_touchdown = land;
+    }
+  }
+  if (c.foot >= 0) {
+    if (c.scheduled_touchdown > kCaptureTouchdown + 0.03)
+      touch_down_earlier(c.foot, kCaptureTouchdown, c.scheduled_touchdown, tl);
+    c.touchdown = first_contact(*tl, c.foot);
+    return c;
+  }
+  // Every foot stands: the one nearest the capture point steps (if its stance lasts long enough).
+  std::vector<std::pair<double, int>> by_distance;
+  for (int f = 0; f < nf; ++f)
+    if (tl->contact[f][0])
+      by_distance.push_back({(measured.foot_position[f].head<2>() - cp).norm(), f});
+  std::sort(by_distance.begin(), by_distance.end());
+  for (const auto& [d, f] : by_distance) {
+    PhaseTimeline stepped = *tl;  // add_touchdowns may add its event even when no foot can step
+    if (add_touchdowns({f}, &stepped, kCaptureTouchdown).empty()) continue;
+    *tl = std::move(stepped);
+    c.foot = f;
+    c.added_swing = true;
+    c.touchdown = first_contact(*tl, f);
+    c.scheduled_touchdown = c.touchdown;
+    return c;
+  }
+  return CaptureStep{};
+}
+
+// A timeline as plan.json writes it ("timeline") and the per-foot phases it implies ("phases").
+void write_timeline(const PhaseTimeline& tl, nlohmann::json* extra) {
+  nlohmann::json contact = nlohmann::json::array(), phases = nlohmann::json::object();
+  for (std::size_t f = 0; f < tl.feet.size(); ++f) {
+    contact.push_back(tl.contact[f]);
+    nlohmann::json list = nlohmann::json::array();
+    for (const auto& ph : tl.phases(static_cast<int>(f)))
+      list.push_back({{"start", ph.start}, {"end", ph.end}, {"contact", ph.contact}});
+    phases[tl.feet[f]] = list;
+  }
+  (*extra)["timeline"] = {{"events", tl.events}, {"contact", contact}};
+  if (tl.first_interval_elapsed > 0.0)
+    (*extra)["timeline"]["first_interval_elapsed"] = tl.first_interval_elapsed;
+  if (!tl.swing_elapsed.empty()) (*extra)["timeline"]["swing_elapsed"] = tl.swing_elapsed;
+  (*extra)["phases"] = phases;
 }
 
 }  // namespace
@@ -570,9 +769,16 @@ std::shared_ptr<StepJob> PlanningSession::prepare(const SrbdProblem::StartState&
         p.z() - plan_terrain_.height_and_gradient(p.x(), p.y(), &gradient) > kLiftedHeight)
       lifted.push_back(static_cast<int>(f));
   }
+  std::vector<int> airborne;
   if (!lifted.empty())
-    for (int f : add_touchdowns(lifted, &job->timeline))
+    for (int f : add_touchdowns(lifted, &job->timeline)) {
       job->touchdowns.push_back(robot_.legs[f].name);
+      airborne.push_back(f);
+    }
+  // A push that carries the capture point out of the support gets a step (CaptureStep), its
+  // foothold placed as the problem is built; the end's feet are then free (the step's foothold
+  // may be the one the end would pin).
+  job->capture = plan_capture_step(robot_, measured, planned_state(t), airborne, &job->timeline);
 
   // A horizon's end is pinned to the reference as the problem is built, so that the rows of
   // every constraint set see it as fixed (built after, the path-shape rows on it were constants).
@@ -593,6 +799,7 @@ std::shared_ptr<StepJob> PlanningSession::prepare(const SrbdProblem::StartState&
   job->base_end.foot_position.clear();
   job->base_end.foot_velocity.clear();
   job->base_end.foot_force.clear();
+  if (job->capture.foot >= 0) job->pinned_end = job->base_end;
   job->warm_from_late = std::exchange(adopted_late_, false);
   job->guess = spliced_guess(previous_, previous_start_, reference_);
   job->solver_options = options_;

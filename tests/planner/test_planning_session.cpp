@@ -220,6 +220,37 @@ TEST_F(FlatSession, AFootMeasuredInTheAirWhereThePlanHasAStanceTouchesDown) {
   EXPECT_NEAR(phases[0].end, 0.15, 0.03 + 1e-6);  // an event within 0.03 s of 0.2 s is reused
 }
 
+// A push to the left (the measured base moving at 1.6 m/s sideways) carries the capture point out
+// of the support polygon: the step makes a step (session.capture_step), a swing that touches down
+// by 0.2 s after the step's start, its foothold moved to the left of the reference's.
+TEST_F(FlatSession, APushThatMovesTheCapturePointOutOfSupportMakesAStepTowardsIt) {
+  const double t = 0.6;
+  SrbdProblem::StartState pushed = session->planned_state(t);
+  pushed.linear_velocity.y() += 1.6;
+  const SessionStep step = session->step(pushed, t);
+  ASSERT_GE(step.capture.foot, 0) << "a capture step";
+  const int f = step.capture.foot;
+  EXPECT_GT(step.capture.outside, 0.02);
+  EXPECT_GT(step.capture.shift.y(), 0.0) << "towards the push";
+  EXPECT_LE(step.capture.touchdown, 0.2 + 0.03 + 1e-9);
+  EXPECT_TRUE(step.capture.placed);
+  ASSERT_TRUE(step.outcome.success) << step.outcome.message;
+  EXPECT_TRUE(step.outcome.trajectory.extra["session"].contains("capture_step"));
+  // The step's foothold against the reference's for the same stance (the first after the
+  // touch-down in both).
+  const double td = step.capture.touchdown;
+  const auto stepped = interpolate_plan(step.outcome.trajectory, td + 0.05).feet[f];
+  ASSERT_TRUE(stepped.contact);
+  double ref_td = t + td;
+  while (!interpolate_plan(cold.trajectory, ref_td).feet[f].contact) ref_td += 0.01;
+  const auto reference = interpolate_plan(cold.trajectory, ref_td + 0.05).feet[f];
+  EXPECT_GT(stepped.position.y(), reference.position.y() + 0.01)
+      << "the touch-down is towards the push";
+  // Undisturbed, the same step makes none.
+  PlanningSession quiet(robot, flat, flat, options, cold.trajectory, 1.0, 0.02);
+  EXPECT_LT(quiet.step(quiet.planned_state(t), t).capture.foot, 0);
+}
+
 // A step made from a thread at a real-time priority (the service raises a budgeted step's thread
 // so that its answer is not delayed by the scheduler) solves at the normal policy: the solver
 // thread it starts would otherwise inherit SCHED_FIFO, and the step could not preempt its own

@@ -25,6 +25,23 @@
 
 namespace terrastride::planner {
 
+// A step after a push (planning_session.cpp, plan_capture_step): the measured capture point
+// (x + v / omega, omega = sqrt(g / h), h the base's height above the standing feet) lay `outside`
+// m out of the support polygon of the feet standing at the step's start (and that much further
+// out than the planned state's), so foot `foot` touches down `touchdown` s after the step's start
+// (its swing under way moved earlier from `scheduled_touchdown`, or, every foot standing, a swing
+// added: `added_swing`), its foothold guess moved by `shift` (towards the capture point, at most
+// 0.15 m, less where that is unsafe terrain) to `foothold` (`placed`), the horizon end's feet free.
+struct CaptureStep {
+  int foot = -1;
+  double touchdown = 0.0, scheduled_touchdown = 0.0;
+  bool added_swing = false;
+  Eigen::Vector2d point = Eigen::Vector2d::Zero(), shift = Eigen::Vector2d::Zero();
+  double outside = 0.0;
+  bool placed = false;
+  Eigen::Vector3d foothold = Eigen::Vector3d::Zero();
+};
+
 struct SessionStep {
   PlanOutcome outcome;   // the plan from t (its samples start at 0 = the session's time t)
   double start_time = 0.0;  // t on the session's (the reference plan's) time axis
@@ -54,6 +71,8 @@ struct SessionStep {
   // Feet measured in the air (3 cm above the terrain) where the schedule had a stance: this plan
   // swings them and touches them down 0.2 s after t (the rest of their stance as scheduled).
   std::vector<std::string> touchdowns;
+  // A step the push called for (capture.foot >= 0), reported as session.capture_step.
+  CaptureStep capture;
 };
 
 // What bounds one step. should_stop is polled once per solver iteration (the service's
