@@ -8,7 +8,11 @@
 # arithmetic. The planning's hot path (planner/, terrain/) keeps -O3; perception/, collision/ and
 # simulation/ compile at -O2, the service (command line, report, export, server) at -O1.
 # Target options come after CMAKE_CXX_FLAGS_<CONFIG> on the command line, so LEVEL wins.
+# The sanitizer build (TERRASTRIDE_SANITIZE) compiles everything at -O1 already and keeps it.
 function(terrastride_light_optimisation target level)
+  if(TERRASTRIDE_SANITIZE)
+    return()
+  endif()
   target_compile_options(${target} PRIVATE $<$<CONFIG:Release,RelWithDebInfo,MinSizeRel>:${level}>)
 endfunction()
 
