@@ -1,12 +1,13 @@
 # Per-target build settings that cut compile time where run-time speed does not matter.
 #
-# terrastride_light_optimisation(TARGET LEVEL): compile TARGET at LEVEL (-O1, -O2) instead of the
-# build type's -O3 in optimised builds (Release, RelWithDebInfo, MinSizeRel; Debug stays -O0).
+# terrastride_light_optimisation(TARGET LEVEL): compile TARGET at LEVEL (-Og, -O1, -O2) instead of
+# the build type's -O3 in optimised builds (Release, RelWithDebInfo, MinSizeRel; Debug stays -O0).
 # For test executables and command-line glue: GCC spends most of a Release build in -O3's inlining
 # and vectorisation of template-heavy code (Eigen, nlohmann::json, GoogleTest), which such code
 # does not need. Results do not change: without -ffast-math no level reassociates floating-point
 # arithmetic. The planning's hot path (planner/, terrain/) keeps -O3; perception/, collision/ and
-# simulation/ compile at -O2, the service (command line, report, export, server) at -O1.
+# simulation/ compile at -O2, the service (command line, report, export, server) at -O1, the
+# tests at -Og.
 # Target options come after CMAKE_CXX_FLAGS_<CONFIG> on the command line, so LEVEL wins.
 # The sanitizer build (TERRASTRIDE_SANITIZE) compiles everything at -O1 already and keeps it.
 function(terrastride_light_optimisation target level)
