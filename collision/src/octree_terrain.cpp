@@ -13,7 +13,7 @@
 namespace terrastride::collision {
 namespace {
 
-std::string fmt(double v) {
+std::string shortest(double v) {
   std::ostringstream s;
   s << v;
   return s.str();
@@ -136,18 +136,18 @@ std::shared_ptr<octomap::OcTree> voxelise_boxes(double ground_z,
                                                 const VoxeliseOptions& options) {
   const double res = options.resolution;
   if (!std::isfinite(res) || res < 1e-3 || res > 1.0)
-    throw std::invalid_argument("voxel resolution " + fmt(res) + " m is outside [0.001, 1] m");
+    throw std::invalid_argument("voxel resolution " + shortest(res) + " m is outside [0.001, 1] m");
   if (!std::isfinite(options.ground_thickness) || options.ground_thickness < 0)
-    throw std::invalid_argument("ground thickness " + fmt(options.ground_thickness) +
+    throw std::invalid_argument("ground thickness " + shortest(options.ground_thickness) +
                                 " m must be finite and >= 0");
   if (!lo.allFinite() || !hi.allFinite() || !(lo.array() < hi.array()).all())
-    throw std::invalid_argument("voxelisation rectangle [" + fmt(lo.x()) + ", " + fmt(hi.x()) +
-                                "] x [" + fmt(lo.y()) + ", " + fmt(hi.y()) + "] is empty");
+    throw std::invalid_argument("voxelisation rectangle [" + shortest(lo.x()) + ", " + shortest(hi.x()) +
+                                "] x [" + shortest(lo.y()) + ", " + shortest(hi.y()) + "] is empty");
   // A rectangle this large at this resolution would take minutes and gigabytes: refuse it.
   const double columns = (hi - lo).prod() / (res * res);
   if (columns > 5e7)
-    throw std::invalid_argument("voxelisation rectangle of " + fmt((hi - lo).prod()) + " m² at " +
-                                fmt(res) + " m is too large");
+    throw std::invalid_argument("voxelisation rectangle of " + shortest((hi - lo).prod()) + " m² at " +
+                                shortest(res) + " m is too large");
   for (size_t b = 0; b < boxes.size(); ++b) {
     if (!boxes[b].lo.allFinite() || !boxes[b].hi.allFinite() ||
         !(boxes[b].lo.array() < boxes[b].hi.array()).all())

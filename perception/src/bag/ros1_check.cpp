@@ -7,8 +7,8 @@
 // - the fields rosbag reads are present with their sizes (op 1 byte, conn 4, index_pos 8, ...);
 // - the bag header comes first, and its index position is the start of conn_count Connection
 //   records followed by chunk_count Chunk Info records;
-// - a chunk decompresses (none, bz2, lz4) to exactly the size it claims (at most kMaxChunkBytes),
-//   and the records inside it are whole Message Data and Connection records;
+// - a chunk decompresses (none, bz2, lz4) to exactly the size it claims (at most
+//   kMaxRos1ChunkBytes), and the records inside it are whole Message Data and Connection records;
 // - each chunk's Index Data records follow it, count x 12 bytes, pointing at Message Data records
 //   inside it; each Chunk Info names a chunk's start and is followed by as many Index Data
 //   records as it lists connections.
@@ -33,7 +33,7 @@ namespace {
 constexpr uint8_t kMessageData = 0x02, kBagHeader = 0x03, kIndexData = 0x04, kChunk = 0x05,
                   kChunkInfo = 0x06, kConnection = 0x07;
 // rosbag writes chunks of ~768 kB; a bigger claim than this is corruption, not a recording.
-constexpr uint64_t kMaxChunkBytes = 1ull << 30;
+constexpr uint64_t kMaxRos1ChunkBytes = 1ull << 30;
 // Record headers hold a few fields; a connection's (its message definition) a few tens of kB.
 constexpr uint64_t kMaxHeaderBytes = 1ull << 24;
 
@@ -218,9 +218,9 @@ class Ros1Walk {
   void check_chunk(const Record& r) {
     const std::string compression = field(r, "compression", 0);
     const uint32_t size = number<uint32_t>(r, "size");
-    if (size > kMaxChunkBytes)
+    if (size > kMaxRos1ChunkBytes)
       fail(r.start, "a chunk claiming " + std::to_string(size) + " bytes uncompressed");
-    if (r.data_len > kMaxChunkBytes)
+    if (r.data_len > kMaxRos1ChunkBytes)
       fail(r.start, "a chunk of " + std::to_string(r.data_len) + " bytes");
     std::string packed(r.data_len, '\0');
     read_at(r.data_start, packed.data(), r.data_len);

@@ -68,9 +68,9 @@ struct MapOptions {
 };
 
 // Stage progress on stderr, only for a terminal and only for inputs large enough to wait for.
-class Progress {
+class MapProgress {
  public:
-  explicit Progress(bool enabled) : enabled_(enabled) {}
+  explicit MapProgress(bool enabled) : enabled_(enabled) {}
   void stage(const std::string& what) {
     if (!enabled_) return;
     std::cerr << "\r\033[K[map] " << what << std::flush;
@@ -395,7 +395,7 @@ void list_bags(const MapOptions& o) {
 }
 
 // `map RUN.mcap --topic T --frame F`: the clouds of a recording, placed by its tf.
-terrain::MapInput read_bags(const MapOptions& o, Progress& progress, json* bag_json,
+terrain::MapInput read_bags(const MapOptions& o, MapProgress& progress, json* bag_json,
                             double* clean_s) {
   if (!o.origin.empty())
     throw CommandError("--origin: a bag's clouds take their origins from its tf (--frame)");
@@ -507,7 +507,7 @@ void run_map(MapOptions o) {
     const auto s = std::filesystem::file_size(c, ec);
     if (!ec) file_bytes += s;
   }
-  Progress progress(isatty(STDERR_FILENO) && file_bytes > 8u * 1024 * 1024);
+  MapProgress progress(isatty(STDERR_FILENO) && file_bytes > 8u * 1024 * 1024);
 
   terrain::MapInput input;
   json bags;
