@@ -84,13 +84,12 @@ inline int check_kind_derivatives(const SrbdProblem& p, const std::string& kind,
   return checked;
 }
 
-// The largest |dg/dx| over the pieces of `kind` at the initial guess: a derivative test passes
+// The largest |dg/dx| over the given pieces (or those of `kind`) at the initial guess: a derivative test passes
 // trivially for rows that ignore their variables.
-inline double largest_jacobian_entry(const SrbdProblem& p, const std::string& kind) {
+inline double largest_jacobian_entry(const SrbdProblem& p, const std::vector<const Piece*>& pieces) {
   const auto& x = const_cast<SrbdProblem&>(p).initial_guess();
   double largest = 0.0;
-  for (const auto& piece : p.pieces()) {
-    if (piece->kind != kind) continue;
+  for (const Piece* piece : pieces) {
     const int n = static_cast<int>(piece->vars.size()), m = piece->rows();
     std::vector<double> xl(n), g(m), J(m * n);
     for (int i = 0; i < n; ++i) xl[i] = x[piece->vars[i]];
@@ -98,6 +97,13 @@ inline double largest_jacobian_entry(const SrbdProblem& p, const std::string& ki
     for (double v : J) largest = std::max(largest, std::abs(v));
   }
   return largest;
+}
+
+inline double largest_jacobian_entry(const SrbdProblem& p, const std::string& kind) {
+  std::vector<const Piece*> of_kind;
+  for (const auto& piece : p.pieces())
+    if (piece->kind == kind) of_kind.push_back(piece.get());
+  return largest_jacobian_entry(p, of_kind);
 }
 
 // When segment s starts at the point x (its duration variables), and how long it lasts.
