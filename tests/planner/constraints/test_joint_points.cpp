@@ -257,9 +257,11 @@ TEST(JointPoints, PolytopeRowsAreTheFacetsAtTheirInstant) {
                      std::min(point.sigma, 1.0 - 1e-12) * segment_length(L, x, point.segment);
     const auto st = p.evaluate(x, t);
     const Eigen::Matrix3d Rt = rotation_of(st.euler).transpose();
-    const auto expected = model->legs[point.foot].constraint(Rt * (st.foot_pos[point.foot] - st.pos),
-                                                             Rt * st.force[point.foot]) /
-                          (r.mass * kGravity);
+    // Evaluated here: `auto` of the quotient would keep an expression over a dead temporary.
+    const Eigen::VectorXd expected =
+        model->legs[point.foot].constraint(Rt * (st.foot_pos[point.foot] - st.pos),
+                                           Rt * st.force[point.foot]) /
+        (r.mass * kGravity);
     const std::vector<double> rows = rows_at(*added[i], x);
     for (int j = 0; j < kPolytopeFacets; ++j) {
       worst = std::max(worst, std::abs(rows[j] - expected[j]));
