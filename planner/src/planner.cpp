@@ -132,6 +132,15 @@ std::vector<std::pair<std::string, std::string>> warm_ipopt_options(bool warm) {
   return {{"mu_init", "1e-4"}, {"bound_push", "1e-5"}, {"bound_frac", "1e-5"}};
 }
 
+// A plan's iterations and solver time count every solve it took: `from`'s are added to `to`'s.
+void add_solve_effort(const SolveResult& from, SolveResult* to) {
+  to->iterations += from.iterations;
+  to->feasibility_iterations += from.feasibility_iterations;
+  to->objective_iterations += from.objective_iterations;
+  to->polish_iterations += from.polish_iterations;
+  to->wall_s += from.wall_s;
+}
+
 // The solve, and when it fails with the path-shape rows (monotone_progress, lateral_corridor,
 // swing_apex: preferences on the plan's shape, not feasibility; infeasible, stalled, or past
 // kShapedMaxIterations) once more without them, within what is left of max_time; `problem` is
@@ -181,11 +190,7 @@ nlohmann::json solve_with_shape_fallback(
   // What is left after the rebuild too (a second problem of an 11 s plan takes tens of ms).
   if (options.max_time > 0.0) solver_options.max_time = std::max(time_left(), 1e-3);
   *result = solve(**problem, solver_options, ipopt_options);
-  result->iterations += shaped.iterations;
-  result->feasibility_iterations += shaped.feasibility_iterations;
-  result->objective_iterations += shaped.objective_iterations;
-  result->polish_iterations += shaped.polish_iterations;
-  result->wall_s += shaped.wall_s;
+  add_solve_effort(shaped, result);
   return shape_fallback;
 }
 
@@ -199,25 +204,22 @@ constexpr int kRefinementMaxIterations = 150;
 
 nlohmann::json joint_check_json(const JointDenseCheck& check, const robot::RobotModel& robot) {
   static const char* kJoints[3] = {"HAA", "HFE", "KFE"};
+  auto worst = [&](int foot, int joint, double t) -> nlohmann::json {
+    return {{"foot", robot.legs[foot].name}, {"joint", kJoints[joint]}, {"t", t}};
+  };
   nlohmann::json j = {{"range_excess_rad", check.range_excess_rad},
                       {"intervals", check.violations.size()}};
   if (check.range_foot >= 0 && check.range_excess_rad > 0.0)
-    j["range_worst"] = {{"foot", robot.legs[check.range_foot].name},
-                        {"joint", kJoints[check.range_joint]},
-                        {"t", check.range_t}};
+    j["range_worst"] = worst(check.range_foot, check.range_joint, check.range_t);
   if (has_velocity_limits(robot)) {
     j["velocity_ratio"] = check.velocity_ratio;
     if (check.velocity_foot >= 0)
-      j["velocity_worst"] = {{"foot", robot.legs[check.velocity_foot].name},
-                             {"joint", kJoints[check.velocity_joint]},
-                             {"t", check.velocity_t}};
+      j["velocity_worst"] = worst(check.velocity_foot, check.velocity_joint, check.velocity_t);
   }
   if (has_torque_limits(robot)) {
     j["torque_ratio"] = check.torque_ratio;
     if (check.torque_foot >= 0)
-      j["torque_worst"] = {{"foot", robot.legs[check.torque_foot].name},
-                           {"joint", kJoints[check.torque_joint]},
-                           {"t", check.torque_t}};
+      j["torque_worst"] = worst(check.torque_foot, check.torque_joint, check.torque_t);
   }
   return j;
 }
@@ -314,25 +316,15 @@ nlohmann::json refine_joint_points(std::unique_ptr<SrbdProblem>* problem,
     rounds.push_back({{"points", points.size() - before},
                       {"status", again.status},
                       {"iterations", again.iterations}});
-    result->iterations += again.iterations;
-    result->feasibility_iterations += again.feasibility_iterations;
-    result->objective_iterations += again.objective_iterations;
-    result->polish_iterations += again.polish_iterations;
-    result->wall_s += again.wall_s;
     if (!again.success) {
+      add_solve_effort(again, result);
       ended = "failed";
       points.resize(before);
       break;
     }
-    const double wall_s = result->wall_s;
-    const int iterations = result->iterations, feasibility = result->feasibility_iterations,
-              objective = result->objective_iterations, polish = result->polish_iterations;
+    const SolveResult previous = *result;
     *result = again;
-    result->wall_s = wall_s;
-    result->iterations = iterations;
-    result->feasibility_iterations = feasibility;
-    result->objective_iterations = objective;
-    result->polish_iterations = polish;
+    add_solve_effort(previous, result);
     *problem = std::move(refined);
     check = check_solution();
   }

@@ -20,6 +20,8 @@
 #include "terrastride/planner/request_limits.hpp"
 #include "terrastride/planner/violation_report.hpp"
 
+#include "convex_hull.hpp"
+
 namespace terrastride::planner {
 
 namespace {
@@ -278,29 +280,12 @@ void run_job(StepJob& job) {
 // two or one), and the nearest point of it.
 double outside_support(const std::vector<Eigen::Vector2d>& points, const Eigen::Vector2d& q,
                        Eigen::Vector2d* nearest) {
-  std::vector<Eigen::Vector2d> hull = points;  // Andrew's monotone chain, counter-clockwise
-  std::sort(hull.begin(), hull.end(), [](const auto& a, const auto& b) {
-    return a.x() < b.x() || (a.x() == b.x() && a.y() < b.y());
-  });
-  auto cross = [](const Eigen::Vector2d& o, const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
-    return (a - o).x() * (b - o).y() - (a - o).y() * (b - o).x();
-  };
-  std::vector<Eigen::Vector2d> h;
-  for (int pass = 0; pass < 2; ++pass) {
-    const std::size_t base = h.size();
-    for (const auto& p : hull) {
-      while (h.size() >= base + 2 && cross(h[h.size() - 2], h.back(), p) <= 0) h.pop_back();
-      h.push_back(p);
-    }
-    h.pop_back();
-    std::reverse(hull.begin(), hull.end());
-  }
-  if (h.empty()) h = hull;
+  const std::vector<Eigen::Vector2d> h = convex_hull_2d(points);
   bool inside = h.size() >= 3;
   double best = std::numeric_limits<double>::infinity();
   for (std::size_t i = 0; i < h.size(); ++i) {
     const Eigen::Vector2d a = h[i], b = h[(i + 1) % h.size()];
-    if (h.size() >= 3 && cross(a, b, q) < 0) inside = false;
+    if (h.size() >= 3 && cross_2d(a, b, q) < 0) inside = false;
     const Eigen::Vector2d ab = b - a;
     const double u =
         ab.squaredNorm() > 0 ? std::clamp((q - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0) : 0.0;

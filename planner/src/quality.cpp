@@ -4,37 +4,22 @@
 #include <algorithm>
 #include <cmath>
 
+#include "convex_hull.hpp"
+
 namespace terrastride::planner {
 
 namespace {
 
 // Signed distance of c to the convex hull of `points` (3 or more, in the horizontal plane): the
-// smallest distance to the lines of the hull's edges, positive inside. Andrew's monotone chain
-// over a robot's few feet.
+// smallest distance to the lines of the hull's edges, positive inside.
 double support_margin(const Eigen::Vector2d& c, std::vector<Eigen::Vector2d> points) {
-  std::sort(points.begin(), points.end(), [](const auto& a, const auto& b) {
-    return a.x() < b.x() || (a.x() == b.x() && a.y() < b.y());
-  });
-  auto cross = [](const Eigen::Vector2d& o, const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
-    return (a - o).x() * (b - o).y() - (a - o).y() * (b - o).x();
-  };
-  std::vector<Eigen::Vector2d> hull(2 * points.size());
-  std::size_t k = 0;
-  for (std::size_t i = 0; i < points.size(); ++i) {  // lower chain
-    while (k >= 2 && cross(hull[k - 2], hull[k - 1], points[i]) <= 0) --k;
-    hull[k++] = points[i];
-  }
-  for (std::size_t i = points.size() - 1, lower = k + 1; i-- > 0;) {  // upper chain
-    while (k >= lower && cross(hull[k - 2], hull[k - 1], points[i]) <= 0) --k;
-    hull[k++] = points[i];
-  }
-  hull.resize(k - 1);  // counter-clockwise, the first point not repeated
+  const std::vector<Eigen::Vector2d> hull = convex_hull_2d(std::move(points));
   if (hull.size() < 3) return -INFINITY;  // collinear feet: no area to stand in
   double margin = INFINITY;
   for (std::size_t i = 0; i < hull.size(); ++i) {
     const Eigen::Vector2d& a = hull[i];
     const Eigen::Vector2d& b = hull[(i + 1) % hull.size()];
-    margin = std::min(margin, cross(a, b, c) / (b - a).norm());
+    margin = std::min(margin, cross_2d(a, b, c) / (b - a).norm());
   }
   return margin;
 }
