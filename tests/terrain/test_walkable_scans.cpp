@@ -27,6 +27,12 @@ terrain::MapBuild map_octomap(const std::string& name) {
   return terrain::build_terrain_map_from_octree(input, options);
 }
 
+// `terrastride map` of the building's OctoMap (../shared's geb079.bt) into the folder `out`.
+test_support::CommandResult map_geb079(const std::string& out) {
+  return test_support::run_terrastride("map " + perception::test::scan("octomap/geb079.bt") +
+                                       " --out " + out);
+}
+
 struct Levels {
   size_t observed = 0, safe = 0, observed_high = 0, safe_high = 0;
 };
@@ -87,8 +93,7 @@ TEST(WalkableScans, Geb079CorridorCrawlStillPlansAndCeilingStartIsRefused) {
   TERRASTRIDE_REQUIRE_SHARED_SCANS();
   perception::test::ScratchDir dir;
   const std::string out = dir.file("geb079");
-  auto r = test_support::run_terrastride("map " + perception::test::scan("octomap/geb079.bt") +
-                                         " --out " + out);
+  auto r = map_geb079(out);
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("overhangs (overhead clearance layer)"), std::string::npos) << r.out;
   r = test_support::run_terrastride("plan --terrain " + out +
@@ -145,8 +150,7 @@ TEST(WalkableScans, Geb079RegionsSuggestOnlyPairsThePlannerAccepts) {
   TERRASTRIDE_REQUIRE_SHARED_SCANS();
   perception::test::ScratchDir dir;
   const std::string out = dir.file("geb079");
-  auto r = test_support::run_terrastride("map " + perception::test::scan("octomap/geb079.bt") +
-                                         " --out " + out);
+  auto r = map_geb079(out);
   ASSERT_EQ(r.code, 0) << r.err;
   r = test_support::run_terrastride("regions --terrain " + out + " --json");
   ASSERT_EQ(r.code, 0) << r.all();
