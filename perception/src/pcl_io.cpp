@@ -137,13 +137,18 @@ std::string line_prefix(const std::string& path, size_t line_no) {
   return path + ": line " + std::to_string(line_no) + ": ";
 }
 
-double to_number(const std::string& path, const std::string& text) {
-  char* end = nullptr;
-  const double v = std::strtod(text.c_str(), &end);
-  if (end == text.c_str() || *end != '\0' || !(v >= 0)) {
-    throw InputError(path + ": bad number '" + text + "' in header");
+// Every number in a PCD or PLY header is a count or a byte size: plain decimal digits (PCL reads
+// "1e3" or "0x10" as 1 or 0), at most 2^53 (exact in a double, so no later arithmetic or
+// conversion to a 64-bit integer can overflow; a real file is far below that).
+double to_count(const std::string& path, const std::string& text) {
+  uint64_t v = 0;
+  const char* const end = text.data() + text.size();
+  const auto r = std::from_chars(text.data(), end, v);
+  if (r.ec != std::errc() || r.ptr != end || v > (uint64_t{1} << 53)) {
+    throw InputError(path + ": bad number " + detail::quoted(text) +
+                     " in header: counts and sizes are whole decimal numbers from 0 to 2^53");
   }
-  return v;
+  return static_cast<double>(v);
 }
 
 uintmax_t file_size_of(const std::string& path) {
@@ -183,13 +188,13 @@ PcdHeader parse_pcd_header(const std::string& path, std::ifstream& in) {
     } else if (w[0] == "SIZE" || w[0] == "COUNT") {
       auto& v = w[0] == "SIZE" ? h.sizes : h.counts;
       v.clear();
-      for (size_t i = 1; i < w.size(); ++i) v.push_back(to_number(path, w[i]));
+      for (size_t i = 1; i < w.size(); ++i) v.push_back(to_count(path, w[i]));
     } else if (w[0] == "POINTS" && w.size() > 1) {
-      h.points = to_number(path, w[1]);
+      h.points = to_count(path, w[1]);
     } else if (w[0] == "WIDTH" && w.size() > 1) {
-      h.width = to_number(path, w[1]);
+      h.width = to_count(path, w[1]);
     } else if (w[0] == "HEIGHT" && w.size() > 1) {
-      h.height = to_number(path, w[1]);
+      h.height = to_count(path, w[1]);
     } else if (w[0] == "DATA") {
       h.has_data = true;
       h.data = w.size() > 1 ? w[1] : "";
@@ -379,7 +384,7 @@ PlyHeader parse_ply_header(const std::string& path, std::ifstream& in) {
     if (w[0] == "format" && w.size() > 1) {
       h.format = w[1];
     } else if (w[0] == "element" && w.size() > 2) {
-      h.elements.push_back({w[1], to_number(path, w[2]), {}});
+      h.elements.push_back({w[1], to_count(path, w[2]), {}});
     } else if (w[0] == "property" && w.size() > 2 && !h.elements.empty()) {
       PlyProperty p;
       if (w[1] == "list" && w.size() > 4) {

@@ -312,6 +312,36 @@ TEST(ReadCloudErrors, CorruptPcdAndPly) {
   EXPECT_EQ(read_cloud(dir.file("a.ply")).points.back(), Eigen::Vector3f(4, 5, 6));
 }
 
+// Counts and sizes beyond 2^53, fractional or written as exponents of nothing: each is named, in
+// every header field that holds one (a PLY count of 6.7e54 once reached an undefined conversion).
+TEST(ReadCloudErrors, HeaderCountsThatAreNotWholeNumbers) {
+  ScratchDir dir;
+  const std::vector<std::string> bad = {"6.66667e+54", "9007199254740993", "1e3", "2.5", "-3", "inf", "nan", "0x10", "+4"};
+  for (const std::string& v : bad) {
+    for (const char* format : {"ascii", "binary_little_endian"}) {
+      write_text(dir.file("c.ply"), "ply\nformat " + std::string(format) + " 1.0\nelement vertex " +
+                                        v + "\nproperty float x\nproperty float y\n"
+                                            "property float z\nend_header\n1 2 3\n");
+      expect_input_error([&] { read_cloud(dir.file("c.ply")); },
+                         {"c.ply", "bad number '" + v + "'", "whole decimal numbers"});
+    }
+    // Every numeric PCD header entry: SIZE, COUNT, WIDTH, HEIGHT, POINTS.
+    const std::vector<std::pair<std::string, std::string>> pcd_lines = {
+        {"SIZE 4 4 4", "SIZE 4 " + v + " 4"}, {"COUNT 1 1 1", "COUNT 1 1 " + v},
+        {"WIDTH 1", "WIDTH " + v},           {"HEIGHT 1", "HEIGHT " + v},
+        {"POINTS 1", "POINTS " + v}};
+    for (const auto& [good, hostile] : pcd_lines) {
+      std::string text =
+          "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\n"
+          "POINTS 1\nDATA ascii\n1 2 3\n";
+      text.replace(text.find(good), good.size(), hostile);
+      write_text(dir.file("c.pcd"), text);
+      expect_input_error([&] { read_cloud(dir.file("c.pcd")); },
+                         {"c.pcd", "bad number '" + v + "'"});
+    }
+  }
+}
+
 TEST(ReadCloudErrors, BinaryOrMalformedText) {
   ScratchDir dir;
   write_text(dir.file("b.xyz"), std::string("\x93NUMPY\x01\x00\x00", 9));
