@@ -70,6 +70,25 @@ TEST(PolytopesCli, FitWritesAFileThatValidateReads) {
   std::filesystem::remove(out);
 }
 
+// Go2's four legs are one leg mirrored and translated: the fit says which legs it copied, in the
+// JSON and in the table, and fits only the first.
+TEST(PolytopesCli, FitSaysWhichLegsAreCopiesOfATwin) {
+  const std::string out = temp_path("go2.polytopes.yaml");
+  CliResult r = run("polytopes fit --robot go2 --threads 1 --json --out " + out);
+  ASSERT_EQ(r.code, 0) << r.all;
+  const auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["legs"].size(), 4u);
+  EXPECT_FALSE(j["legs"][0].contains("copied_from")) << j["legs"][0].dump();
+  for (int i = 1; i < 4; ++i) {
+    ASSERT_TRUE(j["legs"][i].contains("copied_from")) << j["legs"][i].dump();
+    EXPECT_NE(j["legs"][i]["copied_from"].get<std::string>().find("LF"), std::string::npos);
+  }
+  r = run("polytopes fit --robot go2 --threads 1 --out " + out);
+  ASSERT_EQ(r.code, 0) << r.all;
+  EXPECT_NE(r.out.find("RF   LF mirrored in y (not fitted)"), std::string::npos) << r.out;
+  std::filesystem::remove(out);
+}
+
 TEST(PolytopesCli, BadInputFailsWithAMessageNamingIt) {
   CliResult r = run("polytopes validate --robot hyq --file /nonexistent/p.yaml");
   EXPECT_NE(r.code, 0);

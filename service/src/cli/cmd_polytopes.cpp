@@ -114,6 +114,9 @@ void run_fit(const PolytopeOptions& o) {
                            {"offset_scale", r.offset_scale},
                            {"wall_s", r.wall_s},
                            {"training", quality_json(r.training)}});
+    // A twin leg's model is the other leg's, mirrored or translated (planner::find_leg_copy).
+    if (!r.copied_from.empty()) out["legs"].back()["copied_from"] = r.copied_from;
+    if (!r.started_from.empty()) out["legs"].back()["started_from"] = r.started_from;
   }
   if (o.json) {
     std::cout << out.dump() << "\n";
@@ -122,9 +125,13 @@ void run_fit(const PolytopeOptions& o) {
   std::printf("fitted force polytopes of %s (%s) -> %s\n", model.name.c_str(), fitted.fit_summary.c_str(),
               path.c_str());
   for (const auto& r : reports) {
-    std::printf("  %-4s %d iterations, cost %.4g -> %.4g, offset scale %.4f, %.2f s\n",
-                r.leg.c_str(), r.iterations, r.initial_cost, r.final_cost, r.offset_scale,
-                r.wall_s);
+    if (!r.copied_from.empty()) {
+      std::printf("  %-4s %s (not fitted)\n", r.leg.c_str(), r.copied_from.c_str());
+    } else {
+      std::printf("  %-4s %d iterations, cost %.4g -> %.4g, offset scale %.4f, %.2f s%s\n",
+                  r.leg.c_str(), r.iterations, r.initial_cost, r.final_cost, r.offset_scale,
+                  r.wall_s, r.started_from.empty() ? "" : (", started from " + r.started_from).c_str());
+    }
     print_quality_row(r.leg, "training", r.training);
   }
 }
