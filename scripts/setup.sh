@@ -21,6 +21,23 @@ case "${1:-}" in
   *) echo "setup.sh: unknown option '$1' (use --tests, --all, --sanitize, --deps-only or --fuzz-deps)" >&2; exit 2 ;;
 esac
 
+# Each step's wall and CPU time, printed as it ends: on a fresh machine set-up takes minutes, and
+# these say where they went (scripts/fresh_machine_timing.sh reads them). CPU is the finished
+# children's user+system time (/proc/$$/stat fields 16-17, in clock ticks).
+children_cpu_ticks() {
+  local fields
+  read -r -a fields 2>/dev/null < /proc/$$/stat || { echo 0; return; }
+  echo $(( fields[15] + fields[16] ))
+}
+step_begin() { step_name=$1; step_wall0=$EPOCHREALTIME; step_cpu0=$(children_cpu_ticks); }
+step_end() {
+  local wall cpu
+  wall=$(awk -v a="$step_wall0" -v b="$EPOCHREALTIME" 'BEGIN { printf "%.1f", b - a }')
+  cpu=$(awk -v t=$(( $(children_cpu_ticks) - step_cpu0 )) -v hz="$(getconf CLK_TCK)" \
+    'BEGIN { printf "%.1f", t / hz }')
+  echo "setup.sh: step $step_name: $wall s wall, $cpu s CPU"
+}
+
 packages=(
   build-essential cmake ninja-build pkg-config ccache git
   libeigen3-dev libpcl-dev liboctomap-dev libfcl-dev libceres-dev coinor-libipopt-dev
@@ -52,9 +69,11 @@ if [ "${#missing[@]}" -gt 0 ]; then
   echo "setup.sh: installing ${#missing[@]} Debian packages: ${missing[*]}"
   sudo_cmd=()
   [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
+  step_begin packages
   "${sudo_cmd[@]}" apt-get update -qq
   DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends \
     "${missing[@]}" >/dev/null
+  step_end
 fi
 if [ "$mode" = deps ] || [ "$mode" = fuzz ]; then exit 0; fi
 
@@ -64,8 +83,11 @@ if [ "$mode" = deps ] || [ "$mode" = fuzz ]; then exit 0; fi
 if command -v npm >/dev/null 2>&1; then
   stamp=service/report/node_modules/.terrastride-lock
   if ! cmp -s service/report/package-lock.json "$stamp" 2>/dev/null; then
+    echo "setup.sh: npm ci (the report's JavaScript libraries, service/report)"
+    step_begin "npm ci"
     npm ci --prefix service/report --no-audit --no-fund --loglevel=error
     cp service/report/package-lock.json "$stamp"
+    step_end
   fi
 fi
 
@@ -73,6 +95,7 @@ fi
 export CCACHE_BASEDIR="$PWD"
 
 jobs=$(nproc 2>/dev/null || echo 2)
+step_begin build
 if [ "$mode" = sanitize ]; then
   cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRASTRIDE_SANITIZE=ON \
     -DTERRASTRIDE_BUILD_BENCHMARKS=OFF >/dev/null
@@ -87,3 +110,4 @@ else
     all) cmake --build build -j "$jobs" ;;
   esac
 fi
+step_end
