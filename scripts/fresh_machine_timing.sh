@@ -47,6 +47,13 @@ deb $mirror bookworm-updates main
 deb http://deb.debian.org/debian-security bookworm-security main
 EOF
 cp -L /etc/resolv.conf "$target/etc/resolv.conf"
+# A host whose network intercepts TLS names its extra certificate authorities in
+# NODE_EXTRA_CA_CERTS; the chroot gets them too, so that npm reaches the registry as on the host.
+extra_env=()
+if [ -n "${NODE_EXTRA_CA_CERTS:-}" ] && [ -f "$NODE_EXTRA_CA_CERTS" ]; then
+  cp -L "$NODE_EXTRA_CA_CERTS" "$target/etc/host-extra-ca.crt"
+  extra_env=(NODE_EXTRA_CA_CERTS=/etc/host-extra-ca.crt)
+fi
 chroot "$target" apt-get clean
 logs="$target/timing"
 mkdir -p "$logs"
@@ -79,7 +86,7 @@ run_in_chroot() {
   local status=0
   /usr/bin/time -v -o "$logs/$name.time" \
     chroot "$target" /usr/bin/env -i HOME=/root LANG=C.UTF-8 TERM=dumb \
-      PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin \
+      PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin "${extra_env[@]}" \
       bash -c "cd /root/terrastride && $command" >"$logs/$name.log" 2>&1 || status=$?
   tail -n 3 "$logs/$name.log"
   [ "$status" -eq 0 ] || { echo "$0: $name failed (exit $status), see $logs/$name.log" >&2; exit 1; }

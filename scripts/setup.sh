@@ -47,8 +47,9 @@ step_end() {
 packages=(
   build-essential cmake ninja-build pkg-config ccache
   libeigen3-dev liboctomap-dev libfcl-dev libceres-dev coinor-libipopt-dev
-  # MuJoCo 2.2.2: `terrastride simulate` executes plans in it (simulation/).
-  libmujoco-dev
+  # MuJoCo 2.2.2: `terrastride simulate` executes plans in it (simulation/). Its CMake config
+  # requires OpenGL's and names Qhull's headers, packages libmujoco-dev does not depend on.
+  libmujoco-dev libgl-dev libopengl-dev libqhull-dev
   # Ipopt's MUMPS spends ~80 % of a plan in dense BLAS kernels; Debian's default generic ATLAS
   # is ~25 % slower there than OpenBLAS, which takes over libblas.so.3 by alternatives priority.
   libopenblas0-serial
@@ -99,8 +100,13 @@ if [ "${#missing[@]}" -gt 0 ]; then
   echo "setup.sh: installing ${#missing[@]} Debian packages: ${missing[*]}"
   step_begin packages
   "${sudo_cmd[@]}" apt-get update -qq
+  # dpkg's unsafe I/O (no fsync before each unpacked file's rename, as Debian's container images
+  # set it): the packages' tens of thousands of small files (Boost's headers, npm's Node.js
+  # modules) make the install wait on the disk; reinstalling Boost's headers and two Node.js
+  # packages took 71-91 s instead of 130-145 s. The risk, empty files after a crash during the
+  # install, is repaired by running setup.sh again after `apt-get install --reinstall`.
   DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends \
-    "${missing[@]}" >/dev/null
+    -o Dpkg::Options::=--force-unsafe-io "${missing[@]}" >/dev/null
   step_end
 fi
 
