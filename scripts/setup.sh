@@ -64,10 +64,11 @@ packages=(
 )
 # PCL (perception's cloud readers and filters). Debian 12 ships PCL's headers and CMake config only
 # in libpcl-dev, which depends on libvtk9-dev, and that on default-jdk, Qt, GDAL, HDF5-MPI,
-# FFmpeg and PostgreSQL's and MySQL's headers: 435 MB and 530 packages of a fresh machine's
-# download, for PCL's visualisation, which terrastride does not use. So unless libpcl-dev is
-# installed already, this installs the runtime libraries of the components terrastride links
-# (their package names carry PCL's version) and the Boost and FLANN headers PCL's headers include,
+# FFmpeg and PostgreSQL's and MySQL's headers: 435 MB and 530 packages on top of the rest of a
+# fresh machine's download (239 MB, 658), for PCL's visualisation, which terrastride does not use;
+# PCL's runtime libraries (VTK's with them: libpcl-io links it) are 93 MB and 96. So unless
+# libpcl-dev is installed already, this installs the runtime libraries of the components
+# terrastride links (their names carry PCL's version) and the Boost and FLANN headers PCL's include,
 # and unpacks libpcl-dev's own .deb, of the same version, into /opt/terrastride (unpack_pcl_headers
 # below: dpkg does not record it, nothing under /usr changes); CMake reads its PCLConfig.cmake.
 pcl_components=(common io filters kdtree search octree sample-consensus segmentation)
