@@ -11,12 +11,12 @@
 //    of the bound: |f1 - f0|^2 / (force_rate_max h)^2 <= 1), so no segment loads or unloads
 //    faster than the bound. The force is linear in a segment, so the bound holds at every instant.
 // Not in the first segment of a re-plan from a given start (a session step, plan --init): the
-// start's forces are not part of the measured state, so the row there bounds a free value
-// against the plan's next knot, and a foot whose lift-off ends a cropped first segment (0.01-0.02
-// s after a push's measurement) had to carry at most force_rate_max h (20-40 N) at the start:
-// with the base pushed, infeasible by construction (the pallet_15 closed loop's steps after a
-// push stopped at the 20-iteration cap with force_ramp violated there, and the force then had to
-// leave a loaded foot in no time anyway). From the first segment's end on, the ramps hold.
+// measured state has no contact forces, so that row bounds the start's force, a free value,
+// against the next knot's; where a lift-off ends a cropped first segment (0.01-0.02 s long) the
+// next knot's force is zero and the row held the start's to force_rate_max h (20-40 N) while the
+// pushed base needed the foot loaded: infeasible by construction (the pallet_15 closed loop's
+// steps after a push stopped at their 20-iteration cap with this row violated). From the end of
+// the first segment on the ramps hold; a plan from rest (every cold plan) keeps every row.
 #include <stdexcept>
 
 #include "spline_variables.hpp"
