@@ -1,6 +1,9 @@
 // "force_ramp" (constraints/force_ramp.cpp and the layout's missing force knots):
 // which force knots the layout leaves out, the rate rows' Jacobian against central differences,
-// and the rows against the force change over each stance segment.
+// the rows against the force change over each stance segment, and none in the first segment of a
+// re-plan from a given start.
+#include <algorithm>
+
 #include "family_test.hpp"
 
 namespace terrastride::planner {
@@ -108,6 +111,44 @@ TEST(ForceRamp, RowsAreTheSquaredForceChangeOverTheBound) {
   EXPECT_GT(checked, 10);
   fo.force_rate_max = 0.0;  // the layout's ramps alone
   EXPECT_TRUE(pieces_added_by(p, [&] { build_force_ramp_set(p, fo); }).empty());
+}
+
+// A re-plan from a given start (a measured state, a session step) has no row in its first
+// segment: the start's forces are not measured, and a lift-off ending a cropped first segment
+// would hold the start's force to force_rate_max h. Every later stance segment keeps its row, and
+// the same timeline planned from rest has the first segment's rows too.
+TEST(ForceRamp, ARePlanFromAGivenStartHasNoRowInItsFirstSegment) {
+  const auto r = hyq();
+  FlatField flat;
+  ProblemOptions o = paper_test_options();
+  o.constraints = {"force_ramp"};
+  SrbdProblem cold(r, flat, crawl_timeline(r), o);
+  FeasibilityOptions fo;
+  fo.force_rate_max = 1500.0;
+  int first_segment_rows = 0;
+  for (const double t : {0.5, 0.93, 1.37}) {
+    const SrbdProblem::StartState start = start_state_of(cold.evaluate(cold.initial_guess(), t));
+    const PhaseTimeline tl = crawl_timeline(r).cropped(t);
+    SrbdProblem replan(r, flat, tl, o, &start);
+    SrbdProblem from_rest(r, flat, tl, o);
+    const Layout& L = replan.layout();
+    // Stance segments with a force at either end: after the first, and in it.
+    int later = 0, first = 0;
+    for (int f = 0; f < 4; ++f)
+      for (int s = 0; s < L.num_segments; ++s)
+        if (L.contact[f][s] && (L.force[f][s][0] >= 0 || L.force[f][s][1] >= 0))
+          ++(s == 0 ? first : later);
+    const auto replan_rows = pieces_added_by(replan, [&] { build_force_ramp_set(replan, fo); });
+    const auto rest_rows = pieces_added_by(from_rest, [&] { build_force_ramp_set(from_rest, fo); });
+    EXPECT_EQ(static_cast<int>(replan_rows.size()), later) << "t " << t;
+    EXPECT_EQ(static_cast<int>(rest_rows.size()), later + first) << "t " << t;
+    for (const Piece* piece : replan_rows)
+      for (int f = 0; f < 4; ++f)
+        if (L.force[f][0][0] >= 0)  // knot 0's force appears only in the first segment's row
+          EXPECT_EQ(std::count(piece->vars.begin(), piece->vars.end(), L.force[f][0][0]), 0);
+    first_segment_rows += first;
+  }
+  EXPECT_GE(first_segment_rows, 3);
 }
 
 }  // namespace
