@@ -1113,10 +1113,11 @@ size_t count_field(const nlohmann::json& parent, const char* key, size_t max,
   const nlohmann::json& v = parent.at(key);
   const bool whole = v.is_number_unsigned() ||
                      (v.is_number_integer() && v.get<std::int64_t>() >= 0);
-  if (!whole || v.get<std::uint64_t>() > max)
-    throw InputError(where + ": " + key + " is " + v.dump(-1, ' ', false,
-                                                           nlohmann::json::error_handler_t::replace) +
-                     ", not a whole number in [0, " + std::to_string(max) + "]");
+  if (!whole || v.get<std::uint64_t>() > max) {
+    const std::string shown = v.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+    throw InputError(where + ": " + key + " is " + shown + ", not a whole number in [0, " +
+                     std::to_string(max) + "]");
+  }
   return static_cast<size_t>(v.get<std::uint64_t>());
 }
 
