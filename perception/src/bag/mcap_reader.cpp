@@ -24,6 +24,12 @@ using namespace mcap;  // the format's magic and opcodes (mcap_records.hpp)
 
 // A chunk bigger than this uncompressed is refused as corrupt: writers chunk at ~1-8 MB.
 constexpr uint64_t kMaxChunkBytes = 1ull << 31;
+// The most a codec's output can be per compressed byte: a zstd block of 128 KiB takes at least
+// 4 bytes (an RLE block); an LZ4 sequence adds at most 255 bytes of match per byte. A chunk that
+// claims more is corrupt, and is refused before its buffer is allocated: a 3 kB chunk claiming
+// 2 GiB cost 2 GiB and a memset of it (libFuzzer: a timeout in the resize).
+constexpr uint64_t kMaxZstdRatio = 32768;
+constexpr uint64_t kMaxLz4Ratio = 256;
 
 struct Schema {
   std::string name;
@@ -180,6 +186,15 @@ class McapReader : public BagReader {
     if (uncompressed_size > kMaxChunkBytes) {
       corrupt_chunk(where, content.size(),
                     "claims " + std::to_string(uncompressed_size) + " bytes uncompressed");
+      return;
+    }
+    const uint64_t ratio =
+        compression == "zstd" ? kMaxZstdRatio : compression == "lz4" ? kMaxLz4Ratio : 0;
+    if (ratio > 0 && uncompressed_size / ratio > records.size()) {
+      corrupt_chunk(where, content.size(),
+                    "claims " + std::to_string(uncompressed_size) + " bytes uncompressed from " +
+                        std::to_string(records.size()) + " bytes of " + std::string(compression) +
+                        ", more than " + std::string(compression) + " expands to");
       return;
     }
     std::string_view plain;
