@@ -188,9 +188,14 @@ class McapReader : public BagReader {
                     "claims " + std::to_string(uncompressed_size) + " bytes uncompressed");
       return;
     }
-    const uint64_t ratio =
-        compression == "zstd" ? kMaxZstdRatio : compression == "lz4" ? kMaxLz4Ratio : 0;
-    if (ratio > 0 && uncompressed_size / ratio > records.size()) {
+    // Known codecs only, before anything is allocated for the output (a chunk of compression
+    // "zst\0" claiming 1.7 GB took its buffer before it was refused).
+    if (!compression.empty() && compression != "zstd" && compression != "lz4")
+      throw InputError(path_ + ": chunk at byte " + std::to_string(where) +
+                       " uses compression '" + std::string(compression) +
+                       "' (this reader knows none, zstd and lz4)");
+    const uint64_t ratio = compression == "zstd" ? kMaxZstdRatio : kMaxLz4Ratio;
+    if (!compression.empty() && uncompressed_size / ratio > records.size()) {
       corrupt_chunk(where, content.size(),
                     "claims " + std::to_string(uncompressed_size) + " bytes uncompressed from " +
                         std::to_string(records.size()) + " bytes of " + std::string(compression) +
@@ -215,12 +220,8 @@ class McapReader : public BagReader {
         else if (n != buffer_.size())
           problem = "zstd data of " + std::to_string(n) + " bytes, the header says " +
                     std::to_string(buffer_.size());
-      } else if (compression == "lz4") {
-        problem = lz4_frame(records, &buffer_);
       } else {
-        throw InputError(path_ + ": chunk at byte " + std::to_string(where) +
-                         " uses compression '" + std::string(compression) +
-                         "' (this reader knows none, zstd and lz4)");
+        problem = lz4_frame(records, &buffer_);
       }
       if (!problem.empty()) {
         corrupt_chunk(where, content.size(), "decompression failed (" + problem + ")");
