@@ -33,12 +33,6 @@ std::string fmt(double v) {
   return os.str();
 }
 
-void validate_resolution(double res) {
-  if (!std::isfinite(res) || res < 0.002 || res > 1.0)
-    throw InputError("resolution " + fmt(res) +
-                     " m is outside the accepted range [0.002, 1] m for a height grid");
-}
-
 GridGeometry make_geometry(const Eigen::Vector2d& lo, const Eigen::Vector2d& hi, double res,
                            size_t max_cells) {
   GridGeometry g;
@@ -896,6 +890,12 @@ HeightGrid build_height_grid(const std::vector<perception::PointCloud>& clouds,
     batches.push_back({c.points.data(), c.points.size(), c.sensor_origin, c.overhangs.data(),
                        c.overhangs.size()});
   return build_height_grid(batches, options);
+}
+
+void validate_resolution(double res) {
+  if (!std::isfinite(res) || res < 0.002 || res > 1.0)
+    throw InputError("resolution " + fmt(res) +
+                     " m is outside the accepted range [0.002, 1] m for a height grid");
 }
 
 void count_overhangs(HeightGrid& grid) {

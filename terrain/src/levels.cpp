@@ -15,7 +15,10 @@ struct StepLimits {
 };
 
 StepLimits step_limits(const GridGeometry& g, double reach) {
-  const int far = std::max(1, static_cast<int>(std::floor(reach / g.resolution)));
+  // No step leaves the grid: the cap keeps a huge reach (a map's max_climb of 1e300) from an
+  // undefined conversion to int.
+  const double cells = std::min(std::floor(reach / g.resolution), double(g.nx) + g.ny);
+  const int far = std::max(1, static_cast<int>(cells));
   const auto limit = [&](double length) {
     int d = 1;
     while (d < far + 1 && (d + 1) * length * g.resolution <= reach) ++d;

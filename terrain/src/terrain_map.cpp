@@ -4,11 +4,15 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <cstdint>
 #include <limits>
+#include <optional>
 #include <sstream>
+#include <type_traits>
 
 #include <Eigen/SparseCholesky>
 
+#include "terrastride/perception/json_input.hpp"
 #include "terrastride/perception/npy.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/terrain/scenes.hpp"
@@ -1099,6 +1103,42 @@ nlohmann::json write_terrain_layers(const TerrainMap& map, const std::string& di
   return meta;
 }
 
+namespace {
+
+// A count in terrain.json: a whole number in [0, max]. get<int>() or get<size_t>() of a number
+// written as 1e300 or -1.5 would be an undefined conversion; `fallback` when the key is absent.
+size_t count_field(const nlohmann::json& parent, const char* key, size_t max,
+                   const std::string& where, std::optional<size_t> fallback = std::nullopt) {
+  if (fallback && !parent.contains(key)) return *fallback;
+  const nlohmann::json& v = parent.at(key);
+  const bool whole = v.is_number_unsigned() ||
+                     (v.is_number_integer() && v.get<std::int64_t>() >= 0);
+  if (!whole || v.get<std::uint64_t>() > max) {
+    const std::string shown = v.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+    throw InputError(where + ": " + key + " is " + shown + ", not a whole number in [0, " +
+                     std::to_string(max) + "]");
+  }
+  return static_cast<size_t>(v.get<std::uint64_t>());
+}
+
+// A layer's value as the grid's element type T, or why it cannot be one: floats hold finite
+// values within float's range (the overhead layer also +infinity: no overhang), counts whole
+// numbers within T's range (a cast of anything else is undefined).
+template <class T>
+const char* layer_value_problem(double v, bool allow_infinity) {
+  if (std::is_floating_point_v<T>) {
+    if (allow_infinity && v == std::numeric_limits<double>::infinity()) return nullptr;
+    if (!std::isfinite(v)) return "non-finite value in a layer";
+    return std::abs(v) <= std::numeric_limits<T>::max() ? nullptr
+                                                        : "value beyond a 32-bit float in a layer";
+  }
+  return v >= 0 && v <= static_cast<double>(std::numeric_limits<T>::max()) && v == std::floor(v)
+             ? nullptr
+             : "a count layer holds a value that is not a whole number in its range";
+}
+
+}  // namespace
+
 std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
   namespace fs = std::filesystem;
   const fs::path meta_path = fs::path(dir) / "terrain.json";
@@ -1107,7 +1147,7 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
   if (!in) throw InputError(meta_path.string() + ": missing or unreadable");
   nlohmann::json meta;
   try {
-    meta = nlohmann::json::parse(in);
+    meta = perception::parse_json_input(in);
   } catch (const std::exception& e) {
     throw InputError(meta_path.string() + ": not valid JSON (" + e.what() + ")");
   }
@@ -1124,8 +1164,10 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
     geo.origin =
         Eigen::Vector2d(gj.at("origin").at(0).get<double>(), gj.at("origin").at(1).get<double>());
     geo.resolution = gj.at("resolution").get<double>();
-    geo.nx = gj.at("nx").get<int>();
-    geo.ny = gj.at("ny").get<int>();
+    // make_geometry's bound on either side; the layers' shapes must match, so the file sizes
+    // bound the product.
+    geo.nx = static_cast<int>(count_field(gj, "nx", 10'000'000, meta_path.string() + ": grid"));
+    geo.ny = static_cast<int>(count_field(gj, "ny", 10'000'000, meta_path.string() + ": grid"));
     grid.noise_sigma = gj.value("noise_sigma", 0.0);
     grid.cluster_gap = gj.value("cluster_gap", 0.0);
     grid.smoothing_length = gj.value("smoothing_length", 0.0);
@@ -1134,8 +1176,10 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
       const auto& nj = gj.at("noise");
       grid.noise.estimated = nj.value("estimated", false);
       grid.noise.sigma = nj.value("sigma", 0.0);
-      grid.noise.bins = nj.value("bins", size_t{0});
-      grid.noise.rejected_bins = nj.value("rejected_bins", size_t{0});
+      const std::string where = meta_path.string() + ": grid.noise";
+      const size_t any = std::numeric_limits<uint32_t>::max();
+      grid.noise.bins = count_field(nj, "bins", any, where, 0);
+      grid.noise.rejected_bins = count_field(nj, "rejected_bins", any, where, 0);
       grid.noise.bin_size = nj.value("bin_size", 0.0);
       grid.noise.point_spacing = nj.value("point_spacing", 0.0);
       grid.noise.note = nj.value("note", std::string());
@@ -1143,8 +1187,13 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
     if (meta.contains("notes")) grid.notes = meta.at("notes").get<std::vector<std::string>>();
     has_surface = meta.contains("layers") && meta.at("layers").contains("surface");
     has_overhead = meta.contains("layers") && meta.at("layers").contains("overhead");
-    if (!(geo.resolution > 0) || geo.nx <= 0 || geo.ny <= 0 || !geo.origin.allFinite())
+    if (geo.nx <= 0 || geo.ny <= 0 || !geo.origin.allFinite())
       throw InputError(meta_path.string() + ": invalid grid metadata");
+    try {
+      validate_resolution(geo.resolution);
+    } catch (const InputError& e) {
+      throw InputError(meta_path.string() + ": grid: " + e.what());
+    }
     const auto& sj = meta.at("safety");
     opts.max_step = sj.at("max_step").get<double>();
     opts.max_rms = sj.at("max_rms").get<double>();
@@ -1173,8 +1222,9 @@ std::unique_ptr<TerrainMap> load_terrain_dir(const std::string& dir) {
     for (int i = 0; i < geo.nx; ++i)
       for (int j = 0; j < geo.ny; ++j) {
         const double v = a.at(i, j);
-        if (!std::isfinite(v) && !(allow_infinity && v == std::numeric_limits<double>::infinity()))
-          throw InputError(path + ": non-finite value in a layer");
+        if (const char* problem = layer_value_problem<T>(v, allow_infinity))
+          throw InputError(path + ": " + problem + " (cell " + std::to_string(i) + ", " +
+                           std::to_string(j) + ": " + std::to_string(v) + ")");
         out[geo.index(i, j)] = static_cast<T>(v);
       }
   };

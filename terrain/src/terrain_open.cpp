@@ -3,6 +3,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "terrastride/perception/json_input.hpp"
 #include "terrastride/perception/octomap_input.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/terrain/map_build.hpp"
@@ -29,7 +30,7 @@ OpenedTerrain open_folder(const std::string& dir, const TerrainOpenOptions& opti
   t.map = load_terrain_dir(dir);
   std::ifstream meta{(fs::path(dir) / "terrain.json").string()};
   try {
-    t.info = nlohmann::json::parse(meta);
+    t.info = perception::parse_json_input(meta);
   } catch (const std::exception&) {
     t.info = nlohmann::json::object();  // load_terrain_dir read what it needs from it
   }

@@ -2,8 +2,9 @@
 # Builds the fuzz targets with clang and runs each briefly on its seed corpus: fuzz_protocol (the
 # wire protocol; seeds tests/fuzz/corpus), fuzz_bag (the MCAP/.db3 readers, the ROS 1 bag check,
 # CDR and ROS 1 PointCloud2/TFMessage decoding, the tf buffer; seeds tests/fuzz/corpus_bag),
-# fuzz_files (OctoMap .bt/.ot, PCD and PLY checks, NPY; seeds tests/fuzz/corpus_files) and
-# fuzz_urdf (the URDF import; seeds tests/fuzz/corpus_urdf).
+# fuzz_files (OctoMap .bt/.ot, PCD and PLY checks, NPY; seeds tests/fuzz/corpus_files),
+# fuzz_urdf (the URDF import; seeds tests/fuzz/corpus_urdf) and fuzz_plan (plan.json and the
+# robot definition it carries; seeds tests/fuzz/corpus_plan).
 # Usage: tests/fuzz/run.sh [SECONDS] (default 60): the whole fuzzing budget, split evenly between
 # the targets, so CI's `tests/fuzz/run.sh 60` fuzzes for 60 s in all. Findings land in
 # build-fuzz/artifacts/; the script fails when a target does.
@@ -17,6 +18,7 @@ targets=(
   "fuzz_bag corpus_bag 16384"
   "fuzz_files corpus_files 16384"
   "fuzz_urdf corpus_urdf 65536"
+  "fuzz_plan corpus_plan 16384"
 )
 per_target=$(( seconds / ${#targets[@]} > 0 ? seconds / ${#targets[@]} : 1 ))
 CC=clang CXX=clang++ cmake -S tests/fuzz -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null

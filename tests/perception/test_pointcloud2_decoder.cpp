@@ -21,9 +21,9 @@ struct FieldSpec {
 };
 
 // A PointCloud2 written from the message definition: FLOAT32 fields, `points` points of
-// point_step 12 in one row, `extra` bytes appended to data.
+// point_step 12 in each of `height` rows, `extra` bytes appended to data.
 std::string cloud_message(MessageEncoding encoding, const std::vector<FieldSpec>& fields,
-                          uint32_t points, uint32_t extra = 0) {
+                          uint32_t points, uint32_t extra = 0, uint32_t height = 1) {
   const bool cdr = encoding == MessageEncoding::kCdr;
   std::string b;
   if (cdr) b = std::string("\0\1\0\0", 4);  // CDR_LE
@@ -44,7 +44,7 @@ std::string cloud_message(MessageEncoding encoding, const std::vector<FieldSpec>
   u32(1700000000);
   u32(5);
   str("lidar");
-  u32(1);       // height
+  u32(height);
   u32(points);  // width
   u32(static_cast<uint32_t>(fields.size()));
   for (const auto& f : fields) {
@@ -56,8 +56,8 @@ std::string cloud_message(MessageEncoding encoding, const std::vector<FieldSpec>
   b.push_back(0);       // is_bigendian
   u32(12);              // point_step
   u32(12 * points);     // row_step
-  u32(12 * points + extra);
-  for (uint32_t i = 0; i < 3 * points; ++i) {
+  u32(12 * points * height + extra);
+  for (uint32_t i = 0; i < 3 * points * height; ++i) {
     const float v = 0.1f * static_cast<float>(i);
     b.append(reinterpret_cast<const char*>(&v), 4);
   }
@@ -104,6 +104,19 @@ TEST_P(Pointcloud2Decoder, RefusesBytesBeyondHeightTimesRowStep) {
   expect_input_error(
       [&] { decode_pointcloud2(cloud_message(GetParam(), kXyz, 0, 12), GetParam()); },
       {"12 trailing bytes"});
+}
+
+// No points in many rows (width 0) is an empty cloud: its rows are not walked (a message of 4e9
+// empty rows, found by fuzz_bag, looped over them for seconds). Points in several rows all read.
+TEST_P(Pointcloud2Decoder, EmptyRowsAreAnEmptyCloud) {
+  const DecodedCloud empty =
+      decode_pointcloud2(cloud_message(GetParam(), kXyz, 0, 0, 4'000'000'000u), GetParam());
+  EXPECT_EQ(empty.height, 4'000'000'000u);
+  EXPECT_EQ(empty.points_in, 0u);
+  EXPECT_TRUE(empty.points.empty());
+  const DecodedCloud rows = decode_pointcloud2(cloud_message(GetParam(), kXyz, 2, 0, 3), GetParam());
+  EXPECT_EQ(rows.points_in, 6u);
+  EXPECT_EQ(rows.points.size(), 6u);
 }
 
 INSTANTIATE_TEST_SUITE_P(Encodings, Pointcloud2Decoder,

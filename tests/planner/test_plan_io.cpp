@@ -6,8 +6,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <string>
 #include <thread>
@@ -20,6 +22,8 @@
 
 using namespace terrastride::planner;
 using nlohmann::json;
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size);
 
 namespace {
 
@@ -158,6 +162,76 @@ TEST(PlanIo, MalformedPlansNameTheField) {
     EXPECT_NE(std::string(e.what()).find("not valid JSON"), std::string::npos);
   }
   EXPECT_THROW(write_plan_file("/nonexistent/dir/plan.json", two_sample_plan()), PlanFileError);
+}
+
+// An integer field wider than an int is refused rather than wrapped (4294967297 read as 1).
+TEST(PlanIo, IntegersBeyondAnIntAreRefused) {
+  json j = plan_to_json(two_sample_plan());
+  j["solver"]["iterations"] = 4294967297ULL;
+  EXPECT_EQ(error_of(j), "p.json: solver.iterations: is 4294967297, beyond the range of an int");
+  j["solver"]["iterations"] = -3000000000LL;
+  EXPECT_EQ(error_of(j), "p.json: solver.iterations: is -3000000000, beyond the range of an int");
+  j["solver"]["iterations"] = 2147483647;
+  EXPECT_EQ(error_of(j), "");
+}
+
+// A plan file nested deeper than perception::kMaxJsonNesting is refused when it is parsed: its
+// extra keys are copied into the Trajectory and written back, and copying and dumping recurse
+// once per level (1 MB of '[' overflowed the stack). Nesting up to the cap reads and writes back.
+TEST(PlanIo, PlanFilesNestedBeyondTheCapAreRefused) {
+  const auto path = (std::filesystem::temp_directory_path() /
+                     ("terrastride_deep_plan_" + std::to_string(::getpid()) + ".json"))
+                        .string();
+  const std::string good = plan_to_json(two_sample_plan()).dump();
+  const auto with_extra = [&](std::size_t levels) {
+    std::ofstream(path) << good.substr(0, good.size() - 1) << ",\"notes\":"
+                        << std::string(levels, '[') << std::string(levels, ']') << "}";
+  };
+  with_extra(99);  // 100 levels with the document's own object
+  const Trajectory read = read_plan_file(path);
+  EXPECT_EQ(plan_to_json(read)["notes"].dump(), std::string(99, '[') + std::string(99, ']'));
+  for (const std::size_t levels : {std::size_t{100}, std::size_t{1} << 20}) {
+    with_extra(levels);
+    try {
+      read_plan_file(path);
+      ADD_FAILURE() << levels << " levels read";
+    } catch (const PlanFileError& e) {
+      EXPECT_NE(std::string(e.what()).find(path + ": not valid JSON: "), std::string::npos);
+      EXPECT_NE(std::string(e.what()).find("nested more than 100 levels deep"), std::string::npos)
+          << e.what();
+    }
+  }
+  std::filesystem::remove(path);
+}
+
+// The plan fuzz target on every seed and a few mutations of each (tests/fuzz/corpus_plan): none
+// crashes or traps. The seeds that are plans read; the hostile ones are refused.
+TEST(PlanIo, FuzzCorpusReplay) {
+  const std::filesystem::path corpus =
+      std::filesystem::path(TERRASTRIDE_SOURCE_DIR) / "tests" / "fuzz" / "corpus_plan";
+  ASSERT_TRUE(std::filesystem::is_directory(corpus)) << corpus;
+  int seeds = 0, read = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(corpus)) {
+    std::ifstream in(entry.path(), std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    ++seeds;
+    try {
+      (void)read_plan_file(entry.path().string());
+      ++read;
+    } catch (const PlanFileError&) {
+    }
+    LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size());
+    for (std::size_t i = 0; i < bytes.size(); i += 1 + bytes.size() / 16) {
+      std::string m = bytes;
+      m[i] = static_cast<char>(m[i] ^ 0x5a);
+      LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(m.data()), m.size());
+      m.resize(i);
+      LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(m.data()), m.size());
+    }
+  }
+  EXPECT_GE(seeds, 10);
+  // minimal, nested_at_cap, huge_times and the three robot_file plans (the robot is parsed later)
+  EXPECT_EQ(read, 6);
 }
 
 // write_plan_file writes as `terrastride plan --out` does (perception::write_file_atomically): a

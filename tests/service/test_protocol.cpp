@@ -9,6 +9,7 @@
 #include <limits>
 #include <sstream>
 
+#include "terrastride/perception/json_input.hpp"
 #include "terrastride/service/protocol.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size);
@@ -122,6 +123,22 @@ TEST(Protocol, MalformedBodies) {
             }),
             "bad_frame");
   EXPECT_EQ(code_of([] { p::decode_body(raw_body(R"({"attachments":[]})")); }), "");
+}
+
+// Copying or dumping a JSON value recurses once per level of nesting: a header of 2 MB of '['
+// parsed fine, and a plan holding one as an extra key overflowed the server's stack when it was
+// copied. Headers nested deeper than the cap are refused as bad JSON; the cap itself is accepted.
+TEST(Protocol, HeadersNestedBeyondTheCapAreRefused) {
+  const auto nested = [](std::size_t levels) {
+    return R"({"v":1,"id":1,"op":"status","x":)" + std::string(levels, '[') +
+           std::string(levels, ']') + "}";
+  };
+  const std::size_t cap = terrastride::perception::kMaxJsonNesting;
+  EXPECT_EQ(code_of([&] { p::decode_body(raw_body(nested(cap - 1))); }), "");  // + the object
+  const std::string refused = message_of([&] { p::decode_body(raw_body(nested(cap))); });
+  EXPECT_EQ(refused.rfind("bad_json: ", 0), 0u) << refused;
+  EXPECT_NE(refused.find("nested more than 100 levels deep"), std::string::npos) << refused;
+  EXPECT_EQ(code_of([&] { p::decode_body(raw_body(nested(1u << 20))); }), "bad_json");
 }
 
 TEST(Protocol, BodyLengthChecks) {

@@ -1,7 +1,8 @@
-// Hostile files under a server's terrain root: a terrain folder whose octomap.bt is corrupt (a
-// body of 0xFF bytes made OctoMap's recursive reader overflow the stack, and `serve` died of
-// SIGSEGV on map.update {"terrain_dir": "bad"}). The reply is an error naming the file, and the
-// server keeps serving the same and other connections.
+// Hostile input to a server. Files under its terrain root: a terrain folder whose octomap.bt is
+// corrupt (a body of 0xFF bytes made OctoMap's recursive reader overflow the stack, and `serve`
+// died of SIGSEGV on map.update {"terrain_dir": "bad"}). The reply is an error naming the file,
+// and the server keeps serving the same and other connections. A request header nested millions
+// of levels deep is refused as bad JSON.
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <unistd.h>
@@ -85,6 +86,35 @@ TEST_F(HostileTerrainRoot, CorruptOctomapIsAnErrorReplyAndTheServerKeepsServing)
   }
   // The same connection, and a new one, still get answers; the good folder still loads.
   EXPECT_TRUE(c.call({{"op", "map.update"}, {"terrain_dir", "good"}}).header.value("ok", false));
+  Client::connect(server.tcp()).call_ok({{"op", "status"}});
+  EXPECT_EQ(server.stop(SIGTERM), 0) << server.output;
+}
+
+// A request nested 2 million levels deep inside the 4 MiB header cap: a `check` whose plan
+// holds such an extra key parsed, and copying it into the plan overflowed the stack (`serve`
+// died of SIGSEGV). It is refused as bad JSON at the frame, and the server keeps serving.
+TEST(HostileRequests, DeeplyNestedHeaderIsBadJsonAndTheServerKeepsServing) {
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  Client c = Client::connect(server.tcp(), 60.0);
+  const std::size_t levels = 2'000'000;
+  const std::string header = R"({"v":1,"id":7,"op":"check","terrain":"flat","plan":{"notes":)" +
+                             std::string(levels, '[') + std::string(levels, ']') + "}}";
+  ASSERT_LE(header.size(), p::kMaxHeaderBytes);
+  const auto length = [](std::size_t n) {
+    std::string prefix(4, '\0');
+    p::write_u32be(static_cast<std::uint32_t>(n), reinterpret_cast<unsigned char*>(&prefix[0]));
+    return prefix;
+  };
+  const std::string body = length(header.size()) + header;
+  c.send_raw(length(body.size()) + body);
+  const p::Message m = c.receive();
+  ASSERT_FALSE(m.header.value("ok", true)) << m.header.dump();
+  EXPECT_EQ(m.header["error"].value("code", ""), "bad_json");
+  EXPECT_NE(m.header["error"].value("message", "").find("nested more than 100 levels deep"),
+            std::string::npos)
+      << m.header.dump();
+  ASSERT_TRUE(server.running()) << server.output;
   Client::connect(server.tcp()).call_ok({{"op", "status"}});
   EXPECT_EQ(server.stop(SIGTERM), 0) << server.output;
 }

@@ -148,6 +148,25 @@ TEST(BagInput, RefusesTopicsItCannotMap) {
                      {"no cloud selected", "outside the time window"});
 }
 
+// Window bounds beyond int64's nanoseconds saturate (1e300 s was an undefined conversion to
+// int64_t); a bound that is not a number is refused.
+TEST(BagInput, HugeWindowBoundsSaturateAndNaNIsRefused) {
+  perception::BagCloudOptions o = both_lidars();
+  o.topics = {"/points"};
+  o.start = -1e300;
+  o.end = 1e300;
+  const auto all = terrain::read_map_bags({fixture("scan_zstd.mcap")}, o);
+  EXPECT_EQ(all.stats[0].topics.at("/points").used, 9u);
+  EXPECT_EQ(all.stats[0].topics.at("/points").outside_window, 0u);
+  o.start = 1e300;
+  o.end = std::nullopt;
+  expect_input_error([&] { terrain::read_map_bags({fixture("scan_zstd.mcap")}, o); },
+                     {"no cloud selected", "outside the time window"});
+  o.start = std::nan("");
+  expect_input_error([&] { terrain::read_map_bags({fixture("scan_zstd.mcap")}, o); },
+                     {"scan_zstd.mcap: the time window's start and end must be finite"});
+}
+
 TEST(BagInput, WindowAndEverySelectClouds) {
   perception::BagCloudOptions o = both_lidars();
   o.topics = {"/points"};

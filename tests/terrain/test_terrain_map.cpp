@@ -7,6 +7,7 @@
 #include <fstream>
 #include <random>
 
+#include "terrastride/perception/npy.hpp"
 #include "terrastride/perception/point_cloud.hpp"
 #include "terrastride/terrain/scenes.hpp"
 #include "terrastride/terrain/terrain_map.hpp"
@@ -370,4 +371,84 @@ TEST(Overhead, LayerSurvivesWriteAndLoadAndNaNIsRefused) {
   fs::remove_all(dir);
   grid.overhead[3] = std::numeric_limits<float>::quiet_NaN();
   EXPECT_THROW(TerrainMap(grid, {0.02}), terrastride::perception::InputError);
+}
+
+// A map folder is user input (`query`, `report`, `plan --terrain`): terrain.json's numbers and
+// the layers' values are checked before any conversion. get<int>() of an nx written as 1e300, a
+// cast of a count of 1e20 or -1 to uint32_t, of 1e300 to float, or floor(max_climb / res) of a
+// max_climb of 1e300 to int were undefined behaviour (UBSan: "outside the range of representable
+// values").
+TEST(TerrainDir, HostileMetadataAndLayersAreRefusedByName) {
+  namespace fs = std::filesystem;
+  using terrastride::perception::InputError;
+  const TerrainMap map(grid_with_shelf(), {0.02});
+  const fs::path dir =
+      fs::temp_directory_path() / ("terrastride_hostile_dir_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const nlohmann::json meta = write_terrain_layers(map, dir.string());
+  const auto error_with = [&](const nlohmann::json& m) -> std::string {
+    std::ofstream(dir / "terrain.json") << m.dump();
+    try {
+      (void)load_terrain_dir(dir.string());
+    } catch (const InputError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  ASSERT_EQ(error_with(meta), "");
+  const struct {
+    const char* pointer;
+    nlohmann::json value;
+    const char* expected;
+  } fields[] = {
+      {"/grid/nx", 1e300, "grid: nx is 1e+300, not a whole number in [0, 10000000]"},
+      {"/grid/nx", 2.5, "grid: nx is 2.5, not a whole number"},
+      {"/grid/ny", -40, "grid: ny is -40, not a whole number"},
+      {"/grid/resolution", 1e-300, "grid: resolution 1e-300 m is outside"},
+      {"/grid/noise/bins", 1e300, "grid.noise: bins is 1e+300, not a whole number"},
+  };
+  for (const auto& f : fields) {
+    nlohmann::json m = meta;
+    m[nlohmann::json::json_pointer(f.pointer)] = f.value;
+    EXPECT_NE(error_with(m).find(f.expected), std::string::npos)
+        << f.pointer << ": " << error_with(m);
+  }
+  // A reach beyond the grid is the whole grid: the map loads.
+  nlohmann::json far = meta;
+  far["safety"]["max_climb"] = 1e300;
+  EXPECT_EQ(error_with(far), "");
+  // Nesting beyond perception::kMaxJsonNesting is malformed JSON.
+  nlohmann::json deep = meta;
+  deep["notes_extra"] = nlohmann::json::array();
+  nlohmann::json* inner = &deep["notes_extra"];
+  for (int k = 0; k < 200; ++k) inner = &inner->emplace_back(nlohmann::json::array());
+  EXPECT_NE(error_with(deep).find("nested more than 100 levels deep"), std::string::npos);
+
+  // Layers: a value the grid's element type cannot hold.
+  const GridGeometry& g = map.grid().geometry;
+  const auto layer_error = [&](const char* name, double value) {
+    std::vector<double> v(g.size(), 1.0);
+    v[7] = value;
+    const std::string path = (dir / "layers" / (std::string(name) + ".npy")).string();
+    const std::string saved = path + ".saved";
+    fs::copy_file(path, saved, fs::copy_options::overwrite_existing);
+    terrastride::perception::write_npy(path, v.data(), g.nx, g.ny);
+    const std::string e = error_with(meta);
+    fs::rename(saved, path);
+    return e;
+  };
+  EXPECT_NE(layer_error("count", 1e20).find("count.npy: a count layer holds a value"),
+            std::string::npos);
+  EXPECT_NE(layer_error("support", -1).find("support.npy: a count layer holds a value"),
+            std::string::npos);
+  EXPECT_NE(layer_error("count", 0.5).find("(cell 0, 7: 0.500000)"), std::string::npos);
+  EXPECT_NE(layer_error("observed", 1e300).find("observed.npy: a count layer"),
+            std::string::npos);
+  EXPECT_NE(layer_error("elevation", 1e300).find("elevation.npy: value beyond a 32-bit float"),
+            std::string::npos);
+  EXPECT_NE(layer_error("elevation", std::nan("")).find("non-finite value in a layer"),
+            std::string::npos);
+  EXPECT_EQ(error_with(meta), "");
+  fs::remove_all(dir);
 }

@@ -1,6 +1,7 @@
 #include "terrastride/perception/bag_clouds.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <limits>
 
 #include "terrastride/perception/ros_messages.hpp"
@@ -20,9 +21,19 @@ std::string where(const std::string& path, const BagMessage& m) {
   return path + ": " + m.topic->name + " message logged at " + format_stamp(m.log_time_ns) + " s";
 }
 
+// A window bound (finite seconds) in ns. Bounds beyond int64's nanoseconds (292 years from the
+// epoch or from the first message) saturate: their conversion to int64_t would be undefined.
 int64_t window_bound(double seconds, int64_t first_ns) {
-  if (seconds >= 1e9) return static_cast<int64_t>(seconds * 1e9);
-  return first_ns + static_cast<int64_t>(seconds * 1e9);
+  constexpr double kLimit = 9.2e18;  // < 2^63
+  const double ns = std::clamp(seconds * 1e9, -kLimit, kLimit);
+  if (seconds >= 1e9) return static_cast<int64_t>(ns);
+  // first_ns + offset, saturated (both are within +-2^63).
+  const int64_t offset = static_cast<int64_t>(ns);
+  if (offset > 0 && first_ns > std::numeric_limits<int64_t>::max() - offset)
+    return std::numeric_limits<int64_t>::max();
+  if (offset < 0 && first_ns < std::numeric_limits<int64_t>::min() - offset)
+    return std::numeric_limits<int64_t>::min();
+  return first_ns + offset;
 }
 
 // A damaged file's problems (a chunk failing its CRC or its decompression), put before an error
@@ -139,6 +150,9 @@ void read_bag_clouds(const std::string& path, const BagCloudOptions& options,
   if (options.topics.empty()) throw InputError(path + ": no cloud topic given");
   if (options.fixed_frame.empty()) throw InputError(path + ": no fixed frame given");
   if (options.every < 1) throw InputError(path + ": every must be >= 1");
+  if ((options.start && !std::isfinite(*options.start)) ||
+      (options.end && !std::isfinite(*options.end)))
+    throw InputError(path + ": the time window's start and end must be finite numbers of seconds");
   const std::string fixed = strip_slash(options.fixed_frame);
   BagCloudStats stats;
   std::unique_ptr<BagReader> reader = open_bag(path);

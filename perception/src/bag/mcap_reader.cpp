@@ -24,6 +24,12 @@ using namespace mcap;  // the format's magic and opcodes (mcap_records.hpp)
 
 // A chunk bigger than this uncompressed is refused as corrupt: writers chunk at ~1-8 MB.
 constexpr uint64_t kMaxChunkBytes = 1ull << 31;
+// The most a codec's output can be per compressed byte: a zstd block of 128 KiB takes at least
+// 4 bytes (an RLE block); an LZ4 sequence adds at most 255 bytes of match per byte. A chunk that
+// claims more is corrupt, and is refused before its buffer is allocated: a 3 kB chunk claiming
+// 2 GiB cost 2 GiB and a memset of it (libFuzzer: a timeout in the resize).
+constexpr uint64_t kMaxZstdRatio = 32768;
+constexpr uint64_t kMaxLz4Ratio = 256;
 
 struct Schema {
   std::string name;
@@ -182,6 +188,20 @@ class McapReader : public BagReader {
                     "claims " + std::to_string(uncompressed_size) + " bytes uncompressed");
       return;
     }
+    // Known codecs only, before anything is allocated for the output (a chunk of compression
+    // "zst\0" claiming 1.7 GB took its buffer before it was refused).
+    if (!compression.empty() && compression != "zstd" && compression != "lz4")
+      throw InputError(path_ + ": chunk at byte " + std::to_string(where) +
+                       " uses compression '" + std::string(compression) +
+                       "' (this reader knows none, zstd and lz4)");
+    const uint64_t ratio = compression == "zstd" ? kMaxZstdRatio : kMaxLz4Ratio;
+    if (!compression.empty() && uncompressed_size / ratio > records.size()) {
+      corrupt_chunk(where, content.size(),
+                    "claims " + std::to_string(uncompressed_size) + " bytes uncompressed from " +
+                        std::to_string(records.size()) + " bytes of " + std::string(compression) +
+                        ", more than " + std::string(compression) + " expands to");
+      return;
+    }
     std::string_view plain;
     if (compression.empty()) {
       plain = records;
@@ -200,12 +220,8 @@ class McapReader : public BagReader {
         else if (n != buffer_.size())
           problem = "zstd data of " + std::to_string(n) + " bytes, the header says " +
                     std::to_string(buffer_.size());
-      } else if (compression == "lz4") {
-        problem = lz4_frame(records, &buffer_);
       } else {
-        throw InputError(path_ + ": chunk at byte " + std::to_string(where) +
-                         " uses compression '" + std::string(compression) +
-                         "' (this reader knows none, zstd and lz4)");
+        problem = lz4_frame(records, &buffer_);
       }
       if (!problem.empty()) {
         corrupt_chunk(where, content.size(), "decompression failed (" + problem + ")");

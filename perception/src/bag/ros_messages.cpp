@@ -208,7 +208,10 @@ DecodedCloud decode_cloud(std::string_view data, MessageEncoding encoding, bool 
                          " points (" + std::to_string(needed) + " needed)");
     }
     out.points.reserve(out.points_in);
-    for (uint32_t r = 0; r < out.height; ++r)
+    // Rows only when they hold points: a cloud of width 0 may claim 4e9 empty rows (fuzz_bag: a
+    // 185-byte message looped over them for seconds).
+    const uint32_t rows = out.points_in > 0 ? out.height : 0;
+    for (uint32_t r = 0; r < rows; ++r)
       for (uint32_t c = 0; c < out.width; ++c) {
         const char* p = bytes.data() + static_cast<size_t>(r) * row_step + static_cast<size_t>(c) * point_step;
         double v[3];

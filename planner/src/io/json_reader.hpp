@@ -3,7 +3,9 @@
 #pragma once
 
 #include <cmath>
+#include <cstdint>
 #include <initializer_list>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <utility>
@@ -44,6 +46,12 @@ class Reader {
   int integer(const std::string& field) const {
     const json& v = at(field);
     if (!v.is_number_integer()) fail(field, "must be an integer");
+    // get<int>() of a wider integer wraps (4294967297 would read as 1).
+    const bool in_range = v.is_number_unsigned()
+                              ? v.get<std::uint64_t>() <= std::numeric_limits<int>::max()
+                              : v.get<std::int64_t>() >= std::numeric_limits<int>::min() &&
+                                    v.get<std::int64_t>() <= std::numeric_limits<int>::max();
+    if (!in_range) fail(field, "is " + v.dump() + ", beyond the range of an int");
     return v.get<int>();
   }
   std::string text(const std::string& field) const {

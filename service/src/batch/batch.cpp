@@ -23,6 +23,7 @@
 
 #include "report/report_file.hpp"
 #include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/json_input.hpp"
 #include "terrastride/service/cli.hpp"
 
 namespace terrastride::service::report {
@@ -79,7 +80,7 @@ json read_json_file(const fs::path& p) {
   std::ifstream in(p);
   if (!in) return nullptr;
   try {
-    return json::parse(in);
+    return perception::parse_json_input(in);
   } catch (const std::exception&) {
     return nullptr;
   }

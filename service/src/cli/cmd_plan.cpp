@@ -18,6 +18,7 @@
 #include "pasteable.hpp"
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
+#include "terrastride/perception/json_input.hpp"
 #include "terrastride/planner/feasibility.hpp"
 #include "terrastride/planner/gait.hpp"
 #include "terrastride/planner/joint_points.hpp"
@@ -87,7 +88,7 @@ nlohmann::json read_json_file(const std::string& path, const char* what) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw std::runtime_error(path + ": cannot open " + what);
   try {
-    return nlohmann::json::parse(in);
+    return perception::parse_json_input(in);
   } catch (const nlohmann::json::exception& e) {  // parse errors, and numbers beyond double
     throw std::runtime_error(path + ": not valid JSON: " + e.what());
   }

@@ -22,6 +22,7 @@
 #include "terrastride/collision/checks.hpp"
 #include "terrastride/perception/atomic_output.hpp"
 #include "terrastride/perception/bag.hpp"
+#include "terrastride/perception/json_input.hpp"
 #include "terrastride/planner/options.hpp"
 #include "terrastride/service/cli.hpp"
 
@@ -95,7 +96,7 @@ json read_simulation(const std::string& path, size_t feet) {
   if (text.empty()) throw CommandError("--sim " + path + ": missing or empty");
   json sim;
   try {
-    sim = json::parse(text);
+    sim = perception::parse_json_input(text);
   } catch (const std::exception& e) {
     throw CommandError("--sim " + path + ": not JSON: " + e.what());
   }

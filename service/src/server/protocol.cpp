@@ -7,6 +7,8 @@
 #include <cstring>
 #include <limits>
 
+#include "terrastride/perception/json_input.hpp"
+
 namespace terrastride::service::protocol {
 
 using nlohmann::json;
@@ -201,9 +203,14 @@ Message decode_body(std::string_view body, std::size_t max_header_bytes) {
                               " bytes exceeds the limit of " + std::to_string(max_header_bytes));
   Message m;
   const std::string_view text = body.substr(4, header_length);
-  m.header = json::parse(text.begin(), text.end(), nullptr, /*allow_exceptions=*/false);
-  if (m.header.is_discarded())
-    fail(code::kBadJson, "header is not valid JSON (" + std::to_string(header_length) + " bytes)");
+  // Nesting is capped: the server copies and dumps parts of a header (a plan's extra keys), which
+  // recurse once per level.
+  try {
+    m.header = perception::parse_json_input(text.begin(), text.end());
+  } catch (const json::exception& e) {
+    fail(code::kBadJson, "header is not valid JSON (" + std::to_string(header_length) +
+                             " bytes): " + e.what());
+  }
   if (!m.header.is_object()) fail(code::kBadJson, "header must be a JSON object");
 
   std::string_view rest = body.substr(4 + header_length);

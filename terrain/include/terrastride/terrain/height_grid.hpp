@@ -168,6 +168,10 @@ HeightGrid build_height_grid(const std::vector<PointBatch>& batches,
 HeightGrid build_height_grid(const std::vector<perception::PointCloud>& clouds,
                              const HeightGridOptions& options = {});
 
+// Throws perception::InputError naming `resolution` when it is outside [0.002, 1] m, the range of
+// every grid's cells (a map read back is held to it too).
+void validate_resolution(double resolution);
+
 // Sets overhang_cells and overhang_unobserved_cells from `overhead` and `observed` (a grid built
 // or read back from its layers).
 void count_overhangs(HeightGrid& grid);
