@@ -12,41 +12,19 @@
 #include <sstream>
 #include <string>
 
+#include "support/fuzz_replay.hpp"
 #include "terrastride/perception/bag.hpp"
 
-extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size);
 
 namespace {
 
-void run(const std::string& bytes) {
-  LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size());
-}
-
 TEST(BagFuzzCorpus, Replay) {
   const std::filesystem::path root(TERRASTRIDE_SOURCE_DIR);
-  std::vector<std::filesystem::path> inputs;
-  for (const auto& e : std::filesystem::directory_iterator(root / "tests/fuzz/corpus_bag"))
-    inputs.push_back(e.path());
+  std::vector<std::filesystem::path> fixtures;
   for (const char* f : {"scan_zstd.mcap", "scan_lz4.mcap", "scan.db3", "scan.bag"})
-    inputs.push_back(root / "tests/fixtures/bags" / f);
-  int n = 0;
-  for (const auto& path : inputs) {
-    SCOPED_TRACE(path.string());
-    std::ifstream in(path, std::ios::binary);
-    std::stringstream ss;
-    ss << in.rdbuf();
-    const std::string bytes = ss.str();
-    run(bytes);
-    for (std::size_t i = 0; i < bytes.size(); i += 1 + bytes.size() / 16) {
-      std::string m = bytes;
-      m[i] = static_cast<char>(m[i] ^ 0x5a);
-      run(m);
-      m.resize(i);
-      run(m);
-    }
-    ++n;
-  }
-  EXPECT_GE(n, 24);
+    fixtures.push_back(root / "tests/fixtures/bags" / f);
+  EXPECT_GE(terrastride::test_support::replay_fuzz_corpus(root / "tests/fuzz/corpus_bag", fixtures),
+            24);
 }
 
 // A chunk's uncompressed size is checked against what its codec can expand its bytes to before

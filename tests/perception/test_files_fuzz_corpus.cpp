@@ -5,43 +5,16 @@
 // unlike in the fuzz build, PCD and PLY inputs that pass the checks go on into PCL.
 #include <gtest/gtest.h>
 
-#include <cstdint>
 #include <filesystem>
-#include <fstream>
-#include <sstream>
-#include <string>
 
-extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size);
+#include "support/fuzz_replay.hpp"
 
 namespace {
 
-void run(const std::string& bytes) {
-  LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size());
-}
-
 TEST(FileFuzzCorpus, Replay) {
   const std::filesystem::path root(TERRASTRIDE_SOURCE_DIR);
-  std::vector<std::filesystem::path> inputs;
-  for (const auto& e : std::filesystem::directory_iterator(root / "tests/fuzz/corpus_files"))
-    inputs.push_back(e.path());
-  inputs.push_back(root / "tests/fixtures/octomap/pallet_10.bt");
-  int n = 0;
-  for (const auto& path : inputs) {
-    SCOPED_TRACE(path.string());
-    std::ifstream in(path, std::ios::binary);
-    std::stringstream ss;
-    ss << in.rdbuf();
-    const std::string bytes = ss.str();
-    run(bytes);
-    for (std::size_t i = 0; i < bytes.size(); i += 1 + bytes.size() / 16) {
-      std::string m = bytes;
-      m[i] = static_cast<char>(m[i] ^ 0x5a);
-      run(m);
-      m.resize(i);
-      run(m);
-    }
-    ++n;
-  }
+  const int n = terrastride::test_support::replay_fuzz_corpus(
+      root / "tests/fuzz/corpus_files", {root / "tests/fixtures/octomap/pallet_10.bt"});
   EXPECT_GE(n, 16);
 }
 

@@ -16,6 +16,7 @@
 #include <utility>
 #include <vector>
 
+#include "support/fuzz_replay.hpp"
 #include "terrastride/planner/piece_math.hpp"
 #include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"
@@ -23,7 +24,6 @@
 using namespace terrastride::planner;
 using nlohmann::json;
 
-extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size);
 
 namespace {
 
@@ -210,25 +210,15 @@ TEST(PlanIo, FuzzCorpusReplay) {
   const std::filesystem::path corpus =
       std::filesystem::path(TERRASTRIDE_SOURCE_DIR) / "tests" / "fuzz" / "corpus_plan";
   ASSERT_TRUE(std::filesystem::is_directory(corpus)) << corpus;
-  int seeds = 0, read = 0;
+  int read = 0;
   for (const auto& entry : std::filesystem::directory_iterator(corpus)) {
-    std::ifstream in(entry.path(), std::ios::binary);
-    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-    ++seeds;
     try {
       (void)read_plan_file(entry.path().string());
       ++read;
     } catch (const PlanFileError&) {
     }
-    LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size());
-    for (std::size_t i = 0; i < bytes.size(); i += 1 + bytes.size() / 16) {
-      std::string m = bytes;
-      m[i] = static_cast<char>(m[i] ^ 0x5a);
-      LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(m.data()), m.size());
-      m.resize(i);
-      LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(m.data()), m.size());
-    }
   }
+  const int seeds = terrastride::test_support::replay_fuzz_corpus(corpus);
   EXPECT_GE(seeds, 10);
   // minimal, nested_at_cap, huge_times and the three robot_file plans (the robot is parsed later)
   EXPECT_EQ(read, 6);

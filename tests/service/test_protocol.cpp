@@ -9,10 +9,10 @@
 #include <limits>
 #include <sstream>
 
+#include "support/fuzz_replay.hpp"
 #include "terrastride/perception/json_input.hpp"
 #include "terrastride/service/protocol.hpp"
 
-extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size);
 
 namespace {
 
@@ -311,23 +311,7 @@ TEST(Protocol, FuzzCorpusReplay) {
   const std::filesystem::path corpus =
       std::filesystem::path(TERRASTRIDE_SOURCE_DIR) / "tests" / "fuzz" / "corpus";
   ASSERT_TRUE(std::filesystem::is_directory(corpus)) << corpus;
-  int n = 0;
-  for (const auto& entry : std::filesystem::directory_iterator(corpus)) {
-    std::ifstream in(entry.path(), std::ios::binary);
-    std::stringstream ss;
-    ss << in.rdbuf();
-    std::string bytes = ss.str();
-    LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size());
-    for (std::size_t i = 0; i < bytes.size(); i += 1 + bytes.size() / 16) {
-      std::string m = bytes;
-      m[i] = static_cast<char>(m[i] ^ 0x5a);
-      LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(m.data()), m.size());
-      m.resize(i);
-      LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(m.data()), m.size());
-    }
-    ++n;
-  }
-  EXPECT_GE(n, 10);
+  EXPECT_GE(terrastride::test_support::replay_fuzz_corpus(corpus), 10);
 }
 
 TEST(Protocol, RawResultSplicingAndNumbers) {
