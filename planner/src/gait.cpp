@@ -26,6 +26,13 @@ double read_number(const YAML::Node& node, const std::string& file, const std::s
   }
 }
 
+// A name (the gait's, a leg's): a YAML scalar. yaml-cpp's own "bad conversion" names neither the
+// file nor the field.
+std::string read_text(const YAML::Node& node, const std::string& file, const std::string& field) {
+  if (!node.IsScalar()) throw GaitError(file + ": " + field + ": expected a name (text)");
+  return node.Scalar();
+}
+
 }  // namespace
 
 Gait load_gait(const std::string& path) {
@@ -40,7 +47,7 @@ Gait load_gait(const std::string& path) {
   if (!root.IsMap()) throw GaitError(path + ": expected a mapping at the top level");
   Gait g;
   g.source_file = path;
-  g.name = root["name"] ? root["name"].as<std::string>()
+  g.name = root["name"] ? read_text(root["name"], path, "name")
                         : std::filesystem::path(path).stem().string();
   if (root["cycle_duration"]) {
     g.cycle_duration = read_number(root["cycle_duration"], path, "cycle_duration");
@@ -53,7 +60,7 @@ Gait load_gait(const std::string& path) {
   if (!swing || !swing.IsMap() || swing.size() == 0)
     throw GaitError(path + ": swing: expected a mapping from leg name to swing windows");
   for (const auto& kv : swing) {
-    const std::string leg = kv.first.as<std::string>();
+    const std::string leg = read_text(kv.first, path, "swing (a leg's name)");
     const std::string field = "swing." + leg;
     if (!kv.second.IsSequence()) throw GaitError(path + ": " + field + ": expected a list");
     std::vector<std::pair<double, double>> windows;

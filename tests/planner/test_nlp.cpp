@@ -181,6 +181,19 @@ TEST(Gait, BadInputIsNamed) {
   } catch (const GaitError& e) {
     EXPECT_NE(std::string(e.what()).find("swing.LF[0]"), std::string::npos) << e.what();
   }
+  // Names that are not text: the file and the field, not yaml-cpp's "bad conversion".
+  for (const char* text : {"name: [1, 2]\nswing:\n  LF: [[0.1, 0.2]]\n",
+                           "name: bad\nswing:\n  [LF, RF]: [[0.1, 0.2]]\n",
+                           "name: {a: 1}\nswing:\n  LF: [[0.1, 0.2]]\n"}) {
+    std::ofstream(path) << text;
+    try {
+      load_gait(path);
+      ADD_FAILURE() << text;
+    } catch (const GaitError& e) {
+      EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("expected a name"), std::string::npos) << e.what();
+    }
+  }
   std::ofstream(path) << "name: bad\nswing:\n  XX: [[0.1, 0.2]]\n";
   const Gait g = load_gait(path);
   EXPECT_THROW(make_timeline(g, feet_of(hyq()), 1, 1.0), GaitError);
