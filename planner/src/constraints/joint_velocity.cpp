@@ -69,18 +69,11 @@ void add_point_velocity_rows(SrbdProblem& problem, int f, int s, double sigma,
   const Layout& L = problem.layout();
   const robot::LegModel leg = problem.robot().legs[f];
   LocalVars lv;
-  const HermiteLocal rp = add_base_position(lv, L, s, sigma, false);
-  const HermiteLocal ep = add_base_euler(lv, L, s, sigma, false);
-  const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, false);
-  const int dur = add_segment_duration(lv, L, s);
-  const double frac = L.seg_fraction[s];
+  const LegSplinePoint lp = add_leg_spline_point(lv, L, f, s, sigma, false);
   problem.add_piece(make_piece("joint_velocity", lv, lo, hi, [=](const auto* x, auto* g) {
     using T = std::decay_t<decltype(*g)>;
-    const T h = x[dur] * frac;
     Vec3<T> base, base_vel, euler, euler_rate, foot, foot_vel;
-    hermite<T>(sigma, h, x, rp, &base, &base_vel, nullptr);
-    hermite<T>(sigma, h, x, ep, &euler, &euler_rate, nullptr);
-    hermite<T>(sigma, h, x, fp, &foot, &foot_vel, nullptr);
+    lp.eval<T>(x, &base, &base_vel, &euler, &euler_rate, &foot, &foot_vel);
     const Vec3<T> qd =
         joint_velocity_rows<T>(leg, base, base_vel, euler, euler_rate, foot, foot_vel);
     for (int j = 0; j < 3; ++j) g[j] = qd[j];

@@ -204,20 +204,13 @@ void add_point_joint_rows(SrbdProblem& problem, const JointBounds& jb, int f, in
   const Layout& L = problem.layout();
   const robot::LegModel leg = problem.robot().legs[f];
   LocalVars lv;
-  const HermiteLocal rp = add_base_position(lv, L, s, sigma, true);
-  const HermiteLocal ep = add_base_euler(lv, L, s, sigma, true);
-  const HermiteLocal fp = add_foot_position(lv, L, f, s, sigma, true);
-  const int dur = add_segment_duration(lv, L, s);
-  const double frac = L.seg_fraction[s];
+  const LegSplinePoint lp = add_leg_spline_point(lv, L, f, s, sigma, true);
   std::vector<double> lk, hk;
   jb.widened(f, nominal_point_time(L, s, sigma), &lk, &hk);
   problem.add_piece(make_piece("joints", lv, lk, hk, [=](const auto* x, auto* g) {
     using T = std::decay_t<decltype(*g)>;
-    const T h = x[dur] * frac;
     Vec3<T> base, euler, foot;
-    hermite<T>(sigma, h, x, rp, &base, nullptr, nullptr);
-    hermite<T>(sigma, h, x, ep, &euler, nullptr, nullptr);
-    hermite<T>(sigma, h, x, fp, &foot, nullptr, nullptr);
+    lp.eval<T>(x, &base, nullptr, &euler, nullptr, &foot, nullptr);
     joint_angle_rows(leg, base, euler, foot, g);
   }));
 }

@@ -50,4 +50,33 @@ inline HermiteLocal add_foot_position(LocalVars& lv, const Layout& L, int f, int
                      L.foot_vel[f][s + 1], sigma, value_only);
 }
 
+// What a leg's rows at fraction sigma of segment s read: the base position's, the Euler angles'
+// and foot f's Hermite segments and the segment's duration (the rates scale by it), with their
+// values and, unless value_only, rates there.
+struct LegSplinePoint {
+  HermiteLocal base, euler, foot;
+  int duration = -1;
+  double seg_fraction = 0.0, sigma = 0.0;
+  // Null outputs are not computed.
+  template <class T>
+  void eval(const T* x, Vec3<T>* r, Vec3<T>* rv, Vec3<T>* e, Vec3<T>* ev, Vec3<T>* p,
+            Vec3<T>* pv) const {
+    const T h = x[duration] * seg_fraction;
+    hermite<T>(sigma, h, x, base, r, rv, nullptr);
+    hermite<T>(sigma, h, x, euler, e, ev, nullptr);
+    hermite<T>(sigma, h, x, foot, p, pv, nullptr);
+  }
+};
+inline LegSplinePoint add_leg_spline_point(LocalVars& lv, const Layout& L, int f, int s,
+                                           double sigma, bool value_only) {
+  LegSplinePoint lp;
+  lp.base = add_base_position(lv, L, s, sigma, value_only);
+  lp.euler = add_base_euler(lv, L, s, sigma, value_only);
+  lp.foot = add_foot_position(lv, L, f, s, sigma, value_only);
+  lp.duration = add_segment_duration(lv, L, s);
+  lp.seg_fraction = L.seg_fraction[s];
+  lp.sigma = sigma;
+  return lp;
+}
+
 }  // namespace terrastride::planner
