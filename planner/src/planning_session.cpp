@@ -659,6 +659,11 @@ SessionStep PlanningSession::fallback_step(const StepJob& job, const std::string
 SessionStep PlanningSession::fallback_after_solve(const StepJob& job, const std::string& reason,
                                                   const std::string& message) const {
   SessionStep out = fallback_step(job, reason, message);
+  // What the step tried, though its plan is not the answer: the schedule it adapted.
+  auto& session_json = out.outcome.trajectory.extra["session"];
+  if (!job.touchdowns.empty())
+    session_json["touchdowns"] = {{"feet", job.touchdowns}, {"after_s", kTouchdownAfter}};
+  if (job.capture.foot >= 0) session_json["capture_step"] = capture_step_json(job);
   out.outcome.solve = job.result.outcome.solve;
   out.outcome.trajectory.solver.iterations = job.result.outcome.solve.iterations;
   out.outcome.trajectory.solver.wall_s = job.result.outcome.solve.wall_s;
@@ -683,6 +688,8 @@ SessionStep PlanningSession::step_with_iteration_budget(const std::shared_ptr<St
     << o.solve.iterations << " solver iterations, over its budget of " << iterations
     << "; the session's current plan from t stands"
     << (o.success ? " (the solve's plan is the next step's warm start)" : "");
+  // Why it had not converged: the families still violated at the cap (run_job's message).
+  if (!o.success && !o.message.empty()) m << "; " << o.message;
   SessionStep out = fallback_after_solve(*job, "iterations", m.str());
   if (o.success) late_by_iterations_ = job;
   return out;

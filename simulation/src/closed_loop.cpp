@@ -71,6 +71,7 @@ ReplannerFactory session_replanner(const robot::RobotModel& robot,
         out.message = step.outcome.message;
         out.start_time = step.start_time;
         out.plan = std::move(step.outcome.trajectory);
+        if (auto it = out.plan.extra.find("session"); it != out.plan.extra.end()) out.session = *it;
       } catch (const std::exception& e) {
         // A state the planner refuses (non-finite after a blow-up, a time outside the plan).
         out.success = false;

@@ -216,7 +216,8 @@ void record_replan(double t, std::chrono::steady_clock::time_point call0, double
   ++rep->replans;
   if (next.iterations >= 0) rep->replan_iterations.push_back(next.iterations);
   rep->replan_records.push_back({t, rep->replan_wall_s.back(), next.iterations,
-                                 next.fallback ? next.fallback_reason : std::string()});
+                                 next.fallback ? next.fallback_reason : std::string(),
+                                 next.session});
   if (next.fallback) ++rep->replan_fallbacks;
 }
 

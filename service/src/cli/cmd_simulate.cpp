@@ -108,6 +108,7 @@ simulation::ReplannerFactory socket_replanner(const SimulateCliOptions& o,
       out.iterations = out.plan.solver.iterations;
       out.fallback = r.value("fallback", false);
       out.fallback_reason = r.value("fallback_reason", std::string());
+      if (auto it = out.plan.extra.find("session"); it != out.plan.extra.end()) out.session = *it;
       out.success = true;
       return out;
     };

@@ -115,13 +115,19 @@ json simulation_summary_json(const simulation::SimulationReport& r, const robot:
                           {"fallbacks", r.replan_fallbacks},
                           {"steps", [&] {
                              json steps = json::array();
-                             for (const auto& s : r.replan_records)
-                               steps.push_back({{"t", s.t},
-                                                {"wall_ms", 1e3 * s.wall_s},
-                                                {"iterations", s.iterations},
-                                                {"fallback", s.fallback.empty()
-                                                                 ? json()
-                                                                 : json(s.fallback)}});
+                             for (const auto& s : r.replan_records) {
+                               json step = {{"t", s.t},
+                                            {"wall_ms", 1e3 * s.wall_s},
+                                            {"iterations", s.iterations},
+                                            {"fallback", s.fallback.empty() ? json()
+                                                                            : json(s.fallback)}};
+                               // The schedule the step adapted and why it fell back.
+                               for (const char* key :
+                                    {"capture_step", "touchdowns", "fallback_message"})
+                                 if (s.session.is_object() && s.session.contains(key))
+                                   step[key] = s.session[key];
+                               steps.push_back(std::move(step));
+                             }
                              return steps;
                            }()}};
   return out;

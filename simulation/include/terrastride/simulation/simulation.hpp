@@ -153,6 +153,9 @@ struct Replan {
   // "deadline", or its solve failed, "solve_failed"): plan is that plan from start_time.
   bool fallback = false;
   std::string fallback_reason;
+  // The planning session's account of the step (capture step, touch-downs, fallback message),
+  // when the re-planner is one; reported per step.
+  nlohmann::json session;
 };
 using Replanner = std::function<Replan(const MeasuredState&)>;
 // Makes a fresh re-planner (a new planning session) for each simulated run, so runs do not share
@@ -280,6 +283,7 @@ struct SimulationReport {
     double t = 0.0, wall_s = 0.0;
     int iterations = -1;
     std::string fallback;
+    nlohmann::json session;  // Replan::session
   };
   std::vector<ReplanRecord> replan_records;
   int replan_fallbacks = 0;
