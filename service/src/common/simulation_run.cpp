@@ -123,7 +123,7 @@ json simulation_summary_json(const simulation::SimulationReport& r, const robot:
                                                                             : json(s.fallback)}};
                                // The schedule the step adapted and why it fell back.
                                for (const char* key :
-                                    {"capture_step", "touchdowns", "fallback_message"})
+                                    {"capture_step", "touchdowns", "disturbance", "fallback_message"})
                                  if (s.session.is_object() && s.session.contains(key))
                                    step[key] = s.session[key];
                                steps.push_back(std::move(step));
