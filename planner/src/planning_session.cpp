@@ -445,6 +445,31 @@ CaptureStep plan_capture_step(const robot::RobotModel& robot,
   return CaptureStep{};
 }
 
+// Whether foot f stands at time u of `tl`.
+bool stands_at(const PhaseTimeline& tl, std::size_t f, double u) {
+  for (int j = 0; j < tl.num_intervals(); ++j)
+    if (u < tl.events[j + 1]) return tl.contact[f][j];
+  return tl.contact[f].back();
+}
+
+// Whether `a` and `b` (timelines from the same start) have every foot in the same phase up to
+// `until`, their events equal to round-off (intervals shorter than 0.1 ms are not compared).
+bool same_schedule(const PhaseTimeline& a, const PhaseTimeline& b, double until) {
+  std::vector<double> ev;
+  for (const PhaseTimeline* tl : {&a, &b})
+    for (double e : tl->events)
+      if (e < until) ev.push_back(e);
+  ev.push_back(until);
+  std::sort(ev.begin(), ev.end());
+  for (std::size_t k = 0; k + 1 < ev.size(); ++k) {
+    if (ev[k + 1] - ev[k] < 1e-4) continue;
+    const double mid = 0.5 * (ev[k] + ev[k + 1]);
+    for (std::size_t f = 0; f < a.feet.size(); ++f)
+      if (stands_at(a, f, mid) != stands_at(b, f, mid)) return false;
+  }
+  return true;
+}
+
 // Where a step from t over `horizon` ends: the first contact switch of `tl` at or after
 // t + horizon with no foot in mid-swing across it (a swing cut at the horizon would lose its
 // touch-down), else the end of `tl` (the goal).
@@ -803,10 +828,11 @@ std::shared_ptr<StepJob> PlanningSession::prepare(const SrbdProblem::StartState&
   job->t = t;
   job->sample_dt = sample_dt_;
   job->step_number = steps_ + 1;
-  // The schedule from t, adapted to the measured state (touch-downs, a capture step) before it is
-  // cut at the horizon, whose length depends on whether the state is disturbed. A foot measured
-  // in the air where the schedule has a stance swings and touches down.
-  job->timeline = reference_timeline_.cropped(t);
+  // The schedule from t (the last plan's where it adapted the reference's: a capture step is kept
+  // until that plan's end), adapted to the measured state (touch-downs, a capture step) before
+  // it is cut at the horizon, whose length depends on whether the state is disturbed. A foot
+  // measured in the air where the schedule has a stance swings and touches down.
+  job->timeline = schedule_from(t);
   const SrbdProblem::StartState planned = planned_state(t);
   job->disturbance = measure_disturbance(measured, planned, job->timeline);
   std::vector<int> airborne;
@@ -942,6 +968,26 @@ SessionStep PlanningSession::answer_step(const SrbdProblem::StartState& measured
   }
   out.wall_s = seconds_since(t0);
   return out;
+}
+
+PhaseTimeline PlanningSession::schedule_from(double t) const {
+  PhaseTimeline reference = reference_timeline_.cropped(t);
+  const double prev_end = previous_start_ + previous_.duration;
+  if (!(t >= previous_start_ && t < prev_end - kEventTol) || !previous_.extra.contains("timeline"))
+    return reference;
+  PhaseTimeline carried = timeline_of(previous_).cropped(t - previous_start_);
+  if (same_schedule(carried, reference, prev_end - t)) return reference;
+  // The adapted schedule up to the last plan's end (an event of the reference's), then the
+  // reference's.
+  if (prev_end < reference_timeline_.duration() - kEventTol) {
+    const PhaseTimeline rest = reference_timeline_.cropped(prev_end);
+    for (int j = 0; j < rest.num_intervals(); ++j) {
+      carried.events.push_back(prev_end - t + rest.events[j + 1]);
+      for (std::size_t f = 0; f < carried.feet.size(); ++f)
+        carried.contact[f].push_back(rest.contact[f][j]);
+    }
+  }
+  return carried;
 }
 
 double PlanningSession::recovery_horizon() const {

@@ -13,6 +13,9 @@
 // different structure (and a step's structure changes whenever its start crosses a segment
 // knot), so the cost of a step is that of its problem: a horizon of 2 s instead of the 11 s of
 // pallet_15 makes each step's problem about five times smaller (docs/design.md §6.7).
+// After a measured disturbance (Disturbance) the steps of a recovery window plan over
+// recovery_horizon() instead, and a schedule a step adapted (a touch-down, a capture step) is the
+// next steps' schedule up to that plan's end (schedule_from).
 #pragma once
 
 #include <chrono>
@@ -159,6 +162,10 @@ class PlanningSession {
   // step() but for its disturbance report.
   SessionStep answer_step(const SrbdProblem::StartState& measured, double t,
                           const StepLimits& limits);
+  // The schedule a step from t follows (from 0 = t, to the reference's end): the last plan's
+  // where it adapted the reference's (a capture step, a touch-down), up to that plan's end, so
+  // that the next steps keep the adaptation; else the reference's.
+  PhaseTimeline schedule_from(double t) const;
   std::shared_ptr<StepJob> prepare(const SrbdProblem::StartState& measured, double t,
                                    const StepLimits& limits);
   SessionStep fallback_step(const StepJob& job, const std::string& reason,
