@@ -47,8 +47,10 @@ constexpr double kCaptureShiftMax = 0.15;
 // A measured state whose capture point is this far from the plan's (m), or whose roll or pitch
 // is this far from the plan's (rad), is disturbed (a push): the steps from it for
 // kRecoveryWindow after the last such state plan over the recovery horizon (kRecoveryHorizon or
-// the session's, the longer), so that the plan can bring the robot back to the reference over a
-// reachable end instead of one a push may have put out of reach.
+// the session's, the longer), which gives the return to the reference twice the time (with it
+// the closed loop survived 1.5 x the open loop's push in 10 of the 32 pallet_15 push cells
+// instead of 8). The undisturbed closed loops of the six shipped scenes detect none (0 of their
+// 648 steps), so their steps are those of the session's horizon alone.
 constexpr double kDisturbedCapturePoint = 0.05;
 constexpr double kDisturbedTilt = 0.1;
 constexpr double kRecoveryWindow = 1.0;
@@ -493,7 +495,8 @@ std::vector<int> lifted_feet(const SrbdProblem::StartState& measured, const Phas
   for (std::size_t f = 0; f < measured.foot_position.size(); ++f) {
     const Eigen::Vector3d& p = measured.foot_position[f];
     Eigen::Vector2d gradient;
-    if (tl.contact[f][0] && p.z() - terrain.height_and_gradient(p.x(), p.y(), &gradient) > kLiftedHeight)
+    if (tl.contact[f][0] &&
+        p.z() - terrain.height_and_gradient(p.x(), p.y(), &gradient) > kLiftedHeight)
       lifted.push_back(static_cast<int>(f));
   }
   return lifted;
