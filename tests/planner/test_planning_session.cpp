@@ -251,6 +251,83 @@ TEST_F(FlatSession, APushThatMovesTheCapturePointOutOfSupportMakesAStepTowardsIt
   EXPECT_LT(quiet.step(quiet.planned_state(t), t).capture.foot, 0);
 }
 
+// A measured state whose capture point is well off the plan's (the base moving 0.6 m/s sideways)
+// is a disturbance: that step and the steps of the next second plan over the recovery horizon
+// (2 s instead of 1 s), reported as session.disturbance; afterwards, and in an undisturbed
+// session, steps keep the session's horizon.
+TEST_F(FlatSession, ADisturbedStepPlansOverTheRecoveryHorizonForAWhile) {
+  const double t = 0.2;
+  PlanningSession quiet(robot, flat, flat, options, cold.trajectory, 1.0, 0.02);
+  for (double u : {0.2, 0.3, 0.8}) {
+    const SessionStep q = quiet.step(quiet.planned_state(u), u);
+    ASSERT_TRUE(q.outcome.success) << q.outcome.message;
+    EXPECT_FALSE(q.disturbance.detected) << "at " << u;
+    EXPECT_FALSE(q.disturbance.recovering) << "at " << u;
+    EXPECT_FALSE(q.outcome.trajectory.extra["session"].contains("disturbance"));
+    EXPECT_DOUBLE_EQ(q.outcome.trajectory.extra["session"]["horizon"].get<double>(), 1.0);
+  }
+  PlanningSession fresh(robot, flat, flat, options, cold.trajectory, 1.0, 0.02);
+  const double quiet_end = fresh.step(fresh.planned_state(t), t).end_time;
+  EXPECT_LT(quiet_end, t + 2.0 - 1e-6);
+
+  EXPECT_DOUBLE_EQ(session->recovery_horizon(), 2.0);
+  SrbdProblem::StartState pushed = session->planned_state(t);
+  pushed.linear_velocity.y() += 0.6;
+  const SessionStep step = session->step(pushed, t);
+  EXPECT_TRUE(step.disturbance.detected);
+  EXPECT_TRUE(step.disturbance.recovering);
+  EXPECT_GT(step.disturbance.capture_point_offset, 0.1);
+  EXPECT_TRUE(step.outcome.trajectory.extra["session"].contains("disturbance"));
+  EXPECT_TRUE(step.to_goal || step.end_time >= t + 2.0 - 1e-6) << step.end_time;
+  EXPECT_GT(step.end_time, quiet_end);
+  ASSERT_TRUE(step.outcome.success) << step.outcome.message;
+  // On the recovery plan 0.1 s later: not disturbed, still in the window.
+  const SessionStep next = session->step(session->planned_state(t + 0.1), t + 0.1);
+  EXPECT_FALSE(next.disturbance.detected);
+  EXPECT_TRUE(next.disturbance.recovering);
+  EXPECT_TRUE(next.to_goal || next.end_time >= t + 0.1 + 2.0 - 1e-6) << next.end_time;
+  // A second after the disturbance the window has closed.
+  const double later = t + 1.05;
+  const SessionStep after = session->step(session->planned_state(later), later);
+  EXPECT_FALSE(after.disturbance.detected);
+  EXPECT_FALSE(after.disturbance.recovering);
+  EXPECT_DOUBLE_EQ(after.outcome.trajectory.extra["session"]["horizon"].get<double>(), 1.0);
+}
+
+// The schedule a capture step adapted carries over to the next steps: 0.1 s later, from the
+// capture plan's state, the stepping foot is not "lifted" (no touch-down added) and stands from
+// the capture step's touch-down on, not from the reference's.
+TEST_F(FlatSession, ACaptureStepsScheduleCarriesOverToTheNextStep) {
+  const double t = 0.6;
+  SrbdProblem::StartState pushed = session->planned_state(t);
+  pushed.linear_velocity.y() += 1.6;
+  const SessionStep step = session->step(pushed, t);
+  ASSERT_GE(step.capture.foot, 0) << "a capture step";
+  ASSERT_TRUE(step.outcome.success) << step.outcome.message;
+  const int f = step.capture.foot;
+  const double td = step.capture.touchdown;
+  ASSERT_GT(td, 0.1);
+  const SessionStep next = session->step(session->planned_state(t + 0.1), t + 0.1);
+  ASSERT_TRUE(next.outcome.success) << next.outcome.message;
+  EXPECT_TRUE(next.touchdowns.empty());
+  const PhaseTimeline tl = timeline_of(next.outcome.trajectory);
+  const double landed = td - 0.1;
+  for (const auto& ph : tl.phases(f))
+    if (ph.start <= landed + 0.03 && ph.end > landed + 0.03) {
+      EXPECT_TRUE(ph.contact) << "the stepping foot stands from its capture touch-down";
+      EXPECT_NEAR(ph.start, landed, 1e-6);
+    }
+  // The reference, which the next step followed before, has that foot swinging there (a swing
+  // moved earlier) or standing throughout (a swing added): either way not this schedule.
+  const PhaseTimeline reference = timeline_of(cold.trajectory).cropped(t + 0.1);
+  bool differs = false;
+  for (std::size_t k = 0; k < reference.feet.size(); ++k)
+    for (const auto& ph : reference.phases(static_cast<int>(k)))
+      differs |= static_cast<int>(k) == f && ph.contact != (ph.start >= landed - 1e-6) &&
+                 ph.start < landed + 0.3;
+  EXPECT_TRUE(differs);
+}
+
 // A step made from a thread at a real-time priority (the service raises a budgeted step's thread
 // so that its answer is not delayed by the scheduler) solves at the normal policy: the solver
 // thread it starts would otherwise inherit SCHED_FIFO, and the step could not preempt its own

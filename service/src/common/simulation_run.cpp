@@ -122,8 +122,8 @@ json simulation_summary_json(const simulation::SimulationReport& r, const robot:
                                             {"fallback", s.fallback.empty() ? json()
                                                                             : json(s.fallback)}};
                                // The schedule the step adapted and why it fell back.
-                               for (const char* key :
-                                    {"capture_step", "touchdowns", "fallback_message"})
+                               for (const char* key : {"capture_step", "touchdowns",
+                                                       "disturbance", "fallback_message"})
                                  if (s.session.is_object() && s.session.contains(key))
                                    step[key] = s.session[key];
                                steps.push_back(std::move(step));

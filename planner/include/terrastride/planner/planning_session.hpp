@@ -13,6 +13,9 @@
 // different structure (and a step's structure changes whenever its start crosses a segment
 // knot), so the cost of a step is that of its problem: a horizon of 2 s instead of the 11 s of
 // pallet_15 makes each step's problem about five times smaller (docs/design.md §6.7).
+// After a measured disturbance (Disturbance) the steps of a recovery window plan over
+// recovery_horizon() instead, and a schedule a step adapted (a touch-down, a capture step) is the
+// next steps' schedule up to that plan's end (schedule_from).
 #pragma once
 
 #include <chrono>
@@ -40,6 +43,17 @@ struct CaptureStep {
   double outside = 0.0;
   bool placed = false;
   Eigen::Vector3d foothold = Eigen::Vector3d::Zero();
+};
+
+// How far a step's measured state is from the session's plan there (planning_session.cpp,
+// measure_disturbance): the capture points' distance (x + v / omega, m) and the largest
+// roll/pitch error (rad). A step whose measured state is this far off, that lifts a foot or makes
+// a capture step opens a recovery window: its steps plan over the recovery horizon.
+struct Disturbance {
+  double capture_point_offset = 0.0;
+  double tilt_offset = 0.0;
+  bool detected = false;  // this step's state (or its schedule adaptation) is a disturbance
+  bool recovering = false;  // the step plans over the recovery horizon
 };
 
 struct SessionStep {
@@ -73,6 +87,9 @@ struct SessionStep {
   std::vector<std::string> touchdowns;
   // A step the push called for (capture.foot >= 0), reported as session.capture_step.
   CaptureStep capture;
+  // The measured offset from the session's plan, and whether the step plans over the recovery
+  // horizon (reported as session.disturbance).
+  Disturbance disturbance;
 };
 
 // What bounds one step. should_stop is polled once per solver iteration (the service's
@@ -125,6 +142,9 @@ class PlanningSession {
   const Trajectory& previous() const { return previous_; }
   double previous_start_time() const { return previous_start_; }
   double horizon() const { return horizon_; }
+  // The horizon of the steps in a recovery window (after a measured disturbance, until the state
+  // has stayed near the plan for a while): the longer of 2 s and horizon().
+  double recovery_horizon() const;
   int steps() const { return steps_; }
   // Bytes the session holds (reference and previous plans, their samples): for the service's
   // per-session bound.
@@ -139,6 +159,13 @@ class PlanningSession {
   Trajectory current_plan_from(double t, double end) const;
 
  private:
+  // step() but for its disturbance report.
+  SessionStep answer_step(const SrbdProblem::StartState& measured, double t,
+                          const StepLimits& limits);
+  // The schedule a step from t follows (from 0 = t, to the reference's end): the last plan's
+  // where it adapted the reference's (a capture step, a touch-down), up to that plan's end, so
+  // that the next steps keep the adaptation; else the reference's.
+  PhaseTimeline schedule_from(double t) const;
   std::shared_ptr<StepJob> prepare(const SrbdProblem::StartState& measured, double t,
                                    const StepLimits& limits);
   SessionStep fallback_step(const StepJob& job, const std::string& reason,
@@ -165,6 +192,10 @@ class PlanningSession {
   // How late budgeted steps returned after their answer was due (a decaying maximum, s).
   double late_s_ = 0.0;
   int steps_ = 0;
+  // Steps before this session time (set by the last disturbance detected) plan over
+  // recovery_horizon().
+  double recovery_until_ = -1.0;
+  Disturbance last_disturbance_;  // the last prepared step's
   std::unique_ptr<StepWorker> worker_;  // made by the first budgeted step
   // A solve over its iteration budget that still converged (StepLimits::iterations): adopted as
   // a late solve when the next step begins.
