@@ -145,37 +145,30 @@ StartDisturbance start_disturbance(const StepJob& job) {
 
 // A start this far from its warm start is disturbed (a push): undisturbed closed loops of the six
 // `all` scenes stay within 0.26 m/s and 0.42 rad/s of it, the steps after a 1.5x push on pallet_15
-// reach 0.7-1.3 m/s and 1-2.6 rad/s. Such a step gets (and no other step, so undisturbed steps
-// are solved as before):
-//  - a guess bridged from the measured state to the previous plan (SrbdProblem::warm_start_from)
-//    over the time the velocity offset takes to shed at friction * g (the Hermite bridge's peak
-//    deceleration is 4 |dv| / span), within [kBridgeSpanMin, kBridgeSpanMax];
-//  - room on its first dynamics rows (ProblemOptions::start_wrench_room): an unplanned wrench of
-//    up to kStartWrenchRoom body weights (and 0.1 m g x 1 m) at the start, gone by
-//    kStartWrenchSpan; with 0.3 body weights over 0.1 s a step 0.13 s into a 712 N push still
-//    stalled at its iteration cap, with 1 over 0.1-0.3 s it converged in 9-10 iterations;
-//  - Ipopt's default-sized bound push (solve_job).
+// reach 0.7-1.3 m/s and 1-2.6 rad/s. Such a step, and no other (undisturbed steps are solved as
+// before), gets a guess bridged from the measured state to the previous plan
+// (SrbdProblem::warm_start_from) over the time the velocity offset takes to shed at friction * g
+// (the Hermite bridge's peak deceleration is 4 |dv| / span), within [kBridgeSpanMin,
+// kBridgeSpanMax], and Ipopt's bound push 1e-2 (solve_job). Not the dynamics rows' start room
+// (ProblemOptions::start_wrench_room): with 1 body weight over 0.3 s more post-push steps
+// converged (86-94 of some 195 at the iteration cap instead of 103-109) but not within their
+// budget, and fewer pushed closed loops stood.
 constexpr double kDisturbedVelocity = 0.3;  // m/s
 constexpr double kDisturbedRates = 0.6;     // rad/s
 constexpr double kBridgeSpanMin = 0.2, kBridgeSpanMax = 0.4;  // s
-constexpr double kStartWrenchRoom = 1.0, kStartWrenchSpan = 0.3;
 
 bool disturbed(const StartDisturbance& d) {
   return d.velocity > kDisturbedVelocity || d.rates > kDisturbedRates;
 }
 
 std::unique_ptr<SrbdProblem> build_problem(StepJob& job, const SrbdProblem::StartState* end_state) {
-  const StartDisturbance d = start_disturbance(job);
-  ProblemOptions problem_options = job.problem_options;
-  double bridge_span = 0.0;
-  if (disturbed(d)) {
-    problem_options.start_wrench_room = kStartWrenchRoom;
-    problem_options.start_wrench_span = kStartWrenchSpan;
-    bridge_span = std::clamp(4.0 * d.velocity / (job.options.friction * kGravity), kBridgeSpanMin,
-                             kBridgeSpanMax);
-  }
   auto p = std::make_unique<SrbdProblem>(*job.robot, *job.plan_terrain, job.timeline,
-                                         problem_options, &job.measured, end_state);
+                                         job.problem_options, &job.measured, end_state);
+  const StartDisturbance d = start_disturbance(job);
+  const double bridge_span =
+      disturbed(d) ? std::clamp(4.0 * d.velocity / (job.options.friction * kGravity),
+                                kBridgeSpanMin, kBridgeSpanMax)
+                   : 0.0;
   p->warm_start_from(job.guess, job.t, bridge_span);
   if (job.capture.foot >= 0) place_capture_foothold(job, p.get());
   return p;
