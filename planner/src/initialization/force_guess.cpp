@@ -13,7 +13,7 @@ namespace terrastride::planner::initialization {
 // both neighbouring segments' linear and angular dynamics for the guessed base motion, nearest to
 // the weight shared equally (a small regularised least-squares problem per knot), then held in
 // the friction pyramid. Ipopt then starts near dynamic balance instead of 1-2 m g away from it.
-void guess_forces(const GuessInputs& in, Variables* variables) {
+void guess_forces(const GuessInputs& in, Variables* variables, int first_knot, int last_knot) {
   const robot::RobotModel& robot = in.robot;
   const Layout& L = in.layout;
   std::vector<double>& x0 = variables->initial;
@@ -26,7 +26,8 @@ void guess_forces(const GuessInputs& in, Variables* variables) {
   // Angular rows are divided by this lever arm so that they weigh like the force rows.
   constexpr double kLever = 0.3;  // m
   constexpr double kRegularisation = 1e-3;
-  for (int k = 0; k <= S; ++k) {
+  if (last_knot < 0) last_knot = S;
+  for (int k = std::max(0, first_knot); k <= std::min(S, last_knot); ++k) {
     std::vector<int> feet, vars;
     for (int f = 0; f < nf; ++f) {
       const int v = k < S && L.force[f][k][0] >= 0 ? L.force[f][k][0]

@@ -42,7 +42,9 @@ void fix_base_boundary(const GuessInputs& in, const BaseBoundary& boundary, Vari
 void guess_footholds(const GuessInputs& in, const BaseBoundary& boundary, Variables* variables);
 // Swing knots between the footholds, lifted above the terrain around them.
 void guess_swing_feet(const GuessInputs& in, const BaseBoundary& boundary, Variables* variables);
-// Contact forces in dynamic balance with the guessed base motion.
-void guess_forces(const GuessInputs& in, Variables* variables);
+// Contact forces in dynamic balance with the guessed base motion, at knots first..last (all by
+// default).
+void guess_forces(const GuessInputs& in, Variables* variables, int first_knot = 0,
+                  int last_knot = -1);
 
 }  // namespace terrastride::planner::initialization

@@ -143,8 +143,10 @@ class SrbdProblem {
   // Event times of the solution (optimised timing moves them).
   std::vector<double> event_times(const std::vector<double>& x) const;
 
-  // Initial guess from a previous plan (time `shift` of that plan becomes t = 0 here).
-  void warm_start_from(const struct Trajectory& previous, double shift);
+  // Initial guess from a previous plan (time `shift` of that plan becomes t = 0 here). With
+  // bridge_span > 0 and a measured start, the guess's first bridge_span seconds go from the
+  // measured state to the previous plan instead (bridge_guess_from_start, for a start far from it).
+  void warm_start_from(const struct Trajectory& previous, double shift, double bridge_span = 0.0);
 
  private:
 
@@ -161,6 +163,7 @@ class SrbdProblem {
   std::map<std::string, double> start_excess_, end_excess_;
   std::vector<char> fixed_by_start_;  // per variable: fixed by the start state (re-plans only)
   void pin_end_state(const StartState& end);
+  void bridge_guess_from_start(const struct TrajectorySample& guess_start, double span);
   std::vector<int> row_offset_, nz_offset_;
   int num_rows_ = 0, nnz_ = 0;
 };
