@@ -161,10 +161,10 @@ StartDisturbance start_disturbance(const StepJob& job) {
 // before), gets a guess bridged from the measured state to the previous plan
 // (SrbdProblem::warm_start_from) over the time the velocity offset takes to shed at friction * g
 // (the Hermite bridge's peak deceleration is 4 |dv| / span), within [kBridgeSpanMin,
-// kBridgeSpanMax], and Ipopt's bound push 1e-2 (solve_job). Not the dynamics rows' start room
-// (ProblemOptions::start_wrench_room): with 1 body weight over 0.3 s more post-push steps
-// converged (86-94 of some 195 at the iteration cap instead of 103-109) but not within their
-// budget, and fewer pushed closed loops stood.
+// kBridgeSpanMax], and Ipopt's bound push 1e-2 (solve_job). Room on the first dynamics rows (an
+// unplanned start wrench of 1 body weight decaying over 0.3 s) made more post-push steps converge
+// (86-94 of some 195 at the iteration cap instead of 103-109) but none within its budget, and
+// fewer pushed closed loops stood, so a step's dynamics rows stay exact (docs/sessions.md).
 constexpr double kDisturbedVelocity = 0.3;  // m/s
 constexpr double kDisturbedRates = 0.6;     // rad/s
 constexpr double kBridgeSpanMin = 0.2, kBridgeSpanMax = 0.4;  // s

@@ -1,15 +1,13 @@
 // "dynamics_angular" (baseline): the base's angular dynamics, I w' + w x I w = sum (p - r) x f
 // (world frame, I = R I_b R^T), at `angular_points` points of each segment, ends included. The
 // ends hold exactly, the interior points within +-angular_band (see ProblemOptions). Rows in
-// units of 0.1 m g x 1 m. Only for a base that may rotate. A re-plan from a disturbed start gives
-// its first rows room (ProblemOptions::start_wrench_room, start_return.hpp).
+// units of 0.1 m g x 1 m. Only for a base that may rotate.
 #include <algorithm>
 #include <array>
 #include <vector>
 
 #include "feasibility_common.hpp"
 #include "spline_variables.hpp"
-#include "start_return.hpp"
 #include "terrastride/planner/constraints.hpp"
 #include "terrastride/planner/nlp.hpp"
 
@@ -81,8 +79,7 @@ void add_dynamics_angular(SrbdProblem& problem, int s) {
     // See angular_band. A cropped first segment's start was an interior point of the previous
     // plan's segment, so it keeps the band.
     const bool interior = (sigma > 0.0 && sigma < 1.0) || (s == 0 && L.first_segment_cropped > 0.0);
-    const double band = (interior ? options.angular_band * scale : 0.0) +
-                        start_wrench_room(problem, nominal_point_time(L, s, sigma));
+    const double band = interior ? options.angular_band * scale : 0.0;
     problem.add_piece(make_piece(
         "dynamics_angular", lv, std::vector<double>(3, -band), std::vector<double>(3, band),
         [=](const auto* x, auto* g) {

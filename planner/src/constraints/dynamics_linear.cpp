@@ -1,13 +1,11 @@
 // "dynamics_linear" (baseline): the base's linear dynamics, m r'' = sum f - m g, at both ends of
 // each segment. Inside a segment the base acceleration (cubic Hermite) and the sum of the forces
 // (linear force pieces) are both linear in time, so holding at both ends it holds at every instant
-// (see nlp.hpp). One row per free linear direction of the base, in body weights. A re-plan from a
-// disturbed start gives its first rows room (ProblemOptions::start_wrench_room, start_return.hpp).
+// (see nlp.hpp). One row per free linear direction of the base, in body weights.
 #include <array>
 #include <vector>
 
 #include "spline_variables.hpp"
-#include "start_return.hpp"
 #include "terrastride/planner/constraints.hpp"
 #include "terrastride/planner/nlp.hpp"
 
@@ -31,10 +29,8 @@ void add_dynamics_linear(SrbdProblem& problem, int s) {
     std::vector<std::array<int, 3>> fl;
     for (int f = 0; f < nf; ++f)
       if (L.force[f][s][side] >= 0) fl.push_back(lv.add3(L.force[f][s][side]));
-    const double room = start_wrench_room(problem, nominal_point_time(L, s, sigma));
-    const std::vector<double> lo(lin_rows.size(), room > 0.0 ? -room : 0.0),
-        hi(lin_rows.size(), room);
-    problem.add_piece(make_piece("dynamics_linear", lv, lo, hi, [=](const auto* x, auto* g) {
+    std::vector<double> z(lin_rows.size(), 0.0);
+    problem.add_piece(make_piece("dynamics_linear", lv, z, z, [=](const auto* x, auto* g) {
       using T = std::decay_t<decltype(*g)>;
       const T h = x[dur] * frac;
       Vec3<T> a;

@@ -25,13 +25,6 @@
 // 5.7 cm outside LH's box, its last segment's rows 2.5 cm, nine steps in a row failed). They get
 // the end's excess as room, growing over the same span up to the end: bound + e max(0, 1 -
 // (t_end - t) / span). A plan that ends at rest (every cold plan, plan --init) has none.
-// A session step from a disturbed start (a push; planning_session.cpp, kDisturbedVelocity) has
-// dynamics rows its feet may be unable to hold at first: the measured twist must be turned in the
-// first 0.01-0.02 s segments by feet whose friction, torque polytopes and force ramps bound what
-// they give, and the push may still be acting. Those steps stalled at their iteration cap with
-// dynamics_linear and dynamics_angular violated in the first 0.04 s. Their dynamics rows get room,
-// an unplanned wrench of ProblemOptions::start_wrench_room at the start shrinking linearly to
-// nothing over start_wrench_span (start_wrench_room below); every other plan has none.
 #pragma once
 
 #include <Eigen/Core>
@@ -128,14 +121,6 @@ inline bool pinned_end_foot_pose(const SrbdProblem& problem, int f, MeasuredFoot
 // The nominal time of the point at fraction sigma of segment s.
 inline double nominal_point_time(const Layout& L, int s, double sigma) {
   return L.nominal_knot_time[s] + sigma * (L.nominal_knot_time[s + 1] - L.nominal_knot_time[s]);
-}
-
-// The room of a dynamics row at nominal time t (ProblemOptions::start_wrench_room): decaying
-// linearly to 0 at start_wrench_span; 0 for a plan from rest.
-inline double start_wrench_room(const SrbdProblem& problem, double t) {
-  const ProblemOptions& o = problem.options();
-  if (problem.starts_at_rest() || !(o.start_wrench_room > 0.0)) return 0.0;
-  return o.start_wrench_room * start_return_weight(t, o.start_wrench_span);
 }
 
 }  // namespace terrastride::planner

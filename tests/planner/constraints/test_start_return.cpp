@@ -379,62 +379,6 @@ TEST(StartReturn, RowsBeforeAPinnedEndJacobianMatchesCentralDifferences) {
   EXPECT_GT(check_kind_derivatives(s, "joints"), 0);
 }
 
-// A disturbed re-plan's unplanned start wrench (ProblemOptions::start_wrench_room): the
-// dynamics_linear and dynamics_angular rows before start_wrench_span get room, the room at
-// nominal time t the option's times (1 - t / span) on top of the rows' own bounds; every other
-// row keeps its bounds, and a plan from rest (every cold plan) gets none with the option set.
-TEST(StartReturn, StartWrenchRoomWidensTheFirstDynamicsRowsAndDecays) {
-  const auto r = hyq();
-  FlatField flat;
-  ProblemOptions o = joints_and_box_options();
-  const Replan pushed = pushed_start(r, flat, o, -0.10, -0.02);
-  const SrbdProblem plain(r, flat, pushed.timeline, o, &pushed.start);
-  ProblemOptions roomy = o;
-  roomy.start_wrench_room = 0.8;
-  roomy.start_wrench_span = 0.3;
-  const SrbdProblem p(r, flat, pushed.timeline, roomy, &pushed.start);
-  ASSERT_EQ(p.pieces().size(), plain.pieces().size());
-  const Layout& L = p.layout();
-  int widened = 0;
-  for (std::size_t i = 0; i < p.pieces().size(); ++i) {
-    const Piece &a = *p.pieces()[i], &b = *plain.pieces()[i];
-    ASSERT_EQ(a.kind, b.kind);
-    ASSERT_EQ(a.vars, b.vars);
-    if (a.kind != "dynamics_linear" && a.kind != "dynamics_angular") {
-      EXPECT_EQ(a.lb, b.lb) << a.kind;
-      EXPECT_EQ(a.ub, b.ub) << a.kind;
-      continue;
-    }
-    // The piece's time: it reads the base knots of one segment; its room lies between the
-    // weights at that segment's ends.
-    const int k0 = base_knot_read(L, a, false), k1 = base_knot_read(L, a, true);
-    ASSERT_GE(k0, 0);
-    const double w_hi = start_return_weight(L.nominal_knot_time[k0], 0.3);
-    const double w_lo = start_return_weight(L.nominal_knot_time[k1], 0.3);
-    for (int row = 0; row < a.rows(); ++row) {
-      const double room = a.ub[row] - b.ub[row];
-      EXPECT_NEAR(b.lb[row] - a.lb[row], room, 1e-12) << a.kind;
-      EXPECT_GE(room, 0.8 * w_lo - 1e-12) << a.kind << " knot " << k0;
-      EXPECT_LE(room, 0.8 * w_hi + 1e-12) << a.kind << " knot " << k0;
-      if (room > 0.0) ++widened;
-    }
-    if (L.nominal_knot_time[k0] >= 0.3) {
-      EXPECT_EQ(a.ub, b.ub) << a.kind << " after the span";
-    }
-  }
-  EXPECT_GT(widened, 0);
-  // From rest the option is ignored: the cold plan's rows as they were.
-  const SrbdProblem cold(r, flat, crawl_timeline(r), o), cold_roomy(r, flat, crawl_timeline(r), roomy);
-  ASSERT_EQ(cold.pieces().size(), cold_roomy.pieces().size());
-  for (std::size_t i = 0; i < cold.pieces().size(); ++i) {
-    EXPECT_EQ(cold.pieces()[i]->lb, cold_roomy.pieces()[i]->lb);
-    EXPECT_EQ(cold.pieces()[i]->ub, cold_roomy.pieces()[i]->ub);
-  }
-  // The widened rows are the families' own: their Jacobians still match.
-  EXPECT_GT(check_kind_derivatives(p, "dynamics_linear"), 0);
-  EXPECT_GT(check_kind_derivatives(p, "dynamics_angular"), 0);
-}
-
 // The end's room grows over `span` up to the end and is nothing at the end itself and at knot 0,
 // whose rows on a measured start are constants: a horizon shorter than `span` (0.5 s against 1 s)
 // must not widen them, or part of the start's own excess would go unreported.

@@ -91,13 +91,6 @@ struct ProblemOptions {
   // (flat 2.4 s crawl: 8-10 iterations over 15 nearby goals and durations; with the band, 3-5).
   // 0.5 N m is 5 % of the dense angular-residual target.
   double angular_band = 0.5;
-  // A re-plan from a disturbed measured state (planning sessions after a push): the linear and
-  // angular dynamics rows at nominal time t < start_wrench_span get room start_wrench_room (body
-  // weights; the angular rows in their units of 0.1 m g x 1 m) x (1 - t / start_wrench_span), an
-  // unplanned wrench on the base that decays to nothing (dynamics_linear.cpp). 0: none (every
-  // plan from rest, every undisturbed step).
-  double start_wrench_room = 0.0;
-  double start_wrench_span = 0.0;  // s
 
   // ---- Constraint sets (`--constraints`; constraint_set_names()) ----
   // The library's default is the paper's formulation ("baseline"), which callers extend set by
