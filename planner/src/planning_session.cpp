@@ -173,12 +173,19 @@ bool disturbed(const StartDisturbance& d) {
   return d.velocity > kDisturbedVelocity || d.rates > kDisturbedRates;
 }
 
+// Whether a step starts from a bridged guess: its start is off its warm start, or the session
+// found its measured state disturbed (prepare: off the plan's capture point or tilt, a lifted
+// foot, a capture step).
+bool bridged(const StepJob& job) {
+  return disturbed(start_disturbance(job)) || job.disturbance.detected;
+}
+
 std::unique_ptr<SrbdProblem> build_problem(StepJob& job, const SrbdProblem::StartState* end_state) {
   auto p = std::make_unique<SrbdProblem>(*job.robot, *job.plan_terrain, job.timeline,
                                          job.problem_options, &job.measured, end_state);
   const StartDisturbance d = start_disturbance(job);
   const double bridge_span =
-      disturbed(d) ? std::clamp(4.0 * d.velocity / (job.options.friction * kGravity),
+      bridged(job) ? std::clamp(4.0 * d.velocity / (job.options.friction * kGravity),
                                 kBridgeSpanMin, kBridgeSpanMax)
                    : 0.0;
   p->warm_start_from(job.guess, job.t, bridge_span);
@@ -202,7 +209,7 @@ std::unique_ptr<SrbdProblem> solve_job(StepJob& job) {
   // start's guess (kDisturbedVelocity) is far from its solution anyway: its inequalities' slacks
   // start 1e-2 inside their bounds instead, so that its first steps are cut less by the
   // fraction-to-boundary rule.
-  const std::string push = disturbed(start_disturbance(job)) ? "1e-2" : "1e-5";
+  const std::string push = bridged(job) ? "1e-2" : "1e-5";
   std::vector<std::pair<std::string, std::string>> step_options = {
       {"mu_init", "1e-4"}, {"bound_push", push}, {"bound_frac", push},
       // A step's constraint Jacobian is rank-deficient (Ipopt's first factorisation of every
