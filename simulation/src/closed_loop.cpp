@@ -72,6 +72,8 @@ ReplannerFactory session_replanner(const robot::RobotModel& robot,
         out.start_time = step.start_time;
         out.plan = std::move(step.outcome.trajectory);
         if (auto it = out.plan.extra.find("session"); it != out.plan.extra.end()) out.session = *it;
+        // A step whose solve failed (no budget): why, with the families still violated.
+        if (!out.success && !out.message.empty()) out.session["failure"] = out.message;
       } catch (const std::exception& e) {
         // A state the planner refuses (non-finite after a blow-up, a time outside the plan).
         out.success = false;
