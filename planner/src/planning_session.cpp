@@ -102,6 +102,8 @@ struct StepJob {
   std::vector<std::string> touchdowns;  // feet in the air turned from stance to a swing
   CaptureStep capture;                  // a step after a push (foot < 0: none)
   Disturbance disturbance;
+  // > 0: the guess is bridged from the measured state over this span (bridge_span_of).
+  double bridge_span = 0.0;
   Clock::time_point t0;
   // Cancels the solve at its next iteration (a newer step needs the worker, or the session ends).
   std::atomic<bool> cancel{false};
@@ -173,22 +175,20 @@ bool disturbed(const StartDisturbance& d) {
   return d.velocity > kDisturbedVelocity || d.rates > kDisturbedRates;
 }
 
-// Whether a step starts from a bridged guess: its start is off its warm start, or the session
-// found its measured state disturbed (prepare: off the plan's capture point or tilt, a lifted
-// foot, a capture step).
-bool bridged(const StepJob& job) {
-  return disturbed(start_disturbance(job)) || job.disturbance.detected;
+// The span of a step's bridged guess, 0 for none: a step is bridged when its start is off its
+// warm start, or when the session found its measured state disturbed (prepare: off the plan's
+// capture point or tilt, a lifted foot, a capture step).
+double bridge_span_of(const StepJob& job) {
+  const StartDisturbance d = start_disturbance(job);
+  if (!disturbed(d) && !job.disturbance.detected) return 0.0;
+  return std::clamp(4.0 * d.velocity / (job.options.friction * kGravity), kBridgeSpanMin,
+                    kBridgeSpanMax);
 }
 
 std::unique_ptr<SrbdProblem> build_problem(StepJob& job, const SrbdProblem::StartState* end_state) {
   auto p = std::make_unique<SrbdProblem>(*job.robot, *job.plan_terrain, job.timeline,
                                          job.problem_options, &job.measured, end_state);
-  const StartDisturbance d = start_disturbance(job);
-  const double bridge_span =
-      bridged(job) ? std::clamp(4.0 * d.velocity / (job.options.friction * kGravity),
-                                kBridgeSpanMin, kBridgeSpanMax)
-                   : 0.0;
-  p->warm_start_from(job.guess, job.t, bridge_span);
+  p->warm_start_from(job.guess, job.t, job.bridge_span);
   if (job.capture.foot >= 0) place_capture_foothold(job, p.get());
   return p;
 }
@@ -209,7 +209,7 @@ std::unique_ptr<SrbdProblem> solve_job(StepJob& job) {
   // start's guess (kDisturbedVelocity) is far from its solution anyway: its inequalities' slacks
   // start 1e-2 inside their bounds instead, so that its first steps are cut less by the
   // fraction-to-boundary rule.
-  const std::string push = bridged(job) ? "1e-2" : "1e-5";
+  const std::string push = job.bridge_span > 0.0 ? "1e-2" : "1e-5";
   std::vector<std::pair<std::string, std::string>> step_options = {
       {"mu_init", "1e-4"}, {"bound_push", push}, {"bound_frac", push},
       // A step's constraint Jacobian is rank-deficient (Ipopt's first factorisation of every
@@ -230,7 +230,6 @@ std::unique_ptr<SrbdProblem> solve_job(StepJob& job) {
   // TERRASTRIDE_IPOPT_OPTIONS would change the reference's cold solve too).
   for (auto& option : ipopt_options_from_env("TERRASTRIDE_STEP_IPOPT_OPTIONS"))
     step_options.push_back(std::move(option));
-
   const double cap = solver_options.max_time;
   o.solve = solve(*problem, solver_options, step_options);
   // A solve ended by its time, a stop, or an iteration budget's cap is not retried: the retry
@@ -266,6 +265,14 @@ nlohmann::json capture_step_json(const StepJob& job) {
   return j;
 }
 
+// The schedule a step adapted to its measured state (touch-downs, a capture step), into its
+// plan's "session" report.
+void write_schedule_adaptation(const StepJob& job, nlohmann::json* session) {
+  if (!job.touchdowns.empty())
+    (*session)["touchdowns"] = {{"feet", job.touchdowns}, {"after_s", kTouchdownAfter}};
+  if (job.capture.foot >= 0) (*session)["capture_step"] = capture_step_json(job);
+}
+
 // The solved step as a plan: samples, solver figures, dense checks, and why it failed.
 void run_job(StepJob& job) {
   const std::unique_ptr<SrbdProblem> problem = solve_job(job);
@@ -295,10 +302,8 @@ void run_job(StepJob& job) {
   ex["session"] = {{"step", job.step_number}, {"end_time", job.end}, {"to_goal", job.to_goal},
                    {"horizon", job.horizon}};
   out.touchdowns = job.touchdowns;
-  if (!job.touchdowns.empty())
-    ex["session"]["touchdowns"] = {{"feet", job.touchdowns}, {"after_s", kTouchdownAfter}};
   out.capture = job.capture;
-  if (job.capture.foot >= 0) ex["session"]["capture_step"] = capture_step_json(job);
+  write_schedule_adaptation(job, &ex["session"]);
   // The measured start's own violations (rows on it alone, left out of the solve).
   if (!problem->start_excess().empty()) ex["start_excess"] = problem->start_excess();
   if (!problem->end_excess().empty()) ex["session"]["end_excess"] = problem->end_excess();
@@ -804,10 +809,7 @@ SessionStep PlanningSession::fallback_after_solve(const StepJob& job, const std:
                                                   const std::string& message) const {
   SessionStep out = fallback_step(job, reason, message);
   // What the step tried, though its plan is not the answer: the schedule it adapted.
-  auto& session_json = out.outcome.trajectory.extra["session"];
-  if (!job.touchdowns.empty())
-    session_json["touchdowns"] = {{"feet", job.touchdowns}, {"after_s", kTouchdownAfter}};
-  if (job.capture.foot >= 0) session_json["capture_step"] = capture_step_json(job);
+  write_schedule_adaptation(job, &out.outcome.trajectory.extra["session"]);
   out.outcome.solve = job.result.outcome.solve;
   out.outcome.trajectory.solver.iterations = job.result.outcome.solve.iterations;
   out.outcome.trajectory.solver.wall_s = job.result.outcome.solve.wall_s;
@@ -899,8 +901,6 @@ std::shared_ptr<StepJob> PlanningSession::prepare(const SrbdProblem::StartState&
   if (d.detected) recovery_until_ = std::max(recovery_until_, t + kRecoveryWindow);
   d.recovering = t < recovery_until_ - kEventTol;
   job->horizon = d.recovering ? recovery_horizon() : horizon_;
-  // Where this step ends: the first contact switch at or after t + H with no foot in mid-swing
-  // across it, else the goal.
   const double end = horizon_end(reference_timeline_, t, job->horizon);
   job->end = end;
   job->to_goal = end >= T - kEventTol;
@@ -928,6 +928,7 @@ std::shared_ptr<StepJob> PlanningSession::prepare(const SrbdProblem::StartState&
   if (job->capture.foot >= 0) job->pinned_end = job->base_end;
   job->warm_from_late = std::exchange(adopted_late_, false);
   job->guess = spliced_guess(previous_, previous_start_, reference_);
+  job->bridge_span = bridge_span_of(*job);
   job->solver_options = options_;
   if (limits.should_stop) job->solver_options.should_stop = limits.should_stop;
   if (limits.max_time > 0.0) job->solver_options.max_time = limits.max_time;
