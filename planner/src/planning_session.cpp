@@ -44,6 +44,11 @@ constexpr double kTouchdownAfter = 0.2;
 constexpr double kCaptureOutside = 0.02;
 constexpr double kCaptureTouchdown = 0.2;
 constexpr double kCaptureShiftMax = 0.15;
+// A disturbed step's feet standing at its start stand for its first kLiftoffHold at least: their
+// lift-offs wait (hold_liftoffs), and a swing left shorter than kMinHeldSwing is skipped. The
+// hold covers a capture step's or a touch-down's kCaptureTouchdown and 0.1 s of its stance.
+constexpr double kLiftoffHold = 0.3;
+constexpr double kMinHeldSwing = 0.25;
 // A measured state whose capture point is this far from the plan's (m), or whose roll or pitch
 // is this far from the plan's (rad), is disturbed (a push): the steps from it for
 // kRecoveryWindow after the last such state plan over the recovery horizon (kRecoveryHorizon or
@@ -101,6 +106,8 @@ struct StepJob {
   int iteration_budget = 0;  // StepLimits::iterations (its solve capped at 4 x that)
   std::vector<std::string> touchdowns;  // feet in the air turned from stance to a swing
   CaptureStep capture;                  // a step after a push (foot < 0: none)
+  std::vector<int> held_liftoffs;       // feet whose lift-off waits (hold_liftoffs)
+  bool skipped_swing = false;           // one of them does not swing within the step
   Disturbance disturbance;
   // > 0: the guess is bridged from the measured state over this span (bridge_span_of).
   double bridge_span = 0.0;
@@ -271,6 +278,11 @@ void write_schedule_adaptation(const StepJob& job, nlohmann::json* session) {
   if (!job.touchdowns.empty())
     (*session)["touchdowns"] = {{"feet", job.touchdowns}, {"after_s", kTouchdownAfter}};
   if (job.capture.foot >= 0) (*session)["capture_step"] = capture_step_json(job);
+  if (!job.held_liftoffs.empty()) {
+    nlohmann::json feet = nlohmann::json::array();
+    for (int f : job.held_liftoffs) feet.push_back(job.robot->legs[f].name);
+    (*session)["held_liftoffs"] = feet;
+  }
 }
 
 // The solved step as a plan: samples, solver figures, dense checks, and why it failed.
@@ -418,6 +430,60 @@ std::vector<int> add_touchdowns(const std::vector<int>& lifted, PhaseTimeline* t
     changed.push_back(f);
   }
   return changed;
+}
+
+// Foot lift-offs of `tl` (a step's timeline, from 0) before `until` wait until then, but for the
+// feet of `moving` (those the step touches down or steps with). After a push the crawl went on
+// lifting its next foot on schedule: with a capture step or a touch-down in the air that left two
+// feet of four standing, after a lateral push often both on the side the base falls towards
+// (pallet_15, 712 N to the right at 1.57 s: RF stepped and RH lifted 0.125 s later, and no re-plan
+// converged: 600 iterations left force_ramp and the dynamics violated), and standing on all four
+// is the most support a push can meet (the robot standing still survives 83-92 % of the
+// rigid-body limit, benchmarks.md §12.2). A swing that would keep less than kMinHeldSwing is not
+// taken within the step (*skipped): the foot stands through it. Returns the feet it held.
+std::vector<int> hold_liftoffs(double until, const std::vector<int>& moving, PhaseTimeline* tl,
+                               bool* skipped) {
+  std::vector<int> held;
+  const int n = tl->num_intervals();
+  const int nf = static_cast<int>(tl->contact.size());
+  auto lifts_before = [&](int f) {
+    for (int j = 1; j < n && tl->events[j] < until - kEventTol; ++j)
+      if (tl->contact[f][j - 1] && !tl->contact[f][j]) return true;
+    return false;
+  };
+  std::vector<int> feet;
+  for (int f = 0; f < nf; ++f)
+    if (std::find(moving.begin(), moving.end(), f) == moving.end() && lifts_before(f))
+      feet.push_back(f);
+  if (feet.empty() || until >= tl->duration() - kEventTol) return held;
+  // An event at `until` (an existing one within 0.03 s is taken instead).
+  int stop = -1;  // the first interval starting at or after `until`
+  for (int j = 1; j <= n; ++j)
+    if (std::abs(tl->events[j] - until) <= 0.03) {
+      stop = j;
+      break;
+    }
+  if (stop < 0) {
+    int split = 0;
+    while (tl->events[split + 1] < until) ++split;
+    tl->events.insert(tl->events.begin() + split + 1, until);
+    for (auto& c : tl->contact) c.insert(c.begin() + split, static_cast<bool>(c[split]));
+    stop = split + 1;
+  }
+  for (int f : feet) {
+    auto& c = tl->contact[f];
+    for (int j = 1; j < stop; ++j) {
+      if (!c[j - 1] || c[j]) continue;
+      int land = j;  // the swing's first interval after it (num_intervals: no touch-down)
+      while (land < tl->num_intervals() && !c[land]) ++land;
+      const double touchdown = tl->events[land];
+      const bool skip = touchdown - tl->events[stop] < kMinHeldSwing;
+      *skipped = *skipped || skip;
+      for (int k = j; k < (skip ? land : stop); ++k) c[k] = true;
+    }
+    held.push_back(f);
+  }
+  return held;
 }
 
 // When foot f first stands in `tl` (its duration when it never does).
@@ -898,6 +964,9 @@ std::shared_ptr<StepJob> PlanningSession::prepare(const SrbdProblem::StartState&
   job->capture = plan_capture_step(robot_, measured, planned, airborne, &job->timeline);
   Disturbance& d = job->disturbance;
   d.detected = d.detected || !airborne.empty() || job->capture.foot >= 0;
+  // While the robot recovers, the feet standing keep standing (hold_liftoffs).
+  if (d.detected && job->capture.foot < 0)
+    job->held_liftoffs = hold_liftoffs(kLiftoffHold, airborne, &job->timeline, &job->skipped_swing);
   if (d.detected) recovery_until_ = std::max(recovery_until_, t + kRecoveryWindow);
   d.recovering = t < recovery_until_ - kEventTol;
   job->horizon = d.recovering ? recovery_horizon() : horizon_;
@@ -925,7 +994,8 @@ std::shared_ptr<StepJob> PlanningSession::prepare(const SrbdProblem::StartState&
   job->base_end.foot_position.clear();
   job->base_end.foot_velocity.clear();
   job->base_end.foot_force.clear();
-  if (job->capture.foot >= 0) job->pinned_end = job->base_end;
+  // A capture step's foothold, or a swing the hold skipped, is not the reference's at the end.
+  if (job->capture.foot >= 0 || job->skipped_swing) job->pinned_end = job->base_end;
   job->warm_from_late = std::exchange(adopted_late_, false);
   job->guess = spliced_guess(previous_, previous_start_, reference_);
   job->bridge_span = bridge_span_of(*job);

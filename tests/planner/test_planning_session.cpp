@@ -5,6 +5,7 @@
 #include <pthread.h>
 #include <sched.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <thread>
@@ -326,6 +327,46 @@ TEST_F(FlatSession, ACaptureStepsScheduleCarriesOverToTheNextStep) {
       differs |= static_cast<int>(k) == f && ph.contact != (ph.start >= landed - 1e-6) &&
                  ph.start < landed + 0.3;
   EXPECT_TRUE(differs);
+}
+
+// A disturbed step keeps the feet standing at its start on the ground for its first 0.3 s: a
+// lift-off the schedule has 0.15 s in waits (a crawl lifting its next foot while the base is
+// pushed takes support away when it is needed most), reported as session.held_liftoffs. The
+// undisturbed step at the same time lifts that foot on schedule.
+TEST_F(FlatSession, ADisturbedStepHoldsTheNextLiftOff) {
+  // The first lift-off from 0.45 s on, and the foot lifting there.
+  const PhaseTimeline reference = timeline_of(cold.trajectory);
+  int foot = -1;
+  double lift = 0.0;
+  for (int j = 1; j < reference.num_intervals() && foot < 0; ++j)
+    for (std::size_t f = 0; f < reference.feet.size() && foot < 0; ++f)
+      if (reference.events[j] >= 0.45 && reference.contact[f][j - 1] && !reference.contact[f][j]) {
+        foot = static_cast<int>(f);
+        lift = reference.events[j];
+      }
+  ASSERT_GE(foot, 0) << "the crawl lifts a foot after 0.45 s";
+  const double t = lift - 0.15;
+  auto first_phase = [&](const SessionStep& s) {
+    return timeline_of(s.outcome.trajectory).phases(foot).front();
+  };
+  PlanningSession quiet(robot, flat, flat, options, cold.trajectory, 1.0, 0.02);
+  const SessionStep q = quiet.step(quiet.planned_state(t), t);
+  ASSERT_TRUE(q.outcome.success) << q.outcome.message;
+  EXPECT_TRUE(first_phase(q).contact);
+  EXPECT_NEAR(first_phase(q).end, 0.15, 1e-6) << "undisturbed, the foot lifts on schedule";
+  EXPECT_FALSE(q.outcome.trajectory.extra["session"].contains("held_liftoffs"));
+
+  SrbdProblem::StartState pushed = session->planned_state(t);
+  pushed.linear_velocity.y() += 0.3;  // the capture point 7 cm off the plan's, within the support
+  const SessionStep step = session->step(pushed, t);
+  ASSERT_TRUE(step.disturbance.detected);
+  ASSERT_LT(step.capture.foot, 0) << "no capture step: the hold alone is tested";
+  ASSERT_TRUE(step.outcome.success) << step.outcome.message;
+  EXPECT_TRUE(first_phase(step).contact);
+  EXPECT_GE(first_phase(step).end, 0.3 - 1e-6) << "the lift-off waits";
+  const auto& held = step.outcome.trajectory.extra["session"]["held_liftoffs"];
+  ASSERT_TRUE(held.is_array());
+  EXPECT_NE(std::find(held.begin(), held.end(), robot.legs[foot].name), held.end());
 }
 
 // A step made from a thread at a real-time priority (the service raises a budgeted step's thread
