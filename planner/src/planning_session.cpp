@@ -377,25 +377,25 @@ double outside_support(const std::vector<Eigen::Vector2d>& points, const Eigen::
   return best;
 }
 
+// The index of the event of `tl` at td: an existing one within 0.03 s of it, else one inserted
+// there (the interval it splits duplicated); -1 when td lies beyond the timeline's last event.
+int event_at(double td, PhaseTimeline* tl) {
+  int e = 1;
+  while (e <= tl->num_intervals() && !(tl->events[e] > td - 0.03)) ++e;
+  if (e > tl->num_intervals()) return -1;
+  if (std::abs(tl->events[e] - td) <= 0.03) return e;
+  tl->events.insert(tl->events.begin() + e, td);
+  for (auto& c : tl->contact) c.insert(c.begin() + (e - 1), static_cast<bool>(c[e - 1]));
+  return e;
+}
+
 // Foot f of `tl` (a step's timeline, from 0) touching down at td instead of later in its swing
 // under way (at `scheduled`): an event added at td unless one is within 0.03 s, the foot in
 // stance from there.
 void touch_down_earlier(int f, double td, double scheduled, PhaseTimeline* tl) {
-  int split = -1;
-  for (int j = 0; j < tl->num_intervals(); ++j)
-    if (tl->events[j + 1] > td - 0.03) {
-      split = j;
-      break;
-    }
-  if (split < 0) return;
-  if (std::abs(tl->events[split + 1] - td) <= 0.03) {
-    ++split;
-  } else {
-    tl->events.insert(tl->events.begin() + split + 1, td);
-    for (auto& c : tl->contact) c.insert(c.begin() + split, static_cast<bool>(c[split]));
-    ++split;
-  }
-  for (int j = split; j < tl->num_intervals() && tl->events[j] < scheduled - 1e-9; ++j)
+  const int e = event_at(td, tl);
+  if (e < 0) return;
+  for (int j = e; j < tl->num_intervals() && tl->events[j] < scheduled - 1e-9; ++j)
     tl->contact[f][j] = true;
 }
 
@@ -405,26 +405,16 @@ void touch_down_earlier(int f, double td, double scheduled, PhaseTimeline* tl) {
 std::vector<int> add_touchdowns(const std::vector<int>& lifted, PhaseTimeline* tl,
                                 double td = kTouchdownAfter) {
   std::vector<int> changed;
-  int split = -1;  // the interval containing td
-  for (int j = 0; j < tl->num_intervals(); ++j)
-    if (tl->events[j + 1] > td - 0.03) {
-      split = j;
-      break;
-    }
-  if (split < 0 || tl->duration() < td + 0.1) return changed;
-  if (std::abs(tl->events[split + 1] - td) <= 0.03) {
-    td = tl->events[split + 1];
-  } else {
-    tl->events.insert(tl->events.begin() + split + 1, td);
-    for (auto& c : tl->contact) c.insert(c.begin() + split, static_cast<bool>(c[split]));
-  }
+  if (tl->duration() < td + 0.1) return changed;
+  const int e = event_at(td, tl);
+  td = tl->events[e];
   for (int f : lifted) {
     // The stance must last past td + 0.1 s.
     bool stance = true;
     for (int j = 0; j < tl->num_intervals() && tl->events[j] < td + 0.1; ++j)
       stance = stance && tl->contact[f][j];
     if (!stance) continue;
-    for (int j = 0; j <= split; ++j) tl->contact[f][j] = false;
+    for (int j = 0; j < e; ++j) tl->contact[f][j] = false;
     if (tl->swing_elapsed.size() != tl->feet.size()) tl->swing_elapsed.assign(tl->feet.size(), 0.0);
     tl->swing_elapsed[f] = 0.0;
     changed.push_back(f);
@@ -456,20 +446,7 @@ std::vector<int> hold_liftoffs(double until, const std::vector<int>& moving, Pha
     if (std::find(moving.begin(), moving.end(), f) == moving.end() && lifts_before(f))
       feet.push_back(f);
   if (feet.empty() || until >= tl->duration() - kEventTol) return held;
-  // An event at `until` (an existing one within 0.03 s is taken instead).
-  int stop = -1;  // the first interval starting at or after `until`
-  for (int j = 1; j <= n; ++j)
-    if (std::abs(tl->events[j] - until) <= 0.03) {
-      stop = j;
-      break;
-    }
-  if (stop < 0) {
-    int split = 0;
-    while (tl->events[split + 1] < until) ++split;
-    tl->events.insert(tl->events.begin() + split + 1, until);
-    for (auto& c : tl->contact) c.insert(c.begin() + split, static_cast<bool>(c[split]));
-    stop = split + 1;
-  }
+  const int stop = event_at(until, tl);  // the first interval starting at `until`
   for (int f : feet) {
     auto& c = tl->contact[f];
     for (int j = 1; j < stop; ++j) {

@@ -42,6 +42,12 @@ struct FlatSession : ::testing::Test {
     s.position.y() += 0.01;
     return s;
   }
+  // The session's plan at t with the base moving `vy` m/s faster to the left: a push.
+  SrbdProblem::StartState pushed_left(double t, double vy) const {
+    SrbdProblem::StartState s = session->planned_state(t);
+    s.linear_velocity.y() += vy;
+    return s;
+  }
   robot::RobotModel robot = robot::load_robot(robot::resolve_robot_path("hyq"));
   testing::FlatField flat;
   PlannerOptions options;
@@ -226,9 +232,7 @@ TEST_F(FlatSession, AFootMeasuredInTheAirWhereThePlanHasAStanceTouchesDown) {
 // by 0.2 s after the step's start, its foothold moved to the left of the reference's.
 TEST_F(FlatSession, APushThatMovesTheCapturePointOutOfSupportMakesAStepTowardsIt) {
   const double t = 0.6;
-  SrbdProblem::StartState pushed = session->planned_state(t);
-  pushed.linear_velocity.y() += 1.6;
-  const SessionStep step = session->step(pushed, t);
+  const SessionStep step = session->step(pushed_left(t, 1.6), t);
   ASSERT_GE(step.capture.foot, 0) << "a capture step";
   const int f = step.capture.foot;
   EXPECT_GT(step.capture.outside, 0.02);
@@ -272,9 +276,7 @@ TEST_F(FlatSession, ADisturbedStepPlansOverTheRecoveryHorizonForAWhile) {
   EXPECT_LT(quiet_end, t + 2.0 - 1e-6);
 
   EXPECT_DOUBLE_EQ(session->recovery_horizon(), 2.0);
-  SrbdProblem::StartState pushed = session->planned_state(t);
-  pushed.linear_velocity.y() += 0.6;
-  const SessionStep step = session->step(pushed, t);
+  const SessionStep step = session->step(pushed_left(t, 0.6), t);
   EXPECT_TRUE(step.disturbance.detected);
   EXPECT_TRUE(step.disturbance.recovering);
   EXPECT_GT(step.disturbance.capture_point_offset, 0.1);
@@ -300,9 +302,7 @@ TEST_F(FlatSession, ADisturbedStepPlansOverTheRecoveryHorizonForAWhile) {
 // the capture step's touch-down on, not from the reference's.
 TEST_F(FlatSession, ACaptureStepsScheduleCarriesOverToTheNextStep) {
   const double t = 0.6;
-  SrbdProblem::StartState pushed = session->planned_state(t);
-  pushed.linear_velocity.y() += 1.6;
-  const SessionStep step = session->step(pushed, t);
+  const SessionStep step = session->step(pushed_left(t, 1.6), t);
   ASSERT_GE(step.capture.foot, 0) << "a capture step";
   ASSERT_TRUE(step.outcome.success) << step.outcome.message;
   const int f = step.capture.foot;
@@ -356,9 +356,8 @@ TEST_F(FlatSession, ADisturbedStepHoldsTheNextLiftOff) {
   EXPECT_NEAR(first_phase(q).end, 0.15, 1e-6) << "undisturbed, the foot lifts on schedule";
   EXPECT_FALSE(q.outcome.trajectory.extra["session"].contains("held_liftoffs"));
 
-  SrbdProblem::StartState pushed = session->planned_state(t);
-  pushed.linear_velocity.y() += 0.3;  // the capture point 7 cm off the plan's, within the support
-  const SessionStep step = session->step(pushed, t);
+  // The capture point 7 cm off the plan's, within the support.
+  const SessionStep step = session->step(pushed_left(t, 0.3), t);
   ASSERT_TRUE(step.disturbance.detected);
   ASSERT_LT(step.capture.foot, 0) << "no capture step: the hold alone is tested";
   ASSERT_TRUE(step.outcome.success) << step.outcome.message;

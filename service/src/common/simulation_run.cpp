@@ -122,8 +122,9 @@ json simulation_summary_json(const simulation::SimulationReport& r, const robot:
                                             {"fallback", s.fallback.empty() ? json()
                                                                             : json(s.fallback)}};
                                // The schedule the step adapted, why it fell back or failed.
-                               for (const char* key : {"capture_step", "touchdowns", "held_liftoffs", "disturbance",
-                                                       "fallback_message", "failure"})
+                               for (const char* key :
+                                    {"capture_step", "touchdowns", "held_liftoffs", "disturbance",
+                                     "fallback_message", "failure"})
                                  if (s.session.is_object() && s.session.contains(key))
                                    step[key] = s.session[key];
                                steps.push_back(std::move(step));
