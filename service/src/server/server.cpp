@@ -66,7 +66,9 @@ void Server::Impl::run_job(std::shared_ptr<Job> job) {
   job->request_bytes.release();
   job->connection_bytes.release();
   pool->finished();
-  asio::post(io, [job, frame = std::move(frame), ok, code]() mutable {
+  asio::post(io, [this, job, frame = std::move(frame), ok, code]() mutable {
+    heap_used = true;
+    last_job_end = Clock::now();
     auto c = job->conn.lock();
     if (job->deadline_timer) job->deadline_timer->cancel();
     if (!c) return;
@@ -201,6 +203,18 @@ long resident_bytes() {
   return pages_resident < 0 ? -1 : pages_resident * ::sysconf(_SC_PAGESIZE);
 }
 
+// What the allocator holds (glibc's mallinfo2 over every arena): in use by the server (heap
+// blocks and their own mappings), and freed but kept. Resident memory alone cannot tell a leak
+// from what glibc keeps at the top of a worker thread's arena, which malloc_trim does not return
+// (up to twice the largest block that thread freed).
+struct HeapBytes {
+  std::size_t in_use = 0, free_kept = 0;
+};
+HeapBytes heap_bytes() {
+  const struct mallinfo2 mi = ::mallinfo2();
+  return {mi.uordblks + mi.hblkhd, mi.fordblks};
+}
+
 }  // namespace
 
 std::size_t default_max_buffered_bytes() {
@@ -257,8 +271,14 @@ json Server::Impl::status_json() {
               {"refused_frames", budget->refused.load()},
               {"unsent_reply_bytes", unsent_bytes},
               {"max_unsent_bytes", options.max_unsent_bytes},
-              {"max_unsent_bytes_per_connection", options.max_write_queue_bytes}}}};
+              {"max_unsent_bytes_per_connection", options.max_write_queue_bytes},
+              // Whether the heap's free pages went back to the system since the last work.
+              {"free_heap_returned", !heap_used && !trim_pending},
+              {"heap_trims", heap_trims}}}};
   if (const long rss = resident_bytes(); rss >= 0) s["memory"]["rss_bytes"] = rss;
+  const HeapBytes heap = heap_bytes();
+  s["memory"]["heap_in_use_bytes"] = heap.in_use;
+  s["memory"]["heap_free_kept_bytes"] = heap.free_kept;
   if (status_extra) s.update(status_extra());
   return s;
 }
@@ -275,15 +295,24 @@ void Server::Impl::sweep() {
   const auto now = Clock::now();
   const auto conns = connections;  // check_timeouts may close (erase) connections
   for (const auto& c : conns) c->check_timeouts(now);
+  const bool idle = unsent_bytes == 0 && pool && pool->running() == 0 && pool->queued() == 0;
   if (trim_pending && unsent_bytes == 0) {
-    trim_pending = false;
-    ::malloc_trim(0);
+    trim_heap();
+  } else if (heap_used && idle &&
+             now - last_job_end >= std::chrono::duration<double>(kIdleTrimSeconds)) {
+    trim_heap();
   }
   sweep_timer->expires_after(
       std::chrono::microseconds(static_cast<long long>(sweep_period_s() * 1e6)));
   sweep_timer->async_wait([this](const asio::error_code& ec) {
     if (!ec) sweep();
   });
+}
+
+void Server::Impl::trim_heap() {
+  trim_pending = heap_used = false;
+  heap_trims++;
+  ::malloc_trim(0);
 }
 
 void Server::Impl::begin_shutdown() {

@@ -69,6 +69,15 @@ struct Server::Impl {
   // system once nothing is unsent (glibc keeps freed blocks of a few MiB in its heap, so the
   // memory a burst of large replies took would otherwise stay resident).
   bool trim_pending = false;
+  // Work since the heap was last trimmed (a job ran or a large reply was freed), and when the
+  // last job ended: once the server has been idle for kIdleTrimSeconds, the sweep returns the
+  // heap's free pages (a burst of solves or replies otherwise stays resident in glibc's arenas
+  // until the next burst). Not while work is steady: a session's steps reuse their pages.
+  static constexpr double kIdleTrimSeconds = 1.0;
+  bool heap_used = false;
+  Clock::time_point last_job_end = Clock::now();
+  std::uint64_t heap_trims = 0;
+  void trim_heap();
   // When the server holds max_connections: the connection idle longest (nothing in flight), to
   // close for a new one; null when every connection is busy.
   std::shared_ptr<Connection> longest_idle_connection() const;
