@@ -433,7 +433,6 @@ std::vector<int> add_touchdowns(const std::vector<int>& lifted, PhaseTimeline* t
 // taken within the step (*skipped): the foot stands through it. Returns the feet it held.
 std::vector<int> hold_liftoffs(double until, const std::vector<int>& moving, PhaseTimeline* tl,
                                bool* skipped) {
-  std::vector<int> held;
   const int n = tl->num_intervals();
   const int nf = static_cast<int>(tl->contact.size());
   auto lifts_before = [&](int f) {
@@ -445,7 +444,7 @@ std::vector<int> hold_liftoffs(double until, const std::vector<int>& moving, Pha
   for (int f = 0; f < nf; ++f)
     if (std::find(moving.begin(), moving.end(), f) == moving.end() && lifts_before(f))
       feet.push_back(f);
-  if (feet.empty() || until >= tl->duration() - kEventTol) return held;
+  if (feet.empty() || until >= tl->duration() - kEventTol) return {};
   const int stop = event_at(until, tl);  // the first interval starting at `until`
   for (int f : feet) {
     auto& c = tl->contact[f];
@@ -458,9 +457,8 @@ std::vector<int> hold_liftoffs(double until, const std::vector<int>& moving, Pha
       *skipped = *skipped || skip;
       for (int k = j; k < (skip ? land : stop); ++k) c[k] = true;
     }
-    held.push_back(f);
   }
-  return held;
+  return feet;
 }
 
 // When foot f first stands in `tl` (its duration when it never does).

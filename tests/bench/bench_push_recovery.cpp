@@ -28,6 +28,7 @@
 #include <string>
 #include <vector>
 
+#include "convex_hull.hpp"  // planner/src: the support polygon the planner measures against
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/simulation/simulation.hpp"
@@ -174,36 +175,22 @@ double largest_push(const robot::RobotModel& robot, const planner::Trajectory& p
 }
 
 // How far from `c` along the unit direction `d` the convex hull of `points` ends (0 when c is
-// outside it or the hull is a segment or a point): the hull's edges are the point pairs with every
-// other point on one side, and the ray leaves through the nearest edge it points out of.
+// outside it or the hull is a segment or a point): the ray leaves through the nearest of the
+// counter-clockwise hull's edges it points out of (d to the edge's right).
 double support_reach(const std::vector<Eigen::Vector2d>& points, const Eigen::Vector2d& c,
                      const Eigen::Vector2d& d) {
-  auto cross = [](const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
-    return a.x() * b.y() - a.y() * b.x();
-  };
+  const std::vector<Eigen::Vector2d> hull = planner::convex_hull_2d(points);
+  if (hull.size() < 3) return 0.0;
   double reach = INFINITY;
-  int edges = 0;
-  for (std::size_t i = 0; i < points.size(); ++i)
-    for (std::size_t j = i + 1; j < points.size(); ++j) {
-      const Eigen::Vector2d e = points[j] - points[i];
-      int side = 0;
-      bool edge = true;
-      for (std::size_t k = 0; k < points.size() && edge; ++k) {
-        if (k == i || k == j) continue;
-        const double s = cross(e, points[k] - points[i]);
-        const int sk = s > 1e-9 ? 1 : s < -1e-9 ? -1 : 0;
-        if (sk != 0 && side != 0 && sk != side) edge = false;
-        if (sk != 0) side = sk;
-      }
-      if (!edge || side == 0) continue;
-      ++edges;
-      // Inside means on the other points' side; the ray leaves where it crosses the edge's line.
-      const double c_side = cross(e, c - points[i]) * side;
-      if (c_side < 0) return 0.0;
-      const double towards = cross(e, d) * side;  // < 0: d points out through this edge
-      if (towards < 0) reach = std::min(reach, c_side / -towards);
-    }
-  return edges >= 3 && std::isfinite(reach) ? reach : 0.0;
+  for (std::size_t i = 0; i < hull.size(); ++i) {
+    const Eigen::Vector2d& a = hull[i];
+    const Eigen::Vector2d e = hull[(i + 1) % hull.size()] - a;
+    const double inside = planner::cross_2d(Eigen::Vector2d::Zero(), e, c - a);
+    if (inside < 0) return 0.0;
+    const double towards = planner::cross_2d(Eigen::Vector2d::Zero(), e, d);
+    if (towards < 0) reach = std::min(reach, inside / -towards);
+  }
+  return std::isfinite(reach) ? reach : 0.0;
 }
 
 // The largest push (N) of `duration` s a rigid body of `mass` kg at height h over a support that

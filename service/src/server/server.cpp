@@ -295,12 +295,10 @@ void Server::Impl::sweep() {
   const auto now = Clock::now();
   const auto conns = connections;  // check_timeouts may close (erase) connections
   for (const auto& c : conns) c->check_timeouts(now);
-  const bool idle = unsent_bytes == 0 && pool && pool->running() == 0 && pool->queued() == 0;
-  if (trim_pending && unsent_bytes == 0) {
-    trim_heap();
-  } else if (heap_used && idle &&
-             now - last_job_end >= std::chrono::duration<double>(kIdleTrimSeconds)) {
-    trim_heap();
+  if (unsent_bytes == 0) {
+    const bool rested = heap_used && pool && pool->running() == 0 && pool->queued() == 0 &&
+                        now - last_job_end >= std::chrono::duration<double>(kIdleTrimSeconds);
+    if (trim_pending || rested) trim_heap();
   }
   sweep_timer->expires_after(
       std::chrono::microseconds(static_cast<long long>(sweep_period_s() * 1e6)));

@@ -69,8 +69,8 @@ struct Server::Impl {
   // system once nothing is unsent (glibc keeps freed blocks of a few MiB in its heap, so the
   // memory a burst of large replies took would otherwise stay resident).
   bool trim_pending = false;
-  // Work since the heap was last trimmed (a job ran or a large reply was freed), and when the
-  // last job ended: once the server has been idle for kIdleTrimSeconds, the sweep returns the
+  // A job ended since the heap was last trimmed, and when the last one did: once the server has
+  // been idle for kIdleTrimSeconds, the sweep returns the
   // heap's free pages (a burst of solves or replies otherwise stays resident in glibc's arenas
   // until the next burst). Not while work is steady: a session's steps reuse their pages.
   static constexpr double kIdleTrimSeconds = 1.0;
