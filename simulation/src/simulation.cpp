@@ -367,6 +367,8 @@ void validate_options(const SimulationOptions& o) {
     if (!o.replanner) throw SimulationError("replan every: needs a re-planner");
     if (!(o.replan_latency >= 0 && o.replan_latency < o.replan_every))
       throw SimulationError("replan latency: must be within [0, replan every)");
+    if (!std::isfinite(o.replan_from))
+      throw SimulationError("replan from: must be a finite time (s)");
   }
 }
 

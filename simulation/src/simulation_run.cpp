@@ -681,6 +681,7 @@ void SimulationRun::replan_if_due(double t, const BaseState& b, const ContactFor
   // 10.9 s, 0.1001 s before that end, failed in every closed-loop run.
   if (!(replanner_ && t >= next_replan_ - 1e-9 && t < t_end_ - 0.1 - 1e-3)) return;
   next_replan_ += o_.replan_every;
+  if (t < o_.replan_from - 1e-9) return;  // the plan is tracked open loop until then
   const MeasuredState ms = measured_state(t, b, contacts);
   const auto call0 = std::chrono::steady_clock::now();
   const double call_cpu0 = thread_cpu_seconds();

@@ -292,21 +292,12 @@ int main(int argc, char** argv) {
   const simulation::ReplannerFactory sessions = simulation::session_replanner(
       robot, *smooth, *scene, po, plan, args.horizon, 0.01, 0.0, args.iterations);
   // The closed loop of a push at t: a session's re-plans from t - replan_before on (before it
-  // the re-planner declines, and the run keeps the plan it tracks).
+  // the run tracks the plan open loop).
   auto closed_loop = [&](double t) {
     simulation::SimulationOptions closed = open;
     closed.replan_every = args.replan_every;
-    const double from = args.replan_before < 0 ? -1.0 : t - args.replan_before;
-    closed.replanner = [sessions, from]() -> simulation::Replanner {
-      simulation::Replanner session = sessions();
-      return [session, from](const simulation::MeasuredState& ms) {
-        if (ms.t >= from) return session(ms);
-        simulation::Replan declined;
-        declined.start_time = ms.t;
-        declined.message = "before the push's re-planning window";
-        return declined;
-      };
-    };
+    closed.replanner = sessions;
+    closed.replan_from = args.replan_before < 0 ? 0.0 : t - args.replan_before;
     return closed;
   };
   const auto wall0 = std::chrono::steady_clock::now();

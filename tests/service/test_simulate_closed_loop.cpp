@@ -169,6 +169,37 @@ TEST(ClosedLoop, AnIterationBudgetGivesTheSameStepsInProcessAndThroughTheSocket)
   std::filesystem::remove(plan);
 }
 
+// --replan-from T: the plan is tracked open loop until T, then re-planned on the same 0.2 s
+// grid as from the start (the push benchmark re-plans so from 0.5 s before its push). Through a
+// server too, since the simulator, not the session, decides when to step.
+TEST(ClosedLoop, ReplanningStartsAtTheFirstPeriodFromTheGivenTime) {
+  const std::string plan = plan_file("flat_from", "--terrain flat --duration 2.4 --constraints baseline");
+  ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
+  ASSERT_FALSE(server.tcp().empty()) << server.output;
+  const std::string args = " --terrain flat --json --replan-every 0.2 --horizon 1 --replan-from 1.1";
+  for (const std::string via : {std::string(), " --via " + server.tcp()}) {
+    const auto r = run_terrastride("simulate " + plan + args + via);
+    const json s = summary(r);
+    EXPECT_EQ(r.code, 0) << r.all();
+    ASSERT_TRUE(s.contains("closed_loop")) << s.dump();
+    // 1.2, 1.4, ..., 2.2 s: six steps of the eleven a run from the start makes.
+    const json& steps = s["closed_loop"]["steps"];
+    ASSERT_EQ(steps.size(), 6u) << s["closed_loop"].dump();
+    for (std::size_t k = 0; k < steps.size(); ++k)
+      EXPECT_NEAR(steps[k]["t"].get<double>(), 1.2 + 0.2 * static_cast<double>(k), 1e-6) << via;
+    EXPECT_EQ(s["closed_loop"]["replan_failures"].get<int>(), 0) << s["closed_loop"].dump();
+  }
+  // Within the plan's last 0.1 s, where no step is taken: named, not run open loop in silence.
+  const auto late = run_terrastride("simulate " + plan + " --terrain flat --replan-every 0.2 --replan-from 2.35");
+  EXPECT_EQ(late.code, 1) << late.all();
+  EXPECT_NE(late.err.find("--replan-from"), std::string::npos) << late.all();
+  const auto bad = run_terrastride("simulate " + plan + " --terrain flat --replan-every 0.2 --replan-from nan");
+  EXPECT_EQ(bad.code, 1) << bad.all();
+  EXPECT_NE(bad.err.find("--replan-from"), std::string::npos) << bad.all();
+  EXPECT_EQ(server.stop(SIGTERM), 0) << server.output;
+  std::filesystem::remove(plan);
+}
+
 TEST(ClosedLoop, BadViaAndUnreachableServerAreNamed) {
   const std::string plan = plan_file("flat_bad", "--terrain flat --duration 2.4 --constraints baseline");
   auto r = run_terrastride("simulate " + plan + " --terrain flat --replan-every 0.1 --via ftp://x");

@@ -57,6 +57,7 @@ struct SimulateCliOptions {
   std::string via = "in-process";
   double horizon = 1.0;
   double replan_latency = 0.0;
+  double replan_from = 0.0;
   // A re-plan's deadline: in solver iterations by default (the closed loop's answers then do
   // not depend on the machine's load: a run is reproducible), or in wall-clock time as the
   // service's steps (--replan-budget, which takes precedence when > 0).
@@ -262,6 +263,8 @@ void check_closed_loop_options(const SimulateCliOptions& o) {
   if (!std::isfinite(o.replan_latency) || o.replan_latency < 0 ||
       (o.replan_every > 0 && o.replan_latency >= o.replan_every))
     throw CommandError("--replan-latency: must be within [0, --replan-every)");
+  if (!std::isfinite(o.replan_from) || o.replan_from < 0)
+    throw CommandError("--replan-from: must be a time of the plan, at least 0 s");
   if (!(o.replan_budget_ms >= 0 && o.replan_budget_ms <= 60000))
     throw CommandError("--replan-budget: must be within [0, 60000] ms (0 = wait for each solve)");
 }
@@ -312,6 +315,13 @@ void add_replanner(const SimulateCliOptions& o, const planner::Trajectory& traj,
   if (!(o.replan_every > 0)) return;
   sim->replan_every = o.replan_every;
   sim->replan_latency = o.replan_latency;
+  sim->replan_from = o.replan_from;
+  // No step is taken within a plan's last 0.1 s (simulation_run.cpp): a start after that would
+  // silently run open loop.
+  if (o.replan_from > traj.duration - 0.1)
+    throw CommandError("--replan-from " + format_number(o.replan_from) +
+                       ": no re-plan is taken after the plan's last 0.1 s (the plan lasts " +
+                       format_number(traj.duration) + " s)");
   if (via_socket) {
     sim->replanner = socket_replanner(o, traj);
     return;
@@ -482,6 +492,11 @@ void add_simulate_command(CLI::App& app) {
   cmd->add_option("--replan-latency", opts->replan_latency,
                   "With --replan-every: a re-plan is tracked this much simulated time after the "
                   "state it starts from was measured (s)")
+      ->capture_default_str();
+  cmd->add_option("--replan-from", opts->replan_from,
+                  "With --replan-every: re-plan from this time of the plan on (s; the first "
+                  "period at or after it), tracking the plan open loop until then, as the push "
+                  "benchmark does 0.5 s before its push")
       ->capture_default_str();
   cmd->add_option("--replan-iterations", opts->replan_budget_iterations,
                   "With --replan-every: each re-plan's budget in solver iterations (a deadline "

@@ -180,6 +180,10 @@ struct SimulationOptions {
   // the planner, so this is the only way its compute time enters). 0 = open loop.
   double replan_every = 0.0;
   double replan_latency = 0.0;
+  // The first re-plan is the first period at or after this time of the plan (s); before it the
+  // controller tracks the plan open loop. A push benchmark starts re-planning shortly before its
+  // push so that what it measures is the recovery, not the steps' drift over the whole run.
+  double replan_from = 0.0;
   ReplannerFactory replanner;
 };
 
