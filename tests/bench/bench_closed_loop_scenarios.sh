@@ -12,7 +12,13 @@ scenes=${2:-flat,pallet_10,pallet_15,stairs,eur_pallet,gap}
 shift $(( $# < 2 ? $# : 2 ))
 scratch=$(mktemp -d)
 trap 'rm -rf "$scratch"' EXIT
+# OpenBLAS picks its kernels by the CPU, and the iterates, so the counts below, follow
+# (tests/bench/blas_kernel.hpp): pinned to Haswell's where the CPU has AVX2, unless the caller set it.
+if [[ -z ${OPENBLAS_CORETYPE:-} ]] && grep -q '^flags.* avx2' /proc/cpuinfo; then
+  export OPENBLAS_CORETYPE=Haswell
+fi
 uptime
+echo "BLAS kernel: ${OPENBLAS_CORETYPE:-chosen by OpenBLAS}"
 printf '%-11s %-8s %7s %7s %9s %5s %11s  %s\n' scene verdict replans failed fallbacks own "iters p50/max" "failed steps (t: reason)"
 for s in ${scenes//,/ }; do
   "$bin" plan --terrain "$s" --constraints all --out "$scratch/$s.json" >/dev/null

@@ -28,6 +28,7 @@
 #include <string>
 #include <vector>
 
+#include "blas_kernel.hpp"
 #include "convex_hull.hpp"  // planner/src: the support polygon the planner measures against
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/robot/robot_model.hpp"
@@ -252,6 +253,7 @@ double plan_push_limit(const planner::Trajectory& plan, double mass, double mu, 
 }  // namespace
 
 int main(int argc, char** argv) {
+  bench::pin_blas_kernel(argv);
   Args args;
   try {
     args = parse(argc, argv);
@@ -305,10 +307,10 @@ int main(int argc, char** argv) {
   if (!args.json)
     std::printf("pallet_15 all (%.2f s), pushes of 0.2 s; closed loop: re-plan every %.2f s, "
                 "horizon %.1f s, %d-iteration budget, from %.1f s before the push; %d runs per "
-                "cell\n"
+                "cell; BLAS kernel %s\n"
                 "%-6s %-7s %-34s %-9s %9s %9s %6s %9s %9s  %s\n",
                 T, args.replan_every, args.horizon, args.iterations, args.replan_before, args.runs,
-                "t (s)", "swing",
+                bench::blas_kernel_name().c_str(), "t (s)", "swing",
                 "phase", "push", "open (N)", "closed(N)", "ratio", "no-step", "landed",
                 "closed loop's failure");
   int met = 0, cells = 0;
@@ -371,7 +373,8 @@ int main(int argc, char** argv) {
                                 {"rows", rows}, {"cells_met", met},
                                 {"missed_beyond_no_step_limit", beyond_no_step},
                                 {"missed_beyond_landed_limit", beyond_landed},
-                                {"cells", cells}, {"wall_s", wall}}
+                                {"cells", cells}, {"wall_s", wall},
+                                {"blas_kernel", bench::blas_kernel_name()}}
                      .dump(1)
               << "\n";
   } else {

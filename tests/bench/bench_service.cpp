@@ -25,6 +25,7 @@
 #include <sched.h>
 #include <time.h>
 
+#include "blas_kernel.hpp"
 #include "terrastride/service/cli.hpp"
 #include "terrastride/service/client.hpp"
 #include "terrastride/service/server.hpp"
@@ -853,6 +854,7 @@ struct ReplanTally {
               {"constraints", o.replan_constraints},
               {"horizon_s", o.horizon},
               {"samples", o.replan_samples},
+              {"blas_kernel", bench::blas_kernel_name()},
               {"cold_ms", cold_ms},
               {"cold_solve_ms", 1e3 * ref["solver"]["wall_s"].get<double>()},
               {"cold_iterations", ref["solver"]["iterations"]},
@@ -1008,7 +1010,8 @@ void print_latency(const std::string& label, const json& j) {
 void print_replan(const json& r) {
   std::cout << std::fixed << std::setprecision(1) << "replan (" << r["scene"].get<std::string>()
             << ", " << r["constraints"].get<std::string>() << ", horizon "
-            << r["horizon_s"].get<double>() << " s, 1 cm and 0.05 m/s off the plan):\n"
+            << r["horizon_s"].get<double>() << " s, 1 cm and 0.05 m/s off the plan; BLAS kernel "
+            << r.value("blas_kernel", "unknown") << "):\n"
             << "  cold: session open " << r["cold_ms"].get<double>() << " ms (solve "
             << r["cold_solve_ms"].get<double>() << " ms, " << r["cold_iterations"]
             << " iterations)\n";
@@ -1263,6 +1266,7 @@ void configure_bench_service(CLI::App* cmd) {
 }  // namespace terrastride::service
 
 int main(int argc, char** argv) {
+  terrastride::bench::pin_blas_kernel(argv);
   CLI::App app;
   app.name("bench_service");
   terrastride::service::configure_bench_service(&app);
