@@ -2,7 +2,7 @@
 //   bench_push_recovery [--runs N] [--replan-every S] [--horizon H] [--iterations K]
 //                       [--replan-before S] [--phases F,F,...]
 //                       [--directions left,right,forward,backward] [--check-ratio R] [--json]
-//                       [--limits-only]
+//                       [--limits-only] [--plan-out FILE]
 // For each phase (a time of the 11 s plan) and push direction (relative to the planned heading
 // there: left, right, forward, backward; 0.2 s on the trunk) the largest push survived (verdict
 // not "fail"), open loop and closed loop (a planning session re-planning every --replan-every s
@@ -30,6 +30,7 @@
 
 #include "blas_kernel.hpp"
 #include "convex_hull.hpp"  // planner/src: the support polygon the planner measures against
+#include "terrastride/planner/plan_io.hpp"
 #include "terrastride/planner/planner.hpp"
 #include "terrastride/robot/robot_model.hpp"
 #include "terrastride/simulation/simulation.hpp"
@@ -52,6 +53,9 @@ struct Args {
   double check_ratio = 0.0;  // > 0: the closed loop is run once at this multiple of the open loop's
   bool json = false;
   bool limits_only = false;  // the no-step limits of each cell, without simulating
+  // Where to write the plan the cells run on, so that `terrastride simulate FILE --push ...
+  // --replan-from ...` replays one cell on exactly it; empty: not written.
+  std::string plan_out;
 };
 
 std::vector<std::string> split(const std::string& s) {
@@ -81,6 +85,7 @@ Args parse(int argc, char** argv) {
     else if (k == "--check-ratio") a.check_ratio = std::stod(value());
     else if (k == "--json") a.json = true;
     else if (k == "--limits-only") a.limits_only = true;
+    else if (k == "--plan-out") a.plan_out = value();
     else throw std::invalid_argument("unknown option " + k);
   }
   if (!(a.check_ratio >= 0 && a.check_ratio <= 10))
@@ -278,6 +283,7 @@ int main(int argc, char** argv) {
     return 1;
   }
   const planner::Trajectory& plan = planned.trajectory;
+  if (!args.plan_out.empty()) planner::write_plan_file(args.plan_out, plan);
   const double T = plan.samples.back().t;
   std::vector<std::pair<double, std::string>> phases;
   if (args.phases.empty()) {
