@@ -20,6 +20,7 @@
 #include <thread>
 #include <vector>
 
+#include "support/sanitizer.hpp"
 #include "terrastride/service/client.hpp"
 #include "terrastride/service/protocol.hpp"
 #include "test_server_process.hpp"
@@ -232,7 +233,10 @@ TEST(MixedLoad, PlansBesideSessionsMapsAndSimulationsLoseNoPlanProcess) {
   EXPECT_EQ(processes["died"].get<int>(), 0) << tally.summary();
   // The load did what it says: plans and steps ran at once, and every plan was answered.
   EXPECT_GT(tally.count("plan:ok"), 3) << tally.summary();
-  EXPECT_GT(tally.count("session.step:ok"), 3) << tally.summary();
+  // Under AddressSanitizer a step's solve takes several times as long (support/sanitizer.hpp):
+  // two sessions answered 2 steps in 40 s.
+  EXPECT_GT(tally.count("session.step:ok"), terrastride::test_support::kAddressSanitizer ? 1 : 3)
+      << tally.summary();
   EXPECT_EQ(tally.count("plan:failed"), 0) << tally.summary();
   EXPECT_GT(processes["started"].get<int>(), 3);
   // Bad requests were answered, each with an error (how many depends on the machine's load:

@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "support/run_command.hpp"
+#include "support/sanitizer.hpp"
 #include "terrastride/service/client.hpp"
 #include "terrastride/service/protocol.hpp"
 #include "test_server_process.hpp"
@@ -28,7 +29,18 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 using terrastride::service::Client;
 using terrastride::test::ServerProcess;
+using terrastride::test_support::kAddressSanitizer;
+// How long a test waits for a reply (a plan among several at once).
+constexpr double kReplyTimeout = 60.0 * terrastride::test_support::kTimeoutScale;
 namespace p = terrastride::service::protocol;
+
+// A client whose replies may take `timeout` s (Client::connect's timeout bounds the connection
+// only; a reply waits Client::set_timeout's, 30 s unless set).
+Client connect_client(const std::string& address, double timeout = kReplyTimeout) {
+  Client c = Client::connect(address, timeout);
+  c.set_timeout(timeout);
+  return c;
+}
 
 std::string error_code(const p::Message& m) {
   if (m.header.value("ok", true)) return "";
@@ -83,6 +95,11 @@ class ServerFaults : public ::testing::Test {
 // 2, 4 and 8 plans at once on separate connections, with checks and terrain queries between
 // them: every plan solves, the server stays up, and no plan process is left behind.
 TEST_F(ServerFaults, ConcurrentPlansMixedWithChecksAndQueries) {
+  // Under AddressSanitizer a plan's forked child can wait forever on ASan's allocator mutex, which
+  // another server thread held when it forked (gdb: SizeClassAllocator64::GetFromAllocator under
+  // Ipopt's option registration); glibc's malloc, which the product runs on, takes its arena locks
+  // around fork. With 4 and 8 plans at once it happened in each of three runs.
+  if (kAddressSanitizer) GTEST_SKIP() << "forked plan children can deadlock in ASan's allocator";
   start();
   const json reference = Client::connect(address_).call_ok(flat_plan("baseline", "json"));
   ASSERT_EQ(reference["solver"]["status"], "optimal");
@@ -93,7 +110,7 @@ TEST_F(ServerFaults, ConcurrentPlansMixedWithChecksAndQueries) {
     for (int i = 0; i < n; ++i)
       threads.emplace_back([&, i] {
         try {
-          Client c = Client::connect(address_, 60.0);
+          Client c = connect_client(address_);
           const json r = c.call_ok(flat_plan(i % 2 ? "baseline" : "foot"));
           if (r["solver"]["status"] == "optimal") optimal++;
           if (c.call_ok({{"op", "check"}, {"plan", reference}})["checks"].contains(
@@ -113,7 +130,7 @@ TEST_F(ServerFaults, ConcurrentPlansMixedWithChecksAndQueries) {
     ASSERT_TRUE(server_->running()) << server_->output;
   }
   // Two plans pipelined on one connection.
-  Client c = Client::connect(address_, 60.0);
+  Client c = connect_client(address_);
   json a = flat_plan(), b = flat_plan();
   a["id"] = "a";
   b["id"] = "b";
@@ -130,7 +147,7 @@ TEST_F(ServerFaults, ConcurrentPlansMixedWithChecksAndQueries) {
 // A cancelled plan's process is killed at once, and the next plan runs normally.
 TEST_F(ServerFaults, CancelKillsThePlanProcess) {
   start();
-  Client c = Client::connect(address_, 60.0);
+  Client c = connect_client(address_);
   c.send({{"op", "plan"}, {"id", "long"}, {"terrain", "pallet_15"}, {"constraints", "all"}});
   for (int tries = 0; tries < 400; ++tries) {
     if (status_of(address_)["plan_processes"]["running"] == 1) break;
@@ -158,7 +175,7 @@ std::vector<int> children_of(int pid) {
 // request gets an error reply naming the signal, and the server keeps serving.
 TEST_F(ServerFaults, APlanProcessThatDiesFailsAlone) {
   start();
-  Client c = Client::connect(address_, 60.0);
+  Client c = connect_client(address_);
   c.send({{"op", "plan"}, {"id", "victim"}, {"terrain", "pallet_15"}, {"constraints", "all"}});
   std::vector<int> children;
   for (int tries = 0; tries < 400 && children.empty(); ++tries) {
@@ -178,7 +195,7 @@ TEST_F(ServerFaults, APlanProcessThatDiesFailsAlone) {
 // One set of limits for the CLI and the socket, each refusal naming the field.
 TEST_F(ServerFaults, RequestLimitsNameTheField) {
   start();
-  Client c = Client::connect(address_, 60.0);
+  Client c = connect_client(address_);
   const std::vector<std::pair<json, std::string>> cases = {
       {{{"duration", 1e9}}, "duration: "},   {{{"duration", 0}}, "duration: "},
       {{{"sample_dt", 2e-5}}, "sample_dt: "}, {{{"sample_dt", 1e-9}}, "sample_dt: "},
@@ -214,7 +231,7 @@ TEST_F(ServerFaults, ClientsCannotNameFilesOutsideTheDataFolders) {
   const fs::path root = fs::path(::testing::TempDir()) / ("ts_root_" + std::to_string(::getpid()));
   fs::create_directories(root / "empty");
   start({"--terrain-root", root.string()});
-  Client c = Client::connect(address_, 60.0);
+  Client c = connect_client(address_);
   for (const char* gait : {"/etc/shadow", "/etc/no-such-file", "../../etc/passwd", "x.yaml"}) {
     const p::Message m = c.call({{"op", "plan"}, {"terrain", "flat"}, {"gait", gait}});
     EXPECT_EQ(error_code(m), "bad_request") << gait;
@@ -252,7 +269,7 @@ TEST_F(ServerFaults, ClientsCannotNameFilesOutsideTheDataFolders) {
 // the socket takes the constraint sets' settings as the CLI's --feasibility does.
 TEST_F(ServerFaults, MisspeltFieldsAreRefusedAndFeasibilitySettingsAreRead) {
   start();
-  Client c = Client::connect(address_, 60.0);
+  Client c = connect_client(address_);
   json req = flat_plan();
   req["optimise_timing"] = true;
   p::Message m = c.call(req);
@@ -283,7 +300,7 @@ namespace {
 
 // A 2.4 s flat plan with JSON samples: the reference sessions open from (`init`, no solve).
 json flat_reference(const std::string& address) {
-  json r = Client::connect(address, 60.0).call_ok(flat_plan("baseline", "json"));
+  json r = connect_client(address).call_ok(flat_plan("baseline", "json"));
   return r;
 }
 
@@ -304,13 +321,13 @@ json step_at(const std::string& session, double time) {
 TEST_F(ServerFaults, ASessionHogDoesNotKeepOthersOut) {
   start();
   const json reference = flat_reference(address_);
-  Client hog = Client::connect(address_, 60.0);
+  Client hog = connect_client(address_);
   for (int i = 0; i < 8; ++i) hog.call_ok(open_from(reference));
   const p::Message refused = hog.call(open_from(reference));
   EXPECT_EQ(error_code(refused), "busy");
   EXPECT_NE(error_message(refused).find("--max-sessions-per-connection"), std::string::npos)
       << error_message(refused);
-  Client other = Client::connect(address_, 60.0);
+  Client other = connect_client(address_);
   const std::string mine = other.call_ok(open_from(reference))["session"];
   EXPECT_EQ(other.call_ok(step_at(mine, 0.1))["solver"]["status"], "optimal");
   const json st = other.call_ok({{"op", "plan.session.status"}});
@@ -323,15 +340,15 @@ TEST_F(ServerFaults, ASessionHogDoesNotKeepOthersOut) {
 TEST_F(ServerFaults, AFullSessionTableMakesRoomByClosingTheLongestIdle) {
   start({"--max-sessions", "4", "--max-sessions-per-connection", "2"});
   const json reference = flat_reference(address_);
-  Client hog = Client::connect(address_, 60.0);
+  Client hog = connect_client(address_);
   const std::string first = hog.call_ok(open_from(reference))["session"];
   hog.call_ok(open_from(reference));
-  Client other = Client::connect(address_, 60.0);
+  Client other = connect_client(address_);
   const std::string mine = other.call_ok(open_from(reference))["session"];
-  Client hog2 = Client::connect(address_, 60.0);
+  Client hog2 = connect_client(address_);
   hog2.call_ok(open_from(reference));
   EXPECT_EQ(other.call_ok(step_at(mine, 0.1))["solver"]["status"], "optimal");
-  Client late = Client::connect(address_, 60.0);
+  Client late = connect_client(address_);
   const std::string late_id = late.call_ok(open_from(reference))["session"];
   EXPECT_EQ(late.call_ok(step_at(late_id, 0.1))["solver"]["status"], "optimal");
   const json st = other.call_ok({{"op", "plan.session.status"}});
@@ -349,7 +366,7 @@ TEST_F(ServerFaults, AFullSessionTableMakesRoomByClosingTheLongestIdle) {
 TEST_F(ServerFaults, SessionRequestsAreAnsweredInOrder) {
   start();
   const json reference = flat_reference(address_);
-  Client c = Client::connect(address_, 60.0);
+  Client c = connect_client(address_);
   const std::string id = c.call_ok(open_from(reference))["session"];
   json a = step_at(id, 0.1), b = step_at(id, 0.2);
   a["id"] = 1;
@@ -389,7 +406,7 @@ TEST_F(ServerFaults, SessionRequestsAreAnsweredInOrder) {
 // old 4 MiB header cap, sent back to check, as plan's init and as a session's reference.
 TEST_F(ServerFaults, PlansTheServerWroteAreAcceptedBack) {
   start();
-  Client c = Client::connect(address_, 120.0);
+  Client c = connect_client(address_, 2 * kReplyTimeout);
   json request = flat_plan("baseline", "json");
   request["duration"] = 6.0;
   request["sample_dt"] = 0.001;
@@ -492,13 +509,13 @@ TEST_F(ServerFaults, SoakOfHogsAndNonReadersLeavesTheServerAsIdle) {
   start({"--debug-ops", "--frame-timeout", "1", "--max-connections", "16", "--max-unsent-bytes",
          std::to_string(32 << 20)});
   const json reference = flat_reference(address_);
-  Client monitor = Client::connect(address_, 60.0);
+  Client monitor = connect_client(address_);
   auto round = [&] {
     non_readers(address_, monitor);
     stalled_frames(address_);
     slot_hogs(address_, monitor);
     {
-      Client sessions = Client::connect(address_, 60.0);
+      Client sessions = connect_client(address_);
       for (int i = 0; i < 8; ++i) sessions.call_ok(open_from(reference));
     }
     EXPECT_EQ(monitor.call_ok({{"op", "map.query"}, {"points", {{1.0, 0.0}}}})["results"].size(),
@@ -508,7 +525,7 @@ TEST_F(ServerFaults, SoakOfHogsAndNonReadersLeavesTheServerAsIdle) {
     return st["memory"];
   };
   {
-    Client warm = Client::connect(address_, 60.0);  // a session's code paths, as a round has
+    Client warm = connect_client(address_);  // a session's code paths, as a round has
     warm.call_ok(open_from(reference));
   }
   const json idle = wait_for_status(monitor, settled)["memory"];
@@ -524,8 +541,12 @@ TEST_F(ServerFaults, SoakOfHogsAndNonReadersLeavesTheServerAsIdle) {
   // Held: what the allocator has in use returns to its idle figure (a leak of a reply, a frame
   // or a session per round would add 12-60 MiB). Resident: within what glibc keeps at the top of
   // the worker threads' arenas (about twice the 12 MiB replies each), trimmed otherwise.
-  EXPECT_LT(mib(last["heap_in_use_bytes"]), mib(idle["heap_in_use_bytes"]) + 4.0) << last.dump();
-  EXPECT_LT(mib(last["rss_bytes"]), mib(idle["rss_bytes"]) + 64.0) << last.dump();
+  // Not under AddressSanitizer: its quarantine keeps freed memory resident and mallinfo2 reads 0
+  // (support/sanitizer.hpp); its leak check covers what the server holds at exit.
+  if (!kAddressSanitizer) {
+    EXPECT_LT(mib(last["heap_in_use_bytes"]), mib(idle["heap_in_use_bytes"]) + 4.0) << last.dump();
+    EXPECT_LT(mib(last["rss_bytes"]), mib(idle["rss_bytes"]) + 64.0) << last.dump();
+  }
   std::fprintf(stderr,
                "soak: heap in use idle %.1f MiB, after %.1f MiB; rss idle %.1f MiB, after %.1f MiB;"
                " evicted %d, unsent drops %d\n",

@@ -4,6 +4,7 @@ every operation, pipelining, cancel, deadline, busy, hostile input. Prints OK on
 
     python3 test_client.py tcp://127.0.0.1:PORT
 """
+import os
 import math
 import time
 import struct
@@ -115,7 +116,9 @@ def pointcloud2_updates(c):
 
 
 def main(address):
-    with Client.connect(address) as c:
+    # TERRASTRIDE_CLIENT_TIMEOUT: the reply timeout (s), longer for a server under a sanitizer.
+    timeout = float(os.environ.get("TERRASTRIDE_CLIENT_TIMEOUT", "30"))
+    with Client.connect(address, timeout=timeout) as c:
         hello = c.call("hello")
         assert hello["protocol"] == 1 and hello["robot"]["name"] == "hyq", hello
         for op in ("map.update", "map.query", "map.clear", "plan", "check", "simulate", "cancel",

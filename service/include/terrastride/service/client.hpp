@@ -24,6 +24,8 @@ class ClientError : public std::runtime_error {
 class Client {
  public:
   // `address`: tcp://HOST:PORT or unix:PATH. Throws ClientError naming the address.
+  // `timeout_s` bounds the connection only; each reply then waits set_timeout's seconds (30 s
+  // unless set).
   static Client connect(const std::string& address, double timeout_s = 10.0);
   Client(Client&& other) noexcept;
   Client& operator=(Client&& other) noexcept;
