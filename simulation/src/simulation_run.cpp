@@ -679,7 +679,9 @@ void SimulationRun::replan_if_due(double t, const BaseState& b, const ContactFor
   // forces down (every such step failed force_ramp in its first few ms). The 1 ms slack is for
   // durations that carry rounding: 3 crawl cycles of 3.6667 s end at 11.0001 s, and the step at
   // 10.9 s, 0.1001 s before that end, failed in every closed-loop run.
-  if (!(replanner_ && t >= next_replan_ - 1e-9 && t < t_end_ - 0.1 - 1e-3)) return;
+  if (!(replanner_ && t >= next_replan_ - 1e-9 &&
+        t < t_end_ - SimulationLimits::kNoReplanTail - 1e-3))
+    return;
   next_replan_ += o_.replan_every;
   if (t < o_.replan_from - 1e-9) return;  // the plan is tracked open loop until then
   const MeasuredState ms = measured_state(t, b, contacts);

@@ -177,7 +177,7 @@ TEST(ClosedLoop, ReplanningStartsAtTheFirstPeriodFromTheGivenTime) {
   ServerProcess server({"--listen", "tcp://127.0.0.1:0"});
   ASSERT_FALSE(server.tcp().empty()) << server.output;
   const std::string args = " --terrain flat --json --replan-every 0.2 --horizon 1 --replan-from 1.1";
-  for (const std::string via : {std::string(), " --via " + server.tcp()}) {
+  for (const std::string& via : {std::string(), " --via " + server.tcp()}) {
     const auto r = run_terrastride("simulate " + plan + args + via);
     const json s = summary(r);
     EXPECT_EQ(r.code, 0) << r.all();

@@ -18,8 +18,7 @@ inline constexpr bool kAddressSanitizer = false;
 inline constexpr bool kAddressSanitizer = false;
 #endif
 
-// Under ASan on 2 cores, plans of the slow suite's server tests ran past their 60 s reply timeout
-// and a failing session step past the Python client's 30 s.
+// Under ASan on 2 cores a failing session step ran past the Python client's 30 s reply timeout.
 inline constexpr double kTimeoutScale = kAddressSanitizer ? 5.0 : 1.0;
 
 }  // namespace terrastride::test_support

@@ -316,12 +316,13 @@ void add_replanner(const SimulateCliOptions& o, const planner::Trajectory& traj,
   sim->replan_every = o.replan_every;
   sim->replan_latency = o.replan_latency;
   sim->replan_from = o.replan_from;
-  // No step is taken within a plan's last 0.1 s (simulation_run.cpp): a start after that would
-  // silently run open loop.
-  if (o.replan_from > traj.duration - 0.1)
+  // No step is taken within a plan's last kNoReplanTail: a start after that would silently run
+  // open loop.
+  constexpr double tail = simulation::SimulationLimits::kNoReplanTail;
+  if (o.replan_from > traj.duration - tail)
     throw CommandError("--replan-from " + format_number(o.replan_from) +
-                       ": no re-plan is taken after the plan's last 0.1 s (the plan lasts " +
-                       format_number(traj.duration) + " s)");
+                       ": no re-plan is taken within the plan's last " + format_number(tail) +
+                       " s (the plan lasts " + format_number(traj.duration) + " s)");
   if (via_socket) {
     sim->replanner = socket_replanner(o, traj);
     return;

@@ -70,9 +70,9 @@ struct Server::Impl {
   // memory a burst of large replies took would otherwise stay resident).
   bool trim_pending = false;
   // A job ended since the heap was last trimmed, and when the last one did: once the server has
-  // been idle for kIdleTrimSeconds, the sweep returns the
-  // heap's free pages (a burst of solves or replies otherwise stays resident in glibc's arenas
-  // until the next burst). Not while work is steady: a session's steps reuse their pages.
+  // been idle for kIdleTrimSeconds, the sweep returns the heap's free pages (a burst of solves or
+  // replies otherwise stays resident in glibc's arenas until the next burst). Not while work is
+  // steady: a session's steps reuse their pages.
   static constexpr double kIdleTrimSeconds = 1.0;
   bool heap_used = false;
   Clock::time_point last_job_end = Clock::now();

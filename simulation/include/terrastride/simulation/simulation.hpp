@@ -68,6 +68,9 @@ struct SimulationLimits {
   static constexpr double kMaxPlanOrigin = 1e6;                                          // m
   // A push lasts at most a plan's longest duration; it starts at a finite time.
   static constexpr double kMaxPushDuration = kMaxPlanDuration;  // s
+  // A closed loop takes no re-plan within the plan's last this many seconds
+  // (simulation_run.cpp, replan_if_due).
+  static constexpr double kNoReplanTail = 0.1;  // s
 };
 
 // The verdict's thresholds (the defaults). Impulses and durations, not step counts, so the
