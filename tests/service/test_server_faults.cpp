@@ -294,10 +294,6 @@ TEST_F(ServerFaults, MisspeltFieldsAreRefusedAndFeasibilitySettingsAreRead) {
   EXPECT_EQ(r["feasibility_settings"]["foot_margin"], 0.01) << r.dump().substr(0, 400);
 }
 
-}  // namespace
-
-namespace {
-
 // A 2.4 s flat plan with JSON samples: the reference sessions open from (`init`, no solve).
 json flat_reference(const std::string& address) {
   json r = connect_client(address).call_ok(flat_plan("baseline", "json"));
@@ -313,8 +309,6 @@ json step_at(const std::string& session, double time) {
   return {{"op", "plan.session.step"}, {"session", session}, {"time", time},
           {"samples", "attachment"}, {"budget_ms", 0}};
 }
-
-}  // namespace
 
 // A connection holding its quota of planning sessions (8 by default) gets `busy` for another,
 // while a second client opens a session and plans (one connection could take all 64 before).
@@ -423,8 +417,6 @@ TEST_F(ServerFaults, PlansTheServerWroteAreAcceptedBack) {
   EXPECT_EQ(opened["samples"].size(), plan["samples"].size());
 }
 
-namespace {
-
 // A frame prefix announcing `body_bytes`, followed by `have` bytes of it (a frame that stalls).
 std::string half_frame(std::uint32_t body_bytes, std::size_t have) {
   std::string f(4, '\0');
@@ -499,8 +491,6 @@ void slot_hogs(const std::string& address, Client& monitor) {
   EXPECT_GE(st["connections"]["evicted"].get<int>(), 4);
 }
 
-}  // namespace
-
 // The attacks a hostile or careless client can make, repeated: clients that never read their
 // replies, stalled huge frames, connection and session hogs. The server serves a well-behaved
 // client meanwhile, holds nothing afterwards, logs why it dropped the non-readers, and its
@@ -558,3 +548,5 @@ TEST_F(ServerFaults, SoakOfHogsAndNonReadersLeavesTheServerAsIdle) {
   EXPECT_NE(server_->output.find("(--max-unsent-bytes)"), std::string::npos);
   server_.reset();
 }
+
+}  // namespace
