@@ -50,6 +50,9 @@ packages=(
   # MuJoCo 2.2.2: `terrastride simulate` executes plans in it (simulation/). Its CMake config
   # requires OpenGL's and names Qhull's headers, packages libmujoco-dev does not depend on.
   libmujoco-dev libgl-dev libopengl-dev libqhull-dev
+  # ALGLIB: the simulated controller's stance-force quadratic program (simulate
+  # --force-distribution constrained); Debian 12 packages no other QP solver.
+  libalglib-dev
   # Ipopt's MUMPS spends ~80 % of a plan in dense BLAS kernels; Debian's default generic ATLAS
   # is ~25 % slower there than OpenBLAS, which takes over libblas.so.3 by alternatives priority.
   libopenblas0-serial

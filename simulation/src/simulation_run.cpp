@@ -15,6 +15,7 @@
 #include <utility>
 #include <vector>
 
+#include "force_distribution.hpp"
 #include "simulation_model.hpp"
 #include "terrastride/robot/leg_kinematics.hpp"
 #include "terrastride/simulation/simulation.hpp"
@@ -476,6 +477,9 @@ class SimulationRun {
   void control(double t, const BaseState& b, const PlanReference& ref);
   std::vector<Vector3d> trunk_wrench_forces(const BaseState& b, const PlanReference& ref,
                                             const std::vector<Vector3d>& lever) const;
+  void constrain_stance_forces(const PlanReference& ref, const std::vector<int>& stance,
+                               const std::vector<Vector3d>& lever,
+                               std::vector<Vector3d>* delta) const;
   Vector3d leg_torque(int i, double t, const BaseState& b, const PlanReference& ref,
                       const std::vector<int>& stance, const std::vector<Vector3d>& delta);
   bool apply_torque(int i, Vector3d tau);
@@ -897,7 +901,9 @@ void SimulationRun::control(double t, const BaseState& b, const PlanReference& r
       stance.push_back(i);
       lever.push_back(foot_centre(i) - b.p);
     }
-  const std::vector<Vector3d> delta = trunk_wrench_forces(b, ref, lever);
+  std::vector<Vector3d> delta = trunk_wrench_forces(b, ref, lever);
+  if (c_.force_distribution == ControllerOptions::ForceDistribution::constrained)
+    constrain_stance_forces(ref, stance, lever, &delta);
   mj_fullM(m_, full_m_.data(), d_->qM);
   bool saturated = false;
   for (int i = 0; i < n_legs_; ++i)
@@ -923,6 +929,23 @@ std::vector<Vector3d> SimulationRun::trunk_wrench_forces(const BaseState& b,
     w.head<3>() += mass * (ps.base_acc + Vector3d(0, 0, kGravity));
   }
   return spread_wrench(w, lever);
+}
+
+// The constrained distribution (ControllerOptions::force_distribution): each stance foot's share
+// `delta` becomes what its planned force needs to reach the constrained force, so that
+// leg_torque's cone clip leaves it as it is (the pyramid lies within the cone of the same mu).
+void SimulationRun::constrain_stance_forces(const PlanReference& ref,
+                                            const std::vector<int>& stance,
+                                            const std::vector<Vector3d>& lever,
+                                            std::vector<Vector3d>* delta) const {
+  std::vector<StanceFoot> feet(stance.size());
+  for (std::size_t k = 0; k < stance.size(); ++k) {
+    const int i = stance[k];
+    const Vector3d planned = c_.planned_forces ? ref.now.force[i] : Vector3d::Zero();
+    feet[k] = {planned + (*delta)[k], lever[k], terrain_normal(scene_, ref.now.foot[i])};
+  }
+  const std::vector<Vector3d> f = constrained_stance_forces(feet, c_.cone_margin * mu_);
+  for (std::size_t k = 0; k < stance.size(); ++k) (*delta)[k] += f[k] - feet[k].desired;
 }
 
 // IK of the sphere centre over the planned foot point `foot` on a terrain of normal `n`.

@@ -3,6 +3,7 @@
 //                       [--replan-before S] [--phases F,F,...]
 //                       [--directions left,right,forward,backward] [--check-ratio R] [--json]
 //                       [--limits-only] [--plan-out FILE]
+//                       [--force-distribution clipped|constrained]
 // For each phase (a time of the 11 s plan) and push direction (relative to the planned heading
 // there: left, right, forward, backward; 0.2 s on the trunk) the largest push survived (verdict
 // not "fail"), open loop and closed loop (a planning session re-planning every --replan-every s
@@ -63,6 +64,8 @@ struct Args {
   // Where to write the plan the cells run on, so that `terrastride simulate FILE --push ...
   // --replan-from ...` replays one cell on exactly it; empty: not written.
   std::string plan_out;
+  // The controller's stance-force distribution (simulate --force-distribution) in both loops.
+  bool constrained_forces = false;
 };
 
 std::vector<std::string> split(const std::string& s) {
@@ -101,7 +104,12 @@ Args parse(int argc, char** argv) {
       a.json = true;
     else if (k == "--limits-only")
       a.limits_only = true;
-    else if (k == "--plan-out")
+    else if (k == "--force-distribution") {
+      const std::string v = value();
+      if (v != "clipped" && v != "constrained")
+        throw std::invalid_argument("--force-distribution: clipped or constrained, got " + v);
+      a.constrained_forces = v == "constrained";
+    } else if (k == "--plan-out")
       a.plan_out = value();
     else
       throw std::invalid_argument("unknown option " + k);
@@ -310,6 +318,9 @@ int main(int argc, char** argv) {
   }
   simulation::SimulationOptions open;
   open.record_dt = 0.0;
+  if (args.constrained_forces)
+    open.controller.force_distribution =
+        simulation::ControllerOptions::ForceDistribution::constrained;
   const simulation::ReplannerFactory sessions = simulation::session_replanner(
       robot, *smooth, *scene, po, plan, args.horizon, 0.01, 0.0, args.iterations);
   // The closed loop of a push at t: a session's re-plans from t - replan_before on (before it
@@ -327,10 +338,11 @@ int main(int argc, char** argv) {
     std::printf(
         "pallet_15 all (%.2f s), pushes of 0.2 s; closed loop: re-plan every %.2f s, "
         "horizon %.1f s, %d-iteration budget, from %.1f s before the push; %d runs per "
-        "cell; BLAS kernel %s\n"
+        "cell; stance forces %s; BLAS kernel %s\n"
         "%-6s %-7s %-34s %-9s %9s %9s %6s %9s %9s %9s %9s %-3s  %s\n",
         T, args.replan_every, args.horizon, args.iterations, args.replan_before, args.runs,
-        bench::blas_kernel_name().c_str(), "t (s)", "swing", "phase", "push", "open (N)",
+        args.constrained_forces ? "constrained" : "clipped", bench::blas_kernel_name().c_str(),
+        "t (s)", "swing", "phase", "push", "open (N)",
         "closed(N)", "ratio", "no-step", "landed", "one-step", "foot-step", "by",
         "closed loop's failure");
   int met = 0, cells = 0;
@@ -419,7 +431,9 @@ int main(int argc, char** argv) {
                                 {"missed_beyond_foot_step_limit", beyond_foot_step},
                                 {"cells", cells},
                                 {"wall_s", wall},
-                                {"blas_kernel", bench::blas_kernel_name()}}
+                                {"blas_kernel", bench::blas_kernel_name()},
+                                {"force_distribution",
+                                 args.constrained_forces ? "constrained" : "clipped"}}
                      .dump(1)
               << "\n";
   } else {

@@ -38,6 +38,11 @@ TEST(ServerSimulate, ExecutesAPlanAndJudgesIt) {
   EXPECT_LT(r["position_error_rms_m"].get<double>(), 0.02);
   EXPECT_NE(r["terrain"].get<std::string>().find("boxes"), std::string::npos);
   EXPECT_FALSE(r.contains("samples"));
+  // With the constrained stance forces too (undisturbed, they are the clipped ones but where a
+  // foot would leave its friction pyramid).
+  r = c.call_ok(
+      {{"op", "simulate"}, {"plan", plan}, {"terrain", "flat"}, {"force_distribution", "constrained"}});
+  EXPECT_EQ(r["verdict"], "pass") << r["reasons"].dump();
 
   // On the wrong terrain (the 15 cm pallet, published as the current map) it falls: a verdict,
   // not an error.
@@ -64,6 +69,10 @@ TEST(ServerSimulate, ExecutesAPlanAndJudgesIt) {
   EXPECT_NE(error_message(m).find("pushes[0]"), std::string::npos) << error_message(m);
   m = c.call({{"op", "simulate"}, {"plan", plan}, {"terrain", "flat"}, {"warp", 9}});
   EXPECT_EQ(error_code(m), "bad_request");
+  m = c.call(
+      {{"op", "simulate"}, {"plan", plan}, {"terrain", "flat"}, {"force_distribution", "qp"}});
+  EXPECT_EQ(error_code(m), "bad_request");
+  EXPECT_NE(error_message(m).find("force_distribution"), std::string::npos) << error_message(m);
   m = c.call({{"op", "simulate"}, {"plan", json::object()}, {"terrain", "flat"}});
   EXPECT_EQ(error_code(m), "bad_request");
   m = c.call({{"op", "simulate"}, {"plan", plan}, {"terrain", "moon"}});

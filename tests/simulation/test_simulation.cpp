@@ -267,6 +267,30 @@ TEST(Simulation, Pallet15BaselineHitsTheShinAndAllConstraintsPass) {
   EXPECT_LT(all.shin_impulse_max, 5.0);
 }
 
+// The controller's constrained stance forces (ControllerOptions::force_distribution) keep every
+// stance foot pushing: a 450 N left push at 1.57 s of the pallet_15 `all` crawl (LF in the air)
+// tips the robot over the right feet with the clipped distribution (its open-loop margin there is
+// 284 N, benchmarks.md §12.2) and is stood with the constrained one (margin 525 N); undisturbed,
+// both execute the plan alike.
+TEST(Simulation, ConstrainedStanceForcesStandAPushTheClippedOnesTipOver) {
+  const auto model = hyq();
+  const auto scene = terrain::make_scene("pallet_15");
+  const auto& plan = cached_plan("--terrain pallet_15 --constraints all");
+  simulation::SimulationOptions clipped, constrained;
+  constrained.controller.force_distribution =
+      simulation::ControllerOptions::ForceDistribution::constrained;
+  const auto calm = simulation::simulate_plan(model, plan, *scene, constrained);
+  print("pallet_15 all, constrained stance forces", calm);
+  EXPECT_EQ(calm.verdict, "pass");
+  for (auto* o : {&clipped, &constrained}) o->pushes.push_back({11.0 / 7, {0, 450, 0}, 0.2});
+  const auto tipped = simulation::simulate_plan(model, plan, *scene, clipped);
+  const auto stood = simulation::simulate_plan(model, plan, *scene, constrained);
+  print("450 N left at 1.57 s, clipped", tipped);
+  print("450 N left at 1.57 s, constrained", stood);
+  EXPECT_TRUE(tipped.fell);
+  EXPECT_FALSE(stood.fell);
+}
+
 // The paper's torque experiment judged by the simulator: the flat 2.4 s crawl planned with and
 // without the force polytopes both execute (bench_simulation: 3.7 vs 2.7 mm RMS, no saturation);
 // the polytope plan saturates no more than the baseline.

@@ -47,6 +47,7 @@ struct SimulateCliOptions {
   std::vector<std::string> pushes;
   double mass_scale = 1.0;
   double friction = 0.5;
+  std::string force_distribution = "clipped";
   std::string out;
   bool json = false;
   bool margin = false;
@@ -225,6 +226,10 @@ simulation::SimulationOptions simulation_options_from(const SimulateCliOptions& 
   sim.dt = o.dt;
   sim.mass_scale = o.mass_scale;
   sim.friction = o.friction;
+  sim.controller.force_distribution =
+      o.force_distribution == "constrained"
+          ? simulation::ControllerOptions::ForceDistribution::constrained
+          : simulation::ControllerOptions::ForceDistribution::clipped;
   using Limits = simulation::SimulationLimits;
   if (!(o.dt >= Limits::kMinDt && o.dt <= Limits::kMaxDt))
     throw CommandError("--dt: must be in [0.0001, 0.01] s");
@@ -459,6 +464,13 @@ void add_simulate_command(CLI::App& app) {
                   "Trunk mass and inertia times this (an unplanned payload)")
       ->capture_default_str();
   cmd->add_option("--friction", opts->friction, "Terrain friction coefficient")
+      ->capture_default_str();
+  cmd->add_option("--force-distribution", opts->force_distribution,
+                  "How the controller's stance feet share its trunk wrench: clipped (least-norm "
+                  "forces, each clipped into its friction cone) or constrained (the wrench "
+                  "nearest to it with every foot within its friction pyramid, a bounded "
+                  "least-squares problem; keeps the feet loaded after a push)")
+      ->check(CLI::IsMember({"clipped", "constrained"}))
       ->capture_default_str();
   cmd->add_option("--out", opts->out,
                   "Write the summary and per-sample actual vs planned base, joint torques, foot "

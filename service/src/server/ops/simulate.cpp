@@ -87,6 +87,13 @@ simulation::SimulationOptions read_options(const json& h) {
   if (!(options.friction > 0 && options.friction < Limits::kMaxFriction))
     throw ProtocolError(pc::kBadRequest, "friction: must be in (0, 5)");
   options.pushes = read_pushes(h);
+  const std::string spread = protocol::get_string(h, "force_distribution", std::string("clipped"));
+  if (spread != "clipped" && spread != "constrained")
+    throw ProtocolError(pc::kBadRequest,
+                        "force_distribution: clipped or constrained, got '" + spread + "'");
+  if (spread == "constrained")
+    options.controller.force_distribution =
+        simulation::ControllerOptions::ForceDistribution::constrained;
   return options;
 }
 
@@ -172,7 +179,7 @@ void add_simulate_operation(Backend& backend, OperationRegistry& registry) {
        "a plan executed in MuJoCo with a tracking controller (as `terrastride simulate`)",
        [b](OpContext& c) { return simulate(*b, c); },
        std::vector<std::string>{"plan", "terrain", "dt", "pushes", "mass_scale", "friction",
-                                "margin", "samples"}});
+                                "force_distribution", "margin", "samples"}});
 }
 
 }  // namespace terrastride::service

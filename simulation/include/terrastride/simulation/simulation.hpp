@@ -122,6 +122,16 @@ struct ControllerOptions {
   std::optional<ControllerGains> gains;
   // The wrench's foot forces are kept in a cone of mu * this (margin to the true cone).
   double cone_margin = 0.9;
+  // How the stance feet share the trunk wrench. `clipped` (the default, on which every recorded
+  // figure was measured): the least-norm forces that make it, each foot's sum with its planned
+  // force then clipped into its cone; a foot asked to pull gives nothing, and what it was to
+  // carry of the moment is lost (after a lateral push the trunk rolls over the other feet).
+  // `constrained`: the forces nearest to those whose wrench is nearest to it with every foot
+  // within its friction pyramid, the moment weighted first (a bounded least-squares problem,
+  // simulation/src/force_distribution.hpp), as legged robots' balance controllers distribute
+  // their contact forces. Equal to `clipped` while no foot would leave its pyramid.
+  enum class ForceDistribution { clipped, constrained };
+  ForceDistribution force_distribution = ForceDistribution::clipped;
 };
 
 // The robot's state as the simulator measures it (MuJoCo's), in plan.json's terms: world frame,

@@ -1,0 +1,134 @@
+// Stance forces within friction pyramids for the trunk wrench (force_distribution.hpp).
+#include "force_distribution.hpp"
+
+#include <libalglib/optimization.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <utility>
+
+namespace terrastride::simulation::internal {
+
+namespace {
+
+using Eigen::Matrix3d;
+using Eigen::MatrixXd;
+using Eigen::Vector3d;
+using Eigen::VectorXd;
+
+// The tangent directions of the pyramid about n: t1 along the world's x projected onto the
+// terrain (y where n is along x), t2 = n x t1.
+std::pair<Vector3d, Vector3d> tangents(const Vector3d& n) {
+  Vector3d t1 = Vector3d::UnitX() - n.x() * n;
+  if (t1.norm() < 1e-6) t1 = Vector3d::UnitY() - n.y() * n;
+  t1.normalize();
+  return {t1, n.cross(t1)};
+}
+
+// The pyramid's edges: kEdges unit directions around the normal, n + mu (cos a t1 + sin a t2)
+// at a = 2 pi k / kEdges. Eight make an octagon within 8 % of the cone (cos(pi/8) = 0.924 of its
+// radius at the facets' middles); four, a diamond, gave up to 29 % of it along the diagonals,
+// which cost the flat crawl's lateral push margin 619 -> 506 N.
+constexpr int kEdges = 8;
+
+Vector3d edge(const Vector3d& n, const Vector3d& t1, const Vector3d& t2, double mu, int k) {
+  const double a = 2.0 * M_PI * k / kEdges;
+  return n + mu * (std::cos(a) * t1 + std::sin(a) * t2);
+}
+
+}  // namespace
+
+bool within_friction_pyramid(const Vector3d& f, const Vector3d& n, double mu) {
+  const auto [t1, t2] = tangents(n);
+  const double fn = f.dot(n);
+  if (fn < 0.0) return false;
+  // Each facet lies between two edges: its outward direction in the tangent plane is at the
+  // middle angle, at distance mu cos(pi / kEdges) per unit of normal force.
+  const double a = f.dot(t1), b = f.dot(t2);
+  for (int k = 0; k < kEdges; ++k) {
+    const double mid = 2.0 * M_PI * (k + 0.5) / kEdges;
+    if (a * std::cos(mid) + b * std::sin(mid) > mu * std::cos(M_PI / kEdges) * fn * (1 + 1e-12))
+      return false;
+  }
+  return true;
+}
+
+std::vector<Vector3d> constrained_stance_forces(const std::vector<StanceFoot>& feet, double mu,
+                                                const ForceDistributionWeights& w) {
+  const int n = static_cast<int>(feet.size());
+  std::vector<Vector3d> out;
+  for (const auto& f : feet) out.push_back(f.desired);
+  if (std::all_of(feet.begin(), feet.end(), [&](const StanceFoot& f) {
+        return within_friction_pyramid(f.desired, f.normal, mu);
+      }))
+    return out;
+  // f = E lambda, lambda >= 0: foot i's force is a non-negative sum of its pyramid's edges.
+  MatrixXd e = MatrixXd::Zero(3 * n, kEdges * n);
+  MatrixXd g(6, 3 * n);
+  VectorXd desired(3 * n);
+  for (int i = 0; i < n; ++i) {
+    const Vector3d& nn = feet[i].normal;
+    const auto [t1, t2] = tangents(nn);
+    for (int k = 0; k < kEdges; ++k) e.col(kEdges * i + k).segment<3>(3 * i) = edge(nn, t1, t2, mu, k);
+    g.block<3, 3>(0, 3 * i) = Matrix3d::Identity();
+    const Vector3d& r = feet[i].lever;
+    g.block<3, 3>(3, 3 * i) << 0, -r.z(), r.y(), r.z(), 0, -r.x(), -r.y(), r.x(), 0;
+    desired.segment<3>(3 * i) = feet[i].desired;
+  }
+  g.bottomRows<3>() *= w.angular;
+  g.row(2) *= w.vertical;
+  // |A lambda - b|^2 as the quadratic program 0.5 lambda' Q lambda + c' lambda, Q = 2 A'A, c =
+  // -2 A'b. A foot's edges have null combinations (opposite edges sum to 2n), so Q is only
+  // semidefinite: a weight of 1e-9 on |lambda|^2 makes it definite without moving the solution.
+  MatrixXd a(6 + 3 * n, kEdges * n);
+  a.topRows<6>() = g * e;
+  a.bottomRows(3 * n) = std::sqrt(w.regularisation) * e;
+  VectorXd b(6 + 3 * n);
+  b.head<6>() = g * desired;
+  b.tail(3 * n) = std::sqrt(w.regularisation) * desired;
+  const int m = kEdges * n;
+  MatrixXd q = 2.0 * a.transpose() * a;
+  q.diagonal().array() += 1e-9 * q.diagonal().maxCoeff();
+  const VectorXd c = -2.0 * a.transpose() * b;
+  alglib::real_2d_array q_alglib;
+  q_alglib.setlength(m, m);
+  alglib::real_1d_array c_alglib, lower, upper, scale, start;
+  for (auto* v : {&c_alglib, &lower, &upper, &scale, &start}) v->setlength(m);
+  double load = 0.0;
+  for (const auto& f : feet) load += std::max(f.desired.dot(f.normal), 0.0);
+  for (int i = 0; i < m; ++i) {
+    for (int k = 0; k < m; ++k) q_alglib[i][k] = q(i, k);
+    c_alglib[i] = c[i];
+    lower[i] = 0.0;
+    upper[i] = alglib::fp_posinf;
+    // QuickQP's stopping tests are in these units: a quarter of a foot's share of the load.
+    scale[i] = std::max(load / m, 1.0);
+    const int foot = i / kEdges;
+    start[i] = std::max(feet[foot].desired.dot(feet[foot].normal), 0.0) / kEdges;
+  }
+  alglib::minqpstate state;
+  alglib::minqpcreate(m, state);
+  alglib::minqpsetquadraticterm(state, q_alglib, true);
+  alglib::minqpsetlinearterm(state, c_alglib);
+  alglib::minqpsetbc(state, lower, upper);
+  alglib::minqpsetscale(state, scale);
+  alglib::minqpsetstartingpoint(state, start);
+  alglib::minqpsetalgoquickqp(state, 0.0, 0.0, 1e-9, 0, true);
+  alglib::minqpoptimize(state);
+  alglib::real_1d_array lambda;
+  alglib::minqpreport report;
+  alglib::minqpresults(state, lambda, report);
+  // A failed solve (never seen: the problem is convex and bounded below) keeps the desired forces,
+  // which leg_torque then clips into their cones as the clipped distribution does.
+  if (report.terminationtype <= 0) return out;
+  for (int i = 0; i < n; ++i) {
+    out[i].setZero();
+    for (int k = 0; k < kEdges; ++k)
+      out[i] += lambda[kEdges * i + k] * e.col(kEdges * i + k).segment<3>(3 * i);
+  }
+  return out;
+}
+
+}  // namespace terrastride::simulation::internal
