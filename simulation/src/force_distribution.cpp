@@ -38,6 +38,47 @@ Vector3d edge(const Vector3d& n, const Vector3d& t1, const Vector3d& t2, double 
   return n + mu * (std::cos(a) * t1 + std::sin(a) * t2);
 }
 
+// min 0.5 x' Q x + c' x over x >= 0 with ALGLIB's QuickQP, from `start`, its stopping tests in
+// units of `scale` per variable; false (x untouched) when the data are not finite or the solver
+// reports a failure or throws (ALGLIB signals bad input with alglib::ap_error).
+bool solve_nonnegative_qp(const MatrixXd& q, const VectorXd& c, const VectorXd& start, double scale,
+                          VectorXd* x) {
+  if (!q.allFinite() || !c.allFinite() || !start.allFinite() || !std::isfinite(scale)) return false;
+  const int m = static_cast<int>(c.size());
+  try {
+    alglib::real_2d_array q_alglib;
+    q_alglib.setlength(m, m);
+    alglib::real_1d_array c_alglib, lower, upper, scales, x0;
+    for (auto* v : {&c_alglib, &lower, &upper, &scales, &x0}) v->setlength(m);
+    for (int i = 0; i < m; ++i) {
+      for (int k = 0; k < m; ++k) q_alglib[i][k] = q(i, k);
+      c_alglib[i] = c[i];
+      lower[i] = 0.0;
+      upper[i] = alglib::fp_posinf;
+      scales[i] = scale;
+      x0[i] = start[i];
+    }
+    alglib::minqpstate state;
+    alglib::minqpcreate(m, state);
+    alglib::minqpsetquadraticterm(state, q_alglib, true);
+    alglib::minqpsetlinearterm(state, c_alglib);
+    alglib::minqpsetbc(state, lower, upper);
+    alglib::minqpsetscale(state, scales);
+    alglib::minqpsetstartingpoint(state, x0);
+    alglib::minqpsetalgoquickqp(state, 0.0, 0.0, 1e-9, 0, true);
+    alglib::minqpoptimize(state);
+    alglib::real_1d_array solution;
+    alglib::minqpreport report;
+    alglib::minqpresults(state, solution, report);
+    if (report.terminationtype <= 0) return false;
+    x->resize(m);
+    for (int i = 0; i < m; ++i) (*x)[i] = solution[i];
+    return x->allFinite();
+  } catch (const alglib::ap_error&) {
+    return false;
+  }
+}
+
 }  // namespace
 
 bool within_friction_pyramid(const Vector3d& f, const Vector3d& n, double mu) {
@@ -71,7 +112,8 @@ std::vector<Vector3d> constrained_stance_forces(const std::vector<StanceFoot>& f
   for (int i = 0; i < n; ++i) {
     const Vector3d& nn = feet[i].normal;
     const auto [t1, t2] = tangents(nn);
-    for (int k = 0; k < kEdges; ++k) e.col(kEdges * i + k).segment<3>(3 * i) = edge(nn, t1, t2, mu, k);
+    for (int k = 0; k < kEdges; ++k)
+      e.col(kEdges * i + k).segment<3>(3 * i) = edge(nn, t1, t2, mu, k);
     g.block<3, 3>(0, 3 * i) = Matrix3d::Identity();
     const Vector3d& r = feet[i].lever;
     g.block<3, 3>(3, 3 * i) << 0, -r.z(), r.y(), r.z(), 0, -r.x(), -r.y(), r.x(), 0;
@@ -88,41 +130,20 @@ std::vector<Vector3d> constrained_stance_forces(const std::vector<StanceFoot>& f
   VectorXd b(6 + 3 * n);
   b.head<6>() = g * desired;
   b.tail(3 * n) = std::sqrt(w.regularisation) * desired;
-  const int m = kEdges * n;
   MatrixXd q = 2.0 * a.transpose() * a;
   q.diagonal().array() += 1e-9 * q.diagonal().maxCoeff();
   const VectorXd c = -2.0 * a.transpose() * b;
-  alglib::real_2d_array q_alglib;
-  q_alglib.setlength(m, m);
-  alglib::real_1d_array c_alglib, lower, upper, scale, start;
-  for (auto* v : {&c_alglib, &lower, &upper, &scale, &start}) v->setlength(m);
+  VectorXd start(kEdges * n);
   double load = 0.0;
-  for (const auto& f : feet) load += std::max(f.desired.dot(f.normal), 0.0);
-  for (int i = 0; i < m; ++i) {
-    for (int k = 0; k < m; ++k) q_alglib[i][k] = q(i, k);
-    c_alglib[i] = c[i];
-    lower[i] = 0.0;
-    upper[i] = alglib::fp_posinf;
-    // QuickQP's stopping tests are in these units: a quarter of a foot's share of the load.
-    scale[i] = std::max(load / m, 1.0);
-    const int foot = i / kEdges;
-    start[i] = std::max(feet[foot].desired.dot(feet[foot].normal), 0.0) / kEdges;
+  for (int i = 0; i < n; ++i) {
+    const double fn = std::max(feet[i].desired.dot(feet[i].normal), 0.0);
+    start.segment(kEdges * i, kEdges).setConstant(fn / kEdges);
+    load += fn;
   }
-  alglib::minqpstate state;
-  alglib::minqpcreate(m, state);
-  alglib::minqpsetquadraticterm(state, q_alglib, true);
-  alglib::minqpsetlinearterm(state, c_alglib);
-  alglib::minqpsetbc(state, lower, upper);
-  alglib::minqpsetscale(state, scale);
-  alglib::minqpsetstartingpoint(state, start);
-  alglib::minqpsetalgoquickqp(state, 0.0, 0.0, 1e-9, 0, true);
-  alglib::minqpoptimize(state);
-  alglib::real_1d_array lambda;
-  alglib::minqpreport report;
-  alglib::minqpresults(state, lambda, report);
-  // A failed solve (never seen: the problem is convex and bounded below) keeps the desired forces,
-  // which leg_torque then clips into their cones as the clipped distribution does.
-  if (report.terminationtype <= 0) return out;
+  VectorXd lambda;
+  // A failed solve keeps the desired forces, which leg_torque then clips into their cones as the
+  // clipped distribution does.
+  if (!solve_nonnegative_qp(q, c, start, std::max(load / (kEdges * n), 1.0), &lambda)) return out;
   for (int i = 0; i < n; ++i) {
     out[i].setZero();
     for (int k = 0; k < kEdges; ++k)

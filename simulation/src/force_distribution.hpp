@@ -16,8 +16,9 @@ struct StanceFoot {
 };
 
 // The weights of the constrained distribution: the wrench's moment rows count `angular` times
-// its force rows (N m against N; a foot 0.3-0.4 m from the base makes 1 N m per 3 N), and the
-// forces are held near the desired ones by `regularisation` (per N^2 against the wrench's).
+// its horizontal force rows (N m against N; a foot 0.3-0.4 m from the base makes 1 N m per 3 N)
+// and its vertical row `vertical` times, and the forces are held near the desired ones by
+// `regularisation` (per N^2 against the wrench's).
 struct ForceDistributionWeights {
   double angular = 10.0;
   double vertical = 1.0;

@@ -5,22 +5,23 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <limits>
 
 #include "force_distribution.hpp"
 
 namespace {
 
+using Eigen::Vector3d;
 using terrastride::simulation::internal::constrained_stance_forces;
 using terrastride::simulation::internal::StanceFoot;
 using terrastride::simulation::internal::within_friction_pyramid;
-using Eigen::Vector3d;
 
 constexpr double kMu = 0.45;
 
 // HyQ's four feet 0.6 m below the base, 0.37 m ahead or behind and 0.21 m aside, on flat ground.
 std::vector<StanceFoot> four_feet(const std::vector<Vector3d>& desired) {
-  const Vector3d lever[] = {{0.37, 0.21, -0.6}, {0.37, -0.21, -0.6}, {-0.37, 0.21, -0.6},
-                            {-0.37, -0.21, -0.6}};
+  const Vector3d lever[] = {
+      {0.37, 0.21, -0.6}, {0.37, -0.21, -0.6}, {-0.37, 0.21, -0.6}, {-0.37, -0.21, -0.6}};
   std::vector<StanceFoot> feet;
   for (std::size_t i = 0; i < desired.size(); ++i)
     feet.push_back({desired[i], lever[i], Vector3d::UnitZ()});
@@ -112,8 +113,22 @@ TEST(ForceDistribution, TheSolutionIsTheBoundedLeastSquaresMinimum) {
         auto x = f;
         x[i][k] += step;
         if (!within_friction_pyramid(x[i], Vector3d::UnitZ(), kMu)) continue;
-        EXPECT_GE(cost(x), best * (1 - 1e-6)) << "foot " << i << " axis " << k << " " << step << ": " << cost(x) << " < " << best << " at " << f[0].transpose() << " / " << f[1].transpose();
+        EXPECT_GE(cost(x), best * (1 - 1e-6))
+            << "foot " << i << " axis " << k << " " << step << ": " << cost(x) << " < " << best
+            << " at " << f[0].transpose() << " / " << f[1].transpose();
       }
+}
+
+// A state the simulation found non-finite gives the distribution NaNs: it returns what it was
+// given (leg_torque clips it; the run's instability check ends the run), never throws.
+TEST(ForceDistribution, NonFiniteInputIsReturnedAsItIs) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  auto feet = four_feet({{0, 0, 200}, {0, 0, -50}, {0, 0, 200}, {0, 0, 200}});
+  feet[0].lever.x() = nan;
+  std::vector<Vector3d> f;
+  ASSERT_NO_THROW(f = constrained_stance_forces(feet, kMu));
+  ASSERT_EQ(f.size(), 4u);
+  EXPECT_EQ(f[1], Vector3d(0, 0, -50));
 }
 
 }  // namespace
