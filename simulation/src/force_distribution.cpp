@@ -3,9 +3,9 @@
 
 #include <libalglib/optimization.h>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Geometry>
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <utility>
 
@@ -17,6 +17,24 @@ using Eigen::Matrix3d;
 using Eigen::MatrixXd;
 using Eigen::Vector3d;
 using Eigen::VectorXd;
+
+Matrix3d skew(const Vector3d& v) {
+  Matrix3d s;
+  s << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  return s;
+}
+
+// The map from the feet's forces (3 per foot, stacked) to the trunk wrench they make: their sum
+// and the sum of their moments lever x f about the base.
+MatrixXd wrench_map(const std::vector<Vector3d>& lever) {
+  const int n = static_cast<int>(lever.size());
+  MatrixXd g(6, 3 * n);
+  for (int i = 0; i < n; ++i) {
+    g.block<3, 3>(0, 3 * i) = Matrix3d::Identity();
+    g.block<3, 3>(3, 3 * i) = skew(lever[i]);
+  }
+  return g;
+}
 
 // The tangent directions of the pyramid about n: t1 along the world's x projected onto the
 // terrain (y where n is along x), t2 = n x t1.
@@ -81,6 +99,27 @@ bool solve_nonnegative_qp(const MatrixXd& q, const VectorXd& c, const VectorXd& 
 
 }  // namespace
 
+std::vector<Vector3d> spread_wrench(const Eigen::Matrix<double, 6, 1>& w,
+                                    const std::vector<Vector3d>& lever) {
+  const int n = static_cast<int>(lever.size());
+  std::vector<Vector3d> out(n, Vector3d::Zero());
+  if (n == 0) return out;
+  const MatrixXd g = wrench_map(lever);
+  const MatrixXd ggt = g * g.transpose() + 1e-6 * MatrixXd::Identity(6, 6);
+  const VectorXd f = g.transpose() * ggt.ldlt().solve(w);
+  for (int i = 0; i < n; ++i) out[i] = f.segment<3>(3 * i);
+  return out;
+}
+
+Vector3d into_cone(const Vector3d& f, const Vector3d& n, double mu) {
+  double fn = f.dot(n);
+  if (fn <= 0) return Vector3d::Zero();
+  Vector3d ft = f - fn * n;
+  const double t = ft.norm();
+  if (t > mu * fn) ft *= mu * fn / t;
+  return fn * n + ft;
+}
+
 bool within_friction_pyramid(const Vector3d& f, const Vector3d& n, double mu) {
   const auto [t1, t2] = tangents(n);
   const double fn = f.dot(n);
@@ -107,18 +146,17 @@ std::vector<Vector3d> constrained_stance_forces(const std::vector<StanceFoot>& f
     return out;
   // f = E lambda, lambda >= 0: foot i's force is a non-negative sum of its pyramid's edges.
   MatrixXd e = MatrixXd::Zero(3 * n, kEdges * n);
-  MatrixXd g(6, 3 * n);
+  std::vector<Vector3d> lever;
   VectorXd desired(3 * n);
   for (int i = 0; i < n; ++i) {
     const Vector3d& nn = feet[i].normal;
     const auto [t1, t2] = tangents(nn);
     for (int k = 0; k < kEdges; ++k)
       e.col(kEdges * i + k).segment<3>(3 * i) = edge(nn, t1, t2, mu, k);
-    g.block<3, 3>(0, 3 * i) = Matrix3d::Identity();
-    const Vector3d& r = feet[i].lever;
-    g.block<3, 3>(3, 3 * i) << 0, -r.z(), r.y(), r.z(), 0, -r.x(), -r.y(), r.x(), 0;
+    lever.push_back(feet[i].lever);
     desired.segment<3>(3 * i) = feet[i].desired;
   }
+  MatrixXd g = wrench_map(lever);
   g.bottomRows<3>() *= w.angular;
   g.row(2) *= w.vertical;
   // |A lambda - b|^2 as the quadratic program 0.5 lambda' Q lambda + c' lambda, Q = 2 A'A, c =

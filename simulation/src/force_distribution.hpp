@@ -1,4 +1,5 @@
-// Stance forces for the tracking controller's trunk wrench (ControllerOptions::force_distribution).
+// Stance forces for the tracking controller's trunk wrench (ControllerOptions::force_distribution):
+// the clipped distribution's least-norm spread and cone projection, and the constrained one.
 // Not part of the library's interface; tests include it from simulation/src.
 #pragma once
 
@@ -6,6 +7,14 @@
 #include <vector>
 
 namespace terrastride::simulation::internal {
+
+// Spreads a trunk wrench (force, moment about the base) over the stance feet at `lever` from the
+// base: the least-norm forces that produce it (the clipped distribution, before into_cone).
+std::vector<Eigen::Vector3d> spread_wrench(const Eigen::Matrix<double, 6, 1>& w,
+                                           const std::vector<Eigen::Vector3d>& lever);
+
+// Projects a foot force into the cone |f_t| <= mu f_n about the normal n, with f_n >= 0.
+Eigen::Vector3d into_cone(const Eigen::Vector3d& f, const Eigen::Vector3d& n, double mu);
 
 // One stance foot: the force the controller would command (planned force plus its share of the
 // trunk wrench), the foot's lever from the base, and the terrain's unit normal under it.

@@ -642,4 +642,11 @@ MarginReport simulation_margin(const robot::RobotModel& model, const planner::Tr
   return r;
 }
 
+std::optional<ControllerOptions::ForceDistribution> force_distribution_named(
+    const std::string& name) {
+  if (name == "clipped") return ControllerOptions::ForceDistribution::clipped;
+  if (name == "constrained") return ControllerOptions::ForceDistribution::constrained;
+  return std::nullopt;
+}
+
 }  // namespace terrastride::simulation

@@ -3,7 +3,6 @@
 // loop's re-plans), then summed up and judged. The model itself is built by simulation.cpp.
 #include <mujoco/mujoco.h>
 
-#include <Eigen/Cholesky>
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
@@ -25,12 +24,6 @@ namespace {
 
 using Eigen::Matrix3d;
 using Eigen::Vector3d;
-
-Matrix3d skew(const Vector3d& v) {
-  Matrix3d s;
-  s << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
-  return s;
-}
 
 Matrix3d rotation_zyx(const Vector3d& e) {
   return (Eigen::AngleAxisd(e[0], Vector3d::UnitZ()) * Eigen::AngleAxisd(e[1], Vector3d::UnitY()) *
@@ -164,34 +157,6 @@ class PlanView {
   int n_feet_;
   std::vector<std::vector<Phase>> phases_;
 };
-
-// Spreads a trunk wrench (force, moment about the base) over the stance feet: the least-norm
-// forces that produce it.
-std::vector<Vector3d> spread_wrench(const Eigen::Matrix<double, 6, 1>& w,
-                                    const std::vector<Vector3d>& lever) {
-  const int n = static_cast<int>(lever.size());
-  std::vector<Vector3d> out(n, Vector3d::Zero());
-  if (n == 0) return out;
-  Eigen::MatrixXd g(6, 3 * n);
-  for (int i = 0; i < n; ++i) {
-    g.block<3, 3>(0, 3 * i) = Matrix3d::Identity();
-    g.block<3, 3>(3, 3 * i) = skew(lever[i]);
-  }
-  const Eigen::MatrixXd ggt = g * g.transpose() + 1e-6 * Eigen::MatrixXd::Identity(6, 6);
-  const Eigen::VectorXd f = g.transpose() * ggt.ldlt().solve(w);
-  for (int i = 0; i < n; ++i) out[i] = f.segment<3>(3 * i);
-  return out;
-}
-
-// Projects a foot force into the cone |f_t| <= mu f_n about the normal n, with f_n >= 0.
-Vector3d into_cone(const Vector3d& f, const Vector3d& n, double mu) {
-  double fn = f.dot(n);
-  if (fn <= 0) return Vector3d::Zero();
-  Vector3d ft = f - fn * n;
-  const double t = ft.norm();
-  if (t > mu * fn) ft *= mu * fn / t;
-  return fn * n + ft;
-}
 
 // The median (the upper one of an even count) and the largest of a non-empty series.
 template <class T>

@@ -65,7 +65,7 @@ struct Args {
   // --replan-from ...` replays one cell on exactly it; empty: not written.
   std::string plan_out;
   // The controller's stance-force distribution (simulate --force-distribution) in both loops.
-  bool constrained_forces = false;
+  std::string force_distribution = "clipped";
 };
 
 std::vector<std::string> split(const std::string& s) {
@@ -105,10 +105,10 @@ Args parse(int argc, char** argv) {
     else if (k == "--limits-only")
       a.limits_only = true;
     else if (k == "--force-distribution") {
-      const std::string v = value();
-      if (v != "clipped" && v != "constrained")
-        throw std::invalid_argument("--force-distribution: clipped or constrained, got " + v);
-      a.constrained_forces = v == "constrained";
+      a.force_distribution = value();
+      if (!simulation::force_distribution_named(a.force_distribution))
+        throw std::invalid_argument("--force-distribution: clipped or constrained, got " +
+                                    a.force_distribution);
     } else if (k == "--plan-out")
       a.plan_out = value();
     else
@@ -212,8 +212,7 @@ double largest_push(const robot::RobotModel& robot, const planner::Trajectory& p
 // "foot-step": the best of one named foot stepping, landing then at the edge of its own range of
 // motion, a standing one leaving the support when the push is seen, kPushSeenAfter, so that the
 // feet left carry the body while it swings), h the base's height above them. *stepping_foot: the
-// foot-step's foot
-// ("-": no step does better).
+// foot-step's foot ("-": no step does better).
 enum class Support { no_step, landed, one_step, foot_step };
 // A push is seen at the next 10 Hz re-plan at the latest, and the session's capture step lands
 // 0.2 s after that (planning_session.cpp, kCaptureTouchdown).
@@ -318,9 +317,8 @@ int main(int argc, char** argv) {
   }
   simulation::SimulationOptions open;
   open.record_dt = 0.0;
-  if (args.constrained_forces)
-    open.controller.force_distribution =
-        simulation::ControllerOptions::ForceDistribution::constrained;
+  open.controller.force_distribution =
+      *simulation::force_distribution_named(args.force_distribution);
   const simulation::ReplannerFactory sessions = simulation::session_replanner(
       robot, *smooth, *scene, po, plan, args.horizon, 0.01, 0.0, args.iterations);
   // The closed loop of a push at t: a session's re-plans from t - replan_before on (before it
@@ -341,7 +339,7 @@ int main(int argc, char** argv) {
         "cell; stance forces %s; BLAS kernel %s\n"
         "%-6s %-7s %-34s %-9s %9s %9s %6s %9s %9s %9s %9s %-3s  %s\n",
         T, args.replan_every, args.horizon, args.iterations, args.replan_before, args.runs,
-        args.constrained_forces ? "constrained" : "clipped", bench::blas_kernel_name().c_str(),
+        args.force_distribution.c_str(), bench::blas_kernel_name().c_str(),
         "t (s)", "swing", "phase", "push", "open (N)",
         "closed(N)", "ratio", "no-step", "landed", "one-step", "foot-step", "by",
         "closed loop's failure");
@@ -432,8 +430,7 @@ int main(int argc, char** argv) {
                                 {"cells", cells},
                                 {"wall_s", wall},
                                 {"blas_kernel", bench::blas_kernel_name()},
-                                {"force_distribution",
-                                 args.constrained_forces ? "constrained" : "clipped"}}
+                                {"force_distribution", args.force_distribution}}
                      .dump(1)
               << "\n";
   } else {

@@ -226,10 +226,9 @@ simulation::SimulationOptions simulation_options_from(const SimulateCliOptions& 
   sim.dt = o.dt;
   sim.mass_scale = o.mass_scale;
   sim.friction = o.friction;
-  sim.controller.force_distribution =
-      o.force_distribution == "constrained"
-          ? simulation::ControllerOptions::ForceDistribution::constrained
-          : simulation::ControllerOptions::ForceDistribution::clipped;
+  const auto spread = simulation::force_distribution_named(o.force_distribution);
+  if (!spread) throw CommandError("--force-distribution: clipped or constrained");
+  sim.controller.force_distribution = *spread;
   using Limits = simulation::SimulationLimits;
   if (!(o.dt >= Limits::kMinDt && o.dt <= Limits::kMaxDt))
     throw CommandError("--dt: must be in [0.0001, 0.01] s");

@@ -87,13 +87,12 @@ simulation::SimulationOptions read_options(const json& h) {
   if (!(options.friction > 0 && options.friction < Limits::kMaxFriction))
     throw ProtocolError(pc::kBadRequest, "friction: must be in (0, 5)");
   options.pushes = read_pushes(h);
-  const std::string spread = protocol::get_string(h, "force_distribution", std::string("clipped"));
-  if (spread != "clipped" && spread != "constrained")
+  const std::string name = protocol::get_string(h, "force_distribution", std::string("clipped"));
+  const auto spread = simulation::force_distribution_named(name);
+  if (!spread)
     throw ProtocolError(pc::kBadRequest,
-                        "force_distribution: clipped or constrained, got '" + spread + "'");
-  if (spread == "constrained")
-    options.controller.force_distribution =
-        simulation::ControllerOptions::ForceDistribution::constrained;
+                        "force_distribution: clipped or constrained, got '" + name + "'");
+  options.controller.force_distribution = *spread;
   return options;
 }
 

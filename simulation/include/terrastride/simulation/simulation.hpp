@@ -134,6 +134,11 @@ struct ControllerOptions {
   ForceDistribution force_distribution = ForceDistribution::clipped;
 };
 
+// The force distribution named `name` ("clipped" or "constrained", as the CLI and the socket
+// spell it); nullopt for any other name.
+std::optional<ControllerOptions::ForceDistribution> force_distribution_named(
+    const std::string& name);
+
 // The robot's state as the simulator measures it (MuJoCo's), in plan.json's terms: world frame,
 // the base origin, ZYX Euler angles, world-frame angular velocity, each foot's contact point
 // (sphere centre - r n, as a plan's foot) and that point's velocity; feet in the robot's order.
